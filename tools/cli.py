@@ -1,0 +1,74 @@
+"""The `davio` command: a thin argparse front end over tools/commands/*.
+
+Each module in `tools.commands` defines `NAME`, `HELP`, `add_arguments(parser)` and `run(args) -> int`.
+Modules must import heavy packages inside `run`, never at import time, so `davio --help` stays fast.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import pkgutil
+import sys
+
+from runtime.errors import DavioError
+
+
+def _command_modules() -> list:
+    import tools.commands as pkg
+
+    mods = []
+    for info in sorted(pkgutil.iter_modules(pkg.__path__), key=lambda m: m.name):
+        if info.name.startswith("_"):
+            continue
+        mod = importlib.import_module(f"tools.commands.{info.name}")
+        if hasattr(mod, "NAME") and hasattr(mod, "run"):
+            mods.append(mod)
+    order = getattr(pkg, "ORDER", [])
+    mods.sort(key=lambda m: (order.index(m.NAME) if m.NAME in order else len(order), m.NAME))
+    return mods
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The full parser with every subcommand and its options."""
+    parser = argparse.ArgumentParser(
+        prog="davio",
+        description="DAVIO: monocular camera + IMU -> metric pose stream and dense metric map.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--version", action="store_true", help="print the version and exit")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    lines = []
+    for mod in _command_modules():
+        p = sub.add_parser(mod.NAME, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP),
+                           formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        mod.add_arguments(p)
+        p.set_defaults(_run=mod.run)
+        lines.append(f"  {mod.NAME:<14} {mod.HELP}")
+    parser.epilog = "run 'davio COMMAND --help' for the options of a command"
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the `davio` console script; returns the process exit code."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.version:
+        from importlib.metadata import version
+
+        print(f"davio {version('davio')}")
+        return 0
+    if not getattr(args, "_run", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args._run(args) or 0)
+    except DavioError as exc:
+        print(f"davio {args.command}: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"davio {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,98 @@
+"""`davio info`: versions, ONNX Runtime execution providers, numba status (and a model check)."""
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+
+NAME = "info"
+HELP = "report versions, ONNX Runtime providers, numba status; validate a model with --model"
+
+_PACKAGES = ["davio", "numpy", "scipy", "opencv-python-headless", "onnxruntime", "onnxruntime-gpu",
+             "onnx", "numba", "open3d-cpu", "open3d", "depthai", "pyserial", "rosbags"]
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    p.add_argument("--model", metavar="PATH", default=None,
+                   help="also load and validate this ONNX model (DA3 or XFeat contract)")
+
+
+def collect() -> dict:
+    """Gather the facts `davio info` reports (no hardware is touched)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    versions = {}
+    for name in _PACKAGES:
+        try:
+            versions[name] = version(name)
+        except PackageNotFoundError:
+            continue
+    out: dict = {"python": platform.python_version(), "machine": platform.machine(),
+                 "system": platform.system(), "packages": versions}
+    try:
+        import onnxruntime as ort
+
+        out["onnxruntime"] = {"available_providers": ort.get_available_providers(),
+                              "device": ort.get_device()}
+    except Exception as exc:  # a broken install is reported, not raised
+        out["onnxruntime"] = {"error": f"{type(exc).__name__}: {exc}"}
+    try:
+        import numba
+
+        from runtime.geometry import kernels_status
+
+        out["numba"] = {"version": numba.__version__, "threading_layer": _numba_layer(),
+                        "jit": kernels_status()}
+    except Exception as exc:
+        out["numba"] = {"error": f"{type(exc).__name__}: {exc}"}
+    try:
+        from models.providers import describe_providers
+
+        out["execution"] = describe_providers()
+    except ImportError:
+        pass
+    return out
+
+
+def _numba_layer() -> str:
+    import numba
+
+    try:
+        return str(numba.config.THREADING_LAYER)
+    except Exception:
+        return "unknown"
+
+
+def run(args: argparse.Namespace) -> int:
+    info = collect()
+    if args.model:
+        from models.inspect_model import inspect_model
+
+        info["model"] = inspect_model(args.model)
+    if args.json:
+        print(json.dumps(info, indent=2, default=str))
+        return 0
+    from rich.console import Console
+    from rich.table import Table
+
+    con = Console()
+    t = Table(title="DAVIO environment", show_header=False)
+    t.add_row("python", f"{info['python']} ({info['system']} {info['machine']})")
+    for k, v in info["packages"].items():
+        t.add_row(k, v)
+    ort = info["onnxruntime"]
+    t.add_row("ORT providers", ", ".join(ort.get("available_providers", [])) or ort.get("error", "?"))
+    if "execution" in info:
+        ex = info["execution"]
+        t.add_row("DA3 will run on", f"{ex.get('selected')} ({ex.get('reason')})")
+    nb = info["numba"]
+    t.add_row("numba", nb.get("error") or f"{nb['version']}, kernels: {nb['jit']}")
+    con.print(t)
+    if "model" in info:
+        m = info["model"]
+        mt = Table(title=f"model {args.model}", show_header=False)
+        for k, v in m.items():
+            mt.add_row(str(k), json.dumps(v, default=str) if not isinstance(v, str) else v)
+        con.print(mt)
+    return 0
