@@ -1,0 +1,36 @@
+"""The davio command: help lists every subcommand; info reports providers and numba."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+from tools.cli import build_parser, main
+
+
+def test_help_lists_subcommands_with_options():
+    parser = build_parser()
+    text = parser.format_help()
+    sub = next(a for a in parser._actions if a.dest == "command")
+    assert set(sub.choices) >= {"info", "bench"}
+    for name, sp in sub.choices.items():
+        assert name in text
+        assert sp.format_help().startswith("usage: davio " + name)
+
+
+def test_info_json_reports_providers_and_numba(capsys):
+    assert main(["info", "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert "CPUExecutionProvider" in info["onnxruntime"]["available_providers"]
+    assert "version" in info["numba"]
+    assert info["packages"]["numpy"]
+
+
+def test_console_script_entry_point_runs():
+    out = subprocess.run([sys.executable, "-m", "tools.cli", "--version"], capture_output=True, text=True)
+    assert out.returncode == 0 and out.stdout.startswith("davio ")
+
+
+def test_no_command_prints_help_and_fails(capsys):
+    assert main([]) == 2
+    assert "usage: davio" in capsys.readouterr().out
