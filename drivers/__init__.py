@@ -1,0 +1,14 @@
+"""Sources of time-stamped images and IMU samples behind one interface (DESIGN §4)."""
+from __future__ import annotations
+
+from drivers.base import Driver, IntakeReport, Policy, StreamCounts
+from drivers.euroc import (
+    EurocDriver,
+    read_camera_timestamps,
+    read_euroc_groundtruth,
+    read_euroc_imu_csv,
+)
+from drivers.events import Event, Frame, ImuSample
+
+__all__ = ["Driver", "EurocDriver", "Event", "Frame", "ImuSample", "IntakeReport", "Policy", "StreamCounts",
+           "read_camera_timestamps", "read_euroc_groundtruth", "read_euroc_imu_csv"]

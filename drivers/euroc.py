@@ -1,0 +1,305 @@
+"""Replay of EuRoC / ASL folders behind the driver interface.
+
+Layout (sequence dir or its `mav0`): `imu0/data.csv` (t_ns, wx, wy, wz, ax, ay, az: gyro before
+accel), `cam0/data.csv` (t_ns, filename) with images in `cam0/data/`, optional `cam1/`, optional
+`state_groundtruth_estimate0/data.csv` (t_ns, p xyz, q wxyz Hamilton, v xyz, bg xyz, ba xyz), and
+the `sensor.yaml` files. Stamps are int64 nanoseconds, parsed from the decimal strings.
+Images are decoded lazily, only when their `Frame` is produced.
+"""
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from drivers.base import Driver, IntakeReport, Policy, StreamCounts, check_policy
+from drivers.events import Frame, ImuSample
+from drivers.validation import count_gaps, read_stamped_csv
+from runtime.errors import DataError
+from runtime.geometry.trajectory import PoseTrajectory
+
+if TYPE_CHECKING:
+    from calib import Rig
+
+RATE_TOLERANCE = 0.05
+"""Relative difference between measured and declared camera rates that is reported as unequal."""
+
+
+def find_mav0(path: str | Path) -> Path:
+    """The `mav0` folder of an ASL recording given the sequence folder or `mav0` itself."""
+    path = Path(path)
+    if not path.is_dir():
+        raise DataError("not a directory (expected an EuRoC sequence folder or its mav0)", path)
+    if (path / "mav0").is_dir():
+        return path / "mav0"
+    if (path / "imu0").is_dir() or (path / "cam0").is_dir():
+        return path
+    raise DataError("no mav0/, imu0/ or cam0/ inside: not an EuRoC/ASL folder", path)
+
+
+def read_euroc_imu_csv(path: str | Path, policy: Policy = "drop",
+                       counts: StreamCounts | None = None,
+                       report: IntakeReport | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Read an EuRoC `imu0/data.csv`.
+
+    Returns:
+        t_ns (N,) int64, gyro (N, 3) rad/s, accel (N, 3) m/s^2 (IMU frame), rows validated under
+        `policy` (bad rows dropped and counted in `counts`, or DataError when strict).
+    """
+    counts = StreamCounts() if counts is None else counts
+    rows = read_stamped_csv(path, 6, counts, policy, report=report)
+    return rows.t_ns, rows.values[:, 0:3].copy(), rows.values[:, 3:6].copy()
+
+
+def read_camera_timestamps(path: str | Path, policy: Policy = "drop",
+                           counts: StreamCounts | None = None) -> np.ndarray:
+    """Camera stamps (N,) int64 ns from a `cam0/data.csv` (t, filename) or a one-stamp-per-line file."""
+    counts = StreamCounts() if counts is None else counts
+    path = Path(path)
+    try:
+        with path.open("r", encoding="utf-8-sig") as fh:
+            first = next((ln for ln in fh if ln.strip() and not ln.lstrip().startswith("#")), "")
+    except OSError as exc:
+        raise DataError(f"cannot read file: {exc.strerror or exc}", path) from exc
+    n_values = 1 if "," in first else 0
+    return read_stamped_csv(path, n_values, counts, policy, text=True).t_ns
+
+
+def read_euroc_groundtruth(path: str | Path, policy: Policy = "drop",
+                           counts: StreamCounts | None = None) -> PoseTrajectory:
+    """Read an EuRoC state ground-truth CSV (t, p, q_wxyz, v, bg, ba) into a PoseTrajectory T_WI.
+
+    Rows with a zero-norm quaternion are counted as malformed.
+    """
+    from runtime.geometry import quat_wxyz_to_rot
+
+    counts = StreamCounts() if counts is None else counts
+    rows = read_stamped_csv(path, 16, counts, policy)
+    q = rows.values[:, 3:7]
+    bad = np.linalg.norm(q, axis=1) < 1e-9
+    if bad.any():
+        if policy == "strict":
+            raise DataError("zero-norm quaternion", path, int(rows.line[np.argmax(bad)]))
+        counts.malformed_lines += int(bad.sum())
+        counts.parsed -= int(bad.sum())
+    v = rows.values[~bad]
+    R = quat_wxyz_to_rot(v[:, 3:7]) if len(v) else np.zeros((0, 3, 3))
+    return PoseTrajectory(rows.t_ns[~bad], v[:, 0:3], R, v=v[:, 7:10], bg=v[:, 10:13], ba=v[:, 13:16],
+                          meta={"source": str(path)})
+
+
+def _declared_rate_hz(sensor_yaml: Path) -> float | None:
+    """`rate_hz` of an ASL sensor.yaml (the `%YAML:1.0` line stripped), or None when absent."""
+    if not sensor_yaml.is_file():
+        return None
+    import yaml
+
+    text = "\n".join(ln for ln in sensor_yaml.read_text().splitlines() if not ln.startswith("%YAML"))
+    try:
+        data = yaml.safe_load(text) or {}
+    except yaml.YAMLError:
+        return None
+    rate = data.get("rate_hz") if isinstance(data, dict) else None
+    return float(rate) if isinstance(rate, int | float) else None
+
+
+class EurocDriver(Driver):
+    """Replay an EuRoC/ASL folder as merged, time-ordered `ImuSample` and `Frame` events.
+
+    Args:
+        path: the sequence folder or its `mav0`.
+        camera: camera folder name(s) to replay ("cam0", or ("cam0", "cam1")); camera_id of a
+            Frame is the index in this list.
+        policy: "drop" (default: drop bad rows/images, count them in `report()`) or "strict"
+            (raise DataError naming the file and line).
+        groundtruth_file: file inside `state_groundtruth_estimate0/` used by `groundtruth()`
+            (e.g. "full_sequence_vicon2gt.csv").
+    """
+
+    def __init__(self, path: str | Path, camera: str | Sequence[str] = "cam0", policy: Policy = "drop",
+                 groundtruth_file: str = "data.csv") -> None:
+        self.policy = check_policy(policy)
+        self.mav0 = find_mav0(path)
+        self.cameras = [camera] if isinstance(camera, str) else list(camera)
+        self.groundtruth_file = groundtruth_file
+        self._report = IntakeReport("euroc", str(self.mav0), self.policy)
+        self._rig: Rig | None = None
+        self._rig_loaded = False
+        self._gt: PoseTrajectory | None = None
+        self._gt_loaded = False
+        self._closed = False
+
+        imu_csv = self.mav0 / "imu0" / "data.csv"
+        if not imu_csv.is_file():
+            raise DataError("missing IMU file imu0/data.csv", imu_csv)
+        counts = self._report.stream("imu0")
+        self._imu_t, self._gyro, self._accel = read_euroc_imu_csv(imu_csv, self.policy, counts, self._report)
+        count_gaps(self._imu_t, counts)
+
+        self._cam_t: list[np.ndarray] = []
+        self._cam_files: list[list[Path]] = []
+        self._cam_lines: list[np.ndarray] = []
+        for name in self.cameras:
+            self._load_camera(name)
+        self._check_camera_rates()
+
+    # -- reading -------------------------------------------------------------------------------
+    def _load_camera(self, name: str) -> None:
+        cam_dir = self.mav0 / name
+        csv = cam_dir / "data.csv"
+        if not csv.is_file():
+            raise DataError(f"missing camera file {name}/data.csv", csv)
+        counts = self._report.stream(name)
+        rows = read_stamped_csv(csv, 1, counts, self.policy, text=True, report=self._report)
+        files = [cam_dir / "data" / r[0] for r in rows.text]
+        keep = np.ones(len(files), dtype=bool)
+        for i, f in enumerate(files):
+            if not f.is_file():
+                if self.policy == "strict":
+                    raise DataError(f"image file {f} does not exist", csv, int(rows.line[i]))
+                counts.missing_images += 1
+                keep[i] = False
+        t = rows.t_ns[keep]
+        count_gaps(t, counts)
+        self._cam_t.append(t)
+        self._cam_files.append([f for f, k in zip(files, keep, strict=True) if k])
+        self._cam_lines.append(rows.line[keep])
+
+    def _check_camera_rates(self) -> None:
+        """Note measured vs declared camera rates and unequal rates between the folder's cameras."""
+        measured: dict[str, float] = {}
+        for cam_dir in sorted(p for p in self.mav0.glob("cam*") if p.is_dir()):
+            name = cam_dir.name
+            if name in self.cameras:
+                period = self._report.streams[name].median_period_ns
+            else:
+                try:
+                    t = read_camera_timestamps(cam_dir / "data.csv")
+                except DataError:
+                    continue
+                period = int(np.median(np.diff(t))) if t.shape[0] > 2 else 0
+            if period <= 0:
+                continue
+            rate = 1e9 / period
+            measured[name] = rate
+            declared = _declared_rate_hz(cam_dir / "sensor.yaml")
+            if declared and abs(rate - declared) > RATE_TOLERANCE * declared:
+                self._report.note(f"{name}: measured rate {rate:.2f} Hz differs from sensor.yaml "
+                                  f"rate_hz {declared:g}")
+        if len(measured) > 1:
+            lo, hi = min(measured.values()), max(measured.values())
+            if hi - lo > RATE_TOLERANCE * hi:
+                rates = ", ".join(f"{k} {v:.2f} Hz" for k, v in measured.items())
+                self._report.note(f"unequal camera rates: {rates}")
+        self.camera_rates_hz = measured
+
+    def _image(self, cam: int, i: int) -> np.ndarray | None:
+        """Decode one grey image; None (counted) or DataError (strict) when it cannot be read."""
+        import cv2
+
+        path = self._cam_files[cam][i]
+        name = self.cameras[cam]
+        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        reason = None
+        if image is None:
+            reason = "cannot be decoded as an image" if path.is_file() else "disappeared"
+        elif image.dtype != np.uint8 or image.ndim != 2:
+            reason = f"decodes to {image.dtype} {image.shape}, expected a uint8 grey image"
+        else:
+            first = self._first_shape.setdefault(cam, image.shape)
+            if image.shape != first:
+                reason = f"size {image.shape[::-1]} differs from the stream's {first[::-1]}"
+        if reason is None:
+            return image
+        if self.policy == "strict":
+            raise DataError(f"image {path.name} {reason}", self.mav0 / name / "data.csv",
+                            int(self._cam_lines[cam][i]))
+        self._report.stream(name).unreadable_images += 1
+        return None
+
+    # -- Driver interface ----------------------------------------------------------------------
+    @property
+    def rig(self) -> Rig | None:
+        """The rig from the folder's sensor.yaml files (`calib.read_euroc_rig`)."""
+        if not self._rig_loaded:
+            try:
+                from calib import read_euroc_rig
+            except ImportError:
+                self._report.note("calib.read_euroc_rig is unavailable: rig unknown")
+                return None
+            self._rig = read_euroc_rig(self.mav0, camera=self.cameras[0])
+            self._rig_loaded = True
+        return self._rig
+
+    @property
+    def n_imu(self) -> int:
+        """IMU samples kept after validation."""
+        return int(self._imu_t.shape[0])
+
+    def frame_stamps(self, cam: int = 0) -> np.ndarray:
+        """(N,) int64 stamps of the frames of camera `cam` whose image file exists."""
+        return self._cam_t[cam].copy()
+
+    def imu_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Copies of (t_ns, gyro, accel) of the validated IMU stream."""
+        return self._imu_t.copy(), self._gyro.copy(), self._accel.copy()
+
+    def events(self) -> Iterator[ImuSample | Frame]:
+        """IMU samples and frames merged by t_ns; at equal stamps IMU first, then cameras in order."""
+        if self._closed:
+            raise DataError("driver is closed", self.mav0)
+        self._first_shape: dict[int, tuple[int, ...]] = {}
+        for name in self.cameras:
+            self._report.stream(name).emitted = 0
+            self._report.stream(name).unreadable_images = 0
+        self._report.stream("imu0").emitted = 0
+        # one sorted key list: (stamp, source order) with IMU = -1 before cameras 0..k
+        n_imu = self._imu_t.shape[0]
+        stamps = [self._imu_t] + self._cam_t
+        source = [np.full(n_imu, -1, np.int64)] + [np.full(t.shape[0], c, np.int64)
+                                                    for c, t in enumerate(self._cam_t)]
+        index = [np.arange(n_imu)] + [np.arange(t.shape[0]) for t in self._cam_t]
+        t_all = np.concatenate(stamps)
+        s_all = np.concatenate(source)
+        i_all = np.concatenate(index)
+        order = np.lexsort((s_all, t_all))
+        imu_counts = self._report.stream("imu0")
+        for k in order:
+            src = int(s_all[k])
+            i = int(i_all[k])
+            if src < 0:
+                imu_counts.emitted += 1
+                yield ImuSample(int(self._imu_t[i]), self._gyro[i].copy(), self._accel[i].copy())
+            else:
+                image = self._image(src, i)
+                if image is None:
+                    continue
+                self._report.stream(self.cameras[src]).emitted += 1
+                yield Frame(int(self._cam_t[src][i]), image, src,
+                            meta={"file": str(self._cam_files[src][i])})
+
+    def groundtruth(self) -> PoseTrajectory | None:
+        """Ground truth T_WI with v, bg, ba from `state_groundtruth_estimate0/<groundtruth_file>`."""
+        if not self._gt_loaded:
+            path = self.mav0 / "state_groundtruth_estimate0" / self.groundtruth_file
+            if path.is_file():
+                counts = self._report.stream("groundtruth")
+                self._gt = read_euroc_groundtruth(path, self.policy, counts)
+                counts.emitted = len(self._gt)
+            self._gt_loaded = True
+        return self._gt
+
+    def report(self) -> dict:
+        """Intake counters per stream ("imu0", "cam0", "groundtruth") and notes."""
+        return self._report.as_dict()
+
+    @property
+    def intake(self) -> IntakeReport:
+        """The live IntakeReport (its `summary()` is a readable text)."""
+        return self._report
+
+    def close(self) -> None:
+        """Mark the driver closed (the arrays are in memory; no file stays open)."""
+        super().close()
