@@ -1,0 +1,376 @@
+"""KLT feature tracker for the MSCKF front-end (OpenVINS ``TrackKLT`` style).
+
+Per frame: histogram equalisation, pyramidal Lucas-Kanade from the previous frame with a
+forward-backward consistency check, fundamental-matrix RANSAC on undistorted normalized
+coordinates between consecutive frames, then FAST corners on a grid to top the tracks up to
+``num_pts`` while keeping ``min_px_dist`` from existing tracks.
+
+Pixels are distorted image pixels (u, v), (0, 0) at the centre of the top-left pixel (OpenCV);
+``xy`` are undistorted normalized coordinates (X/Z, Y/Z) through the rig's camera model.
+Bad frames (too dark, frozen = identical to the previous one) are counted and answered with an
+empty result; the tracker keeps its last good image and resumes from it on the next good frame.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+
+from runtime.errors import ConfigError, DataError
+
+if TYPE_CHECKING:
+    from calib import CameraModel
+    from drivers.events import Frame
+
+_EQUALIZATIONS = ("histogram", "clahe", "none")
+
+
+@dataclass
+class TrackerConfig:
+    """KLT tracker settings; defaults follow OpenVINS' EuRoC configuration where it has one."""
+
+    num_pts: int = 200
+    """Target number of tracked features per frame (OpenVINS EuRoC num_pts)."""
+    grid_x: int = 5
+    """Detection grid columns (OpenVINS EuRoC grid_x)."""
+    grid_y: int = 5
+    """Detection grid rows (OpenVINS EuRoC grid_y)."""
+    min_px_dist: float = 10.0
+    """Minimum pixel distance between features (OpenVINS EuRoC min_px_dist), px."""
+    fast_threshold: int = 20
+    """FAST intensity threshold (OpenVINS EuRoC fast_threshold)."""
+    fast_threshold_min: int = 5
+    """Lower FAST threshold retried in grid cells where fast_threshold finds nothing."""
+    pyramid_levels: int = 5
+    """Pyramid levels above the base image for LK (OpenVINS TrackKLT pyr_levels = 5)."""
+    window_px: int = 15
+    """LK window side, px (OpenVINS TrackKLT win_size 15x15)."""
+    lk_max_iterations: int = 30
+    """LK iterations per level."""
+    lk_epsilon: float = 0.01
+    """LK convergence threshold, px."""
+    fb_check_px: float = 1.0
+    """Forward-backward check: reject a track whose round trip misses its start by more, px (<= 0: off)."""
+    ransac: bool = True
+    """Reject outliers with a fundamental-matrix RANSAC between consecutive frames."""
+    ransac_threshold_px: float = 1.0
+    """RANSAC epipolar threshold in pixels (divided by the focal length on normalized points)."""
+    ransac_confidence: float = 0.999
+    """RANSAC confidence."""
+    ransac_min_points: int = 10
+    """Fewer tracks than this skip RANSAC (counted as ransac_skipped)."""
+    equalization: str = "histogram"
+    """Contrast normalisation before tracking: 'histogram', 'clahe' or 'none' (OpenVINS: histogram)."""
+    clahe_clip_limit: float = 10.0
+    """CLAHE clip limit (OpenVINS 10)."""
+    clahe_tiles: int = 8
+    """CLAHE tile grid side (OpenVINS 8x8)."""
+    border_px: int = 5
+    """Tracks closer than this to the image border are dropped and no corner is detected there, px."""
+    dark_mean_max: float = 10.0
+    """A frame whose mean intensity (0..255) is below this counts as dark and is skipped."""
+    dark_std_min: float = 2.0
+    """A frame whose intensity std is below this (featureless/saturated) counts as dark and is skipped."""
+
+    def __post_init__(self) -> None:
+        if self.num_pts < 1:
+            raise ConfigError(f"tracker.num_pts must be >= 1, got {self.num_pts}")
+        if self.grid_x < 1 or self.grid_y < 1:
+            raise ConfigError(f"tracker grid must be >= 1x1, got {self.grid_x}x{self.grid_y}")
+        if self.window_px < 3 or self.window_px % 2 == 0:
+            raise ConfigError(f"tracker.window_px must be an odd number >= 3, got {self.window_px}")
+        if self.pyramid_levels < 0:
+            raise ConfigError(f"tracker.pyramid_levels must be >= 0, got {self.pyramid_levels}")
+        if self.min_px_dist < 0:
+            raise ConfigError(f"tracker.min_px_dist must be >= 0, got {self.min_px_dist}")
+        if self.equalization not in _EQUALIZATIONS:
+            raise ConfigError(
+                f"tracker.equalization must be one of {_EQUALIZATIONS}, got {self.equalization!r}")
+        if self.ransac_threshold_px <= 0:
+            raise ConfigError(f"tracker.ransac_threshold_px must be > 0, got {self.ransac_threshold_px}")
+        if self.ransac_min_points < 8:
+            raise ConfigError(f"tracker.ransac_min_points must be >= 8, got {self.ransac_min_points}")
+
+
+@dataclass
+class TrackResult:
+    """Tracks at one frame.
+
+    Attributes:
+        t_ns: frame time (camera clock), int64 ns.
+        ids: (M,) int64 persistent feature ids (a new id for every new corner, never reused).
+        uv: (M, 2) float64 distorted pixels.
+        xy: (M, 2) float64 undistorted normalized coordinates (X/Z, Y/Z) in the camera frame.
+        stats: per-frame counters: n_tracked (kept from the previous frame), n_new (detected),
+            n_lk_failed, n_fb_rejected, n_border_rejected, n_ransac_rejected, n_undistort_failed,
+            ransac_skipped, dark, frozen (bool flags; a dark or frozen frame returns no tracks).
+    """
+
+    t_ns: int
+    ids: np.ndarray
+    uv: np.ndarray
+    xy: np.ndarray
+    stats: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return int(self.ids.shape[0])
+
+
+class KltTracker:
+    """Pyramidal-LK tracker with FAST-on-grid detection for one camera.
+
+    Args:
+        camera: the camera model (image size, intrinsics, distortion) of the frames fed.
+        config: tracker settings (TrackerConfig() if None).
+    """
+
+    def __init__(self, camera: CameraModel, config: TrackerConfig | None = None) -> None:
+        self.camera = camera
+        self.config = config if config is not None else TrackerConfig()
+        self._fast = cv2.FastFeatureDetector_create(threshold=int(self.config.fast_threshold),
+                                                    nonmaxSuppression=True)
+        self._fast_low = cv2.FastFeatureDetector_create(threshold=int(self.config.fast_threshold_min),
+                                                        nonmaxSuppression=True)
+        self._clahe = None
+        if self.config.equalization == "clahe":
+            tiles = int(self.config.clahe_tiles)
+            self._clahe = cv2.createCLAHE(clipLimit=float(self.config.clahe_clip_limit),
+                                          tileGridSize=(tiles, tiles))
+        self._prev_raw: np.ndarray | None = None  # last good raw image (for the frozen check)
+        self._prev_img: np.ndarray | None = None  # last good equalised image
+        self._prev_ids = np.zeros(0, dtype=np.int64)
+        self._prev_uv = np.zeros((0, 2), dtype=np.float64)
+        self._prev_xy = np.zeros((0, 2), dtype=np.float64)
+        self._prev_t_ns: int | None = None
+        self._next_id = 0
+        self.counters = {
+            "frames": 0, "dark_frames": 0, "frozen_frames": 0, "non_monotonic_frames": 0,
+            "lk_failed": 0, "fb_rejected": 0, "border_rejected": 0, "ransac_rejected": 0,
+            "undistort_failed": 0, "ransac_skipped": 0, "new_features": 0,
+        }
+
+    # ------------------------------------------------------------------ public
+    def report(self) -> dict:
+        """Cumulative counters since construction (for the run report)."""
+        return dict(self.counters)
+
+    def reset(self) -> None:
+        """Forget all tracks and the previous image (ids keep increasing)."""
+        self._prev_raw = None
+        self._prev_img = None
+        self._prev_t_ns = None
+        self._set_prev(np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2)))
+
+    def track(self, frame: Frame) -> TrackResult:
+        """Track the previous frame's features into ``frame`` and top up with new corners.
+
+        Raises:
+            DataError: the image is not a 2-D uint8 array of the camera's size.
+        """
+        image = self._check_image(frame)
+        cfg = self.config
+        t_ns = int(frame.t_ns)
+        self.counters["frames"] += 1
+        stats = {"n_tracked": 0, "n_new": 0, "n_lk_failed": 0, "n_fb_rejected": 0, "n_border_rejected": 0,
+                 "n_ransac_rejected": 0, "n_undistort_failed": 0, "ransac_skipped": False,
+                 "dark": False, "frozen": False}
+        if self._prev_t_ns is not None and t_ns <= self._prev_t_ns:
+            self.counters["non_monotonic_frames"] += 1
+            raise DataError(f"frame time {t_ns} ns is not after the previous frame's {self._prev_t_ns} ns")
+
+        mean, std = cv2.meanStdDev(image)
+        if float(mean[0, 0]) < cfg.dark_mean_max or float(std[0, 0]) < cfg.dark_std_min:
+            stats["dark"] = True
+            self.counters["dark_frames"] += 1
+            return self._empty(t_ns, stats)
+        if self._prev_raw is not None and np.array_equal(image, self._prev_raw):
+            stats["frozen"] = True
+            self.counters["frozen_frames"] += 1
+            return self._empty(t_ns, stats)
+
+        img = self._equalize(image)
+        ids, uv = self._track_from_previous(img, stats)
+        xy = self.camera.undistort_points(uv) if uv.shape[0] else np.zeros((0, 2))
+        ok = np.all(np.isfinite(xy), axis=1)
+        stats["n_undistort_failed"] = int((~ok).sum())
+        ids, uv, xy = ids[ok], uv[ok], xy[ok]
+        prev_xy = self._prev_xy_for(ids)
+        if cfg.ransac and uv.shape[0] > 0:
+            keep = self._ransac(prev_xy, xy, stats)
+            ids, uv, xy = ids[keep], uv[keep], xy[keep]
+        stats["n_tracked"] = int(ids.shape[0])
+
+        new_uv = self._detect(img, uv, cfg.num_pts - uv.shape[0])
+        if new_uv.shape[0]:
+            new_xy = self.camera.undistort_points(new_uv)
+            good = np.all(np.isfinite(new_xy), axis=1)
+            new_uv, new_xy = new_uv[good], new_xy[good]
+            new_ids = np.arange(self._next_id, self._next_id + new_uv.shape[0], dtype=np.int64)
+            self._next_id += new_uv.shape[0]
+            ids = np.concatenate([ids, new_ids])
+            uv = np.concatenate([uv, new_uv])
+            xy = np.concatenate([xy, new_xy])
+            stats["n_new"] = int(new_uv.shape[0])
+
+        for key in ("lk_failed", "fb_rejected", "border_rejected", "ransac_rejected", "undistort_failed"):
+            self.counters[key] += stats["n_" + key]
+        self.counters["ransac_skipped"] += int(stats["ransac_skipped"])
+        self.counters["new_features"] += stats["n_new"]
+        self._prev_raw = image.copy()
+        self._prev_img = img
+        self._prev_t_ns = t_ns
+        self._set_prev(ids, uv, xy)
+        return TrackResult(t_ns, ids.copy(), uv.copy(), xy.copy(), stats)
+
+    # ------------------------------------------------------------------ steps
+    def _check_image(self, frame: Frame) -> np.ndarray:
+        image = np.asarray(frame.image)
+        if image.ndim != 2 or image.dtype != np.uint8:
+            raise DataError(f"frame at {frame.t_ns} ns: expected a 2-D uint8 grey image, got "
+                            f"{image.dtype} with shape {image.shape}")
+        if image.shape != (self.camera.height, self.camera.width):
+            raise DataError(f"frame at {frame.t_ns} ns: image is {image.shape[1]}x{image.shape[0]} but the "
+                            f"camera calibration is {self.camera.width}x{self.camera.height}")
+        return np.ascontiguousarray(image)
+
+    def _equalize(self, image: np.ndarray) -> np.ndarray:
+        if self.config.equalization == "histogram":
+            return cv2.equalizeHist(image)
+        if self._clahe is not None:
+            return self._clahe.apply(image)
+        return image
+
+    def _track_from_previous(self, img: np.ndarray, stats: dict) -> tuple[np.ndarray, np.ndarray]:
+        cfg = self.config
+        if self._prev_img is None or self._prev_uv.shape[0] == 0:
+            return np.zeros(0, np.int64), np.zeros((0, 2))
+        p0 = self._prev_uv.astype(np.float32).reshape(-1, 1, 2)
+        win = (cfg.window_px, cfg.window_px)
+        crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, cfg.lk_max_iterations, cfg.lk_epsilon)
+        p1, st1, _ = cv2.calcOpticalFlowPyrLK(self._prev_img, img, p0, None, winSize=win,
+                                              maxLevel=cfg.pyramid_levels, criteria=crit)
+        ok = st1.reshape(-1).astype(bool) & np.all(np.isfinite(p1.reshape(-1, 2)), axis=1)
+        if cfg.fb_check_px > 0:
+            p0b, st0, _ = cv2.calcOpticalFlowPyrLK(img, self._prev_img, p1, p0.copy(), winSize=win,
+                                                   maxLevel=cfg.pyramid_levels, criteria=crit,
+                                                   flags=cv2.OPTFLOW_USE_INITIAL_FLOW)
+            ok_back = st0.reshape(-1).astype(bool)
+            stats["n_lk_failed"] = int((~(ok & ok_back)).sum())
+            fb_err = np.linalg.norm(p0b.reshape(-1, 2) - p0.reshape(-1, 2), axis=1)
+            fb_bad = ok & ok_back & ~(fb_err <= cfg.fb_check_px)
+            stats["n_fb_rejected"] = int(fb_bad.sum())
+            ok = ok & ok_back & ~fb_bad
+        else:
+            stats["n_lk_failed"] = int((~ok).sum())
+        uv = p1.reshape(-1, 2).astype(np.float64)
+        h, w = img.shape
+        b = cfg.border_px
+        inside = (uv[:, 0] >= b) & (uv[:, 0] <= w - 1 - b) & (uv[:, 1] >= b) & (uv[:, 1] <= h - 1 - b)
+        stats["n_border_rejected"] = int((ok & ~inside).sum())
+        keep = ok & inside
+        return self._prev_ids[keep], uv[keep]
+
+    def _prev_xy_for(self, ids: np.ndarray) -> np.ndarray:
+        index = {int(i): k for k, i in enumerate(self._prev_ids)}
+        rows = np.fromiter((index[int(i)] for i in ids), dtype=np.int64, count=ids.shape[0])
+        return self._prev_xy[rows] if rows.size else np.zeros((0, 2))
+
+    def _ransac(self, xy0: np.ndarray, xy1: np.ndarray, stats: dict) -> np.ndarray:
+        cfg = self.config
+        n = xy0.shape[0]
+        keep = np.ones(n, dtype=bool)
+        if n < cfg.ransac_min_points:
+            stats["ransac_skipped"] = True
+            return keep
+        f = 0.5 * (self.camera.fx + self.camera.fy)
+        _, mask = cv2.findFundamentalMat(xy0.astype(np.float64), xy1.astype(np.float64), cv2.USAC_MAGSAC,
+                                         cfg.ransac_threshold_px / f, cfg.ransac_confidence, 1000)
+        if mask is None or mask.shape[0] != n:
+            # degenerate configuration (no F could be fit): keep everything, say so
+            stats["ransac_skipped"] = True
+            return keep
+        keep = mask.reshape(-1).astype(bool)
+        stats["n_ransac_rejected"] = int((~keep).sum())
+        return keep
+
+    def _detect(self, img: np.ndarray, existing_uv: np.ndarray, n_wanted: int) -> np.ndarray:
+        """New corners (K, 2) on a grid, at least min_px_dist from existing and other new ones."""
+        cfg = self.config
+        if n_wanted <= 0:
+            return np.zeros((0, 2))
+        h, w = img.shape
+        b = cfg.border_px
+        cell = max(cfg.min_px_dist, 1.0)
+        occ_w, occ_h = int(np.ceil(w / cell)) + 1, int(np.ceil(h / cell)) + 1
+        occupied = np.zeros((occ_h, occ_w), dtype=bool)
+        # existing features block their min_px_dist neighbourhood (occupancy cells of that size)
+        if existing_uv.shape[0]:
+            cx = np.clip((existing_uv[:, 0] / cell).astype(int), 0, occ_w - 1)
+            cy = np.clip((existing_uv[:, 1] / cell).astype(int), 0, occ_h - 1)
+            for dy in (-1, 0, 1):
+                for dx in (-1, 0, 1):
+                    occupied[np.clip(cy + dy, 0, occ_h - 1), np.clip(cx + dx, 0, occ_w - 1)] = True
+        # per-grid-cell quota so corners spread over the image
+        gx = np.clip((existing_uv[:, 0] * cfg.grid_x / w).astype(int), 0, cfg.grid_x - 1)
+        gy = np.clip((existing_uv[:, 1] * cfg.grid_y / h).astype(int), 0, cfg.grid_y - 1)
+        count = np.zeros((cfg.grid_y, cfg.grid_x), dtype=int)
+        np.add.at(count, (gy, gx), 1)
+        quota_per_cell = int(np.ceil(cfg.num_pts / (cfg.grid_x * cfg.grid_y)))
+        mask = np.zeros_like(img)
+        mask[b:h - b, b:w - b] = 255
+        kps = self._fast.detect(img, mask)
+        pts = self._keypoint_array(kps)
+        # cells where the normal threshold finds nothing get a second chance at the lower threshold
+        cells_found = np.zeros((cfg.grid_y, cfg.grid_x), dtype=bool)
+        if pts.shape[0]:
+            cells_found[np.clip((pts[:, 1] * cfg.grid_y / h).astype(int), 0, cfg.grid_y - 1),
+                        np.clip((pts[:, 0] * cfg.grid_x / w).astype(int), 0, cfg.grid_x - 1)] = True
+        empty_cells = np.argwhere(~cells_found & (count < quota_per_cell))
+        if empty_cells.size and cfg.fast_threshold_min < cfg.fast_threshold:
+            low_mask = np.zeros_like(mask)
+            for r, c in empty_cells:
+                low_mask[int(r * h / cfg.grid_y):int((r + 1) * h / cfg.grid_y),
+                         int(c * w / cfg.grid_x):int((c + 1) * w / cfg.grid_x)] = 255
+            low_mask &= mask
+            low = self._keypoint_array(self._fast_low.detect(img, low_mask))
+            pts = np.concatenate([pts, low]) if low.size else pts
+        if pts.shape[0] == 0:
+            return np.zeros((0, 2))
+        order = np.argsort(-pts[:, 2], kind="stable")
+        pts = pts[order]
+        chosen: list[tuple[float, float]] = []
+        # first pass honours the per-cell quota; the second fills what is still missing anywhere
+        for use_quota in (True, False):
+            for u, v, _ in pts:
+                if len(chosen) >= n_wanted:
+                    break
+                ox, oy = int(u / cell), int(v / cell)
+                if occupied[oy, ox]:
+                    continue
+                cgx = min(int(u * cfg.grid_x / w), cfg.grid_x - 1)
+                cgy = min(int(v * cfg.grid_y / h), cfg.grid_y - 1)
+                if use_quota and count[cgy, cgx] >= quota_per_cell:
+                    continue
+                count[cgy, cgx] += 1
+                occupied[max(oy - 1, 0):oy + 2, max(ox - 1, 0):ox + 2] = True
+                chosen.append((float(u), float(v)))
+        if not chosen:
+            return np.zeros((0, 2))
+        uv = np.asarray(chosen, dtype=np.float32).reshape(-1, 1, 2)
+        crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 0.01)
+        cv2.cornerSubPix(img, uv, (3, 3), (-1, -1), crit)
+        return uv.reshape(-1, 2).astype(np.float64)
+
+    @staticmethod
+    def _keypoint_array(kps: tuple) -> np.ndarray:
+        if not kps:
+            return np.zeros((0, 3))
+        return np.array([(k.pt[0], k.pt[1], k.response) for k in kps], dtype=np.float64)
+
+    def _set_prev(self, ids: np.ndarray, uv: np.ndarray, xy: np.ndarray) -> None:
+        self._prev_ids, self._prev_uv, self._prev_xy = ids, uv, xy
+
+    def _empty(self, t_ns: int, stats: dict) -> TrackResult:
+        return TrackResult(t_ns, np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros((0, 2)), stats)
