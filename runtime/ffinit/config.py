@@ -1,0 +1,69 @@
+"""Thresholds of the feed-forward initializer; every default is the paper's number (Sec. IV)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass
+class FFInitConfig:
+    """Feed-forward initializer configuration (paper Sec. IV-A..C)."""
+
+    # window (Sec. III / IV-A)
+    num_images: int = 5
+    """Images per start-up window."""
+    image_spacing_s: float = 0.2
+    """Spacing of the window's images, seconds."""
+    gravity: float = 9.81
+    """Gravity magnitude g0, m/s^2."""
+
+    # point sampling (Sec. IV-A)
+    max_points_per_image: int = 100
+    """At most this many sampled points per image."""
+    conf_percentile: float = 25.0
+    """Only points whose confidence exceeds this percentile of the image are sampled."""
+    grid_rows: int = 4
+    grid_cols: int = 4
+    """Sampling grid (points are spread evenly over its cells)."""
+
+    # linear system (Sec. IV-A)
+    gravity_refinements: int = 2
+    """Refinements of the gravity direction on the tangent plane of |g| = g0."""
+
+    # conditioning gates (Sec. IV-B)
+    min_images: int = 4
+    """At least this many images with points (w_0 = 0, each image adds <= 3 equations)."""
+    min_singular_ratio: float = 1e-3
+    """Smallest / largest singular value of the column-equilibrated system."""
+    min_baseline_to_depth: float = 0.02
+    """Largest DA3 camera-centre distance to view 0 over the median depth."""
+
+    # stratified LMedS (Sec. IV-B)
+    lmeds_hypotheses: int = 100
+    points_per_image_hypothesis: int = 2
+    inlier_sigma_factor: float = 2.5
+    """Inlier threshold max(2.5 sigma_hat, min_inlier_threshold), sigma_hat = 1.4826 med e."""
+    min_inlier_threshold: float = 0.01
+    min_admissible_images: int = 3
+    """Images that must keep a majority of their points within the inlier threshold."""
+    seed: int = 0
+
+    # acceptance gates (Sec. IV-B)
+    min_inlier_fraction: float = 0.4
+    max_median_residual: float = 0.05
+    max_velocity: float = 5.0
+    """|v0| bound, m/s."""
+    max_gravity_angle_deg: float = 30.0
+    """Gravity within this angle of the mean specific-force direction."""
+
+    # refinement (Sec. IV-C)
+    sigma_u: float = 0.007
+    """Normalized-coordinate reprojection sigma."""
+    sigma_bg: float = 0.05
+    """Prior sigma of the gyro-bias change, rad/s."""
+    sigma_ba: float = 0.02
+    """Prior sigma of the accelerometer bias, m/s^2."""
+    sigma_scale: float = 0.5
+    """Prior sigma of log(s / s_lin)."""
+    softplus_eps: float = 1e-5
+    huber_threshold: float = 1.0
+    refine_max_iterations: int = 50

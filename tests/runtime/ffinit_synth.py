@@ -1,0 +1,102 @@
+"""Synthetic start-up windows with exact ground truth for the feed-forward initializer tests.
+
+The truth is built from closed-form motion (no IMU integration): preintegrated terms follow from
+p_I0Ii = dt v0 - 0.5 dt^2 g + dp (paper eq. 2) with g pointing up, expressed in I0.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from runtime.ffinit.window import ImageObservations, InitWindow
+
+G0 = 9.81
+R_IC_EUROC_RAW = np.array([[0.0148655, -0.9998809, 0.0041403],
+                           [0.9995572, 0.0149672, 0.0257155],
+                           [-0.0257744, 0.0037562, 0.9996607]])
+P_IC_EUROC = np.array([-0.0216401, -0.0646770, 0.0098107])
+
+
+def _orthonormalize(R: np.ndarray) -> np.ndarray:
+    u, _, vt = np.linalg.svd(R)
+    return u @ vt
+
+
+R_IC_EUROC = _orthonormalize(R_IC_EUROC_RAW)
+
+
+@dataclass
+class Truth:
+    scale: float
+    v0_I0: np.ndarray
+    g_I0: np.ndarray
+    R_WI: np.ndarray  # (N,3,3)
+    p_WI: np.ndarray  # (N,3)
+    v_W: np.ndarray  # (N,3)
+
+
+def motion(kind: str):
+    """Closed-form p_WI(t), v_W(t), R_WI(t) for a motion kind."""
+    if kind == "general":
+        w = np.array([2.1, 2.7, 1.7])
+        amp = np.array([0.6, 0.5, 0.3])
+        phase = np.array([0.3, 1.1, 2.0])
+        p = lambda t: amp * np.sin(w * t + phase)  # noqa: E731
+        v = lambda t: amp * w * np.cos(w * t + phase)  # noqa: E731
+        R = lambda t: Rotation.from_rotvec([0.25 * np.sin(1.3 * t), 0.4 * t, 0.15 * np.cos(0.9 * t)]).as_matrix()  # noqa: E731
+    elif kind == "constant_velocity":
+        vel = np.array([0.5, 0.2, 0.05])
+        p = lambda t: vel * t  # noqa: E731
+        v = lambda t: vel + 0 * t  # noqa: E731
+        R = lambda t: np.eye(3)  # noqa: E731
+    elif kind == "pure_rotation":
+        p = lambda t: np.zeros(3)  # noqa: E731
+        v = lambda t: np.zeros(3)  # noqa: E731
+        R = lambda t: Rotation.from_rotvec([0.3 * t, 0.6 * t, 0.1 * t]).as_matrix()  # noqa: E731
+    else:
+        raise ValueError(kind)
+    return p, v, R
+
+
+def make_window(kind: str = "general", n_images: int = 5, spacing: float = 0.2, points: int = 80,
+                scale: float = 2.5, rot_noise_deg: float = 0.0, depth_noise: float = 0.0,
+                outlier_fraction: float = 0.0, seed: int = 0) -> tuple[InitWindow, Truth]:
+    rng = np.random.default_rng(seed)
+    p, v, R = motion(kind)
+    ts = np.arange(n_images) * spacing
+    R_WI = np.stack([R(t) for t in ts])
+    p_WI = np.stack([p(t) for t in ts])
+    v_W = np.stack([v(t) for t in ts])
+    R_I0W = R_WI[0].T
+    g_I0 = R_I0W @ np.array([0.0, 0.0, G0])
+    v0 = R_I0W @ v_W[0]
+    R_WC = R_WI @ R_IC_EUROC
+    p_WC = p_WI + R_WI @ P_IC_EUROC
+    R_C0W, p_C0W = R_WC[0].T, -R_WC[0].T @ p_WC[0]
+    images, R_I0Ii, dp, dv = [], [], [], []
+    for i, t in enumerate(ts):
+        R_I0Ii.append(R_I0W @ R_WI[i])
+        p_I0Ii = R_I0W @ (p_WI[i] - p_WI[0])
+        dp.append(p_I0Ii - t * v0 + 0.5 * t * t * g_I0)
+        dv.append(R_I0W @ (v_W[i] - v_W[0]) + g_I0 * t)
+        z = rng.uniform(-0.6, 0.6, size=(points, 2))
+        d = rng.uniform(1.5, 6.0, size=points)
+        R_C0Ci = R_C0W @ R_WC[i]
+        if rot_noise_deg > 0 and i > 0:
+            R_C0Ci = R_C0Ci @ Rotation.from_rotvec(
+                rng.normal(size=3) * np.radians(rot_noise_deg) / np.sqrt(3)).as_matrix()
+        d_obs = d * np.exp(rng.normal(0, depth_noise, points)) if depth_noise else d.copy()
+        if outlier_fraction > 0:  # grossly wrong depths (boundaries, reflections, moving objects)
+            bad = rng.random(points) < outlier_fraction
+            d_obs[bad] *= rng.uniform(1.8, 4.0, bad.sum()) ** rng.choice([-1, 1], bad.sum())
+        p_C0Ci = R_C0W @ p_WC[i] + p_C0W
+        images.append(ImageObservations(z=z, depth=d_obs / scale, conf=rng.uniform(1.0, 3.0, points),
+                                        R_C0Ci=_orthonormalize(R_C0Ci), p_C0Ci=p_C0Ci / scale))
+    Z = np.zeros((n_images, 3, 3))
+    window = InitWindow(
+        t_ns=(ts * 1e9).astype(np.int64), images=images, dt=ts, R_I0Ii=np.stack(R_I0Ii),
+        dp=np.stack(dp), dv=np.stack(dv), J_R_bg=Z.copy(), J_p_bg=Z.copy(), J_p_ba=Z.copy(),
+        J_v_bg=Z.copy(), J_v_ba=Z.copy(), R_IC=R_IC_EUROC, p_IC=P_IC_EUROC)
+    return window, Truth(scale, v0, g_I0, R_WI, p_WI, v_W)
