@@ -1,0 +1,1 @@
+"""Feature matching for loop/revisit verification: XFeat (ONNX) or ORB, mutual NN, PnP-RANSAC gate."""

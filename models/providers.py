@@ -1,0 +1,136 @@
+"""ONNX Runtime session creation: execution-provider choice and explicit thread settings.
+
+The CUDA execution provider is asked for when the installed ONNX Runtime offers it (the
+`onnxruntime-gpu` wheel) and a GPU is visible; otherwise the CPU provider is used and the reason is
+logged and reported by `davio info`. Threads are always set explicitly and intra-op spinning is
+off: on small CPUs shared with the filter, spinning threads double the latency (notes/matcher.md).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+from runtime.errors import ModelError
+
+log = logging.getLogger(__name__)
+
+CUDA = "CUDAExecutionProvider"
+CPU = "CPUExecutionProvider"
+
+#: Environment variable that forces the CPU provider (e.g. to compare timings).
+FORCE_CPU_ENV = "DAVIO_FORCE_CPU"
+
+
+def _available_providers() -> list[str]:
+    import onnxruntime as ort
+
+    return list(ort.get_available_providers())
+
+
+def _cuda_device_visible() -> tuple[bool, str]:
+    """Whether a CUDA device looks usable, with the reason when it does not."""
+    if os.environ.get("CUDA_VISIBLE_DEVICES", None) in ("", "-1"):
+        return False, "CUDA_VISIBLE_DEVICES hides every GPU"
+    if any(Path(p).exists() for p in ("/dev/nvidia0", "/dev/nvidiactl", "/dev/dxg")):
+        return True, "GPU device node present"
+    if Path("/proc/driver/nvidia/version").exists():
+        return True, "NVIDIA driver loaded"
+    return False, "no NVIDIA GPU device found"
+
+
+def choose_providers(requested: Sequence[str] | None = None) -> tuple[list[str], str]:
+    """Pick the execution providers for a session.
+
+    Args:
+        requested: explicit provider names (e.g. ["CPUExecutionProvider"]); None = automatic.
+
+    Returns:
+        (providers in priority order, reason for the choice).
+
+    Raises:
+        ModelError: a requested provider is not offered by the installed ONNX Runtime.
+    """
+    available = _available_providers()
+    if requested:
+        missing = [p for p in requested if p not in available]
+        if missing:
+            raise ModelError(
+                f"execution provider(s) {missing} not available; ONNX Runtime offers {available}"
+            )
+        return list(requested), "requested explicitly"
+    if os.environ.get(FORCE_CPU_ENV, "") not in ("", "0"):
+        return [CPU], f"{FORCE_CPU_ENV} is set"
+    if CUDA not in available:
+        return [CPU], "CUDAExecutionProvider not offered by this ONNX Runtime (install onnxruntime-gpu)"
+    visible, why = _cuda_device_visible()
+    if not visible:
+        return [CPU], f"onnxruntime-gpu installed but {why}"
+    return [CUDA, CPU], f"onnxruntime-gpu installed and {why}"
+
+
+def describe_providers() -> dict:
+    """What `davio info` shows: the provider DA3 will use, why, and what ONNX Runtime offers."""
+    try:
+        providers, reason = choose_providers()
+        available = _available_providers()
+    except Exception as exc:  # a broken install is reported, not raised
+        return {"selected": None, "reason": f"{type(exc).__name__}: {exc}", "available": []}
+    return {"selected": providers[0], "reason": reason, "available": available}
+
+
+def default_threads() -> int:
+    """Intra-op threads when none are configured: all cores up to 4, leaving one on >2-core CPUs."""
+    n = os.cpu_count() or 1
+    return max(1, min(4, n - 1 if n > 2 else n))
+
+
+def create_session(
+    path: str | Path,
+    providers: Sequence[str] | None = None,
+    threads: int | None = None,
+):
+    """Create an ONNX Runtime InferenceSession with explicit providers and thread settings.
+
+    Args:
+        path: the .onnx file.
+        providers: explicit execution providers, or None for the automatic choice.
+        threads: intra-op threads (None = `default_threads()`); inter-op is 1 (sequential).
+
+    Returns:
+        (session, info dict with 'providers' actually used, 'reason', 'threads').
+
+    Raises:
+        ModelError: the file is missing or ONNX Runtime cannot load it.
+    """
+    import onnxruntime as ort
+
+    path = Path(path)
+    if not path.is_file():
+        raise ModelError(f"model file not found: {path}")
+    if threads is not None and threads < 1:
+        raise ModelError(f"intra-op threads must be >= 1, got {threads}")
+    chosen, reason = choose_providers(providers)
+    so = ort.SessionOptions()
+    so.intra_op_num_threads = int(threads or default_threads())
+    so.inter_op_num_threads = 1
+    so.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+    so.add_session_config_entry("session.intra_op.allow_spinning", "0")
+    so.add_session_config_entry("session.inter_op.allow_spinning", "0")
+    so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    so.log_severity_level = 3
+    try:
+        sess = ort.InferenceSession(str(path), sess_options=so, providers=chosen)
+    except Exception as exc:
+        raise ModelError(f"{path}: ONNX Runtime cannot load the model ({type(exc).__name__}: {exc})") from exc
+    used = list(sess.get_providers())
+    if chosen[0] == CUDA and used[0] != CUDA:
+        reason = (
+            f"CUDA provider requested but the session fell back to {used[0]} (CUDA/cuDNN libraries missing?)"
+        )
+        log.warning("%s: %s", path.name, reason)
+    elif used[0] == CPU and providers is None:
+        log.info("%s runs on the CPU: %s", path.name, reason)
+    return sess, {"providers": used, "reason": reason, "threads": so.intra_op_num_threads}

@@ -1,0 +1,113 @@
+"""Execution-provider choice (CUDA path by monkeypatching), session settings, `inspect_model`."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import onnx
+import pytest
+from da3_contract_graph import build_da3_contract_graph
+from onnx import TensorProto, helper
+
+from models import providers
+from models.inspect_model import inspect_model
+from runtime.errors import ModelError
+
+
+@pytest.fixture
+def graph(tmp_path):
+    return build_da3_contract_graph(tmp_path / "da3_contract_28x42.onnx", 28, 42)
+
+
+def fake_gpu(monkeypatch, offered: bool, visible: bool):
+    base = ["CPUExecutionProvider"]
+    monkeypatch.setattr(
+        providers, "_available_providers", lambda: (["CUDAExecutionProvider"] if offered else []) + base
+    )
+    monkeypatch.setattr(
+        providers,
+        "_cuda_device_visible",
+        lambda: (visible, "GPU device node present" if visible else "no NVIDIA GPU device found"),
+    )
+    monkeypatch.delenv(providers.FORCE_CPU_ENV, raising=False)
+
+
+def test_cuda_is_chosen_when_offered_and_visible(monkeypatch):
+    fake_gpu(monkeypatch, True, True)
+    chosen, reason = providers.choose_providers()
+    assert chosen == ["CUDAExecutionProvider", "CPUExecutionProvider"]
+    d = providers.describe_providers()
+    assert d["selected"] == "CUDAExecutionProvider" and "CUDAExecutionProvider" in d["available"]
+
+
+@pytest.mark.parametrize(
+    "offered,visible,words", [(False, False, "onnxruntime-gpu"), (True, False, "no NVIDIA GPU")]
+)
+def test_cpu_fallback_reason(monkeypatch, offered, visible, words):
+    fake_gpu(monkeypatch, offered, visible)
+    chosen, reason = providers.choose_providers()
+    assert chosen == ["CPUExecutionProvider"] and words in reason
+    d = providers.describe_providers()
+    assert set(d) == {"selected", "reason", "available"}
+    assert d["selected"] == "CPUExecutionProvider" and words in d["reason"]
+
+
+def test_force_cpu_env(monkeypatch):
+    fake_gpu(monkeypatch, True, True)
+    monkeypatch.setenv(providers.FORCE_CPU_ENV, "1")
+    assert providers.choose_providers() == (["CPUExecutionProvider"], f"{providers.FORCE_CPU_ENV} is set")
+
+
+@pytest.mark.filterwarnings("ignore:Specified provider 'CUDAExecutionProvider'")
+def test_session_reports_fallback_when_cuda_cannot_start(monkeypatch, graph):
+    # the CPU wheel cannot start CUDA: the session falls back and says so
+    fake_gpu(monkeypatch, True, True)
+    sess, info = providers.create_session(graph, threads=1)
+    assert info["providers"][0] == "CPUExecutionProvider"
+    assert "fell back" in info["reason"]
+
+
+def test_session_threads_and_spinning(graph):
+    sess, info = providers.create_session(graph, providers=["CPUExecutionProvider"], threads=2)
+    assert info["threads"] == 2
+    assert sess.get_session_options().get_session_config_entry("session.intra_op.allow_spinning") == "0"
+    with pytest.raises(ModelError, match="threads"):
+        providers.create_session(graph, threads=0)
+    with pytest.raises(ModelError, match="not available"):
+        providers.create_session(graph, providers=["NoSuchExecutionProvider"])
+
+
+def test_inspect_model_reports_contract_and_card(graph):
+    card = {"contract": "davio.da3", "contract_version": 1, "checkpoint": "random-init"}
+    graph.with_suffix(".json").write_text(json.dumps(card))
+    info = inspect_model(graph)
+    assert info["contract"] == "davio.da3" and info["resolution"] == [28, 42]
+    assert [i["name"] for i in info["inputs"]] == ["images", "intrinsics", "extrinsics", "use_pose"]
+    assert info["outputs"][0]["shape"] == [1, None, 28, 42]
+    assert info["model_card"] == card
+    assert info["opset"]["ai.onnx"] == 18
+
+
+def test_inspect_model_errors(tmp_path, graph):
+    with pytest.raises(ModelError, match="not found"):
+        inspect_model(tmp_path / "absent.onnx")
+    bad = tmp_path / "bad.onnx"
+    bad.write_bytes(np.random.default_rng(1).integers(0, 255, 999, dtype=np.uint8).tobytes())
+    with pytest.raises(ModelError, match="not a readable ONNX model"):
+        inspect_model(bad)
+    for variant in ("missing_output", "wrong_dtype", "dynamic_hw", "wrong_rank"):
+        with pytest.raises(ModelError):
+            inspect_model(build_da3_contract_graph(tmp_path / f"{variant}.onnx", variant=variant))
+    x = helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 3])
+    y = helper.make_tensor_value_info("y", TensorProto.FLOAT, [1, 3])
+    other = helper.make_model(
+        helper.make_graph([helper.make_node("Relu", ["x"], ["y"])], "g", [x], [y]),
+        opset_imports=[helper.make_opsetid("", 18)],
+    )
+    onnx.save(other, str(tmp_path / "other.onnx"))
+    with pytest.raises(ModelError, match="neither"):
+        inspect_model(tmp_path / "other.onnx")
+    graph.with_suffix(".json").write_text("{not json")
+    with pytest.raises(ModelError, match="model card"):
+        inspect_model(graph)

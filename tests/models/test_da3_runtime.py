@@ -1,0 +1,159 @@
+"""OnnxDA3 on contract-only graphs: preprocessing, output mapping, metric scale, load errors."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from da3_contract_graph import build_da3_contract_graph
+
+from calib import Pinhole, PinholeRadtan
+from drivers.events import Frame
+from models.da3 import OnnxDA3
+from models.da3.preprocess import IMAGENET_MEAN, IMAGENET_STD
+from runtime.errors import DataError, ModelError
+from runtime.geometry import make_pose, so3_exp
+
+GAIN, FOCAL = 2.0, 30.0
+CAM = Pinhole(96, 64, 80.0, 82.0, 47.0, 31.5)
+
+
+@pytest.fixture
+def graph(tmp_path):
+    return build_da3_contract_graph(tmp_path / "da3_contract_28x42.onnx", 28, 42, GAIN, FOCAL)
+
+
+def gradient_frames(n: int, cam=CAM) -> list[Frame]:
+    u = np.arange(cam.width, dtype=np.float64)
+    img = np.tile(40 + 160 * u / (cam.width - 1), (cam.height, 1)).round().astype(np.uint8)
+    return [Frame(t_ns=i * 50_000_000, image=img) for i in range(n)]
+
+
+def random_poses(n: int, rng: np.random.Generator) -> np.ndarray:
+    T_WC = [
+        make_pose(so3_exp(rng.normal(scale=0.2, size=3)), rng.normal(scale=1.5, size=3)) for _ in range(n)
+    ]
+    return np.linalg.inv(np.stack(T_WC))
+
+
+def expected_red_depth(img: np.ndarray) -> np.ndarray:
+    """The contract graph's depth for a grey image, at full resolution (linear image => resize-exact)."""
+    red = (img.astype(np.float64) / 255.0 - IMAGENET_MEAN[0]) / IMAGENET_STD[0]
+    return 2.0 + 0.5 * red
+
+
+def test_unconditioned_call_maps_outputs_to_camera_resolution(graph):
+    model = OnnxDA3(graph, CAM, threads=1)
+    assert model.graph_hw == (28, 42)
+    np.testing.assert_allclose(model.K_rect, CAM.K)
+    frames = gradient_frames(3)
+    pred = model.predict(frames)
+    assert pred.depth.shape == (3, 64, 96) and pred.conf.shape == (3, 64, 96)
+    assert pred.depth.dtype == np.float32
+    inner = np.s_[:, 4:-4, 6:-6]
+    np.testing.assert_allclose(
+        pred.depth[inner], np.broadcast_to(expected_red_depth(frames[0].image), (3, 64, 96))[inner], atol=0.03
+    )
+    assert (pred.conf >= 1).all()
+    np.testing.assert_allclose(pred.T_CW, np.tile(np.eye(4), (3, 1, 1)), atol=1e-6)
+    # predicted focal f at 42x28 -> f * 96/42 and f * 64/28 at the camera; principal point = K_rect's
+    np.testing.assert_allclose(pred.K[:, 0, 0], FOCAL * 96 / 42, rtol=1e-6)
+    np.testing.assert_allclose(pred.K[:, 1, 1], FOCAL * 64 / 28, rtol=1e-6)
+    np.testing.assert_allclose(pred.K[:, :2, 2], np.tile([CAM.cx, CAM.cy], (3, 1)))
+    assert pred.scale == 1.0 and pred.fit_rmse_m == 0.0
+    assert pred.info["backend"] == "onnx-da3" and pred.info["latency_s"] > 0
+
+
+@pytest.mark.parametrize("n", [2, 5, 8])
+def test_conditioned_call_recovers_metric_scale(graph, n):
+    rng = np.random.default_rng(n)
+    T_CW = random_poses(n, rng)
+    K = np.tile(CAM.K, (n, 1, 1))
+    model = OnnxDA3(graph, CAM, threads=1)
+    frames = gradient_frames(n)
+    pred = model.predict(frames, K, T_CW)
+    # independent expectation: the graph multiplies normalised translations by GAIN, and DA3's
+    # normalisation divides metric ones by the lower median distance of the centres to camera 0.
+    centres = np.linalg.inv(T_CW)[:, :3, 3]
+    dist = np.sort(np.linalg.norm(centres - centres[0], axis=1))
+    d = max(dist[(n - 1) // 2], 0.1)
+    assert pred.scale == pytest.approx(GAIN / d, rel=1e-5)
+    assert pred.fit_rmse_m < 1e-5
+    np.testing.assert_allclose(pred.T_CW, T_CW, atol=1e-5)
+    np.testing.assert_allclose(pred.K, K)
+    inner = np.s_[:, 4:-4, 6:-6]
+    expect = np.broadcast_to(expected_red_depth(frames[0].image) * d / GAIN, (n, 64, 96))
+    np.testing.assert_allclose(pred.depth[inner], expect[inner], rtol=0.02)
+
+
+def test_conditioned_call_without_camera_motion_uses_median_distance_fallback(graph):
+    T_CW = np.tile(np.eye(4), (4, 1, 1))
+    model = OnnxDA3(graph, CAM, threads=1)
+    pred = model.predict(gradient_frames(4), np.tile(CAM.K, (4, 1, 1)), T_CW)
+    # all centres coincide: d is clamped to 0.1 m, so 1 predicted unit = 0.1 m
+    assert pred.info["scale_source"] == "median_distance_fallback"
+    assert pred.scale == pytest.approx(10.0)
+    np.testing.assert_allclose(pred.T_CW, T_CW, atol=1e-6)
+
+
+def test_distorted_camera_frames_are_undistorted_like_opencv(tmp_path):
+    cam = PinholeRadtan(96, 64, 80.0, 82.0, 47.0, 31.5, [-0.28, 0.07, 2e-4, -1e-4])
+    graph = build_da3_contract_graph(tmp_path / "g.onnx", 28, 42)
+    model = OnnxDA3(graph, cam, threads=1)
+    rng = np.random.default_rng(3)
+    img = cv2.GaussianBlur(rng.integers(0, 255, (64, 96), dtype=np.uint8), (0, 0), 3)
+    got = model._images([Frame(0, img), Frame(1, img)])[0, 0, 0]
+    ref = cv2.undistort(img, cam.K, np.array(cam.distortion))
+    ref = cv2.resize(ref, (42, 28), interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0
+    ref = (ref - IMAGENET_MEAN[0]) / IMAGENET_STD[0]
+    assert np.median(np.abs(got[3:-3, 3:-3] - ref[3:-3, 3:-3])) < 0.02
+
+
+def test_missing_model_names_file_and_export_command(tmp_path):
+    path = tmp_path / "da3_small_378x504.onnx"
+    with pytest.raises(ModelError) as e:
+        OnnxDA3(path, CAM)
+    assert str(path) in str(e.value) and "davio export-da3" in str(e.value)
+
+
+def test_corrupt_file_is_a_model_error(tmp_path):
+    path = tmp_path / "bad.onnx"
+    path.write_bytes(np.random.default_rng(0).integers(0, 255, 4096, dtype=np.uint8).tobytes())
+    with pytest.raises(ModelError, match="cannot load"):
+        OnnxDA3(path, CAM)
+
+
+@pytest.mark.parametrize(
+    "variant,words",
+    [
+        ("missing_output", "pred_intrinsics"),
+        ("wrong_dtype", r"tensor\(double\)"),
+        ("dynamic_hw", "fixed resolution"),
+        ("wrong_rank", "rank"),
+    ],
+)
+def test_wrong_contract_is_a_model_error(tmp_path, variant, words):
+    path = build_da3_contract_graph(tmp_path / f"{variant}.onnx", variant=variant)
+    with pytest.raises(ModelError, match=words):
+        OnnxDA3(path, CAM)
+
+
+def test_resolution_not_multiple_of_patch_is_rejected(tmp_path):
+    path = build_da3_contract_graph(tmp_path / "odd.onnx", 30, 42)
+    with pytest.raises(ModelError, match="multiple of the 14"):
+        OnnxDA3(path, CAM)
+
+
+def test_bad_calls_are_data_errors(graph):
+    model = OnnxDA3(graph, CAM, threads=1)
+    with pytest.raises(DataError, match="2..8"):
+        model.predict(gradient_frames(1))
+    with pytest.raises(DataError, match="2..8"):
+        model.predict(gradient_frames(9))
+    with pytest.raises(DataError, match="both"):
+        model.predict(gradient_frames(3), K=np.tile(CAM.K, (3, 1, 1)))
+    with pytest.raises(DataError, match=r"\(3,4,4\)"):
+        model.predict(gradient_frames(3), np.tile(CAM.K, (3, 1, 1)), np.tile(np.eye(4), (2, 1, 1)))
+    small = [Frame(0, np.zeros((32, 48), np.uint8)), Frame(1, np.zeros((32, 48), np.uint8))]
+    with pytest.raises(DataError, match="frame 0"):
+        model.predict(small)
