@@ -62,6 +62,11 @@ class LinearSolution:
         return self.x[4:7]
 
 
+def _apply_H(v: np.ndarray, zx: np.ndarray, zy: np.ndarray) -> np.ndarray:
+    """H_ik v_k for stacked (K, 3) vectors -> (K, 2)."""
+    return np.stack([v[:, 0] - zx * v[:, 2], v[:, 1] - zy * v[:, 2]], axis=1)
+
+
 def build_system(window: InitWindow) -> PointSystem:
     """Stack the depth-divided row pairs of every non-reference image."""
     R_CI = window.R_IC.T
@@ -73,17 +78,14 @@ def build_system(window: InitWindow) -> PointSystem:
         M = R_CI @ window.R_I0Ii[i].T  # R_CI R_IiI0
         zx, zy = obs.z[:, 0], obs.z[:, 1]
 
-        def apply_H(v: np.ndarray) -> np.ndarray:  # v: (K, 3) -> (K, 2)
-            return np.stack([v[:, 0] - zx * v[:, 2], v[:, 1] - zy * v[:, 2]], axis=1)
-
         q = obs.points_C0 @ window.R_IC.T @ M.T  # B R_IC p_ik before H: M R_IC p_ik
-        col_s = apply_H(q)
+        col_s = _apply_H(q, zx, zy)
         HB = np.stack([M[0][None, :] - zx[:, None] * M[2][None, :],
                        M[1][None, :] - zy[:, None] * M[2][None, :]], axis=1)  # (K, 2, 3)
         dt = window.dt[i]
         A = np.concatenate([col_s[:, :, None], -dt * HB, 0.5 * dt * dt * HB], axis=2)
         lever = R_CI @ (window.R_I0Ii[i].T - np.eye(3)) @ window.p_IC
-        b = HB @ window.dp[i] - apply_H(np.broadcast_to(lever, (len(zx), 3)))
+        b = HB @ window.dp[i] - _apply_H(np.broadcast_to(lever, (len(zx), 3)), zx, zy)
         inv_d = 1.0 / obs.depth
         blocks_A.append(A * inv_d[:, None, None])
         blocks_b.append(b * inv_d[:, None])

@@ -45,7 +45,8 @@ def motion(kind: str):
         phase = np.array([0.3, 1.1, 2.0])
         p = lambda t: amp * np.sin(w * t + phase)  # noqa: E731
         v = lambda t: amp * w * np.cos(w * t + phase)  # noqa: E731
-        R = lambda t: Rotation.from_rotvec([0.25 * np.sin(1.3 * t), 0.4 * t, 0.15 * np.cos(0.9 * t)]).as_matrix()  # noqa: E731
+        R = lambda t: Rotation.from_rotvec(  # noqa: E731
+            [0.25 * np.sin(1.3 * t), 0.4 * t, 0.15 * np.cos(0.9 * t)]).as_matrix()
     elif kind == "constant_velocity":
         vel = np.array([0.5, 0.2, 0.05])
         p = lambda t: vel * t  # noqa: E731
