@@ -1,0 +1,132 @@
+"""What the native initializers hand to the filter, and the helpers they share.
+
+Frames: O is the gravity-aligned odometry (filter world) frame, z up, gravitational acceleration
+(0, 0, -g0); I is the IMU/body frame. ``R_OI`` maps I-coordinates to O.
+
+Covariance convention of :class:`InitResult.cov` (15 x 15, SI units, radians):
+error-state order ``[theta (3), p (3), v (3), bg (3), ba (3)]`` where
+``R_OI = R_OI_hat @ Exp(theta)`` (theta is a *local*, body-frame rotation error, as OpenVINS' JPL
+error on q_GtoI), ``p_OI = p_hat + dp``, ``v_OI = v_hat + dv``, ``bg = bg_hat + dbg``,
+``ba = ba_hat + dba``. :func:`cov_local_to_global` converts theta to the global convention
+``R_OI = Exp(theta_O) R_OI_hat``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+ERROR_STATE_ORDER = ("theta", "p", "v", "bg", "ba")
+"""Block order of InitResult.cov (3 rows each)."""
+
+
+@dataclass
+class InitResult:
+    """An initial IMU state for the filter.
+
+    Attributes:
+        t_ns: time of the state (IMU clock), int64 ns.
+        R_OI: (3, 3) orientation of the IMU in the gravity-aligned frame O (yaw is a gauge choice).
+        p_OI: (3,) IMU position in O, m.
+        v_OI: (3,) IMU velocity in O, m/s.
+        bg: (3,) gyroscope bias, rad/s.  ba: (3,) accelerometer bias, m/s^2.
+        cov: (15, 15) covariance in ERROR_STATE_ORDER (module docstring), or None.
+        source: which initializer produced it ("static", "dynamic", ...).
+        info: diagnostics (window statistics, residuals, iteration counts).
+    """
+
+    t_ns: int
+    R_OI: np.ndarray
+    p_OI: np.ndarray
+    v_OI: np.ndarray
+    bg: np.ndarray
+    ba: np.ndarray
+    cov: np.ndarray | None
+    source: str
+    info: dict = field(default_factory=dict)
+
+    @property
+    def T_OI(self) -> np.ndarray:
+        """(4, 4) pose of the IMU in O."""
+        T = np.eye(4)
+        T[:3, :3] = self.R_OI
+        T[:3, 3] = self.p_OI
+        return T
+
+    @property
+    def gravity_in_imu(self) -> np.ndarray:
+        """(3,) unit 'up' direction expressed in I (R_OI^T e_z): what roll/pitch are compared by."""
+        return self.R_OI[2, :].copy()
+
+
+@dataclass(frozen=True)
+class InitRejection:
+    """Why an initialization attempt did not produce a state.
+
+    Attributes:
+        t_ns: newest data time at the attempt, int64 ns (or -1 when there was no data).
+        code: short machine-readable reason (e.g. "no_jerk", "insufficient_parallax").
+        message: human-readable detail with the numbers that decided it.
+    """
+
+    t_ns: int
+    code: str
+    message: str
+
+    def __str__(self) -> str:
+        return f"{self.code}: {self.message}"
+
+
+class RejectionLog:
+    """The last rejection and a count per reason code, for run reports."""
+
+    def __init__(self) -> None:
+        self.last: InitRejection | None = None
+        self.counts: dict[str, int] = {}
+
+    def reject(self, t_ns: int, code: str, message: str) -> None:
+        """Record a rejection (always returns None so callers can `return log.reject(...)`)."""
+        self.last = InitRejection(int(t_ns), code, message)
+        self.counts[code] = self.counts.get(code, 0) + 1
+
+    @property
+    def last_reason(self) -> str:
+        """'code: message' of the last rejection, or '' if none."""
+        return "" if self.last is None else str(self.last)
+
+
+def rotation_from_up(up_I: np.ndarray) -> np.ndarray:
+    """R_OI whose O z-axis is the 'up' direction up_I (any length) given in I; yaw is fixed by Gram-Schmidt.
+
+    O's x-axis is the projection of I's x-axis (or y-axis when x is nearly vertical) onto the
+    horizontal plane, so the result is deterministic. Rows of R_OI are O's axes expressed in I.
+    """
+    up = np.asarray(up_I, dtype=np.float64).reshape(3)
+    n = float(np.linalg.norm(up))
+    if not np.isfinite(n) or n <= 0.0:
+        raise ValueError(f"the up direction must be a finite non-zero vector, got {up}")
+    z = up / n
+    e = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = e - z * float(z @ e)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    return np.stack([x, y, z])
+
+
+def gravity_angle_deg(up_a: np.ndarray, up_b: np.ndarray) -> float:
+    """Angle (degrees) between two 'up' directions in the same frame: the roll/pitch error."""
+    a = np.asarray(up_a, float) / np.linalg.norm(up_a)
+    b = np.asarray(up_b, float) / np.linalg.norm(up_b)
+    return float(np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b)), float(a @ b))))
+
+
+def cov_local_to_global(cov: np.ndarray, R_OI: np.ndarray) -> np.ndarray:
+    """The 15x15 covariance with theta expressed globally (R = Exp(theta_O) R_hat, theta_O = R_OI theta)."""
+    J = np.eye(15)
+    J[:3, :3] = R_OI
+    return J @ cov @ J.T
+
+
+def diagonal_cov(sigmas: tuple[float, float, float, float, float]) -> np.ndarray:
+    """(15, 15) diagonal covariance from one standard deviation per block (ERROR_STATE_ORDER)."""
+    return np.diag(np.repeat(np.asarray(sigmas, dtype=np.float64) ** 2, 3))

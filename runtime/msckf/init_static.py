@@ -1,0 +1,248 @@
+"""Static initializer (OpenVINS ``StaticInitializer`` logic): stand still, then a jerk.
+
+Decision, on a window of ``init_window_time_s`` ending at the newest IMU sample, split in an
+older half and a newer half:
+
+- accelerometer excitation of each half = sqrt(sum |a - mean|^2 / (n - 1)) (m/s^2);
+- ``wait_for_jerk`` (OpenVINS without ZUPT, its EuRoC setting): the newer half must be above
+  ``init_imu_thresh`` (a jerk) and the older half below it (standing still before the jerk);
+- otherwise: both halves must be below the threshold (standing still);
+- when tracks are fed and ``init_max_disparity_px > 0``, the mean feature disparity of each half
+  (tracks' first-to-last pixel motion within the half, relative to the newest frame time) must
+  agree: a jerk needs a still older half and a moving newer half; standing still needs both still.
+
+The state is taken from the older (still) half: orientation from the mean accelerometer (Gram-
+Schmidt, deterministic yaw), ``bg`` = mean gyro, ``ba`` = mean accel - R_IO (0, 0, g0) (as
+OpenVINS: the accelerometer's excess along gravity), p = v = 0, time = last sample of that half.
+"""
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from runtime.errors import ConfigError
+from runtime.msckf.init_common import InitResult, RejectionLog, diagonal_cov, rotation_from_up
+
+
+@dataclass
+class StaticInitConfig:
+    """Static initializer settings (defaults: OpenVINS EuRoC)."""
+
+    init_window_time_s: float = 2.0
+    """Length of the two half-windows together, s (OpenVINS init_window_time)."""
+    init_imu_thresh: float = 1.5
+    """Accelerometer excitation (sample std of the vector) separating still from moving, m/s^2."""
+    init_max_disparity_px: float = 10.0
+    """Mean track disparity above which a half-window counts as moving, px (<= 0: not used)."""
+    min_disparity_features: int = 15
+    """Tracks needed in each half-window to judge disparity (OpenVINS 15)."""
+    wait_for_jerk: bool = True
+    """Initialize on a jerk after standing still (True, OpenVINS without ZUPT) or when still (False)."""
+    gravity_mag: float = 9.81
+    """Gravity magnitude g0, m/s^2."""
+    sigma_theta: float = 0.02
+    """Initial orientation std, rad (OpenVINS 0.02)."""
+    sigma_p: float = 0.05
+    """Initial position std, m (OpenVINS 0.05)."""
+    sigma_v: float = 0.01
+    """Initial velocity std, m/s (OpenVINS 0.01)."""
+    sigma_bg: float = 0.02
+    """Initial gyro bias std, rad/s (OpenVINS 0.02)."""
+    sigma_ba: float = 0.02
+    """Initial accelerometer bias std, m/s^2 (OpenVINS 0.02)."""
+
+    def __post_init__(self) -> None:
+        if not self.init_window_time_s > 0:
+            raise ConfigError(f"static init window must be > 0 s, got {self.init_window_time_s}")
+        if not self.init_imu_thresh > 0:
+            raise ConfigError(f"static init_imu_thresh must be > 0, got {self.init_imu_thresh}")
+        if not self.gravity_mag > 0:
+            raise ConfigError(f"gravity_mag must be > 0, got {self.gravity_mag}")
+        if self.min_disparity_features < 1:
+            raise ConfigError(f"min_disparity_features must be >= 1, got {self.min_disparity_features}")
+
+
+class ImuWindow:
+    """A time-ordered buffer of IMU samples; drops (and counts) non-finite or out-of-order ones."""
+
+    def __init__(self, keep_ns: int) -> None:
+        self.keep_ns = int(keep_ns)
+        self._t: deque[int] = deque()
+        self._w: deque[np.ndarray] = deque()
+        self._a: deque[np.ndarray] = deque()
+        self.dropped_nonfinite = 0
+        self.dropped_out_of_order = 0
+
+    def add(self, t_ns: int, gyro: np.ndarray, accel: np.ndarray) -> bool:
+        """Append one sample; False (and counted) when it was dropped."""
+        w = np.asarray(gyro, dtype=np.float64).reshape(-1)
+        a = np.asarray(accel, dtype=np.float64).reshape(-1)
+        if w.shape != (3,) or a.shape != (3,) or not (np.all(np.isfinite(w)) and np.all(np.isfinite(a))):
+            self.dropped_nonfinite += 1
+            return False
+        if self._t and int(t_ns) <= self._t[-1]:
+            self.dropped_out_of_order += 1
+            return False
+        self._t.append(int(t_ns))
+        self._w.append(w)
+        self._a.append(a)
+        while self._t and self._t[0] < self._t[-1] - self.keep_ns:
+            self._t.popleft()
+            self._w.popleft()
+            self._a.popleft()
+        return True
+
+    def __len__(self) -> int:
+        return len(self._t)
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(t_ns (N,) int64, gyro (N,3), accel (N,3))."""
+        if not self._t:
+            return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3))
+        return np.fromiter(self._t, np.int64, len(self._t)), np.array(self._w), np.array(self._a)
+
+
+class TrackWindow:
+    """Per-frame feature observations (id -> distorted pixel) kept over a time span."""
+
+    def __init__(self, keep_ns: int) -> None:
+        self.keep_ns = int(keep_ns)
+        self.frames: deque[tuple[int, np.ndarray, np.ndarray]] = deque()
+
+    def add(self, t_ns: int, ids: np.ndarray, uv: np.ndarray) -> None:
+        ids = np.asarray(ids, dtype=np.int64).reshape(-1)
+        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+        if ids.shape[0] != uv.shape[0]:
+            raise ValueError(f"ids ({ids.shape[0]}) and uv ({uv.shape[0]}) must have the same length")
+        if self.frames and int(t_ns) <= self.frames[-1][0]:
+            raise ValueError(f"track time {t_ns} ns is not after the previous {self.frames[-1][0]} ns")
+        self.frames.append((int(t_ns), ids, uv))
+        while self.frames and self.frames[0][0] < int(t_ns) - self.keep_ns:
+            self.frames.popleft()
+
+    @property
+    def newest_ns(self) -> int | None:
+        return self.frames[-1][0] if self.frames else None
+
+    def disparity(self, t0_ns: int, t1_ns: int) -> tuple[float, int]:
+        """Mean first-to-last pixel displacement of tracks seen >= 2 times in [t0, t1], and their count."""
+        first: dict[int, np.ndarray] = {}
+        last: dict[int, np.ndarray] = {}
+        for t, ids, uv in self.frames:
+            if t < t0_ns or t > t1_ns:
+                continue
+            for i, p in zip(ids.tolist(), uv, strict=True):
+                if i not in first:
+                    first[i] = p
+                else:
+                    last[i] = p
+        if not last:
+            return 0.0, 0
+        d = [float(np.linalg.norm(last[i] - first[i])) for i in last]
+        return float(np.mean(d)), len(d)
+
+
+class StaticInitializer:
+    """Initialize the filter state from a stand-still period (then, by default, a jerk).
+
+    Args:
+        config: settings (StaticInitConfig() if None).
+        imu_noise: calib.ImuNoise, accepted for a uniform initializer interface (the static
+            decision uses the threshold only).
+    """
+
+    source = "static"
+
+    def __init__(self, config: StaticInitConfig | None = None, imu_noise: object | None = None) -> None:
+        self.config = config if config is not None else StaticInitConfig()
+        self.imu_noise = imu_noise
+        window_ns = int(round(self.config.init_window_time_s * 1e9))
+        self.imu = ImuWindow(window_ns + 200_000_000)
+        self.tracks = TrackWindow(window_ns + 200_000_000)
+        self.log = RejectionLog()
+
+    @property
+    def last_reason(self) -> str:
+        """'code: message' of the last failed attempt ('' before any)."""
+        return self.log.last_reason
+
+    def feed_imu(self, sample: object) -> None:
+        """Add one drivers.events.ImuSample (t_ns, gyro rad/s, accel m/s^2)."""
+        self.imu.add(sample.t_ns, sample.gyro, sample.accel)
+
+    def feed_tracks(self, t_ns: int, ids: np.ndarray, uv: np.ndarray) -> None:
+        """Add one frame's tracks (ids (M,), distorted pixels (M, 2)) for the disparity check."""
+        self.tracks.add(t_ns, ids, uv)
+
+    def report(self) -> dict:
+        """Counters for the run report."""
+        return {"rejections": dict(self.log.counts), "last_reason": self.last_reason,
+                "imu_dropped_nonfinite": self.imu.dropped_nonfinite,
+                "imu_dropped_out_of_order": self.imu.dropped_out_of_order}
+
+    def try_initialize(self) -> InitResult | None:
+        """An InitResult when the window passes the checks, else None (reason in last_reason)."""
+        cfg = self.config
+        rej = self.log.reject
+        t, w, a = self.imu.arrays()
+        if t.size < 2:
+            return self.log.reject(-1 if t.size == 0 else int(t[-1]), "no_imu", "fewer than 2 IMU samples")
+        newest = int(t[-1])
+        window_ns = int(round(cfg.init_window_time_s * 1e9))
+        if newest - int(t[0]) < window_ns:
+            return rej(newest, "short_window",
+                       f"{(newest - t[0]) * 1e-9:.2f} s of IMU < {cfg.init_window_time_s} s")
+        half_ns = window_ns // 2
+        new_half = (t > newest - half_ns) & (t <= newest)
+        old_half = (t > newest - window_ns) & (t <= newest - half_ns)
+        if new_half.sum() < 2 or old_half.sum() < 2:
+            return rej(newest, "short_window", "fewer than 2 IMU samples in a half-window")
+        std_new = _excitation(a[new_half])
+        std_old = _excitation(a[old_half])
+        thr = cfg.init_imu_thresh
+        info = {"accel_excitation_old": std_old, "accel_excitation_new": std_new}
+
+        if cfg.wait_for_jerk:
+            if std_new < thr:
+                return rej(newest, "no_jerk", f"newest half excitation {std_new:.3f} < {thr} m/s^2")
+            if std_old > thr:
+                return rej(newest, "moving", f"older half excitation {std_old:.3f} > {thr} m/s^2 (not still)")
+        elif std_new > thr or std_old > thr:
+            return rej(newest, "moving",
+                       f"excitation {std_old:.3f}, {std_new:.3f} > {thr} m/s^2 (not standing still)")
+
+        if cfg.init_max_disparity_px > 0 and self.tracks.newest_ns is not None:
+            dmax = cfg.init_max_disparity_px
+            cam_newest = self.tracks.newest_ns
+            cam_half = cam_newest - half_ns
+            disp_old, n_old = self.tracks.disparity(cam_newest - window_ns, cam_half)
+            disp_new, n_new = self.tracks.disparity(cam_half, cam_newest)
+            info.update(disparity_old_px=disp_old, disparity_new_px=disp_new)
+            if min(n_old, n_new) < cfg.min_disparity_features:
+                return rej(newest, "few_features",
+                           f"{n_old}, {n_new} half-window tracks < {cfg.min_disparity_features}")
+            moving_old = disp_old > dmax
+            moving_new = disp_new > dmax
+            if moving_old:
+                return rej(newest, "moving", f"older half disparity {disp_old:.2f} > {dmax} px")
+            if cfg.wait_for_jerk and not moving_new:
+                return rej(newest, "no_visual_jerk", f"newest half disparity {disp_new:.2f} <= {dmax} px")
+            if not cfg.wait_for_jerk and moving_new:
+                return rej(newest, "moving", f"newest half disparity {disp_new:.2f} > {dmax} px")
+
+        a_mean = a[old_half].mean(axis=0)
+        R_OI = rotation_from_up(a_mean)
+        ba = a_mean - R_OI.T @ np.array([0.0, 0.0, cfg.gravity_mag])
+        bg = w[old_half].mean(axis=0)
+        cov = diagonal_cov((cfg.sigma_theta, cfg.sigma_p, cfg.sigma_v, cfg.sigma_bg, cfg.sigma_ba))
+        info["n_samples"] = int(old_half.sum())
+        return InitResult(t_ns=int(t[old_half][-1]), R_OI=R_OI, p_OI=np.zeros(3), v_OI=np.zeros(3),
+                          bg=bg, ba=ba, cov=cov, source=self.source, info=info)
+
+
+def _excitation(accel: np.ndarray) -> float:
+    """sqrt(sum |a_i - mean|^2 / (n - 1)) over (n, 3) samples, m/s^2 (OpenVINS' accelerometer 'std')."""
+    d = accel - accel.mean(axis=0)
+    return float(np.sqrt(np.sum(d * d) / (accel.shape[0] - 1)))
