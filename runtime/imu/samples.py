@@ -1,0 +1,85 @@
+"""Validation and slicing of IMU sample arrays (int64 ns stamps, rad/s, m/s^2)."""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Protocol
+
+import numpy as np
+
+from runtime.errors import DataError
+
+
+class ImuSampleLike(Protocol):
+    """Anything with the fields of drivers.events.ImuSample (runtime does not import drivers)."""
+
+    t_ns: int
+    gyro: np.ndarray
+    accel: np.ndarray
+
+
+ImuArrays = tuple[np.ndarray, np.ndarray, np.ndarray]
+
+
+def as_imu_arrays(samples: Sequence[ImuSampleLike] | ImuArrays) -> ImuArrays:
+    """(t_ns (M,) int64, gyro (M, 3), accel (M, 3)) from ImuSample-like objects or a tuple of arrays."""
+    if isinstance(samples, tuple) and len(samples) == 3 and not hasattr(samples[0], "t_ns"):
+        t_ns, gyro, accel = samples
+    else:
+        t_ns = np.array([s.t_ns for s in samples], dtype=np.int64)
+        gyro = np.array([s.gyro for s in samples], dtype=np.float64).reshape(-1, 3)
+        accel = np.array([s.accel for s in samples], dtype=np.float64).reshape(-1, 3)
+    return check_imu_arrays(t_ns, gyro, accel)
+
+
+def check_imu_arrays(t_ns: object, gyro: object, accel: object) -> ImuArrays:
+    """The arrays as int64 / float64 after checking shapes, finiteness and strictly increasing stamps.
+
+    Raises DataError naming the first offending sample.
+    """
+    t = np.asarray(t_ns)
+    if t.ndim != 1 or (t.size and not np.issubdtype(t.dtype, np.integer)):
+        raise DataError(f"IMU stamps must be a 1-D integer (ns) array, got dtype {t.dtype} shape {t.shape}")
+    t = t.astype(np.int64)
+    g = np.asarray(gyro, dtype=np.float64)
+    a = np.asarray(accel, dtype=np.float64)
+    for name, arr in (("gyro", g), ("accel", a)):
+        if arr.shape != (t.size, 3):
+            raise DataError(f"IMU {name} must have shape ({t.size}, 3), got {arr.shape}")
+        bad = ~np.isfinite(arr).all(axis=1)
+        if bad.any():
+            k = int(np.flatnonzero(bad)[0])
+            raise DataError(f"IMU {name} sample {k} (t = {int(t[k])} ns) is not finite")
+    if t.size > 1:
+        step = np.diff(t)
+        if np.any(step <= 0):
+            k = int(np.flatnonzero(step <= 0)[0]) + 1
+            raise DataError(f"IMU stamps are not strictly increasing at sample {k} (t = {int(t[k])} ns)")
+    return t, g, a
+
+
+def imu_segment(t_ns: np.ndarray, gyro: np.ndarray, accel: np.ndarray, t0_ns: int,
+                t1_ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The samples covering [t0, t1], with the two ends linearly interpolated onto t0 and t1.
+
+    Returns (dts (K,) s, gyro (K+1, 3), accel (K+1, 3)): node 0 at t0, node K at t1, the samples
+    strictly inside in between, and dts the K interval lengths. K = 0 when t0 == t1.
+    Raises DataError when [t0, t1] is not covered by the stamps or t1 < t0.
+    """
+    t, g, a = check_imu_arrays(t_ns, gyro, accel)
+    t0, t1 = int(t0_ns), int(t1_ns)
+    if t1 < t0:
+        raise DataError(f"preintegration interval ends before it starts: t0 = {t0} ns, t1 = {t1} ns")
+    if t.size == 0 or t0 < t[0] or t1 > t[-1]:
+        span = "no samples" if t.size == 0 else f"samples span [{int(t[0])}, {int(t[-1])}] ns"
+        raise DataError(f"IMU samples do not cover the interval [{t0}, {t1}] ns ({span})")
+    inside = (t > t0) & (t < t1)
+    rel = (t - t0).astype(np.float64) * 1e-9
+    ends = np.array([0.0, (t1 - t0) * 1e-9])
+    g_end = np.stack([np.interp(ends, rel, g[:, k]) for k in range(3)], axis=1)
+    a_end = np.stack([np.interp(ends, rel, a[:, k]) for k in range(3)], axis=1)
+    if t1 == t0:
+        return np.zeros(0), g_end[:1], a_end[:1]
+    nodes_t = np.concatenate([[0.0], rel[inside], [ends[1]]])
+    nodes_g = np.concatenate([g_end[:1], g[inside], g_end[1:]])
+    nodes_a = np.concatenate([a_end[:1], a[inside], a_end[1:]])
+    return np.diff(nodes_t), nodes_g, nodes_a
