@@ -1,6 +1,9 @@
 """Rig calibration: camera models, the camera–IMU Rig, EuRoC / Kalibr readers and the Kalibr writer."""
 
 from calib.camera import CameraModel, Pinhole, PinholeEquidistant, PinholeRadtan, camera_class
+from calib.euroc import read_euroc_rig
+from calib.io import euroc_rig, find_imu_yaml, load_rig
+from calib.kalibr import read_kalibr, read_kalibr_imu, write_kalibr
 from calib.rig import ImuNoise, Rig
 
 __all__ = [
@@ -11,4 +14,11 @@ __all__ = [
     "PinholeRadtan",
     "Rig",
     "camera_class",
+    "euroc_rig",
+    "find_imu_yaml",
+    "load_rig",
+    "read_euroc_rig",
+    "read_kalibr",
+    "read_kalibr_imu",
+    "write_kalibr",
 ]

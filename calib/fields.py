@@ -1,0 +1,246 @@
+"""Typed access to calibration YAML files; every failure is a CalibrationError naming file and key.
+
+Rules shared by the EuRoC and Kalibr readers:
+- an absent key is an error (a typo must not pass as withheld calibration);
+- a key present with value ``null`` / ``~`` means withheld where the field allows it (None);
+- numbers must be finite ints/floats (not strings, not booleans).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import tempfile
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from calib.camera import CameraModel, camera_class
+from runtime.errors import CalibrationError
+
+_MISSING = object()
+#: The OpenCV/EuRoC directive line ("%YAML:1.0") that PyYAML rejects.
+_OPENCV_DIRECTIVE = re.compile(r"\A(?:\ufeff)?%YAML:[^\n]*\n(?:---[^\n]*\n)?")
+
+
+class _Loader(yaml.SafeLoader):
+    """SafeLoader that also reads OpenCV's ``!!opencv-matrix`` tag as a plain mapping."""
+
+
+def _opencv_matrix(loader: yaml.SafeLoader, node: yaml.MappingNode) -> dict:
+    return loader.construct_mapping(node, deep=True)
+
+
+_Loader.add_constructor("tag:yaml.org,2002:opencv-matrix", _opencv_matrix)
+
+
+def read_yaml(path: str | os.PathLike) -> dict:
+    """Parse a calibration YAML file (an OpenCV ``%YAML:1.0`` first line is stripped) to a mapping."""
+    p = Path(path)
+    if not p.is_file():
+        raise CalibrationError("calibration file not found" if not p.exists() else "not a file", p, None)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise CalibrationError(f"cannot read file ({exc})", p, None) from None
+    text = _OPENCV_DIRECTIVE.sub("", text, count=1)
+    try:
+        data = yaml.load(text, Loader=_Loader)  # a SafeLoader subclass
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc)
+        raise CalibrationError(f"invalid YAML{where}: {problem}", p, None) from None
+    if not isinstance(data, dict):
+        raise CalibrationError(f"expected a YAML mapping at top level, got {type(data).__name__}", p, None)
+    return data
+
+
+def write_text_atomic(path: str | os.PathLike, text: str) -> None:
+    """Write text to path through a temporary file in the same folder and a rename."""
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        os.replace(tmp, p)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+class Fields:
+    """A mapping from a calibration file with checked, key-naming accessors.
+
+    Args:
+        path: the file the mapping came from (for error messages).
+        data: the mapping.
+        prefix: dotted key of this mapping inside the file ("" at top level).
+    """
+
+    def __init__(self, path: str | os.PathLike, data: Mapping, prefix: str = "") -> None:
+        self.path = Path(path)
+        self.data = data
+        self.prefix = prefix
+
+    def key(self, name: str) -> str:
+        """Dotted key of ``name`` inside the file."""
+        return f"{self.prefix}.{name}" if self.prefix else name
+
+    def error(self, name: str | None, message: str) -> CalibrationError:
+        return CalibrationError(message, self.path, None if name is None else self.key(name))
+
+    def has(self, name: str) -> bool:
+        return name in self.data
+
+    def raw(self, name: str, optional: bool = False) -> object:
+        """The value under ``name``; absent: None if optional else CalibrationError."""
+        value = self.data.get(name, _MISSING)
+        if value is _MISSING:
+            if optional:
+                return None
+            raise self.error(name, "required key is missing")
+        return value
+
+    def sub(self, name: str) -> Fields:
+        """The nested mapping under ``name`` (required)."""
+        value = self.raw(name)
+        if not isinstance(value, Mapping):
+            raise self.error(name, f"expected a mapping, got {type(value).__name__}")
+        return Fields(self.path, value, self.key(name))
+
+    def number(
+        self, name: str, nullable: bool = False, optional: bool = False, positive: bool = False
+    ) -> float | None:
+        """A finite float; None when null (if nullable) or absent (if optional)."""
+        value = self.raw(name, optional)
+        if value is None:
+            if nullable or optional:
+                return None
+            raise self.error(name, "must not be null")
+        if not _is_number(value):
+            raise self.error(name, f"expected a number, got {value!r}")
+        f = float(value)
+        if not math.isfinite(f):
+            raise self.error(name, f"must be finite, got {f}")
+        if positive and f <= 0.0:
+            raise self.error(name, f"must be positive, got {f}")
+        return f
+
+    def numbers(
+        self, name: str, sizes: tuple[int, ...] | None = None, nullable: bool = False
+    ) -> list[float] | None:
+        """A list of finite floats whose length is one of ``sizes`` (any if None)."""
+        value = self.raw(name)
+        if value is None:
+            if nullable:
+                return None
+            raise self.error(name, "must not be null")
+        if not isinstance(value, list):
+            raise self.error(name, f"expected a list of numbers, got {value!r}")
+        if sizes is not None and len(value) not in sizes:
+            want = " or ".join(map(str, sizes))
+            raise self.error(name, f"expected {want} numbers, got {len(value)}")
+        for i, v in enumerate(value):
+            if not _is_number(v):
+                raise self.error(name, f"element {i} is not a number: {v!r}")
+            if not math.isfinite(float(v)):
+                raise self.error(name, f"element {i} is not finite: {v}")
+        return [float(v) for v in value]
+
+    def string(self, name: str) -> str:
+        value = self.raw(name)
+        if not isinstance(value, str):
+            raise self.error(name, f"expected a string, got {value!r}")
+        return value
+
+    def matrix(self, name: str, rows: int, cols: int, nullable: bool = False) -> np.ndarray | None:
+        """A rows x cols matrix from a list of rows, a flat list, or ``{rows, cols, data}`` (EuRoC/OpenCV)."""
+        value = self.raw(name)
+        if value is None:
+            if nullable:
+                return None
+            raise self.error(name, "must not be null")
+        if isinstance(value, Mapping):
+            m = Fields(self.path, value, self.key(name))
+            r = m.raw("rows")
+            c = m.raw("cols")
+            if (r, c) != (rows, cols):
+                raise self.error(name, f"expected a {rows}x{cols} matrix, got rows={r!r} cols={c!r}")
+            flat = m.numbers("data", (rows * cols,))
+            assert flat is not None
+            return np.array(flat).reshape(rows, cols)
+        if not isinstance(value, list):
+            raise self.error(name, f"expected a {rows}x{cols} matrix, got {value!r}")
+        if all(isinstance(row, list) for row in value):
+            if len(value) != rows or any(len(row) != cols for row in value):
+                shape = f"{len(value)} rows of lengths {[len(row) for row in value]}"
+                raise self.error(name, f"expected a {rows}x{cols} matrix, got {shape}")
+            flat = [v for row in value for v in row]
+        else:
+            if len(value) != rows * cols:
+                raise self.error(name, f"expected a {rows}x{cols} matrix, got a list of {len(value)} entries")
+            flat = value
+        for i, v in enumerate(flat):
+            if not _is_number(v):
+                raise self.error(name, f"entry {divmod(i, cols)} is not a number: {v!r}")
+            if not math.isfinite(float(v)):
+                raise self.error(name, f"entry {divmod(i, cols)} is not finite: {v}")
+        return np.array(flat, dtype=np.float64).reshape(rows, cols)
+
+
+@contextmanager
+def rekeyed(path: str | os.PathLike, keys: Mapping[str, str]) -> Iterator[None]:
+    """Attach ``path`` and the file's own key to CalibrationErrors raised by in-memory validation.
+
+    ``keys`` maps the validators' keys (e.g. ``intrinsics``, ``T_IC``) to dotted file keys.
+    """
+    try:
+        yield
+    except CalibrationError as err:
+        if err.path is not None:
+            raise
+        message = str(err)
+        prefix = f"[{err.key}]: "
+        if message.startswith(prefix):
+            message = message[len(prefix) :]
+        key = keys.get(err.key or "", err.key)
+        raise CalibrationError(message, path, key) from None
+
+
+def read_camera(f: Fields, distortion_key: str) -> CameraModel | None:
+    """Camera model from ``camera_model``, ``intrinsics`` [fx, fy, cx, cy], ``resolution`` [w, h],
+    ``distortion_model`` and ``distortion_key`` of a camera block; None when intrinsics is null."""
+    model = f.string("camera_model")
+    if model.strip().lower() != "pinhole":
+        raise f.error("camera_model", f"unsupported camera model {model!r} (supported: pinhole)")
+    intrinsics = f.numbers("intrinsics", (4,), nullable=True)
+    if intrinsics is None:
+        return None
+    resolution = f.raw("resolution")
+    if (
+        not isinstance(resolution, list)
+        or len(resolution) != 2
+        or not all(isinstance(v, int) and not isinstance(v, bool) for v in resolution)
+    ):
+        raise f.error("resolution", f"expected [width, height] integers, got {resolution!r}")
+    with rekeyed(f.path, {"distortion_model": f.key("distortion_model")}):
+        cls = camera_class(f.string("distortion_model"))
+    coeffs = f.numbers(distortion_key, cls.distortion_sizes)
+    assert coeffs is not None
+    keys = {
+        "resolution": f.key("resolution"),
+        "intrinsics": f.key("intrinsics"),
+        "distortion": f.key(distortion_key),
+    }
+    with rekeyed(f.path, keys):
+        return cls(resolution[0], resolution[1], *intrinsics, coeffs)

@@ -1,0 +1,70 @@
+"""Loading a rig from any supported calibration source, and the bundled EuRoC example rig."""
+
+from __future__ import annotations
+
+import os
+from importlib import resources
+from pathlib import Path
+
+from calib.euroc import read_euroc_rig
+from calib.fields import read_yaml
+from calib.kalibr import read_kalibr
+from calib.rig import Rig
+from runtime.errors import CalibrationError
+
+#: File names tried beside a camchain for its IMU YAML, after the name-derived candidates.
+IMU_YAML_NAMES = ("kalibr_imu_chain.yaml", "imu.yaml", "imu0.yaml")
+
+
+def find_imu_yaml(camchain: str | os.PathLike) -> Path | None:
+    """The Kalibr IMU YAML beside a camchain, or None.
+
+    Tries the camchain's name with ``camchain-imucam`` -> ``imu`` (Kalibr output),
+    ``imucam_chain`` -> ``imu_chain`` (OpenVINS), ``camchain`` -> ``imu`` (e.g. euroc_camchain.yaml ->
+    euroc_imu.yaml), then IMU_YAML_NAMES.
+    """
+    p = Path(camchain)
+    names: list[str] = []
+    for old, new in (("camchain-imucam", "imu"), ("imucam_chain", "imu_chain"), ("camchain", "imu")):
+        if old in p.name:
+            names.append(p.name.replace(old, new))
+    names += IMU_YAML_NAMES
+    for name in names:
+        candidate = p.with_name(name)
+        if candidate != p and candidate.is_file():
+            return candidate
+    return None
+
+
+def load_rig(path: str | os.PathLike, imu_yaml: str | os.PathLike | None = None) -> Rig:
+    """Rig from a calibration source, dispatching on what ``path`` holds.
+
+    - a folder: EuRoC (sequence, ``mav0`` or ``cam0`` folder);
+    - a YAML with a top-level ``cam0``: Kalibr camchain; the IMU YAML is ``imu_yaml`` or
+      :func:`find_imu_yaml`'s (withheld when there is none);
+    - a YAML with ``sensor_type: camera``: EuRoC ``cam0/sensor.yaml``.
+    """
+    p = Path(path)
+    if p.is_dir():
+        return read_euroc_rig(p)
+    data = read_yaml(p)
+    if "cam0" in data:
+        return read_kalibr(p, imu_yaml if imu_yaml is not None else find_imu_yaml(p))
+    if data.get("sensor_type") == "camera":
+        return read_euroc_rig(p)
+    raise CalibrationError(
+        "not a recognised calibration file "
+        "(expected a Kalibr camchain with cam0 or an EuRoC camera sensor.yaml)",
+        p,
+        "cam0",
+    )
+
+
+def euroc_rig() -> Rig:
+    """The EuRoC MAV cam0 + imu0 rig bundled as ``calib/rigs/euroc_camchain.yaml`` / ``euroc_imu.yaml``."""
+    rigs = resources.files("calib") / "rigs"
+    with (
+        resources.as_file(rigs / "euroc_camchain.yaml") as camchain,
+        resources.as_file(rigs / "euroc_imu.yaml") as imu,
+    ):
+        return read_kalibr(camchain, imu)

@@ -1,0 +1,178 @@
+"""Kalibr camchain / imu YAML: reader (Kalibr and OpenVINS flavours) and writer.
+
+Camchain keys per camera (``cam0``): ``camera_model`` (pinhole), ``intrinsics`` [fx, fy, cx, cy],
+``resolution`` [w, h], ``distortion_model`` (radtan | equidistant, aliases equi / fisheye /
+radial-tangential, none), ``distortion_coeffs``, extrinsics as Kalibr's ``T_cam_imu`` (= T_CI) or
+OpenVINS's ``T_imu_cam`` (= T_IC), ``timeshift_cam_imu`` (t_imu = t_cam + shift, seconds).
+DAVIO extension keys, ignored by Kalibr and OpenVINS: ``rate_hz`` (camera rate) and ``rig_name``.
+IMU file keys (``imu0``): ``accelerometer_noise_density``, ``accelerometer_random_walk``,
+``gyroscope_noise_density``, ``gyroscope_random_walk``, ``update_rate``.
+
+Withheld values: absent extrinsics / timeshift (as in Kalibr's camera-only output) and null
+values read as None; any other absent key is an error.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import yaml
+
+from calib.camera import Pinhole, PinholeEquidistant, PinholeRadtan
+from calib.fields import Fields, read_camera, read_yaml, rekeyed, write_text_atomic
+from calib.rig import IMU_FIELDS, ImuNoise, Rig, rigid_transform
+from runtime.errors import CalibrationError
+
+#: Kalibr imu0 key for each ImuNoise field.
+KALIBR_IMU_KEYS = {
+    "gyro_noise_density": "gyroscope_noise_density",
+    "gyro_random_walk": "gyroscope_random_walk",
+    "accel_noise_density": "accelerometer_noise_density",
+    "accel_random_walk": "accelerometer_random_walk",
+    "rate_hz": "update_rate",
+}
+#: Extrinsics from two files (or two keys) must agree this well (max abs entry).
+EXTRINSICS_AGREEMENT = 1e-6
+
+
+def read_kalibr_imu(path: str | os.PathLike, imu: str = "imu0") -> ImuNoise:
+    """IMU noise model from a Kalibr imu YAML (``imu0`` block); null values are withheld (None)."""
+    f = Fields(path, read_yaml(path)).sub(imu)
+    values = {ours: f.number(theirs, nullable=True) for ours, theirs in KALIBR_IMU_KEYS.items()}
+    with rekeyed(f.path, {f"imu.{ours}": f.key(theirs) for ours, theirs in KALIBR_IMU_KEYS.items()}):
+        return ImuNoise(**values)
+
+
+def _read_T_IC(f: Fields) -> np.ndarray | None:
+    found: dict[str, np.ndarray] = {}
+    for key in ("T_cam_imu", "T_imu_cam"):
+        if f.has(key):
+            M = f.matrix(key, 4, 4, nullable=True)
+            if M is not None:
+                with rekeyed(f.path, {"T": f.key(key)}):
+                    M = np.array(rigid_transform(M, "T"))
+                # a true matrix inverse keeps write -> read exact for files with rounded rotations
+                found[key] = np.linalg.inv(M) if key == "T_cam_imu" else M
+    if len(found) == 2 and np.max(np.abs(found["T_cam_imu"] - found["T_imu_cam"])) > EXTRINSICS_AGREEMENT:
+        raise f.error(
+            "T_imu_cam", "T_cam_imu and T_imu_cam are both given and are not inverses of each other"
+        )
+    return found.get("T_cam_imu", found.get("T_imu_cam"))
+
+
+def read_kalibr(
+    camchain_yaml: str | os.PathLike, imu_yaml: str | os.PathLike | None = None, camera: str = "cam0"
+) -> Rig:
+    """Rig from a Kalibr camchain YAML (camera ``camera``) and optionally a Kalibr imu YAML.
+
+    Without ``imu_yaml`` the IMU noise is withheld (None). Accepts Kalibr's ``T_cam_imu`` and
+    OpenVINS's ``T_imu_cam``; an OpenCV ``%YAML:1.0`` first line is tolerated.
+    """
+    top = Fields(camchain_yaml, read_yaml(camchain_yaml))
+    f = top.sub(camera)
+    cam = read_camera(f, "distortion_coeffs")
+    T_IC = _read_T_IC(f)
+    time_offset = f.number("timeshift_cam_imu", nullable=True, optional=True)
+    rate_hz = f.number("rate_hz", nullable=True, optional=True, positive=True)
+    name = f.raw("rig_name", optional=True)
+    if name is not None and not isinstance(name, str):
+        raise f.error("rig_name", f"expected a string, got {name!r}")
+    imu = None if imu_yaml is None else read_kalibr_imu(imu_yaml)
+    return Rig(
+        camera=cam,
+        T_IC=T_IC,
+        time_offset_s=time_offset,
+        imu=imu,
+        camera_rate_hz=rate_hz,
+        name=name if name is not None else Path(camchain_yaml).stem,
+    )
+
+
+class _FlowList(list):
+    """A list dumped in YAML flow style ([a, b, c])."""
+
+
+class _Dumper(yaml.SafeDumper):
+    pass
+
+
+_Dumper.add_representer(
+    _FlowList, lambda d, data: d.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=True)
+)
+
+
+def _camera_block(rig: Rig, extrinsics_key: str) -> dict:
+    cam = rig.camera
+    block: dict = {}
+    if rig.T_IC is not None:
+        T = np.linalg.inv(rig.T_IC) if extrinsics_key == "T_cam_imu" else np.array(rig.T_IC)
+        block[extrinsics_key] = [_FlowList(float(v) for v in row) for row in T]
+    block["camera_model"] = "pinhole"
+    if cam is None:
+        block["intrinsics"] = None
+    else:
+        if isinstance(cam, PinholeRadtan):
+            coeffs = cam.distortion.tolist()
+            if len(coeffs) == 5:
+                if coeffs[4] != 0.0:
+                    raise CalibrationError(
+                        "Kalibr's radtan model has no k3 term; this camera's k3 is not zero",
+                        None,
+                        "distortion",
+                    )
+                coeffs = coeffs[:4]
+        elif isinstance(cam, (PinholeEquidistant, Pinhole)):
+            coeffs = cam.distortion.tolist()
+        else:
+            raise CalibrationError(f"cannot write {type(cam).__name__} to Kalibr", None, "camera")
+        block["distortion_coeffs"] = _FlowList(coeffs)
+        block["distortion_model"] = cam.distortion_model
+        block["intrinsics"] = _FlowList([cam.fx, cam.fy, cam.cx, cam.cy])
+        block["resolution"] = _FlowList([cam.width, cam.height])
+    if rig.time_offset_s is not None:
+        block["timeshift_cam_imu"] = rig.time_offset_s
+    if rig.camera_rate_hz is not None:
+        block["rate_hz"] = rig.camera_rate_hz
+    if rig.name:
+        block["rig_name"] = rig.name
+    return block
+
+
+def _header(comment: str | None) -> str:
+    if not comment:
+        return ""
+    return "".join(f"# {line}".rstrip() + "\n" for line in comment.splitlines())
+
+
+def write_kalibr(
+    rig: Rig,
+    camchain_path: str | os.PathLike,
+    imu_path: str | os.PathLike | None = None,
+    extrinsics_key: Literal["T_cam_imu", "T_imu_cam"] = "T_cam_imu",
+    comment: str | None = None,
+) -> None:
+    """Write ``rig`` as a Kalibr camchain (``cam0``) and optionally a Kalibr imu YAML (``imu0``).
+
+    Withheld values: extrinsics and timeshift are left out (as in Kalibr's camera-only output);
+    a withheld camera is written as ``intrinsics: null``; withheld IMU fields as null. Floats are
+    written with full precision, so :func:`read_kalibr` gives back the same rig. Writes are atomic.
+
+    Args:
+        extrinsics_key: ``T_cam_imu`` (Kalibr, T_CI) or ``T_imu_cam`` (OpenVINS, T_IC).
+        comment: optional text written as ``#`` lines at the top of each file.
+    """
+    if extrinsics_key not in ("T_cam_imu", "T_imu_cam"):
+        raise ValueError(f"extrinsics_key must be 'T_cam_imu' or 'T_imu_cam', got {extrinsics_key!r}")
+    with rekeyed(camchain_path, {"distortion": "cam0.distortion_coeffs", "camera": "cam0"}):
+        camchain = {"cam0": _camera_block(rig, extrinsics_key)}
+    text = yaml.dump(camchain, Dumper=_Dumper, sort_keys=False, default_flow_style=False)
+    write_text_atomic(camchain_path, _header(comment) + text)
+    if imu_path is not None:
+        imu = rig.imu if rig.imu is not None else ImuNoise()
+        block = {KALIBR_IMU_KEYS[name]: getattr(imu, name) for name in IMU_FIELDS}
+        block = {k: block[k] for k in sorted(block)}
+        text = yaml.dump({"imu0": block}, Dumper=_Dumper, sort_keys=False, default_flow_style=False)
+        write_text_atomic(imu_path, _header(comment) + text)

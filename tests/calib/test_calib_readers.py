@@ -1,0 +1,156 @@
+"""EuRoC and Kalibr readers on the real files, the Kalibr writer round trip, load_rig, euroc_rig."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from calib import (
+    ImuNoise,
+    Pinhole,
+    PinholeEquidistant,
+    PinholeRadtan,
+    Rig,
+    euroc_rig,
+    find_imu_yaml,
+    load_rig,
+    read_euroc_rig,
+    read_kalibr,
+    write_kalibr,
+)
+from tests.conftest import shared_path
+
+# The numbers printed in EuRoC's mav0/cam0/sensor.yaml and imu0/sensor.yaml (V1_01_easy).
+EUROC_T_BS = np.array(
+    [
+        [0.0148655429818, -0.999880929698, 0.00414029679422, -0.0216401454975],
+        [0.999557249008, 0.0149672133247, 0.025715529948, -0.064676986768],
+        [-0.0257744366974, 0.00375618835797, 0.999660727178, 0.00981073058949],
+        [0.0, 0.0, 0.0, 1.0],
+    ]
+)
+EUROC_INTRINSICS = [458.654, 457.296, 367.215, 248.375]
+EUROC_DISTORTION = [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
+EUROC_IMU = ImuNoise(1.6968e-04, 1.9393e-05, 2.0e-3, 3.0e-3, 200.0)
+
+
+def _jpl_xyzw_to_rot(q: np.ndarray) -> np.ndarray:
+    """R from a JPL quaternion (x, y, z, w): (2w^2 - 1) I - 2w [v]x + 2 v v^T (data README)."""
+    v, w = np.asarray(q[:3]), float(q[3])
+    vx = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    return (2 * w * w - 1) * np.eye(3) - 2 * w * vx + 2 * np.outer(v, v)
+
+
+def _check_euroc(rig: Rig) -> None:
+    assert isinstance(rig.camera, PinholeRadtan)
+    assert rig.camera.size == (752, 480)
+    np.testing.assert_array_equal(
+        [rig.camera.fx, rig.camera.fy, rig.camera.cx, rig.camera.cy], EUROC_INTRINSICS
+    )
+    np.testing.assert_array_equal(rig.camera.distortion, EUROC_DISTORTION)
+    np.testing.assert_array_equal(rig.T_IC, EUROC_T_BS)  # imu0's T_BS is the identity: body = IMU
+    assert rig.imu == EUROC_IMU
+    assert rig.camera_rate_hz == 20.0
+    assert rig.time_offset_s is None  # EuRoC files state no offset: withheld, not defaulted
+    assert rig.missing() == ["time_offset_s"]
+
+
+@pytest.mark.shared_data
+def test_read_euroc_rig_accepts_sequence_mav0_cam0_and_sensor_yaml() -> None:
+    seq = shared_path("euroc", "V1_01_easy_head")
+    for p in (seq, seq / "mav0", seq / "mav0" / "cam0", seq / "mav0" / "cam0" / "sensor.yaml"):
+        rig = read_euroc_rig(p)
+        _check_euroc(rig)
+        assert rig.name == "V1_01_easy_head"
+    _check_euroc(load_rig(seq))
+    _check_euroc(load_rig(seq / "mav0" / "cam0" / "sensor.yaml"))
+
+
+@pytest.mark.shared_data
+def test_read_kalibr_openvins_sim_files_agree_with_sim_info() -> None:
+    folder = shared_path("openvins_sim", "udel_gore_mono")
+    rig = read_kalibr(folder / "kalibr_imucam_chain.yaml", folder / "kalibr_imu_chain.yaml")
+    # sim_info.txt states the extrinsics independently, as JPL q_ItoC and p_IinC
+    line = next(ln for ln in (folder / "sim_info.txt").read_text().splitlines() if "extrinsics" in ln)
+    values = np.array(line.split(")")[-1].split(), dtype=float)
+    R_CI = _jpl_xyzw_to_rot(values[:4])
+    np.testing.assert_allclose(rig.T_CI[:3, :3], R_CI, atol=1e-9)
+    np.testing.assert_allclose(rig.T_CI[:3, 3], values[4:7], atol=1e-9)
+    np.testing.assert_allclose(rig.T_IC, EUROC_T_BS, atol=1e-15)  # T_imu_cam is stored as is
+    assert rig.camera is not None and rig.camera.isclose(
+        PinholeRadtan(752, 480, *EUROC_INTRINSICS, EUROC_DISTORTION)
+    )
+    assert rig.imu == EUROC_IMU
+    assert rig.time_offset_s is None and rig.camera_rate_hz is None
+    cam1 = read_kalibr(folder / "kalibr_imucam_chain.yaml", camera="cam1")
+    assert cam1.camera is not None and cam1.camera.cx == 379.999 and cam1.imu is None
+    # load_rig finds kalibr_imu_chain.yaml beside kalibr_imucam_chain.yaml
+    assert find_imu_yaml(folder / "kalibr_imucam_chain.yaml") == folder / "kalibr_imu_chain.yaml"
+    assert load_rig(folder / "kalibr_imucam_chain.yaml").isclose(rig)
+
+
+@pytest.mark.shared_data
+def test_t_cam_imu_and_t_imu_cam_give_the_same_rig(tmp_path: Path) -> None:
+    folder = shared_path("openvins_sim", "udel_gore_mono")
+    ov = read_kalibr(folder / "kalibr_imucam_chain.yaml")
+    # hand-made Kalibr file: T_cam_imu is the matrix inverse of OpenVINS's T_imu_cam
+    text = (folder / "kalibr_imucam_chain.yaml").read_text().split("\n", 1)[1]
+    data = yaml.safe_load(text)
+    cam0 = data["cam0"]
+    cam0["T_cam_imu"] = np.linalg.inv(np.array(cam0.pop("T_imu_cam"))).tolist()
+    (tmp_path / "kalibr.yaml").write_text(yaml.safe_dump({"cam0": cam0}))
+    kal = read_kalibr(tmp_path / "kalibr.yaml")
+    assert kal.isclose(ov, rtol=0, atol=1e-12)
+    # and both keys through our writer
+    for key in ("T_cam_imu", "T_imu_cam"):
+        write_kalibr(ov, tmp_path / f"{key}.yaml", extrinsics_key=key)
+        assert key in yaml.safe_load((tmp_path / f"{key}.yaml").read_text())["cam0"]
+        assert read_kalibr(tmp_path / f"{key}.yaml").isclose(ov, rtol=0, atol=1e-15)
+
+
+def _rigs() -> list[Rig]:
+    rng = np.random.default_rng(0)
+    from scipy.spatial.transform import Rotation
+
+    T = np.eye(4)
+    T[:3, :3] = Rotation.random(random_state=3).as_matrix()
+    T[:3, 3] = rng.normal(size=3) * 0.1
+    radtan = PinholeRadtan(640, 400, 401.123456789, 402.5, 319.25, 201.75, rng.normal(size=4) * 0.01)
+    fisheye = PinholeEquidistant(848, 800, 285.7, 285.9, 425.1, 398.2, rng.normal(size=4) * 0.01)
+    return [
+        Rig(radtan, T, -0.0123456789, ImuNoise(1e-4, 2e-5, 3e-3, 4e-4, 400.0), 30.0, "radtan"),
+        Rig(fisheye, T, None, ImuNoise(gyro_noise_density=1e-3), None, "fisheye-partial"),
+        Rig(Pinhole(320, 240, 300.0, 300.0, 159.5, 119.5), None, 0.0, None, 15.0, "pinhole"),
+        Rig(None, None, None, None, None, "withheld"),
+    ]
+
+
+@pytest.mark.parametrize("rig", _rigs(), ids=lambda r: r.name)
+def test_writer_round_trip(rig: Rig, tmp_path: Path) -> None:
+    write_kalibr(rig, tmp_path / "camchain.yaml", tmp_path / "imu.yaml", comment="round trip\ntest")
+    back = read_kalibr(tmp_path / "camchain.yaml", tmp_path / "imu.yaml")
+    assert back.isclose(rig, rtol=0, atol=1e-15)
+    assert back.name == rig.name
+    assert back.missing() == rig.missing()
+    assert load_rig(tmp_path / "camchain.yaml").isclose(rig, rtol=0, atol=1e-15)  # finds imu.yaml
+    assert (tmp_path / "camchain.yaml").read_text().startswith("# round trip\n# test\n")
+    without_imu = read_kalibr(tmp_path / "camchain.yaml")
+    assert without_imu.imu is None
+
+
+def test_bundled_euroc_rig() -> None:
+    rig = euroc_rig()
+    assert rig.is_complete and rig.time_offset_s == 0.0 and rig.name == "euroc_mav_cam0"
+    expected = Rig(
+        PinholeRadtan(752, 480, *EUROC_INTRINSICS, EUROC_DISTORTION), EUROC_T_BS, 0.0, EUROC_IMU, 20.0
+    )
+    assert rig.isclose(expected, rtol=0, atol=1e-15)
+
+
+@pytest.mark.shared_data
+def test_bundled_euroc_rig_matches_the_dataset_files() -> None:
+    real = read_euroc_rig(shared_path("euroc", "V1_01_easy_head"))
+    assert euroc_rig().isclose(real.replace(time_offset_s=0.0), rtol=0, atol=1e-15)
