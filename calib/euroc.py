@@ -17,17 +17,17 @@ from calib.rig import ImuNoise, Rig, invert_rigid, rigid_transform
 from runtime.errors import CalibrationError
 
 
-def _locate(path: Path) -> tuple[Path, Path, str]:
-    """(cam0 sensor.yaml, imu0 sensor.yaml, rig name) for a sequence, mav0 or cam0 folder or a sensor.yaml."""
+def _locate(path: Path, camera: str) -> tuple[Path, Path, str]:
+    """(camera sensor.yaml, imu0 sensor.yaml, rig name) of a sequence, mav0 or camera folder or sensor.yaml."""
     if path.is_file():
         cam_yaml = path
         mav0 = path.parent.parent
-    elif (path / "mav0" / "cam0" / "sensor.yaml").is_file():
+    elif (path / "mav0" / camera / "sensor.yaml").is_file():
         mav0 = path / "mav0"
-        cam_yaml = mav0 / "cam0" / "sensor.yaml"
-    elif (path / "cam0" / "sensor.yaml").is_file():
+        cam_yaml = mav0 / camera / "sensor.yaml"
+    elif (path / camera / "sensor.yaml").is_file():
         mav0 = path
-        cam_yaml = mav0 / "cam0" / "sensor.yaml"
+        cam_yaml = mav0 / camera / "sensor.yaml"
     elif (path / "sensor.yaml").is_file():
         cam_yaml = path / "sensor.yaml"
         mav0 = path.parent
@@ -35,7 +35,7 @@ def _locate(path: Path) -> tuple[Path, Path, str]:
         raise CalibrationError("calibration path not found", path, None)
     else:
         raise CalibrationError(
-            "not an EuRoC folder (expected mav0/cam0/sensor.yaml, cam0/sensor.yaml or sensor.yaml)",
+            f"not an EuRoC folder (expected mav0/{camera}/sensor.yaml, {camera}/sensor.yaml or sensor.yaml)",
             path,
             None,
         )
@@ -68,16 +68,17 @@ def read_euroc_imu(path: str | os.PathLike) -> tuple[ImuNoise, np.ndarray | None
         return ImuNoise(**values), T_BI
 
 
-def read_euroc_rig(path: str | os.PathLike) -> Rig:
+def read_euroc_rig(path: str | os.PathLike, camera: str = "cam0") -> Rig:
     """Rig from EuRoC calibration files.
 
     Args:
-        path: a sequence folder (holding ``mav0``), a ``mav0`` folder, a ``cam0`` folder or a
-            ``cam0/sensor.yaml`` file. The IMU file is ``mav0/imu0/sensor.yaml``; when it is absent
-            the IMU noise is withheld (None) and the body frame is taken as the IMU frame (EuRoC's
-            definition).
+        path: a sequence folder (holding ``mav0``), a ``mav0`` folder, a camera folder or a
+            camera's ``sensor.yaml`` file. The IMU file is ``mav0/imu0/sensor.yaml``; when it is
+            absent the IMU noise is withheld (None) and the body frame is taken as the IMU frame
+            (EuRoC's definition).
+        camera: the camera folder used when ``path`` is a sequence or mav0 folder (``cam0``, ``cam1``).
     """
-    cam_yaml, imu_yaml, name = _locate(Path(path))
+    cam_yaml, imu_yaml, name = _locate(Path(path), camera)
     f = Fields(cam_yaml, read_yaml(cam_yaml))
     _sensor_type(f, "camera")
     camera = read_camera(f, "distortion_coefficients")

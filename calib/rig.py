@@ -200,6 +200,13 @@ class Rig:
                 f"{label} withholds {', '.join(withheld)}, which this step needs", None, withheld[0]
             )
 
+    def __repr__(self) -> str:
+        extrinsics = "None" if self.T_IC is None else f"<p_IC={np.round(self.T_IC[:3, 3], 6).tolist()} m>"
+        return (
+            f"Rig(name={self.name!r}, camera={self.camera!r}, T_IC={extrinsics}, "
+            f"time_offset_s={self.time_offset_s}, imu={self.imu!r}, camera_rate_hz={self.camera_rate_hz})"
+        )
+
     def replace(self, **changes: object) -> Rig:
         """A copy with some fields changed (validated again)."""
         values = {f.name: getattr(self, f.name) for f in fields(self)}

@@ -98,6 +98,10 @@ def test_valid_fixtures_read(tmp_path: Path) -> None:
     _write(mav0 / "cam0" / "sensor.yaml", EUROC_CAM, True)
     _write(mav0 / "imu0" / "sensor.yaml", EUROC_IMU, True)
     assert read_euroc_rig(tmp_path / "seq").isclose(rig.replace(time_offset_s=None, camera_rate_hz=20.0))
+    _write(mav0 / "cam1" / "sensor.yaml", _set(EUROC_CAM, "intrinsics", [450.0, 451.0, 370.0, 250.0]), True)
+    cam1 = read_euroc_rig(tmp_path / "seq", camera="cam1").camera
+    assert cam1 is not None and (cam1.fx, cam1.cy) == (450.0, 250.0)
+    _raises(lambda: read_euroc_rig(mav0, camera="cam2"), mav0, None)
 
 
 def test_opencv_yaml_header_is_stripped_but_broken_yaml_is_reported(tmp_path: Path) -> None:

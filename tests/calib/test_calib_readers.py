@@ -148,6 +148,9 @@ def test_bundled_euroc_rig() -> None:
         PinholeRadtan(752, 480, *EUROC_INTRINSICS, EUROC_DISTORTION), EUROC_T_BS, 0.0, EUROC_IMU, 20.0
     )
     assert rig.isclose(expected, rtol=0, atol=1e-15)
+    bundled = Path(__file__).resolve().parents[2] / "calib" / "rigs" / "euroc_camchain.yaml"
+    assert find_imu_yaml(bundled) == bundled.with_name("euroc_imu.yaml")
+    assert load_rig(bundled).isclose(rig)
 
 
 @pytest.mark.shared_data
