@@ -18,7 +18,7 @@ from runtime.errors import CalibrationError
 
 
 def _locate(path: Path, camera: str) -> tuple[Path, Path, str]:
-    """(camera sensor.yaml, imu0 sensor.yaml, rig name) of a sequence, mav0 or camera folder or sensor.yaml."""
+    """(camera sensor.yaml, imu0 sensor.yaml, rig name) of a sequence, mav0, camera folder or sensor.yaml."""
     if path.is_file():
         cam_yaml = path
         mav0 = path.parent.parent
