@@ -7,7 +7,6 @@ reproduced from that file (`config_from_dict` / `load_toml`).
 from __future__ import annotations
 
 import dataclasses
-import sys
 import typing
 from pathlib import Path
 from typing import Any, TypeVar
@@ -105,10 +104,7 @@ def config_from_dict(cls: type[T], data: dict) -> T:
 
 def load_toml(cls: type[T], path: str | Path) -> T:
     """Read a TOML file into config dataclass `cls` (ConfigError names the file and key)."""
-    if sys.version_info >= (3, 11):
-        import tomllib
-    else:  # pragma: no cover
-        import tomli as tomllib
+    import tomllib
     p = Path(path)
     try:
         data = tomllib.loads(p.read_text())

@@ -101,3 +101,26 @@ def make_window(kind: str = "general", n_images: int = 5, spacing: float = 0.2, 
         dp=np.stack(dp), dv=np.stack(dv), J_R_bg=Z.copy(), J_p_bg=Z.copy(), J_p_ba=Z.copy(),
         J_v_bg=Z.copy(), J_v_ba=Z.copy(), R_IC=R_IC_EUROC, p_IC=P_IC_EUROC)
     return window, Truth(scale, v0, g_I0, R_WI, p_WI, v_W)
+
+
+def imu_samples(kind: str, t_end: float, rate_hz: float = 1000.0, bg: np.ndarray | None = None,
+                ba: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Noise-free IMU samples (t_ns, gyro, accel) of a motion kind from -0.05 s to t_end + 0.05 s.
+
+    Angular rate from central differences of the closed-form rotation (h = 1e-5 s), specific force
+    from central differences of the closed-form velocity: a_I = R_WI^T (a_W + g0 e_z).
+    """
+    p, v, R = motion(kind)
+    t = np.arange(-0.05, t_end + 0.05, 1.0 / rate_hz)
+    h = 1e-5
+    gyro, accel = [], []
+    for tk in t:
+        Rk = R(tk)
+        dR = (R(tk + h) - R(tk - h)) / (2 * h)
+        W = Rk.T @ dR
+        gyro.append([W[2, 1], W[0, 2], W[1, 0]])
+        a_W = (v(tk + h) - v(tk - h)) / (2 * h)
+        accel.append(Rk.T @ (a_W + np.array([0.0, 0.0, G0])))
+    gyro = np.asarray(gyro) + (0 if bg is None else bg)
+    accel = np.asarray(accel) + (0 if ba is None else ba)
+    return np.round(t * 1e9).astype(np.int64), gyro, accel

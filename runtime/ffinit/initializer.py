@@ -1,0 +1,127 @@
+"""The feed-forward initializer: one 5-image window + IMU -> an InitResult or a Rejection.
+
+Steps (paper Sec. IV): DA3 start-up call; confidence-gated sampling; preintegration to each image
+at the current bias; gyro-bias alignment of DA3 and IMU rotations and re-preintegration;
+conditioning gates and stratified LMedS; acceptance gates; Huber refinement; state at the last
+image in a gravity-aligned frame. Every rejection carries its reason.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from drivers.events import Frame
+from models.depth_model import DepthModel
+from runtime.errors import DataError, EstimatorError
+from runtime.ffinit.config import FFInitConfig
+from runtime.ffinit.gyro_bias import align_gyro_bias
+from runtime.ffinit.refine import refine
+from runtime.ffinit.robust import RobustResult, robust_solve
+from runtime.ffinit.sampling import observations_from_prediction
+from runtime.ffinit.state import state_at_last_image
+from runtime.ffinit.window import ImageObservations, InitWindow, Rejection
+from runtime.imu import Preintegrator
+from runtime.msckf.init_common import InitResult
+
+
+def build_window(t_cam_ns: Sequence[int], observations: list[ImageObservations], imu_t_ns: np.ndarray,
+                 gyro: np.ndarray, accel: np.ndarray, R_IC: np.ndarray, p_IC: np.ndarray,
+                 time_offset_s: float = 0.0, bg: np.ndarray | None = None,
+                 ba: np.ndarray | None = None) -> InitWindow:
+    """Preintegrate from the first image to every image (IMU clock = camera clock + offset)."""
+    bg = np.zeros(3) if bg is None else np.asarray(bg, float)
+    ba = np.zeros(3) if ba is None else np.asarray(ba, float)
+    off = int(round(time_offset_s * 1e9))
+    t_imu = np.asarray(t_cam_ns, dtype=np.int64) + off
+    pre = Preintegrator(bg, ba)
+    n = len(t_imu)
+    I3 = np.eye(3)
+    R, dp, dv = np.tile(I3, (n, 1, 1)), np.zeros((n, 3)), np.zeros((n, 3))
+    J = {k: np.zeros((n, 3, 3)) for k in ("R_bg", "p_bg", "p_ba", "v_bg", "v_ba")}
+    for i in range(1, n):
+        p = pre.integrate(imu_t_ns, gyro, accel, int(t_imu[0]), int(t_imu[i]))
+        R[i], dp[i], dv[i] = p.dR, p.dp, p.dv
+        J["R_bg"][i], J["p_bg"][i], J["p_ba"][i] = p.J_R_bg, p.J_p_bg, p.J_p_ba
+        J["v_bg"][i], J["v_ba"][i] = p.J_v_bg, p.J_v_ba
+    dt = (t_imu - t_imu[0]).astype(np.float64) * 1e-9
+    return InitWindow(t_ns=t_imu, images=observations, dt=dt, R_I0Ii=R, dp=dp, dv=dv,
+                      J_R_bg=J["R_bg"], J_p_bg=J["p_bg"], J_p_ba=J["p_ba"], J_v_bg=J["v_bg"],
+                      J_v_ba=J["v_ba"], R_IC=np.asarray(R_IC, float), p_IC=np.asarray(p_IC, float),
+                      bg=bg, ba=ba)
+
+
+def solve_window(window: InitWindow, cfg: FFInitConfig, rebuild=None) -> InitResult | Rejection:
+    """Gyro-bias alignment, robust solve, refinement and the state at the last image.
+
+    rebuild(bg) -> InitWindow re-preintegrates at a new gyro bias (None: keep first order).
+    """
+    dbg = align_gyro_bias(window)
+    if rebuild is not None and np.linalg.norm(dbg) > 0:
+        window = rebuild(window.bg + dbg)
+        dbg = np.zeros(3)
+    robust = robust_solve(window, cfg)
+    if isinstance(robust, Rejection):
+        return robust
+    assert isinstance(robust, RobustResult)
+    inliers = [np.zeros(len(o.z), bool) for o in window.images]
+    offset = 0
+    for i in range(1, window.num_images):
+        k = len(window.images[i].z)
+        inliers[i] = robust.inliers[offset:offset + k]
+        offset += k
+    ref = refine(window, robust.solution, inliers, cfg, dbg0=dbg)
+    if not (np.isfinite(ref.scale) and ref.scale > 0 and np.all(np.isfinite(ref.v0))):
+        return Rejection("refinement_failed", "non-finite refined state")
+    if np.linalg.norm(ref.v0) > cfg.max_velocity:
+        return Rejection("implausible_velocity", f"refined |v0| = {np.linalg.norm(ref.v0):.2f} m/s")
+    result = state_at_last_image(window, ref, int(window.t_ns[-1]))
+    result.info.update({"linear_scale": robust.solution.scale, "inlier_fraction": robust.inlier_fraction,
+                        "median_residual": robust.median_residual, "gyro_bias_change": dbg.tolist()})
+    return result
+
+
+class FeedForwardInitializer:
+    """Runs the DA3 start-up call on a window of frames and solves for the metric state.
+
+    Args:
+        model: a DepthModel (ONNX DA3 or the emulated DA3).
+        R_IC, p_IC: camera–IMU extrinsics (p_IC = 0 when withheld, Sec. IV-D).
+        time_offset_s: t_imu = t_cam + time_offset_s.
+        use_rig_intrinsics: normalized coordinates from the model's K_rect (calibrated) instead of
+            DA3's predicted intrinsics.
+    """
+
+    def __init__(self, model: DepthModel, R_IC: np.ndarray, p_IC: np.ndarray, time_offset_s: float = 0.0,
+                 cfg: FFInitConfig | None = None, use_rig_intrinsics: bool = True) -> None:
+        self.model = model
+        self.R_IC = np.asarray(R_IC, float)
+        self.p_IC = np.asarray(p_IC, float)
+        self.time_offset_s = float(time_offset_s)
+        self.cfg = cfg or FFInitConfig()
+        self.use_rig_intrinsics = use_rig_intrinsics
+
+    def solve(self, frames: Sequence[Frame], imu_t_ns: np.ndarray, gyro: np.ndarray, accel: np.ndarray,
+              bg: np.ndarray | None = None, ba: np.ndarray | None = None) -> InitResult | Rejection:
+        """One attempt on `frames` (spaced about 0.2 s) with the IMU samples covering them."""
+        if len(frames) < self.cfg.min_images:
+            return Rejection("too_few_images", f"{len(frames)} frames < {self.cfg.min_images}")
+        t_cam = [int(f.t_ns) for f in frames]
+        if any(b <= a for a, b in zip(t_cam, t_cam[1:], strict=False)):
+            raise EstimatorError("window frames must have strictly increasing stamps")
+        pred = self.model.predict(list(frames))
+        K = self.model.K_rect if self.use_rig_intrinsics else None
+        obs = observations_from_prediction(pred, self.cfg, K=K, seed=self.cfg.seed)
+
+        def rebuild(bg_new: np.ndarray) -> InitWindow:
+            return build_window(t_cam, obs, imu_t_ns, gyro, accel, self.R_IC, self.p_IC,
+                                self.time_offset_s, bg_new, ba)
+
+        try:
+            window = rebuild(np.zeros(3) if bg is None else bg)
+        except DataError as exc:
+            return Rejection("imu_gap", str(exc))
+        result = solve_window(window, self.cfg, rebuild)
+        if isinstance(result, InitResult):
+            result.info["da3"] = dict(pred.info)
+        return result

@@ -1,0 +1,73 @@
+"""Feed-forward initializer with a real preintegrated IMU: gyro-bias alignment, refinement and the
+gravity-aligned state at the last image, checked against the closed-form truth."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from ffinit_synth import G0, P_IC_EUROC, R_IC_EUROC, imu_samples, make_window, motion
+from scipy.spatial.transform import Rotation
+
+from runtime.ffinit import FFInitConfig
+from runtime.ffinit.gyro_bias import align_gyro_bias
+from runtime.ffinit.initializer import build_window, solve_window
+from runtime.ffinit.state import gravity_alignment
+from runtime.ffinit.window import Rejection
+
+
+def _window_with_imu(bg_true=None, **kw):
+    window, truth = make_window("general", **kw)
+    t_ns, gyro, accel = imu_samples("general", float(window.dt[-1]), bg=bg_true)
+    obs = window.images
+
+    def rebuild(bg):
+        return build_window(window.t_ns, obs, t_ns, gyro, accel, R_IC_EUROC, P_IC_EUROC, 0.0, bg)
+
+    return rebuild(np.zeros(3)), rebuild, truth
+
+
+def test_preintegrated_window_matches_closed_form_terms():
+    window, _, _ = _window_with_imu()
+    ref, _ = make_window("general")
+    np.testing.assert_allclose(window.R_I0Ii, ref.R_I0Ii, atol=1e-6)
+    np.testing.assert_allclose(window.dp, ref.dp, atol=1e-5)
+    np.testing.assert_allclose(window.dv, ref.dv, atol=1e-5)
+
+
+def test_gyro_bias_alignment_recovers_a_constant_bias():
+    bg = np.array([0.01, -0.02, 0.015])
+    window, _, _ = _window_with_imu(bg_true=bg)
+    dbg = align_gyro_bias(window)
+    np.testing.assert_allclose(dbg, bg, atol=2e-4)
+
+
+def test_full_solve_recovers_the_state_at_the_last_image():
+    bg = np.array([0.004, -0.006, 0.003])
+    window, rebuild, truth = _window_with_imu(bg_true=bg)
+    res = solve_window(window, FFInitConfig(), rebuild)
+    assert not isinstance(res, Rejection), res
+    # truth expressed in O: O = gravity-aligned frame at I0 built from the true gravity in I0
+    R_OW = gravity_alignment(truth.g_I0) @ truth.R_WI[0].T
+    n = len(truth.R_WI) - 1
+    R_OIn = R_OW @ truth.R_WI[n]
+    ang = np.degrees(Rotation.from_matrix(R_OIn.T @ res.R_OI).magnitude())
+    assert ang < 0.05
+    np.testing.assert_allclose(res.p_OI, R_OW @ (truth.p_WI[n] - truth.p_WI[0]), atol=2e-3)
+    np.testing.assert_allclose(res.v_OI, R_OW @ truth.v_W[n], atol=5e-3)
+    np.testing.assert_allclose(res.bg, bg, atol=5e-4)
+    assert res.info["scale"] == pytest.approx(truth.scale, rel=1e-3)
+    assert res.cov.shape == (15, 15) and np.all(np.diag(res.cov) > 0)
+    assert res.source == "feedforward"
+
+
+def test_gravity_alignment_maps_up_to_z():
+    for g in (np.array([0.3, -0.2, 9.7]), np.array([0.0, 0.0, -9.81]), np.array([9.81, 0, 0])):
+        R = gravity_alignment(g)
+        np.testing.assert_allclose(R @ (g / np.linalg.norm(g)), [0, 0, 1], atol=1e-12)
+        np.testing.assert_allclose(R.T @ R, np.eye(3), atol=1e-12)
+
+
+def test_motion_helper_is_consistent():
+    p, v, _ = motion("general")
+    h = 1e-6
+    np.testing.assert_allclose((p(0.3 + h) - p(0.3 - h)) / (2 * h), v(0.3), atol=1e-6)
+    assert G0 == 9.81
