@@ -31,10 +31,10 @@ def as_imu_arrays(samples: Sequence[ImuSampleLike] | ImuArrays) -> ImuArrays:
     return check_imu_arrays(t_ns, gyro, accel)
 
 
-def check_imu_arrays(t_ns: object, gyro: object, accel: object) -> ImuArrays:
+def check_imu_arrays(t_ns: object, gyro: object, accel: object, first_index: int = 0) -> ImuArrays:
     """The arrays as int64 / float64 after checking shapes, finiteness and strictly increasing stamps.
 
-    Raises DataError naming the first offending sample.
+    Raises DataError naming the first offending sample (numbered from `first_index`).
     """
     t = np.asarray(t_ns)
     if t.ndim != 1 or (t.size and not np.issubdtype(t.dtype, np.integer)):
@@ -48,12 +48,13 @@ def check_imu_arrays(t_ns: object, gyro: object, accel: object) -> ImuArrays:
         bad = ~np.isfinite(arr).all(axis=1)
         if bad.any():
             k = int(np.flatnonzero(bad)[0])
-            raise DataError(f"IMU {name} sample {k} (t = {int(t[k])} ns) is not finite")
+            raise DataError(f"IMU {name} sample {k + first_index} (t = {int(t[k])} ns) is not finite")
     if t.size > 1:
         step = np.diff(t)
         if np.any(step <= 0):
             k = int(np.flatnonzero(step <= 0)[0]) + 1
-            raise DataError(f"IMU stamps are not strictly increasing at sample {k} (t = {int(t[k])} ns)")
+            raise DataError(f"IMU stamps are not strictly increasing at sample {k + first_index} "
+                            f"(t = {int(t[k])} ns)")
     return t, g, a
 
 
@@ -65,10 +66,18 @@ def imu_segment(t_ns: np.ndarray, gyro: np.ndarray, accel: np.ndarray, t0_ns: in
     strictly inside in between, and dts the K interval lengths. K = 0 when t0 == t1.
     Raises DataError when [t0, t1] is not covered by the stamps or t1 < t0.
     """
-    t, g, a = check_imu_arrays(t_ns, gyro, accel)
+    t_all, g_all, a_all = np.asarray(t_ns), np.asarray(gyro), np.asarray(accel)
     t0, t1 = int(t0_ns), int(t1_ns)
     if t1 < t0:
         raise DataError(f"preintegration interval ends before it starts: t0 = {t0} ns, t1 = {t1} ns")
+    lo = 0
+    if (t_all.ndim == 1 and t_all.size > 2 and np.issubdtype(t_all.dtype, np.integer)
+            and g_all.shape[:1] == t_all.shape and a_all.shape[:1] == t_all.shape):
+        # validate only the samples that bracket [t0, t1]: long recordings are sliced many times
+        lo = max(int(np.searchsorted(t_all, t0, side="right")) - 1, 0)
+        hi = min(int(np.searchsorted(t_all, t1, side="left")) + 1, t_all.size)
+        t_all, g_all, a_all = t_all[lo:hi], g_all[lo:hi], a_all[lo:hi]
+    t, g, a = check_imu_arrays(t_all, g_all, a_all, first_index=lo)
     if t.size == 0 or t0 < t[0] or t1 > t[-1]:
         span = "no samples" if t.size == 0 else f"samples span [{int(t[0])}, {int(t[-1])}] ns"
         raise DataError(f"IMU samples do not cover the interval [{t0}, {t1}] ns ({span})")

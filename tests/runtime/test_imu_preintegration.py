@@ -222,11 +222,14 @@ def test_zero_length_interval_and_bad_input():
     with pytest.raises(DataError, match="ends before"):
         pre.integrate(t_ns, gyro, accel, 20_000_000, 10_000_000)
     with pytest.raises(DataError, match="strictly increasing at sample 2"):
-        pre.integrate(t_ns[[0, 1, 1, 3, 4]], gyro, accel, 0, 10)
+        pre.integrate(t_ns[[0, 1, 1, 3, 4]], gyro, accel, 0, 30_000_000)
     bad = gyro.copy()
     bad[3, 1] = np.nan
     with pytest.raises(DataError, match="gyro sample 3"):
-        pre.integrate(t_ns, bad, accel, 0, 10)
+        pre.integrate(t_ns, bad, accel, 25_000_000, 35_000_000)
+    pre.integrate(t_ns, bad, accel, 0, 10_000_000)  # a bad sample outside the interval is not used
+    with pytest.raises(DataError, match=r"shape \(5, 3\)"):
+        pre.integrate(t_ns, gyro[:4], accel, 0, 10)
     with pytest.raises(DataError, match="integer"):
         pre.integrate(t_ns * 1e-9, gyro, accel, 0, 10)
     with pytest.raises(EstimatorError, match="both"):
