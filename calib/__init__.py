@@ -2,7 +2,7 @@
 
 from calib.camera import CameraModel, Pinhole, PinholeEquidistant, PinholeRadtan, camera_class
 from calib.euroc import read_euroc_rig
-from calib.io import euroc_rig, find_imu_yaml, load_rig
+from calib.io import euroc_rig, find_camchain, find_imu_yaml, load_rig
 from calib.kalibr import read_kalibr, read_kalibr_imu, write_kalibr
 from calib.rig import ImuNoise, Rig
 
@@ -15,6 +15,7 @@ __all__ = [
     "Rig",
     "camera_class",
     "euroc_rig",
+    "find_camchain",
     "find_imu_yaml",
     "load_rig",
     "read_euroc_rig",

@@ -36,16 +36,38 @@ def find_imu_yaml(camchain: str | os.PathLike) -> Path | None:
     return None
 
 
+#: Camchain file names looked for in a folder given to load_rig (Kalibr output names are globbed).
+CAMCHAIN_NAMES = ("kalibr_imucam_chain.yaml", "camchain.yaml", "camchain-imucam.yaml")
+
+
+def _is_euroc_folder(folder: Path) -> bool:
+    return any((folder / sub / "sensor.yaml").is_file() for sub in ("mav0/cam0", "cam0", "."))
+
+
+def find_camchain(folder: str | os.PathLike) -> Path | None:
+    """A Kalibr camchain in ``folder``: CAMCHAIN_NAMES, else the only ``*camchain*.yaml`` there, else None."""
+    d = Path(folder)
+    for name in CAMCHAIN_NAMES:
+        if (d / name).is_file():
+            return d / name
+    found = sorted(d.glob("*camchain*.yaml"))
+    return found[0] if len(found) == 1 else None
+
+
 def load_rig(path: str | os.PathLike, imu_yaml: str | os.PathLike | None = None) -> Rig:
     """Rig from a calibration source, dispatching on what ``path`` holds.
 
-    - a folder: EuRoC (sequence, ``mav0`` or ``cam0`` folder);
+    - a folder: EuRoC (sequence, ``mav0`` or ``cam0`` folder), or else the Kalibr camchain in it
+      (:func:`find_camchain`);
     - a YAML with a top-level ``cam0``: Kalibr camchain; the IMU YAML is ``imu_yaml`` or
       :func:`find_imu_yaml`'s (withheld when there is none);
     - a YAML with ``sensor_type: camera``: EuRoC ``cam0/sensor.yaml``.
     """
     p = Path(path)
     if p.is_dir():
+        camchain = find_camchain(p)
+        if camchain is not None and not _is_euroc_folder(p):
+            return read_kalibr(camchain, imu_yaml if imu_yaml is not None else find_imu_yaml(camchain))
         return read_euroc_rig(p)
     data = read_yaml(p)
     if "cam0" in data:

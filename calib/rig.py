@@ -17,8 +17,9 @@ import numpy as np
 from calib.camera import CameraModel
 from runtime.errors import CalibrationError
 
-#: Tolerance on |R^T R - I| (max abs entry) and on the last row of a rigid transform.
-RIGID_TOLERANCE = 1e-6
+#: Tolerance on |R^T R - I| (max abs entry) and on the last row of a rigid transform: accepts
+#: rotations printed with 6 decimals (Kalibr and EuRoC files carry 9 to 12).
+RIGID_TOLERANCE = 1e-5
 
 IMU_FIELDS = ("gyro_noise_density", "gyro_random_walk", "accel_noise_density", "accel_random_walk", "rate_hz")
 RIG_FIELDS = ("camera", "T_IC", "time_offset_s", "camera_rate_hz") + tuple(f"imu.{f}" for f in IMU_FIELDS)

@@ -90,6 +90,7 @@ def test_read_kalibr_openvins_sim_files_agree_with_sim_info() -> None:
     # load_rig finds kalibr_imu_chain.yaml beside kalibr_imucam_chain.yaml
     assert find_imu_yaml(folder / "kalibr_imucam_chain.yaml") == folder / "kalibr_imu_chain.yaml"
     assert load_rig(folder / "kalibr_imucam_chain.yaml").isclose(rig)
+    assert load_rig(folder).isclose(rig)  # a folder without EuRoC files: its Kalibr camchain
 
 
 @pytest.mark.shared_data

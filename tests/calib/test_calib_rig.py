@@ -82,10 +82,10 @@ def test_bad_extrinsics_raise(mutate, fragment: str) -> None:
 
 def test_rigid_transform_accepts_small_rounding_and_inverts() -> None:
     T = _pose(2)
-    T_rounded = np.round(T, 9)
+    T_rounded = np.round(T, 6)  # as printed with 6 decimals
     M = rigid_transform(T_rounded, "x")
     assert not M.flags.writeable
-    np.testing.assert_allclose(invert_rigid(M) @ M, np.eye(4), atol=1e-8)
+    np.testing.assert_allclose(invert_rigid(M) @ M, np.eye(4), atol=1e-5)
 
 
 @pytest.mark.parametrize(
