@@ -35,7 +35,7 @@ KALIBR_IMU_KEYS = {
     "rate_hz": "update_rate",
 }
 #: Extrinsics from two files (or two keys) must agree this well (max abs entry).
-EXTRINSICS_AGREEMENT = 1e-6
+EXTRINSICS_AGREEMENT = 1e-5
 
 
 def read_kalibr_imu(path: str | os.PathLike, imu: str = "imu0") -> ImuNoise:
