@@ -1,0 +1,171 @@
+"""`davio eval ate|rpe|surface`: trajectory and map accuracy with evo-compatible definitions."""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+NAME = "eval"
+HELP = "evaluate a trajectory (ATE, RPE; TUM or EuRoC CSV) or a point cloud (surface metrics)"
+DESCRIPTION = (
+    "Evaluate accuracy. 'ate' and 'rpe' read TUM (t[s] x y z qx qy qz qw) or EuRoC state CSV files, "
+    "associate stamps (nearest within --max-diff seconds) and align the estimate (se3, sim3, posyaw = "
+    "translation + yaw about gravity, none); numbers match evo_ape / evo_rpe on the same files. "
+    "'surface' compares a reconstructed cloud with a reference cloud (accuracy, completeness, F-score)."
+)
+
+
+def _add_common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("est", metavar="EST", help="estimated trajectory (TUM or EuRoC CSV)")
+    p.add_argument("ref", metavar="REF", help="reference trajectory (TUM or EuRoC CSV)")
+    p.add_argument("--max-diff", type=float, default=0.01, metavar="S",
+                   help="largest stamp difference for association, seconds")
+    p.add_argument("--offset", type=float, default=0.0, metavar="S",
+                   help="time offset added to the estimate's stamps for association, seconds")
+    p.add_argument("--one-to-one", action="store_true",
+                   help="use each pose in at most one pair (evo may reuse a pose for repeated stamps)")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    p.add_argument("--plot", metavar="DIR", default=None, help="write PNG plots into this folder")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from tools.evaluation.align import METHODS
+
+    sub = parser.add_subparsers(dest="eval_command", metavar="{ate,rpe,surface}")
+    fmt = argparse.ArgumentDefaultsHelpFormatter
+    p = sub.add_parser("ate", help="absolute trajectory error", formatter_class=fmt)
+    _add_common(p)
+    p.add_argument("--align", choices=METHODS, default="se3", help="alignment of the estimate")
+    p.add_argument("--n-align", type=int, default=None, metavar="N",
+                   help="fit the alignment on the first N associated poses only")
+    p.add_argument("--save-aligned", metavar="FILE", default=None,
+                   help="write the associated, aligned estimate as a TUM file")
+    p.set_defaults(_eval=_run_ate)
+
+    p = sub.add_parser("rpe", help="relative pose error", formatter_class=fmt)
+    _add_common(p)
+    p.add_argument("--delta", type=float, default=1.0, help="pair spacing")
+    p.add_argument("--delta-unit", choices=("f", "m"), default="f", help="frames or metres of path")
+    p.add_argument("--all-pairs", action="store_true", help="start a pair at every pose")
+    p.add_argument("--align", choices=METHODS, default="none", help="alignment before (sim3 fixes scale)")
+    p.set_defaults(_eval=_run_rpe)
+
+    p = sub.add_parser("surface", help="surface metrics of a point cloud", formatter_class=fmt)
+    p.add_argument("rec", metavar="REC", help="reconstructed cloud (.ply, .pcd, .xyz, .npy)")
+    p.add_argument("ref", metavar="REF", help="reference cloud (.ply, .pcd, .xyz, .npy)")
+    p.add_argument("--threshold", type=float, default=0.1, metavar="M", help="match distance, metres")
+    p.add_argument("--voxel", type=float, default=None, metavar="M",
+                   help="voxel-downsample both clouds first (side in metres)")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    p.set_defaults(_eval=_run_surface)
+
+
+def _stats_table(title: str, rows: list[tuple[str, dict, str]], extra: list[tuple[str, str]]):
+    from rich.table import Table
+
+    table = Table(title=title)
+    table.add_column("statistic")
+    for name, _, unit in rows:
+        table.add_column(f"{name} ({unit})", justify="right")
+    for key in ("rmse", "mean", "median", "std", "min", "max"):
+        table.add_row(key, *[f"{stats[key]:.6f}" for _, stats, _ in rows])
+    info = Table(show_header=False, box=None)
+    for k, v in extra:
+        info.add_row(k, v)
+    return table, info
+
+
+def _print(*renderables) -> None:
+    from rich.console import Console
+
+    con = Console()
+    for r in renderables:
+        con.print(r)
+
+
+def _run_ate(args: argparse.Namespace) -> int:
+    from tools.evaluation import ate, read_trajectory, write_tum
+
+    est, ref = read_trajectory(args.est), read_trajectory(args.ref)
+    res = ate(est, ref, args.align, args.max_diff, args.offset, args.n_align, args.one_to_one)
+    out = {**res.as_dict(), "est": str(args.est), "ref": str(args.ref)}
+    if args.plot:
+        from tools.evaluation.plots import plot_errors, plot_trajectories
+
+        d = Path(args.plot)
+        out["plots"] = [str(plot_trajectories(d / "ate_trajectories.png", res.ref, res.est_aligned,
+                                              f"ATE, {args.align} alignment")),
+                        str(plot_errors(d / "ate_errors.png", res.t_ns, res.trans_err_m, "m",
+                                        f"ATE translation, rmse {res.rmse:.4f} m"))]
+    if args.save_aligned:
+        write_tum(args.save_aligned, res.est_aligned)
+        out["aligned"] = str(args.save_aligned)
+    if args.json:
+        print(json.dumps(out))
+        return 0
+    al = res.alignment
+    table, info = _stats_table(f"ATE of {Path(args.est).name} vs {Path(args.ref).name}",
+                               [("translation", res.trans, "m"), ("rotation", res.rot, "deg")],
+                               [("alignment", f"{al.method} (scale {al.s:.6f}, yaw "
+                                              f"{al.as_dict()['yaw_deg']:.3f} deg)"),
+                                ("pairs", f"{out['pairs']} of {res.n_est} estimate / {res.n_ref} reference "
+                                          f"poses (max diff {args.max_diff} s)"),
+                                ("reference path", f"{out['path_length_ref_m']:.3f} m")]
+                               + [("plot", p) for p in out.get("plots", [])])
+    _print(table, info)
+    return 0
+
+
+def _run_rpe(args: argparse.Namespace) -> int:
+    from tools.evaluation import read_trajectory, rpe
+
+    est, ref = read_trajectory(args.est), read_trajectory(args.ref)
+    res = rpe(est, ref, args.delta, args.delta_unit, args.all_pairs, align_method=args.align,
+              max_diff_s=args.max_diff, offset_s=args.offset, one_to_one=args.one_to_one)
+    out = {**res.as_dict(), "est": str(args.est), "ref": str(args.ref)}
+    if args.plot:
+        from tools.evaluation.plots import plot_errors
+
+        out["plots"] = [str(plot_errors(Path(args.plot) / "rpe_errors.png", res.t_ns, res.trans_err_m, "m",
+                                        f"RPE translation, delta {args.delta} {args.delta_unit}"))]
+    if args.json:
+        print(json.dumps(out))
+        return 0
+    unit = "frames" if args.delta_unit == "f" else "m"
+    table, info = _stats_table(f"RPE of {Path(args.est).name} vs {Path(args.ref).name}",
+                               [("translation", res.trans, "m"), ("rotation", res.rot, "deg")],
+                               [("delta", f"{args.delta:g} {unit}, "
+                                          f"{'all' if args.all_pairs else 'consecutive'} pairs"),
+                                ("pairs", str(out["pairs"])), ("alignment", args.align)]
+                               + [("plot", p) for p in out.get("plots", [])])
+    _print(table, info)
+    return 0
+
+
+def _run_surface(args: argparse.Namespace) -> int:
+    from rich.table import Table
+
+    from tools.evaluation import read_point_cloud, surface_metrics
+
+    res = surface_metrics(read_point_cloud(args.rec), read_point_cloud(args.ref), args.threshold, args.voxel)
+    out = {**res.as_dict(), "rec": str(args.rec), "ref": str(args.ref)}
+    if args.json:
+        print(json.dumps(out))
+        return 0
+    t = Table(title=f"surface metrics of {Path(args.rec).name} vs {Path(args.ref).name}", show_header=False)
+    t.add_row("accuracy (rec -> ref, mean / median)", f"{res.accuracy_m:.4f} / {res.accuracy_median_m:.4f} m")
+    t.add_row("completeness (ref -> rec, mean / median)",
+              f"{res.completeness_m:.4f} / {res.completeness_median_m:.4f} m")
+    t.add_row("chamfer (mean of both)", f"{res.chamfer_m:.4f} m")
+    t.add_row(f"precision / recall @ {res.threshold_m:g} m", f"{res.precision:.4f} / {res.recall:.4f}")
+    t.add_row("F-score", f"{res.fscore:.4f}")
+    t.add_row("points (rec / ref)", f"{res.n_rec} / {res.n_ref}")
+    _print(t)
+    return 0
+
+
+def run(args: argparse.Namespace) -> int:
+    if not getattr(args, "_eval", None):
+        print("davio eval: name an evaluation: ate, rpe or surface (see davio eval --help)")
+        return 2
+    return int(args._eval(args) or 0)
