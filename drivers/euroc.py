@@ -222,14 +222,18 @@ class EurocDriver(Driver):
     # -- Driver interface ----------------------------------------------------------------------
     @property
     def rig(self) -> Rig | None:
-        """The rig from the folder's sensor.yaml files (`calib.read_euroc_rig`)."""
+        """The rig from the folder's sensor.yaml files (`calib.read_euroc_rig`).
+
+        None when the camera's sensor.yaml is absent (calibration withheld); a malformed file raises
+        CalibrationError.
+        """
         if not self._rig_loaded:
-            try:
+            if not (self.mav0 / self.cameras[0] / "sensor.yaml").is_file():
+                self._report.note(f"{self.cameras[0]}/sensor.yaml is absent: rig calibration unknown")
+            else:
                 from calib import read_euroc_rig
-            except ImportError:
-                self._report.note("calib.read_euroc_rig is unavailable: rig unknown")
-                return None
-            self._rig = read_euroc_rig(self.mav0, camera=self.cameras[0])
+
+                self._rig = read_euroc_rig(self.mav0, camera=self.cameras[0])
             self._rig_loaded = True
         return self._rig
 

@@ -105,6 +105,28 @@ def test_real_head_folder_counts_order_and_groundtruth(euroc_head: Path) -> None
         assert_accounted(rep)
 
 
+def test_real_rig_from_sensor_yaml(euroc_head: Path) -> None:
+    import yaml
+
+    cam_yaml = euroc_head / "mav0" / "cam0" / "sensor.yaml"
+    raw = yaml.safe_load("\n".join(cam_yaml.read_text().splitlines()[1:]))  # strip %YAML:1.0
+    rig = EurocDriver(euroc_head).rig
+    assert rig is not None
+    assert (rig.camera.fx, rig.camera.fy, rig.camera.cx, rig.camera.cy) == tuple(raw["intrinsics"])
+    assert (rig.camera.width, rig.camera.height) == tuple(raw["resolution"])
+    # imu0's T_BS is the identity in EuRoC, so T_IC equals cam0's T_BS
+    np.testing.assert_allclose(rig.T_IC, np.array(raw["T_BS"]["data"]).reshape(4, 4), atol=1e-6)
+    assert rig.camera_rate_hz == 20
+
+
+def test_withheld_calibration_gives_no_rig(tmp_path: Path) -> None:
+    seq = write_asl(tmp_path, imu_rows(10), {"cam0": cam_rows(2)})
+    (seq / "mav0" / "cam0" / "sensor.yaml").unlink()
+    drv = EurocDriver(seq)
+    assert drv.rig is None
+    assert any("rig calibration unknown" in n for n in drv.report()["notes"])
+
+
 def test_real_full_sequence_groundtruth_choice(euroc_head: Path) -> None:
     drv = EurocDriver(euroc_head / "mav0", groundtruth_file="full_sequence_vicon2gt.csv")
     gt = drv.groundtruth()
