@@ -12,6 +12,7 @@ error on q_GtoI), ``p_OI = p_hat + dp``, ``v_OI = v_hat + dv``, ``bg = bg_hat + 
 """
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -130,3 +131,88 @@ def cov_local_to_global(cov: np.ndarray, R_OI: np.ndarray) -> np.ndarray:
 def diagonal_cov(sigmas: tuple[float, float, float, float, float]) -> np.ndarray:
     """(15, 15) diagonal covariance from one standard deviation per block (ERROR_STATE_ORDER)."""
     return np.diag(np.repeat(np.asarray(sigmas, dtype=np.float64) ** 2, 3))
+
+
+class ImuWindow:
+    """A time-ordered buffer of IMU samples; drops (and counts) non-finite or out-of-order ones."""
+
+    def __init__(self, keep_ns: int) -> None:
+        self.keep_ns = int(keep_ns)
+        self._t: deque[int] = deque()
+        self._w: deque[np.ndarray] = deque()
+        self._a: deque[np.ndarray] = deque()
+        self.dropped_nonfinite = 0
+        self.dropped_out_of_order = 0
+
+    def add(self, t_ns: int, gyro: np.ndarray, accel: np.ndarray) -> bool:
+        """Append one sample; False (and counted) when it was dropped."""
+        w = np.asarray(gyro, dtype=np.float64).reshape(-1)
+        a = np.asarray(accel, dtype=np.float64).reshape(-1)
+        if w.shape != (3,) or a.shape != (3,) or not (np.all(np.isfinite(w)) and np.all(np.isfinite(a))):
+            self.dropped_nonfinite += 1
+            return False
+        if self._t and int(t_ns) <= self._t[-1]:
+            self.dropped_out_of_order += 1
+            return False
+        self._t.append(int(t_ns))
+        self._w.append(w)
+        self._a.append(a)
+        while self._t and self._t[0] < self._t[-1] - self.keep_ns:
+            self._t.popleft()
+            self._w.popleft()
+            self._a.popleft()
+        return True
+
+    def __len__(self) -> int:
+        return len(self._t)
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(t_ns (N,) int64, gyro (N,3), accel (N,3))."""
+        if not self._t:
+            return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3))
+        return np.fromiter(self._t, np.int64, len(self._t)), np.array(self._w), np.array(self._a)
+
+
+class TrackWindow:
+    """Per-frame feature observations (id -> distorted pixel, optional normalized xy) over a time span."""
+
+    def __init__(self, keep_ns: int) -> None:
+        self.keep_ns = int(keep_ns)
+        self.frames: deque[tuple[int, np.ndarray, np.ndarray, np.ndarray | None]] = deque()
+
+    def add(self, t_ns: int, ids: np.ndarray, uv: np.ndarray, xy: np.ndarray | None = None) -> None:
+        """Append one frame (ids (M,), uv (M, 2) px, xy (M, 2) normalized or None); raises ValueError."""
+        ids = np.asarray(ids, dtype=np.int64).reshape(-1)
+        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+        if ids.shape[0] != uv.shape[0]:
+            raise ValueError(f"ids ({ids.shape[0]}) and uv ({uv.shape[0]}) must have the same length")
+        if xy is not None:
+            xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+            if xy.shape[0] != ids.shape[0]:
+                raise ValueError(f"ids ({ids.shape[0]}) and xy ({xy.shape[0]}) must have the same length")
+        if self.frames and int(t_ns) <= self.frames[-1][0]:
+            raise ValueError(f"track time {t_ns} ns is not after the previous {self.frames[-1][0]} ns")
+        self.frames.append((int(t_ns), ids, uv, xy))
+        while self.frames and self.frames[0][0] < int(t_ns) - self.keep_ns:
+            self.frames.popleft()
+
+    @property
+    def newest_ns(self) -> int | None:
+        return self.frames[-1][0] if self.frames else None
+
+    def disparity(self, t0_ns: int, t1_ns: int) -> tuple[float, int]:
+        """Mean first-to-last pixel displacement of tracks seen >= 2 times in [t0, t1], and their count."""
+        first: dict[int, np.ndarray] = {}
+        last: dict[int, np.ndarray] = {}
+        for t, ids, uv, _ in self.frames:
+            if t < t0_ns or t > t1_ns:
+                continue
+            for i, p in zip(ids.tolist(), uv, strict=True):
+                if i not in first:
+                    first[i] = p
+                else:
+                    last[i] = p
+        if not last:
+            return 0.0, 0
+        d = [float(np.linalg.norm(last[i] - first[i])) for i in last]
+        return float(np.mean(d)), len(d)

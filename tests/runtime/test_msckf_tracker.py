@@ -5,7 +5,7 @@ import cv2
 import numpy as np
 import pytest
 
-from calib.camera import Pinhole, PinholeRadtan
+from calib import Pinhole, PinholeRadtan, read_euroc_rig
 from drivers.events import Frame
 from runtime.errors import ConfigError, DataError
 from runtime.msckf.tracker import KltTracker, TrackerConfig
@@ -217,8 +217,7 @@ def test_real_euroc_head_keeps_150_tracks(euroc_head) -> None:
     cam0 = Path(euroc_head) / "mav0" / "cam0" / "data"
     files = sorted(cam0.glob("*.png"))
     assert len(files) >= 90
-    cam = PinholeRadtan(752, 480, 458.654, 457.296, 367.215, 248.375,
-                        [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05])
+    cam = read_euroc_rig(euroc_head).camera
     tracker = KltTracker(cam)
     counts = []
     for f in files:
