@@ -53,7 +53,10 @@ def read_stamped_csv(path: str | Path, n_values: int, counts: StreamCounts, poli
         policy: "drop" (count and skip bad rows) or "strict" (raise DataError with file and line).
         text: keep the value columns as stripped strings (no numeric parsing or finiteness check).
         report: where notes such as header variations go (optional).
-        monotonic: drop (or, strict, reject) stamps not greater than the previous kept stamp.
+        monotonic: make stamps strictly increasing: "drop" removes the fewest rows that achieve it
+            (a longest increasing subsequence; dropped rows repeating the previous row's stamp count
+            as duplicates, the others as non-monotonic); "strict" raises at the first stamp not
+            after its predecessor.
 
     Raises:
         DataError: the file cannot be read, or (strict) a row is bad.
@@ -117,12 +120,9 @@ def read_stamped_csv(path: str | Path, n_values: int, counts: StreamCounts, poli
             if not all(math.isfinite(v) for v in values):
                 reject("dropped_nonfinite", lineno, "NaN or Inf value")
                 continue
-        if monotonic and t <= last:
-            if t == last:
-                reject("dropped_duplicate", lineno, f"duplicate stamp {t}")
-            else:
-                reject("dropped_nonmonotonic", lineno, f"stamp {t} earlier than previous stamp {last}")
-            continue
+        if monotonic and policy == "strict" and t <= last:
+            what = "duplicate stamp" if t == last else "stamp earlier than previous stamp"
+            raise DataError(f"{what}: {t} after {last}", path, lineno)
         last = t
         stamps.append(t)
         lines.append(lineno)
@@ -131,11 +131,53 @@ def read_stamped_csv(path: str | Path, n_values: int, counts: StreamCounts, poli
         else:
             rows.append(values)
 
-    counts.parsed += len(stamps)
     t_arr = np.array(stamps, dtype=np.int64)
     v_arr = np.array(rows, dtype=np.float64).reshape(len(rows), n_values) if not text \
         else np.zeros((len(stamps), 0))
-    return StampedRows(t_arr, v_arr, texts, np.array(lines, dtype=np.int64))
+    line_arr = np.array(lines, dtype=np.int64)
+    if monotonic and np.any(np.diff(t_arr) <= 0):
+        keep = monotonic_keep_mask(t_arr)
+        same_as_previous = np.r_[False, t_arr[1:] == t_arr[:-1]]
+        dup = ~keep & same_as_previous
+        counts.dropped_duplicate += int(dup.sum())
+        counts.dropped_nonmonotonic += int((~keep & ~dup).sum())
+        t_arr, v_arr, line_arr = t_arr[keep], v_arr[keep], line_arr[keep]
+        if text:
+            texts = [r for r, k in zip(texts, keep, strict=True) if k]
+    counts.parsed += int(t_arr.shape[0])
+    return StampedRows(t_arr, v_arr, texts, line_arr)
+
+
+def monotonic_keep_mask(t_ns: np.ndarray) -> np.ndarray:
+    """Mask of a longest strictly increasing subsequence of `t_ns`, preferring earlier rows.
+
+    Dropping the complement removes the fewest rows that make the stamps strictly increasing, so a
+    single stamp that jumps far ahead costs one row, not every row after it. Among equally long
+    choices the earlier rows are kept (a late, out-of-order row is the one dropped).
+    """
+    import bisect
+
+    # patience sorting on the reversed, negated stamps: a longest decreasing run read backwards;
+    # replacing on ties makes each run end at the earliest original row
+    s = [-int(x) for x in t_ns[::-1]]
+    tails: list[int] = []
+    tail_idx: list[int] = []
+    prev = [-1] * len(s)
+    for i, x in enumerate(s):
+        k = bisect.bisect_left(tails, x)
+        if k == len(tails):
+            tails.append(x)
+            tail_idx.append(i)
+        else:
+            tails[k] = x
+            tail_idx[k] = i
+        prev[i] = tail_idx[k - 1] if k > 0 else -1
+    keep_rev = np.zeros(len(s), dtype=bool)
+    i = tail_idx[-1] if tail_idx else -1
+    while i >= 0:
+        keep_rev[i] = True
+        i = prev[i]
+    return keep_rev[::-1].copy()
 
 
 def count_gaps(t_ns: np.ndarray, counts: StreamCounts, factor: float = 1.5) -> None:

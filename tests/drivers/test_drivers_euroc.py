@@ -169,6 +169,17 @@ def test_nonmonotonic_and_duplicate_imu_stamps_dropped(tmp_path: Path) -> None:
     assert_accounted(rep)
 
 
+def test_stamp_jumping_ahead_costs_one_row(tmp_path: Path) -> None:
+    """A single far-future stamp is dropped instead of every row after it."""
+    rows = imu_rows(30)
+    rows[8] = str(T0 + 10**12) + "," + rows[8].split(",", 1)[1]
+    seq = write_asl(tmp_path, rows, {"cam0": cam_rows(2)})
+    drv = EurocDriver(seq)
+    t, _, _ = drv.imu_arrays()
+    assert drv.n_imu == 29 and drv.report()["streams"]["imu0"]["dropped_nonmonotonic"] == 1
+    np.testing.assert_array_equal(t, [int(r.split(",")[0]) for i, r in enumerate(rows) if i != 8])
+
+
 def test_nonfinite_rows_dropped(tmp_path: Path) -> None:
     rows = imu_rows(12)
     rows[4] = rows[4].rsplit(",", 1)[0] + ",nan"
