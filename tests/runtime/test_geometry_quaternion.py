@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from runtime.geometry import (
@@ -80,3 +82,18 @@ def test_jpl_q_GtoI_equals_hamilton_q_of_R_ItoG():
     # and a point expressed in G goes to I with the JPL matrix
     p_G = RNG.normal(size=3)
     np.testing.assert_allclose(jpl_xyzw_to_rot(q_jpl[0]) @ p_G, R_ItoG[0].inv().apply(p_G), atol=1e-14)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.floats(-1.0, 1.0, allow_nan=False), min_size=4, max_size=4).filter(
+    lambda q: np.linalg.norm(q) > 1e-3))
+def test_property_quaternion_round_trips_and_composition(q):
+    q = np.asarray(q) / np.linalg.norm(q)
+    R = quat_wxyz_to_rot(q)
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-14)
+    np.testing.assert_allclose(quat_wxyz_to_rot(rot_to_quat_wxyz(R)), R, atol=1e-14)
+    np.testing.assert_allclose(np.abs(rot_to_quat_wxyz(R) @ q), 1.0, atol=1e-12)  # same up to sign
+    # the Hamilton product composes like the matrices: R(q * q) = R(q) R(q)
+    w, v = q[0], q[1:]
+    qq = np.r_[w * w - v @ v, 2 * w * v + np.cross(v, v)]
+    np.testing.assert_allclose(quat_wxyz_to_rot(qq), R @ R, atol=1e-13)

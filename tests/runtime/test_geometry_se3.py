@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.linalg import expm, logm
 
 from runtime.geometry import GeometryError, make_pose, se3_exp, se3_inverse, se3_log, so3_exp
@@ -52,3 +54,14 @@ def test_inverse_and_make_pose():
     assert make_pose(np.eye(3), p).shape == (8, 4, 4)
     with pytest.raises(GeometryError):
         se3_exp(np.zeros(3))
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(st.floats(-5.0, 5.0, allow_nan=False), min_size=6, max_size=6))
+def test_property_se3_log_exp_round_trip(v):
+    xi = np.asarray(v)
+    T = se3_exp(xi)
+    np.testing.assert_allclose(se3_exp(se3_log(T)), T, atol=1e-10)
+    np.testing.assert_allclose(T @ se3_inverse(T), np.eye(4), atol=1e-12)
+    if np.linalg.norm(xi[3:]) < np.pi - 1e-6:
+        np.testing.assert_allclose(se3_log(T), xi, atol=1e-9)
