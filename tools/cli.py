@@ -43,9 +43,20 @@ def build_parser() -> argparse.ArgumentParser:
                            formatter_class=argparse.ArgumentDefaultsHelpFormatter)
         mod.add_arguments(p)
         p.set_defaults(_run=mod.run)
-        lines.append(f"  {mod.NAME:<14} {mod.HELP}")
-    parser.epilog = "run 'davio COMMAND --help' for the options of a command"
+        lines.append(_usage_lines(p))
+    parser.epilog = ("usage of each command:\n" + "\n".join(lines)
+                     + "\n\nrun 'davio COMMAND --help' for what each option means")
     return parser
+
+
+def _usage_lines(p: argparse.ArgumentParser) -> str:
+    """'usage: ...' of a subcommand (and of its own subcommands, e.g. eval ate / bench NAME)."""
+    out = ["  " + " ".join(p.format_usage().replace("usage: ", "").split())]
+    for action in p._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sp in action.choices.values():
+                out.append("    " + " ".join(sp.format_usage().replace("usage: ", "").split()))
+    return "\n".join(out)
 
 
 def main(argv: list[str] | None = None) -> int:

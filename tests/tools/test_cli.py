@@ -16,6 +16,8 @@ def test_help_lists_subcommands_with_options():
     for name, sp in sub.choices.items():
         assert name in text
         assert sp.format_help().startswith("usage: davio " + name)
+        # the top-level help shows each command's usage with its options
+        assert " ".join(sp.format_usage().replace("usage: ", "").split()) in text
 
 
 def test_info_json_reports_providers_and_numba(capsys):
