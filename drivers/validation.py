@@ -7,6 +7,7 @@ as float). Bad rows are either dropped and counted in a `StreamCounts` ("drop" p
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -42,7 +43,8 @@ def _parse_stamp(field: str) -> int | None:
 
 def read_stamped_csv(path: str | Path, n_values: int, counts: StreamCounts, policy: Policy = "drop",
                      *, text: bool = False, report: IntakeReport | None = None,
-                     monotonic: bool = True) -> StampedRows:
+                     monotonic: bool = True,
+                     row_check: Callable[[list[float]], str | None] | None = None) -> StampedRows:
     """Read a stamped CSV file, validating every row.
 
     Args:
@@ -53,6 +55,8 @@ def read_stamped_csv(path: str | Path, n_values: int, counts: StreamCounts, poli
         policy: "drop" (count and skip bad rows) or "strict" (raise DataError with file and line).
         text: keep the value columns as stripped strings (no numeric parsing or finiteness check).
         report: where notes such as header variations go (optional).
+        row_check: extra test of a row's numeric values returning a reason to reject it (counted
+            as malformed) or None.
         monotonic: make stamps strictly increasing: "drop" removes the fewest rows that achieve it
             (a longest increasing subsequence; dropped rows repeating the previous row's stamp count
             as duplicates, the others as non-monotonic); "strict" raises at the first stamp not
@@ -120,6 +124,11 @@ def read_stamped_csv(path: str | Path, n_values: int, counts: StreamCounts, poli
             if not all(math.isfinite(v) for v in values):
                 reject("dropped_nonfinite", lineno, "NaN or Inf value")
                 continue
+            if row_check is not None:
+                why = row_check(values)
+                if why is not None:
+                    reject("malformed_lines", lineno, why)
+                    continue
         if monotonic and policy == "strict" and t <= last:
             what = "duplicate stamp" if t == last else "stamp earlier than previous stamp"
             raise DataError(f"{what}: {t} after {last}", path, lineno)

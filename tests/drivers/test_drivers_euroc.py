@@ -296,3 +296,25 @@ def test_bad_arguments(tmp_path: Path) -> None:
         EurocDriver(tmp_path / "seq" / "mav0" / "cam0" / "data")
     with pytest.raises(DataError, match="not a directory"):
         EurocDriver(tmp_path / "nowhere")
+
+
+def test_groundtruth_rows_validated(tmp_path: Path) -> None:
+    seq = write_asl(tmp_path, imu_rows(5), {"cam0": cam_rows(2)})
+    gt_dir = seq / "mav0" / "state_groundtruth_estimate0"
+    gt_dir.mkdir()
+    good = "0.5,1,2,1,0,0,0," + ",".join(["0.1"] * 9)
+    rows = [f"{T0 + k},{good}" for k in range(5)]
+    rows[2] = f"{T0 + 2},0.5,1,2,0,0,0,0," + ",".join(["0.1"] * 9)     # zero quaternion
+    rows[3] = rows[3].replace(",1,2,", ",nan,2,", 1)
+    (gt_dir / "data.csv").write_text("#t,...\n" + "\n".join(rows) + "\n")
+    drv = EurocDriver(seq)
+    gt = drv.groundtruth()
+    np.testing.assert_array_equal(gt.t_ns - T0, [0, 1, 4])
+    np.testing.assert_allclose(gt.p[0], [0.5, 1, 2])
+    np.testing.assert_allclose(gt.R[0], np.eye(3))
+    s = drv.report()["streams"]["groundtruth"]
+    assert s["malformed_lines"] == 1 and s["dropped_nonfinite"] == 1 and s["emitted"] == 3
+    assert_accounted(drv.report(), replayed=False)
+    with pytest.raises(DataError) as info:
+        EurocDriver(seq, policy="strict").groundtruth()
+    assert info.value.line == 4
