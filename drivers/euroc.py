@@ -144,6 +144,7 @@ class EurocDriver(Driver):
         for name in self.cameras:
             self._load_camera(name)
         self._check_camera_rates()
+        self._check_coverage()
 
     # -- reading -------------------------------------------------------------------------------
     def _load_camera(self, name: str) -> None:
@@ -194,6 +195,21 @@ class EurocDriver(Driver):
                 rates = ", ".join(f"{k} {v:.2f} Hz" for k, v in measured.items())
                 self._report.note(f"unequal camera rates: {rates}")
         self.camera_rates_hz = measured
+
+    def _check_coverage(self) -> None:
+        """Note the IMU rate against imu0/sensor.yaml and frames outside the IMU's time span."""
+        period = self._report.streams["imu0"].median_period_ns
+        declared = _declared_rate_hz(self.mav0 / "imu0" / "sensor.yaml")
+        if period > 0 and declared and abs(1e9 / period - declared) > RATE_TOLERANCE * declared:
+            self._report.note(f"imu0: measured rate {1e9 / period:.2f} Hz differs from sensor.yaml "
+                              f"rate_hz {declared:g}")
+        for name, t in zip(self.cameras, self._cam_t, strict=True):
+            if self._imu_t.size == 0:
+                self._report.note(f"{name}: no IMU samples at all")
+                continue
+            outside = int(np.sum((t < self._imu_t[0]) | (t > self._imu_t[-1])))
+            if outside:
+                self._report.note(f"{name}: {outside} frames lie outside the IMU time span")
 
     def _image(self, cam: int, i: int) -> np.ndarray | None:
         """Decode one grey image; None (counted) or DataError (strict) when it cannot be read."""

@@ -247,6 +247,14 @@ def test_frame_gaps_and_unequal_camera_rates(tmp_path: Path) -> None:
     assert "unequal camera rates" in stereo.intake.summary()
 
 
+def test_imu_rate_and_coverage_notes(tmp_path: Path) -> None:
+    seq = write_asl(tmp_path, imu_rows(20, period=10_000_000), {"cam0": cam_rows(8)})   # 100 Hz, 0.19 s
+    (seq / "mav0" / "imu0" / "sensor.yaml").write_text("%YAML:1.0\nsensor_type: imu\nrate_hz: 200\n")
+    notes = EurocDriver(seq).report()["notes"]
+    assert "imu0: measured rate 100.00 Hz differs from sensor.yaml rate_hz 200" in notes
+    assert "cam0: 4 frames lie outside the IMU time span" in notes
+
+
 def test_malformed_stamp_and_extra_fields(tmp_path: Path) -> None:
     rows = imu_rows(10)
     rows[2] = "1.403715273e18," + rows[2].split(",", 1)[1]      # float stamp: rejected, not rounded
