@@ -1,0 +1,337 @@
+"""Start-up: buffered-replay handoff between the feed-forward initializer and the filter (Sec. IV-C).
+
+Every measurement (IMU sample, feature-track set of a frame) goes into an 8 s buffer and to the
+native filter, whose own initializers stay armed. An accepted feed-forward state (computed by the
+model worker for a window that is already in the past) is written once into a *fresh* filter
+through its initialization entry point; that candidate replays the buffered measurements after the
+state's time faster than real time, then follows the live stream. It is selected once it produced
+five consecutive states within 0.15 s of the live stream, abandoned if not selected within 3 s of
+sensor time, and at most five candidates are tried. Whichever filter is ready first publishes.
+No measurement is dropped: a candidate whose replay start left the buffer is refused and counted.
+"""
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from drivers.events import Frame, ImuSample
+from runtime.msckf.init_common import InitResult
+
+
+@dataclass
+class StartupConfig:
+    """Start-up and handoff parameters (paper Sec. III and IV-C)."""
+
+    buffer_s: float = 8.0
+    """Seconds of measurements kept for replay."""
+    catch_up_s: float = 0.15
+    """A candidate's state counts as live when at most this far behind the newest frame."""
+    consecutive_states: int = 5
+    """Consecutive live states that select a candidate."""
+    abandon_after_s: float = 3.0
+    """Sensor seconds after which an unselected candidate is abandoned."""
+    max_candidates: int = 5
+    """Feed-forward candidates tried per start-up (reset after a divergence)."""
+    replay_batch: int = 60
+    """Buffered measurements a replaying candidate processes per live measurement."""
+    window_images: int = 5
+    window_spacing_s: float = 0.2
+    """Start-up window: five images spaced 0.2 s."""
+    window_tolerance_s: float = 0.03
+    """Largest distance of a window image from its ideal time."""
+    feedforward: bool = True
+    """Use the feed-forward initializer."""
+    native: bool = True
+    """Keep the filter's own (static/dynamic) initializers armed."""
+
+
+@dataclass
+class Published:
+    """A published IMU state in the odometry frame O (IMU clock t_ns; the frame's camera time)."""
+
+    t_ns: int
+    t_cam_ns: int
+    R_OI: np.ndarray
+    p_OI: np.ndarray
+    v_OI: np.ndarray
+    source: str
+    filter_id: int
+
+
+@dataclass
+class _Entry:
+    seq: int
+    kind: str  # "imu" | "tracks"
+    t_ns: int  # sensor time (IMU clock for imu, camera clock for tracks)
+    payload: Any
+
+
+class MeasurementBuffer:
+    """The last `buffer_s` seconds of measurements, with monotonically increasing sequence numbers."""
+
+    def __init__(self, buffer_s: float) -> None:
+        self.horizon_ns = int(buffer_s * 1e9)
+        self.entries: deque[_Entry] = deque()
+        self.next_seq = 0
+
+    def append(self, kind: str, t_ns: int, payload: Any) -> int:
+        e = _Entry(self.next_seq, kind, int(t_ns), payload)
+        self.entries.append(e)
+        self.next_seq += 1
+        return e.seq
+
+    @property
+    def first_seq(self) -> int:
+        return self.entries[0].seq if self.entries else self.next_seq
+
+    def trim(self, newest_ns: int, keep_from_seq: int | None = None) -> None:
+        """Drop entries older than the horizon, but never one at or after keep_from_seq."""
+        while self.entries and self.entries[0].t_ns < newest_ns - self.horizon_ns:
+            if keep_from_seq is not None and self.entries[0].seq >= keep_from_seq:
+                break
+            self.entries.popleft()
+
+    def get(self, seq: int) -> _Entry:
+        return self.entries[seq - self.first_seq]
+
+    def imu_arrays(self, t0_ns: int, t1_ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """IMU samples with t0 <= t <= t1 (IMU clock) as arrays (t_ns, gyro, accel)."""
+        s = [e.payload for e in self.entries if e.kind == "imu" and t0_ns <= e.t_ns <= t1_ns]
+        if not s:
+            return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3))
+        return (np.array([x.t_ns for x in s], np.int64), np.array([x.gyro for x in s], float),
+                np.array([x.accel for x in s], float))
+
+
+class Candidate:
+    """A fresh filter booted from a feed-forward state, replaying the buffer to catch up."""
+
+    def __init__(self, cid: int, filt: Any, init: InitResult, created_ns: int, start_seq: int) -> None:
+        self.cid = cid
+        self.filter = filt
+        self.init = init
+        self.created_ns = created_ns
+        self.cursor = start_seq
+        self.consecutive = 0
+        self.status = "replaying"  # replaying | live | selected | abandoned | diverged
+        self.states_out = 0
+
+    def step(self, buffer: MeasurementBuffer, limit: int | None) -> list:
+        """Feed up to `limit` buffered measurements (None: all available); returns filter states."""
+        out = []
+        n = 0
+        while self.cursor < buffer.next_seq and (limit is None or n < limit):
+            e = buffer.get(self.cursor)
+            self.cursor += 1
+            n += 1
+            if e.kind == "imu":
+                out += self.filter.feed_imu(e.payload)
+            else:
+                t, ids, uv = e.payload
+                out += self.filter.feed_tracks(t, ids, uv)
+        if self.cursor >= buffer.next_seq and self.status == "replaying":
+            self.status = "live"
+        self.states_out += len(out)
+        return out
+
+
+@dataclass
+class StartupReport:
+    """Counters and timings of the start-up (all in the run report)."""
+
+    ff_requests: int = 0
+    ff_accepted: int = 0
+    ff_rejections: dict = field(default_factory=dict)
+    candidates_started: int = 0
+    candidates_selected: int = 0
+    candidates_abandoned: int = 0
+    candidates_refused_buffer: int = 0
+    candidates_diverged: int = 0
+    published_by: str | None = None
+    first_publish_t_ns: int | None = None
+    first_measurement_t_ns: int | None = None
+    restarts_after_divergence: int = 0
+
+
+class StartupManager:
+    """Routes measurements to the native filter and feed-forward candidates; decides who publishes.
+
+    Args:
+        make_filter: builds a fresh filter (an MsckfEstimator with its native initializers armed
+            when `native`) — called for the native filter and for every candidate.
+        time_offset_s: t_imu = t_cam + time_offset_s (to place feed-forward windows on the IMU clock).
+    """
+
+    def __init__(self, make_filter: Callable[[bool], Any], cfg: StartupConfig | None = None,
+                 time_offset_s: float = 0.0) -> None:
+        self.cfg = cfg or StartupConfig()
+        self.make_filter = make_filter
+        self.offset_ns = int(round(time_offset_s * 1e9))
+        self.buffer = MeasurementBuffer(self.cfg.buffer_s)
+        self.native = make_filter(self.cfg.native)
+        self.candidates: list[Candidate] = []
+        self.publisher: Any = None
+        self.publisher_source = ""
+        self.publisher_id = 0
+        self.report = StartupReport()
+        self._frames: deque[Frame] = deque(maxlen=64)
+        self._newest_cam_ns: int | None = None
+        self._newest_ns = 0
+        self._cid = 0
+        self._tried = 0
+
+    # ------------------------------------------------------------------ measurements
+    @property
+    def published(self) -> bool:
+        return self.publisher is not None
+
+    def on_imu(self, sample: ImuSample) -> list[Published]:
+        if self.report.first_measurement_t_ns is None:
+            self.report.first_measurement_t_ns = int(sample.t_ns)
+        self._newest_ns = max(self._newest_ns, int(sample.t_ns))
+        if self.publisher is not None:
+            return self._publish(self.publisher.feed_imu(sample))
+        self.buffer.append("imu", sample.t_ns, sample)
+        out = self._publish_native(self.native.feed_imu(sample))
+        return out + self._advance_candidates()
+
+    def on_tracks(self, t_cam_ns: int, ids: np.ndarray, uv: np.ndarray,
+                  frame: Frame | None = None) -> list[Published]:
+        self._newest_cam_ns = int(t_cam_ns)
+        if self.publisher is not None:
+            return self._publish(self.publisher.feed_tracks(t_cam_ns, ids, uv))
+        if frame is not None and self.cfg.feedforward:
+            self._frames.append(frame)
+        self.buffer.append("tracks", t_cam_ns, (int(t_cam_ns), ids, uv))
+        out = self._publish_native(self.native.feed_tracks(t_cam_ns, ids, uv))
+        if self.publisher is None:
+            out += self._advance_candidates()
+        keep = min((c.cursor for c in self.candidates), default=None)
+        self.buffer.trim(self._newest_ns, keep)
+        return out
+
+    # ------------------------------------------------------------------ feed-forward
+    def window(self) -> list[Frame] | None:
+        """Five buffered frames spaced 0.2 s ending at the newest frame, or None."""
+        if self.publisher is not None or not self.cfg.feedforward or not self._frames:
+            return None
+        if self._tried >= self.cfg.max_candidates:
+            return None
+        frames = list(self._frames)
+        t = np.array([f.t_ns for f in frames], np.int64)
+        last = t[-1]
+        picked = []
+        for k in range(self.cfg.window_images - 1, -1, -1):
+            ideal = last - int(round(k * self.cfg.window_spacing_s * 1e9))
+            j = int(np.argmin(np.abs(t - ideal)))
+            if abs(int(t[j]) - ideal) > self.cfg.window_tolerance_s * 1e9:
+                return None
+            picked.append(frames[j])
+        if len({f.t_ns for f in picked}) != len(picked):
+            return None
+        return picked
+
+    def imu_for(self, frames: list[Frame]) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """IMU arrays covering the window on the IMU clock, or None if not yet covered."""
+        t0 = int(frames[0].t_ns) + self.offset_ns
+        t1 = int(frames[-1].t_ns) + self.offset_ns
+        t, w, a = self.buffer.imu_arrays(t0 - 20_000_000, t1 + 20_000_000)
+        if t.size < 2 or t[0] > t0 or t[-1] < t1:
+            return None
+        return t, w, a
+
+    def note_request(self) -> None:
+        self.report.ff_requests += 1
+
+    def on_feedforward(self, result: Any) -> None:
+        """Apply a finished feed-forward attempt: an InitResult starts a candidate; else counted."""
+        if not isinstance(result, InitResult):
+            reason = getattr(result, "reason", type(result).__name__)
+            self.report.ff_rejections[reason] = self.report.ff_rejections.get(reason, 0) + 1
+            return
+        self.report.ff_accepted += 1
+        if self.publisher is not None or self._tried >= self.cfg.max_candidates:
+            return
+        start = None
+        margin = 50_000_000
+        for e in self.buffer.entries:
+            if (e.kind == "imu" and e.t_ns >= result.t_ns - margin) or \
+               (e.kind == "tracks" and e.t_ns + self.offset_ns > result.t_ns):
+                start = e.seq
+                break
+        first_imu = next((e for e in self.buffer.entries if e.kind == "imu"), None)
+        if start is None or first_imu is None or first_imu.t_ns > result.t_ns - margin:
+            self.report.candidates_refused_buffer += 1
+            return
+        filt = self.make_filter(self.cfg.native)
+        filt.initialize_from_state(result.t_ns, result.R_OI, result.p_OI, result.v_OI, result.bg,
+                                   result.ba, result.cov, source="feedforward")
+        self._cid += 1
+        self._tried += 1
+        self.candidates.append(Candidate(self._cid, filt, result, self._newest_ns, start))
+        self.report.candidates_started += 1
+
+    # ------------------------------------------------------------------ internals
+    def _advance_candidates(self) -> list[Published]:
+        out: list[Published] = []
+        for c in list(self.candidates):
+            states = c.step(self.buffer, self.cfg.replay_batch)
+            if not c.filter.initialized:
+                c.status = "diverged"
+                self.report.candidates_diverged += 1
+                self.candidates.remove(c)
+                continue
+            newest = self._newest_cam_ns
+            for s in states:
+                live = c.status == "live" and newest is not None and \
+                    (newest - int(s.t_cam_ns)) <= self.cfg.catch_up_s * 1e9
+                c.consecutive = c.consecutive + 1 if live else 0
+            if c.consecutive >= self.cfg.consecutive_states:
+                c.status = "selected"
+                self.report.candidates_selected += 1
+                self._select(c.filter, "feedforward", c.cid)
+                return out + self._publish(states[-1:])
+            if (self._newest_ns - c.created_ns) > self.cfg.abandon_after_s * 1e9:
+                c.status = "abandoned"
+                self.report.candidates_abandoned += 1
+                self.candidates.remove(c)
+        return out
+
+    def _publish_native(self, states: list) -> list[Published]:
+        if self.publisher is None and states and self.native.initialized:
+            src = next(iter(getattr(self.native.counters, "init_sources", {}) or {"native": 1}))
+            self._select(self.native, f"native:{src}", 0)
+            return self._publish(states)
+        return []
+
+    def _select(self, filt: Any, source: str, fid: int) -> None:
+        self.publisher = filt
+        self.publisher_source = source
+        self.publisher_id = fid
+        self.report.published_by = source
+        self.candidates.clear()
+        self.buffer.entries.clear()
+        self._frames.clear()
+
+    def _publish(self, states: list) -> list[Published]:
+        out = []
+        for s in states:
+            if self.report.first_publish_t_ns is None:
+                self.report.first_publish_t_ns = int(s.t_ns)
+            out.append(Published(int(s.t_ns), int(s.t_cam_ns), s.R_OI, s.p_OI, s.v_OI,
+                                 self.publisher_source, self.publisher_id))
+        if self.publisher is not None and not self.publisher.initialized:
+            self._restart()
+        return out
+
+    def _restart(self) -> None:
+        """The publishing filter diverged and reset: back to start-up with both initializers armed."""
+        self.report.restarts_after_divergence += 1
+        self.native = self.publisher
+        self.publisher = None
+        self._tried = 0
+        self.report.published_by = None
