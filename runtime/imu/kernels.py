@@ -14,13 +14,20 @@ from runtime.geometry.kernels import (
 
 @njit(cache=True, nogil=True)
 def nb_preintegrate(dts: np.ndarray, gyro: np.ndarray, accel: np.ndarray, bg: np.ndarray, ba: np.ndarray,
-                    var_g: float, var_a: float, with_cov: bool):
+                    var_g: float, var_a: float, with_cov: bool, end_nodes: np.ndarray):
     """Preintegrate K intervals between K+1 nodes (midpoint scheme, see Preintegration).
 
     dts (K,) s; gyro, accel (K+1, 3) node measurements; bg, ba (3,) biases; var_g, var_a the squared
-    continuous noise densities. Returns dR, dv, dp, cov (9x9, order [phi, v, p]), J_R_bg, J_v_bg,
-    J_v_ba, J_p_bg, J_p_ba.
+    continuous noise densities; end_nodes (E,) the node indices at which to report (node 0 = start).
+    Returns, stacked over the E ends: dR (E,3,3), dv (E,3), dp (E,3), cov (E,9,9, order [phi, v, p]),
+    J_R_bg, J_v_bg, J_v_ba, J_p_bg, J_p_ba (E,3,3).
     """
+    n_end = end_nodes.shape[0]
+    out_R = np.zeros((n_end, 3, 3))
+    out_v = np.zeros((n_end, 3))
+    out_p = np.zeros((n_end, 3))
+    out_cov = np.zeros((n_end, 9, 9))
+    out_J = np.zeros((5, n_end, 3, 3))
     eye3 = np.eye(3)
     dR = np.eye(3)
     dv = np.zeros(3)
@@ -34,6 +41,9 @@ def nb_preintegrate(dts: np.ndarray, gyro: np.ndarray, accel: np.ndarray, bg: np
     A = np.eye(9)
     Bg = np.zeros((9, 3))
     Ba = np.zeros((9, 3))
+    for e in range(n_end):
+        if end_nodes[e] == 0:
+            out_R[e] = dR
     for k in range(dts.shape[0]):
         dt = dts[k]
         w = 0.5 * (gyro[k] + gyro[k + 1]) - bg
@@ -70,10 +80,18 @@ def nb_preintegrate(dts: np.ndarray, gyro: np.ndarray, accel: np.ndarray, bg: np
         dp = dp + dt * dv + (0.5 * dt * dt) * acc
         dv = dv + dt * acc
         dR = dR @ dR_k
-    if dts.shape[0] > 0:
-        dR = nb_normalize_rotation(dR)
-    cov = 0.5 * (cov + cov.T)
-    return dR, dv, dp, cov, J_R_bg, J_v_bg, J_v_ba, J_p_bg, J_p_ba
+        for e in range(n_end):
+            if end_nodes[e] == k + 1:
+                out_R[e] = nb_normalize_rotation(dR)
+                out_v[e] = dv
+                out_p[e] = dp
+                out_cov[e] = 0.5 * (cov + cov.T)
+                out_J[0, e] = J_R_bg
+                out_J[1, e] = J_v_bg
+                out_J[2, e] = J_v_ba
+                out_J[3, e] = J_p_bg
+                out_J[4, e] = J_p_ba
+    return out_R, out_v, out_p, out_cov, out_J[0], out_J[1], out_J[2], out_J[3], out_J[4]
 
 
 @njit(cache=True, nogil=True)

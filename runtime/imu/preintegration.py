@@ -22,7 +22,7 @@ import numpy as np
 from runtime.errors import EstimatorError
 from runtime.geometry.so3 import so3_exp
 from runtime.imu.kernels import nb_preintegrate
-from runtime.imu.samples import imu_segment
+from runtime.imu.samples import imu_nodes
 
 
 @dataclass(frozen=True)
@@ -114,13 +114,24 @@ class Preintegrator:
         t_ns (M,) int64 strictly increasing, gyro (M, 3) rad/s, accel (M, 3) m/s^2 in the IMU frame.
         Raises DataError on malformed samples or an interval they do not cover.
         """
-        dts, g_nodes, a_nodes = imu_segment(t_ns, gyro, accel, t0_ns, t1_ns)
+        return self.integrate_many(t_ns, gyro, accel, t0_ns, np.array([t1_ns], dtype=np.int64))[0]
+
+    def integrate_many(self, t_ns: np.ndarray, gyro: np.ndarray, accel: np.ndarray, t0_ns: int,
+                       t_ends_ns: np.ndarray) -> list[Preintegration]:
+        """Preintegrations from t0_ns to each of t_ends_ns (int64 ns, each >= t0), in one pass.
+
+        Equivalent to calling `integrate` for each end (up to the O(dt^2) effect of the extra
+        interpolated nodes at the other ends), at the cost of one integration to the last end.
+        """
+        ends = np.asarray(t_ends_ns).reshape(-1)
+        dts, g_nodes, a_nodes, end_nodes = imu_nodes(t_ns, gyro, accel, t0_ns, ends)
         with_cov = self.gyro_noise_density is not None
         var_g = float(self.gyro_noise_density or 0.0) ** 2
         var_a = float(self.accel_noise_density or 0.0) ** 2
         dR, dv, dp, cov, J_R_bg, J_v_bg, J_v_ba, J_p_bg, J_p_ba = nb_preintegrate(
-            dts, g_nodes, a_nodes, self.bg, self.ba, var_g, var_a, with_cov)
-        return Preintegration(
-            t0_ns=int(t0_ns), t1_ns=int(t1_ns), dt=(int(t1_ns) - int(t0_ns)) * 1e-9, dR=dR, dv=dv, dp=dp,
-            cov=cov if with_cov else None, J_R_bg=J_R_bg, J_v_bg=J_v_bg, J_v_ba=J_v_ba, J_p_bg=J_p_bg,
-            J_p_ba=J_p_ba, bg=self.bg.copy(), ba=self.ba.copy(), n_intervals=int(dts.shape[0]))
+            dts, g_nodes, a_nodes, self.bg, self.ba, var_g, var_a, with_cov, end_nodes)
+        return [Preintegration(
+            t0_ns=int(t0_ns), t1_ns=int(t1), dt=(int(t1) - int(t0_ns)) * 1e-9, dR=dR[e], dv=dv[e], dp=dp[e],
+            cov=cov[e] if with_cov else None, J_R_bg=J_R_bg[e], J_v_bg=J_v_bg[e], J_v_ba=J_v_ba[e],
+            J_p_bg=J_p_bg[e], J_p_ba=J_p_ba[e], bg=self.bg.copy(), ba=self.ba.copy(),
+            n_intervals=int(end_nodes[e])) for e, t1 in enumerate(ends)]

@@ -66,10 +66,28 @@ def imu_segment(t_ns: np.ndarray, gyro: np.ndarray, accel: np.ndarray, t0_ns: in
     strictly inside in between, and dts the K interval lengths. K = 0 when t0 == t1.
     Raises DataError when [t0, t1] is not covered by the stamps or t1 < t0.
     """
+    dts, g, a, _ = imu_nodes(t_ns, gyro, accel, t0_ns, np.array([t1_ns], dtype=np.int64))
+    return dts, g, a
+
+
+def imu_nodes(t_ns: np.ndarray, gyro: np.ndarray, accel: np.ndarray, t0_ns: int,
+              t_ends_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Integration nodes from t0 to max(t_ends): the samples inside plus interpolated t0 and ends.
+
+    Returns (dts (K,) s, gyro (K+1, 3), accel (K+1, 3), end_nodes (E,) int64): node 0 is at t0 and
+    node end_nodes[e] at t_ends[e]; measurements at t0 and at each end stamp are linearly
+    interpolated between the bracketing samples. Raises DataError when an end precedes t0 or
+    [t0, max(t_ends)] is not covered by the stamps.
+    """
     t_all, g_all, a_all = np.asarray(t_ns), np.asarray(gyro), np.asarray(accel)
-    t0, t1 = int(t0_ns), int(t1_ns)
-    if t1 < t0:
-        raise DataError(f"preintegration interval ends before it starts: t0 = {t0} ns, t1 = {t1} ns")
+    ends = np.asarray(t_ends_ns).reshape(-1)
+    if ends.size == 0 or not np.issubdtype(ends.dtype, np.integer):
+        raise DataError(f"end stamps must be a non-empty integer (ns) array, got {ends!r}")
+    ends = ends.astype(np.int64)
+    t0, t1 = int(t0_ns), int(ends.max())
+    if int(ends.min()) < t0:
+        raise DataError(f"preintegration interval ends before it starts: t0 = {t0} ns, "
+                        f"t1 = {int(ends.min())} ns")
     lo = 0
     if (t_all.ndim == 1 and t_all.size > 2 and np.issubdtype(t_all.dtype, np.integer)
             and g_all.shape[:1] == t_all.shape and a_all.shape[:1] == t_all.shape):
@@ -81,14 +99,18 @@ def imu_segment(t_ns: np.ndarray, gyro: np.ndarray, accel: np.ndarray, t0_ns: in
     if t.size == 0 or t0 < t[0] or t1 > t[-1]:
         span = "no samples" if t.size == 0 else f"samples span [{int(t[0])}, {int(t[-1])}] ns"
         raise DataError(f"IMU samples do not cover the interval [{t0}, {t1}] ns ({span})")
-    inside = (t > t0) & (t < t1)
+    # node stamps: t0, the distinct end stamps and the samples strictly inside, as ns offsets
+    extra = np.unique(np.concatenate([[t0], ends]))
+    inside = (t > t0) & (t < t1) & ~np.isin(t, extra)
+    node_t = np.concatenate([extra, t[inside]])
+    from_sample = np.concatenate([np.zeros(extra.size, dtype=bool), np.ones(int(inside.sum()), dtype=bool)])
+    order = np.argsort(node_t, kind="stable")
+    node_t, from_sample = node_t[order], from_sample[order]
     rel = (t - t0).astype(np.float64) * 1e-9
-    ends = np.array([0.0, (t1 - t0) * 1e-9])
-    g_end = np.stack([np.interp(ends, rel, g[:, k]) for k in range(3)], axis=1)
-    a_end = np.stack([np.interp(ends, rel, a[:, k]) for k in range(3)], axis=1)
-    if t1 == t0:
-        return np.zeros(0), g_end[:1], a_end[:1]
-    nodes_t = np.concatenate([[0.0], rel[inside], [ends[1]]])
-    nodes_g = np.concatenate([g_end[:1], g[inside], g_end[1:]])
-    nodes_a = np.concatenate([a_end[:1], a[inside], a_end[1:]])
-    return np.diff(nodes_t), nodes_g, nodes_a
+    node_rel = (node_t - t0).astype(np.float64) * 1e-9
+    g_nodes = np.stack([np.interp(node_rel, rel, g[:, k]) for k in range(3)], axis=1)
+    a_nodes = np.stack([np.interp(node_rel, rel, a[:, k]) for k in range(3)], axis=1)
+    g_nodes[from_sample] = g[inside]  # t is increasing, so the inside samples keep their order
+    a_nodes[from_sample] = a[inside]
+    end_nodes = np.searchsorted(node_t, ends).astype(np.int64)
+    return np.diff(node_t).astype(np.float64) * 1e-9, g_nodes, a_nodes, end_nodes

@@ -236,3 +236,27 @@ def test_zero_length_interval_and_bad_input():
         Preintegrator(np.zeros(3), np.zeros(3), gyro_noise_density=1e-3)
     with pytest.raises(EstimatorError, match="bg"):
         Preintegrator(np.zeros(2), np.zeros(3))
+
+
+def test_integrate_many_matches_separate_integrations():
+    m = SineMotion()
+    t_ns, gyro, accel = m.samples(200.0, 2.0)
+    pre = Preintegrator(np.array([0.01, 0.0, -0.02]), np.array([0.1, 0.2, 0.0]), 1e-3, 1e-2)
+    t0 = int(t_ns[7]) + 1_234_567
+    ends = np.array([t0 + 1_500_000_000, t0, int(t_ns[100]), t0 + 333_333_333, t0 + 333_333_333],
+                    dtype=np.int64)
+    many = pre.integrate_many(t_ns, gyro, accel, t0, ends)
+    assert [p.t1_ns for p in many] == ends.tolist()
+    for p, t1 in zip(many, ends, strict=True):
+        one = pre.integrate(t_ns, gyro, accel, t0, int(t1))
+        assert p.dt == one.dt
+        # identical up to the O(dt^2) effect of the extra interpolated nodes at the other ends
+        np.testing.assert_allclose(p.dR, one.dR, atol=1e-7)
+        np.testing.assert_allclose(p.dv, one.dv, atol=1e-6)
+        np.testing.assert_allclose(p.dp, one.dp, atol=1e-6)
+        np.testing.assert_allclose(p.J_p_bg, one.J_p_bg, atol=1e-6)
+        np.testing.assert_allclose(p.cov, one.cov, rtol=1e-3, atol=1e-12)
+    with pytest.raises(DataError, match="ends before"):
+        pre.integrate_many(t_ns, gyro, accel, t0, np.array([t0 - 1, t0 + 5], dtype=np.int64))
+    with pytest.raises(DataError, match="integer"):
+        pre.integrate_many(t_ns, gyro, accel, t0, np.array([0.5]))
