@@ -76,7 +76,7 @@ def smooth_field(
 
 
 def flying_band(
-    depth: np.ndarray, radius_px: int, jump_rel: float
+    depth: np.ndarray, radius_px: int, jump_rel: float, surface_id: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Band of pixels within radius_px of a depth discontinuity, with local near/far depths.
 
@@ -84,15 +84,28 @@ def flying_band(
     row or column vanishes on planes (however oblique) and equals (1 - d_near/d_far)/2 in units of
     the pixel's own inverse depth next to a step. A pixel is on a discontinuity when that relative
     second difference exceeds jump_rel/2 along the row or the column, i.e. a depth step of more
-    than jump_rel. Returns (band (H,W) bool, near (H,W), far (H,W)) where near/far are the min/max
-    depth over the (2r+1)^2 neighbourhood.
+    than jump_rel, or (with surface_id) when a 4-neighbour on another surface differs by more than
+    jump_rel in log depth (catches steps spread over a grazing one-pixel face). Returns (band
+    (H,W) bool, near (H,W), far (H,W)) where near/far are the min/max depth over the (2r+1)^2
+    neighbourhood.
     """
     inv = 1.0 / depth
-    pad = np.pad(inv, 1, mode="edge")
+    pad = np.pad(inv, 1, mode="reflect", reflect_type="odd")  # linear extrapolation: no border edges
     c = pad[1:-1, 1:-1]
     d2x = np.abs(2.0 * c - pad[1:-1, :-2] - pad[1:-1, 2:])
     d2y = np.abs(2.0 * c - pad[:-2, 1:-1] - pad[2:, 1:-1])
     edge = np.maximum(d2x, d2y) > jump_rel * c  # (2c - a - b) / (2c) > jump_rel / 2
+    if surface_id is not None:
+        logd = np.log(depth)
+        for ax in (0, 1):
+            a = [slice(None), slice(None)]
+            b = [slice(None), slice(None)]
+            a[ax], b[ax] = slice(1, None), slice(None, -1)
+            step = (np.abs(logd[tuple(a)] - logd[tuple(b)]) > jump_rel) & (
+                surface_id[tuple(a)] != surface_id[tuple(b)]
+            )
+            edge[tuple(a)] |= step
+            edge[tuple(b)] |= step
     r = max(int(radius_px), 1)
     band = edge
     if r > 1:
@@ -146,7 +159,7 @@ def corrupt_view(
             d[m] *= rng.uniform(*params.reflective_depth_gain_range)
 
     # flying pixels: a share of the discontinuity band blends the near and far side
-    band, near, far = flying_band(d, band_radius_px(W, params), params.flying_jump_rel)
+    band, near, far = flying_band(d, band_radius_px(W, params), params.flying_jump_rel, surface_id)
     flying = band & (rng.random((H, W)) < params.flying_fraction)
     alpha = rng.random((H, W))
     d = np.where(flying, near + alpha * (far - near), d)
