@@ -58,8 +58,10 @@ class DynamicInitConfig:
     """Keyframes a feature must be seen in."""
     gravity_mag: float = 9.81
     """Gravity magnitude g0, m/s^2."""
-    max_condition: float = 1e8
-    """The linear system (features and velocity) is rejected as degenerate above this condition number."""
+    max_condition: float = 1e10
+    """Eigenvalue ratio of the reduced velocity block above which the linear system is degenerate."""
+    max_feature_condition: float = 1e8
+    """Eigenvalue ratio of a feature's 3x3 normal block above which it has no depth information."""
     mle_max_iterations: int = 20
     """Nonlinear refinement iterations (scipy least_squares max_nfev); 0 disables the refinement."""
     sigma_px: float = 1.0
@@ -111,7 +113,8 @@ class LinearSolution:
     Attributes:
         v_I0: (3,) velocity of I0, m/s.  g_I0: (3,) gravitational acceleration in I0, |g| = g0.
         p_f: (F, 3) feature positions in I0, m.  cost: residual sum of squares (normalized units).
-        condition: condition number of the eliminated (feature, velocity) block.
+        condition: eigenvalue ratio of the reduced velocity block after eliminating the features.
+        n_good: features with depth information (the others have NaN positions).
     """
 
     v_I0: np.ndarray
@@ -119,6 +122,7 @@ class LinearSolution:
     p_f: np.ndarray
     cost: float
     condition: float
+    n_good: int
 
 
 def min_quadratic_on_sphere(M: np.ndarray, m: np.ndarray, radius: float) -> np.ndarray:
@@ -295,21 +299,31 @@ class DynamicInitializer:
             )
 
         lin = self.solve_linear(obs, feat_ids.size, R_0k, dt_0k, dp_0k)
-        if lin is None:
-            return None
+        if lin.n_good < cfg.min_features:
+            return rej(
+                t_newest,
+                "degenerate",
+                f"only {lin.n_good} features with depth information < {cfg.min_features}",
+            )
         if not np.isfinite(lin.condition) or lin.condition > cfg.max_condition:
             return rej(
                 t_newest,
                 "degenerate",
-                f"linear system condition {lin.condition:.3g} > {cfg.max_condition:.3g}",
+                f"velocity block condition {lin.condition:.3g} > {cfg.max_condition:.3g}",
             )
-        depth_C0 = (lin.p_f - self.p_IC) @ self.R_IC[:, 2]
+        usable = np.isfinite(lin.p_f[:, 0])
+        depth_C0 = (lin.p_f[usable] - self.p_IC) @ self.R_IC[:, 2]
         if np.mean(depth_C0 > 0) < cfg.min_positive_depth_fraction:
             return rej(
                 t_newest,
                 "bad_linear_solution",
                 f"only {np.mean(depth_C0 > 0):.0%} of the features lie in front of the camera",
             )
+        usable[usable] = depth_C0 > 0
+        new_index = np.cumsum(usable) - 1
+        obs = obs[usable[obs[:, 1].astype(int)]].copy()
+        obs[:, 1] = new_index[obs[:, 1].astype(int)]
+        lin.p_f = lin.p_f[usable]
 
         # gravity-aligned frame O: origin at I0, z up
         R_OI0 = rotation_from_up(-lin.g_I0)
@@ -325,7 +339,7 @@ class DynamicInitializer:
             "condition": lin.condition,
             "parallax_deg": parallax,
             "rotation_deg": rot_deg,
-            "n_features": int(feat_ids.size),
+            "n_features": int(usable.sum()),
             "n_keyframes": len(keyframes),
             "g_I0_linear": lin.g_I0.copy(),
             "v_I0_linear": lin.v_I0.copy(),
@@ -391,54 +405,61 @@ class DynamicInitializer:
 
     def solve_linear(
         self, obs: np.ndarray, n_feat: int, R_0k: np.ndarray, dt_0k: np.ndarray, dp_0k: np.ndarray
-    ) -> LinearSolution | None:
+    ) -> LinearSolution:
         """Features, v0 and g (|g| = g0) in I0 from observations (rows k, feature, x, y) and preintegration.
 
-        Returns None (with a logged rejection) when there are fewer equations than unknowns.
+        Each feature is eliminated from the normal equations by its own 3x3 block (a Schur
+        complement), then v0; features whose block is ill-conditioned (eigenvalue ratio above
+        max_feature_condition: no depth information) are left out and get NaN positions.
+        ``condition`` is the eigenvalue ratio of the reduced velocity block (inf if too few features).
         """
         cfg = self.config
-        n_obs = obs.shape[0]
-        n_y = 3 * n_feat + 3
-        A = np.zeros((2 * n_obs, n_y + 3))
-        b = np.zeros(2 * n_obs)
         k = obs[:, 0].astype(int)
         f = obs[:, 1].astype(int)
+        n_obs = obs.shape[0]
         H = np.zeros((n_obs, 2, 3))
         H[:, 0, 0] = 1.0
         H[:, 1, 1] = 1.0
         H[:, 0, 2] = -obs[:, 2]
         H[:, 1, 2] = -obs[:, 3]
-        HR = H @ (self.R_CI[None] @ np.transpose(R_0k[k], (0, 2, 1)))  # (n, 2, 3): H R_CI R_0k^T
-        rows = np.arange(n_obs)
-        for c in range(3):
-            A[2 * rows, 3 * f + c] = HR[:, 0, c]
-            A[2 * rows + 1, 3 * f + c] = HR[:, 1, c]
+        J_f = H @ (self.R_CI[None] @ np.transpose(R_0k[k], (0, 2, 1)))  # (n, 2, 3): H R_CI R_0k^T
         dt = dt_0k[k][:, None, None]
-        A_v = -HR * dt
-        A_g = -0.5 * HR * dt**2
-        A[0::2, n_y - 3 : n_y] = A_v[:, 0]
-        A[1::2, n_y - 3 : n_y] = A_v[:, 1]
-        A[0::2, n_y:] = A_g[:, 0]
-        A[1::2, n_y:] = A_g[:, 1]
-        rhs = np.einsum("nij,nj->ni", HR, dp_0k[k]) - (H @ self.p_CI)
-        b[0::2] = rhs[:, 0]
-        b[1::2] = rhs[:, 1]
-        A_y, A_gr = A[:, :n_y], A[:, n_y:]
-        if A.shape[0] < A.shape[1]:
-            self.log.reject(-1, "few_observations", f"{A.shape[0]} equations < {A.shape[1]} unknowns")
-            return None
-        U, s, Vt = np.linalg.svd(A_y, full_matrices=False)
-        condition = float(s[0] / s[-1]) if s[-1] > 0 else float("inf")
+        J_z = np.concatenate([-J_f * dt, -0.5 * J_f * dt**2], axis=2)  # (n, 2, 6): [v0, g]
+        rhs = np.einsum("nij,nj->ni", J_f, dp_0k[k]) - H @ self.p_CI
+        # per-feature normal blocks
+        F_ff = np.zeros((n_feat, 3, 3))
+        F_fz = np.zeros((n_feat, 3, 6))
+        b_f = np.zeros((n_feat, 3))
+        np.add.at(F_ff, f, np.einsum("nri,nrj->nij", J_f, J_f))
+        np.add.at(F_fz, f, np.einsum("nri,nrj->nij", J_f, J_z))
+        np.add.at(b_f, f, np.einsum("nri,nr->ni", J_f, rhs))
+        ev = np.linalg.eigvalsh(F_ff)
+        good = ev[:, 0] > ev[:, 2] / cfg.max_feature_condition
+        p_f = np.full((n_feat, 3), np.nan)
+        if good.sum() < cfg.min_features:
+            return LinearSolution(np.zeros(3), np.zeros(3), p_f, float("inf"), float("inf"), int(good.sum()))
+        keep_obs = good[f]
+        Z = np.einsum("nri,nrj->ij", J_z[keep_obs], J_z[keep_obs])
+        b_z = np.einsum("nri,nr->i", J_z[keep_obs], rhs[keep_obs])
+        F_inv = np.linalg.inv(F_ff[good])
+        S = Z - np.einsum("fia,fij,fjb->ab", F_fz[good], F_inv, F_fz[good])
+        sv = b_z - np.einsum("fia,fij,fj->a", F_fz[good], F_inv, b_f[good])
+        S_vv, S_vg, S_gg = S[:3, :3], S[:3, 3:], S[3:, 3:]
+        e_v = np.linalg.eigvalsh(S_vv)
+        condition = float(e_v[2] / e_v[0]) if e_v[0] > 0 else float("inf")
         if not np.isfinite(condition):
-            return LinearSolution(np.zeros(3), np.zeros(3), np.zeros((n_feat, 3)), float("inf"), condition)
-        # project out the (features, velocity) block: residual operator P = I - U U^T
-        Pg = A_gr - U @ (U.T @ A_gr)
-        Pb = b - U @ (U.T @ b)
-        g = min_quadratic_on_sphere(Pg.T @ Pg, Pg.T @ Pb, cfg.gravity_mag)
-        y = Vt.T @ ((U.T @ (b - A_gr @ g)) / s)
-        r = A_y @ y + A_gr @ g - b
+            return LinearSolution(np.zeros(3), np.zeros(3), p_f, float("inf"), condition, int(good.sum()))
+        S_vv_inv = np.linalg.inv(S_vv)
+        M = S_gg - S_vg.T @ S_vv_inv @ S_vg
+        m = sv[3:] - S_vg.T @ S_vv_inv @ sv[:3]
+        g = min_quadratic_on_sphere(M, m, cfg.gravity_mag)
+        v0 = S_vv_inv @ (sv[:3] - S_vg @ g)
+        z = np.concatenate([v0, g])
+        p_f[good] = np.einsum("fij,fj->fi", F_inv, b_f[good] - F_fz[good] @ z)
+        r = np.einsum("nij,nj->ni", J_f, p_f[f]) + J_z @ z - rhs
+        cost = float(np.sum(r[keep_obs] ** 2))
         return LinearSolution(
-            v_I0=y[-3:], g_I0=g, p_f=y[:-3].reshape(n_feat, 3), cost=float(r @ r), condition=condition
+            v_I0=v0, g_I0=g, p_f=p_f, cost=cost, condition=condition, n_good=int(good.sum())
         )
 
 

@@ -1,0 +1,35 @@
+"""The euroc-frontend benchmark end to end on the real EuRoC head (JSON contract and figures)."""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import pytest
+
+from tools.benchmarks import euroc_frontend
+
+
+@pytest.mark.slow
+def test_euroc_frontend_json(euroc_head: Path, capsys: pytest.CaptureFixture) -> None:
+    parser = argparse.ArgumentParser()
+    euroc_frontend.add_arguments(parser)
+    args = parser.parse_args([str(euroc_head), "--json"])
+    assert euroc_frontend.run(args) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["frames"] == 95
+    assert out["tracks_per_frame_min"] >= 150 and out["tracks_per_frame_mean"] >= 150
+    assert out["tracker_ms_per_frame_mean"] > 0
+    for mode in ("jerk", "still"):
+        entry = out[f"static_{mode}"]
+        assert entry["initialized"]
+        assert entry["roll_pitch_err_deg_vicon2gt"] < 1.0
+    # the drone sits still: the dynamic initializer must refuse
+    assert out["dynamic_init"] != "initialized"
+
+
+def test_missing_folder_is_reported(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    parser = argparse.ArgumentParser()
+    euroc_frontend.add_arguments(parser)
+    assert euroc_frontend.run(parser.parse_args([str(tmp_path / "nope")])) == 2
+    assert "nope" in capsys.readouterr().out
