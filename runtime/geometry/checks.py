@@ -11,16 +11,20 @@ class GeometryError(DavioError, ValueError):
 
 
 def as_vectors(x: object, name: str, size: int = 3) -> np.ndarray:
-    """`x` as a float64 array whose last axis has length `size`; raises GeometryError otherwise."""
+    """`x` as a finite float64 array whose last axis has length `size`; raises GeometryError otherwise."""
     a = np.asarray(x, dtype=np.float64)
     if a.ndim == 0 or a.shape[-1] != size:
         raise GeometryError(f"{name} must have shape (..., {size}), got {a.shape}")
+    if not np.isfinite(a).all():
+        raise GeometryError(f"{name} holds non-finite values")
     return a
 
 
 def as_matrices(x: object, name: str, size: int = 3) -> np.ndarray:
-    """`x` as a float64 array of shape (..., size, size); raises GeometryError otherwise."""
+    """`x` as a finite float64 array of shape (..., size, size); raises GeometryError otherwise."""
     a = np.asarray(x, dtype=np.float64)
     if a.ndim < 2 or a.shape[-2:] != (size, size):
         raise GeometryError(f"{name} must have shape (..., {size}, {size}), got {a.shape}")
+    if not np.isfinite(a).all():
+        raise GeometryError(f"{name} holds non-finite values")
     return a

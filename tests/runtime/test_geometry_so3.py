@@ -134,6 +134,10 @@ def test_bad_shapes_raise_geometry_error():
         so3_log(np.zeros((3, 4)))
     with pytest.raises(ValueError):  # GeometryError is also a ValueError
         skew([1.0, 2.0])
+    with pytest.raises(GeometryError, match="non-finite"):
+        so3_exp([0.0, np.nan, 1.0])
+    with pytest.raises(GeometryError, match="non-finite"):
+        so3_log(np.full((3, 3), np.inf))
 
 
 def test_normalize_rotation_is_scipy_nearest_rotation():
