@@ -1,0 +1,335 @@
+"""Simulated camera-IMU recordings, usable in memory as a Driver (frames rendered lazily).
+
+Three ways to make one:
+  SimRecording.from_preset(SimConfig(...))        motion preset spline + synthetic IMU
+  SimRecording.from_trajectory(path)              spline fitted to a trajectory file + synthetic IMU
+  SimRecording.from_trajectory(path, imu_path=…)  the real IMU replayed against its real ground
+                                                   truth (the EuRoC-trajectory mode), images rendered
+                                                   along the interpolated ground truth
+  SimRecording.from_euroc_imu_gt(folder)           the same for a shared/data/euroc_imu_gt folder
+
+Clocks: IMU stamps are the true time. A frame stamped t_cam (camera clock) shows the scene at
+t_cam + time_offset (t_imu = t_cam + time_offset_s, Kalibr's timeshift_cam_imu).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from drivers.base import Driver, IntakeReport
+from drivers.events import Frame, ImuSample
+from drivers.sim.groundtruth import GroundTruthSource
+from drivers.sim.imu_synth import ImuErrorModel, ImuStream, imu_stamps, synthesize_imu
+from drivers.sim.motion import DEFAULT_PRESET, preset_spline
+from drivers.sim.render import ImageOptions, Renderer, View
+from drivers.sim.rig import euroc_default_rig
+from drivers.sim.sampled_motion import SampledMotion
+from drivers.sim.scene import Scene, build_scene
+from drivers.sim.spline import PoseSpline, fit_pose_spline
+from drivers.sim.trajectory_files import read_imu_csv, read_timestamps, read_trajectory
+from runtime.errors import ConfigError, DataError
+from runtime.geometry.trajectory import PoseTrajectory
+
+FRAME_START_S = 0.025
+"""The first frame of a synthetic recording comes this long after the first IMU sample, s."""
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """How to simulate a recording.
+
+    Attributes:
+        preset: motion preset name (drivers.sim.motion.PRESETS); ignored when replaying a trajectory.
+        seconds: duration, s (None = the whole trajectory when replaying one).
+        seed: seed of the motion, scene, IMU noise and image noise.
+        style: scene style, "room" or "hall".
+        imu_rate_hz: synthetic IMU rate, Hz.
+        camera_rate_hz: camera rate, Hz (None = the rig's, 20 Hz for EuRoC).
+        time_offset_s: camera-to-IMU clock offset applied to the frame stamps (t_imu = t_cam + offset).
+        imu_errors: synthetic IMU noise and biases (None = from the rig's noise densities).
+        image: image-formation options.
+        start_s: when replaying a trajectory, seconds skipped at its start.
+    """
+
+    preset: str = DEFAULT_PRESET
+    seconds: float | None = 20.0
+    seed: int = 0
+    style: str = "room"
+    imu_rate_hz: float = 200.0
+    camera_rate_hz: float | None = None
+    time_offset_s: float = 0.0
+    imu_errors: ImuErrorModel | None = None
+    image: ImageOptions = field(default_factory=ImageOptions)
+    start_s: float = 0.0
+
+
+def _frame_times(t0_ns: int, t_end_ns: int, rate_hz: float, margin_ns: int) -> np.ndarray:
+    period = 1e9 / rate_hz
+    first = t0_ns + int(FRAME_START_S * 1e9)
+    n = int(np.floor((t_end_ns - margin_ns - first) / period)) + 1
+    if n < 1:
+        raise ConfigError("the recording is too short for a single camera frame")
+    return first + np.round(np.arange(n) * period).astype(np.int64)
+
+
+def _scene_positions(motion, t0_ns: int, t_end_ns: int, T_IC: np.ndarray) -> np.ndarray:
+    t = np.linspace(t0_ns, t_end_ns, max(2, int((t_end_ns - t0_ns) / 2e7))).astype(np.int64)
+    R, p = motion.pose(t)
+    return np.concatenate([p, p + R @ T_IC[:3, 3]])
+
+
+class SimRecording(Driver):
+    """A simulated recording: scene, motion, IMU stream and lazily rendered frames.
+
+    Attributes:
+        scene, motion (PoseSpline | SampledMotion), imu (ImuStream), frame_stamps_ns (camera clock),
+        info (how it was made: mode, preset, seed, sources).
+    """
+
+    def __init__(
+        self,
+        rig,
+        scene: Scene,
+        motion,
+        imu: ImuStream,
+        frame_stamps_ns: np.ndarray,
+        groundtruth: PoseTrajectory,
+        config: SimConfig,
+        info: dict,
+    ) -> None:
+        self._rig = rig
+        self.scene = scene
+        self.motion = motion
+        self.imu = imu
+        self.frame_stamps_ns = np.asarray(frame_stamps_ns, np.int64)
+        self._groundtruth = groundtruth
+        self.config = config
+        self.info = dict(info)
+        self.time_offset_ns = int(round((rig.time_offset_s or 0.0) * 1e9))
+        self._renderer: Renderer | None = None
+        self.gt_source = GroundTruthSource(scene, motion, rig.T_IC, self.time_offset_ns)
+        self._report = IntakeReport("sim", self.info.get("source", "simulator"))
+        self._report.note(
+            "simulated recording: "
+            + ", ".join(f"{k}={v}" for k, v in self.info.items() if k in ("mode", "preset", "seed", "style"))
+        )
+
+    # ---------------------------------------------------------------- constructors
+    @classmethod
+    def from_preset(cls, config: SimConfig | None = None, rig=None) -> SimRecording:
+        """A recording along a motion preset with a synthetic IMU."""
+        config = config or SimConfig()
+        if config.seconds is None or not config.seconds > 0:
+            raise ConfigError(f"a preset recording needs seconds > 0, got {config.seconds}")
+        spline = preset_spline(config.preset, config.seconds, config.seed)
+        return cls._from_spline(
+            spline,
+            config,
+            rig,
+            {"mode": "preset", "preset": config.preset, "source": f"preset {config.preset}"},
+        )
+
+    @classmethod
+    def from_trajectory(
+        cls,
+        path: str | Path,
+        config: SimConfig | None = None,
+        rig=None,
+        imu_path: str | Path | None = None,
+        camera_stamps_path: str | Path | None = None,
+    ) -> SimRecording:
+        """A recording along a trajectory file (EuRoC state CSV or TUM, poses T_WI).
+
+        Without imu_path the IMU is synthesised from a spline fitted to the trajectory. With it,
+        the real IMU is replayed against the real trajectory (EuRoC-trajectory mode); camera
+        stamps come from camera_stamps_path, else a cam0_timestamps.txt beside the IMU file, else
+        the camera rate.
+        """
+        config = config or SimConfig(seconds=None)
+        traj = read_trajectory(path)
+        traj = _crop(traj, config.start_s, config.seconds, Path(path))
+        if imu_path is None:
+            spline = fit_pose_spline(traj.t_ns, traj.p, traj.R, dt_s=0.1)
+            return cls._from_spline(spline, config, rig, {"mode": "trajectory-spline", "source": str(path)})
+        return cls._replay(traj, Path(imu_path), camera_stamps_path, config, rig, str(path))
+
+    @classmethod
+    def from_euroc_imu_gt(cls, folder: str | Path, config: SimConfig | None = None, rig=None) -> SimRecording:
+        """EuRoC-trajectory mode on a folder with groundtruth.csv or groundtruth_tum.txt, imu0.csv
+        and cam0_timestamps.txt (shared/data/euroc_imu_gt/<sequence>)."""
+        folder = Path(folder)
+        gt = folder / "groundtruth.csv"
+        if not gt.is_file():
+            gt = folder / "groundtruth_tum.txt"
+        if not gt.is_file():
+            raise DataError("no groundtruth.csv or groundtruth_tum.txt", folder)
+        config = config or SimConfig(seconds=None)
+        traj = _crop(read_trajectory(gt), config.start_s, config.seconds, gt)
+        stamps = folder / "cam0_timestamps.txt"
+        return cls._replay(
+            traj,
+            folder / "imu0.csv",
+            stamps if stamps.is_file() else None,
+            config,
+            rig,
+            str(folder),
+            sequence=folder.name,
+        )
+
+    @classmethod
+    def _from_spline(cls, spline: PoseSpline, config: SimConfig, rig, info: dict) -> SimRecording:
+        rig = _with_offset(rig or euroc_default_rig(), config.time_offset_s)
+        t0 = spline.t0_ns
+        t_end = (
+            spline.t_end_ns
+            if config.seconds is None
+            else min(spline.t_end_ns, t0 + int(config.seconds * 1e9))
+        )
+        t_imu = imu_stamps(t0, t_end, config.imu_rate_hz)
+        errors = config.imu_errors or ImuErrorModel.from_rig_noise(rig.imu)
+        imu = synthesize_imu(spline, t_imu, errors, seed=config.seed)
+        s = spline.sample(t_imu)
+        gt = PoseTrajectory(
+            t_imu, s.p, s.R, s.v, imu.bg, imu.ba, meta={"frame": "T_WI", "source": "simulator"}
+        )
+        rate = config.camera_rate_hz or rig.camera_rate_hz or 20.0
+        margin = int(config.image.exposure_time_s * 0.5e9) + abs(int(round(config.time_offset_s * 1e9)))
+        t_true = _frame_times(t0 + margin, t_end, rate, margin)
+        stamps = t_true - int(round(config.time_offset_s * 1e9))
+        scene = build_scene(_scene_positions(spline, t0, t_end, rig.T_IC), config.seed, config.style)
+        info = {**info, "seed": config.seed, "style": config.style, "seconds": (t_end - t0) * 1e-9}
+        return cls(rig, scene, spline, imu, stamps, gt, config, info)
+
+    @classmethod
+    def _replay(
+        cls,
+        traj: PoseTrajectory,
+        imu_path: Path,
+        camera_stamps_path,
+        config: SimConfig,
+        rig,
+        source: str,
+        sequence: str | None = None,
+    ) -> SimRecording:
+        rig = _with_offset(rig or euroc_default_rig(), config.time_offset_s)
+        t_all, gyro, accel = read_imu_csv(imu_path)
+        t0, t_end = int(traj.t_ns[0]), int(traj.t_ns[-1])
+        keep = (t_all >= t0) & (t_all <= t_end)
+        if keep.sum() < 2:
+            raise DataError("the IMU stream does not overlap the trajectory", imu_path)
+        imu = ImuStream(t_all[keep], gyro[keep], accel[keep])
+        motion = SampledMotion(traj)
+        offset_ns = int(round(config.time_offset_s * 1e9))
+        margin = int(config.image.exposure_time_s * 0.5e9) + abs(offset_ns)
+        if camera_stamps_path is not None:
+            real = read_timestamps(camera_stamps_path)
+            t_true = real[(real >= t0 + margin) & (real <= t_end - margin)]
+        else:
+            t_true = _frame_times(
+                t0 + margin, t_end, config.camera_rate_hz or rig.camera_rate_hz or 20.0, margin
+            )
+        if t_true.size == 0:
+            raise DataError("no camera stamp falls inside the trajectory", camera_stamps_path or imu_path)
+        scene = build_scene(_scene_positions(motion, t0, t_end, rig.T_IC), config.seed, config.style)
+        info = {
+            "mode": "euroc-trajectory",
+            "source": source,
+            "imu": str(imu_path),
+            "seed": config.seed,
+            "style": config.style,
+            "seconds": (t_end - t0) * 1e-9,
+        }
+        if sequence:
+            info["sequence"] = sequence
+        gt = PoseTrajectory(
+            traj.t_ns, traj.p, traj.R, traj.v, traj.bg, traj.ba, meta={"frame": "T_WI", "source": source}
+        )
+        return cls(rig, scene, motion, imu, t_true - offset_ns, gt, config, info)
+
+    # ---------------------------------------------------------------- driver interface
+    @property
+    def rig(self):
+        """The rig the images and IMU were simulated with (EuRoC's by default)."""
+        return self._rig
+
+    @property
+    def renderer(self) -> Renderer:
+        """The image renderer (built on first use)."""
+        if self._renderer is None:
+            self._renderer = Renderer(self.scene, self._rig.camera, self.config.image, self.config.seed)
+        return self._renderer
+
+    def __len__(self) -> int:
+        return int(self.frame_stamps_ns.size)
+
+    def render(self, index: int) -> tuple[Frame, View]:
+        """Frame `index` (uint8 image, camera-clock stamp) and its view (true z-depth, faces)."""
+        if not 0 <= index < len(self):
+            raise IndexError(f"frame {index} out of range (0..{len(self) - 1})")
+        t_cam = int(self.frame_stamps_ns[index])
+        t_true = t_cam + self.time_offset_ns
+        opts = self.config.image
+        n = opts.motion_blur_samples
+        if n > 1:
+            half = opts.exposure_time_s * 0.5e9
+            times = t_true + np.round(np.linspace(-half, half, n)).astype(np.int64)
+        else:
+            times = np.array([t_true], np.int64)
+        R_WI, p_WI = self.motion.pose(times)
+        R_IC, p_IC = self._rig.T_IC[:3, :3], self._rig.T_IC[:3, 3]
+        poses = [(R @ R_IC, p + R @ p_IC) for R, p in zip(R_WI, p_WI, strict=True)]
+        t_s = (t_true - int(self.imu.t_ns[0])) * 1e-9
+        image, view = self.renderer.render(poses, t_s, index)
+        return Frame(t_cam, image, 0, meta={"simulated": True}), view
+
+    def events(self) -> Iterator[ImuSample | Frame]:
+        """IMU samples and lazily rendered frames in stamp order (IMU first at equal stamps)."""
+        cam = self._report.stream("cam0")
+        imu_counts = self._report.stream("imu0")
+        cam.lines = cam.parsed = len(self)
+        imu_counts.lines = imu_counts.parsed = len(self.imu)
+        ti, tf = self.imu.t_ns, self.frame_stamps_ns
+        i = f = 0
+        while i < ti.size or f < tf.size:
+            if f >= tf.size or (i < ti.size and ti[i] <= tf[f]):
+                imu_counts.emitted += 1
+                yield ImuSample(int(ti[i]), self.imu.gyro[i].copy(), self.imu.accel[i].copy())
+                i += 1
+            else:
+                frame, _ = self.render(f)
+                cam.emitted += 1
+                yield frame
+                f += 1
+
+    def groundtruth(self) -> PoseTrajectory:
+        """True T_WI (IMU clock) with velocity and, for synthetic IMUs, the true biases."""
+        return self._groundtruth
+
+    def report(self) -> dict:
+        """Counters of emitted events plus how the recording was simulated."""
+        out = self._report.as_dict()
+        out["simulation"] = dict(self.info)
+        return out
+
+
+def _with_offset(rig, time_offset_s: float):
+    if rig.camera is None or rig.T_IC is None:
+        raise ConfigError("simulation needs a rig with a camera model and T_IC")
+    if time_offset_s != (rig.time_offset_s or 0.0):
+        rig = rig.replace(time_offset_s=float(time_offset_s))
+    elif rig.time_offset_s is None:
+        rig = rig.replace(time_offset_s=0.0)
+    return rig
+
+
+def _crop(traj: PoseTrajectory, start_s: float, seconds: float | None, path: Path) -> PoseTrajectory:
+    t0 = int(traj.t_ns[0]) + int(round(start_s * 1e9))
+    t1 = int(traj.t_ns[-1]) if seconds is None else t0 + int(round(seconds * 1e9))
+    out = traj.subset((traj.t_ns >= t0) & (traj.t_ns <= t1))
+    if len(out) < 4:
+        raise DataError(f"fewer than 4 poses between {start_s} s and {start_s + (seconds or 0)} s", path)
+    return out

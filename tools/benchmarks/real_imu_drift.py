@@ -1,0 +1,156 @@
+"""`davio bench imu-drift`: how far the real EuRoC IMU integrates from ground truth over 1 s windows.
+
+From the ground-truth state (pose, velocity, and the ground-truth biases when groundtruth.csv has
+them) at each window start, the real IMU is integrated (drivers.sim.dead_reckoning) for
+`window` seconds and compared with the ground-truth pose at the window end.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+NAME = "imu-drift"
+HELP = "real EuRoC IMU integrated from ground truth over 1 s windows: position/orientation drift"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--sequence",
+        action="append",
+        default=None,
+        help="sequence under ../shared/data/euroc_imu_gt (repeatable; default V1_02_medium and MH_03_medium)",
+    )
+    p.add_argument(
+        "--data", default=None, help="folder holding the sequences (default ../shared/data/euroc_imu_gt)"
+    )
+    p.add_argument("--window", type=float, default=1.0, help="integration window, s")
+    p.add_argument("--step", type=float, default=0.5, help="spacing of window starts, s")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+
+
+def drift_windows(
+    t_imu: np.ndarray,
+    gyro: np.ndarray,
+    accel: np.ndarray,
+    gt,
+    window_s: float = 1.0,
+    step_s: float = 0.5,
+    use_gt_bias: bool = True,
+) -> dict:
+    """Position (m) and orientation (deg) errors after integrating each window from the true state.
+
+    gt: PoseTrajectory T_WI (IMU clock); its v is used when present, else central differences;
+    its bg/ba when present and use_gt_bias, else zero biases.
+    """
+    from drivers.sim.dead_reckoning import integrate_imu
+    from drivers.sim.sampled_motion import SampledMotion
+    from drivers.sim.spline import interpolate_positions
+    from runtime.geometry.so3 import so3_log
+
+    motion = SampledMotion(gt)
+    inside = (t_imu >= gt.t_ns[0]) & (t_imu <= gt.t_ns[-1])
+    t_imu, gyro, accel = t_imu[inside], gyro[inside], accel[inside]
+    w_ns, s_ns = int(window_s * 1e9), int(step_s * 1e9)
+    pos_err, rot_err = [], []
+    biased = use_gt_bias and gt.bg is not None and gt.ba is not None
+    start = int(t_imu[0])
+    while start + w_ns <= int(t_imu[-1]):
+        i0 = int(np.searchsorted(t_imu, start))
+        i1 = int(np.searchsorted(t_imu, start + w_ns, side="right"))
+        sl = slice(i0, i1)
+        t = t_imu[sl]
+        R0, p0 = motion.pose(t[:1])
+        v0 = motion.velocity(t[:1])[0]
+        bg = interpolate_positions(gt.t_ns, gt.bg, t[:1])[0] if biased else None
+        ba = interpolate_positions(gt.t_ns, gt.ba, t[:1])[0] if biased else None
+        R, p, _ = integrate_imu(t, gyro[sl], accel[sl], R0[0], p0[0], v0, bg, ba)
+        R1, p1 = motion.pose(t[-1:])
+        pos_err.append(float(np.linalg.norm(p[-1] - p1[0])))
+        rot_err.append(float(np.degrees(np.linalg.norm(so3_log(R1[0].T @ R[-1])))))
+        start += s_ns
+    pe, re = np.array(pos_err), np.array(rot_err)
+    if pe.size == 0:
+        return {"windows": 0}
+    return {
+        "windows": int(pe.size),
+        "window_s": window_s,
+        "biases": "ground truth" if biased else "zero",
+        "velocity": "ground truth" if gt.v is not None else "central differences of positions",
+        "position_m": {
+            "median": float(np.median(pe)),
+            "p95": float(np.percentile(pe, 95)),
+            "max": float(pe.max()),
+        },
+        "orientation_deg": {
+            "median": float(np.median(re)),
+            "p95": float(np.percentile(re, 95)),
+            "max": float(re.max()),
+        },
+    }
+
+
+def run(args: argparse.Namespace) -> int:
+    import json
+    from pathlib import Path
+
+    from drivers.sim.trajectory_files import read_imu_csv, read_trajectory
+    from runtime.errors import DataError
+
+    root = (
+        Path(args.data)
+        if args.data
+        else Path(__file__).resolve().parents[2].parent / "shared" / "data" / "euroc_imu_gt"
+    )
+    results = {}
+    for seq in args.sequence or ["V1_02_medium", "MH_03_medium"]:
+        folder = root / seq
+        gt_path = folder / "groundtruth.csv"
+        if not gt_path.is_file():
+            gt_path = folder / "groundtruth_tum.txt"
+        if not gt_path.is_file():
+            raise DataError("no groundtruth.csv or groundtruth_tum.txt (is ../shared/data present?)", folder)
+        gt = read_trajectory(gt_path)
+        t, g, a = read_imu_csv(folder / "imu0.csv")
+        results[seq] = {
+            "groundtruth": gt_path.name,
+            "with_gt_bias": drift_windows(t, g, a, gt, args.window, args.step, True),
+        }
+        if gt.bg is not None:
+            results[seq]["zero_bias"] = drift_windows(t, g, a, gt, args.window, args.step, False)
+    if args.json:
+        print(json.dumps(results))
+        return 0
+    from rich.console import Console
+    from rich.table import Table
+
+    tab = Table(title=f"real IMU integrated from ground truth over {args.window:g} s windows")
+    for col in (
+        "sequence",
+        "biases",
+        "velocity",
+        "windows",
+        "pos median m",
+        "pos p95 m",
+        "rot median deg",
+        "rot p95 deg",
+    ):
+        tab.add_column(col)
+    for seq, res in results.items():
+        for key in ("with_gt_bias", "zero_bias"):
+            r = res.get(key)
+            if not r or not r.get("windows"):
+                continue
+            tab.add_row(
+                seq,
+                r["biases"],
+                r["velocity"],
+                str(r["windows"]),
+                f"{r['position_m']['median']:.4f}",
+                f"{r['position_m']['p95']:.4f}",
+                f"{r['orientation_deg']['median']:.3f}",
+                f"{r['orientation_deg']['p95']:.3f}",
+            )
+    Console().print(tab)
+    return 0
