@@ -68,10 +68,10 @@ def smooth_field(
     a, b = rng.normal(size=n_modes), rng.normal(size=n_modes)
     u = np.arange(width, dtype=np.float64)
     v = np.arange(height, dtype=np.float64)
-    out = np.zeros((height, width))
-    for m in range(n_modes):
-        phase = v[:, None] * ky[m] + u[None, :] * kx[m]
-        out += a[m] * np.cos(phase) + b[m] * np.sin(phase)
+    # separable: A cos(a + b) + B sin(a + b) = (A cos b + B sin b) cos a + (B cos b - A sin b) sin a
+    au, bv = u[None, :] * kx[:, None], v[:, None] * ky[None, :]  # (M, W), (H, M)
+    cb, sb = np.cos(bv), np.sin(bv)
+    out = (a * cb + b * sb) @ np.cos(au) + (b * cb - a * sb) @ np.sin(au)
     return out / np.sqrt(n_modes)
 
 
