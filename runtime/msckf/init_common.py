@@ -166,6 +166,12 @@ class ImuWindow:
     def __len__(self) -> int:
         return len(self._t)
 
+    def clear(self) -> None:
+        """Forget all samples (counters are kept)."""
+        self._t.clear()
+        self._w.clear()
+        self._a.clear()
+
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(t_ns (N,) int64, gyro (N,3), accel (N,3))."""
         if not self._t:
@@ -179,9 +185,13 @@ class TrackWindow:
     def __init__(self, keep_ns: int) -> None:
         self.keep_ns = int(keep_ns)
         self.frames: deque[tuple[int, np.ndarray, np.ndarray, np.ndarray | None]] = deque()
+        self.dropped_out_of_order = 0
 
     def add(self, t_ns: int, ids: np.ndarray, uv: np.ndarray, xy: np.ndarray | None = None) -> None:
-        """Append one frame (ids (M,), uv (M, 2) px, xy (M, 2) normalized or None); raises ValueError."""
+        """Append one frame (ids (M,), uv (M, 2) px, xy (M, 2) normalized or None).
+
+        A frame not after the previous one is dropped and counted; mismatched lengths raise ValueError.
+        """
         ids = np.asarray(ids, dtype=np.int64).reshape(-1)
         uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
         if ids.shape[0] != uv.shape[0]:
@@ -191,7 +201,8 @@ class TrackWindow:
             if xy.shape[0] != ids.shape[0]:
                 raise ValueError(f"ids ({ids.shape[0]}) and xy ({xy.shape[0]}) must have the same length")
         if self.frames and int(t_ns) <= self.frames[-1][0]:
-            raise ValueError(f"track time {t_ns} ns is not after the previous {self.frames[-1][0]} ns")
+            self.dropped_out_of_order += 1
+            return
         self.frames.append((int(t_ns), ids, uv, xy))
         while self.frames and self.frames[0][0] < int(t_ns) - self.keep_ns:
             self.frames.popleft()

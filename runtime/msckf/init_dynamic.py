@@ -211,6 +211,11 @@ class DynamicInitializer:
         xy = self.camera.undistort_points(uv) if uv.shape[0] else np.zeros((0, 2))
         self.tracks.add(t_ns, ids, uv, xy)
 
+    def reset(self) -> None:
+        """Forget buffered IMU samples and tracks (after a filter reset); rejection counts are kept."""
+        self.imu.clear()
+        self.tracks.frames.clear()
+
     def report(self) -> dict:
         """Counters for the run report."""
         return {
@@ -218,6 +223,7 @@ class DynamicInitializer:
             "last_reason": self.last_reason,
             "imu_dropped_nonfinite": self.imu.dropped_nonfinite,
             "imu_dropped_out_of_order": self.imu.dropped_out_of_order,
+            "frames_dropped_out_of_order": self.tracks.dropped_out_of_order,
         }
 
     # ------------------------------------------------------------------ main entry

@@ -102,11 +102,17 @@ class StaticInitializer:
         """Add one frame's tracks (ids (M,), distorted pixels (M, 2)) for the disparity check."""
         self.tracks.add(t_ns, ids, uv)
 
+    def reset(self) -> None:
+        """Forget buffered IMU samples and tracks (after a filter reset); rejection counts are kept."""
+        self.imu.clear()
+        self.tracks.frames.clear()
+
     def report(self) -> dict:
         """Counters for the run report."""
         return {"rejections": dict(self.log.counts), "last_reason": self.last_reason,
                 "imu_dropped_nonfinite": self.imu.dropped_nonfinite,
-                "imu_dropped_out_of_order": self.imu.dropped_out_of_order}
+                "imu_dropped_out_of_order": self.imu.dropped_out_of_order,
+                "frames_dropped_out_of_order": self.tracks.dropped_out_of_order}
 
     def try_initialize(self) -> InitResult | None:
         """An InitResult when the window passes the checks, else None (reason in last_reason)."""
