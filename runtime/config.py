@@ -1,0 +1,32 @@
+"""The one configuration of a DAVIO run: nested dataclasses whose defaults are the paper's (and
+OpenVINS EuRoC's) numbers, loadable from and saved to a single TOML file (runtime.config_io)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from runtime.ffinit.config import FFInitConfig
+from runtime.msckf.config import MsckfConfig
+from runtime.msckf.init_dynamic import DynamicInitConfig
+from runtime.msckf.init_static import StaticInitConfig
+from runtime.msckf.tracker import TrackerConfig
+from runtime.startup import StartupConfig
+
+
+@dataclass
+class DavioConfig:
+    """Everything a run needs besides the rig, the recording and the model file."""
+
+    tracker: TrackerConfig = field(default_factory=TrackerConfig)
+    """KLT front-end."""
+    msckf: MsckfConfig = field(default_factory=MsckfConfig)
+    """The filter (OpenVINS EuRoC monocular defaults)."""
+    static_init: StaticInitConfig = field(default_factory=StaticInitConfig)
+    """Native static initializer (stand-still then jerk)."""
+    dynamic_init: DynamicInitConfig = field(default_factory=DynamicInitConfig)
+    """Native dynamic initializer (off by default, as OpenVINS's EuRoC configuration)."""
+    use_dynamic_init: bool = False
+    """Arm the native dynamic initializer too."""
+    startup: StartupConfig = field(default_factory=StartupConfig)
+    """Buffered-replay handoff."""
+    ffinit: FFInitConfig = field(default_factory=FFInitConfig)
+    """Feed-forward initializer thresholds."""

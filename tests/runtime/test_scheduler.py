@@ -1,0 +1,131 @@
+"""Scheduler: every event reaches the pipeline in order, model results are applied at a
+deterministic sensor time with FastClock whatever the worker's speed, failures are reported."""
+from __future__ import annotations
+
+import random
+import time
+
+import pytest
+
+from drivers.events import Frame, ImuSample
+from runtime.errors import DataError, DavioError
+from runtime.scheduler import FastClock, PacedClock, Scheduler
+
+
+def _events(n_imu=400, imu_period=5_000_000, frame_every=10):
+    ev = []
+    for k in range(n_imu):
+        ev.append(ImuSample(k * imu_period, (0.0, 0.0, 0.0), (0.0, 0.0, 9.81)))
+        if k % frame_every == 0:
+            ev.append(Frame(k * imu_period, None))
+    return ev
+
+
+class TracePipeline:
+    def __init__(self, worker_delay):
+        self.trace = []
+        self.requests = 0
+        self.worker_delay = worker_delay
+        self.last_t = None
+
+    def on_imu(self, s):
+        self.trace.append(("imu", s.t_ns))
+        self.last_t = s.t_ns
+        return []
+
+    def on_frame(self, f):
+        self.trace.append(("frame", f.t_ns))
+        self.last_t = f.t_ns
+        return [f.t_ns]
+
+    def next_model_job(self):
+        if self.requests >= 3 or self.last_t is None or self.last_t < 200_000_000 * (self.requests + 1):
+            return None
+        self.requests += 1
+        t_req, delay = self.last_t, self.worker_delay()
+
+        def job():
+            time.sleep(delay)
+            return ("result", t_req)
+
+        return job
+
+    def on_model_result(self, res):
+        self.trace.append(("model", res[1], self.last_t))
+
+
+def test_fast_clock_is_deterministic_and_lossless():
+    rng = random.Random(0)
+    traces = []
+    for delays in ((lambda: 0.0), (lambda: rng.uniform(0.0, 0.05))):
+        pipe = TracePipeline(delays)
+        outputs = []
+        rep = Scheduler(FastClock(model_latency_s=0.25), queue_size=16, on_output=outputs.append).run(
+            _events(), pipe)
+        traces.append(pipe.trace)
+        assert rep.imu_samples == 400 and rep.frames == 40 and rep.model_jobs == 3
+        assert [o[0] for o in outputs] == [e[1] for e in pipe.trace if e[0] == "frame"]
+    assert traces[0] == traces[1]
+    models = [e for e in traces[0] if e[0] == "model"]
+    # applied at the first event at or after request time + 0.25 s of sensor time
+    for _, t_req, t_applied in models:
+        assert t_req + 250_000_000 <= t_applied + 5_000_000 and t_applied - t_req < 250_000_000 + 5_000_000
+    sensor = [e[1] for e in traces[0] if e[0] != "model"]
+    assert sensor == sorted(sensor) and len(sensor) == 440
+
+
+def test_paced_clock_waits_for_sensor_time():
+    clock = PacedClock(speed=10.0)
+    t0 = time.monotonic()
+    clock.wait_until(0)
+    clock.wait_until(500_000_000)  # 0.5 s of sensor time at 10x = 0.05 s
+    assert time.monotonic() - t0 >= 0.045
+    with pytest.raises(DavioError):
+        PacedClock(speed=0)
+
+
+def test_intake_error_is_reported_not_swallowed():
+    def broken():
+        yield ImuSample(0, (0, 0, 0), (0, 0, 9.81))
+        raise DataError("frame 3 unreadable", "cam0/data.csv", 4)
+
+    with pytest.raises(DavioError, match="unreadable"):
+        Scheduler(FastClock()).run(broken(), TracePipeline(lambda: 0.0))
+
+
+def test_failed_model_job_is_delivered_as_an_exception():
+    class Failing(TracePipeline):
+        def next_model_job(self):
+            if self.requests:
+                return None
+            self.requests += 1
+
+            def job():
+                raise RuntimeError("boom")
+
+            return job
+
+        def on_model_result(self, res):
+            self.trace.append(("model", res))
+
+    pipe = Failing(lambda: 0.0)
+    Scheduler(FastClock(0.1)).run(_events(100), pipe)
+    got = [e[1] for e in pipe.trace if e[0] == "model"]
+    assert len(got) == 1 and isinstance(got[0], RuntimeError)
+
+
+def test_live_queue_keeps_newest_frames_and_every_imu_sample():
+    from runtime.scheduler import _END, EventQueue
+
+    q = EventQueue(maxsize=4, max_frames=2)
+    for k in range(6):
+        q.put(Frame(k, None))
+        q.put(ImuSample(k, (0, 0, 0), (0, 0, 0)))
+    q.close()
+    out = []
+    while (ev := q.get()) is not _END:
+        out.append(ev)
+    frames = [e.t_ns for e in out if isinstance(e, Frame)]
+    imu = [e.t_ns for e in out if isinstance(e, ImuSample)]
+    assert frames == [4, 5] and q.frames_dropped == 4
+    assert imu == list(range(6)) and q.imu_overflow > 0
