@@ -28,7 +28,7 @@ import numpy as np
 import scipy.optimize
 import scipy.sparse
 
-from runtime.errors import ConfigError, DataError, EstimatorError
+from runtime.errors import ConfigError, DataError
 from runtime.geometry import so3_exp, so3_log
 from runtime.imu import Preintegrator
 from runtime.msckf.init_common import ImuWindow, InitResult, RejectionLog, TrackWindow, rotation_from_up
@@ -353,7 +353,7 @@ class DynamicInitializer:
 
         refined = _Refinement(self, obs, between, g_O, bg0, ba0).run(R_k, p_k, v_k, p_f)
         if refined is None:
-            return rej(t_newest, "mle_failed", "nonlinear refinement produced no finite solution")
+            return rej(t_newest, "mle_failed", "refinement gave no finite solution or covariance")
         R_k, p_k, v_k, bg, ba, cov, rms_px, nfev = refined
         info.update(reprojection_rms_px=rms_px, mle_evaluations=nfev)
         if rms_px > cfg.max_reprojection_rms_px:
@@ -591,8 +591,8 @@ class _Refinement:
         info = (J.T @ J).toarray()
         try:
             cov_all = np.linalg.inv(info + np.eye(info.shape[0]) * 1e-12 * np.trace(info) / info.shape[0])
-        except np.linalg.LinAlgError as exc:
-            raise EstimatorError(f"dynamic init information matrix is singular: {exc}") from exc
+        except np.linalg.LinAlgError:
+            return None  # singular information: reported as a failed refinement
         idx = np.r_[9 * (K - 1) : 9 * K, 9 * K : 9 * K + 6]
         cov = cov_all[np.ix_(idx, idx)]
         c = self.cfg
@@ -601,6 +601,8 @@ class _Refinement:
         )
         cov = infl[:, None] * cov * infl[None, :]
         cov = 0.5 * (cov + cov.T)
+        if not (np.all(np.isfinite(cov)) and np.all(np.diag(cov) > 0)):
+            return None
         return R, p, v, self.bg0 + dbg, self.ba0 + dba, cov, rms_px, nfev
 
 

@@ -7,8 +7,9 @@ coordinates between consecutive frames, then FAST corners on a grid to top the t
 
 Pixels are distorted image pixels (u, v), (0, 0) at the centre of the top-left pixel (OpenCV);
 ``xy`` are undistorted normalized coordinates (X/Z, Y/Z) through the rig's camera model.
-Bad frames (too dark, frozen = identical to the previous one) are counted and answered with an
-empty result; the tracker keeps its last good image and resumes from it on the next good frame.
+Bad frames (too dark, frozen = identical to the previous one, not after the previous frame in
+time) are counted and answered with an empty result; the tracker keeps its last good image and
+resumes from it on the next good frame. A wrong image size or type raises DataError.
 """
 from __future__ import annotations
 
@@ -105,7 +106,8 @@ class TrackResult:
         xy: (M, 2) float64 undistorted normalized coordinates (X/Z, Y/Z) in the camera frame.
         stats: per-frame counters: n_tracked (kept from the previous frame), n_new (detected),
             n_lk_failed, n_fb_rejected, n_border_rejected, n_ransac_rejected, n_undistort_failed,
-            ransac_skipped, dark, frozen (bool flags; a dark or frozen frame returns no tracks).
+            ransac_skipped, dark, frozen, out_of_order (bool flags; such a frame returns no tracks
+            and tracking resumes from the last good frame).
     """
 
     t_ns: int
@@ -175,10 +177,11 @@ class KltTracker:
         self.counters["frames"] += 1
         stats = {"n_tracked": 0, "n_new": 0, "n_lk_failed": 0, "n_fb_rejected": 0, "n_border_rejected": 0,
                  "n_ransac_rejected": 0, "n_undistort_failed": 0, "ransac_skipped": False,
-                 "dark": False, "frozen": False}
+                 "dark": False, "frozen": False, "out_of_order": False}
         if self._prev_t_ns is not None and t_ns <= self._prev_t_ns:
+            stats["out_of_order"] = True
             self.counters["non_monotonic_frames"] += 1
-            raise DataError(f"frame time {t_ns} ns is not after the previous frame's {self._prev_t_ns} ns")
+            return self._empty(t_ns, stats)
 
         mean, std = cv2.meanStdDev(image)
         if float(mean[0, 0]) < cfg.dark_mean_max or float(std[0, 0]) < cfg.dark_std_min:
