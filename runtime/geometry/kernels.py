@@ -134,3 +134,47 @@ def nb_normalize_rotation(R: np.ndarray) -> np.ndarray:
             U[i, 2] = -U[i, 2]
         M = U @ Vt
     return M
+
+
+@njit(cache=True, nogil=True)
+def nb_so3_exp_into(phi0: float, phi1: float, phi2: float, out: np.ndarray) -> None:
+    """Writes Exp([phi0, phi1, phi2]) into the (3, 3) array `out` (no allocation)."""
+    theta = math.sqrt(phi0 * phi0 + phi1 * phi1 + phi2 * phi2)
+    a, b = nb_exp_coeffs(theta)
+    _rodrigues_into(phi0, phi1, phi2, 1.0, a, b, out)
+
+
+@njit(cache=True, nogil=True)
+def nb_right_jacobian_into(phi0: float, phi1: float, phi2: float, out: np.ndarray) -> None:
+    """Writes Jr([phi0, phi1, phi2]) = I - B [phi]x + C [phi]x^2 into `out` (no allocation)."""
+    theta = math.sqrt(phi0 * phi0 + phi1 * phi1 + phi2 * phi2)
+    _, b = nb_exp_coeffs(theta)
+    _rodrigues_into(phi0, phi1, phi2, 1.0, -b, nb_coeff_c(theta), out)
+
+
+@njit(cache=True, nogil=True)
+def _rodrigues_into(x: float, y: float, z: float, i_coef: float, k_coef: float, k2_coef: float,
+                    out: np.ndarray) -> None:
+    """out = i_coef I + k_coef [p]x + k2_coef [p]x^2 for p = (x, y, z); [p]x^2 = p p^T - |p|^2 I."""
+    n2 = x * x + y * y + z * z
+    d = i_coef - k2_coef * n2
+    out[0, 0] = d + k2_coef * x * x
+    out[1, 1] = d + k2_coef * y * y
+    out[2, 2] = d + k2_coef * z * z
+    out[0, 1] = k2_coef * x * y - k_coef * z
+    out[1, 0] = k2_coef * x * y + k_coef * z
+    out[0, 2] = k2_coef * x * z + k_coef * y
+    out[2, 0] = k2_coef * x * z - k_coef * y
+    out[1, 2] = k2_coef * y * z - k_coef * x
+    out[2, 1] = k2_coef * y * z + k_coef * x
+
+
+@njit(cache=True, nogil=True)
+def nb_matmul3_into(A: np.ndarray, B: np.ndarray, out: np.ndarray, transpose_a: bool = False) -> None:
+    """out = A B (or A^T B when transpose_a) for (3, 3) arrays; `out` must not alias A or B."""
+    for i in range(3):
+        for j in range(3):
+            s = 0.0
+            for k in range(3):
+                s += (A[k, i] if transpose_a else A[i, k]) * B[k, j]
+            out[i, j] = s

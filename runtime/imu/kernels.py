@@ -5,10 +5,11 @@ import numpy as np
 from numba import njit
 
 from runtime.geometry.kernels import (
+    nb_matmul3_into,
     nb_normalize_rotation,
-    nb_right_jacobian,
+    nb_right_jacobian_into,
     nb_skew,
-    nb_so3_exp,
+    nb_so3_exp_into,
 )
 
 
@@ -20,7 +21,7 @@ def nb_preintegrate(dts: np.ndarray, gyro: np.ndarray, accel: np.ndarray, bg: np
     dts (K,) s; gyro, accel (K+1, 3) node measurements; bg, ba (3,) biases; var_g, var_a the squared
     continuous noise densities; end_nodes (E,) the node indices at which to report (node 0 = start).
     Returns, stacked over the E ends: dR (E,3,3), dv (E,3), dp (E,3), cov (E,9,9, order [phi, v, p]),
-    J_R_bg, J_v_bg, J_v_ba, J_p_bg, J_p_ba (E,3,3).
+    J_R_bg, J_v_bg, J_v_ba, J_p_bg, J_p_ba (E,3,3). The loop allocates nothing.
     """
     n_end = end_nodes.shape[0]
     out_R = np.zeros((n_end, 3, 3))
@@ -28,7 +29,6 @@ def nb_preintegrate(dts: np.ndarray, gyro: np.ndarray, accel: np.ndarray, bg: np
     out_p = np.zeros((n_end, 3))
     out_cov = np.zeros((n_end, 9, 9))
     out_J = np.zeros((5, n_end, 3, 3))
-    eye3 = np.eye(3)
     dR = np.eye(3)
     dv = np.zeros(3)
     dp = np.zeros(3)
@@ -38,54 +38,115 @@ def nb_preintegrate(dts: np.ndarray, gyro: np.ndarray, accel: np.ndarray, bg: np
     J_p_bg = np.zeros((3, 3))
     J_p_ba = np.zeros((3, 3))
     cov = np.zeros((9, 9))
-    A = np.eye(9)
-    Bg = np.zeros((9, 3))
-    Ba = np.zeros((9, 3))
+    # work buffers
+    dR_k = np.empty((3, 3))
+    H = np.empty((3, 3))
+    Jr = np.empty((3, 3))
+    Jr_half = np.empty((3, 3))
+    R_half = np.empty((3, 3))
+    Ra = np.empty((3, 3))
+    J_half = np.empty((3, 3))
+    RaJ = np.empty((3, 3))
+    M = np.empty((3, 3))
+    G = np.empty((3, 3))
+    tmp = np.empty((3, 3))
+    A = np.zeros((9, 3))
+    B = np.zeros((9, 6))
+    AP = np.empty((9, 9))
+    acc = np.empty(3)
     for e in range(n_end):
         if end_nodes[e] == 0:
             out_R[e] = dR
     for k in range(dts.shape[0]):
         dt = dts[k]
-        w = 0.5 * (gyro[k] + gyro[k + 1]) - bg
-        a = 0.5 * (accel[k] + accel[k + 1]) - ba
-        phi = w * dt
-        dR_k = nb_so3_exp(phi)
-        H = nb_so3_exp(0.5 * phi)
-        Jr = nb_right_jacobian(phi)
-        Jr_half = nb_right_jacobian(0.5 * phi)
-        R_half = dR @ H
-        Ra = R_half @ nb_skew(a)
-        acc = R_half @ a
+        hdt2 = 0.5 * dt * dt
+        w0 = 0.5 * (gyro[k, 0] + gyro[k + 1, 0]) - bg[0]
+        w1 = 0.5 * (gyro[k, 1] + gyro[k + 1, 1]) - bg[1]
+        w2 = 0.5 * (gyro[k, 2] + gyro[k + 1, 2]) - bg[2]
+        a0 = 0.5 * (accel[k, 0] + accel[k + 1, 0]) - ba[0]
+        a1 = 0.5 * (accel[k, 1] + accel[k + 1, 1]) - ba[1]
+        a2 = 0.5 * (accel[k, 2] + accel[k + 1, 2]) - ba[2]
+        nb_so3_exp_into(w0 * dt, w1 * dt, w2 * dt, dR_k)
+        nb_so3_exp_into(0.5 * w0 * dt, 0.5 * w1 * dt, 0.5 * w2 * dt, H)
+        nb_right_jacobian_into(w0 * dt, w1 * dt, w2 * dt, Jr)
+        nb_right_jacobian_into(0.5 * w0 * dt, 0.5 * w1 * dt, 0.5 * w2 * dt, Jr_half)
+        nb_matmul3_into(dR, H, R_half)
+        for i in range(3):
+            r0, r1, r2 = R_half[i, 0], R_half[i, 1], R_half[i, 2]
+            # row i of R_half [a]x is (row i of R_half) x a
+            Ra[i, 0] = r1 * a2 - r2 * a1
+            Ra[i, 1] = r2 * a0 - r0 * a2
+            Ra[i, 2] = r0 * a1 - r1 * a0
+            acc[i] = r0 * a0 + r1 * a1 + r2 * a2
         # bias Jacobians: derivatives of this discrete scheme, from the values before the step
-        J_half = H.T @ J_R_bg - (0.5 * dt) * Jr_half
-        RaJ = Ra @ J_half
-        J_p_bg = J_p_bg + dt * J_v_bg - (0.5 * dt * dt) * RaJ
-        J_p_ba = J_p_ba + dt * J_v_ba - (0.5 * dt * dt) * R_half
-        J_v_bg = J_v_bg - dt * RaJ
-        J_v_ba = J_v_ba - dt * R_half
-        J_R_bg = dR_k.T @ J_R_bg - dt * Jr
+        nb_matmul3_into(H, J_R_bg, J_half, True)
+        for i in range(3):
+            for j in range(3):
+                J_half[i, j] -= 0.5 * dt * Jr_half[i, j]
+        nb_matmul3_into(Ra, J_half, RaJ)
+        nb_matmul3_into(dR_k, J_R_bg, tmp, True)
+        for i in range(3):
+            for j in range(3):
+                J_p_bg[i, j] += dt * J_v_bg[i, j] - hdt2 * RaJ[i, j]
+                J_p_ba[i, j] += dt * J_v_ba[i, j] - hdt2 * R_half[i, j]
+                J_v_bg[i, j] -= dt * RaJ[i, j]
+                J_v_ba[i, j] -= dt * R_half[i, j]
+                J_R_bg[i, j] = tmp[i, j] - dt * Jr[i, j]
         if with_cov:
-            M = Ra @ H.T
-            A[0:3, 0:3] = dR_k.T
-            A[3:6, 0:3] = -dt * M
-            A[6:9, 0:3] = (-0.5 * dt * dt) * M
-            A[6:9, 3:6] = dt * eye3
-            G = Ra @ Jr_half
-            Bg[0:3, :] = dt * Jr
-            Bg[3:6, :] = (-0.5 * dt * dt) * G
-            Bg[6:9, :] = (-0.25 * dt * dt * dt) * G
-            Ba[3:6, :] = dt * R_half
-            Ba[6:9, :] = (0.5 * dt * dt) * R_half
-            cov = A @ cov @ A.T + (var_g / dt) * (Bg @ Bg.T) + (var_a / dt) * (Ba @ Ba.T)
-        dp = dp + dt * dv + (0.5 * dt * dt) * acc
-        dv = dv + dt * acc
-        dR = dR @ dR_k
+            # M = Ra H^T, G = Ra Jr_half
+            for i in range(3):
+                for j in range(3):
+                    sm = 0.0
+                    sg = 0.0
+                    for m in range(3):
+                        sm += Ra[i, m] * H[j, m]
+                        sg += Ra[i, m] * Jr_half[m, j]
+                    M[i, j] = sm
+                    G[i, j] = sg
+            sq_g = np.sqrt(var_g / dt)
+            sq_a = np.sqrt(var_a / dt)
+            for i in range(3):
+                for j in range(3):
+                    A[i, j] = dR_k[j, i]
+                    A[3 + i, j] = -dt * M[i, j]
+                    A[6 + i, j] = -hdt2 * M[i, j]
+                    B[i, j] = sq_g * dt * Jr[i, j]
+                    B[3 + i, j] = -sq_g * hdt2 * G[i, j]
+                    B[6 + i, j] = -sq_g * 0.25 * dt * dt * dt * G[i, j]
+                    B[3 + i, 3 + j] = sq_a * dt * R_half[i, j]
+                    B[6 + i, 3 + j] = sq_a * hdt2 * R_half[i, j]
+            # cov = A cov A^T + B B^T with A = [[D, 0, 0], [Mv, I, 0], [Mp, dt I, I]]: only A's
+            # first three columns (the (9, 3) array A) are general
+            for i in range(9):
+                for j in range(9):
+                    s = A[i, 0] * cov[0, j] + A[i, 1] * cov[1, j] + A[i, 2] * cov[2, j]
+                    if i >= 3:
+                        s += cov[i, j]
+                    if i >= 6:
+                        s += dt * cov[i - 3, j]
+                    AP[i, j] = s
+            for i in range(9):
+                for j in range(i, 9):
+                    s = AP[i, 0] * A[j, 0] + AP[i, 1] * A[j, 1] + AP[i, 2] * A[j, 2]
+                    if j >= 3:
+                        s += AP[i, j]
+                    if j >= 6:
+                        s += dt * AP[i, j - 3]
+                    for m in range(6):
+                        s += B[i, m] * B[j, m]
+                    cov[i, j] = s
+                    cov[j, i] = s
+        for i in range(3):
+            dp[i] += dt * dv[i] + hdt2 * acc[i]
+            dv[i] += dt * acc[i]
+        nb_matmul3_into(dR, dR_k, tmp)
+        dR[:, :] = tmp
         for e in range(n_end):
             if end_nodes[e] == k + 1:
                 out_R[e] = nb_normalize_rotation(dR)
                 out_v[e] = dv
                 out_p[e] = dp
-                out_cov[e] = 0.5 * (cov + cov.T)
+                out_cov[e] = cov
                 out_J[0, e] = J_R_bg
                 out_J[1, e] = J_v_bg
                 out_J[2, e] = J_v_ba

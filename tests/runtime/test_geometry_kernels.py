@@ -61,3 +61,22 @@ def test_kernels_compose_inside_numba():
     phis = np.full((4, 3), 0.0)
     phis[:, 2] = 0.5
     np.testing.assert_allclose(_compose_in_numba(phis), [0.0, 0.0, 2.0], atol=1e-14)
+
+
+@pytest.mark.parametrize("angle", ANGLES)
+def test_allocation_free_kernels_match_numpy(angle):
+    from runtime.geometry.kernels import nb_matmul3_into, nb_right_jacobian_into, nb_so3_exp_into
+
+    rng = np.random.default_rng(int(angle * 1000) + 1)
+    axis = rng.normal(size=3)
+    phi = axis / np.linalg.norm(axis) * angle
+    out = np.full((3, 3), np.nan)
+    nb_so3_exp_into(phi[0], phi[1], phi[2], out)
+    np.testing.assert_allclose(out, so3_exp(phi), atol=1e-15)
+    nb_right_jacobian_into(phi[0], phi[1], phi[2], out)
+    np.testing.assert_allclose(out, so3_right_jacobian(phi), atol=1e-15)
+    A, B = rng.normal(size=(3, 3)), rng.normal(size=(3, 3))
+    nb_matmul3_into(A, B, out)
+    np.testing.assert_allclose(out, A @ B, atol=1e-14)
+    nb_matmul3_into(A, B, out, True)
+    np.testing.assert_allclose(out, A.T @ B, atol=1e-14)
