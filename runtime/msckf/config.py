@@ -1,0 +1,116 @@
+"""Configuration of the MSCKF filter (defaults: OpenVINS's EuRoC monocular configuration)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields, replace
+
+from runtime.errors import ConfigError
+
+SLAM_REPRESENTATIONS = ("global_3d",)
+
+
+@dataclass(frozen=True)
+class MsckfConfig:
+    """Every threshold of the filter, as a named field.
+
+    Noise densities default to the EuRoC/Kalibr values; `for_rig` replaces them by the rig's own.
+    """
+
+    # filter
+    use_fej: bool = True  #: first-estimate Jacobians (IMU and clones)
+    integration: str = "rk4"  #: mean integration: "rk4" (analytic covariance either way)
+    gravity_mag: float = 9.81  #: |g|, m/s^2
+    # sliding window and features
+    max_clones: int = 11  #: clones kept after marginalisation
+    max_slam: int = 50  #: SLAM landmarks in the state
+    max_slam_in_update: int = 25  #: SLAM features per batched update
+    max_msckf_in_update: int = 40  #: MSCKF features per update (longest tracks first)
+    dt_slam_delay: float = 1.0  #: s after initialisation before SLAM features are added
+    slam_representation: str = "global_3d"  #: landmark parameterisation in the state
+    # measurement noise and gating
+    sigma_pix: float = 1.0  #: pixel noise of MSCKF and SLAM measurements, px
+    chi2_multiplier: float = 1.0  #: multiplier of the 95% chi-square threshold
+    # triangulation (OpenVINS FeatureInitializerOptions)
+    tri_max_cond: float = 1e4  #: reject when cond(A) of the linear system exceeds this
+    tri_min_dist: float = 0.10  #: m, minimum depth in the anchor camera
+    tri_max_dist: float = 60.0  #: m, maximum depth in the anchor camera
+    tri_max_baseline_ratio: float = 40.0  #: reject when depth / max baseline exceeds this
+    tri_gn_iterations: int = 20  #: Gauss-Newton (Levenberg-Marquardt) iterations
+    # online calibration
+    calib_extrinsics: bool = False  #: estimate R_IC, p_IC
+    calib_time_offset: bool = False  #: estimate t_imu - t_cam
+    calib_intrinsics: bool = False  #: estimate fx fy cx cy and distortion (not supported)
+    # initial calibration uncertainty when estimated
+    sigma_calib_rot: float = 0.035  #: rad, prior std of R_IC (about 2 deg)
+    sigma_calib_pos: float = 0.02  #: m, prior std of p_IC
+    sigma_calib_dt: float = 0.01  #: s, prior std of the time offset
+    # IMU noise (continuous-time densities; EuRoC/Kalibr)
+    gyro_noise_density: float = 1.6968e-4  #: rad/s/sqrt(Hz)
+    gyro_random_walk: float = 1.9393e-5  #: rad/s^2/sqrt(Hz)
+    accel_noise_density: float = 2.0e-3  #: m/s^2/sqrt(Hz)
+    accel_random_walk: float = 3.0e-3  #: m/s^3/sqrt(Hz)
+    # zero-velocity update
+    try_zupt: bool = False  #: detect standstill and apply a zero-velocity update
+    zupt_chi2_multiplier: float = 1.0  #: multiplier of the ZUPT chi-square threshold
+    zupt_max_velocity: float = 0.1  #: m/s, the estimated speed must be below this
+    zupt_noise_multiplier: float = 1.0  #: inflation of the IMU noise in the ZUPT residual
+    zupt_max_disparity: float = 0.0  #: px, mean feature disparity gate (0: IMU test only)
+    # initialisation from a given state: covariance floors (std), OpenVINS initialize_with_gt values
+    init_sigma_ori: float = 0.017  #: rad
+    init_sigma_pos: float = 0.05  #: m
+    init_sigma_vel: float = 0.01  #: m/s
+    init_sigma_bg: float = 0.02  #: rad/s
+    init_sigma_ba: float = 0.02  #: m/s^2
+    # IMU stream handling
+    max_imu_gap_s: float = 0.05  #: a larger gap between IMU samples is counted as a gap
+    max_imu_extrapolation_s: float = 0.01  #: a frame may lie this far past the newest IMU sample
+    # compute
+    blas_threads: int | None = 1  #: BLAS threads for the process (None: leave as is); see blas_threads.py
+    # health
+    max_velocity: float = 30.0  #: m/s, a faster estimate is a divergence
+    max_gyro_bias: float = 0.5  #: rad/s
+    max_accel_bias: float = 2.0  #: m/s^2
+    max_position_std: float = 100.0  #: m, a larger position std is a covariance blow-up
+    max_frames_without_features: int = 50  #: consecutive frames without a feature update before a reset
+
+    def __post_init__(self) -> None:
+        if self.integration not in ("rk4",):
+            raise ConfigError(f"integration must be 'rk4', got {self.integration!r}")
+        if self.slam_representation not in SLAM_REPRESENTATIONS:
+            raise ConfigError(
+                f"slam_representation must be one of {SLAM_REPRESENTATIONS}, got {self.slam_representation!r}"
+            )
+        if self.calib_intrinsics:
+            raise ConfigError("calib_intrinsics: online intrinsics calibration is not supported")
+        if self.max_clones < 2:
+            raise ConfigError(f"max_clones must be >= 2, got {self.max_clones}")
+        for f in ("max_slam", "max_slam_in_update", "max_msckf_in_update"):
+            if getattr(self, f) < 0:
+                raise ConfigError(f"{f} must be >= 0, got {getattr(self, f)}")
+        for f in (
+            "sigma_pix",
+            "chi2_multiplier",
+            "gravity_mag",
+            "gyro_noise_density",
+            "accel_noise_density",
+            "gyro_random_walk",
+            "accel_random_walk",
+        ):
+            if not getattr(self, f) > 0:
+                raise ConfigError(f"{f} must be > 0, got {getattr(self, f)}")
+
+    def with_imu_noise(self, imu: object | None) -> MsckfConfig:
+        """A copy with the IMU noise densities of an ImuNoise-like object (None, withheld: unchanged)."""
+        if imu is None:
+            return self
+        names = ("gyro_noise_density", "gyro_random_walk", "accel_noise_density", "accel_random_walk")
+        vals = {n: float(getattr(imu, n)) for n in names if getattr(imu, n, None) is not None}
+        return replace(self, **{n: v for n, v in vals.items() if v > 0})
+
+    def updated(self, **kwargs: object) -> MsckfConfig:
+        """A copy with fields replaced; unknown names raise ConfigError."""
+        names = {f.name for f in fields(self)}
+        bad = sorted(set(kwargs) - names)
+        if bad:
+            raise ConfigError(f"unknown MsckfConfig fields: {', '.join(bad)}")
+        return replace(self, **kwargs)

@@ -1,0 +1,497 @@
+"""MsckfEstimator: the MSCKF filter behind one small interface.
+
+Inputs: IMU samples (`feed_imu`), feature tracks (`feed_tracks`: time, ids, distorted pixels) or frames
+through a tracker (`feed_frame`). The state is written from outside only by `initialize_from_state`;
+while uninitialised (at start and after a divergence reset) the native initializers passed in are fed
+and polled. Bad input (non-finite or out-of-order samples, gaps, frames without features) is dropped or
+counted, never raised from deep inside.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from runtime.errors import EstimatorError
+from runtime.msckf.blas_threads import limit_blas_threads
+from runtime.msckf.camera_kernels import CameraParams, undistort_points
+from runtime.msckf.config import MsckfConfig
+from runtime.msckf.feature_db import FeatureDatabase
+from runtime.msckf.health import divergence_reason
+from runtime.msckf.propagator import propagate_interval, select_samples
+from runtime.msckf.state import State
+from runtime.msckf.state_helper import augment_clone, marginalize_clone, marginalize_landmark
+from runtime.msckf.update_msckf import msckf_update
+from runtime.msckf.update_slam import SlamUpdateStats, delayed_init, slam_update
+from runtime.msckf.update_zupt import zupt_update
+
+
+@dataclass
+class FilterState:
+    """A snapshot of the filter after one frame.
+
+    t_ns: IMU-clock time of the state (ns); t_cam_ns: the camera time of the frame (ns);
+    R_OI, p_OI, v_OI, bg, ba: IMU state in the gravity-aligned odometry frame O;
+    covariance: (15, 15) IMU block, order [dtheta (body frame), dp, dv, dbg, dba];
+    R_IC, p_IC, time_offset_s: current calibration (t_imu = t_cam + time_offset_s).
+    """
+
+    t_ns: int
+    t_cam_ns: int
+    R_OI: np.ndarray
+    p_OI: np.ndarray
+    v_OI: np.ndarray
+    bg: np.ndarray
+    ba: np.ndarray
+    covariance: np.ndarray
+    R_IC: np.ndarray
+    p_IC: np.ndarray
+    time_offset_s: float
+    calib_covariance: np.ndarray | None = None
+    num_slam: int = 0
+    num_clones: int = 0
+
+
+@dataclass
+class _Counters:
+    imu_samples: int = 0
+    imu_nonfinite: int = 0
+    imu_out_of_order: int = 0
+    imu_gaps: int = 0
+    frames: int = 0
+    frames_processed: int = 0
+    frames_out_of_order: int = 0
+    frames_before_init: int = 0
+    frames_no_imu: int = 0
+    frames_bad_input: int = 0
+    frames_without_features: int = 0
+    msckf_features_used: int = 0
+    msckf_triangulation_failed: int = 0
+    msckf_chi2_rejected: int = 0
+    slam_updates: int = 0
+    slam_chi2_rejected: int = 0
+    slam_initialized: int = 0
+    slam_init_failed: int = 0
+    slam_marginalized: int = 0
+    zupt_applied: int = 0
+    initializations: int = 0
+    divergence_resets: int = 0
+    init_sources: dict = field(default_factory=dict)
+    divergence_reasons: list = field(default_factory=list)
+    time_frame_s: float = 0.0
+
+
+class MsckfEstimator:
+    """The filter. `rig` provides camera (calib CameraModel), T_IC, time_offset_s and imu noise."""
+
+    def __init__(
+        self,
+        rig: Any,
+        config: MsckfConfig | None = None,
+        tracker: Any = None,
+        initializers: list[Any] | None = None,
+    ) -> None:
+        cfg = config or MsckfConfig()
+        self.config = cfg.with_imu_noise(getattr(rig, "imu", None)) if config is None else cfg
+        if self.config.blas_threads is not None:
+            limit_blas_threads(self.config.blas_threads)
+        if getattr(rig, "camera", None) is None:
+            raise EstimatorError("the MSCKF needs the rig's camera model (rig.camera is None)")
+        self.camera = CameraParams.from_camera(rig.camera)
+        T_IC = getattr(rig, "T_IC", None)
+        if T_IC is None:
+            T_IC = np.eye(4)
+        T_IC = np.asarray(T_IC, dtype=float)
+        if T_IC.shape != (4, 4) or not np.all(np.isfinite(T_IC)):
+            raise EstimatorError(f"rig.T_IC must be a finite 4x4 matrix, got shape {T_IC.shape}")
+        self._R_IC0 = T_IC[:3, :3].copy()
+        self._p_IC0 = T_IC[:3, 3].copy()
+        td = getattr(rig, "time_offset_s", None)
+        self._t_d0 = float(td) if td is not None else 0.0
+        self.tracker = tracker
+        self.initializers = list(initializers or [])
+        self.g = np.array([0.0, 0.0, -self.config.gravity_mag])
+        self.counters = _Counters()
+        self._imu_t: list[int] = []
+        self._imu_w: list[np.ndarray] = []
+        self._imu_a: list[np.ndarray] = []
+        self._pending: deque = deque()
+        self._last_frame_ns: int | None = None
+        self.db = FeatureDatabase()
+        self.state_: State | None = None
+        self._t_init_ns = 0
+        self._frames_without_update = 0
+        self._last_w = np.zeros(3)
+        self._last_samples: tuple | None = None
+        self.last_reset_reason: str | None = None
+
+    # ------------------------------------------------------------------ state I/O
+    @property
+    def initialized(self) -> bool:
+        return self.state_ is not None
+
+    def initialize_from_state(
+        self,
+        t_ns: int,
+        R_OI: np.ndarray,
+        p_OI: np.ndarray,
+        v_OI: np.ndarray,
+        bg: np.ndarray,
+        ba: np.ndarray,
+        cov: np.ndarray | None = None,
+        source: str = "external",
+    ) -> None:
+        """Write the IMU state once (t_ns: IMU clock, ns). cov (15,15) in the order [dtheta (body), dp, dv,
+        dbg, dba]; its diagonal is floored at the config's init sigmas (None: those sigmas)."""
+        cfg = self.config
+        vals = [np.asarray(x, dtype=float) for x in (R_OI, p_OI, v_OI, bg, ba)]
+        shapes = [(3, 3), (3,), (3,), (3,), (3,)]
+        for x, s, n in zip(vals, shapes, ("R_OI", "p_OI", "v_OI", "bg", "ba"), strict=True):
+            if x.shape != s or not np.all(np.isfinite(x)):
+                raise EstimatorError(f"initialize_from_state: {n} must be finite with shape {s}")
+        R = vals[0]
+        if np.abs(R.T @ R - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0:
+            raise EstimatorError("initialize_from_state: R_OI is not a rotation")
+        st = State(self._R_IC0, self._p_IC0, self._t_d0, cfg.calib_time_offset, cfg.calib_extrinsics)
+        st.t_ns = int(t_ns)
+        st.R, st.p, st.v, st.bg, st.ba = (x.copy() for x in vals)
+        st.R_fej, st.p_fej, st.v_fej = st.R.copy(), st.p.copy(), st.v.copy()
+        floor = (
+            np.repeat(
+                [
+                    cfg.init_sigma_ori,
+                    cfg.init_sigma_pos,
+                    cfg.init_sigma_vel,
+                    cfg.init_sigma_bg,
+                    cfg.init_sigma_ba,
+                ],
+                3,
+            )
+            ** 2
+        )
+        if cov is None:
+            P = np.diag(floor)
+        else:
+            P = np.asarray(cov, dtype=float)
+            if P.shape != (15, 15) or not np.all(np.isfinite(P)):
+                raise EstimatorError("initialize_from_state: cov must be a finite (15, 15) matrix")
+            P = 0.5 * (P + P.T)
+            d = np.diag(P).copy()
+            scale = np.sqrt(np.maximum(floor, d) / np.maximum(d, 1e-300))
+            P = P * np.outer(scale, scale)
+        st.P[:15, :15] = P
+        if st.idx_dt >= 0:
+            st.P[st.idx_dt, st.idx_dt] = cfg.sigma_calib_dt**2
+        if st.idx_ext >= 0:
+            i = st.idx_ext
+            st.P[i : i + 3, i : i + 3] = np.eye(3) * cfg.sigma_calib_rot**2
+            st.P[i + 3 : i + 6, i + 3 : i + 6] = np.eye(3) * cfg.sigma_calib_pos**2
+        self.state_ = st
+        self._t_init_ns = int(t_ns)
+        self._frames_without_update = 0
+        self.db.clear()
+        self._pending = deque(f for f in self._pending if f[0] + int(round(st.t_d * 1e9)) > st.t_ns)
+        self.counters.initializations += 1
+        self.counters.init_sources[source] = self.counters.init_sources.get(source, 0) + 1
+
+    def set_calibration(self, R_IC: np.ndarray, p_IC: np.ndarray, time_offset_s: float) -> None:
+        """Replace the calibration prior used at the next initialisation (and now, if running)."""
+        self._R_IC0 = np.asarray(R_IC, dtype=float).copy()
+        self._p_IC0 = np.asarray(p_IC, dtype=float).copy()
+        self._t_d0 = float(time_offset_s)
+        if self.state_ is not None:
+            self.state_.R_IC = self._R_IC0.copy()
+            self.state_.p_IC = self._p_IC0.copy()
+            self.state_.t_d = self._t_d0
+
+    def state(self) -> FilterState | None:
+        """The current snapshot (None while uninitialised)."""
+        st = self.state_
+        if st is None:
+            return None
+        return self._snapshot(st.clone_times()[-1] if st.clones else st.t_ns)
+
+    def _snapshot(self, t_cam_ns: int) -> FilterState:
+        st = self.state_
+        calib_cols = []
+        if st.idx_ext >= 0:
+            calib_cols += list(range(st.idx_ext, st.idx_ext + 6))
+        if st.idx_dt >= 0:
+            calib_cols.append(st.idx_dt)
+        ccov = st.P[np.ix_(calib_cols, calib_cols)].copy() if calib_cols else None
+        return FilterState(
+            st.t_ns,
+            int(t_cam_ns),
+            st.R.copy(),
+            st.p.copy(),
+            st.v.copy(),
+            st.bg.copy(),
+            st.ba.copy(),
+            st.P[:15, :15].copy(),
+            st.R_IC.copy(),
+            st.p_IC.copy(),
+            st.t_d,
+            ccov,
+            len(st.slam),
+            len(st.clones),
+        )
+
+    def report(self) -> dict:
+        """Counters of the run (dropped samples, updates, resets ...)."""
+        c = self.counters
+        d = {k: v for k, v in c.__dict__.items() if k != "time_frame_s"}
+        d["ms_per_frame"] = 1e3 * c.time_frame_s / max(c.frames_processed, 1)
+        d["initialized"] = self.initialized
+        return d
+
+    # ------------------------------------------------------------------ inputs
+    def feed_imu(self, sample: Any) -> list[FilterState]:
+        """Add one ImuSample(t_ns, gyro, accel); returns snapshots of frames it allowed to be processed."""
+        c = self.counters
+        t = int(sample.t_ns)
+        w = np.asarray(sample.gyro, dtype=float).reshape(-1)
+        a = np.asarray(sample.accel, dtype=float).reshape(-1)
+        if w.size != 3 or a.size != 3 or not (np.all(np.isfinite(w)) and np.all(np.isfinite(a))):
+            c.imu_nonfinite += 1
+            return []
+        if self._imu_t and t <= self._imu_t[-1]:
+            c.imu_out_of_order += 1
+            return []
+        if self._imu_t and (t - self._imu_t[-1]) * 1e-9 > self.config.max_imu_gap_s:
+            c.imu_gaps += 1
+        c.imu_samples += 1
+        self._imu_t.append(t)
+        self._imu_w.append(w)
+        self._imu_a.append(a)
+        if not self.initialized:
+            for ini in self.initializers:
+                ini.feed_imu(sample)
+        return self._process_pending()
+
+    def feed_tracks(self, t_ns: int, ids: np.ndarray, uv: np.ndarray) -> list[FilterState]:
+        """Add the feature observations of one camera frame (camera clock t_ns; ids (M,), uv (M, 2) distorted
+        pixels). Returns snapshots of the frames processed by this call (frames wait for IMU coverage)."""
+        c = self.counters
+        c.frames += 1
+        ids = np.asarray(ids).reshape(-1)
+        uv = np.asarray(uv, dtype=float).reshape(-1, 2) if np.size(uv) else np.zeros((0, 2))
+        if ids.shape[0] != uv.shape[0]:
+            c.frames_bad_input += 1
+            return []
+        good = np.all(np.isfinite(uv), axis=1)
+        ids, uv = ids[good].astype(np.int64), uv[good]
+        t_ns = int(t_ns)
+        if self._last_frame_ns is not None and t_ns <= self._last_frame_ns:
+            c.frames_out_of_order += 1
+            return []
+        self._last_frame_ns = t_ns
+        if not self.initialized:
+            for ini in self.initializers:
+                ini.feed_tracks(t_ns, ids, uv)
+            self._try_initializers()
+            if not self.initialized:
+                c.frames_before_init += 1
+                return []
+        self._pending.append((t_ns, ids, uv))
+        return self._process_pending()
+
+    def feed_frame(self, frame: Any) -> list[FilterState]:
+        """Track a Frame with the tracker given at construction, then `feed_tracks`."""
+        if self.tracker is None:
+            raise EstimatorError("feed_frame needs a tracker (pass tracker= to MsckfEstimator)")
+        res = self.tracker.track(frame)
+        return self.feed_tracks(int(frame.t_ns), np.asarray(res.ids), np.asarray(res.uv))
+
+    def flush(self) -> list[FilterState]:
+        """Process frames still waiting for IMU past their time (holding the last sample)."""
+        return self._process_pending(force=True)
+
+    # ------------------------------------------------------------------ internals
+    def _try_initializers(self) -> None:
+        for ini in self.initializers:
+            res = ini.try_initialize()
+            if res is not None:
+                self.initialize_from_state(
+                    res.t_ns,
+                    res.R_OI,
+                    res.p_OI,
+                    res.v_OI,
+                    res.bg,
+                    res.ba,
+                    res.cov,
+                    source=str(getattr(res, "source", type(ini).__name__)),
+                )
+                return
+
+    def _process_pending(self, force: bool = False) -> list[FilterState]:
+        out: list[FilterState] = []
+        while self._pending and self.state_ is not None:
+            t_cam, ids, uv = self._pending[0]
+            target = t_cam + int(round(self.state_.t_d * 1e9))
+            newest = self._imu_t[-1] if self._imu_t else None
+            if newest is None or target > newest:
+                late = newest is not None and (target - newest) * 1e-9 <= self.config.max_imu_extrapolation_s
+                if not (force and late):
+                    break
+            self._pending.popleft()
+            snap = self._process_frame(t_cam, ids, uv)
+            if snap is not None:
+                out.append(snap)
+        return out
+
+    def _propagate_to(self, target_ns: int) -> bool:
+        st = self.state_
+        if target_ns <= st.t_ns:
+            return target_ns == st.t_ns
+        t_arr = np.asarray(self._imu_t, dtype=np.int64)
+        if t_arr.size == 0 or t_arr[0] > st.t_ns:
+            return False
+        j0 = max(int(np.searchsorted(t_arr, st.t_ns, side="right")) - 1, 0)
+        if j0 > 0:  # drop samples no longer needed
+            del self._imu_t[:j0], self._imu_w[:j0], self._imu_a[:j0]
+            t_arr = t_arr[j0:]
+        w = np.asarray(self._imu_w)
+        a = np.asarray(self._imu_a)
+        t, ws, as_ = select_samples(t_arr, w, a, st.t_ns, target_ns)
+        cfg = self.config
+        R1, p1, v1, Phi, Qd, w_last = propagate_interval(
+            st.R,
+            st.p,
+            st.v,
+            st.bg,
+            st.ba,
+            st.R_fej,
+            st.p_fej,
+            st.v_fej,
+            cfg.use_fej,
+            t,
+            ws,
+            as_,
+            self.g,
+            cfg.gyro_noise_density,
+            cfg.accel_noise_density,
+            cfg.gyro_random_walk,
+            cfg.accel_random_walk,
+        )
+        P = st.P
+        PI = Phi @ P[:15, :]
+        P[:15, :] = PI
+        P[:, :15] = PI.T
+        P[:15, :15] = Phi @ PI[:, :15].T + Qd
+        st.P = 0.5 * (P + P.T)
+        st.R, st.p, st.v = R1, p1, v1
+        st.R_fej, st.p_fej, st.v_fej = R1.copy(), p1.copy(), v1.copy()
+        st.t_ns = target_ns
+        self._last_w = w_last
+        self._last_samples = (t, ws, as_)
+        return True
+
+    def _process_frame(self, t_cam: int, ids: np.ndarray, uv: np.ndarray) -> FilterState | None:
+        t0 = time.perf_counter()
+        c = self.counters
+        st = self.state_
+        cfg = self.config
+        target = t_cam + int(round(st.t_d * 1e9))
+        if target <= st.t_ns or t_cam in st.clones:
+            c.frames_before_init += 1
+            return None
+        if not self._propagate_to(target):
+            c.frames_no_imu += 1
+            return None
+        if ids.shape[0] == 0:
+            c.frames_without_features += 1
+        if cfg.try_zupt and zupt_update(self, t_cam, ids, uv):
+            c.zupt_applied += 1
+            c.frames_processed += 1
+            c.time_frame_s += time.perf_counter() - t0
+            return self._after_frame(t_cam, updated=True)
+        augment_clone(st, t_cam, self._last_w)
+        xn = undistort_points(self.camera.code, self.camera.params, uv) if uv.shape[0] else np.zeros((0, 2))
+        self.db.add(t_cam, ids, uv, xn)
+        seen = set(ids.tolist())
+        n_clones = len(st.clones)
+        marg_t = st.clone_times()[0] if n_clones > cfg.max_clones else None
+        lost, marg, maxtracks = [], [], []
+        for fid, tr in self.db.tracks.items():
+            if fid in st.slam:
+                continue
+            if fid not in seen:
+                lost.append(tr)
+            elif marg_t is not None and tr.t_ns[0] <= marg_t:
+                (maxtracks if len(tr) > cfg.max_clones else marg).append(tr)
+        new_slam = []
+        if (
+            cfg.max_slam > 0
+            and (t_cam - self._t_init_ns) * 1e-9 >= cfg.dt_slam_delay
+            and len(st.slam) < cfg.max_slam
+            and maxtracks
+        ):
+            n_add = min(cfg.max_slam - len(st.slam), len(maxtracks))
+            new_slam = maxtracks[len(maxtracks) - n_add :]
+            maxtracks = maxtracks[: len(maxtracks) - n_add]
+        msckf = [tr for tr in lost + marg + maxtracks if len(tr) >= 2]
+        msckf.sort(key=len)
+        msckf = msckf[max(len(msckf) - cfg.max_msckf_in_update, 0) :]
+        ms = msckf_update(st, msckf, cfg, self.camera)
+        c.msckf_features_used += ms.used
+        c.msckf_triangulation_failed += ms.triangulation_failed
+        c.msckf_chi2_rejected += ms.chi2_rejected
+        for tr in lost + marg + maxtracks:
+            self.db.remove(tr.fid)
+        # SLAM: update the landmarks seen now, marginalise the lost ones
+        sst = SlamUpdateStats()
+        obs = []
+        for fid in list(st.slam):
+            tr = self.db.tracks.get(fid)
+            if fid in seen and tr is not None and tr.t_ns and tr.t_ns[-1] == t_cam:
+                obs.append((fid, tr.uv[-1]))
+        slam_update(st, t_cam, obs, cfg, self.camera, sst)
+        for fid in list(st.slam):
+            lm = st.slam[fid]
+            if fid not in seen or lm.fail_count > 1:
+                marginalize_landmark(st, fid)
+                self.db.remove(fid)
+                c.slam_marginalized += 1
+        added = delayed_init(st, new_slam, cfg, self.camera, sst)
+        for tr in new_slam:
+            if tr.fid in st.slam:
+                self.db.keep_only_last(tr.fid)
+            else:
+                self.db.remove(tr.fid)
+        for fid in st.slam:
+            self.db.keep_only_last(fid)
+        c.slam_updates += sst.updated
+        c.slam_chi2_rejected += sst.chi2_rejected
+        c.slam_initialized += sst.initialized
+        c.slam_init_failed += sst.init_failed
+        while len(st.clones) > cfg.max_clones:
+            marginalize_clone(st, st.clone_times()[0])
+        self.db.drop_older_than(st.clone_times()[0])
+        updated = ms.used > 0 or sst.updated > 0 or len(added) > 0
+        c.frames_processed += 1
+        c.time_frame_s += time.perf_counter() - t0
+        return self._after_frame(t_cam, updated)
+
+    def _after_frame(self, t_cam: int, updated: bool) -> FilterState | None:
+        self._frames_without_update = 0 if updated else self._frames_without_update + 1
+        reason = divergence_reason(self.state_, self.config, self._frames_without_update)
+        if reason is not None:
+            self.reset(reason)
+            return None
+        return self._snapshot(t_cam)
+
+    def reset(self, reason: str) -> None:
+        """Drop the state (divergence), count it and re-arm the initializers."""
+        self.counters.divergence_resets += 1
+        self.counters.divergence_reasons.append(reason)
+        self.last_reset_reason = reason
+        self.state_ = None
+        self.db.clear()
+        self._pending.clear()
+        for ini in self.initializers:
+            if hasattr(ini, "reset"):
+                ini.reset()

@@ -1,0 +1,69 @@
+"""Feature tracks seen by the filter: per feature id, its observations at clone (camera) times."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class Track:
+    """Observations of one feature: camera times (ns), distorted pixels and normalised coordinates."""
+
+    fid: int
+    t_ns: list[int] = field(default_factory=list)
+    uv: list[np.ndarray] = field(default_factory=list)
+    xn: list[np.ndarray] = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return len(self.t_ns)
+
+
+class FeatureDatabase:
+    """Tracks keyed by feature id."""
+
+    def __init__(self) -> None:
+        self.tracks: dict[int, Track] = {}
+
+    def add(self, t_ns: int, ids: np.ndarray, uv: np.ndarray, xn: np.ndarray) -> None:
+        """Add the observations of one frame."""
+        for k in range(ids.shape[0]):
+            fid = int(ids[k])
+            tr = self.tracks.get(fid)
+            if tr is None:
+                tr = Track(fid)
+                self.tracks[fid] = tr
+            if tr.t_ns and tr.t_ns[-1] == t_ns:
+                continue
+            tr.t_ns.append(t_ns)
+            tr.uv.append(uv[k])
+            tr.xn.append(xn[k])
+
+    def remove(self, fid: int) -> None:
+        self.tracks.pop(fid, None)
+
+    def keep_only_last(self, fid: int) -> None:
+        tr = self.tracks.get(fid)
+        if tr is not None and len(tr) > 1:
+            tr.t_ns = tr.t_ns[-1:]
+            tr.uv = tr.uv[-1:]
+            tr.xn = tr.xn[-1:]
+
+    def drop_older_than(self, t_ns: int) -> None:
+        """Remove observations older than t_ns; empty tracks are deleted."""
+        dead = []
+        for fid, tr in self.tracks.items():
+            if tr.t_ns and tr.t_ns[0] < t_ns:
+                k = 0
+                while k < len(tr.t_ns) and tr.t_ns[k] < t_ns:
+                    k += 1
+                tr.t_ns = tr.t_ns[k:]
+                tr.uv = tr.uv[k:]
+                tr.xn = tr.xn[k:]
+                if not tr.t_ns:
+                    dead.append(fid)
+        for fid in dead:
+            del self.tracks[fid]
+
+    def clear(self) -> None:
+        self.tracks.clear()

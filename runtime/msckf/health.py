@@ -1,0 +1,29 @@
+"""Divergence detection: non-finite state, covariance blow-up, velocity/bias bounds, starvation."""
+from __future__ import annotations
+
+import numpy as np
+
+from runtime.msckf.config import MsckfConfig
+from runtime.msckf.state import State
+
+
+def divergence_reason(state: State, cfg: MsckfConfig, frames_without_update: int) -> str | None:
+    """A short reason when the filter has diverged, else None."""
+    vals = (state.R, state.p, state.v, state.bg, state.ba)
+    if not all(np.all(np.isfinite(x)) for x in vals) or not np.all(np.isfinite(state.P)):
+        return "non-finite state or covariance"
+    d = np.diag(state.P)
+    if np.any(d < -1e-9):
+        return "negative covariance diagonal"
+    if np.sqrt(max(d[3:6].max(), 0.0)) > cfg.max_position_std:
+        return f"position std {np.sqrt(d[3:6].max()):.3g} m > {cfg.max_position_std} m"
+    speed = float(np.linalg.norm(state.v))
+    if speed > cfg.max_velocity:
+        return f"speed {speed:.3g} m/s > {cfg.max_velocity} m/s"
+    if float(np.abs(state.bg).max()) > cfg.max_gyro_bias:
+        return f"gyro bias {np.abs(state.bg).max():.3g} rad/s > {cfg.max_gyro_bias}"
+    if float(np.abs(state.ba).max()) > cfg.max_accel_bias:
+        return f"accel bias {np.abs(state.ba).max():.3g} m/s^2 > {cfg.max_accel_bias}"
+    if frames_without_update > cfg.max_frames_without_features:
+        return f"no feature update for {frames_without_update} frames"
+    return None

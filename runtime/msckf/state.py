@@ -1,0 +1,124 @@
+"""Filter state: IMU, calibration, clone window, SLAM landmarks and their joint covariance.
+
+Error-state layout (covariance order): IMU [dtheta, dp, dv, dbg, dba] (15) at 0, then the time offset (1)
+and the extrinsics [dphi, dp_IC] (6) when estimated, then clones (6 each) and landmarks (3 each) in
+creation order. Rotations use right perturbations R = R_hat Exp(dtheta). First estimates (FEJ) are
+kept here, never in the updaters.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from runtime.msckf.so3_kernels import exp3, normalize_rot
+
+
+@dataclass
+class Clone:
+    """A stochastic clone of the IMU pose at a camera time t_cam_ns (pose T_OI at t_cam + t_d)."""
+
+    t_cam_ns: int
+    R: np.ndarray
+    p: np.ndarray
+    R_fej: np.ndarray
+    p_fej: np.ndarray
+    idx: int
+
+
+@dataclass
+class Landmark:
+    """A SLAM landmark, global 3D position in O."""
+
+    fid: int
+    p: np.ndarray
+    p_fej: np.ndarray
+    idx: int
+    fail_count: int = 0
+
+
+class State:
+    """The joint state and covariance of the filter."""
+
+    def __init__(self, R_IC: np.ndarray, p_IC: np.ndarray, t_d: float, calib_dt: bool, calib_ext: bool
+                 ) -> None:
+        self.t_ns = 0                    # IMU-clock time of the IMU state, ns
+        self.R = np.eye(3)
+        self.p = np.zeros(3)
+        self.v = np.zeros(3)
+        self.bg = np.zeros(3)
+        self.ba = np.zeros(3)
+        self.R_fej = np.eye(3)
+        self.p_fej = np.zeros(3)
+        self.v_fej = np.zeros(3)
+        self.R_IC = np.array(R_IC, dtype=float)
+        self.p_IC = np.array(p_IC, dtype=float)
+        self.t_d = float(t_d)            # t_imu = t_cam + t_d, s
+        n = 15
+        self.idx_dt = -1
+        self.idx_ext = -1
+        if calib_dt:
+            self.idx_dt = n
+            n += 1
+        if calib_ext:
+            self.idx_ext = n
+            n += 6
+        self.P = np.zeros((n, n))
+        self.clones: dict[int, Clone] = {}
+        self.slam: dict[int, Landmark] = {}
+
+    @property
+    def size(self) -> int:
+        return self.P.shape[0]
+
+    def imu_pose_at_clone(self, t_cam_ns: int) -> Clone:
+        return self.clones[t_cam_ns]
+
+    def add_variable(self, size: int, value_cov: np.ndarray, cross: np.ndarray) -> int:
+        """Append `size` error states with covariance value_cov and cross-covariance cross (size, n)."""
+        n = self.size
+        P = np.empty((n + size, n + size))
+        P[:n, :n] = self.P
+        P[n:, :n] = cross
+        P[:n, n:] = cross.T
+        P[n:, n:] = value_cov
+        self.P = P
+        return n
+
+    def remove_variable(self, idx: int, size: int) -> None:
+        """Delete error states idx..idx+size (marginalisation) and shift the later indices."""
+        keep = np.r_[0:idx, idx + size:self.size]
+        self.P = self.P[np.ix_(keep, keep)]
+        for c in self.clones.values():
+            if c.idx > idx:
+                c.idx -= size
+        for lm in self.slam.values():
+            if lm.idx > idx:
+                lm.idx -= size
+        if self.idx_dt > idx:
+            self.idx_dt -= size
+        if self.idx_ext > idx:
+            self.idx_ext -= size
+
+    def apply_correction(self, dx: np.ndarray) -> None:
+        """x <- x (+) dx over the whole error state (FEJ untouched)."""
+        self.R = normalize_rot(self.R @ exp3(dx[0:3]))
+        self.p = self.p + dx[3:6]
+        self.v = self.v + dx[6:9]
+        self.bg = self.bg + dx[9:12]
+        self.ba = self.ba + dx[12:15]
+        if self.idx_dt >= 0:
+            self.t_d += float(dx[self.idx_dt])
+        if self.idx_ext >= 0:
+            i = self.idx_ext
+            self.R_IC = normalize_rot(self.R_IC @ exp3(dx[i:i + 3]))
+            self.p_IC = self.p_IC + dx[i + 3:i + 6]
+        for c in self.clones.values():
+            c.R = normalize_rot(c.R @ exp3(dx[c.idx:c.idx + 3]))
+            c.p = c.p + dx[c.idx + 3:c.idx + 6]
+        for lm in self.slam.values():
+            lm.p = lm.p + dx[lm.idx:lm.idx + 3]
+
+    def clone_times(self) -> list[int]:
+        """Camera times of the clones, oldest first."""
+        return sorted(self.clones)

@@ -1,0 +1,117 @@
+"""Operations on the state: EKF update (with QR compression), clone augmentation, marginalisation,
+delayed landmark initialisation with a chi-square test (OpenVINS StateHelper structure).
+"""
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg as sla
+from scipy.stats import chi2 as _chi2
+
+from runtime.msckf.measurement import givens_left_nullspace
+from runtime.msckf.state import Clone, Landmark, State
+
+_CHI2_95 = _chi2.ppf(0.95, np.arange(1, 2001))
+
+
+def chi2_95(dof: int) -> float:
+    """95% quantile of the chi-square distribution with dof degrees of freedom."""
+    return float(_CHI2_95[dof - 1]) if dof <= _CHI2_95.size else float(_chi2.ppf(0.95, dof))
+
+
+def compress(H: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """QR measurement compression: rows beyond the column count carry no information for isotropic noise."""
+    m, n = H.shape
+    if m <= n:
+        return H, r
+    Q, Rq = np.linalg.qr(H, mode="reduced")
+    return Rq, Q.T @ r
+
+
+def ekf_update(state: State, cols: np.ndarray, H: np.ndarray, r: np.ndarray, sigma: float) -> bool:
+    """EKF update with measurement r = H dx[cols] + n, n ~ N(0, sigma^2 I). Returns False if S is not PD."""
+    P = state.P
+    Pc = P[:, cols]                        # n x k
+    A = H @ Pc.T                           # m x n  (= H P[cols, :])
+    S = A[:, cols] @ H.T + sigma * sigma * np.eye(H.shape[0])
+    try:
+        cf = sla.cho_factor(S, lower=True, check_finite=False)
+    except np.linalg.LinAlgError:
+        return False
+    X = sla.cho_solve(cf, A, check_finite=False)   # S^-1 H P  (m x n)
+    P -= A.T @ X
+    dx = X.T @ r
+    state.P = 0.5 * (P + P.T)
+    state.apply_correction(dx)
+    return True
+
+
+def mahalanobis(state: State, cols: np.ndarray, H: np.ndarray, r: np.ndarray, sigma: float) -> float:
+    """r^T (H P H^T + sigma^2 I)^-1 r."""
+    Pcc = state.P[np.ix_(cols, cols)]
+    S = H @ Pcc @ H.T + sigma * sigma * np.eye(H.shape[0])
+    try:
+        return float(r @ np.linalg.solve(S, r))
+    except np.linalg.LinAlgError:
+        return float("inf")
+
+
+def augment_clone(state: State, t_cam_ns: int, w_body: np.ndarray) -> Clone:
+    """Clone the IMU pose (value and FEJ) at camera time t_cam_ns. With an estimated time offset the
+    clone also depends on t_d through [w_body; v] (d pose / d t)."""
+    n = state.size
+    J = np.zeros((6, n))
+    J[0:3, 0:3] = np.eye(3)
+    J[3:6, 3:6] = np.eye(3)
+    if state.idx_dt >= 0:
+        J[0:3, state.idx_dt] = w_body
+        J[3:6, state.idx_dt] = state.v
+    cross = J @ state.P
+    cov = cross @ J.T
+    idx = state.add_variable(6, 0.5 * (cov + cov.T), cross)
+    c = Clone(t_cam_ns, state.R.copy(), state.p.copy(), state.R.copy(), state.p.copy(), idx)
+    state.clones[t_cam_ns] = c
+    return c
+
+
+def marginalize_clone(state: State, t_cam_ns: int) -> None:
+    """Remove a clone (its rows/columns of the covariance)."""
+    c = state.clones.pop(t_cam_ns)
+    state.remove_variable(c.idx, 6)
+
+
+def marginalize_landmark(state: State, fid: int) -> None:
+    """Remove a SLAM landmark."""
+    lm = state.slam.pop(fid)
+    state.remove_variable(lm.idx, 3)
+
+
+def initialize_landmark(state: State, fid: int, p_O: np.ndarray, cols: np.ndarray, Hx: np.ndarray,
+                        Hf: np.ndarray, r: np.ndarray, sigma: float, chi2_multiplier: float) -> bool:
+    """Delayed initialisation of a landmark from m >= 2 observations (OpenVINS StateHelper::initialize).
+
+    The rows are split by Givens rotations of Hf into an invertible part (3 rows) that defines the landmark
+    and the rest, which is chi-square tested and then used in an ordinary update.
+    """
+    Hx2, r2, Hf1, Hx1, r1 = givens_left_nullspace(Hf.copy(), Hx.copy(), r.copy())
+    if Hx2.shape[0] > 0:
+        d2 = mahalanobis(state, cols, Hx2, r2, sigma)
+        if not d2 < chi2_multiplier * chi2_95(Hx2.shape[0]):
+            return False
+    try:
+        Hf1_inv = np.linalg.inv(Hf1)
+    except np.linalg.LinAlgError:
+        return False
+    if not np.all(np.isfinite(Hf1_inv)):
+        return False
+    P = state.P
+    PHt = P[:, cols] @ Hx1.T                          # n x 3
+    S1 = Hx1 @ PHt[cols] + sigma * sigma * np.eye(3)
+    cov = Hf1_inv @ S1 @ Hf1_inv.T
+    cross = -Hf1_inv @ PHt.T                          # 3 x n
+    idx = state.add_variable(3, 0.5 * (cov + cov.T), cross)
+    p_new = p_O + Hf1_inv @ r1
+    state.slam[fid] = Landmark(fid, p_new.copy(), p_new.copy(), idx)
+    if Hx2.shape[0] > 0:
+        H2, rr2 = compress(Hx2, r2)
+        ekf_update(state, cols, H2, rr2, sigma)
+    return True

@@ -1,0 +1,119 @@
+"""MSCKF feature update: triangulate, linearise in distorted pixels, project out the feature
+(nullspace), chi-square gate, stack, QR-compress, one EKF update (OpenVINS UpdaterMSCKF structure)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from runtime.msckf.camera_kernels import CameraParams
+from runtime.msckf.config import MsckfConfig
+from runtime.msckf.feature_db import Track
+from runtime.msckf.measurement import feature_jacobians, givens_left_nullspace
+from runtime.msckf.state import State
+from runtime.msckf.state_helper import chi2_95, compress, ekf_update
+from runtime.msckf.triangulation import triangulate
+
+
+@dataclass
+class MsckfUpdateStats:
+    """Counts of one MSCKF update."""
+
+    candidates: int = 0
+    triangulation_failed: int = 0
+    chi2_rejected: int = 0
+    used: int = 0
+    rows: int = 0
+
+
+def track_arrays(state: State, tr: Track) -> tuple:
+    """Clone poses (current and FEJ) and measurements of a track's observations at existing clones."""
+    ts = [t for t in tr.t_ns if t in state.clones]
+    sel = [k for k, t in enumerate(tr.t_ns) if t in state.clones]
+    cl = [state.clones[t] for t in ts]
+    Rc = np.array([c.R for c in cl])
+    pc = np.array([c.p for c in cl])
+    Rf = np.array([c.R_fej for c in cl])
+    pf = np.array([c.p_fej for c in cl])
+    uv = np.array([tr.uv[k] for k in sel])
+    xn = np.array([tr.xn[k] for k in sel])
+    return cl, Rc, pc, Rf, pf, uv, xn
+
+
+def triangulate_track(state: State, cfg: MsckfConfig, Rc: np.ndarray, pc: np.ndarray, xn: np.ndarray
+                      ) -> tuple[bool, np.ndarray]:
+    """Triangulate with the current clone and extrinsic estimates."""
+    R_OC = Rc @ state.R_IC
+    p_OC = pc + Rc @ state.p_IC
+    return triangulate(R_OC, p_OC, xn, cfg.tri_max_cond, cfg.tri_min_dist, cfg.tri_max_dist,
+                       cfg.tri_max_baseline_ratio, cfg.tri_gn_iterations)
+
+
+def window_columns(state: State) -> tuple[np.ndarray, dict[int, int]]:
+    """Covariance columns of (extrinsics, all clones) and each clone's offset into them."""
+    cols: list[int] = []
+    if state.idx_ext >= 0:
+        cols.extend(range(state.idx_ext, state.idx_ext + 6))
+    offset = {}
+    for t in state.clone_times():
+        c = state.clones[t]
+        offset[t] = len(cols)
+        cols.extend(range(c.idx, c.idx + 6))
+    return np.asarray(cols, dtype=np.int64), offset
+
+
+def msckf_update(state: State, tracks: list[Track], cfg: MsckfConfig, cam: CameraParams) -> MsckfUpdateStats:
+    """Use `tracks` (each with >= 2 observations at clones) in one MSCKF update."""
+    st = MsckfUpdateStats(candidates=len(tracks))
+    if not tracks:
+        return st
+    cols, offset = window_columns(state)
+    ncol = cols.size
+    Pcc = state.P[np.ix_(cols, cols)]
+    sig2 = cfg.sigma_pix ** 2
+    Hs: list[np.ndarray] = []
+    rs: list[np.ndarray] = []
+    for tr in tracks:
+        cl, Rc, pc, Rf, pf, uv, xn = track_arrays(state, tr)
+        if len(cl) < 2:
+            st.triangulation_failed += 1
+            continue
+        ok, p_O = triangulate_track(state, cfg, Rc, pc, xn)
+        if not ok:
+            st.triangulation_failed += 1
+            continue
+        ok, r, Hc, He, Hf = feature_jacobians(Rc, pc, Rf, pf, uv, p_O, p_O, state.R_IC, state.p_IC,
+                                              cam.code, cam.params)
+        if not ok:
+            st.triangulation_failed += 1
+            continue
+        m2 = r.shape[0]
+        Hx = np.zeros((m2, ncol))
+        if state.idx_ext >= 0:
+            Hx[:, 0:6] = He
+        for i, c in enumerate(cl):
+            o = offset[c.t_cam_ns]
+            Hx[2 * i:2 * i + 2, o:o + 6] = Hc[2 * i:2 * i + 2]
+        Hx2, r2, _, _, _ = givens_left_nullspace(Hf, Hx, r)
+        if Hx2.shape[0] == 0:
+            continue
+        S = Hx2 @ Pcc @ Hx2.T
+        S[np.diag_indices_from(S)] += sig2
+        try:
+            d2 = float(r2 @ np.linalg.solve(S, r2))
+        except np.linalg.LinAlgError:
+            d2 = np.inf
+        if not d2 < cfg.chi2_multiplier * chi2_95(r2.shape[0]):
+            st.chi2_rejected += 1
+            continue
+        Hs.append(Hx2)
+        rs.append(r2)
+        st.used += 1
+    if not Hs:
+        return st
+    H = np.vstack(Hs)
+    r = np.concatenate(rs)
+    H, r = compress(H, r)
+    st.rows = H.shape[0]
+    ekf_update(state, cols, H, r, cfg.sigma_pix)
+    return st

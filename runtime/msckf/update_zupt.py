@@ -1,0 +1,68 @@
+"""Zero-velocity update (OpenVINS UpdaterZeroVelocity idea): if the IMU samples since the last frame are
+consistent with standstill (chi-square on w = bg, a = ba + R^T g_up) and the speed estimate is small
+(and, optionally, the features barely moved), update with those residuals plus v = 0, and add no clone.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from runtime.msckf.so3_kernels import skew3
+from runtime.msckf.state_helper import chi2_95, compress, ekf_update
+
+
+def mean_disparity(db: Any, ids: np.ndarray, uv: np.ndarray) -> float:
+    """Mean pixel distance between this frame's features and their newest stored observation."""
+    d = []
+    for k in range(ids.shape[0]):
+        tr = db.tracks.get(int(ids[k]))
+        if tr is not None and tr.uv:
+            d.append(float(np.linalg.norm(uv[k] - tr.uv[-1])))
+    return float(np.mean(d)) if d else float("inf")
+
+
+def zupt_update(est: Any, t_cam: int, ids: np.ndarray, uv: np.ndarray) -> bool:
+    """Try a zero-velocity update on the estimator's last propagation interval; True when applied."""
+    st = est.state_
+    cfg = est.config
+    samples = getattr(est, "_last_samples", None)
+    if samples is None or not st.clones:
+        return False
+    t, ws, as_ = samples
+    if t.shape[0] < 2 or float(np.linalg.norm(st.v)) > cfg.zupt_max_velocity:
+        return False
+    if cfg.zupt_max_disparity > 0 and mean_disparity(est.db, ids, uv) > cfg.zupt_max_disparity:
+        return False
+    n = t.shape[0]
+    dt = max(float(t[-1] - t[0]) / max(n - 1, 1), 1e-4)
+    g_up = np.array([0.0, 0.0, cfg.gravity_mag])
+    f = st.R.T @ g_up
+    m = 6 * n + 3
+    H = np.zeros((m, 15))
+    r = np.zeros(m)
+    sig = np.zeros(m)
+    mult = cfg.zupt_noise_multiplier
+    for k in range(n):
+        o = 6 * k
+        r[o:o + 3] = ws[k] - st.bg
+        H[o:o + 3, 9:12] = np.eye(3)
+        sig[o:o + 3] = mult * cfg.gyro_noise_density / np.sqrt(dt)
+        r[o + 3:o + 6] = as_[k] - st.ba - f
+        H[o + 3:o + 6, 0:3] = skew3(f)
+        H[o + 3:o + 6, 12:15] = np.eye(3)
+        sig[o + 3:o + 6] = mult * cfg.accel_noise_density / np.sqrt(dt)
+    r[6 * n:] = -st.v
+    H[6 * n:, 6:9] = np.eye(3)
+    sig[6 * n:] = mult * cfg.accel_noise_density / np.sqrt(dt) * dt
+    # whiten so that the EKF update sees unit isotropic noise
+    Hw = H / sig[:, None]
+    rw = r / sig
+    cols = np.arange(15)
+    Pcc = st.P[:15, :15]
+    S = Hw[: 6 * n] @ Pcc @ Hw[: 6 * n].T + np.eye(6 * n)
+    d2 = float(rw[: 6 * n] @ np.linalg.solve(S, rw[: 6 * n]))
+    if not d2 < cfg.zupt_chi2_multiplier * chi2_95(6 * n):
+        return False
+    Hc, rc = compress(Hw, rw)
+    return ekf_update(st, cols, Hc, rc, 1.0)

@@ -1,0 +1,234 @@
+"""The estimator on a small synthetic scene (circle in front of a cylinder wall), plus robustness."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from calib import ImuNoise, PinholeRadtan, Rig
+from drivers.events import ImuSample
+from runtime.errors import EstimatorError
+from runtime.msckf.camera_kernels import distort_points
+from runtime.msckf.config import MsckfConfig
+from runtime.msckf.estimator import MsckfEstimator
+
+PRM = np.array([458.654, 457.296, 367.215, 248.375, -0.28340811, 0.07395907, 0.00019359, 1.76187114e-05, 0.0])
+R_IC = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # camera looks along body x
+p_IC = np.array([0.05, -0.02, 0.01])
+W = 0.5  # rad/s yaw rate
+RAD = 3.0  # m circle radius
+G = np.array([0.0, 0.0, -9.81])
+
+
+def _rig() -> Rig:
+    cam = PinholeRadtan(752, 480, *PRM[:4], distortion=PRM[4:8])
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R_IC, p_IC
+    return Rig(
+        camera=cam, T_IC=T, time_offset_s=0.0, imu=ImuNoise(1.6968e-4, 1.9393e-5, 2.0e-3, 3.0e-3, 200.0)
+    )
+
+
+def _truth(t: float):
+    c, s = np.cos(W * t), np.sin(W * t)
+    p = np.array([RAD * c, RAD * s, 0.3 * np.sin(2 * W * t)])
+    v = np.array([-RAD * W * s, RAD * W * c, 0.6 * W * np.cos(2 * W * t)])
+    acc = np.array([-RAD * W * W * c, -RAD * W * W * s, -1.2 * W * W * np.sin(2 * W * t)])
+    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    return R, p, v, acc
+
+
+def _landmarks(n: int = 400, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    ang = rng.uniform(0, 2 * np.pi, n)
+    return np.c_[9.0 * np.cos(ang), 9.0 * np.sin(ang), rng.uniform(-2.5, 2.5, n)]
+
+
+def _stream(duration: float, pix_noise: float = 1.0, seed: int = 0):
+    """Noise-free IMU at 200 Hz and 10 Hz feature tracks (ids, distorted pixels + noise)."""
+    rng = np.random.default_rng(seed)
+    L = _landmarks()
+    imu = []
+    for k in range(int(duration * 200) + 11):
+        t = k / 200.0
+        R, _, _, acc = _truth(t)
+        imu.append(ImuSample(int(k * 5_000_000), np.array([0.0, 0.0, W]), R.T @ (acc - G)))
+    frames = []
+    for k in range(1, int(duration * 10) + 1):
+        t = k / 10.0 + 0.0013  # camera times between IMU samples
+        R, p, _, _ = _truth(t)
+        pC = (R_IC.T @ (R.T @ (L - p).T - p_IC[:, None])).T
+        vis = pC[:, 2] > 0.5
+        uv = distort_points(1, PRM, pC[vis, :2] / pC[vis, 2:3]) + pix_noise * rng.standard_normal(
+            (vis.sum(), 2)
+        )
+        inside = (uv[:, 0] > 0) & (uv[:, 0] < 751) & (uv[:, 1] > 0) & (uv[:, 1] < 479)
+        frames.append((int(round(t * 1e9)), np.flatnonzero(vis)[inside], uv[inside]))
+    return imu, frames
+
+
+def _run(est: MsckfEstimator, imu, frames, with_features: bool = True):
+    snaps = []
+    k = 0
+    for t_ns, ids, uv in frames:
+        while k < len(imu) and imu[k].t_ns <= t_ns + 5_000_000:
+            snaps += est.feed_imu(imu[k])
+            k += 1
+        if with_features:
+            snaps += est.feed_tracks(t_ns, ids, uv)
+        else:
+            snaps += est.feed_tracks(t_ns, ids[:0], uv[:0])
+    return snaps
+
+
+def _init(est: MsckfEstimator, dv: np.ndarray) -> None:
+    R, p, v, _ = _truth(0.0)
+    est.initialize_from_state(0, R, p, v + dv, np.zeros(3), np.zeros(3))
+
+
+@pytest.mark.slow
+def test_features_correct_a_velocity_error() -> None:
+    imu, frames = _stream(8.0)
+    dv = np.array([0.05, -0.05, 0.02])
+    cfg = MsckfConfig(max_frames_without_features=10_000)
+    with_f = MsckfEstimator(_rig(), cfg)
+    _init(with_f, dv)
+    s1 = _run(with_f, imu, frames, True)
+    without = MsckfEstimator(_rig(), cfg)
+    _init(without, dv)
+    s2 = _run(without, imu, frames, False)
+    assert len(s1) == len(frames) and len(s2) == len(frames)
+    e1 = [np.linalg.norm(s.p_OI - _truth(s.t_cam_ns * 1e-9)[1]) for s in s1]
+    e2 = [np.linalg.norm(s.p_OI - _truth(s.t_cam_ns * 1e-9)[1]) for s in s2]
+    assert e2[-1] > 0.3  # dead reckoning with the velocity error drifts
+    assert e1[-1] < 0.25 * e2[-1]
+    ev = s1[-1].v_OI - _truth(s1[-1].t_cam_ns * 1e-9)[2]
+    assert np.linalg.norm(ev) < 0.4 * np.linalg.norm(dv)
+    assert ev @ np.linalg.solve(s1[-1].covariance[6:9, 6:9], ev) < 16.3  # consistent: chi2(3) 99.9%
+    rep = with_f.report()
+    assert rep["msckf_features_used"] > 0 and rep["slam_initialized"] > 0
+    assert rep["divergence_resets"] == 0
+
+
+def test_bad_imu_samples_are_dropped_and_counted() -> None:
+    est = MsckfEstimator(_rig())
+    _init(est, np.zeros(3))
+    est.feed_imu(ImuSample(0, np.zeros(3), np.array([0, 0, 9.81])))
+    est.feed_imu(ImuSample(5_000_000, np.array([np.nan, 0, 0]), np.array([0, 0, 9.81])))
+    est.feed_imu(ImuSample(6_000_000, np.zeros(3), np.array([np.inf, 0, 0])))
+    est.feed_imu(ImuSample(10_000_000, np.zeros(3), np.array([0, 0, 9.81])))
+    est.feed_imu(ImuSample(7_000_000, np.zeros(3), np.array([0, 0, 9.81])))
+    est.feed_imu(ImuSample(500_000_000, np.zeros(3), np.array([0, 0, 9.81])))
+    rep = est.report()
+    assert rep["imu_nonfinite"] == 2 and rep["imu_out_of_order"] == 1 and rep["imu_gaps"] == 1
+    assert rep["imu_samples"] == 3
+
+
+def test_frames_without_features_and_bad_tracks_do_not_crash() -> None:
+    imu, frames = _stream(1.0)
+    est = MsckfEstimator(_rig())
+    _init(est, np.zeros(3))
+    snaps = []
+    k = 0
+    for i, (t_ns, ids, uv) in enumerate(frames):
+        while k < len(imu) and imu[k].t_ns <= t_ns + 5_000_000:
+            snaps += est.feed_imu(imu[k])
+            k += 1
+        if i % 3 == 0:
+            snaps += est.feed_tracks(t_ns, np.zeros(0, dtype=np.int64), np.zeros((0, 2)))
+        elif i % 3 == 1:
+            uv = uv.copy()
+            uv[0] = np.nan
+            snaps += est.feed_tracks(t_ns, ids, uv)
+        else:
+            snaps += est.feed_tracks(t_ns, ids, uv[:-1])  # length mismatch
+    snaps += est.feed_tracks(frames[0][0], frames[0][1], frames[0][2])  # out of order
+    rep = est.report()
+    assert rep["frames_bad_input"] == len(frames) // 3
+    assert rep["frames_out_of_order"] == 1
+    assert rep["frames_without_features"] >= len(frames) // 3
+    assert all(np.all(np.isfinite(s.p_OI)) for s in snaps)
+
+
+def test_divergence_resets_and_rearms_initializers() -> None:
+    class CountingInit:
+        def __init__(self):
+            self.imu = 0
+            self.resets = 0
+
+        def feed_imu(self, s):
+            self.imu += 1
+
+        def feed_tracks(self, t, ids, uv):
+            pass
+
+        def try_initialize(self):
+            return None
+
+        def reset(self):
+            self.resets += 1
+
+    ini = CountingInit()
+    imu, frames = _stream(0.5)
+    est = MsckfEstimator(_rig(), MsckfConfig(max_velocity=1.0), initializers=[ini])
+    R, p, v, _ = _truth(0.0)
+    est.initialize_from_state(0, R, p, v * 10, np.zeros(3), np.zeros(3))  # 15 m/s > max_velocity
+    snaps = _run(est, imu, frames)
+    rep = est.report()
+    assert rep["divergence_resets"] == 1 and "speed" in rep["divergence_reasons"][0]
+    assert not est.initialized and ini.resets == 1 and ini.imu > 0
+    assert snaps == []
+
+
+def test_initialize_from_state_checks_input_and_floors_covariance() -> None:
+    est = MsckfEstimator(_rig())
+    with pytest.raises(EstimatorError):
+        est.initialize_from_state(0, np.eye(3) * 2, np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3))
+    with pytest.raises(EstimatorError):
+        est.initialize_from_state(0, np.eye(3), np.full(3, np.nan), np.zeros(3), np.zeros(3), np.zeros(3))
+    cov = np.eye(15) * 1e-12
+    cov[3, 3] = 4.0
+    est.initialize_from_state(0, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), cov)
+    P = est.state().covariance
+    cfg = est.config
+    assert np.isclose(P[0, 0], cfg.init_sigma_ori**2) and np.isclose(P[3, 3], 4.0)
+    assert np.isclose(P[6, 6], cfg.init_sigma_vel**2)
+
+
+def test_initializer_result_starts_the_filter() -> None:
+    class OneShot:
+        def __init__(self):
+            self.calls = 0
+
+        def feed_imu(self, s):
+            pass
+
+        def feed_tracks(self, t, ids, uv):
+            pass
+
+        def try_initialize(self):
+            self.calls += 1
+            if self.calls < 3:
+                return None
+            from types import SimpleNamespace
+
+            R, p, v, _ = _truth(0.2)
+            return SimpleNamespace(
+                t_ns=200_000_000,
+                R_OI=R,
+                p_OI=p,
+                v_OI=v,
+                bg=np.zeros(3),
+                ba=np.zeros(3),
+                cov=None,
+                source="oneshot",
+            )
+
+    imu, frames = _stream(1.0)
+    est = MsckfEstimator(_rig(), initializers=[OneShot()])
+    snaps = _run(est, imu, frames)
+    rep = est.report()
+    assert rep["initializations"] == 1 and rep["init_sources"] == {"oneshot": 1}
+    assert rep["frames_before_init"] == 2
+    assert len(snaps) >= len(frames) - 3
+    assert np.linalg.norm(snaps[-1].p_OI - _truth(snaps[-1].t_cam_ns * 1e-9)[1]) < 0.05
