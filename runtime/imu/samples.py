@@ -99,7 +99,7 @@ def imu_nodes(t_ns: np.ndarray, gyro: np.ndarray, accel: np.ndarray, t0_ns: int,
     if t.size == 0 or t0 < t[0] or t1 > t[-1]:
         span = "no samples" if t.size == 0 else f"samples span [{int(t[0])}, {int(t[-1])}] ns"
         raise DataError(f"IMU samples do not cover the interval [{t0}, {t1}] ns ({span})")
-    # node stamps: t0, the distinct end stamps and the samples strictly inside, as ns offsets
+    # node stamps (ns): t0, the distinct end stamps and the samples strictly inside, sorted
     extra = np.unique(np.concatenate([[t0], ends]))
     inside = (t > t0) & (t < t1) & ~np.isin(t, extra)
     node_t = np.concatenate([extra, t[inside]])
