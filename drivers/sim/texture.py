@@ -149,10 +149,12 @@ def make_tile(
 
 def strength_of(tile: np.ndarray) -> np.ndarray:
     """Local texture strength in [0, 1]: albedo standard deviation over ~3 texels / STRENGTH_CONTRAST."""
-    mean = cv2.GaussianBlur(tile, (0, 0), 3.0)
-    sq = cv2.GaussianBlur(tile * tile, (0, 0), 3.0)
+    t = tile.astype(np.float64)
+    mean = cv2.GaussianBlur(t, (0, 0), 3.0)
+    sq = cv2.GaussianBlur(t * t, (0, 0), 3.0)
     std = np.sqrt(np.maximum(sq - mean * mean, 0.0))
-    return np.clip(std / STRENGTH_CONTRAST, 0.0, 1.0).astype(np.float32)
+    strength = np.clip(std / STRENGTH_CONTRAST, 0.0, 1.0)
+    return np.where(strength < 1e-3, 0.0, strength).astype(np.float32)  # rounding residue of flat tiles
 
 
 def build_atlas(tiles: list[np.ndarray], texel_m: float) -> TextureAtlas:

@@ -30,6 +30,35 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object")
 
 
+def fit_constant_biases(
+    t_imu: np.ndarray, gyro: np.ndarray, accel: np.ndarray, gt, g: float = 9.81
+) -> tuple[np.ndarray, np.ndarray]:
+    """Constant (bg rad/s, ba m/s^2) that best explain the IMU given the ground truth.
+
+    Medians over the whole sequence of the residuals against body rates from consecutive
+    ground-truth rotations and world accelerations from second differences of positions over 50 ms.
+    """
+    from drivers.sim.spline import interpolate_positions, interpolate_rotations
+    from runtime.geometry.so3 import so3_log
+
+    t = gt.t_ns
+    dt = np.diff(t).astype(np.float64) * 1e-9
+    omega = so3_log(np.einsum("nji,njk->nik", gt.R[:-1], gt.R[1:])) / dt[:, None]
+    t_mid = t[:-1] + np.diff(t) // 2
+    inside = (t_imu > t_mid[0]) & (t_imu < t_mid[-1])
+    bg = np.median(gyro[inside] - interpolate_positions(t_mid, omega, t_imu[inside]), axis=0)
+    k = 10  # samples each side (~50 ms at 200 Hz)
+    ts = (t - t[0]).astype(np.float64) * 1e-9
+    h = (ts[2 * k :] - ts[: -2 * k]) / 2
+    a_W = (gt.p[2 * k :] - 2 * gt.p[k:-k] + gt.p[: -2 * k]) / (h**2)[:, None]
+    t_a = t[k:-k]
+    inside = (t_imu > t_a[0]) & (t_imu < t_a[-1])
+    R = interpolate_rotations(t, gt.R, t_imu[inside])
+    f_W = interpolate_positions(t_a, a_W, t_imu[inside]) + np.array([0.0, 0.0, g])
+    ba = np.median(accel[inside] - np.einsum("nji,nj->ni", R, f_W), axis=0)
+    return bg, ba
+
+
 def drift_windows(
     t_imu: np.ndarray,
     gyro: np.ndarray,
@@ -38,11 +67,12 @@ def drift_windows(
     window_s: float = 1.0,
     step_s: float = 0.5,
     use_gt_bias: bool = True,
+    constant_bias: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> dict:
     """Position (m) and orientation (deg) errors after integrating each window from the true state.
 
-    gt: PoseTrajectory T_WI (IMU clock); its v is used when present, else central differences;
-    its bg/ba when present and use_gt_bias, else zero biases.
+    gt: PoseTrajectory T_WI (IMU clock); its v is used when present, else central differences.
+    Biases: `constant_bias` when given, else gt's bg/ba when present and use_gt_bias, else zero.
     """
     from drivers.sim.dead_reckoning import integrate_imu
     from drivers.sim.sampled_motion import SampledMotion
@@ -65,6 +95,8 @@ def drift_windows(
         v0 = motion.velocity(t[:1])[0]
         bg = interpolate_positions(gt.t_ns, gt.bg, t[:1])[0] if biased else None
         ba = interpolate_positions(gt.t_ns, gt.ba, t[:1])[0] if biased else None
+        if constant_bias is not None:
+            bg, ba = constant_bias
         R, p, _ = integrate_imu(t, gyro[sl], accel[sl], R0[0], p0[0], v0, bg, ba)
         R1, p1 = motion.pose(t[-1:])
         pos_err.append(float(np.linalg.norm(p[-1] - p1[0])))
@@ -73,10 +105,13 @@ def drift_windows(
     pe, re = np.array(pos_err), np.array(rot_err)
     if pe.size == 0:
         return {"windows": 0}
+    label = "ground truth" if biased else "zero"
+    if constant_bias is not None:
+        label = "constant, fitted to ground truth"
     return {
         "windows": int(pe.size),
         "window_s": window_s,
-        "biases": "ground truth" if biased else "zero",
+        "biases": label,
         "velocity": "ground truth" if gt.v is not None else "central differences of positions",
         "position_m": {
             "median": float(np.median(pe)),
@@ -113,12 +148,14 @@ def run(args: argparse.Namespace) -> int:
             raise DataError("no groundtruth.csv or groundtruth_tum.txt (is ../shared/data present?)", folder)
         gt = read_trajectory(gt_path)
         t, g, a = read_imu_csv(folder / "imu0.csv")
-        results[seq] = {
-            "groundtruth": gt_path.name,
-            "with_gt_bias": drift_windows(t, g, a, gt, args.window, args.step, True),
-        }
+        results[seq] = {"groundtruth": gt_path.name}
         if gt.bg is not None:
+            results[seq]["with_gt_bias"] = drift_windows(t, g, a, gt, args.window, args.step, True)
             results[seq]["zero_bias"] = drift_windows(t, g, a, gt, args.window, args.step, False)
+        bias = fit_constant_biases(t, g, a, gt)
+        results[seq]["fitted_bias"] = drift_windows(t, g, a, gt, args.window, args.step, constant_bias=bias)
+        results[seq]["fitted_bias"]["bg"] = bias[0].tolist()
+        results[seq]["fitted_bias"]["ba"] = bias[1].tolist()
     if args.json:
         print(json.dumps(results))
         return 0
@@ -138,7 +175,7 @@ def run(args: argparse.Namespace) -> int:
     ):
         tab.add_column(col)
     for seq, res in results.items():
-        for key in ("with_gt_bias", "zero_bias"):
+        for key in ("with_gt_bias", "fitted_bias", "zero_bias"):
             r = res.get(key)
             if not r or not r.get("windows"):
                 continue
