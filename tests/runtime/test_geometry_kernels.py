@@ -49,7 +49,7 @@ def test_kernels_match_numpy(angle):
         np.testing.assert_allclose(nb_normalize_rotation(M), normalize_rotation(M), atol=1e-13)
 
 
-@njit(cache=False)
+@njit(cache=True)
 def _compose_in_numba(phis):
     R = np.eye(3)
     for k in range(phis.shape[0]):
