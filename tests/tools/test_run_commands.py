@@ -1,0 +1,68 @@
+"""End to end: `davio demo` (simulated recording, emulated DA3) publishes a metric trajectory that
+matches the simulator's ground truth; `davio run` replays a real EuRoC folder and writes its outputs."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from conftest import shared_path
+
+from tools.cli import main
+from tools.evaluation import ate, read_tum
+
+
+@pytest.mark.slow
+def test_demo_publishes_metric_trajectory_matching_ground_truth(tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), "--seconds", "9", "--seed", "1"]) == 0
+    text = capsys.readouterr().out
+    assert "EMULATED DA3" in text
+    report = json.loads((out / "report.json").read_text())
+    assert report["published_poses"] > 50
+    assert report["T_f_s"] is not None and report["T_f_s"] < 6.0
+    # independent check: re-simulate the same recording and score odometry.tum against its truth
+    from drivers.sim import SimConfig, SimRecording
+
+    gt = SimRecording.from_preset(SimConfig(preset="euroc", seconds=9, seed=1)).groundtruth()
+    est = read_tum(out / "odometry.tum")
+    res = ate(est, gt, align_method="se3")
+    assert res.trans["rmse"] < 0.15
+    assert report["metrics"]["ate_se3_m"] == pytest.approx(res.trans["rmse"], rel=1e-6)
+    assert "model" in report and "EMULATED" in report["model"]
+    assert (out / "config.toml").exists() and (out / "trajectory.png").exists()
+
+
+def test_run_on_real_euroc_head_writes_outputs(tmp_path, capsys):
+    path = shared_path("euroc", "V1_01_easy_head")
+    out = tmp_path / "run"
+    assert main(["run", str(path), "--out", str(out), "--native-only", "--seconds", "3", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert report["scheduler"]["frames"] == 61  # 20 Hz, first 3 s inclusive
+    assert report["scheduler"]["imu_samples"] > 590
+    assert report["pipeline"]["tracking"]["mean_tracks_per_frame"] > 150
+    # the drone sits still: the static initializer waits for a jerk, nothing is published
+    assert report["published_poses"] == 0 and report["T_f_s"] is None
+    assert (out / "odometry.tum").exists() and (out / "report.json").exists()
+
+
+def test_run_missing_folder_is_a_clear_error(tmp_path, capsys):
+    assert main(["run", str(tmp_path / "nope")]) == 1
+    assert "not found" in capsys.readouterr().err
+
+
+def test_run_emulated_on_real_data_is_refused(capsys):
+    path = shared_path("euroc", "V1_01_easy_head")
+    assert main(["run", str(path), "--emulated", "base", "--seconds", "1"]) == 1
+    assert "davio simulate" in capsys.readouterr().err
+
+
+def test_odometry_file_round_trips_published_states(tmp_path):
+    from runtime.startup import Published
+    from tools.run_io import published_trajectory
+
+    pub = [Published(1_000_000_000 + k, k, np.eye(3), np.array([k, 0.0, 0.0]), np.zeros(3), "x", 0)
+           for k in range(3)]
+    traj = published_trajectory(pub)
+    assert list(traj.t_ns) == [1_000_000_000, 1_000_000_001, 1_000_000_002]
+    np.testing.assert_allclose(traj.p[:, 0], [0, 1, 2])

@@ -1,0 +1,63 @@
+"""One end-to-end run: a driver through the VIO pipeline under the scheduler, with progress."""
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from typing import Any
+
+from runtime.config import DavioConfig
+from runtime.pipeline import VioPipeline
+from runtime.scheduler import FastClock, PacedClock, Scheduler, SchedulerReport
+
+
+@dataclass
+class RunResult:
+    pipeline: VioPipeline
+    scheduler: SchedulerReport
+
+
+def run_pipeline(driver: Any, model: Any, config: DavioConfig, paced: bool = False, speed: float = 1.0,
+                 model_latency_s: float = 0.5, show_progress: bool = True, seconds: float | None = None,
+                 rig: Any = None) -> RunResult:
+    """Run `driver` (events, rig) through a VioPipeline; returns the pipeline and scheduler report."""
+    pipe = VioPipeline(rig if rig is not None else driver.rig, model, config)
+    clock = PacedClock(speed) if paced else FastClock(model_latency_s)
+    events = driver.events()
+    if seconds is not None:
+        events = _first_seconds(events, seconds)
+    progress = None
+    bar = None
+    if show_progress and sys.stderr.isatty():
+        from rich.progress import Progress
+
+        bar = Progress(transient=True)
+        task = bar.add_task("running", total=seconds)
+        bar.start()
+
+        def progress(s: float) -> None:
+            who = pipe.startup.report.published_by or "starting"
+            bar.update(task, completed=s, description=f"running ({who})")
+    elif show_progress:
+        last = [-1]
+
+        def progress(s: float) -> None:
+            if int(s) // 5 != last[0]:
+                last[0] = int(s) // 5
+                print(f"  t = {s:6.1f} s  published {len(pipe.published):5d} poses"
+                      f"  ({pipe.startup.report.published_by or 'starting'})", file=sys.stderr, flush=True)
+    try:
+        rep = Scheduler(clock, progress=progress).run(events, pipe)
+    finally:
+        if bar is not None:
+            bar.stop()
+    return RunResult(pipe, rep)
+
+
+def _first_seconds(events: Any, seconds: float) -> Any:
+    t0 = None
+    for ev in events:
+        if t0 is None:
+            t0 = ev.t_ns
+        if (ev.t_ns - t0) * 1e-9 > seconds:
+            return
+        yield ev
