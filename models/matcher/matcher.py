@@ -1,0 +1,80 @@
+"""One matching interface over XFeat (ONNX) and ORB (OpenCV): `match(image_a, image_b) -> Matches`."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from models.matcher.features import Features, Matches, mutual_nearest_neighbours
+from models.matcher.orb import OrbDetector, match_hamming
+from models.matcher.refine import refine_matches_lk
+from models.matcher.xfeat import DEFAULT_XFEAT_PATH, XFeatDetector
+
+log = logging.getLogger(__name__)
+
+
+class Matcher:
+    """Sparse feature matcher.
+
+    With `model_path` (an XFeat backbone graph) it uses XFeat + mutual nearest neighbours on
+    cosine similarity; without it, OpenCV ORB + Hamming cross-check (warned once).
+
+    Args:
+        model_path: XFeat backbone .onnx, or None for ORB.
+        top_k: keypoints per image.
+        min_cossim: XFeat only: drop mutual pairs below this cosine similarity (-1 keeps all).
+        ratio: XFeat only: Lowe ratio test on descriptor distances (1 = off). XFeat's sparse keypoints
+            jitter by 1-3 px between views; 0.8 keeps the precision within 3 px above 0.8 on
+            simulated and homography pairs (BENCHMARKS.md) at about 80 % of the matches.
+        providers, threads: ONNX Runtime settings for XFeat.
+    """
+
+    _warned = False
+
+    def __init__(
+        self,
+        model_path: str | Path | None = None,
+        top_k: int = 2048,
+        min_cossim: float = -1.0,
+        ratio: float = 0.8,
+        providers: Sequence[str] | None = None,
+        threads: int | None = None,
+    ) -> None:
+        if not 0.0 < ratio <= 1.0:
+            raise ValueError(f"ratio must be in (0, 1], got {ratio}")
+        self.min_cossim, self.ratio = min_cossim, ratio
+        if model_path is None:
+            self.backend = "orb"
+            self.detector = OrbDetector(top_k)
+            if not Matcher._warned:
+                log.warning("no XFeat graph configured: matching with OpenCV ORB (davio export-xfeat)")
+                Matcher._warned = True
+        else:
+            self.backend = "xfeat"
+            self.detector = XFeatDetector(model_path, top_k=top_k, providers=providers, threads=threads)
+
+    @classmethod
+    def default(cls, **kwargs) -> Matcher:
+        """XFeat with the committed graph when it is installed, ORB otherwise."""
+        return cls(DEFAULT_XFEAT_PATH if DEFAULT_XFEAT_PATH.is_file() else None, **kwargs)
+
+    def detect(self, image: np.ndarray) -> Features:
+        """Keypoints, scores and descriptors of one grey uint8 image (cache them per keyframe)."""
+        return self.detector.detect(image)
+
+    def match_features(self, fa: Features, fb: Features) -> Matches:
+        """Match two precomputed feature sets."""
+        if self.backend == "orb":
+            ia, ib, s = match_hamming(fa.desc, fb.desc)
+        else:
+            ia, ib, s = mutual_nearest_neighbours(fa.desc, fb.desc, self.min_cossim, self.ratio)
+        return Matches(fa.kpts, fb.kpts, ia, ib, s)
+
+    def match(self, image_a: np.ndarray, image_b: np.ndarray, refine: bool = True) -> Matches:
+        """Detect in both images and match them; `refine` re-localises the b-positions with LK
+        (sub-pixel, drops matches that do not track), see models/matcher/refine.py."""
+        m = self.match_features(self.detect(image_a), self.detect(image_b))
+        return refine_matches_lk(image_a, image_b, m) if refine else m

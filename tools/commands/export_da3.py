@@ -1,0 +1,92 @@
+"""`davio export-da3`: export a DA3 checkpoint to the DAVIO ONNX contract (needs the `export` extra)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+NAME = "export-da3"
+HELP = "export a Depth Anything 3 checkpoint to ONNX (one graph per size and resolution)"
+DESCRIPTION = (
+    "Export Depth Anything 3 to the DAVIO ONNX contract: opset 18, fixed HxW, 2..8 views, one graph that "
+    "serves both the start-up call and the pose-conditioned call. ONNX Runtime is checked against torch "
+    "on random inputs and a model card (.json) is written beside the graph. Needs the export extra: "
+    "pip install -e '.[export]' && pip install --no-deps depth-anything-3. Small and Base checkpoints "
+    "are Apache-2.0; Large and Giant are CC BY-NC 4.0."
+)
+
+
+def parse_resolution(text: str) -> tuple[int, int]:
+    """'378x504' -> (378, 504) (height x width)."""
+    try:
+        h, w = (int(v) for v in text.lower().split("x"))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"resolution must look like 378x504 (HxW), got {text!r}") from exc
+    return h, w
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument(
+        "--checkpoint", metavar="PATH", help="DA3 weights: model.safetensors (HF release) or a .pt"
+    )
+    src.add_argument("--random-init", action="store_true", help="random weights (tests and benchmarks only)")
+    p.add_argument(
+        "--size",
+        default="small",
+        choices=["tiny", "small", "base", "large", "giant"],
+        help="DA3 size (must match the checkpoint); tiny = width 64, 4 blocks, for tests",
+    )
+    p.add_argument(
+        "--res",
+        default="378x504",
+        type=parse_resolution,
+        help="graph resolution HxW, multiples of 14 (322x504 fits EuRoC's 752x480)",
+    )
+    p.add_argument(
+        "--out", metavar="PATH", default=None, help="output .onnx (default da3_SIZE_HxW.onnx here)"
+    )
+    p.add_argument("--seed", type=int, default=0, help="seed of random weights and check inputs")
+    p.add_argument("--check-views", type=int, default=5, help="views N of the torch vs ONNX Runtime check")
+    p.add_argument(
+        "--tolerance", type=float, default=1e-3, help="largest accepted relative error in the check"
+    )
+    p.add_argument("--threads", type=int, default=2, help="torch / ONNX Runtime threads")
+    p.add_argument("--json", action="store_true", help="print the model card as JSON")
+
+
+def run(args: argparse.Namespace) -> int:
+    from tools.export.export_da3 import ExportRequest, export_in_subprocess
+
+    h, w = args.res
+    out = args.out or f"da3_{args.size}_{h}x{w}.onnx"
+    req = ExportRequest(
+        size=args.size,
+        height=h,
+        width=w,
+        out=out,
+        checkpoint=args.checkpoint,
+        random_init=args.random_init,
+        seed=args.seed,
+        check_views=args.check_views,
+        tolerance=args.tolerance,
+        threads=args.threads,
+    )
+    card = export_in_subprocess(req)
+    if args.json:
+        print(json.dumps(card, indent=2))
+        return 0
+    print(
+        f"wrote {out} ({card['parameters'] / 1e6:.1f}M parameters, "
+        f"{card['resolution'][0]}x{card['resolution'][1]}, "
+        f"opset {card['opset']}, licence: {card['licence']})"
+    )
+    print(
+        f"ONNX Runtime vs torch on {card['check']['views']} views: max relative error "
+        f"{card['check']['max_rel_error']:.2e} (tolerance {card['check']['tolerance']:g})"
+    )
+    for key, e in card["check"]["errors"].items():
+        print(f"  {key:<24} max abs {e['max_abs']:.2e}  max rel {e['max_rel']:.2e}")
+    print(f"model card: {Path(out).with_suffix('.json')}; check it with: davio info --model {out}")
+    return 0

