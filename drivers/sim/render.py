@@ -19,8 +19,8 @@ from drivers.sim.raycast import cast
 from drivers.sim.scene import Scene
 from runtime.errors import ConfigError
 
-DN_PER_RADIANCE = 190.0
-"""Digital numbers per unit radiance at exposure gain 1 (an albedo-0.5 wall lit head-on ~ 110 DN)."""
+DN_PER_RADIANCE = 260.0
+"""Digital numbers per unit radiance at exposure gain 1 (mean image level ~110-120 DN, like EuRoC)."""
 
 
 @dataclass(frozen=True)

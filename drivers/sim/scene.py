@@ -202,11 +202,14 @@ def build_scene(
             top = size * np.array([0.7, 0.7, rng.uniform(0.4, 0.9)])
             lo2 = lo + np.array([0.1 * size[0], 0.1 * size[1], size[2]])
             add(lo2, lo2 + top, "box")
-    # pillars
-    for _ in range(int(area / 25) + 1):
+    # pillars: up to 10 tries each to find a free spot
+    wanted, placed = int(area / 25) + 1, 0
+    for _ in range(10 * wanted):
         w = rng.uniform(0.3, 0.6)
         xy = random_xy(np.array([w, w]))
-        add(np.array([xy[0], xy[1], floor]), np.array([xy[0] + w, xy[1] + w, room_hi[2]]), "pillar")
+        placed += add(np.array([xy[0], xy[1], floor]), np.array([xy[0] + w, xy[1] + w, room_hi[2]]), "pillar")
+        if placed == wanted:
+            break
     # shelves against a wall: sides, back, planks, small boxes on planks
     for _ in range(int(area / 20) + 1):
         wall = int(rng.integers(0, 4))
