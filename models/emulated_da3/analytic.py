@@ -43,7 +43,7 @@ class BoxRoom:
     """Room [room_min, room_max] without ceiling, one solid box inside, a mirror on the +x wall.
 
     Surface ids: room walls 0..4 (x-, x+, y-, y+, floor), box faces 6..11 (x-, x+, y-, y+, z-, z+),
-    mirror 12. Texture strength: the +y wall 0.05 (bare), the floor 0.5, everything else 0.8.
+    mirror 12. Texture strength: the +y wall 0.005 (bare paint), the floor 0.5, everything else 0.8.
 
     Args:
         start: camera centre at t = 0 (m).
@@ -117,7 +117,7 @@ class BoxRoom:
         )
         sid = np.where(mirror, 12, sid).astype(np.int32)
         texture = np.full((height, width), 0.8, np.float32)
-        texture[sid == 3] = 0.05
+        texture[sid == 3] = 0.005
         texture[sid == 4] = 0.5
         texture[sid == -1] = 0.0
         dynamic = (sid >= 6) & (sid <= 11) if self.dynamic_box else np.zeros((height, width), bool)

@@ -150,6 +150,7 @@ def corrupt_view(
     finite = depth_model[~sky]
     d_sky = params.sky_depth_factor * (float(finite.max()) if finite.size else d_far)
     d = np.where(sky, d_sky, depth_model).astype(np.float64)
+    d_ref = d.copy()
 
     # reflective surfaces: with reflective_prob, the surface shows a mirror image behind itself
     refl = np.asarray(reflective, bool) & ~sky
@@ -174,18 +175,22 @@ def corrupt_view(
     s_noise = levels.noise * (1.0 + (params.low_texture_noise_gain - 1.0) * w_tex) * q
     s_noise = s_noise * np.where(np.asarray(dynamic, bool), params.dynamic_noise_gain, 1.0)
 
-    log_err = rng.normal(0.0, levels.image_log_scale) if levels.image_log_scale > 0 else 0.0
+    image_log_scale = rng.normal(0.0, levels.image_log_scale) if levels.image_log_scale > 0 else 0.0
+    log_err = np.zeros((H, W))
     if levels.field > 0:
-        log_err = log_err + s_field * smooth_field(
-            rng, H, W, params.field_modes, params.field_wavelength_frac
-        )
+        log_err += s_field * smooth_field(rng, H, W, params.field_modes, params.field_wavelength_frac)
     if levels.noise > 0:
-        log_err = log_err + s_noise * rng.normal(size=(H, W))
-    out = d * np.exp(log_err)
+        log_err += s_noise * rng.normal(size=(H, W))
+    local = d * np.exp(log_err)  # every error the image itself can reveal (not the image's scale)
+    out = local * np.exp(image_log_scale)
 
+    # expected absolute error: a-priori (conditions) blended with the error actually made
     rel = np.maximum(np.sqrt(s_field**2 + s_noise**2), MIN_EXPECTED_REL_ERROR)
-    expected = d * rel * np.where(band, params.edge_conf_factor, 1.0)
-    expected = expected * np.where(refl, params.reflective_conf_factor, 1.0)
+    prior = d * rel * np.where(band, params.edge_conf_factor, 1.0)
+    prior = prior * np.where(refl, params.reflective_conf_factor, 1.0)
+    kappa = params.conf_error_awareness
+    actual = np.abs(local - d_ref) + 0.1 * prior
+    expected = prior ** (1.0 - kappa) * actual**kappa
     expected = np.where(sky, d_sky, expected)
     return CorruptedView(out, expected, flying, band, sky)
 

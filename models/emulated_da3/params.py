@@ -73,6 +73,12 @@ class EmulatorParams:
         conf_level_log_sigma: K_call = conf_level_median * exp(N(0, this)).
         conf_log_jitter: conf = 1 + K_call * (median(e) / e) * exp(N(0, this)) with e the expected
             absolute error of the pixel.
+        conf_error_awareness: kappa in [0, 1]: e = prior^(1 - kappa) * (|local error| + 0.1 prior)^kappa,
+            where prior is the error expected from the conditions (depth, far range, texture, edge
+            band, mirrors) and the local error the one actually made in this pixel by the field,
+            noise, flying pixels and mirrors (not the image's or window's scale, which a single
+            image cannot reveal). DA3's confidence head is trained to predict its own error
+            (notes/da3_accuracy.md §2); kappa sets how well it succeeds.
         edge_conf_factor: expected-error factor of the discontinuity band.
         reflective_conf_factor: expected-error factor of reflective pixels.
 
@@ -123,7 +129,7 @@ class EmulatorParams:
     flying_band_px_at_504: float = 2.0
     flying_jump_rel: float = 0.03
     flying_fraction: float = 0.6
-    low_texture_threshold: float = 0.2
+    low_texture_threshold: float = 0.05
     low_texture_field_gain: float = 2.0
     low_texture_noise_gain: float = 1.5
     reflective_prob: float = 0.5
@@ -134,6 +140,7 @@ class EmulatorParams:
     conf_level_median: float = 5.0
     conf_level_log_sigma: float = 0.3
     conf_log_jitter: float = 0.4
+    conf_error_awareness: float = 0.5
     edge_conf_factor: float = 6.0
     reflective_conf_factor: float = 2.0
 

@@ -165,10 +165,13 @@ def test_noise_grows_with_depth_and_on_low_texture():
     b1 = near & (d < 3.0)
     b2 = far & (d > 6.0)
     assert np.mean(abs_err[b2]) / np.mean(abs_err[b1]) > (np.mean(d[b2]) / np.mean(d[b1])) * 1.3
-    # the bare wall (texture 0.05 < 0.2): noise x (1 + 0.5 * 0.75), on top of the far-range gain
+    # the bare wall (texture 0.005 < threshold): noise x (1 + (gain - 1) w), on top of the far-range gain
     bare = (sid == 3) & np.isfinite(d)
     q = np.maximum(1.0, d[bare] / 4.0)
-    assert np.std(r[bare] / q) == pytest.approx(p.noise_sigma * (1 + 0.5 * 0.75), rel=0.12)
+    w = 1.0 - 0.005 / p.low_texture_threshold
+    gain = 1.0 + (p.low_texture_noise_gain - 1.0) * w
+    assert gain > 1.3
+    assert np.std(r[bare] / q) == pytest.approx(p.noise_sigma * gain, rel=0.12)
 
 
 def test_flying_pixels_sit_in_the_discontinuity_band_with_the_stated_share():
@@ -234,7 +237,7 @@ def test_confidence_tracks_the_error():
         levels.append(np.median(pred.conf))
         assert (pred.conf >= 1).all()
         assert np.median(pred.conf[~m]) < np.percentile(pred.conf[m], 10)  # no surface: least confident
-    assert all(-0.75 < r < -0.3 for r in rho), rho  # target about -0.5
+    assert all(-0.8 < r < -0.3 for r in rho), rho  # target about -0.5 (-0.47 on the simulator's rooms)
     assert len(set(np.round(levels, 6))) == 3  # the level changes per call
 
 
