@@ -1,0 +1,73 @@
+"""`davio simulate` and the simulator benchmarks through the CLI."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from drivers.euroc import EurocDriver
+from tests.conftest import shared_path
+from tools.cli import main
+
+
+@pytest.mark.slow
+def test_simulate_writes_a_euroc_folder(tmp_path, capsys) -> None:
+    out = tmp_path / "sim"
+    assert main(["simulate", "--seconds", "0.6", "--exact", "--seed", "3", "--out", str(out)]) == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["simulation"]["preset"] == "euroc" and manifest["config"]["seed"] == 3
+    n = manifest["counts"]["frames"]
+    # 20 Hz from 25 ms to 0.6 s (exact mode: no exposure margin)
+    assert n == len(list((out / "mav0" / "cam0" / "data").glob("*.png"))) == 12
+    assert n == len(list((out / "mav0" / "depth0" / "data").glob("*.png")))
+    with EurocDriver(out) as drv:
+        t, gyro, accel = drv.imu_arrays()
+        assert t.size == manifest["counts"]["imu_samples"] == 121
+        # exact mode, at rest on the ground (EuRoC preset's static start): gravity along body x
+        np.testing.assert_allclose(accel, np.tile([9.81, 0.0, 0.0], (t.size, 1)), atol=1e-9)
+        np.testing.assert_allclose(gyro, 0.0, atol=1e-12)
+    img = cv2.imread(str(next((out / "mav0" / "cam0" / "data").glob("*.png"))), cv2.IMREAD_UNCHANGED)
+    assert img.shape == (480, 752) and img.dtype == np.uint8 and img.std() > 10
+
+
+def test_simulate_rejects_imu_without_trajectory(tmp_path, capsys) -> None:
+    assert main(["simulate", "--imu", "x.csv", "--out", str(tmp_path / "o")]) == 1
+    assert "--imu needs --trajectory" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_simulate_euroc_trajectory_mode_from_a_folder(tmp_path) -> None:
+    folder = shared_path("euroc_imu_gt", "MH_03_medium")
+    out = tmp_path / "mh03"
+    assert (
+        main(
+            ["simulate", "--trajectory", str(folder), "--seconds", "0.5", "--start", "20", "--out", str(out)]
+        )
+        == 0
+    )
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["simulation"]["mode"] == "euroc-trajectory"
+    assert any("biases unknown" in note for note in manifest["notes"])  # TUM ground truth has no biases
+    with EurocDriver(out) as drv:
+        gt = drv.groundtruth()
+        assert gt is not None and len(gt) > 90
+
+
+def test_imu_drift_benchmark_json(capsys) -> None:
+    shared_path("euroc_imu_gt", "V1_02_medium")
+    args = ["bench", "imu-drift", "--sequence", "V1_02_medium", "--step", "20", "--json"]
+    assert main(args) == 0
+    res = json.loads(capsys.readouterr().out)["V1_02_medium"]
+    assert res["with_gt_bias"]["windows"] >= 3
+    assert res["with_gt_bias"]["position_m"]["median"] < res["zero_bias"]["position_m"]["median"]
+
+
+@pytest.mark.slow
+def test_renderer_benchmark_json(capsys) -> None:
+    assert main(["bench", "renderer", "--frames", "3", "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert (res["width"], res["height"]) == (752, 480)
+    assert res["frame_ms"] > 0 and res["depth_valid_fraction"] == 1.0
