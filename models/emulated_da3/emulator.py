@@ -95,6 +95,10 @@ class EmulatedDA3:
         self.seed = int(seed)
         self.params: EmulatorParams = make_params(preset, **overrides)
         self.calls = 0
+        #: What the last call drew and derived from the truth (far-range start, flying-pixel and
+        #: edge-band counts, window scale errors...). For evaluation only: it is not part of the
+        #: DepthPrediction, because the real model could not report it.
+        self.last_diagnostics: dict = {}
         self._cache: OrderedDict[int, GroundTruthView] = OrderedDict()
 
     # ------------------------------------------------------------------ inputs
@@ -242,7 +246,7 @@ class EmulatedDA3:
 
         levels = DenseErrorLevels(p.image_log_scale_sigma, p.field_sigma, p.noise_sigma)
         depth, conf, extra = self._dense(rng, depths, views, levels, d_far)
-        info.update(extra, d_far_m=d_far)
+        self.last_diagnostics = {**extra, "d_far_m": d_far, "global_scale": float(g)}
         return DepthPrediction((depth * g).astype(np.float32), conf, T_CW, K_pred, 1.0, 0.0, info)
 
     def _mean_point_distance(self, depths: list[np.ndarray], T_C0Ci: np.ndarray, stride: int = 4) -> float:
@@ -340,14 +344,16 @@ class EmulatedDA3:
             source = "median_distance_fallback"
         internal = depth * np.exp(r_depth) / d_norm
         info.update(
-            extra,
-            d_far_m=d_far,
-            scale_source=source,
-            pose_norm_distance_m=d_norm,
-            log_scale_normalised=float(np.log(s * d_norm)),
-            clamped_pixels=clamped,
-            similarity_observable=observable,
+            scale_source=source, pose_norm_distance_m=d_norm, log_scale_normalised=float(np.log(s * d_norm))
         )
+        self.last_diagnostics = {
+            **extra,
+            "d_far_m": d_far,
+            "clamped_pixels": clamped,
+            "similarity_observable": observable,
+            "window_log_scale_depth": r_depth,
+            "window_log_scale_cameras": w_cam,
+        }
         return DepthPrediction(
             (internal / s).astype(np.float32), conf, T_CW.copy(), K.copy(), float(s), float(rmse), info
         )
