@@ -144,7 +144,8 @@ class SimRecording(Driver):
     ) -> SimRecording:
         """A recording along a trajectory file (EuRoC state CSV or TUM, poses T_WI).
 
-        Without imu_path the IMU is synthesised from a spline fitted to the trajectory. With it,
+        Without imu_path the IMU is synthesised from a spline fitted to the trajectory (0.1 s knots;
+        the ground truth is then that spline, within millimetres of the file). With it,
         the real IMU is replayed against the real trajectory (EuRoC-trajectory mode); camera
         stamps come from camera_stamps_path, else a cam0_timestamps.txt beside the IMU file, else
         the camera rate.
@@ -155,6 +156,8 @@ class SimRecording(Driver):
         if imu_path is None:
             spline = fit_pose_spline(traj.t_ns, traj.p, traj.R, dt_s=0.1)
             return cls._from_spline(spline, config, rig, {"mode": "trajectory-spline", "source": str(path)})
+        if camera_stamps_path is None and (Path(imu_path).parent / "cam0_timestamps.txt").is_file():
+            camera_stamps_path = Path(imu_path).parent / "cam0_timestamps.txt"
         return cls._replay(traj, Path(imu_path), camera_stamps_path, config, rig, str(path))
 
     @classmethod

@@ -122,3 +122,15 @@ def test_trajectory_readers_reject_bad_input(tmp_path) -> None:
     assert err.value.line == 2
     with pytest.raises(DataError, match="not found"):
         read_imu_csv(tmp_path / "missing.csv")
+
+
+def test_trajectory_file_with_real_imu_uses_the_camera_stamps_beside_it() -> None:
+    folder = shared_path("euroc_imu_gt", "MH_03_medium")
+    cfg = SimConfig(seconds=2.0, start_s=3.0, seed=0)
+    rec = SimRecording.from_trajectory(
+        folder / "groundtruth_tum.txt", cfg, rig=_small_rig(), imu_path=folder / "imu0.csv"
+    )
+    assert rec.info["mode"] == "euroc-trajectory"
+    assert np.isin(rec.frame_stamps_ns, read_timestamps(folder / "cam0_timestamps.txt")).all()
+    assert 38 <= len(rec) <= 40
+    assert rec.groundtruth().v is None  # TUM ground truth: no velocity or biases
