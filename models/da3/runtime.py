@@ -88,7 +88,11 @@ class OnnxDA3:
                 f"(Small or Base for commercial use) with: {export_hint(self.path, camera)}"
             )
         self.session, self.session_info = create_session(self.path, providers, threads)
-        self.graph_hw = check_da3_signature(*session_signature(self.session), where=str(self.path))
+        inputs, outputs = session_signature(self.session)
+        self.graph_hw = check_da3_signature(inputs, outputs, where=str(self.path))
+        n_dim = inputs[[name for name, _, _ in inputs].index("images")][2][1]
+        #: the graph's fixed view count, or None when N is dynamic (the exported graphs: 2..8)
+        self.graph_views: int | None = n_dim if isinstance(n_dim, int) and n_dim > 0 else None
         self.camera = camera
         self.cam_hw = (camera.height, camera.width)
         #: (3,3) rectified pinhole intrinsics at the camera resolution (the camera's own K).
@@ -136,6 +140,8 @@ class OnnxDA3:
         n = len(frames)
         if not MIN_VIEWS <= n <= MAX_VIEWS:
             raise DataError(f"DA3 takes {MIN_VIEWS}..{MAX_VIEWS} frames per call, got {n}")
+        if self.graph_views is not None and n != self.graph_views:
+            raise DataError(f"{self.path.name} was exported for exactly {self.graph_views} views, got {n}")
         return n
 
     def _run(self, images: np.ndarray, K: np.ndarray, E: np.ndarray, use_pose: bool) -> list[np.ndarray]:

@@ -4,7 +4,7 @@
     conf            = 1 + |images[:, :, 1]|
     pred_extrinsics = extrinsics[:, :, :3, :] with the translation column times `t_gain`
     pred_intrinsics = use_pose ? intrinsics : [[f, 0, W/2], [0, f, H/2], [0, 0, 1]]
-Variants break one clause of the contract to exercise the loader's errors.
+Variants break one clause of the contract to exercise the loader's errors ("fixed_n" is valid: N = 4).
 """
 
 from __future__ import annotations
@@ -23,18 +23,19 @@ def build_da3_contract_graph(
     f32, b = TensorProto.FLOAT, TensorProto.BOOL
     H, W = ("H" if variant == "dynamic_hw" else h), ("W" if variant == "dynamic_hw" else w)
     img_type = TensorProto.DOUBLE if variant == "wrong_dtype" else f32
+    N = 4 if variant == "fixed_n" else "N"
     inputs = [
-        helper.make_tensor_value_info("images", img_type, [1, "N", 3, H, W]),
-        helper.make_tensor_value_info("intrinsics", f32, [1, "N", 3, 3]),
-        helper.make_tensor_value_info("extrinsics", f32, [1, "N", 4, 4]),
+        helper.make_tensor_value_info("images", img_type, [1, N, 3, H, W]),
+        helper.make_tensor_value_info("intrinsics", f32, [1, N, 3, 3]),
+        helper.make_tensor_value_info("extrinsics", f32, [1, N, 4, 4]),
         helper.make_tensor_value_info("use_pose", b, [1]),
     ]
-    depth_shape = [1, "N", H, W] if variant != "wrong_rank" else [1, "N", H, W, 1]
+    depth_shape = [1, N, H, W] if variant != "wrong_rank" else [1, N, H, W, 1]
     outputs = [
         helper.make_tensor_value_info("depth", f32, depth_shape),
-        helper.make_tensor_value_info("conf", f32, [1, "N", H, W]),
-        helper.make_tensor_value_info("pred_extrinsics", f32, [1, "N", 3, 4]),
-        helper.make_tensor_value_info("pred_intrinsics", f32, [1, "N", 3, 3]),
+        helper.make_tensor_value_info("conf", f32, [1, N, H, W]),
+        helper.make_tensor_value_info("pred_extrinsics", f32, [1, N, 3, 4]),
+        helper.make_tensor_value_info("pred_intrinsics", f32, [1, N, 3, 3]),
     ]
     if variant == "missing_output":
         outputs = outputs[:3]

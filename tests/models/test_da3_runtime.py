@@ -11,6 +11,7 @@ from calib import Pinhole, PinholeRadtan
 from drivers.events import Frame
 from models.da3 import OnnxDA3
 from models.da3.preprocess import IMAGENET_MEAN, IMAGENET_STD
+from models.depth_model import DepthModel
 from runtime.errors import DataError, ModelError
 from runtime.geometry import make_pose, so3_exp
 
@@ -44,6 +45,7 @@ def expected_red_depth(img: np.ndarray) -> np.ndarray:
 
 def test_unconditioned_call_maps_outputs_to_camera_resolution(graph):
     model = OnnxDA3(graph, CAM, threads=1)
+    assert isinstance(model, DepthModel) and model.graph_views is None
     assert model.graph_hw == (28, 42)
     np.testing.assert_allclose(model.K_rect, CAM.K)
     frames = gradient_frames(3)
@@ -157,3 +159,11 @@ def test_bad_calls_are_data_errors(graph):
     small = [Frame(0, np.zeros((32, 48), np.uint8)), Frame(1, np.zeros((32, 48), np.uint8))]
     with pytest.raises(DataError, match="frame 0"):
         model.predict(small)
+
+
+def test_fixed_view_count_graph_is_enforced(tmp_path):
+    model = OnnxDA3(build_da3_contract_graph(tmp_path / "n4.onnx", variant="fixed_n"), CAM, threads=1)
+    assert model.graph_views == 4
+    assert model.predict(gradient_frames(4)).depth.shape == (4, 64, 96)
+    with pytest.raises(DataError, match="exactly 4 views"):
+        model.predict(gradient_frames(3))
