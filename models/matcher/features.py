@@ -83,7 +83,9 @@ def mutual_nearest_neighbours(
     sim = S[idx_a, idx_b]
     keep = sim > min_cossim
     if ratio < 1.0 and S.shape[1] >= 2:
-        second = np.partition(S[idx_a], S.shape[1] - 2, axis=1)[:, -2]
+        rows = S[idx_a]
+        rows[np.arange(len(idx_a)), idx_b] = -np.inf
+        second = rows.max(axis=1)
         d1 = np.sqrt(np.maximum(2.0 - 2.0 * sim, 0.0))
         d2 = np.sqrt(np.maximum(2.0 - 2.0 * second, 0.0))
         keep &= d1 < ratio * d2
