@@ -24,7 +24,7 @@ from runtime.msckf.feature_db import FeatureDatabase
 from runtime.msckf.health import divergence_reason
 from runtime.msckf.propagator import propagate_interval, select_samples
 from runtime.msckf.state import State
-from runtime.msckf.state_helper import augment_clone, marginalize_clone, marginalize_landmark
+from runtime.msckf.state_helper import augment_clone, marginalize
 from runtime.msckf.update_msckf import msckf_update
 from runtime.msckf.update_slam import SlamUpdateStats, delayed_init, slam_update
 from runtime.msckf.update_zupt import zupt_update
@@ -414,7 +414,12 @@ class MsckfEstimator:
         self.db.add(t_cam, ids, uv, xn)
         seen = set(ids.tolist())
         n_clones = len(st.clones)
-        marg_t = st.clone_times()[0] if n_clones > cfg.max_clones else None
+        if n_clones < min(cfg.max_clones, 5):
+            # too few clones to triangulate: wait (OpenVINS does the same)
+            c.frames_processed += 1
+            c.time_frame_s += time.perf_counter() - t0
+            return self._after_frame(t_cam, updated=True)
+        marg_t = st.clone_times()[0] if n_clones > min(cfg.max_clones, 5) else None
         lost, marg, maxtracks = [], [], []
         for fid, tr in self.db.tracks.items():
             if fid in st.slam:
@@ -440,7 +445,9 @@ class MsckfEstimator:
         c.msckf_features_used += ms.used
         c.msckf_triangulation_failed += ms.triangulation_failed
         c.msckf_chi2_rejected += ms.chi2_rejected
-        for tr in lost + marg + maxtracks:
+        # offered tracks are used up; lost/marginal tracks beyond max_msckf_in_update are dropped too unless
+        # keep_unselected_tracks (OpenVINS keeps them for a later update)
+        for tr in msckf if cfg.keep_unselected_tracks else lost + marg + maxtracks:
             self.db.remove(tr.fid)
         # SLAM: update the landmarks seen now, marginalise the lost ones
         sst = SlamUpdateStats()
@@ -450,26 +457,26 @@ class MsckfEstimator:
             if fid in seen and tr is not None and tr.t_ns and tr.t_ns[-1] == t_cam:
                 obs.append((fid, tr.uv[-1]))
         slam_update(st, t_cam, obs, cfg, self.camera, sst)
-        for fid in list(st.slam):
-            lm = st.slam[fid]
-            if fid not in seen or lm.fail_count > 1:
-                marginalize_landmark(st, fid)
-                self.db.remove(fid)
-                c.slam_marginalized += 1
+        lost_lms = [fid for fid, lm in st.slam.items() if fid not in seen or lm.fail_count > 1]
+        # landmarks leave the state after the delayed initialisation (one covariance copy for all)
         added = delayed_init(st, new_slam, cfg, self.camera, sst)
         for tr in new_slam:
             if tr.fid in st.slam:
                 self.db.keep_only_last(tr.fid)
             else:
                 self.db.remove(tr.fid)
-        for fid in st.slam:
-            self.db.keep_only_last(fid)
+        for fid in lost_lms:
+            self.db.remove(fid)
+        c.slam_marginalized += len(lost_lms)
         c.slam_updates += sst.updated
         c.slam_chi2_rejected += sst.chi2_rejected
         c.slam_initialized += sst.initialized
         c.slam_init_failed += sst.init_failed
-        while len(st.clones) > cfg.max_clones:
-            marginalize_clone(st, st.clone_times()[0])
+        times = st.clone_times()
+        old_clones = times[: max(len(times) - cfg.max_clones, 0)]
+        marginalize(st, old_clones, lost_lms)
+        for fid in st.slam:
+            self.db.keep_only_last(fid)
         self.db.drop_older_than(st.clone_times()[0])
         updated = ms.used > 0 or sst.updated > 0 or len(added) > 0
         c.frames_processed += 1

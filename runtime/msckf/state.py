@@ -87,18 +87,30 @@ class State:
 
     def remove_variable(self, idx: int, size: int) -> None:
         """Delete error states idx..idx+size (marginalisation) and shift the later indices."""
-        keep = np.r_[0:idx, idx + size:self.size]
+        self.remove_variables([(idx, size)])
+
+    def remove_variables(self, blocks: list[tuple[int, int]]) -> None:
+        """Delete several (idx, size) blocks of error states at once and shift the later indices."""
+        if not blocks:
+            return
+        mask = np.ones(self.size, dtype=bool)
+        for idx, size in blocks:
+            mask[idx:idx + size] = False
+        keep = np.flatnonzero(mask)
         self.P = self.P[np.ix_(keep, keep)]
+        shift = np.cumsum(~mask)            # removed entries at or before each index
+
+        def moved(i: int) -> int:
+            return i - int(shift[i])
+
         for c in self.clones.values():
-            if c.idx > idx:
-                c.idx -= size
+            c.idx = moved(c.idx)
         for lm in self.slam.values():
-            if lm.idx > idx:
-                lm.idx -= size
-        if self.idx_dt > idx:
-            self.idx_dt -= size
-        if self.idx_ext > idx:
-            self.idx_ext -= size
+            lm.idx = moved(lm.idx)
+        if self.idx_dt >= 0:
+            self.idx_dt = moved(self.idx_dt)
+        if self.idx_ext >= 0:
+            self.idx_ext = moved(self.idx_ext)
 
     def apply_correction(self, dx: np.ndarray) -> None:
         """x <- x (+) dx over the whole error state (FEJ untouched)."""
@@ -114,7 +126,7 @@ class State:
             self.R_IC = normalize_rot(self.R_IC @ exp3(dx[i:i + 3]))
             self.p_IC = self.p_IC + dx[i + 3:i + 6]
         for c in self.clones.values():
-            c.R = normalize_rot(c.R @ exp3(dx[c.idx:c.idx + 3]))
+            c.R = c.R @ exp3(dx[c.idx:c.idx + 3])     # short-lived: exp3 keeps it orthonormal to ~1e-15
             c.p = c.p + dx[c.idx + 3:c.idx + 6]
         for lm in self.slam.values():
             lm.p = lm.p + dx[lm.idx:lm.idx + 3]

@@ -85,12 +85,25 @@ def marginalize_landmark(state: State, fid: int) -> None:
     state.remove_variable(lm.idx, 3)
 
 
+def marginalize(state: State, clone_times: list[int], landmark_ids: list[int]) -> None:
+    """Remove several clones and landmarks in one covariance copy."""
+    blocks = []
+    for t in clone_times:
+        blocks.append((state.clones.pop(t).idx, 6))
+    for fid in landmark_ids:
+        blocks.append((state.slam.pop(fid).idx, 3))
+    state.remove_variables(blocks)
+
+
 def initialize_landmark(state: State, fid: int, p_O: np.ndarray, cols: np.ndarray, Hx: np.ndarray,
-                        Hf: np.ndarray, r: np.ndarray, sigma: float, chi2_multiplier: float) -> bool:
+                        Hf: np.ndarray, r: np.ndarray, sigma: float, chi2_multiplier: float,
+                        deferred: list | None = None) -> bool:
     """Delayed initialisation of a landmark from m >= 2 observations (OpenVINS StateHelper::initialize).
 
     The rows are split by Givens rotations of Hf into an invertible part (3 rows) that defines the landmark
-    and the rest, which is chi-square tested and then used in an ordinary update.
+    and the rest, which is chi-square tested and then used in an ordinary update (or, with `deferred`,
+    appended there as (Hx2, r2) over `cols` for one stacked update by the caller: for a fixed
+    linearisation the order of independent updates does not change the posterior).
     """
     Hx2, r2, Hf1, Hx1, r1 = givens_left_nullspace(Hf.copy(), Hx.copy(), r.copy())
     if Hx2.shape[0] > 0:
@@ -112,6 +125,9 @@ def initialize_landmark(state: State, fid: int, p_O: np.ndarray, cols: np.ndarra
     p_new = p_O + Hf1_inv @ r1
     state.slam[fid] = Landmark(fid, p_new.copy(), p_new.copy(), idx)
     if Hx2.shape[0] > 0:
-        H2, rr2 = compress(Hx2, r2)
-        ekf_update(state, cols, H2, rr2, sigma)
+        if deferred is not None:
+            deferred.append((Hx2, r2))
+        else:
+            H2, rr2 = compress(Hx2, r2)
+            ekf_update(state, cols, H2, rr2, sigma)
     return True

@@ -10,6 +10,23 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True)
+def _cost(Rt: np.ndarray, Rtp: np.ndarray, xn: np.ndarray, x0: float, x1: float, x2: float) -> float:
+    """Sum of squared normalised-coordinate errors of the anchored inverse-depth point (x0, x1, x2)."""
+    c = 0.0
+    for i in range(xn.shape[0]):
+        R = Rt[i]
+        h0 = R[0, 0] * x0 + R[0, 1] * x1 + R[0, 2] - x2 * Rtp[i, 0]
+        h1 = R[1, 0] * x0 + R[1, 1] * x1 + R[1, 2] - x2 * Rtp[i, 1]
+        h2 = R[2, 0] * x0 + R[2, 1] * x1 + R[2, 2] - x2 * Rtp[i, 2]
+        if h2 <= 0:
+            return 1e30
+        e0 = h0 / h2 - xn[i, 0]
+        e1 = h1 / h2 - xn[i, 1]
+        c += e0 * e0 + e1 * e1
+    return c
+
+
+@njit(cache=True, nogil=True)
 def triangulate(
     R_OC: np.ndarray,
     p_OC: np.ndarray,
@@ -45,63 +62,75 @@ def triangulate(
         Bp = np.eye(3) - np.outer(bA, bA)
         A += Bp
         b += Bp @ p_AC[i]
-    s = np.linalg.svd(A)[1]
-    if s[2] <= 0.0 or s[0] / s[2] > max_cond:
+    s = np.linalg.eigvalsh(A)          # ascending, A symmetric PSD
+    if s[0] <= 0.0 or s[2] / s[0] > max_cond:
         return False, pO
     pF = np.linalg.solve(A, b)
     if not (pF[2] >= min_dist and pF[2] <= max_dist) or not np.all(np.isfinite(pF)):
         return False, pO
-    # refinement in (alpha, beta, rho) = (x/z, y/z, 1/z) of the anchor frame
-    x = np.array([pF[0] / pF[2], pF[1] / pF[2], 1.0 / pF[2]])
+    # refinement in (alpha, beta, rho) = (x/z, y/z, 1/z) of the anchor frame, Levenberg-Marquardt
+    Rt = np.empty((m, 3, 3))
+    Rtp = np.empty((m, 3))
+    for i in range(m):
+        Rt[i] = R_AC[i].T
+        Rtp[i] = Rt[i] @ p_AC[i]
+    x0, x1, x2 = pF[0] / pF[2], pF[1] / pF[2], 1.0 / pF[2]
     lam = 1e-3
-
-    def cost_of(xv: np.ndarray) -> float:
-        c = 0.0
-        for i in range(m):
-            # point in camera i: R_AC^T ([a, b, 1] - rho p_AC) / rho  (scale-free)
-            h = R_AC[i].T @ (np.array([xv[0], xv[1], 1.0]) - xv[2] * p_AC[i])
-            if h[2] <= 0:
-                return 1e30
-            e0 = h[0] / h[2] - xn[i, 0]
-            e1 = h[1] / h[2] - xn[i, 1]
-            c += e0 * e0 + e1 * e1
-        return c
-
-    cost = cost_of(x)
+    cost = _cost(Rt, Rtp, xn, x0, x1, x2)
     for _ in range(iterations):
-        Hs = np.zeros((3, 3))
-        g = np.zeros(3)
+        H00 = H01 = H02 = H11 = H12 = H22 = 0.0
+        g0 = g1 = g2 = 0.0
         for i in range(m):
-            Rt = R_AC[i].T
-            h = Rt @ (np.array([x[0], x[1], 1.0]) - x[2] * p_AC[i])
-            if h[2] <= 0:
+            R = Rt[i]
+            h0 = R[0, 0] * x0 + R[0, 1] * x1 + R[0, 2] - x2 * Rtp[i, 0]
+            h1 = R[1, 0] * x0 + R[1, 1] * x1 + R[1, 2] - x2 * Rtp[i, 1]
+            h2 = R[2, 0] * x0 + R[2, 1] * x1 + R[2, 2] - x2 * Rtp[i, 2]
+            if h2 <= 0:
                 continue
-            dh = np.empty((3, 3))
-            dh[:, 0] = Rt[:, 0]
-            dh[:, 1] = Rt[:, 1]
-            dh[:, 2] = -(Rt @ p_AC[i])
-            Jp = np.array(
-                [[1.0 / h[2], 0.0, -h[0] / (h[2] * h[2])], [0.0, 1.0 / h[2], -h[1] / (h[2] * h[2])]]
-            )
-            J = Jp @ dh
-            e = np.array([h[0] / h[2] - xn[i, 0], h[1] / h[2] - xn[i, 1]])
-            Hs += J.T @ J
-            g += J.T @ e
+            iz = 1.0 / h2
+            u = h0 * iz
+            v = h1 * iz
+            # d(u, v)/d(h) = [[iz, 0, -u iz], [0, iz, -v iz]]; d h / d x = [R[:,0], R[:,1], -Rtp]
+            a0 = iz * (R[0, 0] - u * R[2, 0])
+            a1 = iz * (R[0, 1] - u * R[2, 1])
+            a2 = iz * (-Rtp[i, 0] + u * Rtp[i, 2])
+            b0 = iz * (R[1, 0] - v * R[2, 0])
+            b1 = iz * (R[1, 1] - v * R[2, 1])
+            b2 = iz * (-Rtp[i, 1] + v * Rtp[i, 2])
+            e0 = u - xn[i, 0]
+            e1 = v - xn[i, 1]
+            H00 += a0 * a0 + b0 * b0
+            H01 += a0 * a1 + b0 * b1
+            H02 += a0 * a2 + b0 * b2
+            H11 += a1 * a1 + b1 * b1
+            H12 += a1 * a2 + b1 * b2
+            H22 += a2 * a2 + b2 * b2
+            g0 += a0 * e0 + b0 * e1
+            g1 += a1 * e0 + b1 * e1
+            g2 += a2 * e0 + b2 * e1
+        Hs = np.array([[H00, H01, H02], [H01, H11, H12], [H02, H12, H22]])
+        g = np.array([g0, g1, g2])
         improved = False
+        step = 0.0
         for _t in range(6):
-            Hl = Hs + lam * np.diag(np.diag(Hs)) + 1e-12 * np.eye(3)
+            Hl = Hs.copy()
+            for k in range(3):
+                Hl[k, k] += lam * Hs[k, k] + 1e-12
             dx = -np.linalg.solve(Hl, g)
-            xn_ = x + dx
-            c_new = cost_of(xn_)
+            c_new = _cost(Rt, Rtp, xn, x0 + dx[0], x1 + dx[1], x2 + dx[2])
             if c_new < cost:
-                x = xn_
+                x0 += dx[0]
+                x1 += dx[1]
+                x2 += dx[2]
                 lam = max(lam / 10.0, 1e-10)
-                improved = c_new < cost - 1e-16
+                improved = True
                 cost = c_new
+                step = np.sqrt(dx @ dx)
                 break
             lam *= 10.0
-        if not improved or np.sqrt(dx @ dx) < 1e-6:
+        if not improved or step < 1e-6:
             break
+    x = np.array([x0, x1, x2])
     if x[2] <= 0:
         return False, pO
     pF = np.array([x[0] / x[2], x[1] / x[2], 1.0 / x[2]])
