@@ -212,6 +212,7 @@ class OnnxDA3:
             "aspect_distortion": self.aspect_distortion,
         }
         if not conditioned:
+            T_pred = T_pred @ np.linalg.inv(T_pred[0])  # world = camera 0 exactly (DA3's is close to it)
             A_inv = np.linalg.inv(self._A)
             K_out = np.tile(self.K_rect, (n, 1, 1))
             K_out[:, 0, 0] = pred_K[:, 0, 0] * A_inv[0, 0]

@@ -167,3 +167,22 @@ def test_fixed_view_count_graph_is_enforced(tmp_path):
     assert model.predict(gradient_frames(4)).depth.shape == (4, 64, 96)
     with pytest.raises(DataError, match="exactly 4 views"):
         model.predict(gradient_frames(3))
+
+
+def test_unconditioned_poses_are_re_anchored_on_view_0(graph, monkeypatch):
+    model = OnnxDA3(graph, CAM, threads=1)
+    rng = np.random.default_rng(9)
+    T_pred = random_poses(3, rng)  # what a real DA3 returns: view 0 close to, not exactly, identity
+    real_run = model._run
+
+    def fake_run(images, K, E, use_pose):
+        depth, conf, _, pred_K = real_run(images, K, E, use_pose)
+        return depth, conf, T_pred[None, :, :3, :].astype(np.float32), pred_K
+
+    monkeypatch.setattr(model, "_run", fake_run)
+    pred = model.predict(gradient_frames(3))
+    np.testing.assert_allclose(pred.T_CW[0], np.eye(4), atol=1e-6)
+    for i in (1, 2):  # relative motion between views is unchanged
+        np.testing.assert_allclose(
+            pred.T_CW[i] @ np.linalg.inv(pred.T_CW[1]), T_pred[i] @ np.linalg.inv(T_pred[1]), atol=1e-5
+        )
