@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import os
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -34,7 +35,10 @@ def _cuda_device_visible() -> tuple[bool, str]:
     """Whether a CUDA device looks usable, with the reason when it does not."""
     if os.environ.get("CUDA_VISIBLE_DEVICES", None) in ("", "-1"):
         return False, "CUDA_VISIBLE_DEVICES hides every GPU"
-    if any(Path(p).exists() for p in ("/dev/nvidia0", "/dev/nvidiactl", "/dev/dxg")):
+    if sys.platform == "win32":
+        return True, "Windows (no device-node check)"
+    # desktop/server GPUs, WSL, Jetson (integrated GPU)
+    if any(Path(p).exists() for p in ("/dev/nvidia0", "/dev/nvidiactl", "/dev/dxg", "/dev/nvhost-ctrl-gpu")):
         return True, "GPU device node present"
     if Path("/proc/driver/nvidia/version").exists():
         return True, "NVIDIA driver loaded"
