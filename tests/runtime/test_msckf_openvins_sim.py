@@ -33,3 +33,24 @@ def test_first_20s_of_udel_gore_against_openvins() -> None:
     assert res["rmse_pos_m"] < 2.0 * ov_pos, (res, ov_pos)
     assert res["rmse_ori_deg"] < 2.0 * ov_ori, (res, ov_ori)
     assert 0.05 < res["nees_pos"] < 6.0 and 0.3 < res["nees_ori"] < 6.0, res
+
+
+@pytest.mark.slow
+@pytest.mark.shared_data
+def test_online_calibration_converges_on_udel_gore() -> None:
+    from tools.benchmarks.online_calib import calibration_errors, perturbed_calibration
+    from tools.benchmarks.openvins_sim import load_sim_folder, run_filter
+
+    run = load_sim_folder(shared_path("openvins_sim", "udel_gore_mono"), max_seconds=30.0)
+    R_IC, p_IC, t_d = run.true_calib
+    start = perturbed_calibration(R_IC, p_IC, t_d, 2.0, 2.0, 5.0, seed=1)
+    assert np.allclose(calibration_errors(*start, R_IC, p_IC, t_d), (2.0, 2.0, 5.0))
+    cfg = run.config.updated(calib_extrinsics=True, calib_time_offset=True)
+    snaps, report = run_filter(run, cfg, calib=start)
+    assert report["divergence_resets"] == 0
+    rot, pos, dt = calibration_errors(snaps[-1].R_IC, snaps[-1].p_IC, snaps[-1].time_offset_s, R_IC, p_IC, t_d)
+    # the goal: below 0.3 deg / 0.5 cm / 1 ms
+    assert rot < 0.3 and pos < 0.5 and dt < 1.0, (rot, pos, dt)
+    # the calibration covariance is reported and has shrunk from the prior
+    assert snaps[-1].calib_covariance.shape == (7, 7)
+    assert np.sqrt(snaps[-1].calib_covariance[0, 0]) < 0.2 * run.config.sigma_calib_rot
