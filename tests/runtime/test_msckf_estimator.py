@@ -232,3 +232,74 @@ def test_initializer_result_starts_the_filter() -> None:
     assert rep["frames_before_init"] == 2
     assert len(snaps) >= len(frames) - 3
     assert np.linalg.norm(snaps[-1].p_OI - _truth(snaps[-1].t_cam_ns * 1e-9)[1]) < 0.05
+
+
+def _static_stream(duration: float, seed: int = 0):
+    """A body at rest (identity attitude) looking at the wall: IMU reads gravity, pixels only noise."""
+    rng = np.random.default_rng(seed)
+    imu = [ImuSample(int(k * 5_000_000), 2e-4 * rng.standard_normal(3), np.array([0.0, 0.0, 9.81])
+                     + 3e-3 * rng.standard_normal(3)) for k in range(int(duration * 200) + 11)]
+    L = _landmarks()
+    pC = (R_IC.T @ (L.T - p_IC[:, None])).T
+    vis = pC[:, 2] > 0.5
+    uv0 = distort_points(1, PRM, pC[vis, :2] / pC[vis, 2:3])
+    inside = (uv0[:, 0] > 0) & (uv0[:, 0] < 751) & (uv0[:, 1] > 0) & (uv0[:, 1] < 479)
+    ids, uv0 = np.flatnonzero(vis)[inside], uv0[inside]
+    frames = [(int(round((k / 10.0 + 0.0013) * 1e9)), ids, uv0 + rng.standard_normal(uv0.shape))
+              for k in range(1, int(duration * 10) + 1)]
+    return imu, frames
+
+
+def test_zero_velocity_update_holds_a_static_body() -> None:
+    imu, frames = _static_stream(3.0)
+    cfg = MsckfConfig(try_zupt=True)
+    est = MsckfEstimator(_rig(), cfg)
+    est.initialize_from_state(0, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3))
+    snaps = _run(est, imu, frames)
+    rep = est.report()
+    assert rep["zupt_applied"] >= len(frames) - 3
+    assert snaps[-1].num_clones <= 2                      # standstill frames add no clone
+    assert np.linalg.norm(snaps[-1].v_OI) < 0.01
+    assert np.linalg.norm(snaps[-1].p_OI) < 0.02
+    # the velocity uncertainty is pulled down by the zero-velocity pseudo-measurements
+    assert np.sqrt(snaps[-1].covariance[6, 6]) < 0.01
+
+
+def test_zero_velocity_update_is_not_applied_while_moving() -> None:
+    imu, frames = _stream(2.0)
+    est = MsckfEstimator(_rig(), MsckfConfig(try_zupt=True))
+    _init(est, np.zeros(3))
+    _run(est, imu, frames)
+    assert est.report()["zupt_applied"] == 0
+
+
+def test_feed_frame_uses_the_tracker() -> None:
+    from types import SimpleNamespace
+
+    from drivers.events import Frame
+
+    imu, frames = _stream(1.0)
+    table = {t: (ids, uv) for t, ids, uv in frames}
+
+    class TableTracker:
+        def track(self, frame):
+            ids, uv = table[frame.t_ns]
+            return SimpleNamespace(t_ns=frame.t_ns, ids=ids, uv=uv)
+
+    est = MsckfEstimator(_rig(), tracker=TableTracker())
+    _init(est, np.zeros(3))
+    ref = MsckfEstimator(_rig())
+    _init(ref, np.zeros(3))
+    out, out_ref = [], []
+    k = 0
+    for t_ns, ids, uv in frames:
+        while k < len(imu) and imu[k].t_ns <= t_ns + 5_000_000:
+            out += est.feed_imu(imu[k])
+            out_ref += ref.feed_imu(imu[k])
+            k += 1
+        out += est.feed_frame(Frame(t_ns, np.zeros((480, 752), np.uint8)))
+        out_ref += ref.feed_tracks(t_ns, ids, uv)
+    assert len(out) == len(out_ref) == len(frames)
+    assert np.allclose(out[-1].p_OI, out_ref[-1].p_OI)
+    with pytest.raises(EstimatorError):
+        MsckfEstimator(_rig()).feed_frame(Frame(0, np.zeros((4, 4), np.uint8)))
