@@ -33,3 +33,17 @@ def test_missing_folder_is_reported(tmp_path: Path, capsys: pytest.CaptureFixtur
     euroc_frontend.add_arguments(parser)
     assert euroc_frontend.run(parser.parse_args([str(tmp_path / "nope")])) == 2
     assert "nope" in capsys.readouterr().out
+
+
+@pytest.mark.slow
+def test_dynamic_init_on_real_imu_window() -> None:
+    from conftest import shared_path
+
+    folder = shared_path("euroc_imu_gt", "V1_02_medium")
+    out = euroc_frontend.run_dynamic(folder, window_s=10.0, max_windows=2, attempt_every=10)
+    assert out["windows"] == 2 and out["initialized"] >= 1, out["rows"]
+    for row in out["rows"]:
+        if row["initialized"]:
+            assert row["gravity_err_deg"] < 2.0
+            assert row["velocity_err_mps"] < 0.2
+            assert 1.8 <= row["time_to_init_s"] <= 4.0
