@@ -270,6 +270,10 @@ class MsckfEstimator:
         if not self.initialized:
             for ini in self.initializers:
                 ini.feed_imu(sample)
+            keep_from = t - int(self.config.imu_buffer_s * 1e9)
+            if self._imu_t[0] < keep_from - 1_000_000_000:     # trim in 1 s chunks
+                j = int(np.searchsorted(np.asarray(self._imu_t, dtype=np.int64), keep_from))
+                del self._imu_t[:j], self._imu_w[:j], self._imu_a[:j]
         return self._process_pending()
 
     def feed_tracks(self, t_ns: int, ids: np.ndarray, uv: np.ndarray) -> list[FilterState]:

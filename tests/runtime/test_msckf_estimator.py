@@ -303,3 +303,19 @@ def test_feed_frame_uses_the_tracker() -> None:
     assert np.allclose(out[-1].p_OI, out_ref[-1].p_OI)
     with pytest.raises(EstimatorError):
         MsckfEstimator(_rig()).feed_frame(Frame(0, np.zeros((4, 4), np.uint8)))
+
+
+def test_imu_history_is_bounded_while_uninitialised_and_a_past_state_can_start() -> None:
+    est = MsckfEstimator(_rig(), MsckfConfig(imu_buffer_s=2.0))
+    imu, frames = _stream(6.0)
+    for s in imu:
+        est.feed_imu(s)
+    assert len(est._imu_t) <= 3.0 * 200 + 1
+    # a state 1.5 s in the past (within the buffer) propagates through the buffered samples
+    t0 = imu[-1].t_ns - 1_500_000_000
+    R, p, v, _ = _truth(t0 * 1e-9)
+    est.initialize_from_state(t0, R, p, v, np.zeros(3), np.zeros(3))
+    t_ns, ids, uv = [f for f in frames if f[0] > t0][0]
+    out = est.feed_tracks(t_ns, ids, uv)
+    assert len(out) == 1
+    assert np.linalg.norm(out[0].p_OI - _truth(t_ns * 1e-9)[1]) < 1e-3

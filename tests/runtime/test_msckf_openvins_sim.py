@@ -48,7 +48,8 @@ def test_online_calibration_converges_on_udel_gore() -> None:
     cfg = run.config.updated(calib_extrinsics=True, calib_time_offset=True)
     snaps, report = run_filter(run, cfg, calib=start)
     assert report["divergence_resets"] == 0
-    rot, pos, dt = calibration_errors(snaps[-1].R_IC, snaps[-1].p_IC, snaps[-1].time_offset_s, R_IC, p_IC, t_d)
+    last = snaps[-1]
+    rot, pos, dt = calibration_errors(last.R_IC, last.p_IC, last.time_offset_s, R_IC, p_IC, t_d)
     # the goal: below 0.3 deg / 0.5 cm / 1 ms
     assert rot < 0.3 and pos < 0.5 and dt < 1.0, (rot, pos, dt)
     # the calibration covariance is reported and has shrunk from the prior
