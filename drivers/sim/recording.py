@@ -287,7 +287,8 @@ class SimRecording(Driver):
         poses = [(R @ R_IC, p + R @ p_IC) for R, p in zip(R_WI, p_WI, strict=True)]
         t_s = (t_true - int(self.imu.t_ns[0])) * 1e-9
         image, view = self.renderer.render(poses, t_s, index)
-        return Frame(t_cam, image, 0, meta={"simulated": True}), view
+        meta = {"simulated": True, "exposure_gain": self.renderer.exposure_gain(t_s)}
+        return Frame(t_cam, image, 0, meta=meta), view
 
     def events(self) -> Iterator[ImuSample | Frame]:
         """IMU samples and lazily rendered frames in stamp order (IMU first at equal stamps)."""

@@ -104,6 +104,9 @@ def test_zero_offset_and_exposure_changes(small_rig) -> None:
     assert rec.rig.time_offset_s == 0.0
     gains = [rec.renderer.exposure_gain(t) for t in np.linspace(0, 20, 200)]
     assert 0.65 < min(gains) < 0.9 and 1.1 < max(gains) < 1.35
+    frame, _ = rec.render(3)
+    t_s = (frame.t_ns - rec.imu.t_ns[0]) * 1e-9
+    assert frame.meta["exposure_gain"] == pytest.approx(rec.renderer.exposure_gain(t_s)) != 1.0
 
 
 def test_preset_needs_positive_seconds() -> None:
