@@ -70,6 +70,8 @@ class DynamicInitConfig:
     """Eigenvalue ratio of a feature's 3x3 normal block above which it has no depth information."""
     mle_max_iterations: int = 20
     """Nonlinear refinement iterations (scipy least_squares max_nfev); 0 disables the refinement."""
+    mle_tolerance: float = 1e-6
+    """Relative cost / step tolerance that ends the refinement (scipy ftol and xtol)."""
     sigma_px: float = 1.0
     """Pixel noise of the features, px."""
     sigma_bg_prior: float = 0.01
@@ -653,6 +655,8 @@ class _Refinement:
                 method="trf",
                 max_nfev=self.cfg.mle_max_iterations,
                 x_scale="jac",
+                ftol=self.cfg.mle_tolerance,
+                xtol=self.cfg.mle_tolerance,
             )
             x, nfev = sol.x, int(sol.nfev)
             if not np.all(np.isfinite(x)):
