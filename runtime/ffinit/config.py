@@ -28,6 +28,12 @@ class FFInitConfig:
     # linear system (Sec. IV-A)
     gravity_refinements: int = 2
     """Refinements of the gravity direction on the tangent plane of |g| = g0."""
+    gravity_magnitude: str = "absorb_bias"
+    """'fixed': the refinements hold |g| = g0 (paper); 'absorb_bias': the magnitude the data asks
+    for is kept apart as an accelerometer bias along gravity (indistinguishable within a window) and
+    passed to the refinement as its starting bias, instead of being forced into s and v0."""
+    max_accel_bias: float = 0.5
+    """Reject when the implied accelerometer bias along gravity exceeds this, m/s^2."""
 
     # conditioning gates (Sec. IV-B)
     min_images: int = 4

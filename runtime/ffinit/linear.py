@@ -8,7 +8,7 @@ so the residual approximates s times the normalized reprojection error.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -45,9 +45,14 @@ class PointSystem:
 
 @dataclass
 class LinearSolution:
-    """x = [s, v0 (3), g (3)] in I0; gravity has norm g0 after refinement."""
+    """x = [s, v0 (3), g (3)] in I0; gravity has norm g0 after refinement.
+
+    ba: (3,) accelerometer bias in I0 implied by the gravity magnitude the data asked for
+    (zero unless FFInitConfig.gravity_magnitude == "absorb_bias").
+    """
 
     x: np.ndarray
+    ba: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     @property
     def scale(self) -> float:
@@ -106,8 +111,15 @@ def _tangent_basis(g_dir: np.ndarray) -> np.ndarray:
     return np.column_stack([b1, b2])
 
 
-def weighted_solve(system: PointSystem, g0: float, refinements: int) -> LinearSolution | None:
-    """Weighted least squares for x, then `refinements` tangent-plane refinements of g on |g| = g0."""
+def weighted_solve(system: PointSystem, g0: float, refinements: int,
+                   absorb_bias: bool = False) -> LinearSolution | None:
+    """Weighted least squares for x, then `refinements` tangent-plane refinements of g on |g| = g0.
+
+    absorb_bias: an accelerometer bias along gravity is indistinguishable from the gravity
+    magnitude within a window; with True the magnitude stays free (the unconstrained solution, whose
+    direction is then optimal), g is reported with norm g0 and the excess (|g| - g0) g_hat is
+    returned as the implied accelerometer bias instead of being forced into s and v0.
+    """
     if len(system) == 0:
         return None
     W = system.w[:, None]
@@ -117,9 +129,13 @@ def weighted_solve(system: PointSystem, g0: float, refinements: int) -> LinearSo
     if not np.all(np.isfinite(x)):
         return None
     g = x[4:7]
-    if np.linalg.norm(g) < 1e-9:
+    norm = float(np.linalg.norm(g))
+    if norm < 1e-9 or refinements <= 0:
         return LinearSolution(x)
-    g = g / np.linalg.norm(g) * g0
+    if absorb_bias:
+        g_hat = g / norm
+        return LinearSolution(np.concatenate([x[:4], g0 * g_hat]), (norm - g0) * g_hat)
+    g = g / norm * g0
     for _ in range(refinements):
         N = _tangent_basis(g / g0)
         # unknowns [s, v0, w]; g = g + N w
@@ -177,7 +193,8 @@ def solve_linear(window: InitWindow, cfg: FFInitConfig | None = None) -> LinearS
     rej = check_conditioning(window, system, cfg)
     if rej is not None:
         return rej
-    sol = weighted_solve(system, cfg.gravity, cfg.gravity_refinements)
+    sol = weighted_solve(system, cfg.gravity, cfg.gravity_refinements,
+                         cfg.gravity_magnitude == "absorb_bias")
     if sol is None:
         return Rejection("solve_failed", "least squares returned non-finite values")
     return sol

@@ -4,7 +4,9 @@ Parameters theta = [eta, v0 (3), dgamma (2), dbg (3), ba (3)]:
   s = eps + softplus(eta);  g = g0 Exp(N dgamma) g_hat with N^T g_hat = 0;
   R_I0Ii(theta) = R_I0Ii Exp(J_R_bg dbg);  dp_i(theta) = dp_i + J_p_bg dbg + J_p_ba (ba - ba_bar).
 Residuals: normalized reprojection errors of the inlier points / sigma_u, priors dbg / sigma_g,
-ba / sigma_a, log(s / s_lin) / sigma_s; component-wise Huber loss with unit threshold.
+(ba - ba_prior) / sigma_a, log(s / s_lin) / sigma_s; component-wise Huber loss with unit threshold.
+ba_prior is the preintegration's bias (zero at start-up, as in the paper) plus the bias along
+gravity implied by the linear stage when FFInitConfig.gravity_magnitude == "absorb_bias".
 """
 from __future__ import annotations
 
@@ -50,6 +52,9 @@ class _Problem:
         self.g_hat = lin.g / np.linalg.norm(lin.g)
         self.N = _tangent_basis(self.g_hat)
         self.s_lin = lin.scale
+        # the accelerometer-bias prior is centred on the current estimate: the preintegration bias
+        # plus, with gravity_magnitude == "absorb_bias", the bias along gravity the linear stage implied
+        self.ba_prior = window.ba + lin.ba
         self.pts = []  # per image i>0: (points_C0 (K,3), z (K,2))
         for i in range(1, window.num_images):
             m = inliers_per_image[i]
@@ -78,7 +83,7 @@ class _Problem:
             zc = np.maximum(y[:, 2], 1e-6)
             out.append(((y[:, :2] / zc[:, None] - z) / cfg.sigma_u).ravel())
         out.append(dbg / cfg.sigma_bg)
-        out.append(ba / cfg.sigma_ba)
+        out.append((ba - self.ba_prior) / cfg.sigma_ba)
         out.append(np.array([np.log(s / self.s_lin) / cfg.sigma_scale]))
         return np.concatenate(out)
 
@@ -93,7 +98,7 @@ def refine(window: InitWindow, lin: LinearSolution, inliers_per_image: list[np.n
     th0[1:4] = lin.v0
     if dbg0 is not None:
         th0[6:9] = dbg0
-    th0[9:12] = window.ba
+    th0[9:12] = window.ba + lin.ba
     res = least_squares(prob.residuals, th0, loss="huber", f_scale=cfg.huber_threshold,
                         max_nfev=cfg.refine_max_iterations * 13, x_scale="jac")
     s, v0, g, dbg, ba = prob.unpack(res.x)

@@ -92,7 +92,8 @@ def robust_solve(window: InitWindow, cfg: FFInitConfig | None = None) -> RobustR
     r_best = system.residuals(best[1].x) / best[1].scale
     thr = _threshold(r_best, cfg)
     inliers = r_best <= thr
-    sol = weighted_solve(system.subset(inliers), cfg.gravity, cfg.gravity_refinements)
+    sol = weighted_solve(system.subset(inliers), cfg.gravity, cfg.gravity_refinements,
+                         cfg.gravity_magnitude == "absorb_bias")
     if sol is None or not sol.scale > 0:
         return Rejection("refit_failed", "refit on inliers gave no positive scale")
     r = system.residuals(sol.x) / sol.scale
@@ -111,6 +112,10 @@ def accept(window: InitWindow, result: RobustResult, cfg: FFInitConfig) -> Robus
     if result.median_residual > cfg.max_median_residual:
         return Rejection("high_median_residual",
                          f"{result.median_residual:.4f} > {cfg.max_median_residual}")
+    bias = float(np.linalg.norm(result.solution.ba))
+    if bias > cfg.max_accel_bias:
+        return Rejection("implausible_gravity_magnitude",
+                         f"gravity magnitude off g0 by {bias:.2f} m/s^2 > {cfg.max_accel_bias}")
     speed = float(np.linalg.norm(result.solution.v0))
     if speed > cfg.max_velocity:
         return Rejection("implausible_velocity", f"|v0| = {speed:.2f} m/s > {cfg.max_velocity}")

@@ -71,3 +71,22 @@ def test_motion_helper_is_consistent():
     h = 1e-6
     np.testing.assert_allclose((p(0.3 + h) - p(0.3 - h)) / (2 * h), v(0.3), atol=1e-6)
     assert G0 == 9.81
+
+
+def test_accelerometer_bias_along_gravity_is_absorbed_not_forced_into_scale():
+    # a 0.1 m/s^2 accelerometer bias along 'up' (EuRoC-sized) is indistinguishable from the gravity
+    # magnitude within a window; holding |g| = g0 pushes it into scale and velocity
+    window0, truth = make_window("general")
+    up_I0 = truth.g_I0 / np.linalg.norm(truth.g_I0)
+    ba = 0.1 * up_I0  # the motion rotates little over the window: ~constant in I0
+    t_ns, gyro, accel = imu_samples("general", float(window0.dt[-1]), ba=ba)
+    window = build_window(window0.t_ns, window0.images, t_ns, gyro, accel, R_IC_EUROC, P_IC_EUROC)
+    absorbed = solve_window(window, FFInitConfig())
+    assert not isinstance(absorbed, Rejection), absorbed
+    err_absorbed = abs(absorbed.info["linear_scale"] / truth.scale - 1)
+    assert err_absorbed < 0.01
+    assert absorbed.info["scale"] == pytest.approx(truth.scale, rel=0.01)
+    assert abs(np.linalg.norm(absorbed.ba) - 0.1) < 0.02
+    fixed = solve_window(window, FFInitConfig(gravity_magnitude="fixed"))
+    if not isinstance(fixed, Rejection):
+        assert abs(fixed.info["linear_scale"] / truth.scale - 1) > 3 * err_absorbed

@@ -1,0 +1,194 @@
+"""`davio bench startup`: the start-up protocol of the paper (Sec. VI, after Zhang et al.).
+
+Windows start every 10 s over a sequence; in each, both arms restart from scratch:
+  * feedforward: the feed-forward initializer (DA3 window + IMU) with buffered-replay handoff,
+    native initializers disarmed (to measure the feed-forward initializer itself);
+  * native: the filter's own initializers (static, and dynamic while moving), no depth model.
+A window succeeds if a trajectory published within it has ATE < 0.5 m (SE(3) alignment). T_f is the
+sensor time of the first published state after the window start (10 s if none); T_q also charges
+10 s to every failure. Gravity-direction and velocity errors are those of the first published state
+(velocity compared after the ATE alignment's rotation). Recordings are simulated: a motion preset,
+or images rendered along a real EuRoC ground truth with its real IMU stream (EuRoC-trajectory mode).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+NAME = "startup"
+HELP = "start-up protocol: feed-forward vs native initializer over 10 s windows (T_f, T_q, success)"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--preset", help="motion preset of a simulated recording (e.g. euroc)")
+    src.add_argument("--imu", metavar="IMU.csv", help="real EuRoC imu0 CSV (needs --groundtruth)")
+    src.add_argument("--sequence", metavar="DIR", help="a euroc_imu_gt folder (groundtruth + imu0.csv)")
+    p.add_argument("--groundtruth", metavar="GT.csv", help="EuRoC ground truth CSV for --imu")
+    p.add_argument("--camera-stamps", metavar="FILE", help="camera stamps for --imu (default: beside it)")
+    p.add_argument("--seconds", type=float, default=None, help="sequence length (preset default 60 s)")
+    p.add_argument("--window", type=float, default=10.0, help="window length, s")
+    p.add_argument("--every", type=float, default=10.0, help="a window starts every S seconds")
+    p.add_argument("--max-windows", type=int, default=None, help="at most this many windows")
+    p.add_argument("--seed", type=int, default=0, help="simulation seed")
+    p.add_argument("--da3", default="base", choices=["small", "base", "large"], help="emulated DA3 preset")
+    p.add_argument("--model-latency", type=float, default=0.5, metavar="S", help="DA3 latency, sensor s")
+    p.add_argument("--ate-threshold", type=float, default=0.5, help="success threshold, m")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--out", metavar="FILE", help="also write the JSON (with per-window rows) here")
+
+
+def _recording(args: argparse.Namespace) -> Any:
+    from drivers.sim import SimConfig, SimRecording
+    from runtime.errors import ConfigError
+
+    if args.preset:
+        return SimRecording.from_preset(SimConfig(preset=args.preset, seconds=args.seconds or 60.0,
+                                                  seed=args.seed))
+    cfg = SimConfig(seconds=args.seconds, seed=args.seed)
+    if args.sequence:
+        return SimRecording.from_euroc_imu_gt(args.sequence, cfg)
+    if not args.groundtruth:
+        raise ConfigError("--imu needs --groundtruth (the real trajectory the IMU belongs to)")
+    return SimRecording.from_trajectory(args.groundtruth, cfg, imu_path=args.imu,
+                                        camera_stamps_path=args.camera_stamps)
+
+
+class _WindowDriver:
+    """The events of a recording inside [t0, t1) (frames rendered only inside the window)."""
+
+    def __init__(self, rec: Any, t0_ns: int, t1_ns: int) -> None:
+        self.rec, self.t0, self.t1 = rec, t0_ns, t1_ns
+        self.rig = rec.rig
+
+    def events(self):
+        from drivers.events import ImuSample
+
+        imu = self.rec.imu
+        ti, tf = imu.t_ns, self.rec.frame_stamps_ns
+        i = int(np.searchsorted(ti, self.t0))
+        f = int(np.searchsorted(tf, self.t0))
+        while True:
+            ti_ok = i < ti.size and ti[i] < self.t1
+            tf_ok = f < tf.size and tf[f] < self.t1
+            if not (ti_ok or tf_ok):
+                return
+            if ti_ok and (not tf_ok or ti[i] <= tf[f]):
+                yield ImuSample(int(ti[i]), imu.gyro[i].copy(), imu.accel[i].copy())
+                i += 1
+            else:
+                yield self.rec.render(f)[0]
+                f += 1
+
+
+def _score(pipe: Any, gt: Any, t0_ns: int, window_s: float, ate_thr: float) -> dict:
+    from runtime.errors import DataError
+    from runtime.geometry import interpolate_poses
+    from tools.evaluation import ate
+    from tools.run_io import published_trajectory
+
+    est = published_trajectory(pipe.published)
+    row: dict = {"published": len(est), "by": pipe.startup.report.published_by}
+    if len(est) == 0:
+        return {**row, "success": False, "T_f": window_s, "T_q": window_s}
+    T_f = (int(est.t_ns[0]) - t0_ns) * 1e-9
+    row["T_f"] = T_f
+    try:
+        res = ate(est, gt, align_method="se3") if len(est) >= 3 else None
+    except DataError:
+        res = None
+    if res is not None:
+        row["ate"] = float(res.trans["rmse"])
+        R_al = res.alignment.R
+    else:
+        R_al = None
+    first = interpolate_poses(gt, est.t_ns[:1])
+    up_est = est.R[0].T @ np.array([0.0, 0.0, 1.0])
+    up_gt = first.R[0].T @ np.array([0.0, 0.0, 1.0])
+    row["gravity_err_deg"] = float(np.degrees(np.arccos(np.clip(up_est @ up_gt, -1.0, 1.0))))
+    if R_al is not None and gt.v is not None and est.v is not None:
+        k = int(np.clip(np.searchsorted(gt.t_ns, est.t_ns[0]), 0, len(gt) - 1))
+        row["velocity_err"] = float(np.linalg.norm(R_al @ est.v[0] - gt.v[k]))
+    row["success"] = bool(res is not None and row["ate"] < ate_thr)
+    row["T_q"] = T_f if row["success"] else window_s
+    return row
+
+
+def _summary(rows: list[dict]) -> dict:
+    def med(key: str) -> float | None:
+        vals = [r[key] for r in rows if r.get(key) is not None and (key in ("T_f", "T_q") or r["success"])]
+        return float(np.median(vals)) if vals else None
+
+    return {"windows": len(rows), "successes": int(sum(r["success"] for r in rows)),
+            "T_f_median": med("T_f"), "T_q_median": med("T_q"),
+            "gravity_err_deg_median": med("gravity_err_deg"), "velocity_err_median": med("velocity_err"),
+            "ate_median": med("ate")}
+
+
+def run(args: argparse.Namespace) -> int:
+    from models.emulated_da3 import EmulatedDA3
+    from runtime.config import DavioConfig
+    from tools.run_session import run_pipeline
+
+    rec = _recording(args)
+    gt = rec.groundtruth()
+    cam = rec.rig.camera
+    t_first = int(max(rec.imu.t_ns[0], rec.frame_stamps_ns[0]))
+    t_last = int(min(rec.imu.t_ns[-1], rec.frame_stamps_ns[-1]))
+    starts = []
+    t = t_first
+    while t + args.window * 1e9 <= t_last + 1:
+        starts.append(t)
+        t += int(args.every * 1e9)
+    if args.max_windows:
+        starts = starts[: args.max_windows]
+    base = DavioConfig()
+    arms = {
+        "feedforward": replace(base, startup=replace(base.startup, native=False)),
+        "native": replace(base, use_dynamic_init=True, startup=replace(base.startup, feedforward=False)),
+    }
+    rows: dict[str, list] = {k: [] for k in arms}
+    for w, t0 in enumerate(starts):
+        t1 = t0 + int(args.window * 1e9)
+        for arm, cfg in arms.items():
+            model = None
+            if arm == "feedforward":
+                model = EmulatedDA3(rec.gt_source, cam.K, cam.width, cam.height, preset=args.da3,
+                                    seed=args.seed * 1000 + w)
+            res = run_pipeline(_WindowDriver(rec, t0, t1), model, cfg, model_latency_s=args.model_latency,
+                               show_progress=False)
+            row = _score(res.pipeline, gt, t0, args.window, args.ate_threshold)
+            row.update({"window": w, "start_s": (t0 - t_first) * 1e-9,
+                        "ff_rejections": res.pipeline.startup.report.ff_rejections})
+            rows[arm].append(row)
+            if not args.json:
+                print(f"  window {w:2d} ({row['start_s']:6.1f} s) {arm:11s} "
+                      f"{'ok ' if row['success'] else 'FAIL'} T_f {row['T_f']:5.2f} s"
+                      f"  ATE {row.get('ate', float('nan')):.3f} m", flush=True)
+    result = {arm: _summary(r) for arm, r in rows.items()}
+    result["source"] = rec.info
+    result["emulated_da3"] = args.da3
+    result["model_latency_s"] = args.model_latency
+    if args.out:
+        Path(args.out).write_text(json.dumps({**result, "per_window": rows}, indent=2, default=str))
+    if args.json:
+        print(json.dumps(result, default=str))
+        return 0
+    from rich.console import Console
+    from rich.table import Table
+
+    tab = Table(title=f"start-up over {len(starts)} windows ({rec.info.get('source')})")
+    for col in ("initializer", "success", "T_f (s)", "T_q (s)", "grav (deg)", "vel (m/s)", "ATE (m)"):
+        tab.add_column(col)
+    fmt = lambda v: "-" if v is None else f"{v:.2f}" if abs(v) >= 0.1 else f"{v:.3f}"  # noqa: E731
+    for arm in arms:
+        s = result[arm]
+        tab.add_row(arm, f"{s['successes']}/{s['windows']}", fmt(s["T_f_median"]), fmt(s["T_q_median"]),
+                    fmt(s["gravity_err_deg_median"]), fmt(s["velocity_err_median"]), fmt(s["ate_median"]))
+    Console().print(tab)
+    return 0
