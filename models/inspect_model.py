@@ -1,4 +1,4 @@
-"""`davio info --model PATH`: load an ONNX file, recognise its contract (DA3 or XFeat) and validate it."""
+"""`davio info --model PATH`: recognise an ONNX file's contract (DA3, XFeat, LighterGlue) and validate it."""
 
 from __future__ import annotations
 
@@ -53,7 +53,7 @@ def inspect_model(path: str | Path, load_session: bool = True) -> dict:
     import onnx
 
     from models.da3.contract import check_da3_signature
-    from models.matcher.contract import check_xfeat_signature
+    from models.matcher.contract import check_lighterglue_signature, check_xfeat_signature
 
     path = Path(path)
     if not path.is_file():
@@ -79,10 +79,14 @@ def inspect_model(path: str | Path, load_session: bool = True) -> dict:
     elif "image" in names:
         check_xfeat_signature(inputs, outputs, where)
         info.update(contract="davio.xfeat_backbone", resolution="dynamic (H, W multiples of 8)")
+    elif "kpts0" in names:
+        check_lighterglue_signature(inputs, outputs, where)
+        info.update(contract="davio.lighterglue", resolution="dynamic (M, N keypoints)")
     else:
         raise ModelError(
             f"{where}: matches neither the DA3 contract (inputs images, intrinsics, extrinsics, "
-            f"use_pose) nor the XFeat one (input image); inputs are {sorted(names)}"
+            f"use_pose), the XFeat one (input image) nor the LighterGlue one (kpts0, kpts1, desc0, desc1); "
+            f"inputs are {sorted(names)}"
         )
     info["inputs"] = [{"name": n, "type": t, "shape": s} for n, t, s in inputs]
     info["outputs"] = [{"name": n, "type": t, "shape": s} for n, t, s in outputs]

@@ -31,3 +31,24 @@ def check_xfeat_signature(inputs: Signature, outputs: Signature, where: str) -> 
     """
     match_signature(inputs, INPUTS, "inputs", where, contract="XFeat")
     match_signature(outputs, OUTPUTS, "outputs", where, contract="XFeat")
+
+
+LIGHTERGLUE_CONTRACT = "davio.lighterglue"
+LIGHTERGLUE_VERSION = 1
+LIGHTERGLUE_INPUTS = [
+    ("kpts0", F32, [1, "M", 2]),
+    ("kpts1", F32, [1, "N", 2]),
+    ("desc0", F32, [1, "M", DESC_DIM]),
+    ("desc1", F32, [1, "N", DESC_DIM]),
+]
+LIGHTERGLUE_OUTPUTS = [("log_assignment", F32, [1, "M1", "N1"])]
+
+
+def check_lighterglue_signature(inputs: Signature, outputs: Signature, where: str) -> None:
+    """Validate a graph's I/O against the LighterGlue contract (kpts/desc pairs -> log assignment).
+
+    Raises:
+        ModelError: wrong names, types, ranks or descriptor size.
+    """
+    match_signature(inputs, LIGHTERGLUE_INPUTS, "inputs", where, contract="LighterGlue")
+    match_signature(outputs, LIGHTERGLUE_OUTPUTS, "outputs", where, contract="LighterGlue")

@@ -15,11 +15,13 @@ class Features:
         kpts: (N, 2) float32 pixel positions (u, v), (0, 0) = centre of the top-left pixel.
         scores: (N,) float32 detection scores (higher is better).
         desc: (N, D) descriptors: float32 L2-normalised (XFeat) or uint8 packed bits (ORB).
+        image_size: (width, height) of the image they come from, pixels.
     """
 
     kpts: np.ndarray
     scores: np.ndarray
     desc: np.ndarray
+    image_size: tuple[int, int] = (0, 0)
 
     def __len__(self) -> int:
         return int(self.kpts.shape[0])

@@ -9,9 +9,11 @@ from pathlib import Path
 import numpy as np
 
 from models.matcher.features import Features, Matches, mutual_nearest_neighbours
+from models.matcher.lighterglue import LighterGlue
 from models.matcher.orb import OrbDetector, match_hamming
 from models.matcher.refine import refine_matches_lk
 from models.matcher.xfeat import DEFAULT_XFEAT_PATH, XFeatDetector
+from runtime.errors import ModelError
 
 log = logging.getLogger(__name__)
 
@@ -20,7 +22,8 @@ class Matcher:
     """Sparse feature matcher.
 
     With `model_path` (an XFeat backbone graph) it uses XFeat + mutual nearest neighbours on
-    cosine similarity; without it, OpenCV ORB + Hamming cross-check (warned once).
+    cosine similarity, or LighterGlue when `lighterglue_path` is given; without it, OpenCV ORB +
+    Hamming cross-check (warned once).
 
     Args:
         model_path: XFeat backbone .onnx, or None for ORB.
@@ -29,6 +32,7 @@ class Matcher:
         ratio: XFeat only: Lowe ratio test on descriptor distances (1 = off). XFeat's sparse keypoints
             jitter by 1-3 px between views; 0.8 keeps the precision within 3 px above 0.8 on
             simulated and homography pairs (BENCHMARKS.md) at about 80 % of the matches.
+        lighterglue_path: optional LighterGlue graph (`davio export-xfeat --lighterglue PATH`).
         providers, threads: ONNX Runtime settings for XFeat.
     """
 
@@ -42,6 +46,7 @@ class Matcher:
         ratio: float = 0.8,
         providers: Sequence[str] | None = None,
         threads: int | None = None,
+        lighterglue_path: str | Path | None = None,
     ) -> None:
         if not 0.0 < ratio <= 1.0:
             raise ValueError(f"ratio must be in (0, 1], got {ratio}")
@@ -55,6 +60,12 @@ class Matcher:
         else:
             self.backend = "xfeat"
             self.detector = XFeatDetector(model_path, top_k=top_k, providers=providers, threads=threads)
+        self.glue = None
+        if lighterglue_path is not None:
+            if self.backend != "xfeat":
+                raise ModelError("LighterGlue matches XFeat features: give the XFeat model path too")
+            self.glue = LighterGlue(lighterglue_path, providers=providers, threads=threads)
+            self.backend = "xfeat+lighterglue"
 
     @classmethod
     def default(cls, **kwargs) -> Matcher:
@@ -69,6 +80,8 @@ class Matcher:
         """Match two precomputed feature sets."""
         if self.backend == "orb":
             ia, ib, s = match_hamming(fa.desc, fb.desc)
+        elif self.glue is not None:
+            ia, ib, s = self.glue.match(fa, fb, fa.image_size, fb.image_size)
         else:
             ia, ib, s = mutual_nearest_neighbours(fa.desc, fb.desc, self.min_cossim, self.ratio)
         return Matches(fa.kpts, fb.kpts, ia, ib, s)

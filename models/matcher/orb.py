@@ -26,13 +26,13 @@ class OrbDetector:
         if img.ndim != 2 or img.dtype != np.uint8:
             raise DataError(f"ORB needs a grey uint8 image, got {img.dtype} {img.shape}")
         kps, desc = self.orb.detectAndCompute(img, None)
+        size = (int(img.shape[1]), int(img.shape[0]))
         if desc is None or not kps:
-            return Features(
-                np.zeros((0, 2), np.float32), np.zeros(0, np.float32), np.zeros((0, 32), np.uint8)
-            )
+            empty = np.zeros((0, 2), np.float32), np.zeros(0, np.float32), np.zeros((0, 32), np.uint8)
+            return Features(*empty, size)
         kpts = np.array([k.pt for k in kps], np.float32)
         scores = np.array([k.response for k in kps], np.float32)
-        return Features(kpts, scores, desc)
+        return Features(kpts, scores, desc, size)
 
 
 def match_hamming(desc_a: np.ndarray, desc_b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -129,6 +129,7 @@ class XFeatDetector:
     def detect(self, image: np.ndarray) -> Features:
         """Keypoints (u, v) in image pixels, scores and L2-normalised 64-D descriptors (top-k)."""
         feats, logits, rel, sx, sy = self.backbone(image)
+        size = (int(np.asarray(image).shape[1]), int(np.asarray(image).shape[0]))
         heat = logits_to_heatmap(logits)
         H, W = heat.shape
         local_max = cv2.dilate(heat, np.ones((self.nms_size, self.nms_size), np.uint8))
@@ -142,4 +143,4 @@ class XFeatDetector:
         desc = sample_bicubic(feats, u, v)
         desc /= np.maximum(np.linalg.norm(desc, axis=1, keepdims=True), 1e-12)
         kpts = np.stack([xs * sx, ys * sy], axis=1).astype(np.float32)
-        return Features(kpts, scores.astype(np.float32), desc)
+        return Features(kpts, scores.astype(np.float32), desc, size)

@@ -187,6 +187,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threads", type=int, default=2, help="ONNX Runtime intra-op threads")
     p.add_argument("--repeats", type=int, default=5, help="timed repeats per pair for latency")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--lighterglue",
+        metavar="PATH",
+        default=None,
+        help="also time XFeat + LighterGlue with this graph (davio export-xfeat --lighterglue PATH)",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -196,8 +202,11 @@ def run(args: argparse.Namespace) -> int:
     cv2.setNumThreads(args.threads)
     pairs = load_pairs(args.pairs, args.source, args.seed, args.gap)
     results = {}
-    for name, path in (("xfeat", DEFAULT_XFEAT_PATH), ("orb", None)):
-        m = Matcher(path, top_k=args.top_k, threads=args.threads)
+    backends = [("xfeat", DEFAULT_XFEAT_PATH, None), ("orb", None, None)]
+    if args.lighterglue:
+        backends.insert(1, ("xfeat+lg", DEFAULT_XFEAT_PATH, args.lighterglue))
+    for name, path, glue in backends:
+        m = Matcher(path, top_k=args.top_k, threads=args.threads, lighterglue_path=glue)
         det_ms, match_ms, refine_ms = [], [], []
         raw, refined = np.zeros(2), np.zeros(2)
         per_pair = []

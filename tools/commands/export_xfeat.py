@@ -21,16 +21,32 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--tolerance", type=float, default=1e-3, help="largest accepted absolute error in the check"
     )
-    p.add_argument("--json", action="store_true", help="print the model card as JSON")
+    p.add_argument(
+        "--lighterglue",
+        metavar="PATH",
+        default=None,
+        help="also export LighterGlue (xfeat-lighterglue.pt; needs kornia) to PATH (about 6 MB)",
+    )
+    p.add_argument("--json", action="store_true", help="print the model card(s) as JSON")
 
 
 def run(args: argparse.Namespace) -> int:
     from tools.export.export_xfeat import export_xfeat
 
     card = export_xfeat(args.out, threads=args.threads, tolerance=args.tolerance)
+    glue = None
+    if args.lighterglue:
+        from tools.export.export_lighterglue import export_lighterglue
+
+        glue = export_lighterglue(args.lighterglue, threads=args.threads)
     if args.json:
-        print(json.dumps(card, indent=2))
+        print(json.dumps({"xfeat": card, "lighterglue": glue} if glue else card, indent=2))
         return 0
+    if glue:
+        print(
+            f"wrote {args.lighterglue} (LighterGlue, opset {glue['opset']}, licence {glue['licence']}); "
+            f"ONNX Runtime vs torch: max relative error {glue['check']['worst']:.2e}"
+        )
     print(f"wrote {args.out} (opset {card['opset']}, licence {card['licence']}, upstream {card['upstream']})")
     print(
         f"ONNX Runtime vs torch: max abs error {card['check']['worst']:.2e} "
