@@ -6,7 +6,7 @@ from dataclasses import dataclass, fields, replace
 
 from runtime.errors import ConfigError
 
-SLAM_REPRESENTATIONS = ("global_3d",)
+SLAM_REPRESENTATIONS = ("anchored_inverse_depth", "global_3d")
 
 
 @dataclass(frozen=True)
@@ -26,7 +26,7 @@ class MsckfConfig:
     max_slam_in_update: int = 25  #: SLAM features per batched update
     max_msckf_in_update: int = 40  #: MSCKF features per update (longest tracks first)
     dt_slam_delay: float = 1.0  #: s after initialisation before SLAM features are added
-    slam_representation: str = "global_3d"  #: landmark parameterisation in the state
+    slam_representation: str = "anchored_inverse_depth"  #: SLAM landmark parameters: or "global_3d"
     #: keep lost/marginal tracks not chosen for this frame's MSCKF update for a later one (OpenVINS does;
     #: on openvins_sim/udel_gore dropping them measured 0.175 deg / 0.128 m RMSE against 0.52 deg / 0.103 m)
     keep_unselected_tracks: bool = False

@@ -24,7 +24,7 @@ from runtime.msckf.feature_db import FeatureDatabase
 from runtime.msckf.health import divergence_reason
 from runtime.msckf.propagator import propagate_interval, select_samples
 from runtime.msckf.state import State
-from runtime.msckf.state_helper import augment_clone, marginalize
+from runtime.msckf.state_helper import augment_clone, change_anchor, marginalize
 from runtime.msckf.update_msckf import msckf_update
 from runtime.msckf.update_slam import SlamUpdateStats, delayed_init, slam_update
 from runtime.msckf.update_zupt import zupt_update
@@ -77,6 +77,7 @@ class _Counters:
     slam_initialized: int = 0
     slam_init_failed: int = 0
     slam_marginalized: int = 0
+    slam_anchor_changes: int = 0
     zupt_applied: int = 0
     initializations: int = 0
     divergence_resets: int = 0
@@ -478,6 +479,11 @@ class MsckfEstimator:
         c.slam_init_failed += sst.init_failed
         times = st.clone_times()
         old_clones = times[: max(len(times) - cfg.max_clones, 0)]
+        lost_set = set(lost_lms)
+        for fid, lm in st.slam.items():
+            if lm.anchor_t is not None and lm.anchor_t in old_clones and fid not in lost_set:
+                change_anchor(st, lm, times[-1])
+                c.slam_anchor_changes += 1
         marginalize(st, old_clones, lost_lms)
         for fid in st.slam:
             self.db.keep_only_last(fid)

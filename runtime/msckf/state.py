@@ -28,13 +28,15 @@ class Clone:
 
 @dataclass
 class Landmark:
-    """A SLAM landmark, global 3D position in O."""
+    """A SLAM landmark: global 3D position in O (anchor_t None) or anchored inverse depth
+    [x/z, y/z, 1/z] in the camera of the clone at camera time anchor_t."""
 
     fid: int
     p: np.ndarray
     p_fej: np.ndarray
     idx: int
     fail_count: int = 0
+    anchor_t: int | None = None
 
 
 class State:

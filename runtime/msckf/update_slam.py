@@ -1,5 +1,6 @@
 """SLAM landmarks: batched updates with the newest clone, delayed initialisation from long tracks
-(OpenVINS UpdaterSLAM structure; global 3D landmarks)."""
+(OpenVINS UpdaterSLAM structure; global 3D or anchored inverse-depth landmarks, anchored in the newest
+clone at initialisation)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from numba import njit
 from runtime.msckf.camera_kernels import CameraParams
 from runtime.msckf.config import MsckfConfig
 from runtime.msckf.feature_db import Track
+from runtime.msckf.landmark_repr import anchored_to_global, global_to_anchored
 from runtime.msckf.measurement import feature_jacobians
 from runtime.msckf.state import State
 from runtime.msckf.state_helper import chi2_95, compress, ekf_update, initialize_landmark
@@ -28,40 +30,70 @@ class SlamUpdateStats:
 
 
 @njit(cache=True, nogil=True)
-def slam_rows(P: np.ndarray, cidx: int, eidx: int, lidx: np.ndarray, Rc: np.ndarray, pc: np.ndarray,
-              Rf: np.ndarray, pf: np.ndarray, uv: np.ndarray, lp: np.ndarray, lfej: np.ndarray,
-              R_IC: np.ndarray, p_IC: np.ndarray, code: int, prm: np.ndarray, sigma: float) -> tuple:
+def slam_rows(P: np.ndarray, cidx: int, eidx: int, lidx: np.ndarray, aidx: np.ndarray, Rc: np.ndarray,
+              pc: np.ndarray, Rf: np.ndarray, pf: np.ndarray, uv: np.ndarray, lp: np.ndarray,
+              lfej: np.ndarray,
+              RA: np.ndarray, pA: np.ndarray, RAf: np.ndarray, pAf: np.ndarray, R_IC: np.ndarray,
+              p_IC: np.ndarray, code: int, prm: np.ndarray, sigma: float) -> tuple:
     """Residuals, Jacobians and Mahalanobis distances of k landmarks seen by one clone.
 
-    P: full covariance; cidx/eidx: clone and extrinsics columns (eidx < 0: none); lidx (k,) landmark columns.
-    Returns ok (k,), d2 (k,), r (k,2), Hc (k,2,6), He (k,2,6), Hf (k,2,3).
+    P: full covariance; cidx/eidx: clone and extrinsics columns (eidx < 0: none); lidx (k,) landmark columns;
+    aidx (k,) anchor-clone columns of anchored inverse-depth landmarks (-1: global 3D landmark), with the
+    anchors' current (RA, pA) and first-estimate (RAf, pAf) poses.
+    Returns ok (k,), d2 (k,), r (k,2), Hc (k,2,6), Ha (k,2,6) anchor, He (k,2,6), Hl (k,2,3).
     """
     k = lidx.shape[0]
     ok = np.zeros(k, dtype=np.bool_)
     d2 = np.full(k, np.inf)
     r = np.zeros((k, 2))
     Hc = np.zeros((k, 2, 6))
+    Ha = np.zeros((k, 2, 6))
     He = np.zeros((k, 2, 6))
-    Hf = np.zeros((k, 2, 3))
+    Hl = np.zeros((k, 2, 3))
     ne = 6 if eidx >= 0 else 0
-    nc = 9 + ne
-    cols = np.empty(nc, dtype=np.int64)
-    for j in range(6):
-        cols[j] = cidx + j
-    for j in range(ne):
-        cols[6 + j] = eidx + j
     for i in range(k):
-        good, rr, hc, he, hf = feature_jacobians(Rc, pc, Rf, pf, uv[i:i + 1], lp[i], lfej[i], R_IC, p_IC,
-                                                 code, prm)
+        anchored = aidx[i] >= 0
+        if anchored:
+            p_O, _, _, _ = anchored_to_global(lp[i], RA[i], pA[i], R_IC, p_IC)
+            p_Of, J_lam, J_anc, J_ext = anchored_to_global(lfej[i], RAf[i], pAf[i], R_IC, p_IC)
+        else:
+            p_O = lp[i]
+            p_Of = lfej[i]
+        good, rr, hc, he, hf = feature_jacobians(Rc, pc, Rf, pf, uv[i:i + 1], p_O, p_Of, R_IC, p_IC, code,
+                                                 prm)
         if not good:
             continue
-        for j in range(3):
-            cols[6 + ne + j] = lidx[i] + j
+        ha = np.zeros((2, 6))
+        sep = False
+        if anchored:
+            hl = hf @ J_lam
+            ha = hf @ J_anc
+            he = he + hf @ J_ext
+            if aidx[i] == cidx:
+                hc = hc + ha
+                ha = np.zeros((2, 6))
+            else:
+                sep = True
+        else:
+            hl = hf
+        na = 6 if sep else 0
+        nc = 6 + ne + na + 3
+        cols = np.empty(nc, dtype=np.int64)
         H = np.zeros((2, nc))
+        for j in range(6):
+            cols[j] = cidx + j
         H[:, 0:6] = hc
+        for j in range(ne):
+            cols[6 + j] = eidx + j
         if ne > 0:
             H[:, 6:12] = he
-        H[:, 6 + ne:] = hf
+        for j in range(na):
+            cols[6 + ne + j] = aidx[i] + j
+        if na > 0:
+            H[:, 6 + ne:12 + ne] = ha
+        for j in range(3):
+            cols[6 + ne + na + j] = lidx[i] + j
+        H[:, 6 + ne + na:] = hl
         Pl = np.empty((nc, nc))
         for a in range(nc):
             for b in range(nc):
@@ -77,9 +109,10 @@ def slam_rows(P: np.ndarray, cidx: int, eidx: int, lidx: np.ndarray, Rc: np.ndar
         ok[i] = True
         r[i] = rr
         Hc[i] = hc
+        Ha[i] = ha
         He[i] = he
-        Hf[i] = hf
-    return ok, d2, r, Hc, He, Hf
+        Hl[i] = hl
+    return ok, d2, r, Hc, Ha, He, Hl
 
 
 def slam_update(state: State, t_cam_ns: int, obs: list[tuple[int, np.ndarray]], cfg: MsckfConfig,
@@ -94,13 +127,21 @@ def slam_update(state: State, t_cam_ns: int, obs: list[tuple[int, np.ndarray]], 
     for b0 in range(0, len(obs), batch):
         chunk = obs[b0:b0 + batch]
         lms = [state.slam[fid] for fid, _ in chunk]
+        anchors = [state.clones[lm.anchor_t] if lm.anchor_t is not None else None for lm in lms]
         lidx = np.array([lm.idx for lm in lms], dtype=np.int64)
+        aidx = np.array([a.idx if a is not None else -1 for a in anchors], dtype=np.int64)
+        eye = np.eye(3)
+        RA = np.array([a.R if a is not None else eye for a in anchors])
+        pA = np.array([a.p if a is not None else np.zeros(3) for a in anchors])
+        RAf = np.array([a.R_fej if a is not None else eye for a in anchors]) if fej else RA
+        pAf = np.array([a.p_fej if a is not None else np.zeros(3) for a in anchors]) if fej else pA
         uv = np.array([u for _, u in chunk])
         lp = np.array([lm.p for lm in lms])
         lf = np.array([lm.p_fej for lm in lms]) if fej else lp
-        ok, d2, r, Hc, He, Hf = slam_rows(state.P, c.idx, state.idx_ext, lidx, c.R[None], c.p[None],
-                                          c.R_fej[None], c.p_fej[None], uv, lp, lf, state.R_IC, state.p_IC,
-                                          cam.code, cam.params, cfg.sigma_pix)
+        ok, d2, r, Hc, Ha, He, Hl = slam_rows(
+            state.P, c.idx, state.idx_ext, lidx, aidx, c.R[None], c.p[None],
+            c.R_fej[None] if fej else c.R[None], c.p_fej[None] if fej else c.p[None], uv, lp, lf,
+            RA, pA, RAf, pAf, state.R_IC, state.p_IC, cam.code, cam.params, cfg.sigma_pix)
         good = ok & (d2 < gate)
         for lm, g in zip(lms, good, strict=True):
             if not g:
@@ -110,19 +151,28 @@ def slam_update(state: State, t_cam_ns: int, obs: list[tuple[int, np.ndarray]], 
         if sel.size == 0:
             continue
         stats.updated += int(sel.size)
-        ne = 6 if state.idx_ext >= 0 else 0
+        # column blocks: measuring clone, extrinsics, then anchors and landmarks as they appear
+        offset: dict[int, int] = {c.idx: 0}
         cols = list(range(c.idx, c.idx + 6))
-        if ne:
+        if state.idx_ext >= 0:
+            offset[state.idx_ext] = len(cols)
             cols += list(range(state.idx_ext, state.idx_ext + 6))
-        base = len(cols)
-        for i in sel:
-            cols += list(range(lidx[i], lidx[i] + 3))
-        H = np.zeros((2 * sel.size, len(cols)))
+
+        H = np.zeros((2 * sel.size, len(cols) + 9 * sel.size))
         for k, i in enumerate(sel):
-            H[2 * k:2 * k + 2, 0:6] = Hc[i]
-            if ne:
-                H[2 * k:2 * k + 2, 6:12] = He[i]
-            H[2 * k:2 * k + 2, base + 3 * k:base + 3 * k + 3] = Hf[i]
+            rows = slice(2 * k, 2 * k + 2)
+            H[rows, 0:6] = Hc[i]
+            if state.idx_ext >= 0:
+                H[rows, 6:12] = He[i]
+            for start, size, Hb in ((int(aidx[i]), 6, Ha[i]), (int(lidx[i]), 3, Hl[i])):
+                if size == 6 and (start < 0 or start == c.idx):
+                    continue
+                if start not in offset:
+                    offset[start] = len(cols)
+                    cols.extend(range(start, start + size))
+                o = offset[start]
+                H[rows, o:o + size] += Hb
+        H = H[:, :len(cols)]
         Hq, rq = compress(H, r[sel].reshape(-1))
         ekf_update(state, np.asarray(cols, dtype=np.int64), Hq, rq, cfg.sigma_pix)
 
@@ -138,6 +188,8 @@ def delayed_init(state: State, tracks: list[Track], cfg: MsckfConfig, cam: Camer
         return added
     cols, offset = window_columns(state)
     deferred: list = []
+    anchored = cfg.slam_representation == "anchored_inverse_depth"
+    anchor = state.clones[state.clone_times()[-1]] if anchored else None
     for tr in tracks:
         cl, Rc, pc, Rf, pf, uv, xn = track_arrays(state, tr)
         if len(cl) < 2:
@@ -158,8 +210,30 @@ def delayed_init(state: State, tracks: list[Track], cfg: MsckfConfig, cam: Camer
         for i, c in enumerate(cl):
             o = offset[c.t_cam_ns]
             Hx[2 * i:2 * i + 2, o:o + 6] = Hc[2 * i:2 * i + 2]
-        if initialize_landmark(state, tr.fid, p_O, cols, Hx, Hf, r, cfg.sigma_pix, cfg.chi2_multiplier,
+        value, H_lm = p_O, Hf
+        if anchor is not None:
+            # lam in the newest clone's camera; Jacobians at the anchor's first estimate
+            value, _, _, _ = global_to_anchored(p_O, anchor.R, anchor.p, state.R_IC, state.p_IC)
+            p_Of, J_lam, J_anc, J_ext = anchored_to_global(value, anchor.R_fej, anchor.p_fej, state.R_IC,
+                                                           state.p_IC)
+            ok, r, Hc, He, Hf = feature_jacobians(Rc, pc, Rf, pf, uv, p_O, p_Of, state.R_IC, state.p_IC,
+                                                  cam.code, cam.params)
+            if not ok:
+                stats.init_failed += 1
+                continue
+            Hx[:] = 0.0
+            if state.idx_ext >= 0:
+                Hx[:, 0:6] = He + Hf @ J_ext
+            for i, c in enumerate(cl):
+                o = offset[c.t_cam_ns]
+                Hx[2 * i:2 * i + 2, o:o + 6] = Hc[2 * i:2 * i + 2]
+            o = offset[anchor.t_cam_ns]
+            Hx[:, o:o + 6] += Hf @ J_anc
+            H_lm = Hf @ J_lam
+        if initialize_landmark(state, tr.fid, value, cols, Hx, H_lm, r, cfg.sigma_pix, cfg.chi2_multiplier,
                                deferred):
+            if anchor is not None:
+                state.slam[tr.fid].anchor_t = anchor.t_cam_ns
             stats.initialized += 1
             added.append(tr.fid)
         else:

@@ -107,7 +107,14 @@ def test_features_correct_a_velocity_error() -> None:
     assert ev @ np.linalg.solve(s1[-1].covariance[6:9, 6:9], ev) < 16.3  # consistent: chi2(3) 99.9%
     rep = with_f.report()
     assert rep["msckf_features_used"] > 0 and rep["slam_initialized"] > 0
+    assert rep["slam_anchor_changes"] > 0            # default: anchored inverse depth, long-lived landmarks
     assert rep["divergence_resets"] == 0
+    # the same with global 3D landmarks
+    glob = MsckfEstimator(_rig(), cfg.updated(slam_representation="global_3d"))
+    _init(glob, dv)
+    s3 = _run(glob, imu, frames, True)
+    e3 = np.linalg.norm(s3[-1].p_OI - _truth(s3[-1].t_cam_ns * 1e-9)[1])
+    assert e3 < 0.25 * e2[-1] and glob.report()["slam_anchor_changes"] == 0
 
 
 def test_bad_imu_samples_are_dropped_and_counted() -> None:

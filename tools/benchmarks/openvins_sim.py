@@ -176,6 +176,14 @@ def load_sim_folder(folder: Path, max_seconds: float | None = None) -> SimRun:
         "zupt_max_disparity": "zupt_max_disparity",
     }
     kw = {ours: est[theirs] for theirs, ours in mapping.items() if theirs in est}
+    reps = {"GLOBAL_3D": "global_3d", "ANCHORED_MSCKF_INVERSE_DEPTH": "anchored_inverse_depth"}
+    if "feat_rep_slam" in est:
+        if str(est["feat_rep_slam"]) not in reps:
+            raise DataError(
+                f"feat_rep_slam {est['feat_rep_slam']!r} is not supported (use one of {list(reps)})",
+                folder / "openvins_estimator_config.yaml",
+            )
+        kw["slam_representation"] = reps[str(est["feat_rep_slam"])]
     cfg = cfg.updated(**kw)
     R0 = jpl_to_R_OI(x0[0:4])
     init_state = (t0, R0, x0[4:7], x0[7:10], x0[10:13], x0[13:16])
@@ -300,6 +308,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--max-slam", type=int, default=None, help="override max_slam (0: MSCKF features only)")
     p.add_argument("--max-msckf", type=int, default=None, help="override max_msckf_in_update")
+    p.add_argument(
+        "--slam-rep",
+        choices=("global_3d", "anchored_inverse_depth"),
+        default=None,
+        help="override the SLAM landmark representation (default: the folder's feat_rep_slam)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -315,6 +329,8 @@ def run(args: argparse.Namespace) -> int:
         cfg = cfg.updated(max_slam=args.max_slam)
     if args.max_msckf is not None:
         cfg = cfg.updated(max_msckf_in_update=args.max_msckf)
+    if args.slam_rep is not None:
+        cfg = cfg.updated(slam_representation=args.slam_rep)
     t_start = time.perf_counter()
     snaps, report = run_filter(sim, cfg)
     wall = time.perf_counter() - t_start
@@ -329,6 +345,7 @@ def run(args: argparse.Namespace) -> int:
         for k in (
             "max_clones",
             "max_slam",
+            "slam_representation",
             "max_slam_in_update",
             "max_msckf_in_update",
             "dt_slam_delay",

@@ -1,0 +1,92 @@
+"""Anchored inverse-depth landmarks: Jacobians vs finite differences, anchor change invariance."""
+from __future__ import annotations
+
+import numpy as np
+
+from runtime.msckf.landmark_repr import anchored_to_global, global_to_anchored
+from runtime.msckf.so3_kernels import exp3
+from runtime.msckf.state import Landmark, State
+from runtime.msckf.state_helper import augment_clone, change_anchor
+
+R_IC = exp3(np.array([1.2, -1.2, 1.2]) / np.sqrt(3))
+p_IC = np.array([-0.02, -0.06, 0.01])
+
+
+def _fd(f, x0: np.ndarray, plus, eps: float = 1e-6) -> np.ndarray:
+    """Central differences of f over a 3-dof perturbation plus(x0, d)."""
+    cols = []
+    for j in range(3):
+        d = np.zeros(3)
+        d[j] = eps
+        cols.append((f(plus(x0, d)) - f(plus(x0, -d))) / (2 * eps))
+    return np.array(cols).T
+
+
+def test_anchored_jacobians_match_finite_differences() -> None:
+    R_A = exp3(np.array([0.3, -0.1, 0.7]))
+    p_A = np.array([1.0, -2.0, 0.5])
+    lam = np.array([0.1, -0.2, 0.25])
+    add = lambda x, d: x if d is None else x + d  # noqa: E731
+    rot = lambda R, d: R if d is None else R @ exp3(d)  # noqa: E731
+    p_O, J_lam, J_anc, J_ext = anchored_to_global(lam, R_A, p_A, R_IC, p_IC)
+    num = _fd(lambda v: anchored_to_global(v, R_A, p_A, R_IC, p_IC)[0], lam, add)
+    assert np.allclose(num, J_lam, atol=1e-6)
+    assert np.allclose(_fd(lambda R: anchored_to_global(lam, R, p_A, R_IC, p_IC)[0], R_A, rot), J_anc[:, :3],
+                       atol=1e-6)
+    assert np.allclose(J_anc[:, 3:], np.eye(3))
+    assert np.allclose(_fd(lambda R: anchored_to_global(lam, R_A, p_A, R, p_IC)[0], R_IC, rot), J_ext[:, :3],
+                       atol=1e-6)
+    assert np.allclose(_fd(lambda p: anchored_to_global(lam, R_A, p_A, R_IC, p)[0], p_IC, add), J_ext[:, 3:],
+                       atol=1e-6)
+    lam2, Jp, Ja, Je = global_to_anchored(p_O, R_A, p_A, R_IC, p_IC)
+    assert np.allclose(lam2, lam)
+    assert np.allclose(Jp @ J_lam, np.eye(3), atol=1e-9)          # inverse maps
+    assert np.allclose(_fd(lambda R: global_to_anchored(p_O, R, p_A, R_IC, p_IC)[0], R_A, rot), Ja[:, :3],
+                       atol=1e-6)
+    assert np.allclose(_fd(lambda p: global_to_anchored(p_O, R_A, p, R_IC, p_IC)[0], p_A, add), Ja[:, 3:],
+                       atol=1e-6)
+    assert np.allclose(_fd(lambda R: global_to_anchored(p_O, R_A, p_A, R, p_IC)[0], R_IC, rot), Je[:, :3],
+                       atol=1e-6)
+    assert np.allclose(_fd(lambda p: global_to_anchored(p_O, R_A, p_A, R_IC, p)[0], p_IC, add), Je[:, 3:],
+                       atol=1e-6)
+
+
+def test_anchor_change_keeps_the_point_and_its_covariance() -> None:
+    rng = np.random.default_rng(4)
+    st = State(R_IC, p_IC, 0.0, False, True)
+    n0 = st.size
+    A = rng.standard_normal((n0, n0))
+    st.P = A @ A.T * 1e-3 + np.eye(n0) * 1e-3
+    st.R, st.p = exp3(np.array([0.1, 0.2, 0.3])), np.array([0.5, 0.0, 1.0])
+    old = augment_clone(st, 1, np.zeros(3))
+    st.R, st.p = exp3(np.array([0.2, 0.1, 0.6])), np.array([0.9, 0.3, 1.1])
+    st.P[:15, :15] += np.eye(15) * 1e-3
+    new = augment_clone(st, 2, np.zeros(3))
+    lam = np.array([0.05, -0.1, 0.3])
+    idx = st.add_variable(3, np.diag([1e-4, 1e-4, 1e-3]), 1e-5 * rng.standard_normal((3, st.size)))
+    lm = Landmark(7, lam.copy(), lam.copy(), idx, anchor_t=1)
+    st.slam[7] = lm
+    B = rng.standard_normal((st.size, st.size))
+    st.P = B @ B.T * 1e-3 + np.eye(st.size) * 1e-4          # a generic joint covariance
+    assert np.all(np.linalg.eigvalsh(st.P) > 0)
+
+    def point_jacobian(lmk: Landmark) -> tuple[np.ndarray, np.ndarray]:
+        a = st.clones[lmk.anchor_t]
+        p_O, J_lam, J_anc, J_ext = anchored_to_global(lmk.p, a.R, a.p, st.R_IC, st.p_IC)
+        G = np.zeros((3, st.size))
+        G[:, lmk.idx:lmk.idx + 3] = J_lam
+        G[:, a.idx:a.idx + 6] += J_anc
+        G[:, st.idx_ext:st.idx_ext + 6] += J_ext
+        return p_O, G
+
+    p0, G0 = point_jacobian(lm)
+    cov0 = G0 @ st.P @ G0.T
+    cross0 = G0 @ st.P[:, :15]
+    change_anchor(st, lm, 2)
+    assert lm.anchor_t == 2
+    p1, G1 = point_jacobian(lm)
+    assert np.allclose(p1, p0)
+    assert np.allclose(G1 @ st.P @ G1.T, cov0)                   # same point uncertainty
+    assert np.allclose(G1 @ st.P[:, :15], cross0)                # same correlation with the IMU
+    assert np.all(np.linalg.eigvalsh(st.P) > -1e-12)              # the linear map keeps it PSD
+    assert new.idx > old.idx
