@@ -409,7 +409,7 @@ class MsckfEstimator:
             return None
         if ids.shape[0] == 0:
             c.frames_without_features += 1
-        if cfg.try_zupt and zupt_update(self, t_cam, ids, uv):
+        if cfg.try_zupt and zupt_update(st, cfg, self.db, self._last_samples, ids, uv):
             c.zupt_applied += 1
             c.frames_processed += 1
             c.time_frame_s += time.perf_counter() - t0

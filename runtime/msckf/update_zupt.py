@@ -4,15 +4,16 @@ consistent with standstill (chi-square on w = bg, a = ba + R^T g_up) and the spe
 """
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
+from runtime.msckf.config import MsckfConfig
+from runtime.msckf.feature_db import FeatureDatabase
 from runtime.msckf.so3_kernels import skew3
+from runtime.msckf.state import State
 from runtime.msckf.state_helper import chi2_95, compress, ekf_update
 
 
-def mean_disparity(db: Any, ids: np.ndarray, uv: np.ndarray) -> float:
+def mean_disparity(db: FeatureDatabase, ids: np.ndarray, uv: np.ndarray) -> float:
     """Mean pixel distance between this frame's features and their newest stored observation."""
     d = []
     for k in range(ids.shape[0]):
@@ -22,17 +23,16 @@ def mean_disparity(db: Any, ids: np.ndarray, uv: np.ndarray) -> float:
     return float(np.mean(d)) if d else float("inf")
 
 
-def zupt_update(est: Any, t_cam: int, ids: np.ndarray, uv: np.ndarray) -> bool:
-    """Try a zero-velocity update on the estimator's last propagation interval; True when applied."""
-    st = est.state_
-    cfg = est.config
-    samples = getattr(est, "_last_samples", None)
+def zupt_update(st: State, cfg: MsckfConfig, db: FeatureDatabase, samples: tuple | None, ids: np.ndarray,
+                uv: np.ndarray) -> bool:
+    """Try a zero-velocity update with the IMU samples (t (n,) s, w (n,3), a (n,3)) of the last propagation
+    interval and this frame's features (ids, uv); True when applied."""
     if samples is None or not st.clones:
         return False
     t, ws, as_ = samples
     if t.shape[0] < 2 or float(np.linalg.norm(st.v)) > cfg.zupt_max_velocity:
         return False
-    if cfg.zupt_max_disparity > 0 and mean_disparity(est.db, ids, uv) > cfg.zupt_max_disparity:
+    if cfg.zupt_max_disparity > 0 and mean_disparity(db, ids, uv) > cfg.zupt_max_disparity:
         return False
     n = t.shape[0]
     dt = max(float(t[-1] - t[0]) / max(n - 1, 1), 1e-4)
