@@ -130,6 +130,8 @@ def cast(
     node_first: np.ndarray,
     node_count: np.ndarray,
     node_order: np.ndarray,
+    node_active: np.ndarray,
+    group_active: np.ndarray,
     face_material: np.ndarray,
     albedo: np.ndarray,
     strength: np.ndarray,
@@ -149,7 +151,8 @@ def cast(
 
     Boxes 1.. are grouped: group g holds boxes group_start[g] .. group_start[g+1]-1 inside the
     bounding box (group_min[g], group_max[g]), tested first to skip the whole group. Groups are
-    found through a BVH (drivers.sim.bvh.GroupBvh fields node_*), traversed near child first.
+    found through a BVH (drivers.sim.bvh.GroupBvh fields node_*), traversed near child first;
+    nodes and groups whose `*_active` flag is 0 (outside the view frustum) are skipped.
     """
     H, W = rays.shape[0], rays.shape[1]
     ox, oy, oz = p_WC[0], p_WC[1], p_WC[2]
@@ -186,6 +189,8 @@ def cast(
             while sp > 0:
                 sp -= 1
                 node = stack[sp]
+                if node_active[node] == 0:
+                    continue
                 tn, tf, ax = _slab(node_min[node], node_max[node], ox, oy, oz, i0, i1, i2)
                 if not (tn <= tf and tf > 0.0 and tn < best):
                     continue
@@ -202,6 +207,8 @@ def cast(
                     continue
                 for k in range(node_first[node], node_first[node] + node_count[node]):
                     g = node_order[k]
+                    if group_active[g] == 0:
+                        continue
                     b0 = group_start[g]
                     b1 = group_start[g + 1]
                     if b1 - b0 > 1:

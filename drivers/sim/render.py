@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.sim.bvh import build_bvh
+from drivers.sim.bvh import build_bvh, frustum_active
 from drivers.sim.expose import expose
 from drivers.sim.raycast import cast
 from drivers.sim.scene import Scene
@@ -104,6 +104,8 @@ class Caster:
         self.pixel_angle = float(pixel_angle_rad)
         self._gmin, self._gmax = scene.group_bounds()
         self._bvh = build_bvh(self._gmin, self._gmax)
+        self._xy_min = self.rays[..., :2].reshape(-1, 2).min(axis=0)
+        self._xy_max = self.rays[..., :2].reshape(-1, 2).max(axis=0)
 
     def cast(self, R_WC: np.ndarray, p_WC: np.ndarray, want_strength: bool = False) -> View:
         """Cast the view of a camera at pose (R_WC, p_WC)."""
@@ -113,10 +115,15 @@ class Caster:
         face = np.empty((H, W), np.int32)
         strength = np.empty((H, W), np.float32)
         s, a = self.scene, self.scene.atlas
+        R_WC = np.ascontiguousarray(R_WC, dtype=np.float64)
+        p_WC = np.ascontiguousarray(p_WC, dtype=np.float64)
+        node_active, group_active = frustum_active(
+            self._bvh, self._gmin, self._gmax, R_WC, p_WC, self._xy_min, self._xy_max
+        )
         cast(
             self.rays,
-            np.ascontiguousarray(R_WC, dtype=np.float64),
-            np.ascontiguousarray(p_WC, dtype=np.float64),
+            R_WC,
+            p_WC,
             s.box_min,
             s.box_max,
             s.group_start,
@@ -130,6 +137,8 @@ class Caster:
             self._bvh.first,
             self._bvh.count,
             self._bvh.order,
+            node_active,
+            group_active,
             s.face_material,
             a.albedo,
             a.strength,

@@ -136,3 +136,28 @@ def test_motion_blur_smooths_a_moving_frame(rec: SimRecording) -> None:
     soft, _ = blurred.render(40)
     energy = lambda img: float(np.mean(np.abs(cv2.Laplacian(img.astype(np.float32), cv2.CV_32F))))  # noqa: E731
     assert energy(soft.image) < 0.9 * energy(sharp.image)
+
+
+def test_frustum_culling_changes_nothing_in_the_image(rec: SimRecording, monkeypatch) -> None:
+    import drivers.sim.render as render_module
+    from drivers.sim.bvh import frustum_active
+
+    caster = rec.renderer.caster
+    poses = [_pose_WC(rec, k) for k in (3, 25, 50)]
+    culled = [caster.cast(T[:3, :3], T[:3, 3]) for T in poses]
+    flags = [
+        frustum_active(
+            caster._bvh, caster._gmin, caster._gmax, T[:3, :3], T[:3, 3], caster._xy_min, caster._xy_max
+        )[1]
+        for T in poses
+    ]
+    assert min(f.mean() for f in flags) < 1.0  # some groups are out of view and skipped
+
+    def everything_active(bvh, group_min, *_):
+        return np.ones(bvh.left.shape[0], np.uint8), np.ones(group_min.shape[0], np.uint8)
+
+    monkeypatch.setattr(render_module, "frustum_active", everything_active)
+    for T, a in zip(poses, culled, strict=True):
+        b = caster.cast(T[:3, :3], T[:3, 3])
+        np.testing.assert_array_equal(a.face, b.face)
+        np.testing.assert_array_equal(a.depth, b.depth)
