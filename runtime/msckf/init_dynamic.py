@@ -339,6 +339,8 @@ class DynamicInitializer:
                 f"only {np.mean(depth_C0 > 0):.0%} of the features lie in front of the camera",
             )
         usable[usable] = depth_C0 > 0
+        if usable.sum() < cfg.min_features:
+            return rej(t_newest, "degenerate", f"only {int(usable.sum())} features in front of the camera")
         new_index = np.cumsum(usable) - 1
         obs = obs[usable[obs[:, 1].astype(int)]].copy()
         obs[:, 1] = new_index[obs[:, 1].astype(int)]

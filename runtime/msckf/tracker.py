@@ -341,7 +341,10 @@ class KltTracker:
             pts = np.concatenate([pts, low]) if low.size else pts
         if pts.shape[0] == 0:
             return np.zeros((0, 2))
-        order = np.argsort(-pts[:, 2], kind="stable")
+        # drop corners next to existing tracks at once, keep the strongest few per wanted corner
+        free = ~occupied[(pts[:, 1] / cell).astype(int), (pts[:, 0] / cell).astype(int)]
+        pts = pts[free]
+        order = np.argsort(-pts[:, 2], kind="stable")[: max(64, 30 * n_wanted)]
         pts = pts[order]
         chosen: list[tuple[float, float]] = []
         # first pass honours the per-cell quota; the second fills what is still missing anywhere
@@ -370,7 +373,9 @@ class KltTracker:
     def _keypoint_array(kps: tuple) -> np.ndarray:
         if not kps:
             return np.zeros((0, 3))
-        return np.array([(k.pt[0], k.pt[1], k.response) for k in kps], dtype=np.float64)
+        uv = cv2.KeyPoint_convert(kps).astype(np.float64).reshape(-1, 2)
+        response = np.fromiter((k.response for k in kps), dtype=np.float64, count=len(kps))
+        return np.column_stack([uv, response])
 
     def _set_prev(self, ids: np.ndarray, uv: np.ndarray, xy: np.ndarray) -> None:
         self._prev_ids, self._prev_uv, self._prev_xy = ids, uv, xy

@@ -42,6 +42,7 @@ def test_dynamic_init_on_real_imu_window() -> None:
     folder = shared_path("euroc_imu_gt", "V1_02_medium")
     out = euroc_frontend.run_dynamic(folder, window_s=10.0, max_windows=2, attempt_every=10)
     assert out["windows"] == 2 and out["initialized"] >= 1, out["rows"]
+    assert out["tracks_per_frame_min"] >= 150  # tracking holds up on a moving camera
     for row in out["rows"]:
         if row["initialized"]:
             assert row["gravity_err_deg"] < 2.0
