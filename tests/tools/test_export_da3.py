@@ -77,7 +77,7 @@ def test_checkpoint_loading_strips_prefix_and_rejects_other_sizes(tmp_path):
 
 @pytest.mark.export
 @pytest.mark.slow
-def test_tiny_export_agrees_with_torch_and_runs_in_the_runtime(tmp_path, capsys):
+def test_tiny_export_agrees_with_torch_and_runs_in_the_runtime(tmp_path, capsys, monkeypatch):
     _need_export_deps()
     from calib import Pinhole
     from drivers.events import Frame
@@ -86,8 +86,9 @@ def test_tiny_export_agrees_with_torch_and_runs_in_the_runtime(tmp_path, capsys)
     from tools.cli import main
 
     out = tmp_path / "da3_tiny_28x42.onnx"
+    monkeypatch.chdir(tmp_path)  # a relative --out is relative to the caller, not to the export child
     rc = main(
-        ["export-da3", "--random-init", "--size", "tiny", "--res", "28x42", "--out", str(out), "--json"]
+        ["export-da3", "--random-init", "--size", "tiny", "--res", "28x42", "--out", out.name, "--json"]
     )
     assert rc == 0
     card = json.loads(capsys.readouterr().out)

@@ -20,7 +20,7 @@ import os
 import subprocess
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 from models.da3.contract import CONTRACT, CONTRACT_VERSION, MAX_VIEWS, MIN_VIEWS, PATCH
@@ -332,20 +332,25 @@ def export_da3(req: ExportRequest) -> dict:
 def export_in_subprocess(req: ExportRequest, timeout_s: float | None = None) -> dict:
     """Run `export_da3` in a fresh Python process (DA3's caches keep FakeTensors after an export).
 
-    Progress goes to this process's stderr; returns the model card.
+    The child's stdout carries only its JSON result; its stderr is captured and its last line is
+    quoted when it fails. Relative paths are resolved against this process's working directory.
+    Returns the model card.
 
     Raises:
         ModelError: with the child's error message when the export or its check fails.
     """
     req.validate()
+    req = replace(
+        req,
+        out=str(Path(req.out).resolve()),
+        checkpoint=None if req.checkpoint is None else str(Path(req.checkpoint).resolve()),
+    )
     repo = Path(__file__).resolve().parents[2]
     env = dict(os.environ)
     env["PYTHONPATH"] = str(repo) + os.pathsep + env.get("PYTHONPATH", "")
     env.setdefault("DA3_LOG_LEVEL", "WARN")  # upstream's logger prints INFO lines on stdout
     cmd = [sys.executable, "-m", "tools.export.export_da3", json.dumps(asdict(req))]
-    proc = subprocess.run(
-        cmd, cwd=repo, env=env, capture_output=True, text=True, timeout=timeout_s
-    )
+    proc = subprocess.run(cmd, cwd=repo, env=env, capture_output=True, text=True, timeout=timeout_s)
     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("{")]
     result = json.loads(lines[-1]) if lines else {}
     if proc.returncode != 0 or "error" in result or not lines:
