@@ -12,10 +12,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--frames", type=int, default=60, help="frames rendered after warm-up")
     p.add_argument("--threads", type=int, default=None, help="numba threads (default: numba's default)")
     p.add_argument("--seed", type=int, default=0, help="scene and motion seed")
+    p.add_argument(
+        "--threading-layer",
+        default=None,
+        choices=["workqueue", "omp", "tbb"],
+        help="numba threading layer (default: numba's choice; omp spin-waits, costly on a shared machine)",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object")
 
 
-def measure(frames: int = 60, seed: int = 0, threads: int | None = None) -> dict:
+def measure(frames: int = 60, seed: int = 0, threads: int | None = None, layer: str | None = None) -> dict:
     """Time ray casting alone and full frames (cast + exposure + noise + 8-bit) of an EuRoC-like recording."""
     import os
     import time
@@ -25,6 +31,8 @@ def measure(frames: int = 60, seed: int = 0, threads: int | None = None) -> dict
 
     from drivers.sim.recording import SimConfig, SimRecording
 
+    if layer is not None:  # must precede the first parallel kernel of the process
+        numba.config.THREADING_LAYER = layer
     if threads is not None:
         numba.set_num_threads(threads)
     rec = SimRecording.from_preset(SimConfig(seconds=max(4.0, frames / 20.0 + 1.0), seed=seed))
@@ -49,6 +57,7 @@ def measure(frames: int = 60, seed: int = 0, threads: int | None = None) -> dict
         "height": cam.height,
         "frames": n,
         "numba_threads": numba.get_num_threads(),
+        "threading_layer": numba.threading_layer(),
         "cpu_count": os.cpu_count(),
         "load_average_1min": round(os.getloadavg()[0], 2),
         "warmup_s": round(warm_s, 3),
@@ -69,7 +78,7 @@ def measure(frames: int = 60, seed: int = 0, threads: int | None = None) -> dict
 def run(args: argparse.Namespace) -> int:
     import json
 
-    res = measure(args.frames, args.seed, args.threads)
+    res = measure(args.frames, args.seed, args.threads, args.threading_layer)
     if args.json:
         print(json.dumps(res))
         return 0
@@ -78,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
 
     t = Table(
         title=f"simulator renderer, {res['width']}x{res['height']}, {res['numba_threads']} numba threads "
-        f"(load avg {res['load_average_1min']})"
+        f"({res['threading_layer']}, load avg {res['load_average_1min']})"
     )
     t.add_column("stage")
     t.add_column("ms/frame", justify="right")
