@@ -17,6 +17,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -33,6 +34,9 @@ from drivers.sim.spline import PoseSpline, fit_pose_spline
 from drivers.sim.trajectory_files import read_imu_csv, read_timestamps, read_trajectory
 from runtime.errors import ConfigError, DataError
 from runtime.geometry.trajectory import PoseTrajectory
+
+if TYPE_CHECKING:
+    from calib import Rig
 
 FRAME_START_S = 0.025
 """The first frame of a synthetic recording comes this long after the first IMU sample, s."""
@@ -92,7 +96,7 @@ class SimRecording(Driver):
 
     def __init__(
         self,
-        rig,
+        rig: Rig,
         scene: Scene,
         motion,
         imu: ImuStream,
@@ -120,7 +124,7 @@ class SimRecording(Driver):
 
     # ---------------------------------------------------------------- constructors
     @classmethod
-    def from_preset(cls, config: SimConfig | None = None, rig=None) -> SimRecording:
+    def from_preset(cls, config: SimConfig | None = None, rig: Rig | None = None) -> SimRecording:
         """A recording along a motion preset with a synthetic IMU."""
         config = config or SimConfig()
         if config.seconds is None or not config.seconds > 0:
@@ -138,7 +142,7 @@ class SimRecording(Driver):
         cls,
         path: str | Path,
         config: SimConfig | None = None,
-        rig=None,
+        rig: Rig | None = None,
         imu_path: str | Path | None = None,
         camera_stamps_path: str | Path | None = None,
     ) -> SimRecording:
@@ -161,7 +165,9 @@ class SimRecording(Driver):
         return cls._replay(traj, Path(imu_path), camera_stamps_path, config, rig, str(path))
 
     @classmethod
-    def from_euroc_imu_gt(cls, folder: str | Path, config: SimConfig | None = None, rig=None) -> SimRecording:
+    def from_euroc_imu_gt(
+        cls, folder: str | Path, config: SimConfig | None = None, rig: Rig | None = None
+    ) -> SimRecording:
         """EuRoC-trajectory mode on a folder with groundtruth.csv or groundtruth_tum.txt, imu0.csv
         and cam0_timestamps.txt (shared/data/euroc_imu_gt/<sequence>)."""
         folder = Path(folder)
@@ -184,7 +190,7 @@ class SimRecording(Driver):
         )
 
     @classmethod
-    def _from_spline(cls, spline: PoseSpline, config: SimConfig, rig, info: dict) -> SimRecording:
+    def _from_spline(cls, spline: PoseSpline, config: SimConfig, rig: Rig | None, info: dict) -> SimRecording:
         rig = _with_offset(rig or euroc_default_rig(), config.time_offset_s)
         t0 = spline.t0_ns
         t_end = (
@@ -212,9 +218,9 @@ class SimRecording(Driver):
         cls,
         traj: PoseTrajectory,
         imu_path: Path,
-        camera_stamps_path,
+        camera_stamps_path: str | Path | None,
         config: SimConfig,
-        rig,
+        rig: Rig | None,
         source: str,
         sequence: str | None = None,
     ) -> SimRecording:
@@ -255,7 +261,7 @@ class SimRecording(Driver):
 
     # ---------------------------------------------------------------- driver interface
     @property
-    def rig(self):
+    def rig(self) -> Rig:
         """The rig the images and IMU were simulated with (EuRoC's by default)."""
         return self._rig
 
@@ -320,7 +326,7 @@ class SimRecording(Driver):
         return out
 
 
-def _with_offset(rig, time_offset_s: float):
+def _with_offset(rig: Rig, time_offset_s: float) -> Rig:
     if rig.camera is None or rig.T_IC is None:
         raise ConfigError("simulation needs a rig with a camera model and T_IC")
     if time_offset_s != (rig.time_offset_s or 0.0):

@@ -10,6 +10,7 @@ camera sees (m, inf where nothing is hit) and the face id.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -18,6 +19,9 @@ from drivers.sim.expose import expose
 from drivers.sim.raycast import cast
 from drivers.sim.scene import Scene
 from runtime.errors import ConfigError
+
+if TYPE_CHECKING:
+    from calib import CameraModel
 
 DN_PER_RADIANCE = 260.0
 """Digital numbers per unit radiance at exposure gain 1 (mean image level ~110-120 DN, like EuRoC)."""
@@ -167,7 +171,9 @@ class Renderer:
         seed: seed of the noise and exposure processes.
     """
 
-    def __init__(self, scene: Scene, camera, options: ImageOptions | None = None, seed: int = 0) -> None:
+    def __init__(
+        self, scene: Scene, camera: CameraModel, options: ImageOptions | None = None, seed: int = 0
+    ) -> None:
         self.camera = camera
         self.options = options or ImageOptions()
         rays = ray_grid_from_unproject(camera.unproject, int(camera.width), int(camera.height))

@@ -14,12 +14,16 @@ from __future__ import annotations
 import json
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
 from runtime.errors import ConfigError
 from runtime.geometry.quaternion import rot_to_quat_wxyz
+
+if TYPE_CHECKING:
+    from calib import Rig
 
 DEPTH_SCALE_MM = 1000.0
 """Depth PNG units per metre (uint16 millimetres; 0 = no surface or beyond 65.535 m)."""
@@ -32,7 +36,7 @@ def _yaml_matrix(T: np.ndarray) -> str:
     return "T_BS:\n  cols: 4\n  rows: 4\n  data: [" + ",\n         ".join(rows) + "]\n"
 
 
-def camera_sensor_yaml(rig) -> str:
+def camera_sensor_yaml(rig: Rig) -> str:
     """EuRoC cam0/sensor.yaml text for the rig's camera (T_BS = T_IC)."""
     cam = rig.camera
     model = {"radtan": "radial-tangential", "equidistant": "equidistant", "none": "radial-tangential"}.get(
@@ -53,7 +57,7 @@ def camera_sensor_yaml(rig) -> str:
     )
 
 
-def imu_sensor_yaml(rig, rate_hz: float) -> str:
+def imu_sensor_yaml(rig: Rig, rate_hz: float) -> str:
     """EuRoC imu0/sensor.yaml text (identity T_BS: body = IMU frame)."""
     n = rig.imu
 
