@@ -302,6 +302,7 @@ class SimRecording(Driver):
         imu_counts = self._report.stream("imu0")
         cam.lines = cam.parsed = len(self)
         imu_counts.lines = imu_counts.parsed = len(self.imu)
+        cam.emitted = imu_counts.emitted = 0  # counts of this pass
         ti, tf = self.imu.t_ns, self.frame_stamps_ns
         i = f = 0
         while i < ti.size or f < tf.size:
