@@ -326,3 +326,27 @@ def test_imu_history_is_bounded_while_uninitialised_and_a_past_state_can_start()
     out = est.feed_tracks(t_ns, ids, uv)
     assert len(out) == 1
     assert np.linalg.norm(out[0].p_OI - _truth(t_ns * 1e-9)[1]) < 1e-3
+
+
+def test_starvation_without_features_resets_the_filter() -> None:
+    imu, frames = _stream(2.0)
+    est = MsckfEstimator(_rig(), MsckfConfig(max_frames_without_features=8))
+    _init(est, np.zeros(3))
+    k = 0
+    for t_ns, ids, uv in frames[:16]:
+        while k < len(imu) and imu[k].t_ns <= t_ns + 5_000_000:
+            est.feed_imu(imu[k])
+            k += 1
+        est.feed_tracks(t_ns, ids[:0], uv[:0])
+    rep = est.report()
+    assert rep["divergence_resets"] == 1 and "no feature update" in rep["divergence_reasons"][0]
+    assert not est.initialized
+    # a second initialisation restarts it (the initializers' entry point stays open)
+    t_ns = frames[16][0]
+    R, p, v, _ = _truth(imu[k - 1].t_ns * 1e-9)
+    est.initialize_from_state(imu[k - 1].t_ns, R, p, v, np.zeros(3), np.zeros(3))
+    while k < len(imu) and imu[k].t_ns <= t_ns + 5_000_000:
+        est.feed_imu(imu[k])
+        k += 1
+    assert len(est.feed_tracks(t_ns, frames[16][1], frames[16][2])) == 1
+    assert est.report()["initializations"] == 2
