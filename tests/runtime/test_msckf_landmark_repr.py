@@ -1,4 +1,5 @@
 """Anchored inverse-depth landmarks: Jacobians vs finite differences, anchor change invariance."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -31,24 +32,31 @@ def test_anchored_jacobians_match_finite_differences() -> None:
     p_O, J_lam, J_anc, J_ext = anchored_to_global(lam, R_A, p_A, R_IC, p_IC)
     num = _fd(lambda v: anchored_to_global(v, R_A, p_A, R_IC, p_IC)[0], lam, add)
     assert np.allclose(num, J_lam, atol=1e-6)
-    assert np.allclose(_fd(lambda R: anchored_to_global(lam, R, p_A, R_IC, p_IC)[0], R_A, rot), J_anc[:, :3],
-                       atol=1e-6)
+    assert np.allclose(
+        _fd(lambda R: anchored_to_global(lam, R, p_A, R_IC, p_IC)[0], R_A, rot), J_anc[:, :3], atol=1e-6
+    )
     assert np.allclose(J_anc[:, 3:], np.eye(3))
-    assert np.allclose(_fd(lambda R: anchored_to_global(lam, R_A, p_A, R, p_IC)[0], R_IC, rot), J_ext[:, :3],
-                       atol=1e-6)
-    assert np.allclose(_fd(lambda p: anchored_to_global(lam, R_A, p_A, R_IC, p)[0], p_IC, add), J_ext[:, 3:],
-                       atol=1e-6)
+    assert np.allclose(
+        _fd(lambda R: anchored_to_global(lam, R_A, p_A, R, p_IC)[0], R_IC, rot), J_ext[:, :3], atol=1e-6
+    )
+    assert np.allclose(
+        _fd(lambda p: anchored_to_global(lam, R_A, p_A, R_IC, p)[0], p_IC, add), J_ext[:, 3:], atol=1e-6
+    )
     lam2, Jp, Ja, Je = global_to_anchored(p_O, R_A, p_A, R_IC, p_IC)
     assert np.allclose(lam2, lam)
-    assert np.allclose(Jp @ J_lam, np.eye(3), atol=1e-9)          # inverse maps
-    assert np.allclose(_fd(lambda R: global_to_anchored(p_O, R, p_A, R_IC, p_IC)[0], R_A, rot), Ja[:, :3],
-                       atol=1e-6)
-    assert np.allclose(_fd(lambda p: global_to_anchored(p_O, R_A, p, R_IC, p_IC)[0], p_A, add), Ja[:, 3:],
-                       atol=1e-6)
-    assert np.allclose(_fd(lambda R: global_to_anchored(p_O, R_A, p_A, R, p_IC)[0], R_IC, rot), Je[:, :3],
-                       atol=1e-6)
-    assert np.allclose(_fd(lambda p: global_to_anchored(p_O, R_A, p_A, R_IC, p)[0], p_IC, add), Je[:, 3:],
-                       atol=1e-6)
+    assert np.allclose(Jp @ J_lam, np.eye(3), atol=1e-9)  # inverse maps
+    assert np.allclose(
+        _fd(lambda R: global_to_anchored(p_O, R, p_A, R_IC, p_IC)[0], R_A, rot), Ja[:, :3], atol=1e-6
+    )
+    assert np.allclose(
+        _fd(lambda p: global_to_anchored(p_O, R_A, p, R_IC, p_IC)[0], p_A, add), Ja[:, 3:], atol=1e-6
+    )
+    assert np.allclose(
+        _fd(lambda R: global_to_anchored(p_O, R_A, p_A, R, p_IC)[0], R_IC, rot), Je[:, :3], atol=1e-6
+    )
+    assert np.allclose(
+        _fd(lambda p: global_to_anchored(p_O, R_A, p_A, R_IC, p)[0], p_IC, add), Je[:, 3:], atol=1e-6
+    )
 
 
 def test_anchor_change_keeps_the_point_and_its_covariance() -> None:
@@ -67,16 +75,16 @@ def test_anchor_change_keeps_the_point_and_its_covariance() -> None:
     lm = Landmark(7, lam.copy(), lam.copy(), idx, anchor_t=1)
     st.slam[7] = lm
     B = rng.standard_normal((st.size, st.size))
-    st.P = B @ B.T * 1e-3 + np.eye(st.size) * 1e-4          # a generic joint covariance
+    st.P = B @ B.T * 1e-3 + np.eye(st.size) * 1e-4  # a generic joint covariance
     assert np.all(np.linalg.eigvalsh(st.P) > 0)
 
     def point_jacobian(lmk: Landmark) -> tuple[np.ndarray, np.ndarray]:
         a = st.clones[lmk.anchor_t]
         p_O, J_lam, J_anc, J_ext = anchored_to_global(lmk.p, a.R, a.p, st.R_IC, st.p_IC)
         G = np.zeros((3, st.size))
-        G[:, lmk.idx:lmk.idx + 3] = J_lam
-        G[:, a.idx:a.idx + 6] += J_anc
-        G[:, st.idx_ext:st.idx_ext + 6] += J_ext
+        G[:, lmk.idx : lmk.idx + 3] = J_lam
+        G[:, a.idx : a.idx + 6] += J_anc
+        G[:, st.idx_ext : st.idx_ext + 6] += J_ext
         return p_O, G
 
     p0, G0 = point_jacobian(lm)
@@ -86,7 +94,71 @@ def test_anchor_change_keeps_the_point_and_its_covariance() -> None:
     assert lm.anchor_t == 2
     p1, G1 = point_jacobian(lm)
     assert np.allclose(p1, p0)
-    assert np.allclose(G1 @ st.P @ G1.T, cov0)                   # same point uncertainty
-    assert np.allclose(G1 @ st.P[:, :15], cross0)                # same correlation with the IMU
-    assert np.all(np.linalg.eigvalsh(st.P) > -1e-12)              # the linear map keeps it PSD
+    assert np.allclose(G1 @ st.P @ G1.T, cov0)  # same point uncertainty
+    assert np.allclose(G1 @ st.P[:, :15], cross0)  # same correlation with the IMU
+    assert np.all(np.linalg.eigvalsh(st.P) > -1e-12)  # the linear map keeps it PSD
     assert new.idx > old.idx
+
+
+def test_slam_rows_anchored_jacobians_match_finite_differences() -> None:
+    from runtime.msckf.update_slam import slam_rows
+
+    prm = np.array(
+        [458.654, 457.296, 367.215, 248.375, -0.28340811, 0.07395907, 0.00019359, 1.76187114e-05, 0.0]
+    )
+    R_c, p_c = exp3(np.array([0.05, 0.1, -0.05])), np.array([0.3, 0.1, 0.0])  # measuring clone
+    R_a, p_a = np.eye(3), np.zeros(3)  # anchor clone
+    lam = np.array([0.05, -0.04, 0.25])
+    P = np.eye(40)
+
+    def rows(Rc, pc, Ra, pa, lm, Ric, pic):
+        uv = np.array([[300.0, 200.0]])
+        return slam_rows(
+            P,
+            0,
+            12,
+            np.array([30]),
+            np.array([6]),
+            Rc[None],
+            pc[None],
+            Rc[None],
+            pc[None],
+            uv,
+            lm[None],
+            lm[None],
+            Ra[None],
+            pa[None],
+            Ra[None],
+            pa[None],
+            Ric,
+            pic,
+            1,
+            prm,
+            1.0,
+        )
+
+    ok, _, r, Hc, Ha, He, Hl = rows(R_c, p_c, R_a, p_a, lam, R_IC, p_IC)
+    assert ok[0]
+    eps = 1e-6
+
+    def num(f) -> np.ndarray:
+        out = []
+        for j in range(3):
+            d = np.zeros(3)
+            d[j] = eps
+            out.append(-(f(d)[2][0] - f(-d)[2][0]) / (2 * eps))
+        return np.array(out).T
+
+    assert np.allclose(
+        num(lambda d: rows(R_c @ exp3(d), p_c, R_a, p_a, lam, R_IC, p_IC)), Hc[0][:, :3], atol=1e-3
+    )
+    assert np.allclose(num(lambda d: rows(R_c, p_c + d, R_a, p_a, lam, R_IC, p_IC)), Hc[0][:, 3:], atol=1e-3)
+    assert np.allclose(
+        num(lambda d: rows(R_c, p_c, R_a @ exp3(d), p_a, lam, R_IC, p_IC)), Ha[0][:, :3], atol=1e-3
+    )
+    assert np.allclose(num(lambda d: rows(R_c, p_c, R_a, p_a + d, lam, R_IC, p_IC)), Ha[0][:, 3:], atol=1e-3)
+    assert np.allclose(
+        num(lambda d: rows(R_c, p_c, R_a, p_a, lam, R_IC @ exp3(d), p_IC)), He[0][:, :3], atol=1e-3
+    )
+    assert np.allclose(num(lambda d: rows(R_c, p_c, R_a, p_a, lam, R_IC, p_IC + d)), He[0][:, 3:], atol=1e-3)
+    assert np.allclose(num(lambda d: rows(R_c, p_c, R_a, p_a, lam + d, R_IC, p_IC)), Hl[0], atol=1e-3)
