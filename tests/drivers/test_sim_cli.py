@@ -71,3 +71,16 @@ def test_renderer_benchmark_json(capsys) -> None:
     res = json.loads(capsys.readouterr().out)
     assert (res["width"], res["height"]) == (752, 480)
     assert res["frame_ms"] > 0 and res["depth_valid_fraction"] == 1.0
+
+
+def test_workqueue_layer_is_preferred_unless_the_user_chose_one(monkeypatch) -> None:
+    import numba
+
+    from drivers.sim.threads import prefer_workqueue_layer
+
+    monkeypatch.setattr(numba.config, "THREADING_LAYER", "default")
+    monkeypatch.delenv("NUMBA_THREADING_LAYER", raising=False)
+    assert prefer_workqueue_layer() == "workqueue" and numba.config.THREADING_LAYER == "workqueue"
+    monkeypatch.setattr(numba.config, "THREADING_LAYER", "omp")
+    monkeypatch.setenv("NUMBA_THREADING_LAYER", "omp")
+    assert prefer_workqueue_layer() == "omp" and numba.config.THREADING_LAYER == "omp"

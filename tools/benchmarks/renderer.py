@@ -16,7 +16,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--threading-layer",
         default=None,
         choices=["workqueue", "omp", "tbb"],
-        help="numba threading layer (default: numba's choice; omp spin-waits, costly on a shared machine)",
+        help="numba threading layer (default: workqueue like davio simulate, unless NUMBA_THREADING_LAYER)",
     )
     p.add_argument("--json", action="store_true", help="print one JSON object")
 
@@ -30,9 +30,12 @@ def measure(frames: int = 60, seed: int = 0, threads: int | None = None, layer: 
     import numpy as np
 
     from drivers.sim.recording import SimConfig, SimRecording
+    from drivers.sim.threads import prefer_workqueue_layer
 
     if layer is not None:  # must precede the first parallel kernel of the process
         numba.config.THREADING_LAYER = layer
+    else:  # what `davio simulate` uses
+        prefer_workqueue_layer()
     if threads is not None:
         numba.set_num_threads(threads)
     rec = SimRecording.from_preset(SimConfig(seconds=max(4.0, frames / 20.0 + 1.0), seed=seed))

@@ -82,9 +82,11 @@ def run(args: argparse.Namespace) -> int:
     from drivers.sim.imu_synth import ImuErrorModel
     from drivers.sim.recording import SimConfig, SimRecording
     from drivers.sim.render import ImageOptions
+    from drivers.sim.threads import prefer_workqueue_layer
     from drivers.sim.writer import write_euroc
     from runtime.errors import ConfigError
 
+    prefer_workqueue_layer()  # idle OpenMP threads spin: costly on a shared 2-core machine
     con = Console(stderr=True)
     image = ImageOptions.exact() if args.exact else ImageOptions()
     image = replace(image, motion_blur_samples=args.motion_blur)
