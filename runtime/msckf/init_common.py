@@ -166,6 +166,10 @@ class ImuWindow:
     def __len__(self) -> int:
         return len(self._t)
 
+    def newest_ns(self) -> int | None:
+        """Stamp of the newest sample, or None when empty."""
+        return self._t[-1] if self._t else None
+
     def clear(self) -> None:
         """Forget all samples (counters are kept)."""
         self._t.clear()

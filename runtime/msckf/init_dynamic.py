@@ -246,6 +246,10 @@ class DynamicInitializer:
         frames = list(self.tracks.frames)
         if not frames:
             return rej(-1, "no_frames", "no tracks fed")
+        # frames the IMU has not reached yet (a frame arrives before the samples after its stamp)
+        t_imu_newest = self.imu.newest_ns()
+        if t_imu_newest is not None:
+            frames = [f for f in frames if f[0] + self.time_offset_ns <= t_imu_newest] or frames[:1]
         t_newest = frames[-1][0]
         window_ns = int(round(cfg.init_window_time_s * 1e9))
         frames = [f for f in frames if f[0] >= t_newest - window_ns]
