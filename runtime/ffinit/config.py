@@ -28,10 +28,13 @@ class FFInitConfig:
     # linear system (Sec. IV-A)
     gravity_refinements: int = 2
     """Refinements of the gravity direction on the tangent plane of |g| = g0."""
-    gravity_magnitude: str = "absorb_bias"
-    """'fixed': the refinements hold |g| = g0 (paper); 'absorb_bias': the magnitude the data asks
-    for is kept apart as an accelerometer bias along gravity (indistinguishable within a window) and
-    passed to the refinement as its starting bias, instead of being forced into s and v0."""
+    gravity_magnitude: str = "fixed"
+    """How the gravity magnitude meets an accelerometer bias along gravity (the two are
+    indistinguishable within a window): 'fixed' (paper): the refinements hold |g| = g0 and the
+    refinement's bias prior is centred on zero; 'absorb_bias': the linear stage keeps the magnitude
+    free and the excess seeds and centres the refinement's accelerometer bias. 'absorb_bias' is exact
+    with accurate DA3 rotations and a large bias, but with DA3-like rotation errors (0.6 deg) the
+    free magnitude is poorly determined and 'fixed' accepts more windows with smaller errors."""
     max_accel_bias: float = 0.5
     """Reject when the implied accelerometer bias along gravity exceeds this, m/s^2."""
 

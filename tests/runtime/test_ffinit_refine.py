@@ -81,7 +81,7 @@ def test_accelerometer_bias_along_gravity_is_absorbed_not_forced_into_scale():
     ba = 0.1 * up_I0  # the motion rotates little over the window: ~constant in I0
     t_ns, gyro, accel = imu_samples("general", float(window0.dt[-1]), ba=ba)
     window = build_window(window0.t_ns, window0.images, t_ns, gyro, accel, R_IC_EUROC, P_IC_EUROC)
-    absorbed = solve_window(window, FFInitConfig())
+    absorbed = solve_window(window, FFInitConfig(gravity_magnitude="absorb_bias"))
     assert not isinstance(absorbed, Rejection), absorbed
     err_absorbed = abs(absorbed.info["linear_scale"] / truth.scale - 1)
     assert err_absorbed < 0.01
