@@ -67,6 +67,7 @@ class MsckfConfig:
     # IMU stream handling
     max_imu_gap_s: float = 0.05  #: a larger gap between IMU samples is counted as a gap
     max_imu_extrapolation_s: float = 0.01  #: a frame may lie this far past the newest IMU sample
+    max_pending_frames: int = 20         #: frames waiting for IMU coverage; older ones are dropped, counted
     imu_buffer_s: float = 10.0           #: IMU history kept while uninitialised (for a state in the past), s
     # compute
     blas_threads: int | None = 1  #: BLAS threads for the process (None: leave as is); see blas_threads.py

@@ -304,6 +304,9 @@ class MsckfEstimator:
                 c.frames_before_init += 1
                 return []
         self._pending.append((t_ns, ids, uv))
+        while len(self._pending) > self.config.max_pending_frames:   # IMU stalled: drop the oldest
+            self._pending.popleft()
+            c.frames_no_imu += 1
         return self._process_pending()
 
     def feed_frame(self, frame: Any) -> list[FilterState]:

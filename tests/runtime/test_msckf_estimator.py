@@ -350,3 +350,16 @@ def test_starvation_without_features_resets_the_filter() -> None:
         k += 1
     assert len(est.feed_tracks(t_ns, frames[16][1], frames[16][2])) == 1
     assert est.report()["initializations"] == 2
+
+
+def test_frames_waiting_for_a_stalled_imu_are_bounded() -> None:
+    imu, frames = _stream(4.0)
+    est = MsckfEstimator(_rig(), MsckfConfig(max_pending_frames=5))
+    _init(est, np.zeros(3))
+    for s in imu[:20]:                 # IMU stops at 0.1 s
+        est.feed_imu(s)
+    out = []
+    for t_ns, ids, uv in frames:
+        out += est.feed_tracks(t_ns, ids, uv)
+    assert out == [] and len(est._pending) == 5
+    assert est.report()["frames_no_imu"] == len(frames) - 5
