@@ -18,6 +18,7 @@ from drivers.sim.bvh import build_bvh, frustum_active
 from drivers.sim.expose import expose
 from drivers.sim.raycast import cast
 from drivers.sim.scene import Scene
+from drivers.sim.threads import PARALLEL_KERNELS
 from runtime.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -124,40 +125,41 @@ class Caster:
         node_active, group_active = frustum_active(
             self._bvh, self._gmin, self._gmax, R_WC, p_WC, self._xy_min, self._xy_max
         )
-        cast(
-            self.rays,
-            R_WC,
-            p_WC,
-            s.box_min,
-            s.box_max,
-            s.group_start,
-            self._gmin,
-            self._gmax,
-            self._bvh.node_min,
-            self._bvh.node_max,
-            self._bvh.left,
-            self._bvh.right,
-            self._bvh.axis,
-            self._bvh.first,
-            self._bvh.count,
-            self._bvh.order,
-            node_active,
-            group_active,
-            s.face_material,
-            a.albedo,
-            a.strength,
-            a.offset,
-            a.height,
-            a.width,
-            a.texel_m,
-            self.pixel_angle,
-            s.light_W,
-            rad,
-            depth,
-            face,
-            strength,
-            want_strength,
-        )
+        with PARALLEL_KERNELS:
+            cast(
+                self.rays,
+                R_WC,
+                p_WC,
+                s.box_min,
+                s.box_max,
+                s.group_start,
+                self._gmin,
+                self._gmax,
+                self._bvh.node_min,
+                self._bvh.node_max,
+                self._bvh.left,
+                self._bvh.right,
+                self._bvh.axis,
+                self._bvh.first,
+                self._bvh.count,
+                self._bvh.order,
+                node_active,
+                group_active,
+                s.face_material,
+                a.albedo,
+                a.strength,
+                a.offset,
+                a.height,
+                a.width,
+                a.texel_m,
+                self.pixel_angle,
+                s.light_W,
+                rad,
+                depth,
+                face,
+                strength,
+                want_strength,
+            )
         return View(rad, depth, face, strength)
 
 
@@ -223,14 +225,15 @@ class Renderer:
         o = self.options
         offset = int(np.random.default_rng([self._seed, frame_index]).integers(0, self._normals.size))
         image = np.empty(radiance.shape, np.uint8)
-        expose(
-            radiance,
-            DN_PER_RADIANCE * self.exposure_gain(t_s),
-            self._vignette,
-            o.read_noise_dn,
-            o.shot_noise_dn2_per_dn,
-            self._normals,
-            offset,
-            image,
-        )
+        with PARALLEL_KERNELS:
+            expose(
+                radiance,
+                DN_PER_RADIANCE * self.exposure_gain(t_s),
+                self._vignette,
+                o.read_noise_dn,
+                o.shot_noise_dn2_per_dn,
+                self._normals,
+                offset,
+                image,
+            )
         return image, mid

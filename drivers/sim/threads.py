@@ -9,6 +9,12 @@ rate. The workqueue layer sleeps instead. Commands (not the library) opt in by c
 from __future__ import annotations
 
 import os
+import threading
+
+#: Held around every numba parallel kernel launch of the simulator: the workqueue layer (used by the
+#: `davio` command) is not thread-safe, and the renderer runs in the intake thread while the emulated
+#: DA3 renders ground-truth views in the model worker.
+PARALLEL_KERNELS = threading.Lock()
 
 
 def prefer_workqueue_layer() -> str:
