@@ -97,8 +97,10 @@ def marginalize(state: State, clone_times: list[int], landmark_ids: list[int]) -
 
 def initialize_landmark(state: State, fid: int, p_O: np.ndarray, cols: np.ndarray, Hx: np.ndarray,
                         Hf: np.ndarray, r: np.ndarray, sigma: float, chi2_multiplier: float,
-                        deferred: list | None = None) -> bool:
+                        deferred: list | None = None, p_fej: np.ndarray | None = None) -> bool:
     """Delayed initialisation of a landmark from m >= 2 observations (OpenVINS StateHelper::initialize).
+
+    p_fej: the landmark's first estimate (the point Hf was evaluated at); None: its initial value.
 
     The rows are split by Givens rotations of Hf into an invertible part (3 rows) that defines the landmark
     and the rest, which is chi-square tested and then used in an ordinary update (or, with `deferred`,
@@ -123,7 +125,7 @@ def initialize_landmark(state: State, fid: int, p_O: np.ndarray, cols: np.ndarra
     cross = -Hf1_inv @ PHt.T                          # 3 x n
     idx = state.add_variable(3, 0.5 * (cov + cov.T), cross)
     p_new = p_O + Hf1_inv @ r1
-    state.slam[fid] = Landmark(fid, p_new.copy(), p_new.copy(), idx)
+    state.slam[fid] = Landmark(fid, p_new.copy(), (p_new if p_fej is None else p_fej).copy(), idx)
     if Hx2.shape[0] > 0:
         if deferred is not None:
             deferred.append((Hx2, r2))

@@ -49,6 +49,17 @@ def triangulate_track(state: State, cfg: MsckfConfig, Rc: np.ndarray, pc: np.nda
                        cfg.tri_max_baseline_ratio, cfg.tri_gn_iterations)
 
 
+def linearization_point(state: State, cfg: MsckfConfig, Rf: np.ndarray, pf: np.ndarray, xn: np.ndarray,
+                        p_O: np.ndarray) -> np.ndarray:
+    """The feature position at which the Jacobians are evaluated: with FEJ and cfg.fej_triangulation, the
+    point triangulated from the clones' first estimates, so that the linearisation is one consistent set of
+    first estimates (p_O, from the current estimates, when that fails or FEJ is off)."""
+    if not (cfg.use_fej and cfg.fej_triangulation):
+        return p_O
+    ok, p_f = triangulate_track(state, cfg, Rf, pf, xn)
+    return p_f if ok else p_O
+
+
 def window_columns(state: State) -> tuple[np.ndarray, dict[int, int]]:
     """Covariance columns of (extrinsics, all clones) and each clone's offset into them."""
     cols: list[int] = []
@@ -82,7 +93,8 @@ def msckf_update(state: State, tracks: list[Track], cfg: MsckfConfig, cam: Camer
         if not ok:
             st.triangulation_failed += 1
             continue
-        ok, r, Hc, He, Hf = feature_jacobians(Rc, pc, Rf, pf, uv, p_O, p_O, state.R_IC, state.p_IC,
+        p_lin = linearization_point(state, cfg, Rf, pf, xn, p_O)
+        ok, r, Hc, He, Hf = feature_jacobians(Rc, pc, Rf, pf, uv, p_O, p_lin, state.R_IC, state.p_IC,
                                               cam.code, cam.params)
         if not ok:
             st.triangulation_failed += 1

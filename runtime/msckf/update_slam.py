@@ -16,7 +16,7 @@ from runtime.msckf.landmark_repr import anchored_to_global, global_to_anchored
 from runtime.msckf.measurement import feature_jacobians
 from runtime.msckf.state import State
 from runtime.msckf.state_helper import chi2_95, compress, ekf_update, initialize_landmark
-from runtime.msckf.update_msckf import track_arrays, triangulate_track, window_columns
+from runtime.msckf.update_msckf import linearization_point, track_arrays, triangulate_track, window_columns
 
 
 @dataclass
@@ -199,7 +199,8 @@ def delayed_init(state: State, tracks: list[Track], cfg: MsckfConfig, cam: Camer
         if not ok:
             stats.init_failed += 1
             continue
-        ok, r, Hc, He, Hf = feature_jacobians(Rc, pc, Rf, pf, uv, p_O, p_O, state.R_IC, state.p_IC,
+        p_lin = linearization_point(state, cfg, Rf, pf, xn, p_O)
+        ok, r, Hc, He, Hf = feature_jacobians(Rc, pc, Rf, pf, uv, p_O, p_lin, state.R_IC, state.p_IC,
                                               cam.code, cam.params)
         if not ok:
             stats.init_failed += 1
@@ -210,11 +211,12 @@ def delayed_init(state: State, tracks: list[Track], cfg: MsckfConfig, cam: Camer
         for i, c in enumerate(cl):
             o = offset[c.t_cam_ns]
             Hx[2 * i:2 * i + 2, o:o + 6] = Hc[2 * i:2 * i + 2]
-        value, H_lm = p_O, Hf
+        value, H_lm, fej = p_O, Hf, p_lin
         if anchor is not None:
             # lam in the newest clone's camera; Jacobians at the anchor's first estimate
             value, _, _, _ = global_to_anchored(p_O, anchor.R, anchor.p, state.R_IC, state.p_IC)
-            p_Of, J_lam, J_anc, J_ext = anchored_to_global(value, anchor.R_fej, anchor.p_fej, state.R_IC,
+            fej, _, _, _ = global_to_anchored(p_lin, anchor.R_fej, anchor.p_fej, state.R_IC, state.p_IC)
+            p_Of, J_lam, J_anc, J_ext = anchored_to_global(fej, anchor.R_fej, anchor.p_fej, state.R_IC,
                                                            state.p_IC)
             ok, r, Hc, He, Hf = feature_jacobians(Rc, pc, Rf, pf, uv, p_O, p_Of, state.R_IC, state.p_IC,
                                                   cam.code, cam.params)
@@ -231,7 +233,7 @@ def delayed_init(state: State, tracks: list[Track], cfg: MsckfConfig, cam: Camer
             Hx[:, o:o + 6] += Hf @ J_anc
             H_lm = Hf @ J_lam
         if initialize_landmark(state, tr.fid, value, cols, Hx, H_lm, r, cfg.sigma_pix, cfg.chi2_multiplier,
-                               deferred):
+                               deferred, fej):
             if anchor is not None:
                 state.slam[tr.fid].anchor_t = anchor.t_cam_ns
             stats.initialized += 1
