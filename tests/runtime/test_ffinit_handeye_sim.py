@@ -15,7 +15,7 @@ from runtime.imu import Preintegrator
 
 @pytest.mark.slow
 def test_handeye_recovers_withheld_rotation_on_simulated_recording():
-    rec = SimRecording.from_preset(SimConfig(preset="aggressive", seconds=12.0, seed=3))
+    rec = SimRecording.from_preset(SimConfig(preset="aggressive", seconds=12.0, seed=4))
     cam, imu = rec.rig.camera, rec.imu
     R_IC_true = rec.rig.T_IC[:3, :3]
     model = EmulatedDA3(rec.gt_source, cam.K, cam.width, cam.height, preset="base", seed=5)
@@ -32,7 +32,7 @@ def test_handeye_recovers_withheld_rotation_on_simulated_recording():
             J.append(p.J_R_bg)
         return RotationWindow(np.array(R_c), np.array(R_i), np.array(J), np.zeros(3))
 
-    fit = [window(f) for f in range(10, 190, 20)]
+    fit = [window(f) for f in range(10, 190, 10)]  # overlapping windows, one second of data apart
     res = estimate_handeye(fit)
     assert not isinstance(res, Rejection), res
     err = np.degrees(Rotation.from_matrix(res.R_IC.T @ R_IC_true).magnitude())
