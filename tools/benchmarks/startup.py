@@ -38,6 +38,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="simulation seed")
     p.add_argument("--da3", default="base", choices=["small", "base", "large"], help="emulated DA3 preset")
     p.add_argument("--model-latency", type=float, default=0.5, metavar="S", help="DA3 latency, sensor s")
+    p.add_argument("--da3-param", action="append", default=[], metavar="NAME=VALUE",
+                   help="override an emulated-DA3 parameter (repeatable; sensitivity studies), "
+                        "e.g. rotation_error_median_deg=0.1")
     p.add_argument("--ate-threshold", type=float, default=0.5, help="success threshold, m")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", metavar="FILE", help="also write the JSON (with per-window rows) here")
@@ -84,6 +87,21 @@ class _WindowDriver:
             else:
                 yield self.rec.render(f)[0]
                 f += 1
+
+
+def _overrides(items: list[str]) -> dict:
+    from runtime.errors import ConfigError
+
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        try:
+            out[name.strip()] = float(value)
+        except ValueError:
+            sep = ""
+        if not sep:
+            raise ConfigError(f"--da3-param expects NAME=NUMBER, got {item!r}")
+    return out
 
 
 def _score(pipe: Any, gt: Any, t0_ns: int, window_s: float, ate_thr: float) -> dict:
@@ -135,6 +153,7 @@ def run(args: argparse.Namespace) -> int:
     from runtime.config import DavioConfig
     from tools.run_session import run_pipeline
 
+    overrides = _overrides(args.da3_param)
     rec = _recording(args)
     gt = rec.groundtruth()
     cam = rec.rig.camera
@@ -159,7 +178,7 @@ def run(args: argparse.Namespace) -> int:
             model = None
             if arm == "feedforward":
                 model = EmulatedDA3(rec.gt_source, cam.K, cam.width, cam.height, preset=args.da3,
-                                    seed=args.seed * 1000 + w)
+                                    seed=args.seed * 1000 + w, **overrides)
             res = run_pipeline(_WindowDriver(rec, t0, t1), model, cfg, model_latency_s=args.model_latency,
                                show_progress=False)
             row = _score(res.pipeline, gt, t0, args.window, args.ate_threshold)
@@ -173,6 +192,7 @@ def run(args: argparse.Namespace) -> int:
     result = {arm: _summary(r) for arm, r in rows.items()}
     result["source"] = rec.info
     result["emulated_da3"] = args.da3
+    result["emulated_da3_overrides"] = overrides
     result["model_latency_s"] = args.model_latency
     if args.out:
         Path(args.out).write_text(json.dumps({**result, "per_window": rows}, indent=2, default=str))
