@@ -45,9 +45,24 @@ def _sources(args: argparse.Namespace) -> list[tuple[str, Any]]:
     return out
 
 
+def _true_state(gt: Any, t_ns: int) -> tuple:
+    """(R, p, v, bg, ba) of the ground truth at t_ns; velocity by central differences (10 ms) and
+    zero biases when the ground truth lacks them (TUM files)."""
+    from runtime.geometry import interpolate_poses
+
+    g = interpolate_poses(gt, np.array([t_ns]))
+    if g.v is not None:
+        v = g.v[0]
+    else:
+        pm = interpolate_poses(gt, np.array([t_ns - 5_000_000, t_ns + 5_000_000])).p
+        v = (pm[1] - pm[0]) / 0.01
+    zero = np.zeros(3)
+    return (g.R[0], g.p[0], v, zero if g.bg is None else g.bg[0], zero if g.ba is None else g.ba[0])
+
+
 def run_one(rec: Any, init_after_s: float = 1.0) -> dict:
     """Track one recording from a ground-truth initial state; returns the figures."""
-    from runtime.geometry import PoseTrajectory, interpolate_poses
+    from runtime.geometry import PoseTrajectory
     from runtime.msckf.config import MsckfConfig
     from runtime.msckf.estimator import MsckfEstimator
     from runtime.msckf.tracker import KltTracker
@@ -66,9 +81,7 @@ def run_one(rec: Any, init_after_s: float = 1.0) -> dict:
         w0, c0 = time.perf_counter(), time.thread_time()
         res = tracker.track(ev)
         if not est.initialized and ev.t_ns >= t_init:
-            g = interpolate_poses(gt, np.array([ev.t_ns]))
-            est.initialize_from_state(int(ev.t_ns) - 1, g.R[0], g.p[0], g.v[0], g.bg[0], g.ba[0],
-                                      source="groundtruth")
+            est.initialize_from_state(int(ev.t_ns) - 1, *_true_state(gt, int(ev.t_ns)), source="groundtruth")
         states += est.feed_tracks(int(ev.t_ns), res.ids, res.uv)
         wall += time.perf_counter() - w0
         cpu += time.thread_time() - c0
