@@ -8,9 +8,7 @@ atomic (temporary file + rename).
 from __future__ import annotations
 
 import json
-import os
 import platform
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -19,6 +17,7 @@ import numpy as np
 
 from runtime.errors import DataError
 from runtime.geometry import PoseTrajectory
+from tools.evaluation.trajectory_io import atomic_write_text
 
 
 @dataclass
@@ -29,20 +28,6 @@ class OpenedRecording:
     kind: str  # "euroc" | "simulated"
     description: str
     ground_truth_source: Any = None  # for the emulated DA3 (simulated recordings only)
-
-
-def atomic_write_text(path: Path, text: str) -> None:
-    """Write text to `path` through a temporary file in the same folder and a rename."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def open_recording(path: str | Path) -> OpenedRecording:
@@ -136,9 +121,7 @@ def write_run(out_dir: Path, pipeline: Any, sched_report: Any, gt: PoseTrajector
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     est = published_trajectory(pipeline.published)
-    tmp = out_dir / ".odometry.tum.tmp"
-    write_tum(tmp, est)
-    os.replace(tmp, out_dir / "odometry.tum")
+    write_tum(out_dir / "odometry.tum", est)  # atomic
     atomic_write_text(out_dir / "config.toml", dump_toml(config))
     st = pipeline.startup.report
     t0 = st.first_measurement_t_ns

@@ -176,7 +176,9 @@ def read_trajectory(path: str | Path, fmt: str | None = None) -> PoseTrajectory:
     raise TrajectoryError(f"unknown trajectory format {fmt!r} (expected 'tum' or 'euroc')", path)
 
 
-def _atomic_write(path: Path, text: str) -> None:
+def atomic_write_text(path: Path, text: str) -> None:
+    """Write text through a temporary file in the same folder and a rename (never half a file)."""
+    path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
@@ -199,7 +201,7 @@ def write_tum(path: str | Path, traj: PoseTrajectory) -> None:
     for k in range(len(traj)):
         rows.append(" ".join([ns_to_seconds_text(int(traj.t_ns[k]))] + [_num(x) for x in traj.p[k]]
                              + [_num(x) for x in q[k]]))
-    _atomic_write(Path(path), "\n".join(rows) + "\n")
+    atomic_write_text(Path(path), "\n".join(rows) + "\n")
 
 
 def write_euroc_csv(path: str | Path, traj: PoseTrajectory) -> None:
@@ -216,4 +218,4 @@ def write_euroc_csv(path: str | Path, traj: PoseTrajectory) -> None:
         if full:
             parts += [_num(x) for x in (*traj.v[k], *traj.bg[k], *traj.ba[k])]
         rows.append(",".join(parts))
-    _atomic_write(Path(path), "\n".join(rows) + "\n")
+    atomic_write_text(Path(path), "\n".join(rows) + "\n")
