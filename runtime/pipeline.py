@@ -3,14 +3,16 @@ feed-forward start-up through the buffered-replay handoff. Driven by runtime.sch
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
 from drivers.events import Frame, ImuSample
 from models.depth_model import DepthModel
+from runtime.bringup import HandEyeBringUp
 from runtime.config import DavioConfig
+from runtime.errors import ConfigError
 from runtime.ffinit.initializer import FeedForwardInitializer
 from runtime.msckf.estimator import MsckfEstimator
 from runtime.msckf.init_dynamic import DynamicInitializer
@@ -33,44 +35,75 @@ class VioPipeline:
     """Tracker + StartupManager (+ feed-forward initializer when a depth model is given).
 
     Args:
-        rig: calib.Rig with camera, T_IC, time offset and IMU noise (T_IC may be withheld: identity
-            prior, refined online; see runtime.ffinit.handeye for the withheld bring-up).
+        rig: calib.Rig with camera, T_IC, time offset and IMU noise. With T_IC withheld, a hand-eye
+            bring-up (runtime.bringup) first estimates R_IC from DA3 and the IMU; tracking then
+            starts with zero lever arm and time offset and online calibration of all three.
         model: a DepthModel for the feed-forward start-up, or None for the native initializer only.
     """
 
     def __init__(self, rig: Any, model: DepthModel | None = None, config: DavioConfig | None = None) -> None:
-        self.rig = rig
         self.config = config or DavioConfig()
-        cfg = self.config
-        self.tracker = KltTracker(rig.camera, cfg.tracker)
+        self.model = model
+        self.tracker = KltTracker(rig.camera, self.config.tracker)
+        self.published: list[Published] = []
+        self.stats = TrackingStats()
+        self.bringup: HandEyeBringUp | None = None
+        self._job_kind = ""
+        self._last_t = 0
+        if rig.T_IC is None:
+            if model is None:
+                raise ConfigError("the camera-IMU extrinsics are withheld: calibration-withheld bring-up "
+                                  "needs a depth model (pass a DA3 graph) or give T_IC in the rig")
+            self.bringup = HandEyeBringUp(model)
+            self.rig = rig
+            self.startup = None
+            self.ffinit = None
+        else:
+            self._start_tracking(rig, self.config)
+
+    def _start_tracking(self, rig: Any, cfg: DavioConfig, bg_prior: np.ndarray | None = None) -> None:
+        """Build the filters (native initializers armed) and the feed-forward start-up for `rig`."""
+        self.rig = rig
         self.time_offset_s = float(rig.time_offset_s or 0.0)
-        T_IC = rig.T_IC if rig.T_IC is not None else np.eye(4)
-        self.T_IC = np.asarray(T_IC, float)
+        self.T_IC = np.asarray(rig.T_IC, float)
         msckf_cfg = cfg.msckf.with_imu_noise(getattr(rig, "imu", None))
+        imu_noise = getattr(rig, "imu", None)
 
         def make_filter(native: bool) -> MsckfEstimator:
             inits: list = []
             if native:
-                inits.append(StaticInitializer(cfg.static_init, getattr(rig, "imu", None)))
+                inits.append(StaticInitializer(cfg.static_init, imu_noise))
                 if cfg.use_dynamic_init:
-                    inits.append(DynamicInitializer(rig.camera, self.T_IC, cfg.dynamic_init,
-                                                    getattr(rig, "imu", None), self.time_offset_s))
+                    inits.append(DynamicInitializer(rig.camera, self.T_IC, cfg.dynamic_init, imu_noise,
+                                                    self.time_offset_s))
             return MsckfEstimator(rig, msckf_cfg, initializers=inits)
 
         startup_cfg = cfg.startup
-        if model is None and startup_cfg.feedforward:
-            from dataclasses import replace
-
+        if self.model is None and startup_cfg.feedforward:
             startup_cfg = replace(startup_cfg, feedforward=False)
         self.startup = StartupManager(make_filter, startup_cfg, self.time_offset_s)
         self.ffinit = None
-        if model is not None and startup_cfg.feedforward:
-            self.ffinit = FeedForwardInitializer(model, self.T_IC[:3, :3], self.T_IC[:3, 3],
+        if self.model is not None and startup_cfg.feedforward:
+            self.ffinit = FeedForwardInitializer(self.model, self.T_IC[:3, :3], self.T_IC[:3, 3],
                                                  self.time_offset_s, cfg.ffinit)
-        self.published: list[Published] = []
-        self.stats = TrackingStats()
+        self._bg_prior = bg_prior
+
+    def _finish_bringup(self) -> None:
+        """Hand-eye done: R_IC estimated, lever arm and time offset zero; the filter refines all three."""
+        res = self.bringup.result
+        T_IC = np.eye(4)
+        T_IC[:3, :3] = res.R_IC
+        rig = self.rig.replace(T_IC=T_IC, time_offset_s=self.rig.time_offset_s or 0.0)
+        cfg = replace(self.config, msckf=replace(self.config.msckf, calib_extrinsics=True,
+                                                 calib_time_offset=True))
+        self.config = cfg
+        self._start_tracking(rig, cfg, bg_prior=res.bg)
 
     def on_imu(self, sample: ImuSample) -> list[Published]:
+        self._last_t = int(sample.t_ns)
+        if self.startup is None:
+            self.bringup.on_imu(sample)
+            return []
         out = self.startup.on_imu(sample)
         self.published += out
         return out
@@ -81,12 +114,21 @@ class VioPipeline:
         self.stats.tracks_total += len(res.ids)
         if len(res.ids) == 0:
             self.stats.frames_without_tracks += 1
+        if self.startup is None:
+            self.bringup.on_frame(frame)
+            return []
         out = self.startup.on_tracks(int(frame.t_ns), res.ids, res.uv, frame)
         self.published += out
         return out
 
     def next_model_job(self) -> Callable[[], Any] | None:
-        """A feed-forward attempt on the newest window, when one is due (run by the model worker)."""
+        """A model job when one is due (run by the model worker): a hand-eye window during a
+        calibration-withheld bring-up, else a feed-forward attempt on the newest window."""
+        if self.startup is None:
+            job = self.bringup.next_job()
+            self._job_kind = "bringup" if job is not None else self._job_kind
+            return job
+        self._job_kind = "feedforward"
         if self.ffinit is None:
             return None
         frames = self.startup.window()
@@ -98,9 +140,10 @@ class VioPipeline:
         self.startup.note_request()
         ffinit = self.ffinit
         t, w, a = imu
+        bg = self._bg_prior
 
         def job() -> Any:
-            return ffinit.solve(frames, t, w, a)
+            return ffinit.solve(frames, t, w, a, bg=bg)
 
         return job
 
@@ -108,14 +151,21 @@ class VioPipeline:
         if isinstance(result, Exception):
             self.stats.ff_exceptions.append(f"{type(result).__name__}: {result}")
             return
+        if self._job_kind == "bringup":
+            if self.bringup.on_result(result, self._last_t):
+                self._finish_bringup()
+            return
         self.startup.on_feedforward(result)
 
     def report(self) -> dict:
         """Counters of the tracker, the start-up and the publishing filter."""
         from dataclasses import asdict
 
-        rep = {"tracking": asdict(self.stats), "startup": asdict(self.startup.report)}
-        filt = self.startup.publisher or self.startup.native
-        rep["filter"] = filt.report()
+        rep = {"tracking": asdict(self.stats)}
+        if self.bringup is not None:
+            rep["bringup"] = asdict(self.bringup.report)
+        if self.startup is not None:
+            rep["startup"] = asdict(self.startup.report)
+            rep["filter"] = (self.startup.publisher or self.startup.native).report()
         rep["tracking"]["mean_tracks_per_frame"] = self.stats.tracks_total / max(self.stats.frames, 1)
         return rep

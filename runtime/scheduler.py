@@ -94,6 +94,7 @@ class SchedulerReport:
     intake_error: str | None = None
     wall_s: float = 0.0
     sensor_s: float = 0.0
+    first_t_ns: int | None = None
     per_frame_ms: list = field(default_factory=list)
 
     def as_dict(self) -> dict:
@@ -241,6 +242,7 @@ class Scheduler:
                 t = int(ev.t_ns)
                 if t_first is None:
                     t_first = t
+                    rep.first_t_ns = t
                 self.clock.wait_until(t)
                 # apply a finished model result (deterministically at its release time with FastClock)
                 if in_flight is not None:

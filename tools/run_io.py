@@ -95,7 +95,7 @@ def versions() -> dict:
     return out
 
 
-def evaluate(est: PoseTrajectory, gt: PoseTrajectory | None, t_first_ns: int | None) -> dict:
+def evaluate(est: PoseTrajectory, gt: PoseTrajectory | None) -> dict:
     """ATE (se3 and posyaw) of the published trajectory against ground truth, when both exist."""
     from tools.evaluation import ate
 
@@ -123,15 +123,16 @@ def write_run(out_dir: Path, pipeline: Any, sched_report: Any, gt: PoseTrajector
     est = published_trajectory(pipeline.published)
     write_tum(out_dir / "odometry.tum", est)  # atomic
     atomic_write_text(out_dir / "config.toml", dump_toml(config))
-    st = pipeline.startup.report
-    t0 = st.first_measurement_t_ns
+    st = pipeline.startup.report if pipeline.startup is not None else None
+    t0 = sched_report.first_t_ns
+    t_pub = None if st is None else st.first_publish_t_ns
     report = {
         "schema": 1,
         **extra,
         "published_poses": len(est),
-        "published_by": st.published_by,
-        "T_f_s": None if st.first_publish_t_ns is None or t0 is None else (st.first_publish_t_ns - t0) * 1e-9,
-        "metrics": evaluate(est, gt, st.first_publish_t_ns),
+        "published_by": None if st is None else st.published_by,
+        "T_f_s": None if t_pub is None or t0 is None else (t_pub - t0) * 1e-9,
+        "metrics": evaluate(est, gt),
         "scheduler": sched_report.as_dict(),
         "pipeline": pipeline.report(),
         "config": config_to_dict(config),

@@ -35,7 +35,7 @@ def run_pipeline(driver: Any, model: Any, config: DavioConfig, paced: bool = Fal
         bar.start()
 
         def progress(s: float) -> None:
-            who = pipe.startup.report.published_by or "starting"
+            who = _status(pipe)
             bar.update(task, completed=s, description=f"running ({who})")
     elif show_progress:
         last = [-1]
@@ -44,13 +44,19 @@ def run_pipeline(driver: Any, model: Any, config: DavioConfig, paced: bool = Fal
             if int(s) // 5 != last[0]:
                 last[0] = int(s) // 5
                 print(f"  t = {s:6.1f} s  published {len(pipe.published):5d} poses"
-                      f"  ({pipe.startup.report.published_by or 'starting'})", file=sys.stderr, flush=True)
+                      f"  ({_status(pipe)})", file=sys.stderr, flush=True)
     try:
         rep = Scheduler(clock, progress=progress).run(events, pipe)
     finally:
         if bar is not None:
             bar.stop()
     return RunResult(pipe, rep)
+
+
+def _status(pipe: VioPipeline) -> str:
+    if pipe.startup is None:
+        return "calibration bring-up"
+    return pipe.startup.report.published_by or "starting"
 
 
 def _first_seconds(events: Any, seconds: float) -> Any:

@@ -55,7 +55,9 @@ def run(args: argparse.Namespace) -> int:
                         f"EMULATED DA3 ({args.da3}) -- simulator ground truth, not a real network"},
                        config)
     _summary(report, Path(args.out))
-    st = report["pipeline"]["startup"]
+    st = report["pipeline"].get("startup")
+    if st is None:
+        return 0
     print(f"  start-up: {st['ff_requests']} feed-forward windows, {st['ff_accepted']} accepted, "
           f"rejections {st['ff_rejections'] or '{}'}; candidates selected {st['candidates_selected']}")
     return 0

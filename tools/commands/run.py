@@ -26,6 +26,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="emulated DA3 (simulated recordings only): small, base or large")
     g.add_argument("--native-only", action="store_true", help="no feed-forward start-up")
     p.add_argument("--config", metavar="TOML", help="configuration file (see config.toml of a run)")
+    p.add_argument("--withhold-extrinsics", action="store_true",
+                   help="ignore the rig's camera-IMU extrinsics and time offset: hand-eye bring-up from "
+                        "DA3, then online calibration (needs a model)")
     p.add_argument("--paced", action="store_true",
                    help="replay at sensor rate instead of as fast as possible")
     p.add_argument("--speed", type=float, default=1.0, help="pacing factor with --paced")
@@ -47,6 +50,8 @@ def run(args: argparse.Namespace) -> int:
     rig = rec.driver.rig
     if rig is None or rig.camera is None:
         raise ConfigError(f"{args.path}: no camera calibration (cam0/sensor.yaml); DAVIO needs intrinsics")
+    if args.withhold_extrinsics:
+        rig = rig.replace(T_IC=None, time_offset_s=None)
     model, model_desc = None, "none (native initializer only)"
     if args.model:
         from models.da3 import OnnxDA3
@@ -65,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
         model_desc = f"EMULATED DA3 ({preset}) from simulator ground truth -- not a real network"
     print(f"davio run: {rec.description}\n  model: {model_desc}")
     res = run_pipeline(rec.driver, model, config, paced=args.paced, speed=args.speed,
-                       model_latency_s=args.model_latency, seconds=args.seconds)
+                       model_latency_s=args.model_latency, seconds=args.seconds, rig=rig)
     gt = rec.driver.groundtruth()
     report = write_run(Path(args.out), res.pipeline, res.scheduler, gt,
                        {"recording": rec.description, "model": model_desc,
@@ -85,6 +90,12 @@ def _summary(report: dict, out: Path) -> None:
     if m:
         nan = float("nan")
         print(f"  ATE: {m.get('ate_se3_m', nan):.3f} m (se3), {m.get('ate_posyaw_m', nan):.3f} m (posyaw)")
+    bu = report["pipeline"].get("bringup")
+    if bu is not None:
+        state = "done" if bu["R_IC"] else "NOT done"
+        rms = bu["fit_rms_deg"] or float("nan")
+        print(f"  hand-eye bring-up: {state} after {bu['windows_used']} windows (fit RMS {rms:.2f} deg, "
+              f"rejections {bu['rejections'] or '{}'})")
     s = report["scheduler"]
     print(f"  tracking {s.get('tracking_ms_per_frame_median', float('nan')):.1f} ms/frame (median), "
           f"real-time factor {s.get('realtime_factor') or float('nan'):.2f}")
