@@ -73,6 +73,57 @@ def window_columns(state: State) -> tuple[np.ndarray, dict[int, int]]:
     return np.asarray(cols, dtype=np.int64), offset
 
 
+@dataclass
+class TrackLinearization:
+    """A track triangulated and linearised at the window's clones.
+
+    clones, Rc, pc, Rf, pf, uv, xn: as track_arrays; p_O: triangulated point (odometry frame);
+    p_lin: its linearisation point; r (2M,): pixel residuals; Hx (2M, ncol): Jacobian w.r.t. the
+    window columns (extrinsics, clones); Hf (2M, 3): w.r.t. the point.
+    """
+
+    clones: list
+    Rc: np.ndarray
+    pc: np.ndarray
+    Rf: np.ndarray
+    pf: np.ndarray
+    uv: np.ndarray
+    p_O: np.ndarray
+    p_lin: np.ndarray
+    r: np.ndarray
+    Hx: np.ndarray
+    Hf: np.ndarray
+
+
+def fill_window_columns(Hx: np.ndarray, He: np.ndarray, Hc: np.ndarray, clones: list, offset: dict,
+                        has_extrinsics: bool) -> None:
+    """Write the extrinsics block He and each observation's clone block of Hc into Hx (in place)."""
+    if has_extrinsics:
+        Hx[:, 0:6] = He
+    for i, c in enumerate(clones):
+        o = offset[c.t_cam_ns]
+        Hx[2 * i:2 * i + 2, o:o + 6] = Hc[2 * i:2 * i + 2]
+
+
+def linearize_track(state: State, tr: Track, cfg: MsckfConfig, cam: CameraParams, ncol: int,
+                    offset: dict) -> TrackLinearization | None:
+    """Triangulate `tr` and build its residuals and Jacobians; None when it cannot be used."""
+    cl, Rc, pc, Rf, pf, uv, xn = track_arrays(state, tr)
+    if len(cl) < 2:
+        return None
+    ok, p_O = triangulate_track(state, cfg, Rc, pc, xn)
+    if not ok:
+        return None
+    p_lin = linearization_point(state, cfg, Rf, pf, xn, p_O)
+    ok, r, Hc, He, Hf = feature_jacobians(Rc, pc, Rf, pf, uv, p_O, p_lin, state.R_IC, state.p_IC,
+                                          cam.code, cam.params)
+    if not ok:
+        return None
+    Hx = np.zeros((r.shape[0], ncol))
+    fill_window_columns(Hx, He, Hc, cl, offset, state.idx_ext >= 0)
+    return TrackLinearization(cl, Rc, pc, Rf, pf, uv, p_O, p_lin, r, Hx, Hf)
+
+
 def msckf_update(state: State, tracks: list[Track], cfg: MsckfConfig, cam: CameraParams) -> MsckfUpdateStats:
     """Use `tracks` (each with >= 2 observations at clones) in one MSCKF update."""
     st = MsckfUpdateStats(candidates=len(tracks))
@@ -85,28 +136,11 @@ def msckf_update(state: State, tracks: list[Track], cfg: MsckfConfig, cam: Camer
     Hs: list[np.ndarray] = []
     rs: list[np.ndarray] = []
     for tr in tracks:
-        cl, Rc, pc, Rf, pf, uv, xn = track_arrays(state, tr)
-        if len(cl) < 2:
+        lin = linearize_track(state, tr, cfg, cam, ncol, offset)
+        if lin is None:
             st.triangulation_failed += 1
             continue
-        ok, p_O = triangulate_track(state, cfg, Rc, pc, xn)
-        if not ok:
-            st.triangulation_failed += 1
-            continue
-        p_lin = linearization_point(state, cfg, Rf, pf, xn, p_O)
-        ok, r, Hc, He, Hf = feature_jacobians(Rc, pc, Rf, pf, uv, p_O, p_lin, state.R_IC, state.p_IC,
-                                              cam.code, cam.params)
-        if not ok:
-            st.triangulation_failed += 1
-            continue
-        m2 = r.shape[0]
-        Hx = np.zeros((m2, ncol))
-        if state.idx_ext >= 0:
-            Hx[:, 0:6] = He
-        for i, c in enumerate(cl):
-            o = offset[c.t_cam_ns]
-            Hx[2 * i:2 * i + 2, o:o + 6] = Hc[2 * i:2 * i + 2]
-        Hx2, r2, _, _, _ = givens_left_nullspace(Hf, Hx, r)
+        Hx2, r2, _, _, _ = givens_left_nullspace(lin.Hf, lin.Hx, lin.r)
         if Hx2.shape[0] == 0:
             continue
         S = Hx2 @ Pcc @ Hx2.T

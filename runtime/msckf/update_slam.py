@@ -16,7 +16,7 @@ from runtime.msckf.landmark_repr import anchored_to_global, global_to_anchored
 from runtime.msckf.measurement import feature_jacobians
 from runtime.msckf.state import State
 from runtime.msckf.state_helper import chi2_95, compress, ekf_update, initialize_landmark
-from runtime.msckf.update_msckf import linearization_point, track_arrays, triangulate_track, window_columns
+from runtime.msckf.update_msckf import fill_window_columns, linearize_track, window_columns
 
 
 @dataclass
@@ -191,27 +191,13 @@ def delayed_init(state: State, tracks: list[Track], cfg: MsckfConfig, cam: Camer
     anchored = cfg.slam_representation == "anchored_inverse_depth"
     anchor = state.clones[state.clone_times()[-1]] if anchored else None
     for tr in tracks:
-        cl, Rc, pc, Rf, pf, uv, xn = track_arrays(state, tr)
-        if len(cl) < 2:
+        lin = linearize_track(state, tr, cfg, cam, cols.size, offset)
+        if lin is None:
             stats.init_failed += 1
             continue
-        ok, p_O = triangulate_track(state, cfg, Rc, pc, xn)
-        if not ok:
-            stats.init_failed += 1
-            continue
-        p_lin = linearization_point(state, cfg, Rf, pf, xn, p_O)
-        ok, r, Hc, He, Hf = feature_jacobians(Rc, pc, Rf, pf, uv, p_O, p_lin, state.R_IC, state.p_IC,
-                                              cam.code, cam.params)
-        if not ok:
-            stats.init_failed += 1
-            continue
-        Hx = np.zeros((r.shape[0], cols.size))
-        if state.idx_ext >= 0:
-            Hx[:, 0:6] = He
-        for i, c in enumerate(cl):
-            o = offset[c.t_cam_ns]
-            Hx[2 * i:2 * i + 2, o:o + 6] = Hc[2 * i:2 * i + 2]
-        value, H_lm, fej = p_O, Hf, p_lin
+        cl, Rc, pc, Rf, pf, uv = lin.clones, lin.Rc, lin.pc, lin.Rf, lin.pf, lin.uv
+        p_O, p_lin, r, Hx = lin.p_O, lin.p_lin, lin.r, lin.Hx
+        value, H_lm, fej = p_O, lin.Hf, p_lin
         if anchor is not None:
             # lam in the newest clone's camera; Jacobians at the anchor's first estimate
             value, _, _, _ = global_to_anchored(p_O, anchor.R, anchor.p, state.R_IC, state.p_IC)
@@ -224,11 +210,7 @@ def delayed_init(state: State, tracks: list[Track], cfg: MsckfConfig, cam: Camer
                 stats.init_failed += 1
                 continue
             Hx[:] = 0.0
-            if state.idx_ext >= 0:
-                Hx[:, 0:6] = He + Hf @ J_ext
-            for i, c in enumerate(cl):
-                o = offset[c.t_cam_ns]
-                Hx[2 * i:2 * i + 2, o:o + 6] = Hc[2 * i:2 * i + 2]
+            fill_window_columns(Hx, He + Hf @ J_ext, Hc, cl, offset, state.idx_ext >= 0)
             o = offset[anchor.t_cam_ns]
             Hx[:, o:o + 6] += Hf @ J_anc
             H_lm = Hf @ J_lam
