@@ -8,7 +8,7 @@ from drivers.euroc import (
     read_euroc_groundtruth,
     read_euroc_imu_csv,
 )
-from drivers.events import Event, Frame, ImuSample
+from runtime.events import Event, Frame, ImuSample
 
 __all__ = ["Driver", "EurocDriver", "Event", "Frame", "ImuSample", "IntakeReport", "Policy", "StreamCounts",
            "read_camera_timestamps", "read_euroc_groundtruth", "read_euroc_imu_csv"]

@@ -12,7 +12,7 @@ from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from typing import TYPE_CHECKING, Literal
 
-from drivers.events import Frame, ImuSample
+from runtime.events import Frame, ImuSample
 from runtime.errors import ConfigError
 from runtime.geometry.trajectory import PoseTrajectory
 

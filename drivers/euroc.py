@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from drivers.base import Driver, IntakeReport, Policy, StreamCounts, check_policy
-from drivers.events import Frame, ImuSample
+from runtime.events import Frame, ImuSample
 from drivers.validation import count_gaps, read_stamped_csv
 from runtime.errors import DataError
 from runtime.geometry.trajectory import PoseTrajectory

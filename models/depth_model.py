@@ -16,7 +16,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from drivers.events import Frame
+from runtime.events import Frame
 
 
 @dataclass

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from drivers.events import Frame, ImuSample
+from runtime.events import Frame, ImuSample
 from models.depth_model import DepthModel
 from runtime.ffinit.handeye import HandEyeResult, RotationWindow, estimate_handeye, validate_handeye
 from runtime.ffinit.window import Rejection

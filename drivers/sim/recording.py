@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from drivers.base import Driver, IntakeReport
-from drivers.events import Frame, ImuSample
+from runtime.events import Frame, ImuSample
 from drivers.sim.groundtruth import GroundTruthSource
 from drivers.sim.imu_synth import ImuErrorModel, ImuStream, imu_stamps, synthesize_imu
 from drivers.sim.motion import DEFAULT_PRESET, preset_spline

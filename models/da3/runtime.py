@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 
 from calib import CameraModel
-from drivers.events import Frame
+from runtime.events import Frame
 from models.da3.contract import MAX_VIEWS, MIN_VIEWS, check_da3_signature, da3_resolution
 from models.da3.preprocess import (
     camera_centres,

@@ -10,7 +10,7 @@ from runtime.errors import DataError
 
 
 class ImuSampleLike(Protocol):
-    """Anything with the fields of drivers.events.ImuSample (runtime does not import drivers)."""
+    """Anything with the fields of runtime.events.ImuSample (runtime does not import drivers)."""
 
     t_ns: int
     gyro: np.ndarray

@@ -95,7 +95,7 @@ class StaticInitializer:
         return self.log.last_reason
 
     def feed_imu(self, sample: object) -> None:
-        """Add one drivers.events.ImuSample (t_ns, gyro rad/s, accel m/s^2)."""
+        """Add one runtime.events.ImuSample (t_ns, gyro rad/s, accel m/s^2)."""
         self.imu.add(sample.t_ns, sample.gyro, sample.accel)
 
     def feed_tracks(self, t_ns: int, ids: np.ndarray, uv: np.ndarray) -> None:

@@ -23,7 +23,7 @@ from runtime.errors import ConfigError, DataError
 
 if TYPE_CHECKING:
     from calib import CameraModel
-    from drivers.events import Frame
+    from runtime.events import Frame
 
 _EQUALIZATIONS = ("histogram", "clahe", "none")
 

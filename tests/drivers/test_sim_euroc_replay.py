@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.events import Frame
+from runtime.events import Frame
 from drivers.sim.imu_synth import ImuErrorModel
 from drivers.sim.motion import level_attitude
 from drivers.sim.recording import SimConfig, SimRecording

@@ -11,7 +11,7 @@ import pytest
 
 from drivers.base import Driver
 from drivers.euroc import EurocDriver
-from drivers.events import Frame, ImuSample
+from runtime.events import Frame, ImuSample
 from drivers.sim.recording import SimConfig, SimRecording
 from drivers.sim.render import ImageOptions
 from drivers.sim.rig import euroc_default_rig

@@ -8,7 +8,7 @@ import pytest
 from da3_contract_graph import build_da3_contract_graph
 
 from calib import Pinhole, PinholeRadtan
-from drivers.events import Frame
+from runtime.events import Frame
 from models.da3 import OnnxDA3
 from models.da3.preprocess import IMAGENET_MEAN, IMAGENET_STD
 from models.depth_model import DepthModel

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from calib import Pinhole, PinholeRadtan, read_euroc_rig
-from drivers.events import Frame
+from runtime.events import Frame
 from runtime.errors import ConfigError, DataError
 from runtime.msckf.tracker import KltTracker, TrackerConfig
 

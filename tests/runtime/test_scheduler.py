@@ -7,7 +7,7 @@ import time
 
 import pytest
 
-from drivers.events import Frame, ImuSample
+from runtime.events import Frame, ImuSample
 from runtime.errors import DataError, DavioError
 from runtime.scheduler import FastClock, PacedClock, Scheduler
 

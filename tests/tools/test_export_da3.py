@@ -80,7 +80,7 @@ def test_checkpoint_loading_strips_prefix_and_rejects_other_sizes(tmp_path):
 def test_tiny_export_agrees_with_torch_and_runs_in_the_runtime(tmp_path, capsys, monkeypatch):
     _need_export_deps()
     from calib import Pinhole
-    from drivers.events import Frame
+    from runtime.events import Frame
     from models.da3 import OnnxDA3
     from models.inspect_model import inspect_model
     from tools.cli import main

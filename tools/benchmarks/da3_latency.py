@@ -66,7 +66,7 @@ def _default_model(size: str, res: str) -> tuple[Path, float | None]:
 
 def run(args: argparse.Namespace) -> int:
     from calib import Pinhole
-    from drivers.events import Frame
+    from runtime.events import Frame
     from models.da3 import OnnxDA3
 
     export_s = None
