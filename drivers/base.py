@@ -12,8 +12,8 @@ from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from typing import TYPE_CHECKING, Literal
 
-from runtime.events import Frame, ImuSample
 from runtime.errors import ConfigError
+from runtime.events import Frame, ImuSample
 from runtime.geometry.trajectory import PoseTrajectory
 
 if TYPE_CHECKING:  # calib is imported lazily by the drivers that read calibration

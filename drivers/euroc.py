@@ -16,9 +16,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from drivers.base import Driver, IntakeReport, Policy, StreamCounts, check_policy
-from runtime.events import Frame, ImuSample
 from drivers.validation import count_gaps, read_stamped_csv
 from runtime.errors import DataError
+from runtime.events import Frame, ImuSample
 from runtime.geometry.trajectory import PoseTrajectory
 
 if TYPE_CHECKING:

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from drivers.base import Driver, IntakeReport
-from runtime.events import Frame, ImuSample
+from drivers.euroc import read_camera_timestamps, read_euroc_imu_csv
 from drivers.sim.groundtruth import GroundTruthSource
 from drivers.sim.imu_synth import ImuErrorModel, ImuStream, imu_stamps, synthesize_imu
 from drivers.sim.motion import DEFAULT_PRESET, preset_spline
@@ -31,8 +31,9 @@ from drivers.sim.rig import euroc_default_rig
 from drivers.sim.sampled_motion import SampledMotion
 from drivers.sim.scene import Scene, build_scene
 from drivers.sim.spline import PoseSpline, fit_pose_spline
-from drivers.sim.trajectory_files import read_imu_csv, read_timestamps, read_trajectory
+from drivers.trajectory_files import read_trajectory
 from runtime.errors import ConfigError, DataError
+from runtime.events import Frame, ImuSample
 from runtime.geometry.trajectory import PoseTrajectory
 
 if TYPE_CHECKING:
@@ -155,7 +156,7 @@ class SimRecording(Driver):
         the camera rate.
         """
         config = config or SimConfig(seconds=None)
-        traj = read_trajectory(path)
+        traj = read_trajectory(path, strictly_increasing=True)
         traj = _crop(traj, config.start_s, config.seconds, Path(path))
         if imu_path is None:
             spline = fit_pose_spline(traj.t_ns, traj.p, traj.R, dt_s=0.1)
@@ -177,7 +178,7 @@ class SimRecording(Driver):
         if not gt.is_file():
             raise DataError("no groundtruth.csv or groundtruth_tum.txt", folder)
         config = config or SimConfig(seconds=None)
-        traj = _crop(read_trajectory(gt), config.start_s, config.seconds, gt)
+        traj = _crop(read_trajectory(gt, strictly_increasing=True), config.start_s, config.seconds, gt)
         stamps = folder / "cam0_timestamps.txt"
         return cls._replay(
             traj,
@@ -225,7 +226,7 @@ class SimRecording(Driver):
         sequence: str | None = None,
     ) -> SimRecording:
         rig = _with_offset(rig or euroc_default_rig(), config.time_offset_s)
-        t_all, gyro, accel = read_imu_csv(imu_path)
+        t_all, gyro, accel = read_euroc_imu_csv(imu_path, policy="strict")
         t0, t_end = int(traj.t_ns[0]), int(traj.t_ns[-1])
         keep = (t_all >= t0) & (t_all <= t_end)
         if keep.sum() < 2:
@@ -235,7 +236,7 @@ class SimRecording(Driver):
         offset_ns = int(round(config.time_offset_s * 1e9))
         margin = int(config.image.exposure_time_s * 0.5e9) + abs(offset_ns)
         if camera_stamps_path is not None:
-            real = read_timestamps(camera_stamps_path)
+            real = read_camera_timestamps(camera_stamps_path, policy="strict")
             t_true = real[(real >= t0 + margin) & (real <= t_end - margin)]
         else:
             t_true = _frame_times(

@@ -5,13 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from runtime.events import Frame
+from drivers.euroc import read_camera_timestamps, read_euroc_imu_csv
 from drivers.sim.imu_synth import ImuErrorModel
 from drivers.sim.motion import level_attitude
 from drivers.sim.recording import SimConfig, SimRecording
 from drivers.sim.rig import euroc_default_rig
-from drivers.sim.trajectory_files import read_imu_csv, read_timestamps, read_trajectory
+from drivers.trajectory_files import read_trajectory
 from runtime.errors import DataError, TrajectoryError
+from runtime.events import Frame
 from runtime.geometry.quaternion import rot_to_quat_xyzw
 from tests.conftest import shared_path
 from tools.benchmarks.real_imu_drift import drift_windows, fit_constant_biases
@@ -28,14 +29,14 @@ def test_euroc_trajectory_mode_replays_the_real_imu(sequence: str) -> None:
     rec = SimRecording.from_euroc_imu_gt(
         folder, SimConfig(seconds=3.0, start_s=5.0, seed=1), rig=_small_rig()
     )
-    t_all, gyro, accel = read_imu_csv(folder / "imu0.csv")
+    t_all, gyro, accel = read_euroc_imu_csv(folder / "imu0.csv", policy="strict")
     gt = rec.groundtruth()
     # the real IMU rows inside the ground-truth window, untouched
     keep = (t_all >= gt.t_ns[0]) & (t_all <= gt.t_ns[-1])
     np.testing.assert_array_equal(rec.imu.t_ns, t_all[keep])
     np.testing.assert_array_equal(rec.imu.accel, accel[keep])
     # frames at the real camera stamps
-    cams = read_timestamps(folder / "cam0_timestamps.txt")
+    cams = read_camera_timestamps(folder / "cam0_timestamps.txt", policy="strict")
     assert np.isin(rec.frame_stamps_ns, cams).all() and 55 <= len(rec) <= 60
     assert rec.info["mode"] == "euroc-trajectory" and rec.info["sequence"] == sequence
     # the scene encloses the real trajectory and every pixel sees a surface lying on it
@@ -72,7 +73,7 @@ def test_imu_drift_is_zero_for_exact_synthetic_data_and_biases_are_recovered() -
 def test_euroc_trajectory_drift_with_ground_truth_biases() -> None:
     folder = shared_path("euroc_imu_gt", "V1_02_medium")
     gt = read_trajectory(folder / "groundtruth.csv")
-    t, g, a = read_imu_csv(folder / "imu0.csv")
+    t, g, a = read_euroc_imu_csv(folder / "imu0.csv", policy="strict")
     gt = gt.subset(gt.t_ns < gt.t_ns[0] + int(12e9))
     res = drift_windows(t, g, a, gt, 1.0, 1.0, use_gt_bias=True)
     zero = drift_windows(t, g, a, gt, 1.0, 1.0, use_gt_bias=False)
@@ -105,23 +106,26 @@ def test_trajectory_file_with_synthetic_imu(tmp_path) -> None:
     assert np.all(np.abs(at_rest_norm - 9.81) < 1.5)
 
 
-def test_trajectory_readers_reject_bad_input(tmp_path) -> None:
-    bad = tmp_path / "bad.tum"
-    bad.write_text("1.0 0 0 0 0 0 0 1\n0.5 0 0 0 0 0 0 1\n")
-    with pytest.raises(TrajectoryError, match="increase") as err:
-        read_trajectory(bad)
+def test_replay_refuses_what_evaluation_tolerates(tmp_path) -> None:
+    """The simulator interpolates its ground truth, so a repeated stamp (kept by evaluation, as evo
+    does) is an error there; a decreasing stamp or a NaN IMU sample is an error everywhere."""
+    rows = [f"{t:.2f} {t:.3f} 0 1 0 0 0 1" for t in np.arange(0.0, 3.0, 0.05)]
+    repeated = tmp_path / "repeated.tum"
+    repeated.write_text("\n".join(rows[:10] + [rows[9]] + rows[10:]) + "\n")
+    assert read_trajectory(repeated).meta["repeated_stamps"] == 1
+    with pytest.raises(TrajectoryError, match="repeated timestamp") as err:
+        SimRecording.from_trajectory(repeated, SimConfig(seconds=None, seed=0), rig=_small_rig())
+    assert err.value.line == 11
+    backwards = tmp_path / "backwards.tum"
+    backwards.write_text("1.0 0 0 0 0 0 0 1\n0.5 0 0 0 0 0 0 1\n")
+    with pytest.raises(TrajectoryError, match="decreasing") as err:
+        read_trajectory(backwards)
     assert err.value.line == 2
-    short = tmp_path / "short.csv"
-    short.write_text("#t,x\n100,1,2,3\n")
-    with pytest.raises(TrajectoryError, match="columns"):
-        read_trajectory(short)
     imu = tmp_path / "imu.csv"
     imu.write_text("100,0,0,0,0,0,9.8\n200,0,nan,0,0,0,9.8\n")
-    with pytest.raises(DataError, match="non-finite") as err:
-        read_imu_csv(imu)
+    with pytest.raises(DataError, match="NaN") as err:
+        read_euroc_imu_csv(imu, policy="strict")
     assert err.value.line == 2
-    with pytest.raises(DataError, match="not found"):
-        read_imu_csv(tmp_path / "missing.csv")
 
 
 def test_trajectory_file_with_real_imu_uses_the_camera_stamps_beside_it() -> None:
@@ -131,6 +135,7 @@ def test_trajectory_file_with_real_imu_uses_the_camera_stamps_beside_it() -> Non
         folder / "groundtruth_tum.txt", cfg, rig=_small_rig(), imu_path=folder / "imu0.csv"
     )
     assert rec.info["mode"] == "euroc-trajectory"
-    assert np.isin(rec.frame_stamps_ns, read_timestamps(folder / "cam0_timestamps.txt")).all()
+    stamps = read_camera_timestamps(folder / "cam0_timestamps.txt", policy="strict")
+    assert np.isin(rec.frame_stamps_ns, stamps).all()
     assert 38 <= len(rec) <= 40
     assert rec.groundtruth().v is None  # TUM ground truth: no velocity or biases

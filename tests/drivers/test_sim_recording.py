@@ -11,12 +11,12 @@ import pytest
 
 from drivers.base import Driver
 from drivers.euroc import EurocDriver
-from runtime.events import Frame, ImuSample
 from drivers.sim.recording import SimConfig, SimRecording
 from drivers.sim.render import ImageOptions
 from drivers.sim.rig import euroc_default_rig
 from drivers.sim.writer import write_euroc
 from runtime.errors import ConfigError
+from runtime.events import Frame, ImuSample
 from runtime.geometry.so3 import so3_log
 
 

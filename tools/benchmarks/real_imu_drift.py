@@ -130,7 +130,8 @@ def run(args: argparse.Namespace) -> int:
     import json
     from pathlib import Path
 
-    from drivers.sim.trajectory_files import read_imu_csv, read_trajectory
+    from drivers.euroc import read_euroc_imu_csv
+    from drivers.trajectory_files import read_trajectory
     from runtime.errors import DataError
 
     root = (
@@ -147,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
         if not gt_path.is_file():
             raise DataError("no groundtruth.csv or groundtruth_tum.txt (is ../shared/data present?)", folder)
         gt = read_trajectory(gt_path)
-        t, g, a = read_imu_csv(folder / "imu0.csv")
+        t, g, a = read_euroc_imu_csv(folder / "imu0.csv", policy="strict")
         results[seq] = {"groundtruth": gt_path.name}
         if gt.bg is not None:
             results[seq]["with_gt_bias"] = drift_windows(t, g, a, gt, args.window, args.step, True)

@@ -1,179 +1,29 @@
-"""Trajectory files: TUM (`t[s] x y z qx qy qz qw`) and EuRoC state CSV (`t[ns],p,q_wxyz[,v,bg,ba]`).
+"""Trajectory files for evaluation: the readers (drivers.trajectory_files) and the TUM / EuRoC writers.
 
-Stamps become int64 nanoseconds parsed exactly from the decimal text (no float rounding).
-Stamps must not decrease; a repeated stamp is kept (as evo keeps it) and counted in
-`meta["repeated_stamps"]`.
-Malformed rows raise `TrajectoryError` naming the file and 1-based line.
-Quaternions are Hamilton; TUM orders them x,y,z,w, EuRoC w,x,y,z.
+Written stamps are exact decimal seconds (TUM, 9 digits) or integer nanoseconds (EuRoC); floats are
+written so that they read back exactly. Files are replaced atomically.
 """
 from __future__ import annotations
 
-import math
 import os
 import tempfile
-from decimal import ROUND_HALF_EVEN, Decimal, InvalidOperation
 from pathlib import Path
 
 import numpy as np
 
-from runtime.errors import TrajectoryError
-from runtime.geometry import quat_wxyz_to_rot, rot_to_quat_wxyz, rot_to_quat_xyzw
+from drivers.trajectory_files import (
+    detect_format,
+    ns_to_seconds_text,
+    read_euroc_csv,
+    read_trajectory,
+    read_tum,
+    seconds_text_to_ns,
+)
+from runtime.geometry import rot_to_quat_wxyz, rot_to_quat_xyzw
 from runtime.geometry.trajectory import PoseTrajectory
 
-_NS = Decimal(1_000_000_000)
-
-
-def seconds_text_to_ns(text: str) -> int:
-    """Exact int nanoseconds of a decimal seconds string ('1403715529.112143517', '1.4037e+09').
-
-    Digits below 1 ns are rounded half-to-even. Raises ValueError for anything but a finite number.
-    """
-    try:
-        value = Decimal(text)
-    except InvalidOperation as exc:
-        raise ValueError(f"not a number: {text!r}") from exc
-    if not value.is_finite():
-        raise ValueError(f"not a finite number: {text!r}")
-    return int((value * _NS).to_integral_value(rounding=ROUND_HALF_EVEN))
-
-
-def ns_to_seconds_text(t_ns: int) -> str:
-    """Decimal seconds text with 9 fractional digits, exact for any int64 stamp."""
-    sign = "-" if t_ns < 0 else ""
-    a = abs(int(t_ns))
-    return f"{sign}{a // 1_000_000_000}.{a % 1_000_000_000:09d}"
-
-
-def _data_lines(path: Path) -> list[tuple[int, str]]:
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except OSError as exc:
-        raise TrajectoryError(f"cannot read trajectory file: {exc.strerror or exc}", path) from exc
-    except UnicodeDecodeError as exc:
-        raise TrajectoryError("not a text file", path) from exc
-    out = []
-    for lineno, line in enumerate(text.splitlines(), start=1):
-        s = line.strip()
-        if s and not s.startswith("#"):
-            out.append((lineno, s))
-    return out
-
-
-def _fields(line: str) -> list[str]:
-    return line.replace(",", " ").split()
-
-
-def _floats(fields: list[str], path: Path, lineno: int) -> list[float]:
-    try:
-        vals = [float(f) for f in fields]
-    except ValueError as exc:
-        raise TrajectoryError(f"unparseable number ({exc})", path, lineno) from exc
-    if not all(math.isfinite(v) for v in vals):
-        raise TrajectoryError("NaN or Inf value", path, lineno)
-    return vals
-
-
-def _check_order(t_ns: list[int], lines: list[int], path: Path) -> int:
-    """Raise on a decreasing stamp; return how many stamps repeat their predecessor (kept, as evo does)."""
-    repeats = 0
-    for k in range(1, len(t_ns)):
-        if t_ns[k] < t_ns[k - 1]:
-            raise TrajectoryError("decreasing timestamp (stamps must not go back in time)", path, lines[k])
-        repeats += t_ns[k] == t_ns[k - 1]
-    return repeats
-
-
-def _quat_rows(q: np.ndarray, lines: list[int], path: Path) -> None:
-    norms = np.linalg.norm(q, axis=1) if len(q) else np.zeros(0)
-    bad = np.flatnonzero(np.abs(norms - 1.0) > 1e-2)
-    if bad.size:
-        raise TrajectoryError(f"quaternion norm {norms[bad[0]]:.4f} is not 1", path, lines[int(bad[0])])
-
-
-def read_tum(path: str | Path) -> PoseTrajectory:
-    """Read a TUM file (`t[s] x y z qx qy qz qw`, '#' comments) into poses T_WB."""
-    path = Path(path)
-    t_ns: list[int] = []
-    vals: list[list[float]] = []
-    lines: list[int] = []
-    for lineno, line in _data_lines(path):
-        f = _fields(line)
-        if len(f) != 8:
-            raise TrajectoryError(f"{len(f)} fields, expected 8 (t x y z qx qy qz qw)", path, lineno)
-        try:
-            t_ns.append(seconds_text_to_ns(f[0]))
-        except ValueError as exc:
-            raise TrajectoryError(f"bad timestamp: {exc}", path, lineno) from exc
-        vals.append(_floats(f[1:], path, lineno))
-        lines.append(lineno)
-    if not t_ns:
-        raise TrajectoryError("no poses in file", path)
-    repeats = _check_order(t_ns, lines, path)
-    v = np.array(vals)
-    q_wxyz = v[:, [6, 3, 4, 5]]
-    _quat_rows(q_wxyz, lines, path)
-    return PoseTrajectory(np.array(t_ns, dtype=np.int64), v[:, 0:3], quat_wxyz_to_rot(q_wxyz),
-                          meta={"source": str(path), "format": "tum", "repeated_stamps": repeats})
-
-
-def read_euroc_csv(path: str | Path) -> PoseTrajectory:
-    """Read an EuRoC state CSV: `t[ns], p xyz, q wxyz` then optionally `v xyz, bg xyz, ba xyz`.
-
-    A first line without '#' whose first field is not a number is taken as a header.
-    """
-    path = Path(path)
-    t_ns: list[int] = []
-    vals: list[list[float]] = []
-    lines: list[int] = []
-    width = None
-    for k, (lineno, line) in enumerate(_data_lines(path)):
-        f = [x.strip() for x in line.split(",")]
-        if k == 0 and not f[0][:1].isdigit():
-            continue  # text header without '#'
-        if len(f) not in (8, 17):
-            raise TrajectoryError(f"{len(f)} fields, expected 8 (t,p,q) or 17 (t,p,q,v,bg,ba)", path, lineno)
-        if width is None:
-            width = len(f)
-        elif len(f) != width:
-            raise TrajectoryError(f"{len(f)} fields where earlier rows had {width}", path, lineno)
-        if not f[0].isdigit():
-            raise TrajectoryError(f"timestamp {f[0]!r} is not an integer number of nanoseconds", path, lineno)
-        t_ns.append(int(f[0]))
-        vals.append(_floats(f[1:], path, lineno))
-        lines.append(lineno)
-    if not t_ns:
-        raise TrajectoryError("no poses in file", path)
-    repeats = _check_order(t_ns, lines, path)
-    v = np.array(vals)
-    _quat_rows(v[:, 3:7], lines, path)
-    extra = {} if width == 8 else {"v": v[:, 7:10], "bg": v[:, 10:13], "ba": v[:, 13:16]}
-    return PoseTrajectory(np.array(t_ns, dtype=np.int64), v[:, 0:3], quat_wxyz_to_rot(v[:, 3:7]),
-                          meta={"source": str(path), "format": "euroc", "repeated_stamps": repeats}, **extra)
-
-
-def detect_format(path: str | Path) -> str:
-    """'euroc' (comma-separated, integer-ns stamps, 8 or 17 columns) or 'tum' (8 columns)."""
-    path = Path(path)
-    for _, line in _data_lines(path):
-        f = [x.strip() for x in line.split(",")]
-        if not f[0][:1].isdigit() and len(f) > 1:
-            continue  # header line
-        if len(f) in (8, 17) and f[0].isdigit():
-            return "euroc"
-        if len(_fields(line)) == 8:
-            return "tum"
-        raise TrajectoryError("cannot tell the trajectory format (neither TUM nor EuRoC CSV)", path)
-    raise TrajectoryError("no poses in file", path)
-
-
-def read_trajectory(path: str | Path, fmt: str | None = None) -> PoseTrajectory:
-    """Read a TUM or EuRoC-CSV trajectory, detecting the format unless `fmt` says it."""
-    fmt = fmt or detect_format(path)
-    if fmt == "tum":
-        return read_tum(path)
-    if fmt == "euroc":
-        return read_euroc_csv(path)
-    raise TrajectoryError(f"unknown trajectory format {fmt!r} (expected 'tum' or 'euroc')", path)
+__all__ = ["atomic_write_text", "detect_format", "ns_to_seconds_text", "read_euroc_csv", "read_trajectory",
+           "read_tum", "seconds_text_to_ns", "write_euroc_csv", "write_tum"]
 
 
 def atomic_write_text(path: Path, text: str) -> None:
