@@ -11,8 +11,8 @@ from typing import Any
 
 import numpy as np
 
-from runtime.events import Frame, ImuSample
 from models.depth_model import DepthModel
+from runtime.events import Frame, ImuSample
 from runtime.ffinit.handeye import HandEyeResult, RotationWindow, estimate_handeye, validate_handeye
 from runtime.ffinit.window import Rejection
 from runtime.imu import Preintegrator

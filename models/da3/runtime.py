@@ -19,7 +19,6 @@ import cv2
 import numpy as np
 
 from calib import CameraModel
-from runtime.events import Frame
 from models.da3.contract import MAX_VIEWS, MIN_VIEWS, check_da3_signature, da3_resolution
 from models.da3.preprocess import (
     camera_centres,
@@ -32,6 +31,7 @@ from models.da3.similarity import umeyama_sim3
 from models.depth_model import DepthPrediction
 from models.providers import create_session
 from runtime.errors import DataError, ModelError
+from runtime.events import Frame
 
 log = logging.getLogger(__name__)
 

@@ -8,11 +8,11 @@ import pytest
 from da3_contract_graph import build_da3_contract_graph
 
 from calib import Pinhole, PinholeRadtan
-from runtime.events import Frame
 from models.da3 import OnnxDA3
 from models.da3.preprocess import IMAGENET_MEAN, IMAGENET_STD
 from models.depth_model import DepthModel
 from runtime.errors import DataError, ModelError
+from runtime.events import Frame
 from runtime.geometry import make_pose, so3_exp
 
 GAIN, FOCAL = 2.0, 30.0

@@ -6,8 +6,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from runtime.events import ImuSample
 from runtime.errors import ConfigError
+from runtime.events import ImuSample
 from runtime.geometry import so3_exp
 from runtime.msckf.init_common import ERROR_STATE_ORDER, gravity_angle_deg, rotation_from_up
 from runtime.msckf.init_static import StaticInitConfig, StaticInitializer

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from calib import Pinhole, PinholeRadtan, read_euroc_rig
-from runtime.events import Frame
 from runtime.errors import ConfigError, DataError
+from runtime.events import Frame
 from runtime.msckf.tracker import KltTracker, TrackerConfig
 
 W, H = 640, 480

@@ -7,8 +7,8 @@ import time
 
 import pytest
 
-from runtime.events import Frame, ImuSample
 from runtime.errors import DataError, DavioError
+from runtime.events import Frame, ImuSample
 from runtime.scheduler import FastClock, PacedClock, Scheduler
 
 

@@ -80,9 +80,9 @@ def test_checkpoint_loading_strips_prefix_and_rejects_other_sizes(tmp_path):
 def test_tiny_export_agrees_with_torch_and_runs_in_the_runtime(tmp_path, capsys, monkeypatch):
     _need_export_deps()
     from calib import Pinhole
-    from runtime.events import Frame
     from models.da3 import OnnxDA3
     from models.inspect_model import inspect_model
+    from runtime.events import Frame
     from tools.cli import main
 
     out = tmp_path / "da3_tiny_28x42.onnx"

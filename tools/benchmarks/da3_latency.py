@@ -66,8 +66,8 @@ def _default_model(size: str, res: str) -> tuple[Path, float | None]:
 
 def run(args: argparse.Namespace) -> int:
     from calib import Pinhole
-    from runtime.events import Frame
     from models.da3 import OnnxDA3
+    from runtime.events import Frame
 
     export_s = None
     if args.model:
