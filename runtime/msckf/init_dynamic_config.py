@@ -1,0 +1,99 @@
+"""Settings of the dynamic initializer (:class:`DynamicInitConfig`), OpenVINS ``init_dyn_*`` defaults."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from runtime.errors import ConfigError
+
+
+@dataclass
+class DynamicInitConfig:
+    """Dynamic initializer settings (defaults: OpenVINS EuRoC ``init_dyn_*`` where it has them)."""
+
+    init_window_time_s: float = 2.0
+    """Window of frames and IMU used, s (OpenVINS init_window_time)."""
+    min_window_fraction: float = 0.9
+    """The keyframes must span at least this fraction of the window (OpenVINS waits for a full window)."""
+    num_pose: int = 6
+    """Keyframes in the window (OpenVINS init_dyn_num_pose)."""
+    min_deg: float = 10.0
+    """Minimum integrated gyro rotation over the window, degrees (OpenVINS init_dyn_min_deg)."""
+    min_parallax_deg: float = 1.0
+    """Minimum median rotation-compensated bearing change of the features, degrees."""
+    min_features: int = 8
+    """Features needed (OpenVINS: 8 valid features)."""
+    max_features: int = 50
+    """Features used at most, longest tracks first (OpenVINS init_max_features)."""
+    min_feature_observations: int = 3
+    """Keyframes a feature must be seen in."""
+    gravity_mag: float = 9.81
+    """Gravity magnitude g0, m/s^2."""
+    estimate_gyro_bias: bool = True
+    """Estimate the gyro bias from essential-matrix rotations between keyframes before the linear solve."""
+    max_visual_gyro_residual_rad: float = 0.2
+    """A keyframe pair whose visual and gyro rotations differ by more is left out of that estimate, rad."""
+    max_condition: float = 1e10
+    """Eigenvalue ratio of the reduced velocity block above which the linear system is degenerate."""
+    max_feature_condition: float = 1e8
+    """Eigenvalue ratio of a feature's 3x3 normal block above which it has no depth information."""
+    mle_max_iterations: int = 20
+    """Nonlinear refinement iterations (scipy least_squares max_nfev); 0 disables the refinement."""
+    mle_tolerance: float = 1e-6
+    """Relative cost / step tolerance that ends the refinement (scipy ftol and xtol)."""
+    sigma_px: float = 1.0
+    """Pixel noise of the features, px."""
+    sigma_bg_prior: float = 0.01
+    """Prior std of the gyro bias around bias_g_prior, rad/s."""
+    sigma_ba_prior: float = 0.05
+    """Prior std of the accelerometer bias around bias_a_prior, m/s^2. A 2 s window barely separates
+    this bias from tilt; 0.05 gave a median 0.67 deg gravity error on real V1_02 IMU windows
+    (`davio bench euroc-frontend --dynamic`) where 0.2 gave 1.5 deg."""
+    bias_g_prior: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """Gyro bias guess, rad/s (OpenVINS init_dyn_bias_g)."""
+    bias_a_prior: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """Accelerometer bias guess, m/s^2 (OpenVINS init_dyn_bias_a)."""
+    max_accel_bias_change: float = 1.0
+    """An estimated accelerometer bias farther than this from bias_a_prior rejects the solution, m/s^2."""
+    max_reprojection_rms_px: float = 3.0
+    """After refinement, a larger RMS reprojection error rejects the solution, px."""
+    min_positive_depth_fraction: float = 0.9
+    """Fraction of features that must lie in front of the first camera after the linear solve."""
+    inflation_theta: float = 10.0
+    """Variance inflation of the orientation block (OpenVINS init_dyn_inflation_ori)."""
+    inflation_p: float = 1.0
+    """Variance inflation of the position block."""
+    inflation_v: float = 100.0
+    """Variance inflation of the velocity block (OpenVINS init_dyn_inflation_vel)."""
+    inflation_bg: float = 10.0
+    """Variance inflation of the gyro bias block (OpenVINS init_dyn_inflation_bias_gyro)."""
+    inflation_ba: float = 100.0
+    """Variance inflation of the accelerometer bias block (OpenVINS init_dyn_inflation_bias_accel)."""
+
+    def __post_init__(self) -> None:
+        if self.num_pose < 3:
+            raise ConfigError(f"dynamic init num_pose must be >= 3, got {self.num_pose}")
+        if not self.init_window_time_s > 0:
+            raise ConfigError(f"dynamic init window must be > 0 s, got {self.init_window_time_s}")
+        if self.min_feature_observations < 2:
+            raise ConfigError(f"min_feature_observations must be >= 2, got {self.min_feature_observations}")
+        if self.min_features < 1 or self.max_features < self.min_features:
+            raise ConfigError(
+                f"need 1 <= min_features <= max_features, got {self.min_features}, {self.max_features}"
+            )
+        if not self.gravity_mag > 0:
+            raise ConfigError(f"gravity_mag must be > 0, got {self.gravity_mag}")
+        if not self.sigma_px > 0:
+            raise ConfigError(f"sigma_px must be > 0, got {self.sigma_px}")
+
+    @property
+    def window_ns(self) -> int:
+        """init_window_time_s in int64 ns."""
+        return int(round(self.init_window_time_s * 1e9))
+
+    @property
+    def inflation(self) -> tuple[float, float, float, float, float]:
+        """Variance inflation per ERROR_STATE_ORDER block (theta, p, v, bg, ba)."""
+        return (
+            self.inflation_theta, self.inflation_p, self.inflation_v, self.inflation_bg, self.inflation_ba
+        )
