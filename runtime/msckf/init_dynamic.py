@@ -98,7 +98,7 @@ class DynamicInitializer:
         return self.log.last_reason
 
     def feed_imu(self, sample: object) -> None:
-        """Add one drivers.events.ImuSample (t_ns IMU clock, gyro rad/s, accel m/s^2)."""
+        """Add one runtime.events.ImuSample (t_ns IMU clock, gyro rad/s, accel m/s^2)."""
         self.imu.add(sample.t_ns, sample.gyro, sample.accel)
 
     def feed_tracks(self, t_ns: int, ids: np.ndarray, uv: np.ndarray) -> None:

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from calib import Pinhole
-from drivers.events import ImuSample
 from runtime.errors import ConfigError
+from runtime.events import ImuSample
 from runtime.geometry import so3_exp, so3_right_jacobian
 from runtime.msckf.init_common import ERROR_STATE_ORDER, gravity_angle_deg
 from runtime.msckf.init_dynamic import DynamicInitConfig, DynamicInitializer, min_quadratic_on_sphere

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from drivers.events import Frame, ImuSample
+from runtime.events import Frame, ImuSample
 from runtime.msckf.init_common import gravity_angle_deg
 from runtime.msckf.init_dynamic import DynamicInitConfig, DynamicInitializer
 from runtime.msckf.tracker import KltTracker

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.events import ImuSample
+from runtime.events import ImuSample
 from runtime.geometry import so3_exp, so3_log
 from runtime.msckf.init_dynamic import DynamicInitializer
 from runtime.msckf.init_dynamic_excitation import gyro_rotation_deg, median_parallax_deg
