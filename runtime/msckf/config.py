@@ -34,6 +34,10 @@ class MsckfConfig:
     slam_representation: str = "anchored_inverse_depth"  #: SLAM landmark parameters: or "global_3d"
     #: keep lost/marginal tracks not chosen for this frame's MSCKF update for a later one (as OpenVINS)
     keep_unselected_tracks: bool = True
+    #: order in which tracks of equal length compete for the MSCKF update and SLAM slots: None keeps the
+    #: feature database's order (first appearance); an int shuffles the candidates each frame with a
+    #: generator seeded by it (OpenVINS's order is its hash map's, i.e. arbitrary; benchmarks vary this)
+    feature_order_seed: int | None = None
     # measurement noise and gating
     sigma_pix: float = 1.0  #: pixel noise of MSCKF and SLAM measurements, px
     chi2_multiplier: float = 1.0  #: multiplier of the 95% chi-square threshold

@@ -129,6 +129,8 @@ class MsckfEstimator:
         self._frames_without_update = 0
         self._last_w = np.zeros(3)
         self._last_samples: tuple | None = None
+        seed = self.config.feature_order_seed
+        self._order_rng = np.random.default_rng(seed) if seed is not None else None
         self.last_reset_reason: str | None = None
 
     # ------------------------------------------------------------------ state I/O
@@ -434,7 +436,8 @@ class MsckfEstimator:
             return self._after_frame(t_cam, updated=True)
         marg_t = st.clone_times()[0] if n_clones > min(cfg.max_clones, 5) else None
         lost, marg, maxtracks = [], [], []
-        for fid, tr in self.db.tracks.items():
+        for tr in self._candidate_order():
+            fid = tr.fid
             if fid in st.slam:
                 continue
             if fid not in seen:
@@ -501,6 +504,13 @@ class MsckfEstimator:
         c.time_frame_s += time.perf_counter() - t0
         c.cpu_frame_s += time.thread_time() - t0_cpu
         return self._after_frame(t_cam, updated)
+
+    def _candidate_order(self) -> list:
+        """The database's tracks in the order they compete at equal length (see feature_order_seed)."""
+        tracks = list(self.db.tracks.values())
+        if self._order_rng is None:
+            return tracks
+        return [tracks[i] for i in self._order_rng.permutation(len(tracks))]
 
     def _after_frame(self, t_cam: int, updated: bool) -> FilterState | None:
         self._frames_without_update = 0 if updated else self._frames_without_update + 1

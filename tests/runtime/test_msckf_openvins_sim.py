@@ -55,3 +55,35 @@ def test_online_calibration_converges_on_udel_gore() -> None:
     # the calibration covariance is reported and has shrunk from the prior
     assert snaps[-1].calib_covariance.shape == (7, 7)
     assert np.sqrt(snaps[-1].calib_covariance[0, 0]) < 0.2 * run.config.sigma_calib_rot
+
+
+@pytest.mark.shared_data
+def test_bench_seeds_median_range_and_frame_csv(tmp_path, capsys) -> None:
+    import argparse
+    import json
+
+    from tools.benchmarks import openvins_sim
+
+    folder = shared_path("openvins_sim", "udel_gore_mono")
+    p = argparse.ArgumentParser()
+    openvins_sim.add_arguments(p)
+    csv = tmp_path / "frames.csv"
+    argv = [str(folder), "--max-seconds", "2", "--seeds", "3", "--json", "--frames-csv", str(csv)]
+    args = p.parse_args(argv)
+    assert openvins_sim.run(args) == 0
+    res = json.loads(capsys.readouterr().out)
+    runs = res["seeds"]
+    assert [r["feature_order_seed"] for r in runs] == [0, 1, 2]
+    for key in ("rmse_pos_m", "rmse_ori_deg", "nees_pos", "nees_ori", "ms_per_frame"):
+        vals = [r[key] for r in runs]
+        assert res[key] == pytest.approx(float(np.median(vals)))
+        assert res[key + "_range"] == pytest.approx([min(vals), max(vals)])
+    # the per-frame CSV of the first seed reproduces its RMSE and NEES
+    E = np.loadtxt(csv, delimiter=",")
+    assert E.shape == (runs[0]["frames_evaluated"], len(openvins_sim.FRAME_COLUMNS))
+    assert np.sqrt(np.mean(np.sum(E[:, 1:4] ** 2, axis=1))) == pytest.approx(runs[0]["rmse_pos_m"])
+    rmse_ori = np.degrees(np.sqrt(np.mean(np.sum(E[:, 4:7] ** 2, axis=1))))
+    assert rmse_ori == pytest.approx(runs[0]["rmse_ori_deg"])
+    assert np.mean(E[:, 7]) == pytest.approx(runs[0]["nees_pos"])
+    # the heading error is the world z component of the rotation error: bounded by the total
+    assert np.all(np.abs(E[:, 6]) <= np.linalg.norm(E[:, 4:7], axis=1) + 1e-12)

@@ -268,27 +268,47 @@ def run_filter(
     return snaps, est.report()
 
 
-def evaluate(run: SimRun, snaps: list) -> dict:
-    """RMSE (position m, orientation deg) and NEES against the true state at camera times."""
+FRAME_COLUMNS = (
+    "t_cam_s err_px err_py err_pz err_thx err_thy err_thz nees_pos nees_ori "
+    "sig_px sig_py sig_pz sig_thx sig_thy sig_thz"
+).split()
+
+
+def frame_errors(run: SimRun, snaps: list) -> np.ndarray:
+    """Per evaluated frame (rows in FRAME_COLUMNS order): camera time (s); position error p_true - p_est
+    (m, O frame); orientation error as a rotation vector in the O frame, log(R_true R_est^T) (rad; its z
+    component is the heading error about gravity); position and orientation NEES; the filter's standard
+    deviations of those six components, in the same frames (m, rad)."""
     from runtime.msckf.so3_kernels import log3
 
     index = {int(t): i for i, t in enumerate(run.gt_t)}
-    ep, eo, nees_p, nees_o = [], [], [], []
+    rows = []
     for s in snaps:
         i = index.get(int(s.t_cam_ns))
         if i is None:
             continue
         dp = run.gt_p[i] - s.p_OI
         dth = log3(s.R_OI.T @ run.gt_R[i])  # body-frame error, matches the covariance convention
-        ep.append(dp @ dp)
-        eo.append(dth @ dth)
         P = s.covariance
-        nees_p.append(float(dp @ np.linalg.solve(P[3:6, 3:6], dp)))
-        nees_o.append(float(dth @ np.linalg.solve(P[0:3, 0:3], dth)))
-    if not ep:
+        P_th_O = s.R_OI @ P[0:3, 0:3] @ s.R_OI.T
+        rows.append(
+            [s.t_cam_ns * 1e-9, *dp, *(s.R_OI @ dth),
+             float(dp @ np.linalg.solve(P[3:6, 3:6], dp)), float(dth @ np.linalg.solve(P[0:3, 0:3], dth)),
+             *np.sqrt(np.diag(P)[3:6]), *np.sqrt(np.diag(P_th_O))]
+        )
+    return np.asarray(rows, dtype=float).reshape(-1, len(FRAME_COLUMNS))
+
+
+def evaluate(run: SimRun, snaps: list) -> dict:
+    """RMSE (position m, orientation deg) and NEES against the true state at camera times."""
+    E = frame_errors(run, snaps)
+    if E.shape[0] == 0:
         return {"frames_evaluated": 0}
+    ep = np.sum(E[:, 1:4] ** 2, axis=1)
+    eo = np.sum(E[:, 4:7] ** 2, axis=1)
+    nees_p, nees_o = E[:, 7], E[:, 8]
     return {
-        "frames_evaluated": len(ep),
+        "frames_evaluated": int(E.shape[0]),
         "rmse_pos_m": float(np.sqrt(np.mean(ep))),
         "rmse_ori_deg": float(np.degrees(np.sqrt(np.mean(eo)))),
         "nees_pos": float(np.mean(nees_p)),
@@ -309,6 +329,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-slam", type=int, default=None, help="override max_slam (0: MSCKF features only)")
     p.add_argument("--max-msckf", type=int, default=None, help="override max_msckf_in_update")
     p.add_argument(
+        "--seeds",
+        type=int,
+        default=0,
+        help="run N times with feature-order tie-break seeds 0..N-1 and print the median and range "
+        "(single runs move with the order in which equal-length tracks compete; 0: one run, database "
+        "order)",
+    )
+    p.add_argument("--seed", type=int, default=None, help="one run with this feature-order tie-break seed")
+    p.add_argument(
+        "--jobs", type=int, default=1, help="parallel processes for --seeds (their timings then overlap)"
+    )
+    p.add_argument(
+        "--frames-csv",
+        type=Path,
+        default=None,
+        help="write per-frame errors, NEES and standard deviations of the (first) run to this CSV",
+    )
+    p.add_argument(
         "--slam-rep",
         choices=("global_3d", "anchored_inverse_depth"),
         default=None,
@@ -316,14 +354,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
-def run(args: argparse.Namespace) -> int:
-    from runtime.errors import DavioError
+_SIM: SimRun | None = None  # the loaded folder, shared with --jobs worker processes (fork)
 
-    try:
-        sim = load_sim_folder(args.folder, args.max_seconds)
-    except DavioError as exc:
-        print(f"openvins-sim: {exc}")
-        return 2
+
+def _config(sim: SimRun, args: argparse.Namespace) -> object:
     cfg = sim.config
     if args.max_slam is not None:
         cfg = cfg.updated(max_slam=args.max_slam)
@@ -331,6 +365,12 @@ def run(args: argparse.Namespace) -> int:
         cfg = cfg.updated(max_msckf_in_update=args.max_msckf)
     if args.slam_rep is not None:
         cfg = cfg.updated(slam_representation=args.slam_rep)
+    return cfg
+
+
+def _one_run(cfg: object) -> tuple[dict, np.ndarray]:
+    """One filter run on the loaded folder: (figures, per-frame errors)."""
+    sim = _SIM
     t_start = time.perf_counter()
     snaps, report = run_filter(sim, cfg)
     wall = time.perf_counter() - t_start
@@ -340,6 +380,57 @@ def run(args: argparse.Namespace) -> int:
     res["wall_s"] = wall
     res["frames"] = report["frames_processed"]
     res["divergence_resets"] = report["divergence_resets"]
+    res["feature_order_seed"] = getattr(cfg, "feature_order_seed", None)
+    return res, frame_errors(sim, snaps)
+
+
+def _seed_summary(runs: list[dict]) -> dict:
+    """Median and (min, max) over runs of every figure."""
+    keys = ("rmse_pos_m", "rmse_ori_deg", "nees_pos", "nees_ori", "ms_per_frame", "cpu_ms_per_frame")
+    out: dict = {}
+    for k in keys:
+        vals = np.array([r[k] for r in runs if k in r], dtype=float)
+        if vals.size:
+            out[k] = float(np.median(vals))
+            out[k + "_range"] = [float(vals.min()), float(vals.max())]
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    global _SIM
+    from runtime.errors import DavioError
+
+    try:
+        _SIM = sim = load_sim_folder(args.folder, args.max_seconds)
+    except DavioError as exc:
+        print(f"openvins-sim: {exc}")
+        return 2
+    if args.seeds < 0 or args.jobs < 1:
+        print("openvins-sim: --seeds must be >= 0 and --jobs >= 1")
+        return 2
+    cfg = _config(sim, args)
+    if args.seeds > 0:
+        cfgs = [cfg.updated(feature_order_seed=k) for k in range(args.seeds)]
+    else:
+        cfgs = [cfg.updated(feature_order_seed=args.seed) if args.seed is not None else cfg]
+    t_start = time.perf_counter()
+    if args.jobs > 1 and len(cfgs) > 1:
+        import multiprocessing as mp
+
+        with mp.get_context("fork").Pool(min(args.jobs, len(cfgs))) as pool:
+            outs = pool.map(_one_run, cfgs)
+    else:
+        outs = [_one_run(c) for c in cfgs]
+    wall = time.perf_counter() - t_start
+    runs = [r for r, _ in outs]
+    if args.frames_csv is not None:
+        np.savetxt(args.frames_csv, outs[0][1], delimiter=",", header=",".join(FRAME_COLUMNS), fmt="%.15g")
+    if args.seeds > 0:
+        res = {**runs[0], **_seed_summary(runs)}
+        res["seeds"] = runs
+        res["wall_s"] = wall
+    else:
+        res = runs[0]
     res["folder"] = str(args.folder)
     res["config"] = {
         k: getattr(cfg, k)
@@ -360,11 +451,12 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(res))
         return 0
     ov = sim.openvins
+    n_runs = f"median [min-max] over tie-break seeds 0..{args.seeds - 1}, " if args.seeds > 0 else ""
     print(
-        f"openvins-sim on {args.folder} ({res.get('frames_evaluated', 0)} frames, wall {wall:.1f} s; "
+        f"openvins-sim on {args.folder} ({res.get('frames_evaluated', 0)} frames, {n_runs}wall {wall:.1f} s; "
         f"timings on a shared machine are noisy)"
     )
-    print(f"{'metric':<16}{'DAVIO':>12}{'OpenVINS':>12}")
+    print(f"{'metric':<16}{'DAVIO':>12}{'OpenVINS':>12}" + (f"{'DAVIO range':>20}" if args.seeds > 0 else ""))
     for key, fmt in (
         ("rmse_pos_m", "{:.3f}"),
         ("rmse_ori_deg", "{:.3f}"),
@@ -375,7 +467,13 @@ def run(args: argparse.Namespace) -> int:
     ):
         ours = fmt.format(res[key]) if key in res else "-"
         theirs = fmt.format(ov[key]) if key in ov else "-"
-        print(f"{key:<16}{ours:>12}{theirs:>12}")
-    print(f"divergence resets: {res['divergence_resets']}; ms_per_frame is wall clock inside the filter, "
-          "cpu_ms_per_frame its thread's CPU time (less sensitive to other load); OpenVINS: wall clock")
+        rng = ""
+        if args.seeds > 0 and key + "_range" in res:
+            lo, hi = res[key + "_range"]
+            rng = f"{fmt.format(lo)}-{fmt.format(hi)}".rjust(20)
+        print(f"{key:<16}{ours:>12}{theirs:>12}{rng}")
+    resets = sum(r["divergence_resets"] for r in runs)
+    print(f"divergence resets: {resets}; ms_per_frame is wall clock inside "
+          "the filter, cpu_ms_per_frame its thread's CPU time (less sensitive to other load); OpenVINS: wall "
+          "clock")
     return 0
