@@ -106,11 +106,15 @@ def initialize_landmark(state: State, fid: int, p_O: np.ndarray, cols: np.ndarra
     and the rest, which is chi-square tested and then used in an ordinary update (or, with `deferred`,
     appended there as (Hx2, r2) over `cols` for one stacked update by the caller: for a fixed
     linearisation the order of independent updates does not change the posterior).
+
+    The gate compares the Mahalanobis distance of the 2m-3 projected rows with the 95% chi-square
+    quantile of all 2m rows, as OpenVINS's StateHelper::initialize does (a looser gate than the projected
+    rows' own quantile).
     """
     Hx2, r2, Hf1, Hx1, r1 = givens_left_nullspace(Hf.copy(), Hx.copy(), r.copy())
     if Hx2.shape[0] > 0:
         d2 = mahalanobis(state, cols, Hx2, r2, sigma)
-        if not d2 < chi2_multiplier * chi2_95(Hx2.shape[0]):
+        if not d2 < chi2_multiplier * chi2_95(r.shape[0]):
             return False
     try:
         Hf1_inv = np.linalg.inv(Hf1)

@@ -113,3 +113,29 @@ def test_landmark_initialisation_matches_joint_linear_solution() -> None:
     assert np.allclose(st.P, Pj, atol=1e-8)
     assert np.allclose(st.slam[42].p, f0 + mean[n:], atol=1e-8)
     assert np.allclose(st.p - x0_p, mean[3:6], atol=1e-8)
+
+
+def test_landmark_initialisation_gate_uses_the_full_residual_size() -> None:
+    # OpenVINS gates the projected rows (M - 3 of them) with the 95% chi-square quantile of all M rows;
+    # scale one residual so that its Mahalanobis distance lies between the two quantiles
+    from scipy.linalg import null_space
+    from scipy.stats import chi2
+
+    rng = np.random.default_rng(7)
+    M = 8
+    cols = np.arange(15, 21)
+    Hx = rng.standard_normal((M, cols.size))
+    Hf = rng.standard_normal((M, 3))
+    sigma = 0.5
+    base = _state(n_extra_clones=1)
+    N = null_space(Hf.T)                      # independent projection onto the left nullspace
+    S = N.T @ Hx @ base.P[np.ix_(cols, cols)] @ Hx.T @ N + sigma**2 * np.eye(M - 3)
+    r0 = rng.standard_normal(M)
+    d0 = float(r0 @ N @ np.linalg.solve(S, N.T @ r0))
+    lo, hi = chi2.ppf(0.95, M - 3), chi2.ppf(0.95, M)
+    for target, accepted in ((0.5 * (lo + hi), True), (hi * 1.05, False)):
+        st = _state(n_extra_clones=1)
+        r = r0 * np.sqrt(target / d0)
+        ok = initialize_landmark(st, 1, np.zeros(3), cols, Hx, Hf, r, sigma, chi2_multiplier=1.0)
+        assert ok is accepted, (target, lo, hi)
+        assert (1 in st.slam) is accepted
