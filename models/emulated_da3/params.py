@@ -144,13 +144,14 @@ class EmulatorParams:
     edge_conf_factor: float = 6.0
     reflective_conf_factor: float = 2.0
 
-    rotation_error_median_deg: float = 0.6
-    rotation_error_frac: float = 0.02
+    # Base = POSE_ERROR_SCALE x the upper bound POSE_ERRORS_UPPER["base"] (PRESETS.md)
+    rotation_error_median_deg: float = 0.03
+    rotation_error_frac: float = 0.001
     rotation_error_log_sigma: float = 0.6
-    translation_direction_median_deg: float = 3.9
+    translation_direction_median_deg: float = 0.195
     translation_direction_log_sigma: float = 0.9
-    translation_norm_log_sigma: float = 0.04
-    centre_floor_frac: float = 0.0015
+    translation_norm_log_sigma: float = 0.002
+    centre_floor_frac: float = 0.000075
     focal_log_sigma: float = 0.03
 
     cond_image_weight: float = 0.3
@@ -191,7 +192,8 @@ class EmulatorParams:
             raise ConfigError("emulated DA3 needs conf_level_median > 0 and sky_depth_factor >= 1")
 
 
-#: Per-preset values (everything not listed takes the `EmulatorParams` default, which is Base).
+#: Per-preset values (everything not listed takes the `EmulatorParams` default, which is Base); the
+#: unconditioned pose errors come from POSE_ERRORS_UPPER x POSE_ERROR_SCALE (below).
 _PRESET_VALUES: dict[str, dict[str, float]] = {
     "small": dict(
         image_log_scale_sigma=0.06,
@@ -202,11 +204,6 @@ _PRESET_VALUES: dict[str, dict[str, float]] = {
         field_sigma_cond=0.020,
         noise_sigma=0.020,
         flying_fraction=0.7,
-        rotation_error_median_deg=1.0,
-        rotation_error_frac=0.03,
-        translation_direction_median_deg=6.0,
-        translation_norm_log_sigma=0.06,
-        centre_floor_frac=0.0025,
         focal_log_sigma=0.05,
     ),
     "base": dict(),
@@ -219,17 +216,54 @@ _PRESET_VALUES: dict[str, dict[str, float]] = {
         field_sigma_cond=0.010,
         noise_sigma=0.010,
         flying_fraction=0.5,
-        rotation_error_median_deg=0.3,
-        rotation_error_frac=0.01,
-        translation_direction_median_deg=1.4,
-        translation_norm_log_sigma=0.03,
-        centre_floor_frac=0.001,
         focal_log_sigma=0.02,
     ),
 }
 
-PRESETS: dict[str, EmulatorParams] = {name: EmulatorParams(**v) for name, v in _PRESET_VALUES.items()}
-"""The presets standing in for DA3 Small, Base and Large (PRESETS.md)."""
+POSE_ERROR_FIELDS: tuple[str, ...] = (
+    "rotation_error_median_deg",
+    "rotation_error_frac",
+    "translation_direction_median_deg",
+    "translation_norm_log_sigma",
+    "centre_floor_frac",
+)
+"""The unconditioned pose-error knobs, scaled together by `scale_pose_errors`."""
+
+
+def scale_pose_errors(params: EmulatorParams, k: float) -> EmulatorParams:
+    """`params` with every unconditioned pose-error knob (POSE_ERROR_FIELDS) multiplied by k >= 0."""
+    if not k >= 0:
+        raise ConfigError(f"pose-error factor must be >= 0, got {k}")
+    return replace(params, **{name: getattr(params, name) * k for name in POSE_ERROR_FIELDS})
+
+
+#: Upper-bound unconditioned pose errors per model size (PRESETS.md): the AUC-derived translation
+#: directions of DA3 Table 2 (scene-wide sets of up to 100 frames) and the note's rotation, length
+#: and floor values. The `<size>_upper` presets use them.
+POSE_ERRORS_UPPER: dict[str, dict[str, float]] = {
+    "small": dict(rotation_error_median_deg=1.0, rotation_error_frac=0.03,
+                  translation_direction_median_deg=6.0, translation_norm_log_sigma=0.06,
+                  centre_floor_frac=0.0025),
+    "base": dict(rotation_error_median_deg=0.6, rotation_error_frac=0.02,
+                 translation_direction_median_deg=3.9, translation_norm_log_sigma=0.04,
+                 centre_floor_frac=0.0015),
+    "large": dict(rotation_error_median_deg=0.3, rotation_error_frac=0.01,
+                  translation_direction_median_deg=1.4, translation_norm_log_sigma=0.03,
+                  centre_floor_frac=0.001),
+}
+
+POSE_ERROR_SCALE = 0.05
+"""[M] The factor on POSE_ERRORS_UPPER that makes the feed-forward initializer alone reproduce the
+paper's start-up accuracy (median velocity 0.07 m/s, gravity 1 deg) on EuRoC-trajectory recordings:
+`davio bench ffinit-accuracy` (PRESETS.md, "Calibrating the unconditioned pose errors")."""
+
+_UPPER = {name: EmulatorParams(**{**values, **POSE_ERRORS_UPPER[name]})
+          for name, values in _PRESET_VALUES.items()}
+PRESETS: dict[str, EmulatorParams] = {name: scale_pose_errors(p, POSE_ERROR_SCALE)
+                                      for name, p in _UPPER.items()}
+PRESETS.update({f"{name}_upper": p for name, p in _UPPER.items()})
+"""The presets standing in for DA3 Small, Base and Large (PRESETS.md): `small`, `base`, `large` with
+the calibrated pose errors, and `<size>_upper` with the upper-bound ones (otherwise identical)."""
 
 
 def make_params(preset: str = "base", **overrides: object) -> EmulatorParams:

@@ -259,6 +259,39 @@ def test_presets_order_small_base_large():
         assert p.field_sigma_cond < p.field_sigma and p.image_log_scale_sigma_cond < p.image_log_scale_sigma
 
 
+def test_calibrated_pose_errors_are_the_upper_bound_times_one_factor():
+    from dataclasses import fields
+
+    from models.emulated_da3.params import (
+        POSE_ERROR_FIELDS,
+        POSE_ERROR_SCALE,
+        POSE_ERRORS_UPPER,
+        EmulatorParams,
+        scale_pose_errors,
+    )
+
+    assert 0 < POSE_ERROR_SCALE < 1
+    for size in ("small", "base", "large"):
+        cal, upper = PRESETS[size], PRESETS[f"{size}_upper"]
+        for name in POSE_ERROR_FIELDS:
+            assert getattr(upper, name) == POSE_ERRORS_UPPER[size][name], (size, name)
+            assert getattr(cal, name) == pytest.approx(POSE_ERROR_SCALE * getattr(upper, name)), (size, name)
+        for f in fields(EmulatorParams):  # nothing else differs
+            if f.name not in POSE_ERROR_FIELDS:
+                assert getattr(cal, f.name) == getattr(upper, f.name), (size, f.name)
+    # the dataclass defaults are the Base preset
+    for f in fields(EmulatorParams):
+        assert getattr(EmulatorParams(), f.name) == pytest.approx(getattr(PRESETS["base"], f.name)), f.name
+    # the AUC-derived translation-direction medians of notes/da3_accuracy.md stay reachable
+    assert [PRESETS[f"{s}_upper"].translation_direction_median_deg for s in ("small", "base", "large")] == [
+        6.0, 3.9, 1.4]
+    zero = scale_pose_errors(PRESETS["base"], 0.0)
+    assert all(getattr(zero, n) == 0.0 for n in POSE_ERROR_FIELDS)
+    assert zero.rotation_error_log_sigma == PRESETS["base"].rotation_error_log_sigma  # spreads unchanged
+    with pytest.raises(ConfigError, match="pose-error factor"):
+        scale_pose_errors(PRESETS["base"], -1.0)
+
+
 # ---------------------------------------------------------------------------- conditioning honesty
 def test_conditioned_depth_follows_a_scaled_input_trajectory():
     """Input poses = the truth scaled by 1.1 about the origin: depth comes out 1.1 x too deep."""

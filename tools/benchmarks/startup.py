@@ -1,9 +1,13 @@
 """`davio bench startup`: the start-up protocol of the paper (Sec. VI, after Zhang et al.).
 
-Windows start every 10 s over a sequence; in each, both arms restart from scratch:
-  * feedforward: the feed-forward initializer (DA3 window + IMU) with buffered-replay handoff,
-    native initializers disarmed (to measure the feed-forward initializer itself);
-  * native: the filter's own initializers (static, and dynamic while moving), no depth model.
+Windows start every 10 s over a sequence; in each, every arm restarts from scratch:
+  * feedforward: DAVIO's start-up (paper Sec. III): the feed-forward initializer (DA3 window + IMU)
+    with buffered-replay handoff AND the filter's own initializers (static, and dynamic while
+    moving) armed; whichever filter is ready first publishes. Each window records which one did
+    (`source`: "feedforward", "native:static" or "native:dynamic");
+  * native: the filter's own initializers alone, no depth model (the paper's OpenVINS row);
+  * feedforward_only (diagnosis, not run by default): the feed-forward initializer with the native
+    initializers disarmed, to measure it alone.
 A window succeeds if a trajectory published within it has ATE < 0.5 m (SE(3) alignment). T_f is the
 sensor time of the first published state after the window start (10 s if none); T_q also charges
 10 s to every failure. Gravity-direction and velocity errors are those of the first published state
@@ -21,7 +25,9 @@ from typing import Any
 import numpy as np
 
 NAME = "startup"
-HELP = "start-up protocol: feed-forward vs native initializer over 10 s windows (T_f, T_q, success)"
+HELP = "start-up protocol: DAVIO (feed-forward + native armed) vs native initializer over 10 s windows"
+ARMS = ("feedforward", "native", "feedforward_only")
+"""The arms `--arms` may name (module docstring)."""
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -36,7 +42,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--every", type=float, default=10.0, help="a window starts every S seconds")
     p.add_argument("--max-windows", type=int, default=None, help="at most this many windows")
     p.add_argument("--seed", type=int, default=0, help="simulation seed")
-    p.add_argument("--da3", default="base", choices=["small", "base", "large"], help="emulated DA3 preset")
+    p.add_argument("--arms", default="feedforward,native",
+                   help=f"comma-separated arms to run, from {', '.join(ARMS)}")
+    p.add_argument("--da3", default="base", help="emulated DA3 preset (small, base, large, or <size>_upper: "
+                                                 "the upper-bound pose errors, PRESETS.md)")
     p.add_argument("--model-latency", type=float, default=0.5, metavar="S", help="DA3 latency, sensor s")
     p.add_argument("--da3-param", action="append", default=[], metavar="NAME=VALUE",
                    help="override an emulated-DA3 parameter (repeatable; sensitivity studies), "
@@ -107,11 +116,12 @@ def _overrides(items: list[str]) -> dict:
 def _score(pipe: Any, gt: Any, t0_ns: int, window_s: float, ate_thr: float) -> dict:
     from runtime.errors import DataError
     from runtime.geometry import interpolate_poses
+    from tools.benchmarks.ffinit_accuracy import gt_velocity
     from tools.evaluation import ate
     from tools.run_io import published_trajectory
 
     est = published_trajectory(pipe.published)
-    row: dict = {"published": len(est), "by": pipe.startup.report.published_by}
+    row: dict = {"published": len(est), "source": pipe.startup.report.published_by}
     if len(est) == 0:
         return {**row, "success": False, "T_f": window_s, "T_q": window_s}
     T_f = (int(est.t_ns[0]) - t0_ns) * 1e-9
@@ -129,9 +139,8 @@ def _score(pipe: Any, gt: Any, t0_ns: int, window_s: float, ate_thr: float) -> d
     up_est = est.R[0].T @ np.array([0.0, 0.0, 1.0])
     up_gt = first.R[0].T @ np.array([0.0, 0.0, 1.0])
     row["gravity_err_deg"] = float(np.degrees(np.arccos(np.clip(up_est @ up_gt, -1.0, 1.0))))
-    if R_al is not None and gt.v is not None and est.v is not None:
-        k = int(np.clip(np.searchsorted(gt.t_ns, est.t_ns[0]), 0, len(gt) - 1))
-        row["velocity_err"] = float(np.linalg.norm(R_al @ est.v[0] - gt.v[k]))
+    if R_al is not None and est.v is not None:
+        row["velocity_err"] = float(np.linalg.norm(R_al @ est.v[0] - gt_velocity(gt, int(est.t_ns[0]))))
     row["success"] = bool(res is not None and row["ate"] < ate_thr)
     row["T_q"] = T_f if row["success"] else window_s
     return row
@@ -142,18 +151,41 @@ def _summary(rows: list[dict]) -> dict:
         vals = [r[key] for r in rows if r.get(key) is not None and (key in ("T_f", "T_q") or r["success"])]
         return float(np.median(vals)) if vals else None
 
+    sources: dict[str, int] = {}
+    for r in rows:
+        key = r.get("source") or "none"
+        sources[key] = sources.get(key, 0) + 1
     return {"windows": len(rows), "successes": int(sum(r["success"] for r in rows)),
             "T_f_median": med("T_f"), "T_q_median": med("T_q"),
             "gravity_err_deg_median": med("gravity_err_deg"), "velocity_err_median": med("velocity_err"),
-            "ate_median": med("ate")}
+            "ate_median": med("ate"), "sources": sources}
+
+
+def _arms(names: str, base: Any) -> dict:
+    """The configurations of the named arms (module docstring), in the order given."""
+    from runtime.errors import ConfigError
+
+    both = replace(base, use_dynamic_init=True)
+    known = {
+        "feedforward": both,
+        "native": replace(both, startup=replace(base.startup, feedforward=False)),
+        "feedforward_only": replace(base, startup=replace(base.startup, native=False)),
+    }
+    arms = [a.strip() for a in names.split(",") if a.strip()]
+    bad = [a for a in arms if a not in known]
+    if bad or not arms or len(set(arms)) != len(arms):
+        raise ConfigError(f"--arms expects distinct names from {', '.join(ARMS)}, got {names!r}")
+    return {a: known[a] for a in arms}
 
 
 def run(args: argparse.Namespace) -> int:
-    from models.emulated_da3 import EmulatedDA3
+    from models.emulated_da3 import EmulatedDA3, make_params
     from runtime.config import DavioConfig
     from tools.run_session import run_pipeline
 
     overrides = _overrides(args.da3_param)
+    arms = _arms(args.arms, DavioConfig())
+    make_params(args.da3, **overrides)  # an unknown preset or parameter fails before the slow part
     rec = _recording(args)
     gt = rec.groundtruth()
     cam = rec.rig.camera
@@ -166,17 +198,12 @@ def run(args: argparse.Namespace) -> int:
         t += int(args.every * 1e9)
     if args.max_windows:
         starts = starts[: args.max_windows]
-    base = DavioConfig()
-    arms = {
-        "feedforward": replace(base, startup=replace(base.startup, native=False)),
-        "native": replace(base, use_dynamic_init=True, startup=replace(base.startup, feedforward=False)),
-    }
     rows: dict[str, list] = {k: [] for k in arms}
     for w, t0 in enumerate(starts):
         t1 = t0 + int(args.window * 1e9)
         for arm, cfg in arms.items():
             model = None
-            if arm == "feedforward":
+            if cfg.startup.feedforward:
                 model = EmulatedDA3(rec.gt_source, cam.K, cam.width, cam.height, preset=args.da3,
                                     seed=args.seed * 1000 + w, **overrides)
             res = run_pipeline(_WindowDriver(rec, t0, t1), model, cfg, model_latency_s=args.model_latency,
@@ -186,11 +213,12 @@ def run(args: argparse.Namespace) -> int:
                         "ff_rejections": res.pipeline.startup.report.ff_rejections})
             rows[arm].append(row)
             if not args.json:
-                print(f"  window {w:2d} ({row['start_s']:6.1f} s) {arm:11s} "
+                print(f"  window {w:2d} ({row['start_s']:6.1f} s) {arm:16s} "
                       f"{'ok ' if row['success'] else 'FAIL'} T_f {row['T_f']:5.2f} s"
-                      f"  ATE {row.get('ate', float('nan')):.3f} m", flush=True)
+                      f"  ATE {row.get('ate', float('nan')):.3f} m  by {row['source']}", flush=True)
     result = {arm: _summary(r) for arm, r in rows.items()}
     result["source"] = rec.info
+    result["arms"] = list(arms)
     result["emulated_da3"] = args.da3
     result["emulated_da3_overrides"] = overrides
     result["model_latency_s"] = args.model_latency
@@ -203,12 +231,14 @@ def run(args: argparse.Namespace) -> int:
     from rich.table import Table
 
     tab = Table(title=f"start-up over {len(starts)} windows ({rec.info.get('source')})")
-    for col in ("initializer", "success", "T_f (s)", "T_q (s)", "grav (deg)", "vel (m/s)", "ATE (m)"):
+    for col in ("initializer", "success", "T_f (s)", "T_q (s)", "grav (deg)", "vel (m/s)", "ATE (m)",
+                "published by"):
         tab.add_column(col)
     fmt = lambda v: "-" if v is None else f"{v:.2f}" if abs(v) >= 0.1 else f"{v:.3f}"  # noqa: E731
     for arm in arms:
         s = result[arm]
         tab.add_row(arm, f"{s['successes']}/{s['windows']}", fmt(s["T_f_median"]), fmt(s["T_q_median"]),
-                    fmt(s["gravity_err_deg_median"]), fmt(s["velocity_err_median"]), fmt(s["ate_median"]))
+                    fmt(s["gravity_err_deg_median"]), fmt(s["velocity_err_median"]), fmt(s["ate_median"]),
+                    ", ".join(f"{k} {v}" for k, v in sorted(s["sources"].items())))
     Console().print(tab)
     return 0

@@ -1,0 +1,64 @@
+"""`davio bench ffinit-accuracy`: error helpers against closed forms, and the sweep on a short preset."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from runtime.geometry import PoseTrajectory, so3_exp
+from tools.benchmarks.ffinit_accuracy import gt_velocity, state_errors, window_frame_indices
+from tools.cli import main
+
+
+def test_gt_velocity_central_difference_matches_the_analytic_velocity():
+    t = np.arange(0, 2_000_000_000, 5_000_000, dtype=np.int64)
+    s = t * 1e-9
+    p = np.column_stack([np.sin(s), 0.5 * s**2, np.zeros_like(s)])
+    v = np.column_stack([np.cos(s), s, np.zeros_like(s)])
+    R = np.tile(np.eye(3), (len(t), 1, 1))
+    with_v = PoseTrajectory(t, p, R, v)
+    without_v = PoseTrajectory(t, p, R)
+    k = 1_000_000_000
+    assert np.allclose(gt_velocity(with_v, k), [np.cos(1.0), 1.0, 0.0], atol=1e-4)
+    assert np.allclose(gt_velocity(without_v, k), [np.cos(1.0), 1.0, 0.0], atol=1e-3)
+
+
+def test_state_errors_ignore_yaw_and_see_tilt():
+    R_WI = so3_exp(np.array([0.1, -0.2, 0.3]))
+    v_W = np.array([0.5, -0.2, 0.1])
+    yaw = so3_exp(np.array([0.0, 0.0, 1.2]))  # another gauge of the same state
+    vel, grav = state_errors(yaw @ R_WI, yaw @ v_W, R_WI, v_W)
+    assert vel == pytest.approx(0.0, abs=1e-12) and grav == pytest.approx(0.0, abs=1e-6)
+    tilt = so3_exp(np.array([np.deg2rad(2.0), 0.0, 0.0]))
+    vel, grav = state_errors(tilt @ R_WI, tilt @ v_W + 0.0, R_WI, v_W)
+    assert grav == pytest.approx(2.0, abs=1e-6) and vel == pytest.approx(0.0, abs=1e-12)
+    vel, _ = state_errors(R_WI, v_W + R_WI @ np.array([0.0, 0.3, 0.4]), R_WI, v_W)
+    assert vel == pytest.approx(0.5)
+
+
+def test_window_frame_indices():
+    stamps = np.arange(0, 3_000_000_000, 50_000_000, dtype=np.int64)  # 20 Hz
+    assert window_frame_indices(stamps, 100_000_000) == [2, 6, 10, 14, 18]
+    assert window_frame_indices(stamps[::5], 0) is None  # 4 Hz: no image near 0.2 s
+
+
+@pytest.mark.slow
+def test_sweep_on_a_short_preset(capsys):
+    assert main(["bench", "ffinit-accuracy", "--preset", "euroc", "--seconds", "8", "--every", "2",
+                 "--k", "0,1", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    rows = out["recordings"]["preset euroc"]
+    assert set(rows) == {"0.0", "1.0"}
+    assert rows["0.0"]["windows"] == rows["1.0"]["windows"] >= 3
+    exact, upper = rows["0.0"], rows["1.0"]
+    assert exact["accepted"] >= 1 and upper["accepted"] >= 1
+    # exact DA3 poses (same draws otherwise): the tilt is nearly exact (the synthetic IMU's noise and
+    # biases remain), and the upper-bound pose errors make both errors larger
+    assert exact["gravity_err_deg_median"] < 0.5 < upper["gravity_err_deg_median"]
+    assert exact["velocity_err_median"] < upper["velocity_err_median"]
+
+
+def test_bad_fields_are_a_clear_error(capsys):
+    assert main(["bench", "ffinit-accuracy", "--fields", "focal_log_sigma"]) == 1
+    assert "pose-error knob" in capsys.readouterr().err

@@ -1,0 +1,200 @@
+"""`davio bench ffinit-accuracy`: the feed-forward initializer alone vs the emulated DA3's pose errors.
+
+Calibrates the emulator's unconditioned pose errors (models/emulated_da3/PRESETS.md) against the
+paper's end-to-end start-up accuracy. Over many 5-image windows (images 0.2 s apart, one window
+every `--every` s) of simulated recordings (EuRoC-trajectory mode: images rendered along the real
+ground truth with the real IMU), the initializer solves each window once per pose-error factor k:
+the reference preset's rotation, translation-direction, translation-length and centre-floor errors
+are all multiplied by k (`models.emulated_da3.params.scale_pose_errors`), with the same random
+draws for every k (common random numbers), so the rows differ only by k. Reported per k: accepted
+windows, and over the accepted ones the median velocity error (IMU frame, m/s: yaw-free), gravity-
+direction error (deg), |log scale error| and the share of "wrong-scale" windows (|log s err| > 0.1).
+The frames' pixels are not rendered (the emulated DA3 reads the ground truth at their stamps).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+NAME = "ffinit-accuracy"
+HELP = "feed-forward initializer alone: accepted windows and velocity/gravity/scale errors vs DA3 pose errors"
+
+WRONG_SCALE_LOG = 0.1
+"""|log(s / s_true)| above which an accepted window counts as wrong-scale."""
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--sequence", action="append", default=None, metavar="DIR",
+                   help="euroc_imu_gt folder (repeatable); default: --preset")
+    p.add_argument("--preset", default="euroc", help="motion preset when no --sequence is given")
+    p.add_argument("--seconds", type=float, default=60.0, help="preset recording length, s")
+    p.add_argument("--every", type=float, default=2.0, help="a window starts every S seconds")
+    p.add_argument("--max-windows", type=int, default=None, help="at most this many windows per recording")
+    p.add_argument("--k", default="0,0.25,0.5,0.75,1", help="comma-separated pose-error factors")
+    p.add_argument("--reference", default="base_upper", help="emulated-DA3 preset that k scales")
+    p.add_argument("--fields", default=None,
+                   help="comma-separated pose-error knobs that k scales (default: all of POSE_ERROR_FIELDS;"
+                        " the others are set to 0) -- to see which knob drives the errors")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--out", metavar="FILE", help="also write the JSON (with per-window rows) here")
+
+
+def window_frame_indices(stamps_ns: np.ndarray, t0_ns: int, n: int = 5, spacing_s: float = 0.2,
+                         tol_s: float = 0.03) -> list[int] | None:
+    """Indices of the n frames nearest t0 + j * spacing (None if one is farther than tol)."""
+    out = []
+    for j in range(n):
+        ideal = t0_ns + int(round(j * spacing_s * 1e9))
+        i = int(np.argmin(np.abs(stamps_ns - ideal)))
+        if abs(int(stamps_ns[i]) - ideal) > tol_s * 1e9:
+            return None
+        out.append(i)
+    return out if len(set(out)) == n else None
+
+
+def state_errors(R_OI: np.ndarray, v_OI: np.ndarray, R_WI: np.ndarray,
+                 v_WI: np.ndarray) -> tuple[float, float]:
+    """(velocity error in the IMU frame m/s, gravity-direction error deg): both independent of yaw."""
+    ez = np.array([0.0, 0.0, 1.0])
+    vel = float(np.linalg.norm(R_OI.T @ v_OI - R_WI.T @ v_WI))
+    c = float(np.clip((R_OI.T @ ez) @ (R_WI.T @ ez), -1.0, 1.0))
+    return vel, float(np.degrees(np.arccos(c)))
+
+
+def gt_velocity(gt: Any, t_ns: int, h_s: float = 0.02) -> np.ndarray:
+    """True velocity (world frame, m/s) at t_ns: the trajectory's own, else a central difference
+    of its positions over +-h_s (ground truths without velocity, e.g. EuRoC MH_03's TUM file)."""
+    from runtime.geometry import interpolate_poses
+
+    if gt.v is not None:
+        return interpolate_poses(gt, np.array([t_ns], np.int64)).v[0]
+    h = int(h_s * 1e9)
+    t = np.clip(np.array([t_ns - h, t_ns + h], np.int64), gt.t_ns[0], gt.t_ns[-1])
+    p = interpolate_poses(gt, t).p
+    return (p[1] - p[0]) / ((t[1] - t[0]) * 1e-9)
+
+
+def summarise(rows: list[dict]) -> dict:
+    """Accepted count and medians over accepted windows (None where none was accepted)."""
+    acc = [r for r in rows if r["accepted"]]
+
+    def med(key: str) -> float | None:
+        return float(np.median([r[key] for r in acc])) if acc else None
+
+    p90 = float(np.percentile([r["velocity_err"] for r in acc], 90)) if acc else None
+    return {"windows": len(rows), "accepted": len(acc), "velocity_err_median": med("velocity_err"),
+            "gravity_err_deg_median": med("gravity_err_deg"),
+            "abs_log_scale_err_median": med("abs_log_scale_err"), "velocity_err_p90": p90,
+            "wrong_scale": int(sum(r["abs_log_scale_err"] > WRONG_SCALE_LOG for r in acc))}
+
+
+def _recordings(args: argparse.Namespace) -> list[tuple[str, Any]]:
+    from drivers.sim import SimConfig, SimRecording
+
+    if args.sequence:
+        cfg = SimConfig(seconds=None, seed=args.seed)
+        return [(Path(s).name, lambda s=s: SimRecording.from_euroc_imu_gt(s, cfg)) for s in args.sequence]
+    return [(f"preset {args.preset}", lambda: SimRecording.from_preset(
+        SimConfig(preset=args.preset, seconds=args.seconds, seed=args.seed)))]
+
+
+def measure_recording(rec: Any, ks: list[float], reference: str, every_s: float, seed: int,
+                      max_windows: int | None = None,
+                      fields: list[str] | None = None) -> dict[float, list[dict]]:
+    """Per k, one row per window of `rec` (accepted or the rejection reason, and the errors).
+
+    fields: the pose-error knobs k scales (None: all); the other knobs are set to zero.
+    """
+    from dataclasses import replace
+
+    from drivers.events import Frame
+    from models.emulated_da3 import EmulatedDA3
+    from models.emulated_da3.params import POSE_ERROR_FIELDS, make_params, scale_pose_errors
+    from runtime.ffinit.initializer import FeedForwardInitializer
+    from runtime.geometry import interpolate_poses
+    from runtime.msckf.init_common import InitResult
+
+    gt = rec.groundtruth()
+    cam = rec.rig.camera
+    T_IC = np.asarray(rec.rig.T_IC, float)
+    off_ns = int(round((rec.rig.time_offset_s or 0.0) * 1e9))
+    stamps = rec.frame_stamps_ns
+    imu = rec.imu
+    ref = make_params(reference)
+    if fields is not None:
+        ref = replace(ref, **{f: 0.0 for f in POSE_ERROR_FIELDS if f not in fields})
+    params = {k: scale_pose_errors(ref, k) for k in ks}
+    blank = np.zeros((cam.height, cam.width), np.uint8)
+    t_lo = max(int(stamps[0]), int(imu.t_ns[0]) - off_ns, int(gt.t_ns[0]) - off_ns) + 100_000_000
+    t_hi = min(int(stamps[-1]), int(imu.t_ns[-1]) - off_ns, int(gt.t_ns[-1]) - off_ns) - 1_000_000_000
+    rows: dict[float, list[dict]] = {k: [] for k in ks}
+    w = 0
+    for t0 in range(t_lo, t_hi, int(every_s * 1e9)):
+        if max_windows is not None and w >= max_windows:
+            break
+        idx = window_frame_indices(stamps, t0)
+        if idx is None:
+            continue
+        frames = [Frame(int(stamps[i]), blank) for i in idx]
+        model = EmulatedDA3(rec.gt_source, cam.K, cam.width, cam.height, preset=reference,
+                            seed=seed * 1000 + w)
+        init = FeedForwardInitializer(model, T_IC[:3, :3], T_IC[:3, 3], rec.rig.time_offset_s or 0.0)
+        for k in ks:
+            model.params, model.calls = params[k], 0  # the same draws for every k
+            res = init.solve(frames, imu.t_ns, imu.gyro, imu.accel)
+            row: dict = {"window": w, "t_s": (t0 - t_lo) * 1e-9, "accepted": isinstance(res, InitResult)}
+            if isinstance(res, InitResult):
+                g = interpolate_poses(gt, np.array([res.t_ns], np.int64))
+                v_true = gt_velocity(gt, res.t_ns)
+                row["velocity_err"], row["gravity_err_deg"] = state_errors(res.R_OI, res.v_OI, g.R[0], v_true)
+                row["abs_log_scale_err"] = abs(float(np.log(res.info["scale"] *
+                                                            model.last_diagnostics["global_scale"])))
+                row["speed"] = float(np.linalg.norm(v_true))
+            else:
+                row["reason"] = res.reason
+            rows[k].append(row)
+        w += 1
+    return rows
+
+
+def run(args: argparse.Namespace) -> int:
+    from runtime.errors import ConfigError
+
+    try:
+        ks = [float(x) for x in args.k.split(",") if x.strip()]
+    except ValueError as exc:
+        raise ConfigError(f"--k expects comma-separated numbers, got {args.k!r}") from exc
+    from models.emulated_da3.params import POSE_ERROR_FIELDS
+
+    fields = None if not args.fields else [f.strip() for f in args.fields.split(",") if f.strip()]
+    bad = sorted(set(fields or []) - set(POSE_ERROR_FIELDS))
+    if bad:
+        raise ConfigError(f"--fields: unknown pose-error knob(s) {bad}; "
+                          f"choose from {list(POSE_ERROR_FIELDS)}")
+    result: dict = {"reference": args.reference, "k": ks, "fields": fields or list(POSE_ERROR_FIELDS),
+                    "recordings": {}}
+    per_window: dict = {}
+    for name, make in _recordings(args):
+        rows = measure_recording(make(), ks, args.reference, args.every, args.seed, args.max_windows, fields)
+        result["recordings"][name] = {str(k): summarise(r) for k, r in rows.items()}
+        per_window[name] = {str(k): r for k, r in rows.items()}
+        if not args.json:
+            print(f"{name}: {len(rows[ks[0]])} windows (pose errors = k x {args.reference})")
+            print(f"  {'k':>5s} {'accepted':>9s} {'vel m/s':>8s} {'vel p90':>8s} {'grav deg':>9s}"
+                  f" {'|log s|':>8s} {'wrong s':>8s}")
+            for k in ks:
+                s = result["recordings"][name][str(k)]
+                f = lambda v: "   -" if v is None else f"{v:8.3f}"  # noqa: E731
+                print(f"  {k:5.2f} {s['accepted']:4d}/{s['windows']:<4d} {f(s['velocity_err_median'])}"
+                      f" {f(s['velocity_err_p90'])} {f(s['gravity_err_deg_median'])}"
+                      f" {f(s['abs_log_scale_err_median'])} {s['wrong_scale']:8d}", flush=True)
+    if args.out:
+        Path(args.out).write_text(json.dumps({**result, "per_window": per_window}, indent=2))
+    if args.json:
+        print(json.dumps(result))
+    return 0
