@@ -178,6 +178,11 @@ def _arms(names: str, base: Any) -> dict:
     return {a: known[a] for a in arms}
 
 
+def _short(source: str) -> str:
+    """A compact name of the initializer that published (for the table)."""
+    return source.replace("feedforward", "ff").replace("native:", "")
+
+
 def run(args: argparse.Namespace) -> int:
     from models.emulated_da3 import EmulatedDA3, make_params
     from runtime.config import DavioConfig
@@ -231,14 +236,13 @@ def run(args: argparse.Namespace) -> int:
     from rich.table import Table
 
     tab = Table(title=f"start-up over {len(starts)} windows ({rec.info.get('source')})")
-    for col in ("initializer", "success", "T_f (s)", "T_q (s)", "grav (deg)", "vel (m/s)", "ATE (m)",
-                "published by"):
+    for col in ("initializer", "success", "T_f (s)", "T_q (s)", "grav (deg)", "vel (m/s)", "ATE (m)", "by"):
         tab.add_column(col)
     fmt = lambda v: "-" if v is None else f"{v:.2f}" if abs(v) >= 0.1 else f"{v:.3f}"  # noqa: E731
     for arm in arms:
         s = result[arm]
         tab.add_row(arm, f"{s['successes']}/{s['windows']}", fmt(s["T_f_median"]), fmt(s["T_q_median"]),
                     fmt(s["gravity_err_deg_median"]), fmt(s["velocity_err_median"]), fmt(s["ate_median"]),
-                    ", ".join(f"{k} {v}" for k, v in sorted(s["sources"].items())))
+                    ", ".join(f"{_short(k)} {v}" for k, v in sorted(s["sources"].items())))
     Console().print(tab)
     return 0
