@@ -137,3 +137,56 @@ def distort_points(code: int, prm: np.ndarray, xy: np.ndarray) -> np.ndarray:
         out[i, 0] = u
         out[i, 1] = v
     return out
+
+
+#: number of estimated intrinsics: fx, fy, cx, cy and four distortion coefficients
+#: (radtan k1 k2 p1 p2, equidistant k1..k4; a radtan k3 stays fixed), as OpenVINS's calib_cam_intrinsics
+NUM_INTRINSICS = 8
+
+
+@njit(cache=True, nogil=True)
+def distort_jacobian_params(code: int, prm: np.ndarray, x: float, y: float) -> np.ndarray:
+    """d(u, v) / d(prm[:8]) at normalised (x, y): the (2, 8) Jacobian of the distorted pixel w.r.t.
+    [fx, fy, cx, cy, d0, d1, d2, d3] (pixels per unit of each parameter). Model "none": zero distortion
+    columns."""
+    fx, fy = prm[0], prm[1]
+    J = np.zeros((2, 8))
+    J[0, 2] = 1.0
+    J[1, 3] = 1.0
+    if code == 1:
+        k1, k2, p1, p2, k3 = prm[4], prm[5], prm[6], prm[7], prm[8]
+        r2 = x * x + y * y
+        rad = 1.0 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
+        xy2 = 2.0 * x * y
+        J[0, 0] = x * rad + p1 * xy2 + p2 * (r2 + 2.0 * x * x)
+        J[1, 1] = y * rad + p1 * (r2 + 2.0 * y * y) + p2 * xy2
+        J[0, 4] = fx * x * r2
+        J[1, 4] = fy * y * r2
+        J[0, 5] = fx * x * r2 * r2
+        J[1, 5] = fy * y * r2 * r2
+        J[0, 6] = fx * xy2
+        J[1, 6] = fy * (r2 + 2.0 * y * y)
+        J[0, 7] = fx * (r2 + 2.0 * x * x)
+        J[1, 7] = fy * xy2
+        return J
+    if code == 2:
+        r = np.sqrt(x * x + y * y)
+        if r < 1e-10:
+            J[0, 0] = x
+            J[1, 1] = y
+            return J
+        th = np.arctan(r)
+        t2 = th * th
+        thd = th * (1 + prm[4] * t2 + prm[5] * t2 * t2 + prm[6] * t2 * t2 * t2 + prm[7] * t2 * t2 * t2 * t2)
+        s = thd / r
+        J[0, 0] = x * s
+        J[1, 1] = y * s
+        tp = th  # theta^(2j+1) for j = 1..4
+        for j in range(4):
+            tp = tp * t2
+            J[0, 4 + j] = fx * x / r * tp
+            J[1, 4 + j] = fy * y / r * tp
+        return J
+    J[0, 0] = x
+    J[1, 1] = y
+    return J

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields, replace
 
 from runtime.errors import ConfigError
@@ -51,11 +52,20 @@ class MsckfConfig:
     # online calibration
     calib_extrinsics: bool = False  #: estimate R_IC, p_IC
     calib_time_offset: bool = False  #: estimate t_imu - t_cam
-    calib_intrinsics: bool = False  #: estimate fx fy cx cy and distortion (not supported)
+    #: estimate the camera intrinsics [fx, fy, cx, cy, d0..d3] (radtan k1 k2 p1 p2 or equidistant k1..k4;
+    #: a radtan k3 stays fixed) in the state, as OpenVINS's calib_cam_intrinsics
+    calib_intrinsics: bool = False
     # initial calibration uncertainty when estimated
     sigma_calib_rot: float = 0.035  #: rad, prior std of R_IC (about 2 deg)
     sigma_calib_pos: float = 0.02  #: m, prior std of p_IC
     sigma_calib_dt: float = 0.01  #: s, prior std of the time offset
+    #: px, prior std of fx and fy (OpenVINS State constructor: 1.0 px for fx fy cx cy, which is also the
+    #: std of its simulator's intrinsics perturbation, Simulator::perturb_parameters)
+    sigma_calib_focal: float = 1.0
+    sigma_calib_center: float = 1.0  #: px, prior std of cx and cy (OpenVINS: 1.0 px)
+    #: prior std of each of the four distortion coefficients (OpenVINS State constructor and simulator
+    #: perturbation: 0.005)
+    sigma_calib_distortion: float = 0.005
     # IMU noise (continuous-time densities; EuRoC/Kalibr)
     gyro_noise_density: float = 1.6968e-4  #: rad/s/sqrt(Hz)
     gyro_random_walk: float = 1.9393e-5  #: rad/s^2/sqrt(Hz)
@@ -94,8 +104,6 @@ class MsckfConfig:
             raise ConfigError(
                 f"slam_representation must be one of {SLAM_REPRESENTATIONS}, got {self.slam_representation!r}"
             )
-        if self.calib_intrinsics:
-            raise ConfigError("calib_intrinsics: online intrinsics calibration is not supported")
         if self.max_clones < 2:
             raise ConfigError(f"max_clones must be >= 2, got {self.max_clones}")
         for f in ("max_slam", "max_slam_in_update", "max_msckf_in_update"):
@@ -112,6 +120,12 @@ class MsckfConfig:
         ):
             if not getattr(self, f) > 0:
                 raise ConfigError(f"{f} must be > 0, got {getattr(self, f)}")
+        if self.calib_intrinsics:
+            for f in ("sigma_calib_focal", "sigma_calib_center", "sigma_calib_distortion"):
+                v = getattr(self, f)
+                if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
+                    raise ConfigError(f"{f} (prior std of the online intrinsics) must be finite and > 0, "
+                                      f"got {v!r}")
 
     def with_imu_noise(self, imu: object | None) -> MsckfConfig:
         """A copy with the IMU noise densities of an ImuNoise-like object (None, withheld: unchanged)."""

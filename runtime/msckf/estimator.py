@@ -37,7 +37,12 @@ class FilterState:
     t_ns: IMU-clock time of the state (ns); t_cam_ns: the camera time of the frame (ns);
     R_OI, p_OI, v_OI, bg, ba: IMU state in the gravity-aligned odometry frame O;
     covariance: (15, 15) IMU block, order [dtheta (body frame), dp, dv, dbg, dba];
-    R_IC, p_IC, time_offset_s: current calibration (t_imu = t_cam + time_offset_s).
+    R_IC, p_IC, time_offset_s: current calibration (t_imu = t_cam + time_offset_s);
+    calib_covariance: (7, 7) covariance of [dphi (right on R_IC), dp_IC, dt] for the estimated blocks
+    (extrinsics 6 then time offset 1; None when neither is estimated);
+    intrinsics: (9,) camera parameters in use [fx, fy, cx, cy, d0..d4] (px, px, px, px, unitless), the
+    state's estimate with online intrinsics calibration; intrinsics_covariance: (8, 8) covariance of
+    intrinsics[:8] when estimated (else None); intrinsics_std: the square roots of its diagonal.
     """
 
     t_ns: int
@@ -54,6 +59,15 @@ class FilterState:
     calib_covariance: np.ndarray | None = None
     num_slam: int = 0
     num_clones: int = 0
+    intrinsics: np.ndarray | None = None
+    intrinsics_covariance: np.ndarray | None = None
+
+    @property
+    def intrinsics_std(self) -> np.ndarray | None:
+        """(8,) prior/posterior std of the estimated intrinsics (None when they are not estimated)."""
+        if self.intrinsics_covariance is None:
+            return None
+        return np.sqrt(np.maximum(np.diag(self.intrinsics_covariance), 0.0))
 
 
 @dataclass
@@ -160,7 +174,8 @@ class MsckfEstimator:
         R = vals[0]
         if np.abs(R.T @ R - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0:
             raise EstimatorError("initialize_from_state: R_OI is not a rotation")
-        st = State(self._R_IC0, self._p_IC0, self._t_d0, cfg.calib_time_offset, cfg.calib_extrinsics)
+        st = State(self._R_IC0, self._p_IC0, self._t_d0, cfg.calib_time_offset, cfg.calib_extrinsics,
+                   self.camera.params.copy() if cfg.calib_intrinsics else None)
         st.t_ns = int(t_ns)
         st.R, st.p, st.v, st.bg, st.ba = (x.copy() for x in vals)
         st.R_fej, st.p_fej, st.v_fej = st.R.copy(), st.p.copy(), st.v.copy()
@@ -194,6 +209,11 @@ class MsckfEstimator:
             i = st.idx_ext
             st.P[i : i + 3, i : i + 3] = np.eye(3) * cfg.sigma_calib_rot**2
             st.P[i + 3 : i + 6, i + 3 : i + 6] = np.eye(3) * cfg.sigma_calib_pos**2
+        if st.idx_intr >= 0:
+            i = st.idx_intr
+            sig = [cfg.sigma_calib_focal] * 2 + [cfg.sigma_calib_center] * 2
+            sig += [cfg.sigma_calib_distortion] * 4
+            st.P[i : i + 8, i : i + 8] = np.diag(np.square(sig))
         self.state_ = st
         self._t_init_ns = int(t_ns)
         self._frames_without_update = 0
@@ -212,6 +232,20 @@ class MsckfEstimator:
             self.state_.p_IC = self._p_IC0.copy()
             self.state_.t_d = self._t_d0
 
+    def set_intrinsics(self, params: np.ndarray) -> None:
+        """Replace the camera intrinsics [fx, fy, cx, cy, d0..d4] (9, the CameraParams layout; given 8:
+        d4 = 0) used from now on: the fixed ones, or the prior of the online estimate at the next
+        initialisation (and the current estimate, if running)."""
+        p = np.asarray(params, dtype=float).ravel()
+        if p.size == 8:
+            p = np.append(p, 0.0)
+        if p.size != 9 or not np.all(np.isfinite(p)) or p[0] <= 0 or p[1] <= 0:
+            raise EstimatorError(f"set_intrinsics: need 8 or 9 finite values with fx, fy > 0, got {p}")
+        cam = self.camera
+        self.camera = CameraParams(cam.model, p, cam.width, cam.height)
+        if self.state_ is not None and self.state_.cam_params is not None:
+            self.state_.cam_params = p.copy()
+
     def state(self) -> FilterState | None:
         """The current snapshot (None while uninitialised)."""
         st = self.state_
@@ -227,6 +261,9 @@ class MsckfEstimator:
         if st.idx_dt >= 0:
             calib_cols.append(st.idx_dt)
         ccov = st.P[np.ix_(calib_cols, calib_cols)].copy() if calib_cols else None
+        kcov = None
+        if st.idx_intr >= 0:
+            kcov = st.P[st.idx_intr : st.idx_intr + 8, st.idx_intr : st.idx_intr + 8].copy()
         return FilterState(
             st.t_ns,
             int(t_cam_ns),
@@ -242,6 +279,8 @@ class MsckfEstimator:
             ccov,
             len(st.slam),
             len(st.clones),
+            st.camera_params(self.camera.params).copy(),
+            kcov,
         )
 
     def report(self) -> dict:
@@ -424,7 +463,8 @@ class MsckfEstimator:
             c.cpu_frame_s += time.thread_time() - t0_cpu
             return self._after_frame(t_cam, updated=True)
         augment_clone(st, t_cam, self._last_w)
-        xn = undistort_points(self.camera.code, self.camera.params, uv) if uv.shape[0] else np.zeros((0, 2))
+        prm = st.camera_params(self.camera.params)
+        xn = undistort_points(self.camera.code, prm, uv) if uv.shape[0] else np.zeros((0, 2))
         self.db.add(t_cam, ids, uv, xn)
         seen = set(ids.tolist())
         n_clones = len(st.clones)

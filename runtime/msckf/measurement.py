@@ -2,7 +2,8 @@
 
 A point p_O seen from clone (R_OI, p_OI) with extrinsics (R_IC, p_IC):
     p_C = R_IC^T (R_OI^T (p_O - p_OI) - p_IC),   z = distort(p_C / p_C.z).
-Error states: clone [dtheta (right), dp], extrinsics [dphi (right on R_IC), dp_IC], point dp_O.
+Error states: clone [dtheta (right), dp], extrinsics [dphi (right on R_IC), dp_IC], point dp_O, and
+(online intrinsics calibration) the additive intrinsics [fx, fy, cx, cy, d0..d3].
 Jacobians are evaluated at the clones' first estimates (FEJ) and the given point.
 """
 from __future__ import annotations
@@ -10,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from runtime.msckf.camera_kernels import distort_point
+from runtime.msckf.camera_kernels import distort_jacobian_params, distort_point
 from runtime.msckf.so3_kernels import skew3
 
 
@@ -54,6 +55,23 @@ def feature_jacobians(Rc: np.ndarray, pc: np.ndarray, Rf: np.ndarray, pf: np.nda
         He[2 * i:2 * i + 2, 3:6] = -A
         Hf[2 * i:2 * i + 2, :] = A @ Rf[i].T
     return True, r, Hc, He, Hf
+
+
+@njit(cache=True, nogil=True)
+def feature_intrinsics_jacobian(Rf: np.ndarray, pf: np.ndarray, p_O_fej: np.ndarray, R_IC: np.ndarray,
+                                p_IC: np.ndarray, code: int, prm: np.ndarray) -> np.ndarray:
+    """(2m, 8) Jacobian of the m distorted pixels of a point w.r.t. the intrinsics prm[:8], at the same
+    linearisation point as `feature_jacobians` (clones Rf, pf; point p_O_fej). Rows of observations
+    behind the camera are zero (feature_jacobians rejects those tracks)."""
+    m = Rf.shape[0]
+    Hk = np.zeros((2 * m, 8))
+    RCI = R_IC.T
+    for i in range(m):
+        pCf = RCI @ (Rf[i].T @ (p_O_fej - pf[i]) - p_IC)
+        if pCf[2] <= 1e-6:
+            continue
+        Hk[2 * i:2 * i + 2, :] = distort_jacobian_params(code, prm, pCf[0] / pCf[2], pCf[1] / pCf[2])
+    return Hk
 
 
 @njit(cache=True, nogil=True)

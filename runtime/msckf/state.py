@@ -1,7 +1,8 @@
 """Filter state: IMU, calibration, clone window, SLAM landmarks and their joint covariance.
 
 Error-state layout (covariance order): IMU [dtheta, dp, dv, dbg, dba] (15) at 0, then the time offset (1)
-and the extrinsics [dphi, dp_IC] (6) when estimated, then clones (6 each) and landmarks (3 each) in
+and the extrinsics [dphi, dp_IC] (6) and the camera intrinsics [fx, fy, cx, cy, d0..d3] (8, additive) when
+estimated, then clones (6 each) and landmarks (3 each) in
 creation order. Rotations use right perturbations R = R_hat Exp(dtheta). First estimates (FEJ) are
 kept here, never in the updaters.
 """
@@ -42,8 +43,10 @@ class Landmark:
 class State:
     """The joint state and covariance of the filter."""
 
-    def __init__(self, R_IC: np.ndarray, p_IC: np.ndarray, t_d: float, calib_dt: bool, calib_ext: bool
-                 ) -> None:
+    def __init__(self, R_IC: np.ndarray, p_IC: np.ndarray, t_d: float, calib_dt: bool, calib_ext: bool,
+                 cam_params: np.ndarray | None = None) -> None:
+        """cam_params: the camera's 9 parameters [fx, fy, cx, cy, d0..d4] to estimate online (the first 8
+        become error states after the extrinsics); None: the intrinsics are fixed outside the state."""
         self.t_ns = 0                    # IMU-clock time of the IMU state, ns
         self.R = np.eye(3)
         self.p = np.zeros(3)
@@ -65,6 +68,13 @@ class State:
         if calib_ext:
             self.idx_ext = n
             n += 6
+        self.idx_intr = -1
+        self.cam_params = None if cam_params is None else np.array(cam_params, dtype=float)
+        if self.cam_params is not None:
+            if self.cam_params.shape != (9,):
+                raise ValueError(f"cam_params must have 9 entries, got shape {self.cam_params.shape}")
+            self.idx_intr = n
+            n += 8
         self.P = np.zeros((n, n))
         self.clones: dict[int, Clone] = {}
         self.slam: dict[int, Landmark] = {}
@@ -72,6 +82,11 @@ class State:
     @property
     def size(self) -> int:
         return self.P.shape[0]
+
+    def camera_params(self, fixed: np.ndarray) -> np.ndarray:
+        """The intrinsics the measurement model uses: the state's estimate when calibrated online, else
+        `fixed` (the camera's)."""
+        return self.cam_params if self.cam_params is not None else fixed
 
     def imu_pose_at_clone(self, t_cam_ns: int) -> Clone:
         return self.clones[t_cam_ns]
@@ -113,6 +128,8 @@ class State:
             self.idx_dt = moved(self.idx_dt)
         if self.idx_ext >= 0:
             self.idx_ext = moved(self.idx_ext)
+        if self.idx_intr >= 0:
+            self.idx_intr = moved(self.idx_intr)
 
     def apply_correction(self, dx: np.ndarray) -> None:
         """x <- x (+) dx over the whole error state (FEJ untouched)."""
@@ -127,6 +144,9 @@ class State:
             i = self.idx_ext
             self.R_IC = normalize_rot(self.R_IC @ exp3(dx[i:i + 3]))
             self.p_IC = self.p_IC + dx[i + 3:i + 6]
+        if self.idx_intr >= 0:
+            i = self.idx_intr
+            self.cam_params[:8] = self.cam_params[:8] + dx[i:i + 8]
         for c in self.clones.values():
             c.R = c.R @ exp3(dx[c.idx:c.idx + 3])     # short-lived: exp3 keeps it orthonormal to ~1e-15
             c.p = c.p + dx[c.idx + 3:c.idx + 6]

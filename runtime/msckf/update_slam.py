@@ -13,7 +13,7 @@ from runtime.msckf.camera_kernels import CameraParams
 from runtime.msckf.config import MsckfConfig
 from runtime.msckf.feature_db import Track
 from runtime.msckf.landmark_repr import anchored_to_global, global_to_anchored
-from runtime.msckf.measurement import feature_jacobians
+from runtime.msckf.measurement import feature_intrinsics_jacobian, feature_jacobians
 from runtime.msckf.state import State
 from runtime.msckf.state_helper import chi2_95, compress, ekf_update, initialize_landmark
 from runtime.msckf.update_msckf import fill_window_columns, linearize_track, window_columns
@@ -34,13 +34,15 @@ def slam_rows(P: np.ndarray, cidx: int, eidx: int, lidx: np.ndarray, aidx: np.nd
               pc: np.ndarray, Rf: np.ndarray, pf: np.ndarray, uv: np.ndarray, lp: np.ndarray,
               lfej: np.ndarray,
               RA: np.ndarray, pA: np.ndarray, RAf: np.ndarray, pAf: np.ndarray, R_IC: np.ndarray,
-              p_IC: np.ndarray, code: int, prm: np.ndarray, sigma: float) -> tuple:
+              p_IC: np.ndarray, code: int, prm: np.ndarray, sigma: float, kidx: int = -1) -> tuple:
     """Residuals, Jacobians and Mahalanobis distances of k landmarks seen by one clone.
 
-    P: full covariance; cidx/eidx: clone and extrinsics columns (eidx < 0: none); lidx (k,) landmark columns;
-    aidx (k,) anchor-clone columns of anchored inverse-depth landmarks (-1: global 3D landmark), with the
-    anchors' current (RA, pA) and first-estimate (RAf, pAf) poses.
-    Returns ok (k,), d2 (k,), r (k,2), Hc (k,2,6), Ha (k,2,6) anchor, He (k,2,6), Hl (k,2,3).
+    P: full covariance; cidx/eidx/kidx: clone, extrinsics and intrinsics columns (eidx, kidx < 0: not
+    estimated); lidx (k,) landmark columns; aidx (k,) anchor-clone columns of anchored inverse-depth
+    landmarks (-1: global 3D landmark), with the anchors' current (RA, pA) and first-estimate (RAf, pAf)
+    poses.
+    Returns ok (k,), d2 (k,), r (k,2), Hc (k,2,6), Ha (k,2,6) anchor, He (k,2,6), Hl (k,2,3),
+    Hk (k,2,8) intrinsics (zero when not estimated).
     """
     k = lidx.shape[0]
     ok = np.zeros(k, dtype=np.bool_)
@@ -50,7 +52,9 @@ def slam_rows(P: np.ndarray, cidx: int, eidx: int, lidx: np.ndarray, aidx: np.nd
     Ha = np.zeros((k, 2, 6))
     He = np.zeros((k, 2, 6))
     Hl = np.zeros((k, 2, 3))
+    Hk = np.zeros((k, 2, 8))
     ne = 6 if eidx >= 0 else 0
+    nk = 8 if kidx >= 0 else 0
     for i in range(k):
         anchored = aidx[i] >= 0
         if anchored:
@@ -63,6 +67,9 @@ def slam_rows(P: np.ndarray, cidx: int, eidx: int, lidx: np.ndarray, aidx: np.nd
                                                  prm)
         if not good:
             continue
+        hk = np.zeros((2, 8))
+        if nk > 0:
+            hk = feature_intrinsics_jacobian(Rf, pf, p_Of, R_IC, p_IC, code, prm)
         ha = np.zeros((2, 6))
         sep = False
         if anchored:
@@ -77,7 +84,7 @@ def slam_rows(P: np.ndarray, cidx: int, eidx: int, lidx: np.ndarray, aidx: np.nd
         else:
             hl = hf
         na = 6 if sep else 0
-        nc = 6 + ne + na + 3
+        nc = 6 + ne + nk + na + 3
         cols = np.empty(nc, dtype=np.int64)
         H = np.zeros((2, nc))
         for j in range(6):
@@ -87,13 +94,17 @@ def slam_rows(P: np.ndarray, cidx: int, eidx: int, lidx: np.ndarray, aidx: np.nd
             cols[6 + j] = eidx + j
         if ne > 0:
             H[:, 6:12] = he
+        for j in range(nk):
+            cols[6 + ne + j] = kidx + j
+        if nk > 0:
+            H[:, 6 + ne:14 + ne] = hk
         for j in range(na):
-            cols[6 + ne + j] = aidx[i] + j
+            cols[6 + ne + nk + j] = aidx[i] + j
         if na > 0:
-            H[:, 6 + ne:12 + ne] = ha
+            H[:, 6 + ne + nk:12 + ne + nk] = ha
         for j in range(3):
-            cols[6 + ne + na + j] = lidx[i] + j
-        H[:, 6 + ne + na:] = hl
+            cols[6 + ne + nk + na + j] = lidx[i] + j
+        H[:, 6 + ne + nk + na:] = hl
         Pl = np.empty((nc, nc))
         for a in range(nc):
             for b in range(nc):
@@ -112,7 +123,8 @@ def slam_rows(P: np.ndarray, cidx: int, eidx: int, lidx: np.ndarray, aidx: np.nd
         Ha[i] = ha
         He[i] = he
         Hl[i] = hl
-    return ok, d2, r, Hc, Ha, He, Hl
+        Hk[i] = hk
+    return ok, d2, r, Hc, Ha, He, Hl, Hk
 
 
 def slam_update(state: State, t_cam_ns: int, obs: list[tuple[int, np.ndarray]], cfg: MsckfConfig,
@@ -138,10 +150,11 @@ def slam_update(state: State, t_cam_ns: int, obs: list[tuple[int, np.ndarray]], 
         uv = np.array([u for _, u in chunk])
         lp = np.array([lm.p for lm in lms])
         lf = np.array([lm.p_fej for lm in lms]) if fej else lp
-        ok, d2, r, Hc, Ha, He, Hl = slam_rows(
+        ok, d2, r, Hc, Ha, He, Hl, Hk = slam_rows(
             state.P, c.idx, state.idx_ext, lidx, aidx, c.R[None], c.p[None],
             c.R_fej[None] if fej else c.R[None], c.p_fej[None] if fej else c.p[None], uv, lp, lf,
-            RA, pA, RAf, pAf, state.R_IC, state.p_IC, cam.code, cam.params, cfg.sigma_pix)
+            RA, pA, RAf, pAf, state.R_IC, state.p_IC, cam.code, state.camera_params(cam.params),
+            cfg.sigma_pix, state.idx_intr)
         good = ok & (d2 < gate)
         for lm, g in zip(lms, good, strict=True):
             if not g:
@@ -151,12 +164,15 @@ def slam_update(state: State, t_cam_ns: int, obs: list[tuple[int, np.ndarray]], 
         if sel.size == 0:
             continue
         stats.updated += int(sel.size)
-        # column blocks: measuring clone, extrinsics, then anchors and landmarks as they appear
+        # column blocks: measuring clone, extrinsics, intrinsics, then anchors and landmarks as they appear
         offset: dict[int, int] = {c.idx: 0}
         cols = list(range(c.idx, c.idx + 6))
         if state.idx_ext >= 0:
             offset[state.idx_ext] = len(cols)
             cols += list(range(state.idx_ext, state.idx_ext + 6))
+        if state.idx_intr >= 0:
+            offset[state.idx_intr] = len(cols)
+            cols += list(range(state.idx_intr, state.idx_intr + 8))
 
         H = np.zeros((2 * sel.size, len(cols) + 9 * sel.size))
         for k, i in enumerate(sel):
@@ -164,6 +180,9 @@ def slam_update(state: State, t_cam_ns: int, obs: list[tuple[int, np.ndarray]], 
             H[rows, 0:6] = Hc[i]
             if state.idx_ext >= 0:
                 H[rows, 6:12] = He[i]
+            if state.idx_intr >= 0:
+                o = offset[state.idx_intr]
+                H[rows, o:o + 8] = Hk[i]
             for start, size, Hb in ((int(aidx[i]), 6, Ha[i]), (int(lidx[i]), 3, Hl[i])):
                 if size == 6 and (start < 0 or start == c.idx):
                     continue
@@ -204,13 +223,17 @@ def delayed_init(state: State, tracks: list[Track], cfg: MsckfConfig, cam: Camer
             fej, _, _, _ = global_to_anchored(p_lin, anchor.R_fej, anchor.p_fej, state.R_IC, state.p_IC)
             p_Of, J_lam, J_anc, J_ext = anchored_to_global(fej, anchor.R_fej, anchor.p_fej, state.R_IC,
                                                            state.p_IC)
+            prm = state.camera_params(cam.params)
             ok, r, Hc, He, Hf = feature_jacobians(Rc, pc, Rf, pf, uv, p_O, p_Of, state.R_IC, state.p_IC,
-                                                  cam.code, cam.params)
+                                                  cam.code, prm)
             if not ok:
                 stats.init_failed += 1
                 continue
+            Hk = None
+            if state.idx_intr >= 0:
+                Hk = feature_intrinsics_jacobian(Rf, pf, p_Of, state.R_IC, state.p_IC, cam.code, prm)
             Hx[:] = 0.0
-            fill_window_columns(Hx, He + Hf @ J_ext, Hc, cl, offset, state.idx_ext >= 0)
+            fill_window_columns(Hx, He + Hf @ J_ext, Hc, cl, offset, state.idx_ext >= 0, Hk)
             o = offset[anchor.t_cam_ns]
             Hx[:, o:o + 6] += Hf @ J_anc
             H_lm = Hf @ J_lam

@@ -137,7 +137,7 @@ def test_slam_rows_anchored_jacobians_match_finite_differences() -> None:
             1.0,
         )
 
-    ok, _, r, Hc, Ha, He, Hl = rows(R_c, p_c, R_a, p_a, lam, R_IC, p_IC)
+    ok, _, r, Hc, Ha, He, Hl, _ = rows(R_c, p_c, R_a, p_a, lam, R_IC, p_IC)
     assert ok[0]
     eps = 1e-6
 

@@ -1,0 +1,234 @@
+"""Online camera-intrinsics calibration: the pixel Jacobian w.r.t. the intrinsics, the state block, the
+update columns and the filter's behaviour with the true and with perturbed intrinsics."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from runtime.errors import ConfigError, EstimatorError
+from runtime.msckf.camera_kernels import MODEL_CODES, distort_jacobian_params, distort_point
+from runtime.msckf.config import MsckfConfig
+from runtime.msckf.estimator import MsckfEstimator
+from runtime.msckf.measurement import feature_intrinsics_jacobian, feature_jacobians
+from runtime.msckf.so3_kernels import exp3
+from runtime.msckf.state import State
+from tests.runtime.test_msckf_estimator import PRM, _init, _rig, _run, _stream
+
+
+def _random_params(rng: np.random.Generator, model: str) -> np.ndarray:
+    prm = np.zeros(9)
+    prm[0:2] = rng.uniform(300.0, 600.0, 2)
+    prm[2:4] = rng.uniform(200.0, 400.0, 2)
+    if model == "radtan":
+        prm[4:9] = [rng.uniform(-0.3, 0.1), rng.uniform(-0.05, 0.1), *rng.uniform(-1e-3, 1e-3, 2),
+                    rng.uniform(-0.01, 0.01)]
+    elif model == "equidistant":
+        prm[4:8] = rng.uniform(-0.05, 0.05, 4)
+    return prm
+
+
+@pytest.mark.parametrize("model", ["radtan", "equidistant", "none"])
+def test_intrinsics_jacobian_matches_central_differences(model: str) -> None:
+    rng = np.random.default_rng(7)
+    code = MODEL_CODES[model]
+    for _ in range(30):
+        prm = _random_params(rng, model)
+        x, y = rng.uniform(-0.8, 0.8, 2)
+        J = distort_jacobian_params(code, prm, x, y)
+        num = np.zeros((2, 8))
+        for j in range(8):
+            h = 1e-4 if j < 4 else 1e-7
+            pp, pm = prm.copy(), prm.copy()
+            pp[j] += h
+            pm[j] -= h
+            up, vp, _ = distort_point(code, pp, x, y)
+            um, vm, _ = distort_point(code, pm, x, y)
+            num[:, j] = [(up - um) / (2 * h), (vp - vm) / (2 * h)]
+        if model == "none":
+            num[:, 4:] = 0.0           # "none" ignores the coefficients: so does its Jacobian
+        assert np.allclose(J, num, rtol=1e-6, atol=1e-6), (model, J - num)
+
+
+def test_equidistant_jacobian_at_the_optical_axis() -> None:
+    prm = np.array([400.0, 410.0, 320.0, 240.0, 0.01, -0.02, 0.003, 0.001, 0.0])
+    J = distort_jacobian_params(2, prm, 0.0, 0.0)
+    expected = np.zeros((2, 8))
+    expected[0, 2] = expected[1, 3] = 1.0
+    assert np.array_equal(J, expected)
+
+
+def test_feature_intrinsics_jacobian_matches_the_residual() -> None:
+    """-d r / d intrinsics of the measurement model equals feature_intrinsics_jacobian (point fixed)."""
+    rng = np.random.default_rng(3)
+    R_IC = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+    p_IC = np.array([0.05, -0.02, 0.01])
+    Rc = np.array([exp3(0.05 * rng.standard_normal(3)) for _ in range(4)])
+    pc = 0.2 * rng.standard_normal((4, 3))
+    p_O = np.array([4.0, 0.3, -0.2])
+    uv = np.full((4, 2), 300.0)
+    prm = PRM.copy()
+    Hk = feature_intrinsics_jacobian(Rc, pc, p_O, R_IC, p_IC, 1, prm)
+    num = np.zeros((8, 8))
+    for j in range(8):
+        h = 1e-4 if j < 4 else 1e-7
+        pp, pm = prm.copy(), prm.copy()
+        pp[j] += h
+        pm[j] -= h
+        rp = feature_jacobians(Rc, pc, Rc, pc, uv, p_O, p_O, R_IC, p_IC, 1, pp)[1]
+        rm = feature_jacobians(Rc, pc, Rc, pc, uv, p_O, p_O, R_IC, p_IC, 1, pm)[1]
+        num[:, j] = -(rp - rm) / (2 * h)
+    assert np.allclose(Hk, num, rtol=1e-6, atol=1e-5)
+
+
+def test_slam_rows_intrinsics_columns_match_the_residual() -> None:
+    from runtime.msckf.update_slam import slam_rows
+
+    R_IC = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+    p_IC = np.array([0.05, -0.02, 0.01])
+    Rc, pc = exp3(np.array([0.02, -0.03, 0.1])), np.array([0.1, 0.2, 0.0])
+    lp = np.array([[5.0, 1.0, 0.5]])
+    P = np.eye(40)
+
+    def rows(prm: np.ndarray, kidx: int) -> tuple:
+        return slam_rows(P, 0, -1, np.array([20]), np.array([-1]), Rc[None], pc[None], Rc[None], pc[None],
+                         np.array([[300.0, 250.0]]), lp, lp, np.eye(3)[None], np.zeros((1, 3)),
+                         np.eye(3)[None], np.zeros((1, 3)), R_IC, p_IC, 1, prm, 1.0, kidx)
+
+    ok, d2, r, Hc, Ha, He, Hl, Hk = rows(PRM, 6)
+    ok0, d20, _, Hc0, _, _, Hl0, Hk0 = rows(PRM, -1)
+    assert ok[0] and ok0[0]
+    assert np.array_equal(Hk0, np.zeros((1, 2, 8))) and np.array_equal(Hc0, Hc) and np.array_equal(Hl0, Hl)
+    # the gate includes the intrinsics' uncertainty: a larger innovation covariance, a smaller distance
+    assert d2[0] < d20[0]
+    num = np.zeros((2, 8))
+    for j in range(8):
+        h = 1e-4 if j < 4 else 1e-7
+        pp, pm = PRM.copy(), PRM.copy()
+        pp[j] += h
+        pm[j] -= h
+        num[:, j] = -(rows(pp, 6)[2][0] - rows(pm, 6)[2][0]) / (2 * h)
+    assert np.allclose(Hk[0], num, rtol=1e-6, atol=1e-5)
+
+
+def test_config_accepts_intrinsics_and_rejects_bad_priors() -> None:
+    cfg = MsckfConfig(calib_intrinsics=True)
+    assert (cfg.sigma_calib_focal, cfg.sigma_calib_center, cfg.sigma_calib_distortion) == (1.0, 1.0, 0.005)
+    for field, bad in (("sigma_calib_focal", 0.0), ("sigma_calib_center", -1.0),
+                       ("sigma_calib_distortion", float("nan")), ("sigma_calib_focal", float("inf"))):
+        with pytest.raises(ConfigError, match=field):
+            MsckfConfig(calib_intrinsics=True, **{field: bad})
+    MsckfConfig(sigma_calib_focal=0.0)            # not used without calib_intrinsics
+
+
+def test_state_intrinsics_block_layout_correction_and_marginalisation() -> None:
+    st = State(np.eye(3), np.zeros(3), 0.0, True, True, PRM)
+    assert (st.idx_dt, st.idx_ext, st.idx_intr, st.size) == (15, 16, 22, 30)
+    st.P = np.diag(np.arange(1.0, 31.0))
+    st.add_variable(6, np.eye(6), np.zeros((6, 30)))
+    from runtime.msckf.state import Clone
+
+    st.clones[5] = Clone(5, np.eye(3), np.zeros(3), np.eye(3), np.zeros(3), 30)
+    dx = np.zeros(36)
+    dx[22:30] = np.arange(1, 9) * 1e-3
+    st.apply_correction(dx)
+    assert np.allclose(st.cam_params[:8], PRM[:8] + np.arange(1, 9) * 1e-3) and st.cam_params[8] == PRM[8]
+    assert np.array_equal(st.camera_params(np.zeros(9)), st.cam_params)
+    st.remove_variable(30, 6)
+    st.clones.clear()
+    assert st.idx_intr == 22 and np.array_equal(np.diag(st.P), np.arange(1.0, 31.0))
+    # without online intrinsics: no block, the fixed parameters are used
+    st2 = State(np.eye(3), np.zeros(3), 0.0, False, False)
+    assert st2.idx_intr == -1 and st2.size == 15 and st2.camera_params(PRM) is PRM
+
+
+@pytest.mark.slow
+def test_filter_with_true_intrinsics_stays_at_the_truth() -> None:
+    """Started at the true intrinsics, the estimates stay within 3 sigma of them and their std shrinks
+    (synthetic circle: the focal length is only weakly observable there, the principal point and the
+    distortion clearly)."""
+    imu, frames = _stream(6.0)
+    prior = np.array([2.0, 2.0, 2.0, 2.0, 0.01, 0.01, 0.01, 0.01])
+    cfg = MsckfConfig(max_frames_without_features=10_000, calib_intrinsics=True, sigma_calib_focal=2.0,
+                      sigma_calib_center=2.0, sigma_calib_distortion=0.01)
+    est = MsckfEstimator(_rig(), cfg)
+    _init(est, np.zeros(3))
+    assert np.allclose(est.state().intrinsics_std, prior)
+    snaps = _run(est, imu, frames)
+    assert len(snaps) == len(frames) and est.report()["divergence_resets"] == 0
+    last = snaps[-1]
+    assert last.intrinsics_covariance.shape == (8, 8)
+    err = last.intrinsics[:8] - PRM[:8]
+    std = last.intrinsics_std
+    assert np.all(np.abs(err) < 3.0 * std), (err, std)
+    assert err @ np.linalg.solve(last.intrinsics_covariance, err) < 26.1      # chi2(8) 99.9 %
+    assert np.all(std < prior) and np.all(std[2:4] < 0.7 * prior[2:4]) and np.all(std[4:] < 0.2 * prior[4:])
+    assert est.report()["msckf_features_used"] > 0 and est.report()["slam_updates"] > 0
+
+
+def test_set_intrinsics_checks_input_and_without_calibration_fixes_them() -> None:
+    est = MsckfEstimator(_rig(), MsckfConfig())
+    with pytest.raises(EstimatorError):
+        est.set_intrinsics(np.array([0.0, 400.0, 300.0, 200.0, 0, 0, 0, 0]))
+    with pytest.raises(EstimatorError):
+        est.set_intrinsics(np.ones(5))
+    new = PRM[:8] + 1.0
+    est.set_intrinsics(new)
+    _init(est, np.zeros(3))
+    snap = est.state()
+    assert np.array_equal(snap.intrinsics, np.append(new, 0.0))
+    assert snap.intrinsics_covariance is None and snap.intrinsics_std is None and est.state_.idx_intr == -1
+
+
+@pytest.mark.slow
+@pytest.mark.shared_data
+def test_intrinsics_converge_on_openvins_sim_and_stay_at_the_truth() -> None:
+    """20 s of udel_gore: from focal +1.5 %, principal point +3 px, k1 +0.02 every error shrinks at least
+    5x; from the true intrinsics (OpenVINS's 1 px / 0.005 prior) the estimate stays within 3 sigma."""
+    from conftest import shared_path
+
+    from runtime.msckf.camera_kernels import CameraParams
+    from tools.benchmarks.online_calib import (
+        intrinsics_errors,
+        intrinsics_prior,
+        perturbed_intrinsics,
+        with_camera_params,
+    )
+    from tools.benchmarks.openvins_sim import load_sim_folder, run_filter
+
+    run = load_sim_folder(shared_path("openvins_sim", "udel_gore_mono"), max_seconds=20.0)
+    true = CameraParams.from_camera(run.rig.camera).params
+    start = perturbed_intrinsics(true, 1.5, 3.0, 0.02)
+    snaps, report = run_filter(with_camera_params(run, start), intrinsics_prior(run.config, start, true))
+    assert report["divergence_resets"] == 0
+    e0 = np.array(intrinsics_errors(start, true))
+    e1 = np.array(intrinsics_errors(snaps[-1].intrinsics, true))
+    assert np.allclose(e0, [1.5, 3.0 * np.sqrt(2.0), 0.02])
+    assert np.all(e1 < 0.2 * e0), (e0, e1)
+    snaps, report = run_filter(run, run.config.updated(calib_intrinsics=True))
+    last = snaps[-1]
+    err = last.intrinsics[:8] - true[:8]
+    assert report["divergence_resets"] == 0 and np.all(np.abs(err) < 3.0 * last.intrinsics_std), err
+
+
+@pytest.mark.shared_data
+def test_bench_online_calib_reports_intrinsics(capsys) -> None:
+    import argparse
+    import json
+
+    from conftest import shared_path
+
+    from tools.benchmarks import online_calib
+
+    p = argparse.ArgumentParser()
+    online_calib.add_arguments(p)
+    args = p.parse_args([str(shared_path("openvins_sim", "udel_gore_mono")), "--max-seconds", "3", "--json",
+                         "--intrinsics"])
+    assert online_calib.run(args) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["start_focal_pct"] == pytest.approx(1.5) and res["start_dist"] == pytest.approx(0.02)
+    assert res["start_center_px"] == pytest.approx(3.0 * np.sqrt(2.0))
+    errs = online_calib.intrinsics_errors(np.array(res["intrinsics_final"] + [0.0]),
+                                          np.array(res["intrinsics_true"] + [0.0]))
+    assert errs == pytest.approx((res["focal_pct_err"], res["center_px_err"], res["dist_err"]))
+    assert len(res["intrinsics_std"]) == 8
