@@ -61,7 +61,8 @@ class EmulatedDA3:
         ground_truth: renders true views (`GroundTruthSource`), e.g. the simulator's.
         K_rect: (3,3) intrinsics of the rectified pinhole view at the camera resolution.
         width, height: camera resolution (pixels); frames must have this size.
-        preset: "small", "base" or "large" (PRESETS.md).
+        preset: "small", "base" or "large", or "<size>_upper" with the upper-bound pose errors
+            (PRESETS.md).
         seed: seed of the error draws (call k uses the generator seeded by (seed, k)).
         **overrides: any `EmulatorParams` field, e.g. noise_sigma=0.0.
 

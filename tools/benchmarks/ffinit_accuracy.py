@@ -155,6 +155,11 @@ def measure_recording(rec: Any, ks: list[float], reference: str, every_s: float,
                 row["abs_log_scale_err"] = abs(float(np.log(res.info["scale"] *
                                                             model.last_diagnostics["global_scale"])))
                 row["speed"] = float(np.linalg.norm(v_true))
+                # what the initializer itself knows (for looking for a gate that sees wrong scale)
+                row["inlier_fraction"] = float(res.info["inlier_fraction"])
+                row["median_residual"] = float(res.info["median_residual"])
+                row["log_refined_over_linear_scale"] = float(np.log(res.info["scale"]
+                                                                    / res.info["linear_scale"]))
             else:
                 row["reason"] = res.reason
             rows[k].append(row)
