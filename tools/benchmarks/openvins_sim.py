@@ -169,6 +169,7 @@ def load_sim_folder(folder: Path, max_seconds: float | None = None) -> SimRun:
         "up_msckf_chi2_multipler": "chi2_multiplier",
         "calib_cam_extrinsics": "calib_extrinsics",
         "calib_cam_timeoffset": "calib_time_offset",
+        "calib_cam_intrinsics": "calib_intrinsics",
         "try_zupt": "try_zupt",
         "zupt_chi2_multipler": "zupt_chi2_multiplier",
         "zupt_max_velocity": "zupt_max_velocity",
