@@ -8,11 +8,11 @@ from typing import Any
 
 import numpy as np
 
-from drivers.events import Frame, ImuSample
 from models.depth_model import DepthModel
 from runtime.bringup import HandEyeBringUp
 from runtime.config import DavioConfig
 from runtime.errors import ConfigError
+from runtime.events import Frame, ImuSample
 from runtime.ffinit.initializer import FeedForwardInitializer
 from runtime.msckf.estimator import MsckfEstimator
 from runtime.msckf.init_dynamic import DynamicInitializer

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from drivers.events import Frame, ImuSample
+from runtime.events import Frame, ImuSample
 from runtime.msckf.init_common import InitResult
 
 

@@ -25,7 +25,6 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from drivers.events import Frame
 from models.depth_model import DepthPrediction
 from models.emulated_da3.conditioning import (
     MIN_CENTRE_SPREAD_M,
@@ -42,6 +41,7 @@ from models.emulated_da3.groundtruth import GroundTruthSource, GroundTruthView, 
 from models.emulated_da3.params import EmulatorParams, make_params
 from models.emulated_da3.pose_errors import predicted_intrinsics, predicted_relative_poses
 from runtime.errors import DataError
+from runtime.events import Frame
 
 MIN_VIEWS, MAX_VIEWS = 2, 8
 """Views per call (the DA3 graph's dynamic range)."""

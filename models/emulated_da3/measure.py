@@ -16,12 +16,12 @@ import time
 
 import numpy as np
 
-from drivers.events import Frame
 from models.emulated_da3.analytic import BoxRoom
 from models.emulated_da3.depth_errors import DenseErrorLevels, confidence, corrupt_view
 from models.emulated_da3.emulator import EmulatedDA3
 from models.emulated_da3.params import make_params
 from models.emulated_da3.pose_errors import rotation_angle
+from runtime.events import Frame
 
 
 def _spearman(a: np.ndarray, b: np.ndarray) -> float:

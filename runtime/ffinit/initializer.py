@@ -11,9 +11,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from drivers.events import Frame
 from models.depth_model import DepthModel
 from runtime.errors import DataError, EstimatorError
+from runtime.events import Frame
 from runtime.ffinit.config import FFInitConfig
 from runtime.ffinit.gyro_bias import align_gyro_bias
 from runtime.ffinit.refine import refine

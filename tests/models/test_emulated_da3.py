@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.events import Frame
 from models.depth_model import DepthModel
 from models.emulated_da3 import PRESETS, BoxRoom, EmulatedDA3, GroundTruthSource, make_params
 from models.emulated_da3.analytic import BoxRoomView
 from models.emulated_da3.conditioning import pose_normalisation_distance
 from runtime.errors import ConfigError, DataError
+from runtime.events import Frame
 
 W, H = 96, 64
 K_RECT = np.array([[70.0, 0.0, 47.5], [0.0, 70.0, 31.5], [0.0, 0.0, 1.0]])

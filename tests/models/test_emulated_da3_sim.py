@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from drivers.events import Frame
 from models.emulated_da3 import EmulatedDA3, GroundTruthSource
+from runtime.events import Frame
 
 sim = pytest.importorskip("drivers.sim")
 

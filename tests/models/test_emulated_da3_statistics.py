@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 from scipy.stats import spearmanr
 
-from drivers.events import Frame
 from models.emulated_da3 import BoxRoom, EmulatedDA3, make_params
 from models.emulated_da3.depth_errors import DenseErrorLevels, confidence, corrupt_view, flying_band
+from runtime.events import Frame
 
 W, H = 96, 64
 K_RECT = np.array([[70.0, 0.0, 47.5], [0.0, 70.0, 31.5], [0.0, 0.0, 1.0]])

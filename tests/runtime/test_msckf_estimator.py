@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from calib import ImuNoise, PinholeRadtan, Rig
-from drivers.events import ImuSample
 from runtime.errors import EstimatorError
+from runtime.events import ImuSample
 from runtime.msckf.camera_kernels import distort_points
 from runtime.msckf.config import MsckfConfig
 from runtime.msckf.estimator import MsckfEstimator
@@ -283,7 +283,7 @@ def test_zero_velocity_update_is_not_applied_while_moving() -> None:
 def test_feed_frame_uses_the_tracker() -> None:
     from types import SimpleNamespace
 
-    from drivers.events import Frame
+    from runtime.events import Frame
 
     imu, frames = _stream(1.0)
     table = {t: (ids, uv) for t, ids, uv in frames}

@@ -6,7 +6,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from drivers.events import Frame, ImuSample
+from runtime.events import Frame, ImuSample
 from runtime.msckf.init_common import InitResult
 from runtime.startup import StartupConfig, StartupManager
 

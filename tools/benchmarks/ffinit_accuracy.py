@@ -112,9 +112,9 @@ def measure_recording(rec: Any, ks: list[float], reference: str, every_s: float,
     """
     from dataclasses import replace
 
-    from drivers.events import Frame
     from models.emulated_da3 import EmulatedDA3
     from models.emulated_da3.params import POSE_ERROR_FIELDS, make_params, scale_pose_errors
+    from runtime.events import Frame
     from runtime.ffinit.initializer import FeedForwardInitializer
     from runtime.geometry import interpolate_poses
     from runtime.msckf.init_common import InitResult

@@ -241,7 +241,7 @@ def run_filter(
 ) -> tuple[list, dict]:
     """Feed the run's IMU and tracks in time order; returns (snapshots, report). calib=(R_IC, p_IC, dt)
     replaces the calibration given to the filter (online-calibration experiments)."""
-    from drivers.events import ImuSample
+    from runtime.events import ImuSample
     from runtime.msckf.estimator import MsckfEstimator
 
     est = MsckfEstimator(run.rig, config or run.config)

@@ -79,7 +79,7 @@ class _WindowDriver:
         self.rig = rec.rig
 
     def events(self):
-        from drivers.events import ImuSample
+        from runtime.events import ImuSample
 
         imu = self.rec.imu
         ti, tf = imu.t_ns, self.rec.frame_stamps_ns
