@@ -287,14 +287,15 @@ class StartupManager:
                 continue
             newest = self._newest_cam_ns
             for s in states:
-                live = c.status == "live" and newest is not None and \
-                    (newest - int(s.t_cam_ns)) <= self.cfg.catch_up_s * 1e9
+                # within catch_up_s of the newest frame when produced, whether replayed or live (Sec. IV-C)
+                live = newest is not None and (newest - int(s.t_cam_ns)) <= self.cfg.catch_up_s * 1e9
                 c.consecutive = c.consecutive + 1 if live else 0
             if c.consecutive >= self.cfg.consecutive_states:
+                rest = c.step(self.buffer, None)  # what is still buffered: no measurement is dropped
                 c.status = "selected"
                 self.report.candidates_selected += 1
                 self._select(c.filter, "feedforward", c.cid)
-                return out + self._publish(states[-1:])
+                return out + self._publish(states[-1:] + rest)
             if (self._newest_ns - c.created_ns) > self.cfg.abandon_after_s * 1e9:
                 c.status = "abandoned"
                 self.report.candidates_abandoned += 1

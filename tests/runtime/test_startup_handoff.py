@@ -108,6 +108,27 @@ def test_candidate_replays_every_measurement_once_and_is_selected_after_five_liv
     assert ts == sorted(set(ts))  # no repeated or out-of-order states
 
 
+def test_replayed_states_within_catch_up_count_towards_selection():
+    """Paper Sec. IV-C: selected once five consecutive states lie within 0.15 s of the live stream.
+    Delivered at the 2.00 s frame for a 1.50 s state, a fast replay produces the states of the frames
+    1.85, 1.90, 1.95 and 2.00 s within 0.15 s of the newest frame (2.00 s); the live 2.05 s frame is the
+    fifth, so the candidate publishes at 2.05 s, and what was still buffered is fed, once, in order."""
+    filters = []
+
+    def make(native):
+        f = RecordingFilter()
+        filters.append(f)
+        return f
+
+    m = StartupManager(make, StartupConfig(replay_batch=60))
+    events = _stream(3.0)
+    pub = _run(m, events, ff_at_ns=2_000_000_000, ff_state_ns=1_500_000_000)
+    assert m.report.published_by == "feedforward"
+    assert pub[0].t_cam_ns == 2_050_000_000
+    start = next(i for i, (k, t) in enumerate(events) if k == "imu" and t >= 1_450_000_000)
+    assert filters[1].fed == [("imu" if k == "imu" else "tracks", t) for k, t in events[start:]]
+
+
 def test_slow_candidate_is_abandoned_after_three_seconds():
     m = StartupManager(lambda native: RecordingFilter(), StartupConfig(replay_batch=1))
     _run(m, _stream(6.0), ff_at_ns=2_000_000_000, ff_state_ns=200_000_000)
