@@ -19,12 +19,14 @@ DESCRIPTION = (
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     from drivers.sim.motion import PRESETS
+    from models.emulated_da3.params import PRESETS as DA3_PRESETS
 
     p.add_argument("--out", default="davio_demo", help="output folder")
     p.add_argument("--seconds", type=float, default=12.0, help="length of the simulated recording")
     p.add_argument("--preset", default="euroc", choices=sorted(PRESETS), help="motion preset")
     p.add_argument("--seed", type=int, default=0, help="seed of scene, motion and noise")
-    p.add_argument("--da3", default="base", choices=["small", "base", "large"], help="emulated DA3 preset")
+    p.add_argument("--da3", default="base", choices=sorted(DA3_PRESETS),
+                   help="emulated DA3 preset (models/emulated_da3/PRESETS.md)")
     p.add_argument("--model-latency", type=float, default=0.5, metavar="S",
                    help="simulated DA3 latency in sensor seconds (deterministic replay)")
     p.add_argument("--native-only", action="store_true", help="disable the feed-forward start-up")

@@ -16,14 +16,21 @@ DESCRIPTION = (
 )
 
 
+def _emulated_presets() -> list[str]:
+    from models.emulated_da3.params import PRESETS
+
+    return sorted(PRESETS)
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("path", help="EuRoC ASL folder (sequence or mav0) or a `davio simulate` folder")
     p.add_argument("--out", default="davio_run", help="output folder")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--model", metavar="ONNX", help="DA3 ONNX graph (made by `davio export-da3`)")
     g.add_argument("--emulated", metavar="PRESET", nargs="?", const="base", default=None,
-                   choices=["small", "base", "large"],
-                   help="emulated DA3 (simulated recordings only): small, base or large")
+                   choices=_emulated_presets(),
+                   help="emulated DA3 (simulated recordings only): small, base or large, or <size>_upper "
+                        "with the upper-bound pose errors (models/emulated_da3/PRESETS.md)")
     g.add_argument("--native-only", action="store_true", help="no feed-forward start-up")
     p.add_argument("--config", metavar="TOML", help="configuration file (see config.toml of a run)")
     p.add_argument("--withhold-extrinsics", action="store_true",
