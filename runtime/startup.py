@@ -60,6 +60,8 @@ class Published:
     v_OI: np.ndarray
     source: str
     filter_id: int
+    segment: int = 0
+    """Restarts after a divergence before this state: a new segment starts a new odometry frame."""
 
 
 @dataclass
@@ -304,7 +306,8 @@ class StartupManager:
 
     def _publish_native(self, states: list) -> list[Published]:
         if self.publisher is None and states and self.native.initialized:
-            src = next(iter(getattr(self.native.counters, "init_sources", {}) or {"native": 1}))
+            src = getattr(self.native, "init_source", None) or \
+                next(reversed(getattr(self.native.counters, "init_sources", {}) or {"native": 1}))
             self._select(self.native, f"native:{src}", 0)
             return self._publish(states)
         return []
@@ -324,7 +327,8 @@ class StartupManager:
             if self.report.first_publish_t_ns is None:
                 self.report.first_publish_t_ns = int(s.t_ns)
             out.append(Published(int(s.t_ns), int(s.t_cam_ns), s.R_OI, s.p_OI, s.v_OI,
-                                 self.publisher_source, self.publisher_id))
+                                 self.publisher_source, self.publisher_id,
+                                 self.report.restarts_after_divergence))
         if self.publisher is not None and not self.publisher.initialized:
             self._restart()
         return out

@@ -2,8 +2,9 @@
 
 A run folder holds: odometry.tum (published IMU poses in the odometry frame), report.json
 (metrics, timings, counters, configuration, versions), config.toml (the resolved configuration)
-and plots (trajectory and error against ground truth when the recording has it). Writes are
-atomic (temporary file + rename).
+and plots (trajectory and error against ground truth when the recording has it). When the filter
+restarted after a divergence, odometry_segment<k>.tum holds each segment (its own odometry frame) and
+the metrics are those of the last segment. Writes are atomic (temporary file + rename).
 """
 from __future__ import annotations
 
@@ -74,6 +75,17 @@ def _rebuild_simulation(info: dict, manifest: Path) -> Any:
                     "run it in memory with `davio bench startup` instead", manifest)
 
 
+def published_segments(published: list) -> list[list]:
+    """The published states split where the filter restarted after a divergence (each segment has its
+    own odometry frame; `Published.segment` numbers them)."""
+    out: list[list] = []
+    for p in published:
+        if not out or out[-1][-1].segment != p.segment:
+            out.append([])
+        out[-1].append(p)
+    return out
+
+
 def published_trajectory(published: list) -> PoseTrajectory:
     """The published IMU poses (odometry frame) as a trajectory (one pose per frame)."""
     if not published:
@@ -122,6 +134,11 @@ def write_run(out_dir: Path, pipeline: Any, sched_report: Any, gt: PoseTrajector
     out_dir.mkdir(parents=True, exist_ok=True)
     est = published_trajectory(pipeline.published)
     write_tum(out_dir / "odometry.tum", est)  # atomic
+    segments = published_segments(pipeline.published)
+    if len(segments) > 1:  # restarts after a divergence: every segment has its own odometry frame
+        for k, seg in enumerate(segments):
+            write_tum(out_dir / f"odometry_segment{k}.tum", published_trajectory(seg))
+        est = published_trajectory(segments[-1])
     atomic_write_text(out_dir / "config.toml", dump_toml(config))
     st = pipeline.startup.report if pipeline.startup is not None else None
     t0 = sched_report.first_t_ns
@@ -129,7 +146,10 @@ def write_run(out_dir: Path, pipeline: Any, sched_report: Any, gt: PoseTrajector
     report = {
         "schema": 1,
         **extra,
-        "published_poses": len(est),
+        "published_poses": len(pipeline.published),
+        "segments": [{"poses": len(seg), "start_t_ns": seg[0].t_ns, "source": seg[0].source}
+                     for seg in segments],
+        "metrics_segment": len(segments) - 1 if segments else None,
         "published_by": None if st is None else st.published_by,
         "T_f_s": None if t_pub is None or t0 is None else (t_pub - t0) * 1e-9,
         "metrics": evaluate(est, gt),

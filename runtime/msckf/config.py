@@ -96,6 +96,14 @@ class MsckfConfig:
     max_accel_bias: float = 2.0  #: m/s^2
     max_position_std: float = 100.0  #: m, a larger position std is a covariance blow-up
     max_frames_without_features: int = 50  #: consecutive frames without a feature update before a reset
+    #: share of the chi-square-tested visual measurements (MSCKF features and SLAM landmark observations)
+    #: rejected over the last `chi2_health_frames` frames above which the filter contradicts the images and
+    #: is reset (a wrong-scale or wrong-gravity start drifts this way). Measured: healthy filters stay
+    #: below 0.1 (openvins-sim 0.07), start-up windows that recovered reached 0.36-0.64, the three that
+    #: drifted 3-8 m reached 0.84-0.87 (`davio bench startup --da3 base_upper`). 1.0 disables the check
+    max_chi2_rejection_fraction: float = 0.75
+    chi2_health_frames: int = 40  #: frames of that window (2 s at 20 Hz)
+    min_chi2_health_tests: int = 100  #: tested measurements the window needs before the share is judged
 
     def __post_init__(self) -> None:
         if self.integration not in ("rk4",):
@@ -120,6 +128,11 @@ class MsckfConfig:
         ):
             if not getattr(self, f) > 0:
                 raise ConfigError(f"{f} must be > 0, got {getattr(self, f)}")
+        if not 0.0 < self.max_chi2_rejection_fraction <= 1.0:
+            raise ConfigError("max_chi2_rejection_fraction must be in (0, 1], "
+                              f"got {self.max_chi2_rejection_fraction}")
+        if self.chi2_health_frames < 1 or self.min_chi2_health_tests < 1:
+            raise ConfigError("chi2_health_frames and min_chi2_health_tests must be >= 1")
         if self.calib_intrinsics:
             for f in ("sigma_calib_focal", "sigma_calib_center", "sigma_calib_distortion"):
                 v = getattr(self, f)

@@ -95,6 +95,8 @@ class _Counters:
     zupt_applied: int = 0
     initializations: int = 0
     divergence_resets: int = 0
+    #: largest rejected share over a window of MsckfConfig.chi2_health_frames frames
+    max_chi2_rejection_fraction: float = 0.0
     init_sources: dict = field(default_factory=dict)
     divergence_reasons: list = field(default_factory=list)
     time_frame_s: float = 0.0
@@ -141,11 +143,13 @@ class MsckfEstimator:
         self.state_: State | None = None
         self._t_init_ns = 0
         self._frames_without_update = 0
+        self._chi2_window: deque = deque(maxlen=self.config.chi2_health_frames)  # (tested, rejected)
         self._last_w = np.zeros(3)
         self._last_samples: tuple | None = None
         seed = self.config.feature_order_seed
         self._order_rng = np.random.default_rng(seed) if seed is not None else None
         self.last_reset_reason: str | None = None
+        self.init_source: str | None = None  # what initialised the current state (None: not initialised)
 
     # ------------------------------------------------------------------ state I/O
     @property
@@ -217,10 +221,12 @@ class MsckfEstimator:
         self.state_ = st
         self._t_init_ns = int(t_ns)
         self._frames_without_update = 0
+        self._chi2_window.clear()
         self.db.clear()
         self._pending = deque(f for f in self._pending if f[0] + int(round(st.t_d * 1e9)) > st.t_ns)
         self.counters.initializations += 1
         self.counters.init_sources[source] = self.counters.init_sources.get(source, 0) + 1
+        self.init_source = source
 
     def set_calibration(self, R_IC: np.ndarray, p_IC: np.ndarray, time_offset_s: float) -> None:
         """Replace the calibration prior used at the next initialisation (and now, if running)."""
@@ -540,6 +546,8 @@ class MsckfEstimator:
             self.db.keep_only_last(fid)
         self.db.drop_older_than(st.clone_times()[0])
         updated = ms.used > 0 or sst.updated > 0 or len(added) > 0
+        rejected = ms.chi2_rejected + sst.chi2_rejected
+        self._chi2_window.append((ms.used + sst.updated + rejected, rejected))
         c.frames_processed += 1
         c.time_frame_s += time.perf_counter() - t0
         c.cpu_frame_s += time.thread_time() - t0_cpu
@@ -554,7 +562,12 @@ class MsckfEstimator:
 
     def _after_frame(self, t_cam: int, updated: bool) -> FilterState | None:
         self._frames_without_update = 0 if updated else self._frames_without_update + 1
-        reason = divergence_reason(self.state_, self.config, self._frames_without_update)
+        tested = sum(n for n, _ in self._chi2_window)
+        rejected = sum(r for _, r in self._chi2_window)
+        if tested >= self.config.min_chi2_health_tests:
+            self.counters.max_chi2_rejection_fraction = max(self.counters.max_chi2_rejection_fraction,
+                                                            rejected / tested)
+        reason = divergence_reason(self.state_, self.config, self._frames_without_update, tested, rejected)
         if reason is not None:
             self.reset(reason)
             return None
@@ -566,6 +579,7 @@ class MsckfEstimator:
         self.counters.divergence_reasons.append(reason)
         self.last_reset_reason = reason
         self.state_ = None
+        self.init_source = None
         self.db.clear()
         self._pending.clear()
         for ini in self.initializers:

@@ -1,4 +1,5 @@
-"""Divergence detection: non-finite state, covariance blow-up, velocity/bias bounds, starvation."""
+"""Divergence detection: non-finite state, covariance blow-up, velocity/bias bounds, starvation, and
+sustained chi-square rejection of the visual measurements."""
 from __future__ import annotations
 
 import numpy as np
@@ -7,8 +8,13 @@ from runtime.msckf.config import MsckfConfig
 from runtime.msckf.state import State
 
 
-def divergence_reason(state: State, cfg: MsckfConfig, frames_without_update: int) -> str | None:
-    """A short reason when the filter has diverged, else None."""
+def divergence_reason(state: State, cfg: MsckfConfig, frames_without_update: int,
+                      chi2_tested: int = 0, chi2_rejected: int = 0) -> str | None:
+    """A short reason when the filter has diverged, else None.
+
+    chi2_tested / chi2_rejected: visual measurements that reached the chi-square gate over the last
+    `cfg.chi2_health_frames` frames, and how many of them it rejected.
+    """
     vals = (state.R, state.p, state.v, state.bg, state.ba)
     if not all(np.all(np.isfinite(x)) for x in vals) or not np.all(np.isfinite(state.P)):
         return "non-finite state or covariance"
@@ -26,4 +32,8 @@ def divergence_reason(state: State, cfg: MsckfConfig, frames_without_update: int
         return f"accel bias {np.abs(state.ba).max():.3g} m/s^2 > {cfg.max_accel_bias}"
     if frames_without_update > cfg.max_frames_without_features:
         return f"no feature update for {frames_without_update} frames"
+    if (cfg.max_chi2_rejection_fraction < 1.0 and chi2_tested >= cfg.min_chi2_health_tests
+            and chi2_rejected > cfg.max_chi2_rejection_fraction * chi2_tested):
+        return (f"chi-square rejected {chi2_rejected} of {chi2_tested} visual measurements over "
+                f"{cfg.chi2_health_frames} frames (> {cfg.max_chi2_rejection_fraction:.0%})")
     return None

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -385,3 +387,27 @@ def test_feature_order_seed_changes_only_the_tie_break() -> None:
     _, _, v_end, _ = _truth(frames[-1][0] * 1e-9)
     for traj in (a, b, none):
         assert np.linalg.norm(traj[-1, 3:6] - v_end) < 0.1
+
+
+def test_images_that_contradict_the_state_reset_the_filter() -> None:
+    """Tracks consistent with the motion are accepted (rejected share far below the limit); after the
+    pixels are shuffled between features every frame, the chi-square gate rejects most of them and the
+    windowed share crosses MsckfConfig.max_chi2_rejection_fraction: a reset with its reason."""
+    imu, frames = _stream(6.0)
+    cfg = MsckfConfig(max_frames_without_features=10_000, chi2_health_frames=20, min_chi2_health_tests=50)
+    good = MsckfEstimator(_rig(), cfg)
+    _init(good, np.zeros(3))
+    _run(good, imu, frames)
+    assert good.report()["divergence_resets"] == 0
+    assert good.report()["max_chi2_rejection_fraction"] < 0.2
+    rng = np.random.default_rng(1)
+    shuffled = frames[:20] + [(t, ids, uv[rng.permutation(len(uv))]) for t, ids, uv in frames[20:]]
+    bad = MsckfEstimator(_rig(), cfg)
+    _init(bad, np.zeros(3))
+    _run(bad, imu, shuffled)
+    rep = bad.report()
+    assert rep["divergence_resets"] >= 1 and "chi-square rejected" in rep["divergence_reasons"][0]
+    off = MsckfEstimator(_rig(), replace(cfg, max_chi2_rejection_fraction=1.0))
+    _init(off, np.zeros(3))
+    _run(off, imu, shuffled)
+    assert off.report()["divergence_resets"] == 0 and off.report()["max_chi2_rejection_fraction"] > 0.75
