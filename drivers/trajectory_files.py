@@ -1,7 +1,8 @@
 """Trajectory file readers: TUM (`t[s] x y z qx qy qz qw`) and EuRoC state CSV (`t[ns],p,q_wxyz[,v,bg,ba]`).
 
-One implementation for every reader of trajectories: evaluation (tools/evaluation) and the simulator's
-ground-truth replay (drivers/sim) both call it.
+Evaluation (tools/evaluation) and the simulator's ground-truth replay (drivers/sim) both read
+trajectories here; the EuRoC driver's ground truth goes through its counted drop/strict row policies
+(drivers/euroc.py read_euroc_groundtruth) instead.
 
 Stamps become int64 nanoseconds parsed exactly from the decimal text (no float rounding).
 Stamps must not decrease; a repeated stamp is kept (as evo keeps it) and counted in

@@ -119,7 +119,7 @@ class Candidate:
         self.created_ns = created_ns
         self.cursor = start_seq
         self.consecutive = 0
-        self.status = "replaying"  # replaying | live | selected | abandoned | diverged
+        self.status = "replaying"  # replaying | selected | abandoned | diverged
         self.states_out = 0
 
     def step(self, buffer: MeasurementBuffer, limit: int | None) -> list:
@@ -135,8 +135,6 @@ class Candidate:
             else:
                 t, ids, uv = e.payload
                 out += self.filter.feed_tracks(t, ids, uv)
-        if self.cursor >= buffer.next_seq and self.status == "replaying":
-            self.status = "live"
         self.states_out += len(out)
         return out
 
@@ -306,8 +304,7 @@ class StartupManager:
 
     def _publish_native(self, states: list) -> list[Published]:
         if self.publisher is None and states and self.native.initialized:
-            src = getattr(self.native, "init_source", None) or \
-                next(reversed(getattr(self.native.counters, "init_sources", {}) or {"native": 1}))
+            src = getattr(self.native, "init_source", None) or "native"
             self._select(self.native, f"native:{src}", 0)
             return self._publish(states)
         return []

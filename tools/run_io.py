@@ -4,7 +4,7 @@ A run folder holds: odometry.tum (published IMU poses in the odometry frame), re
 (metrics, timings, counters, configuration, versions), config.toml (the resolved configuration)
 and plots (trajectory and error against ground truth when the recording has it). When the filter
 restarted after a divergence, odometry_segment<k>.tum holds each segment (its own odometry frame) and
-the metrics are those of the last segment. Writes are atomic (temporary file + rename).
+odometry.tum and the metrics are the last segment. Writes are atomic (temporary file + rename).
 """
 from __future__ import annotations
 
@@ -132,13 +132,12 @@ def write_run(out_dir: Path, pipeline: Any, sched_report: Any, gt: PoseTrajector
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    est = published_trajectory(pipeline.published)
-    write_tum(out_dir / "odometry.tum", est)  # atomic
     segments = published_segments(pipeline.published)
     if len(segments) > 1:  # restarts after a divergence: every segment has its own odometry frame
         for k, seg in enumerate(segments):
             write_tum(out_dir / f"odometry_segment{k}.tum", published_trajectory(seg))
-        est = published_trajectory(segments[-1])
+    est = published_trajectory(segments[-1] if segments else [])
+    write_tum(out_dir / "odometry.tum", est)  # atomic
     atomic_write_text(out_dir / "config.toml", dump_toml(config))
     st = pipeline.startup.report if pipeline.startup is not None else None
     t0 = sched_report.first_t_ns

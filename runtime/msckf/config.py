@@ -97,12 +97,13 @@ class MsckfConfig:
     max_position_std: float = 100.0  #: m, a larger position std is a covariance blow-up
     max_frames_without_features: int = 50  #: consecutive frames without a feature update before a reset
     #: share of the chi-square-tested visual measurements (MSCKF features and SLAM landmark observations)
-    #: rejected over the last `chi2_health_frames` frames above which the filter contradicts the images and
-    #: is reset (a wrong-scale or wrong-gravity start drifts this way). Measured: healthy filters stay
-    #: below 0.1 (openvins-sim 0.07), start-up windows that recovered reached 0.36-0.64, the three that
-    #: drifted 3-8 m reached 0.84-0.87 (`davio bench startup --da3 base_upper`). 1.0 disables the check
+    #: rejected over the last `chi2_health_frames` frames with a visual update, above which the filter
+    #: contradicts the images and is reset (a wrong-scale or wrong-gravity start drifts this way).
+    #: Measured: healthy filters stay below 0.1 (openvins-sim 0.07), start-up windows that recovered
+    #: reached 0.36-0.64, the three that drifted 3-8 m 0.84-0.87 (`davio bench startup --da3 base_upper`).
+    #: 1.0 disables the check
     max_chi2_rejection_fraction: float = 0.75
-    chi2_health_frames: int = 40  #: frames of that window (2 s at 20 Hz)
+    chi2_health_frames: int = 40  #: frames with a visual update in that window (2 s at 20 Hz)
     min_chi2_health_tests: int = 100  #: tested measurements the window needs before the share is judged
 
     def __post_init__(self) -> None:

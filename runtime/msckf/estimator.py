@@ -96,7 +96,7 @@ class _Counters:
     initializations: int = 0
     divergence_resets: int = 0
     #: largest rejected share over a window of MsckfConfig.chi2_health_frames frames
-    max_chi2_rejection_fraction: float = 0.0
+    chi2_rejection_fraction_max: float = 0.0
     init_sources: dict = field(default_factory=dict)
     divergence_reasons: list = field(default_factory=list)
     time_frame_s: float = 0.0
@@ -565,7 +565,7 @@ class MsckfEstimator:
         tested = sum(n for n, _ in self._chi2_window)
         rejected = sum(r for _, r in self._chi2_window)
         if tested >= self.config.min_chi2_health_tests:
-            self.counters.max_chi2_rejection_fraction = max(self.counters.max_chi2_rejection_fraction,
+            self.counters.chi2_rejection_fraction_max = max(self.counters.chi2_rejection_fraction_max,
                                                             rejected / tested)
         reason = divergence_reason(self.state_, self.config, self._frames_without_update, tested, rejected)
         if reason is not None:
@@ -580,6 +580,8 @@ class MsckfEstimator:
         self.last_reset_reason = reason
         self.state_ = None
         self.init_source = None
+        self._frames_without_update = 0
+        self._chi2_window.clear()
         self.db.clear()
         self._pending.clear()
         for ini in self.initializers:

@@ -159,7 +159,7 @@ def slam_update(state: State, t_cam_ns: int, obs: list[tuple[int, np.ndarray]], 
         for lm, g in zip(lms, good, strict=True):
             if not g:
                 lm.fail_count += 1
-        stats.chi2_rejected += int((~good).sum())
+        stats.chi2_rejected += int((ok & ~good).sum())  # a failed projection is not a chi-square rejection
         sel = np.flatnonzero(good)
         if sel.size == 0:
             continue

@@ -19,7 +19,7 @@ class RecordingFilter:
         self.fed: list[tuple[str, int]] = []
         self.t_init: int | None = None
         self.native_init_at_ns = native_init_at_ns
-        self.counters = SimpleNamespace(init_sources={})
+        self.init_source: str | None = None
         self.pending: list[int] = []
         self.last_imu = -1
 
@@ -29,7 +29,7 @@ class RecordingFilter:
 
     def initialize_from_state(self, t_ns, R_OI, p_OI, v_OI, bg, ba, cov, source="x"):
         self.t_init = int(t_ns)
-        self.counters.init_sources[source] = 1
+        self.init_source = source
 
     def feed_imu(self, s):
         self.fed.append(("imu", int(s.t_ns)))

@@ -12,7 +12,8 @@ A window succeeds if a trajectory published within it has ATE < 0.5 m (SE(3) ali
 reset after a divergence ends one published trajectory and starts the next). T_f is the sensor time of
 the first published state after the window start (10 s if none); T_q is the start of the first
 successful trajectory and charges 10 s to every failure. Gravity-direction and velocity errors are
-those of the first published state (velocity compared after the ATE alignment's rotation).
+those of the first state of the successful trajectory (velocity compared after the ATE alignment's
+rotation).
 Recordings are simulated: a motion preset, or images rendered along a real EuRoC ground truth with its
 real IMU stream (EuRoC-trajectory mode).
 """
@@ -119,45 +120,45 @@ def _overrides(items: list[str]) -> dict:
 def _score(pipe: Any, gt: Any, t0_ns: int, window_s: float, ate_thr: float) -> dict:
     """One window's row. A filter reset after a divergence starts a new published segment (its own
     odometry frame): the window succeeds if a segment has ATE < ate_thr; T_f is the first published
-    state, T_q the start of the first successful segment (window_s if none). Gravity and velocity
-    errors are those of the first published state."""
+    state, T_q the start of the first successful segment (window_s if none). `source`, gravity and
+    velocity errors are those of the first state of the successful segment (else of the first one)."""
     from runtime.errors import DataError
     from runtime.geometry import interpolate_poses
     from tools.benchmarks.ffinit_accuracy import gt_velocity
     from tools.evaluation import ate
     from tools.run_io import published_segments, published_trajectory
 
-    segments = [published_trajectory(seg) for seg in published_segments(pipe.published)]
-    row: dict = {"published": len(pipe.published), "source": pipe.startup.report.published_by,
-                 "segments": len(segments), "candidates_diverged": pipe.startup.report.candidates_diverged}
+    segments = published_segments(pipe.published)
+    row: dict = {"published": len(pipe.published), "segments": len(segments),
+                 "candidates_diverged": pipe.startup.report.candidates_diverged}
     if pipe.startup.publisher is not None:
-        row["chi2_rejection_max"] = pipe.startup.publisher.counters.max_chi2_rejection_fraction
+        row["chi2_rejection_max"] = pipe.startup.publisher.counters.chi2_rejection_fraction_max
     if not segments:
-        return {**row, "success": False, "T_f": window_s, "T_q": window_s}
-    row["T_f"] = (int(segments[0].t_ns[0]) - t0_ns) * 1e-9
+        return {**row, "source": None, "success": False, "T_f": window_s, "T_q": window_s}
+    row["T_f"] = (int(segments[0][0].t_ns) - t0_ns) * 1e-9
     row["success"], row["T_q"] = False, window_s
-    R_al = None
-    for k, est in enumerate(segments):
+    chosen, R_al = segments[0], None
+    for seg in segments:
+        est = published_trajectory(seg)
         try:
             res = ate(est, gt, align_method="se3") if len(est) >= 3 else None
         except DataError:
             res = None
         if res is None:
             continue
-        if k == 0:
-            R_al = res.alignment.R
-        if "ate" not in row or res.trans["rmse"] < ate_thr:
-            row["ate"] = float(res.trans["rmse"])
+        if seg is segments[0] or res.trans["rmse"] < ate_thr:
+            row["ate"], chosen, R_al = float(res.trans["rmse"]), seg, res.alignment.R
         if res.trans["rmse"] < ate_thr:
-            row["success"], row["T_q"] = True, (int(est.t_ns[0]) - t0_ns) * 1e-9
+            row["success"], row["T_q"] = True, (int(seg[0].t_ns) - t0_ns) * 1e-9
             break
-    est = segments[0]
-    first = interpolate_poses(gt, est.t_ns[:1])
-    up_est = est.R[0].T @ np.array([0.0, 0.0, 1.0])
-    up_gt = first.R[0].T @ np.array([0.0, 0.0, 1.0])
+    first = chosen[0]
+    row["source"] = first.source
+    truth = interpolate_poses(gt, np.array([first.t_ns], np.int64))
+    up_est = first.R_OI.T @ np.array([0.0, 0.0, 1.0])
+    up_gt = truth.R[0].T @ np.array([0.0, 0.0, 1.0])
     row["gravity_err_deg"] = float(np.degrees(np.arccos(np.clip(up_est @ up_gt, -1.0, 1.0))))
-    if R_al is not None and est.v is not None:
-        row["velocity_err"] = float(np.linalg.norm(R_al @ est.v[0] - gt_velocity(gt, int(est.t_ns[0]))))
+    if R_al is not None:
+        row["velocity_err"] = float(np.linalg.norm(R_al @ first.v_OI - gt_velocity(gt, int(first.t_ns))))
     return row
 
 
