@@ -9,14 +9,15 @@ from collections.abc import Sequence
 import numpy as np
 
 from runtime.errors import EstimatorError
+from runtime.events import ImuSample
 from runtime.geometry.checks import GeometryError, as_matrices
 from runtime.geometry.trajectory import PoseTrajectory
 from runtime.imu.kernels import nb_integrate_state_rk4
-from runtime.imu.samples import ImuArrays, ImuSampleLike, as_imu_arrays
+from runtime.imu.samples import ImuArrays, as_imu_arrays
 
 
 def integrate_state(R_WI: np.ndarray, p: np.ndarray, v: np.ndarray,
-                    samples: Sequence[ImuSampleLike] | ImuArrays, g: float = 9.81,
+                    samples: Sequence[ImuSample] | ImuArrays, g: float = 9.81,
                     bg: np.ndarray | None = None, ba: np.ndarray | None = None) -> PoseTrajectory:
     """The states T_WI (with v) at every sample stamp, starting from (R_WI, p, v) at the first one.
 

@@ -2,26 +2,17 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Protocol
 
 import numpy as np
 
 from runtime.errors import DataError
-
-
-class ImuSampleLike(Protocol):
-    """Anything with the fields of runtime.events.ImuSample (runtime does not import drivers)."""
-
-    t_ns: int
-    gyro: np.ndarray
-    accel: np.ndarray
-
+from runtime.events import ImuSample
 
 ImuArrays = tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
-def as_imu_arrays(samples: Sequence[ImuSampleLike] | ImuArrays) -> ImuArrays:
-    """(t_ns (M,) int64, gyro (M, 3), accel (M, 3)) from ImuSample-like objects or a tuple of arrays."""
+def as_imu_arrays(samples: Sequence[ImuSample] | ImuArrays) -> ImuArrays:
+    """(t_ns (M,) int64, gyro (M, 3), accel (M, 3)) from ImuSample objects or a tuple of arrays."""
     if isinstance(samples, tuple) and len(samples) == 3 and not hasattr(samples[0], "t_ns"):
         t_ns, gyro, accel = samples
     else:

@@ -53,7 +53,8 @@ class MsckfConfig:
     calib_extrinsics: bool = False  #: estimate R_IC, p_IC
     calib_time_offset: bool = False  #: estimate t_imu - t_cam
     #: estimate the camera intrinsics [fx, fy, cx, cy, d0..d3] (radtan k1 k2 p1 p2 or equidistant k1..k4;
-    #: a radtan k3 stays fixed) in the state, as OpenVINS's calib_cam_intrinsics
+    #: a radtan k3 stays fixed) in the state, as OpenVINS's calib_cam_intrinsics. The filter's residuals
+    #: and undistortion use the estimate; the KLT front-end and the native initializers keep the rig's
     calib_intrinsics: bool = False
     # initial calibration uncertainty when estimated
     sigma_calib_rot: float = 0.035  #: rad, prior std of R_IC (about 2 deg)

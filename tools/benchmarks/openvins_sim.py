@@ -409,6 +409,9 @@ def run(args: argparse.Namespace) -> int:
     if args.seeds < 0 or args.jobs < 1:
         print("openvins-sim: --seeds must be >= 0 and --jobs >= 1")
         return 2
+    if args.seeds > 0 and args.seed is not None:
+        print("openvins-sim: --seed picks one run, --seeds runs seeds 0..N-1: give one of them")
+        return 2
     cfg = _config(sim, args)
     if args.seeds > 0:
         cfgs = [cfg.updated(feature_order_seed=k) for k in range(args.seeds)]
@@ -427,7 +430,9 @@ def run(args: argparse.Namespace) -> int:
     if args.frames_csv is not None:
         np.savetxt(args.frames_csv, outs[0][1], delimiter=",", header=",".join(FRAME_COLUMNS), fmt="%.15g")
     if args.seeds > 0:
-        res = {**runs[0], **_seed_summary(runs)}
+        per_run = ("feature_order_seed", "divergence_resets")
+        res = {**{k: v for k, v in runs[0].items() if k not in per_run}, **_seed_summary(runs)}
+        res["divergence_resets"] = int(sum(r.get("divergence_resets", 0) for r in runs))
         res["seeds"] = runs
         res["wall_s"] = wall
     else:
