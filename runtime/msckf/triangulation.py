@@ -1,10 +1,6 @@
 """Feature triangulation (numba): linear solve in the anchor camera with a conditioning check, then
 Levenberg-Marquardt refinement in anchored inverse depth, with depth and baseline checks (OpenVINS
 FeatureInitializer logic, our own implementation).
-
-As OpenVINS, the anchor is the newest observation, and the baseline of the parallax check is the part of
-each camera's offset from the anchor that is perpendicular to the anchor's ray to the point (motion along
-the ray gives no parallax).
 """
 
 from __future__ import annotations
@@ -44,16 +40,14 @@ def triangulate(
     """Triangulate one feature seen by m cameras (m >= 2).
 
     R_OC (m,3,3), p_OC (m,3): camera poses in the world; xn (m,2): normalised (undistorted) image
-    coordinates, oldest first. The anchor is the newest camera (m-1): the depth limits apply to its depth,
-    and the point is rejected when its distance divided by the largest camera offset perpendicular to the
-    anchor's ray exceeds max_baseline_ratio. Returns (ok, p_O (3,) world point).
+    coordinates. The anchor is camera 0. Returns (ok, p_O (3,) world point).
     """
     m = xn.shape[0]
     pO = np.zeros(3)
     if m < 2:
         return False, pO
-    RA = R_OC[m - 1]
-    pA = p_OC[m - 1]
+    RA = R_OC[0]
+    pA = p_OC[0]
     A = np.zeros((3, 3))
     b = np.zeros(3)
     # camera poses in the anchor frame
@@ -140,15 +134,12 @@ def triangulate(
     if x[2] <= 0:
         return False, pO
     pF = np.array([x[0] / x[2], x[1] / x[2], 1.0 / x[2]])
-    dist = np.sqrt(pF @ pF)
-    ray = pF / dist
     base = 0.0
-    for i in range(m):
-        along = p_AC[i] @ ray
-        perp = p_AC[i] - along * ray
-        d = np.sqrt(perp @ perp)
+    for i in range(1, m):
+        d = np.sqrt(p_AC[i] @ p_AC[i])
         if d > base:
             base = d
+    dist = np.sqrt(pF @ pF)
     if (
         pF[2] < min_dist
         or pF[2] > max_dist
