@@ -22,8 +22,9 @@ class MsckfConfig:
     #: with FEJ, linearise feature Jacobians (and set new landmarks' first estimates) at the point
     #: triangulated from the clones' first estimates, so that one consistent set of first estimates is used
     #: (OpenVINS uses the point from the current estimates). On openvins_sim/udel_gore over 24 tie-break
-    #: seeds: median 0.083 m / 0.243 deg with it, 0.093 m / 0.279 deg without (within the seed spread), same
-    #: NEES; it costs a second triangulation per track (about 0.4 ms per frame there)
+    #: seeds (with a newest-anchor triangulation since reverted): median 0.083 m / 0.243 deg with it,
+    #: 0.093 m / 0.279 deg without, within the seed spread, same NEES; it costs a second triangulation per
+    #: track (about 0.4 ms per frame there)
     fej_triangulation: bool = True
     integration: str = "rk4"  #: mean integration: "rk4" (analytic covariance either way)
     gravity_mag: float = 9.81  #: |g|, m/s^2
