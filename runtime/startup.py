@@ -109,6 +109,18 @@ class MeasurementBuffer:
                 np.array([x.accel for x in s], float))
 
 
+def nearest_stamps(stamps_ns: np.ndarray, ideal_ns: list[int], tol_s: float) -> list[int] | None:
+    """Index of the stamp nearest each ideal time (ns), or None when one is farther than tol_s or two
+    ideal times pick the same stamp."""
+    out = []
+    for ideal in ideal_ns:
+        i = int(np.argmin(np.abs(stamps_ns - ideal)))
+        if abs(int(stamps_ns[i]) - ideal) > tol_s * 1e9:
+            return None
+        out.append(i)
+    return out if len(set(out)) == len(out) else None
+
+
 class Candidate:
     """A fresh filter booted from a feed-forward state, replaying the buffer to catch up."""
 
@@ -223,17 +235,10 @@ class StartupManager:
             return None
         frames = list(self._frames)
         t = np.array([f.t_ns for f in frames], np.int64)
-        last = t[-1]
-        picked = []
-        for k in range(self.cfg.window_images - 1, -1, -1):
-            ideal = last - int(round(k * self.cfg.window_spacing_s * 1e9))
-            j = int(np.argmin(np.abs(t - ideal)))
-            if abs(int(t[j]) - ideal) > self.cfg.window_tolerance_s * 1e9:
-                return None
-            picked.append(frames[j])
-        if len({f.t_ns for f in picked}) != len(picked):
-            return None
-        return picked
+        spacing_ns = self.cfg.window_spacing_s * 1e9
+        ideal = [int(t[-1]) - int(round(k * spacing_ns)) for k in range(self.cfg.window_images - 1, -1, -1)]
+        idx = nearest_stamps(t, ideal, self.cfg.window_tolerance_s)
+        return None if idx is None else [frames[i] for i in idx]
 
     def imu_for(self, frames: list[Frame]) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """IMU arrays covering the window on the IMU clock, or None if not yet covered."""

@@ -47,14 +47,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def window_frame_indices(stamps_ns: np.ndarray, t0_ns: int, n: int = 5, spacing_s: float = 0.2,
                          tol_s: float = 0.03) -> list[int] | None:
     """Indices of the n frames nearest t0 + j * spacing (None if one is farther than tol)."""
-    out = []
-    for j in range(n):
-        ideal = t0_ns + int(round(j * spacing_s * 1e9))
-        i = int(np.argmin(np.abs(stamps_ns - ideal)))
-        if abs(int(stamps_ns[i]) - ideal) > tol_s * 1e9:
-            return None
-        out.append(i)
-    return out if len(set(out)) == n else None
+    from runtime.startup import nearest_stamps
+
+    return nearest_stamps(stamps_ns, [t0_ns + int(round(j * spacing_s * 1e9)) for j in range(n)], tol_s)
 
 
 def state_errors(R_OI: np.ndarray, v_OI: np.ndarray, R_WI: np.ndarray,
