@@ -26,11 +26,11 @@ class MsckfUpdateStats:
     rows: int = 0
 
 
-def track_arrays(state: State, tr: Track, cam: CameraParams | None = None) -> tuple:
+def track_arrays(state: State, tr: Track, cam: CameraParams) -> tuple:
     """Clone poses (current and FEJ) and measurements of a track's observations at existing clones.
 
-    With online intrinsics (and `cam` given) the normalised coordinates xn are recomputed from the pixels
-    with the state's current intrinsics (the database's were undistorted with older ones)."""
+    With online intrinsics the normalised coordinates xn are recomputed from the pixels with the state's
+    current intrinsics through `cam`'s model (the database's were undistorted with older ones)."""
     ts = [t for t in tr.t_ns if t in state.clones]
     sel = [k for k, t in enumerate(tr.t_ns) if t in state.clones]
     cl = [state.clones[t] for t in ts]
@@ -39,7 +39,7 @@ def track_arrays(state: State, tr: Track, cam: CameraParams | None = None) -> tu
     Rf = np.array([c.R_fej for c in cl])
     pf = np.array([c.p_fej for c in cl])
     uv = np.array([tr.uv[k] for k in sel])
-    if state.cam_params is not None and cam is not None:
+    if state.cam_params is not None:
         xn = undistort_points(cam.code, state.cam_params, uv)
     else:
         xn = np.array([tr.xn[k] for k in sel])

@@ -16,7 +16,7 @@ from runtime.msckf.landmark_repr import anchored_to_global, global_to_anchored
 from runtime.msckf.measurement import feature_intrinsics_jacobian, feature_jacobians
 from runtime.msckf.state import State
 from runtime.msckf.state_helper import chi2_95, compress, ekf_update, initialize_landmark
-from runtime.msckf.update_msckf import fill_window_columns, linearize_track, window_columns
+from runtime.msckf.update_msckf import linearize_track, window_columns
 
 
 @dataclass
@@ -214,29 +214,20 @@ def delayed_init(state: State, tracks: list[Track], cfg: MsckfConfig, cam: Camer
         if lin is None:
             stats.init_failed += 1
             continue
-        cl, Rc, pc, Rf, pf, uv = lin.clones, lin.Rc, lin.pc, lin.Rf, lin.pf, lin.uv
         p_O, p_lin, r, Hx = lin.p_O, lin.p_lin, lin.r, lin.Hx
         value, H_lm, fej = p_O, lin.Hf, p_lin
         if anchor is not None:
-            # lam in the newest clone's camera; Jacobians at the anchor's first estimate
+            # lam in the newest clone's camera; its first estimate maps back to p_lin through the anchor's
+            # first estimate, so the pixel Jacobians of `lin` hold and only the chain rule is added
             value, _, _, _ = global_to_anchored(p_O, anchor.R, anchor.p, state.R_IC, state.p_IC)
             fej, _, _, _ = global_to_anchored(p_lin, anchor.R_fej, anchor.p_fej, state.R_IC, state.p_IC)
-            p_Of, J_lam, J_anc, J_ext = anchored_to_global(fej, anchor.R_fej, anchor.p_fej, state.R_IC,
-                                                           state.p_IC)
-            prm = state.camera_params(cam.params)
-            ok, r, Hc, He, Hf = feature_jacobians(Rc, pc, Rf, pf, uv, p_O, p_Of, state.R_IC, state.p_IC,
-                                                  cam.code, prm)
-            if not ok:
-                stats.init_failed += 1
-                continue
-            Hk = None
-            if state.idx_intr >= 0:
-                Hk = feature_intrinsics_jacobian(Rf, pf, p_Of, state.R_IC, state.p_IC, cam.code, prm)
-            Hx[:] = 0.0
-            fill_window_columns(Hx, He + Hf @ J_ext, Hc, cl, offset, state.idx_ext >= 0, Hk)
+            _, J_lam, J_anc, J_ext = anchored_to_global(fej, anchor.R_fej, anchor.p_fej, state.R_IC,
+                                                        state.p_IC)
+            if state.idx_ext >= 0:
+                Hx[:, 0:6] += lin.Hf @ J_ext
             o = offset[anchor.t_cam_ns]
-            Hx[:, o:o + 6] += Hf @ J_anc
-            H_lm = Hf @ J_lam
+            Hx[:, o:o + 6] += lin.Hf @ J_anc
+            H_lm = lin.Hf @ J_lam
         if initialize_landmark(state, tr.fid, value, cols, Hx, H_lm, r, cfg.sigma_pix, cfg.chi2_multiplier,
                                deferred, fej):
             if anchor is not None:
