@@ -216,7 +216,8 @@ class MsckfEstimator:
         if st.idx_intr >= 0:
             i = st.idx_intr
             sig = [cfg.sigma_calib_focal] * 2 + [cfg.sigma_calib_center] * 2
-            sig += [cfg.sigma_calib_distortion] * 4
+            # a camera without a distortion model has nothing that observes d0..d3: they stay fixed at zero
+            sig += [0.0 if self.camera.model == "none" else cfg.sigma_calib_distortion] * 4
             st.P[i : i + 8, i : i + 8] = np.diag(np.square(sig))
         self.state_ = st
         self._t_init_ns = int(t_ns)

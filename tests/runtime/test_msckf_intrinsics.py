@@ -270,3 +270,37 @@ def test_bench_online_calib_reports_intrinsics(capsys) -> None:
                                           np.array(res["intrinsics_true"] + [0.0]))
     assert errs == pytest.approx((res["focal_pct_err"], res["center_px_err"], res["dist_err"]))
     assert len(res["intrinsics_std"]) == 8
+
+
+def test_pinhole_camera_estimates_no_distortion() -> None:
+    """A camera without a distortion model: nothing observes d0..d3, so they start with zero variance and
+    stay exactly zero, while the focal length and principal point are estimated."""
+    from calib import Pinhole
+    from runtime.msckf.camera_kernels import distort_points
+    from tests.runtime.test_msckf_estimator import R_IC, _landmarks, _truth, p_IC
+
+    imu, frames0 = _stream(3.0)
+    rng = np.random.default_rng(2)
+    L = _landmarks()
+    frames = []
+    for t_ns, _, _ in frames0:
+        R, p, _, _ = _truth(t_ns * 1e-9)
+        pC = (R_IC.T @ (R.T @ (L - p).T - p_IC[:, None])).T
+        vis = pC[:, 2] > 0.5
+        uv = distort_points(MODEL_CODES["none"], PRM, pC[vis, :2] / pC[vis, 2:3])
+        uv += 0.5 * rng.standard_normal(uv.shape)
+        inside = (uv[:, 0] > 0) & (uv[:, 0] < 751) & (uv[:, 1] > 0) & (uv[:, 1] < 479)
+        frames.append((t_ns, np.flatnonzero(vis)[inside], uv[inside]))
+    rig = dataclasses.replace(_rig(), camera=Pinhole(752, 480, *PRM[:4]))
+    cfg = MsckfConfig(max_frames_without_features=10_000, calib_intrinsics=True)
+    est = MsckfEstimator(rig, cfg)
+    assert est.camera.model == "none"
+    _init(est, np.zeros(3))
+    std0 = est.state().intrinsics_std
+    assert np.all(std0[4:] == 0.0) and np.all(std0[:4] > 0.0)
+    snaps = _run(est, imu, frames)
+    last = snaps[-1]
+    assert est.report()["divergence_resets"] == 0 and est.report()["msckf_features_used"] > 0
+    assert np.all(last.intrinsics[4:8] == 0.0) and np.all(last.intrinsics_std[4:] == 0.0)
+    assert np.all(last.intrinsics_std[:4] < std0[:4])
+    assert np.all(np.abs(last.intrinsics[:4] - PRM[:4]) < 3.0 * last.intrinsics_std[:4])
