@@ -1,6 +1,10 @@
-"""Zero-velocity update (OpenVINS UpdaterZeroVelocity idea): if the IMU samples since the last frame are
-consistent with standstill (chi-square on w = bg, a = ba + R^T g_up) and the speed estimate is small
-(and, optionally, the features barely moved), update with those residuals plus v = 0, and add no clone.
+"""Zero-velocity update (OpenVINS UpdaterZeroVelocity decision rule): the body is taken to stand still
+when the features barely moved since the newest stored observation (mean disparity below
+zupt_max_disparity over more than MIN_DISPARITY_FEATURES features; disabled at 0), or else when the IMU
+samples since the last frame are consistent with standstill (chi-square on w = bg, a = ba + R^T g_up
+within zupt_chi2_multiplier times the 95 % quantile; a multiplier of 0 leaves the disparity test alone)
+and the speed estimate is below zupt_max_velocity. It then updates with those residuals plus v = 0 and
+adds no clone.
 """
 from __future__ import annotations
 
@@ -13,14 +17,27 @@ from runtime.msckf.state import State
 from runtime.msckf.state_helper import chi2_95, compress, ekf_update
 
 
-def mean_disparity(db: FeatureDatabase, ids: np.ndarray, uv: np.ndarray) -> float:
-    """Mean pixel distance between this frame's features and their newest stored observation."""
+MIN_DISPARITY_FEATURES = 20
+"""The disparity test needs more features than this seen in both frames (OpenVINS: 20)."""
+
+
+def mean_disparity(db: FeatureDatabase, ids: np.ndarray, uv: np.ndarray) -> tuple[float, int]:
+    """Mean pixel distance between this frame's features and their newest stored observation, and the
+    number of features it averages (inf, 0 when none was seen before)."""
     d = []
     for k in range(ids.shape[0]):
         tr = db.tracks.get(int(ids[k]))
         if tr is not None and tr.uv:
             d.append(float(np.linalg.norm(uv[k] - tr.uv[-1])))
-    return float(np.mean(d)) if d else float("inf")
+    return (float(np.mean(d)) if d else float("inf")), len(d)
+
+
+def disparity_says_static(cfg: MsckfConfig, db: FeatureDatabase, ids: np.ndarray, uv: np.ndarray) -> bool:
+    """True when the disparity test is enabled and the features barely moved."""
+    if not cfg.zupt_max_disparity > 0:
+        return False
+    disp, n = mean_disparity(db, ids, uv)
+    return disp < cfg.zupt_max_disparity and n > MIN_DISPARITY_FEATURES
 
 
 def zupt_update(st: State, cfg: MsckfConfig, db: FeatureDatabase, samples: tuple | None, ids: np.ndarray,
@@ -30,9 +47,10 @@ def zupt_update(st: State, cfg: MsckfConfig, db: FeatureDatabase, samples: tuple
     if samples is None or not st.clones:
         return False
     t, ws, as_ = samples
-    if t.shape[0] < 2 or float(np.linalg.norm(st.v)) > cfg.zupt_max_velocity:
+    if t.shape[0] < 2:
         return False
-    if cfg.zupt_max_disparity > 0 and mean_disparity(db, ids, uv) > cfg.zupt_max_disparity:
+    still = disparity_says_static(cfg, db, ids, uv)
+    if not still and (cfg.zupt_chi2_multiplier <= 0 or float(np.linalg.norm(st.v)) > cfg.zupt_max_velocity):
         return False
     n = t.shape[0]
     dt = max(float(t[-1] - t[0]) / max(n - 1, 1), 1e-4)
@@ -62,7 +80,7 @@ def zupt_update(st: State, cfg: MsckfConfig, db: FeatureDatabase, samples: tuple
     Pcc = st.P[:15, :15]
     S = Hw[: 6 * n] @ Pcc @ Hw[: 6 * n].T + np.eye(6 * n)
     d2 = float(rw[: 6 * n] @ np.linalg.solve(S, rw[: 6 * n]))
-    if not d2 < cfg.zupt_chi2_multiplier * chi2_95(6 * n):
+    if not still and not d2 < cfg.zupt_chi2_multiplier * chi2_95(6 * n):
         return False
     Hc, rc = compress(Hw, rw)
     return ekf_update(st, cols, Hc, rc, 1.0)

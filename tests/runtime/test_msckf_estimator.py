@@ -243,25 +243,30 @@ def test_initializer_result_starts_the_filter() -> None:
     assert np.linalg.norm(snaps[-1].p_OI - _truth(snaps[-1].t_cam_ns * 1e-9)[1]) < 0.05
 
 
-def _static_stream(duration: float, seed: int = 0):
-    """A body at rest (identity attitude) looking at the wall: IMU reads gravity, pixels only noise."""
+def _static_stream(duration: float, seed: int = 0, accel_sigma: float = 3e-3, px_sigma: float = 1.0):
+    """A body at rest (identity attitude) looking at the wall: IMU reads gravity, pixels only noise
+    (accel_sigma m/s^2 per sample, px_sigma px)."""
     rng = np.random.default_rng(seed)
     imu = [ImuSample(int(k * 5_000_000), 2e-4 * rng.standard_normal(3), np.array([0.0, 0.0, 9.81])
-                     + 3e-3 * rng.standard_normal(3)) for k in range(int(duration * 200) + 11)]
+                     + accel_sigma * rng.standard_normal(3)) for k in range(int(duration * 200) + 11)]
     L = _landmarks()
     pC = (R_IC.T @ (L.T - p_IC[:, None])).T
     vis = pC[:, 2] > 0.5
     uv0 = distort_points(1, PRM, pC[vis, :2] / pC[vis, 2:3])
     inside = (uv0[:, 0] > 0) & (uv0[:, 0] < 751) & (uv0[:, 1] > 0) & (uv0[:, 1] < 479)
     ids, uv0 = np.flatnonzero(vis)[inside], uv0[inside]
-    frames = [(int(round((k / 10.0 + 0.0013) * 1e9)), ids, uv0 + rng.standard_normal(uv0.shape))
+    frames = [(int(round((k / 10.0 + 0.0013) * 1e9)), ids, uv0 + px_sigma * rng.standard_normal(uv0.shape))
               for k in range(1, int(duration * 10) + 1)]
     return imu, frames
 
 
+IMU_ZUPT = dict(try_zupt=True, zupt_chi2_multiplier=1.0, zupt_max_disparity=0.0, zupt_noise_multiplier=1.0)
+"""The IMU chi-square test alone (pixels with 1 px noise fail the default 0.5 px disparity test)."""
+
+
 def test_zero_velocity_update_holds_a_static_body() -> None:
     imu, frames = _static_stream(3.0)
-    cfg = MsckfConfig(try_zupt=True)
+    cfg = MsckfConfig(**IMU_ZUPT)
     est = MsckfEstimator(_rig(), cfg)
     est.initialize_from_state(0, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3))
     snaps = _run(est, imu, frames)
@@ -274,12 +279,54 @@ def test_zero_velocity_update_holds_a_static_body() -> None:
     assert np.sqrt(snaps[-1].covariance[6, 6]) < 0.01
 
 
-def test_zero_velocity_update_is_not_applied_while_moving() -> None:
+@pytest.mark.parametrize("disparity", [False, True])
+def test_zero_velocity_update_is_not_applied_while_moving(disparity: bool) -> None:
     imu, frames = _stream(2.0)
-    est = MsckfEstimator(_rig(), MsckfConfig(try_zupt=True))
+    # the default is OpenVINS's disparity-only setting: the features move, so no zero-velocity update
+    cfg = MsckfConfig() if disparity else MsckfConfig(**IMU_ZUPT)
+    est = MsckfEstimator(_rig(), cfg)
     _init(est, np.zeros(3))
     _run(est, imu, frames)
     assert est.report()["zupt_applied"] == 0
+
+
+def test_still_features_override_the_imu_test_as_openvins() -> None:
+    """A vibrating body at rest (accelerometer noise 30x the model) fails the IMU chi-square test, but
+    features that do not move (0.05 px noise) declare standstill when the disparity test is enabled;
+    with a chi-square multiplier of 0 and no disparity test nothing can declare it."""
+    imu, frames = _static_stream(2.0, accel_sigma=0.1, px_sigma=0.05)
+    start = (0, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3))
+    applied = {}
+    for name, cfg in {
+        "imu": MsckfConfig(**IMU_ZUPT),
+        "disparity": MsckfConfig(),
+        "neither": MsckfConfig(zupt_max_disparity=0.0),
+    }.items():
+        est = MsckfEstimator(_rig(), cfg)
+        est.initialize_from_state(*start)
+        _run(est, imu, frames)
+        applied[name] = est.report()["zupt_applied"]
+    assert applied["imu"] <= 2, applied
+    assert applied["disparity"] >= len(frames) - 3, applied
+    assert applied["neither"] == 0, applied
+
+
+def test_disparity_needs_more_than_twenty_features() -> None:
+    from runtime.msckf.feature_db import FeatureDatabase
+    from runtime.msckf.update_zupt import MIN_DISPARITY_FEATURES, disparity_says_static, mean_disparity
+
+    db = FeatureDatabase()
+    n = MIN_DISPARITY_FEATURES + 1
+    uv = np.random.default_rng(0).uniform(0, 400, (n, 2))
+    db.add(1, np.arange(n), uv, uv / 400.0)
+    cfg = MsckfConfig()
+    shifted = uv + np.array([0.3, 0.0])
+    disp, count = mean_disparity(db, np.arange(n), shifted)
+    assert disp == pytest.approx(0.3) and count == n
+    assert disparity_says_static(cfg, db, np.arange(n), shifted)
+    assert not disparity_says_static(cfg, db, np.arange(n - 1), shifted[:-1])      # 20 features: too few
+    assert not disparity_says_static(cfg, db, np.arange(n), uv + 0.6)               # 0.85 px: moving
+    assert not disparity_says_static(MsckfConfig(zupt_max_disparity=0.0), db, np.arange(n), uv)  # disabled
 
 
 def test_feed_frame_uses_the_tracker() -> None:
