@@ -36,7 +36,7 @@ class Landmark:
     p: np.ndarray
     p_fej: np.ndarray
     idx: int
-    fail_count: int = 0
+    fail_count: int = 0  #: updates in which it could not be projected; marginalised after two
     anchor_t: int | None = None
 
 

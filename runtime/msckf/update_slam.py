@@ -156,8 +156,10 @@ def slam_update(state: State, t_cam_ns: int, obs: list[tuple[int, np.ndarray]], 
             RA, pA, RAf, pAf, state.R_IC, state.p_IC, cam.code, state.camera_params(cam.params),
             cfg.sigma_pix, state.idx_intr)
         good = ok & (d2 < gate)
-        for lm, g in zip(lms, good, strict=True):
-            if not g:
+        # a chi-square rejection only drops this observation (OpenVINS keeps the landmark while it is
+        # tracked); a landmark that cannot be projected (behind the camera) is counted toward removal
+        for lm, projected in zip(lms, ok, strict=True):
+            if not projected:
                 lm.fail_count += 1
         stats.chi2_rejected += int((ok & ~good).sum())  # a failed projection is not a chi-square rejection
         sel = np.flatnonzero(good)
