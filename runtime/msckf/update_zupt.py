@@ -16,7 +16,6 @@ from runtime.msckf.so3_kernels import skew3
 from runtime.msckf.state import State
 from runtime.msckf.state_helper import chi2_95, compress, ekf_update
 
-
 MIN_DISPARITY_FEATURES = 20
 """The disparity test needs more features than this seen in both frames (OpenVINS: 20)."""
 

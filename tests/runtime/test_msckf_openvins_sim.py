@@ -87,3 +87,57 @@ def test_bench_seeds_median_range_and_frame_csv(tmp_path, capsys) -> None:
     assert np.mean(E[:, 7]) == pytest.approx(runs[0]["nees_pos"])
     # the heading error is the world z component of the rotation error: bounded by the total
     assert np.all(np.abs(E[:, 6]) <= np.linalg.norm(E[:, 4:7], axis=1) + 1e-12)
+
+
+def test_perturbed_init_draws_from_the_initial_covariance() -> None:
+    """Over many draws, each error component has the filter's initial std and zero mean; the rotation
+    error is body-frame (R_true^T R = Exp(dtheta)); the time is unchanged."""
+    from runtime.msckf.config import MsckfConfig
+    from runtime.msckf.so3_kernels import exp3, log3
+    from tools.benchmarks.openvins_sim import perturbed_init
+
+    cfg = MsckfConfig()
+    R0 = exp3(np.array([0.3, -0.2, 1.0]))
+    init = (123, R0, np.array([1.0, 2.0, 3.0]), np.array([0.5, 0.0, 0.0]), np.zeros(3), np.zeros(3))
+    draws = [perturbed_init(init, cfg, k) for k in range(3000)]
+    assert all(d[0] == 123 for d in draws)
+    errs = {
+        "ori": np.array([log3(R0.T @ d[1]) for d in draws]),
+        "pos": np.array([d[2] - init[2] for d in draws]),
+        "vel": np.array([d[3] - init[3] for d in draws]),
+        "bg": np.array([d[4] for d in draws]),
+        "ba": np.array([d[5] for d in draws]),
+    }
+    for name, e in errs.items():
+        sigma = getattr(cfg, f"init_sigma_{name}")
+        assert np.allclose(e.std(axis=0), sigma, rtol=0.06), (name, e.std(axis=0), sigma)
+        assert np.all(np.abs(e.mean(axis=0)) < 4 * sigma / np.sqrt(len(draws))), name
+    # the same seed gives the same draw
+    a, b = perturbed_init(init, cfg, 7), perturbed_init(init, cfg, 7)
+    assert all(np.array_equal(x, y) for x, y in zip(a[1:], b[1:], strict=True))
+
+
+@pytest.mark.shared_data
+def test_bench_perturb_init_reports_mean_nees(capsys) -> None:
+    import argparse
+    import json
+
+    from tools.benchmarks import openvins_sim
+
+    folder = shared_path("openvins_sim", "udel_gore_mono")
+    p = argparse.ArgumentParser()
+    openvins_sim.add_arguments(p)
+    args = p.parse_args([str(folder), "--max-seconds", "2", "--seeds", "2", "--json", "--perturb-init"])
+    assert openvins_sim.run(args) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["perturb_init"] is True
+    runs = res["seeds"]
+    assert [r["init_perturbation_seed"] for r in runs] == [0, 1]
+    for key in ("nees_pos", "nees_ori"):
+        assert res[key + "_mean"] == pytest.approx(np.mean([r[key] for r in runs]))
+    # started off the truth: the first evaluated frames carry the drawn error, unlike the exact start
+    args0 = p.parse_args([str(folder), "--max-seconds", "2", "--json"])
+    assert openvins_sim.run(args0) == 0
+    exact = json.loads(capsys.readouterr().out)
+    assert exact["perturb_init"] is False and exact["init_perturbation_seed"] is None
+    assert runs[0]["rmse_pos_m"] > exact["rmse_pos_m"]
