@@ -124,8 +124,8 @@ def _score(pipe: Any, gt: Any, t0_ns: int, window_s: float, ate_thr: float) -> d
     velocity errors are those of the first state of the successful segment (else of the first one)."""
     from runtime.errors import DataError
     from runtime.geometry import interpolate_poses
-    from tools.benchmarks.ffinit_accuracy import gt_velocity
     from tools.evaluation import ate
+    from tools.evaluation.state_errors import gt_velocity
     from tools.run_io import published_segments, published_trajectory
 
     segments = published_segments(pipe.published)
