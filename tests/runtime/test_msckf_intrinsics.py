@@ -148,23 +148,32 @@ def test_state_intrinsics_block_layout_correction_and_marginalisation() -> None:
 EQ_PRM = np.array([380.0, 381.0, 375.0, 240.0, -0.01, 0.02, -0.005, 0.001, 0.0])
 
 
-def _equidistant_case(duration: float) -> tuple:
-    """The synthetic circle of test_msckf_estimator seen through EQ_PRM: (rig, imu, frames)."""
-    from calib import PinholeEquidistant
+def _circle_seen_through(model: str, prm: np.ndarray, duration: float, seed: int, px_sigma: float) -> tuple:
+    """The synthetic circle of test_msckf_estimator seen through a camera model: (imu, frames) with
+    px_sigma px pixel noise."""
     from runtime.msckf.camera_kernels import distort_points
     from tests.runtime.test_msckf_estimator import R_IC, _landmarks, _truth, p_IC
 
     imu, frames0 = _stream(duration)
-    rng = np.random.default_rng(1)
+    rng = np.random.default_rng(seed)
     L = _landmarks()
     frames = []
     for t_ns, _, _ in frames0:
         R, p, _, _ = _truth(t_ns * 1e-9)
         pC = (R_IC.T @ (R.T @ (L - p).T - p_IC[:, None])).T
         vis = pC[:, 2] > 0.5
-        uv = distort_points(2, EQ_PRM, pC[vis, :2] / pC[vis, 2:3]) + rng.standard_normal((vis.sum(), 2))
+        uv = distort_points(MODEL_CODES[model], prm, pC[vis, :2] / pC[vis, 2:3])
+        uv += px_sigma * rng.standard_normal(uv.shape)
         inside = (uv[:, 0] > 0) & (uv[:, 0] < 751) & (uv[:, 1] > 0) & (uv[:, 1] < 479)
         frames.append((t_ns, np.flatnonzero(vis)[inside], uv[inside]))
+    return imu, frames
+
+
+def _equidistant_case(duration: float) -> tuple:
+    """The synthetic circle of test_msckf_estimator seen through EQ_PRM: (rig, imu, frames)."""
+    from calib import PinholeEquidistant
+
+    imu, frames = _circle_seen_through("equidistant", EQ_PRM, duration, seed=1, px_sigma=1.0)
     rig = _rig()
     cam = PinholeEquidistant(752, 480, *EQ_PRM[:4], distortion=EQ_PRM[4:8])
     return dataclasses.replace(rig, camera=cam), imu, frames
@@ -276,21 +285,8 @@ def test_pinhole_camera_estimates_no_distortion() -> None:
     """A camera without a distortion model: nothing observes d0..d3, so they start with zero variance and
     stay exactly zero, while the focal length and principal point are estimated."""
     from calib import Pinhole
-    from runtime.msckf.camera_kernels import distort_points
-    from tests.runtime.test_msckf_estimator import R_IC, _landmarks, _truth, p_IC
 
-    imu, frames0 = _stream(3.0)
-    rng = np.random.default_rng(2)
-    L = _landmarks()
-    frames = []
-    for t_ns, _, _ in frames0:
-        R, p, _, _ = _truth(t_ns * 1e-9)
-        pC = (R_IC.T @ (R.T @ (L - p).T - p_IC[:, None])).T
-        vis = pC[:, 2] > 0.5
-        uv = distort_points(MODEL_CODES["none"], PRM, pC[vis, :2] / pC[vis, 2:3])
-        uv += 0.5 * rng.standard_normal(uv.shape)
-        inside = (uv[:, 0] > 0) & (uv[:, 0] < 751) & (uv[:, 1] > 0) & (uv[:, 1] < 479)
-        frames.append((t_ns, np.flatnonzero(vis)[inside], uv[inside]))
+    imu, frames = _circle_seen_through("none", PRM, 3.0, seed=2, px_sigma=0.5)
     rig = dataclasses.replace(_rig(), camera=Pinhole(752, 480, *PRM[:4]))
     cfg = MsckfConfig(max_frames_without_features=10_000, calib_intrinsics=True)
     est = MsckfEstimator(rig, cfg)
