@@ -21,7 +21,7 @@ class DavioConfig:
     msckf: MsckfConfig = field(default_factory=MsckfConfig)
     """The filter (OpenVINS EuRoC monocular defaults)."""
     static_init: StaticInitConfig = field(default_factory=StaticInitConfig)
-    """Native static initializer (stand-still then jerk)."""
+    """Native static initializer (standing still; with no zero-velocity update, then a jerk)."""
     dynamic_init: DynamicInitConfig = field(default_factory=DynamicInitConfig)
     """Native dynamic initializer (off by default, as OpenVINS's EuRoC configuration)."""
     use_dynamic_init: bool = False

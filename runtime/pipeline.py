@@ -68,11 +68,14 @@ class VioPipeline:
         self.T_IC = np.asarray(rig.T_IC, float)
         msckf_cfg = cfg.msckf.with_imu_noise(getattr(rig, "imu", None))
         imu_noise = getattr(rig, "imu", None)
+        static_cfg = cfg.static_init
+        if static_cfg.wait_for_jerk is None:   # OpenVINS: a filter with ZUPT can start standing still
+            static_cfg = replace(static_cfg, wait_for_jerk=not msckf_cfg.try_zupt)
 
         def make_filter(native: bool) -> MsckfEstimator:
             inits: list = []
             if native:
-                inits.append(StaticInitializer(cfg.static_init, imu_noise))
+                inits.append(StaticInitializer(static_cfg, imu_noise))
                 if cfg.use_dynamic_init:
                     inits.append(DynamicInitializer(rig.camera, self.T_IC, cfg.dynamic_init, imu_noise,
                                                     self.time_offset_s))

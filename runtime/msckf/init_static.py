@@ -4,7 +4,7 @@ Decision, on a window of ``init_window_time_s`` ending at the newest IMU sample,
 older half and a newer half:
 
 - accelerometer excitation of each half = sqrt(sum |a - mean|^2 / (n - 1)) (m/s^2);
-- ``wait_for_jerk`` (OpenVINS without ZUPT, its EuRoC setting): the newer half must be above
+- ``wait_for_jerk`` (OpenVINS without a zero-velocity update): the newer half must be above
   ``init_imu_thresh`` (a jerk) and the older half below it (standing still before the jerk);
 - otherwise: both halves must be below the threshold (standing still);
 - when tracks are fed and ``init_max_disparity_px > 0``, the mean feature disparity of each half
@@ -44,8 +44,10 @@ class StaticInitConfig:
     """Mean track disparity above which a half-window counts as moving, px (<= 0: not used)."""
     min_disparity_features: int = 15
     """Tracks needed in each half-window to judge disparity (OpenVINS 15)."""
-    wait_for_jerk: bool = True
-    """Initialize on a jerk after standing still (True, OpenVINS without ZUPT) or when still (False)."""
+    wait_for_jerk: bool | None = None
+    """Initialize on a jerk after standing still (True) or as soon as still (False). None: as OpenVINS,
+    wait for a jerk only when the filter has no zero-velocity update to hold a standing start (the
+    pipeline resolves it from MsckfConfig.try_zupt; a StaticInitializer given None waits for the jerk)."""
     gravity_mag: float = 9.81
     """Gravity magnitude g0, m/s^2."""
     sigma_theta: float = 0.02
@@ -83,6 +85,8 @@ class StaticInitializer:
 
     def __init__(self, config: StaticInitConfig | None = None, imu_noise: object | None = None) -> None:
         self.config = config if config is not None else StaticInitConfig()
+        self.wait_for_jerk = self.config.wait_for_jerk is not False
+        """The jerk rule in force (StaticInitConfig.wait_for_jerk, None read as True)."""
         self.imu_noise = imu_noise
         window_ns = int(round(self.config.init_window_time_s * 1e9))
         self.imu = ImuWindow(window_ns + 200_000_000)
@@ -136,7 +140,7 @@ class StaticInitializer:
         thr = cfg.init_imu_thresh
         info = {"accel_excitation_old": std_old, "accel_excitation_new": std_new}
 
-        if cfg.wait_for_jerk:
+        if self.wait_for_jerk:
             if std_new < thr:
                 return rej(newest, "no_jerk", f"newest half excitation {std_new:.3f} < {thr} m/s^2")
             if std_old > thr:
@@ -159,9 +163,9 @@ class StaticInitializer:
             moving_new = disp_new > dmax
             if moving_old:
                 return rej(newest, "moving", f"older half disparity {disp_old:.2f} > {dmax} px")
-            if cfg.wait_for_jerk and not moving_new:
+            if self.wait_for_jerk and not moving_new:
                 return rej(newest, "no_visual_jerk", f"newest half disparity {disp_new:.2f} <= {dmax} px")
-            if not cfg.wait_for_jerk and moving_new:
+            if not self.wait_for_jerk and moving_new:
                 return rej(newest, "moving", f"newest half disparity {disp_new:.2f} > {dmax} px")
 
         a_mean = a[old_half].mean(axis=0)
