@@ -78,14 +78,19 @@ class MsckfConfig:
     # chi2 multiplier 0, noise x10, 0.5 px), although its EuRoC file has try_zupt false: a robot standing
     # still has no parallax, so without it the filter dead-reckons. `bench vio-sim` EuRoC-trajectory
     # V1_02 (2.5 s at rest after the start): ATE 0.147 -> 0.039 m; euroc preset 0.023 -> 0.017 m,
-    # aggressive 0.019 -> 0.022 m (fires at motion onset below ~5 cm/s), slow and MH_03 unchanged.
+    # aggressive 0.018 -> 0.022 m, slow and MH_03 unchanged (measured with a frame-to-frame disparity)
     try_zupt: bool = True  #: detect standstill and apply a zero-velocity update
     zupt_chi2_multiplier: float = 0.0  #: multiplier of the ZUPT IMU chi-square threshold (0: disparity only)
     zupt_max_velocity: float = 0.1  #: m/s, the IMU test also needs the estimated speed below this
-    zupt_noise_multiplier: float = 10.0  #: inflation of the IMU noise in the ZUPT residual
+    #: variance multiplier of the IMU noise in the ZUPT residuals (OpenVINS's zupt_noise_multiplier); the
+    #: v = 0 row (ours) has std sqrt(multiplier) * accel_noise_density * sqrt(IMU dt)
+    zupt_noise_multiplier: float = 10.0
     #: px, features moving less than this on average (over > 20 of them) mean standstill whatever the IMU
-    #: test says (0: IMU test only), as OpenVINS
+    #: test says (OpenVINS's rule; 0: IMU test only)
     zupt_max_disparity: float = 0.5
+    #: s, the disparity is measured against observations at least this old (OpenVINS: the previous frame),
+    #: so that slow motion is not taken for standstill: 0.5 px over 0.4 s is 3 cm/s at 6 m
+    zupt_disparity_span_s: float = 0.4
     # initialisation from a given state: covariance floors (std), OpenVINS initialize_with_gt values
     init_sigma_ori: float = 0.017  #: rad
     init_sigma_pos: float = 0.05  #: m
@@ -138,6 +143,13 @@ class MsckfConfig:
         ):
             if not getattr(self, f) > 0:
                 raise ConfigError(f"{f} must be > 0, got {getattr(self, f)}")
+        if not (math.isfinite(self.zupt_noise_multiplier) and self.zupt_noise_multiplier > 0):
+            raise ConfigError("zupt_noise_multiplier must be finite and > 0, "
+                              f"got {self.zupt_noise_multiplier!r}")
+        for f in ("zupt_chi2_multiplier", "zupt_max_velocity", "zupt_max_disparity", "zupt_disparity_span_s"):
+            v = getattr(self, f)
+            if not (math.isfinite(v) and v >= 0):
+                raise ConfigError(f"{f} must be finite and >= 0, got {v!r}")
         if not 0.0 < self.max_chi2_rejection_fraction <= 1.0:
             raise ConfigError("max_chi2_rejection_fraction must be in (0, 1], "
                               f"got {self.max_chi2_rejection_fraction}")

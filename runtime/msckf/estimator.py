@@ -216,7 +216,8 @@ class MsckfEstimator:
         if st.idx_intr >= 0:
             i = st.idx_intr
             sig = [cfg.sigma_calib_focal] * 2 + [cfg.sigma_calib_center] * 2
-            # a camera without a distortion model has nothing that observes d0..d3: they stay fixed at zero
+            # a camera without a distortion model has nothing that observes d0..d3 (zero Jacobian columns):
+            # report them with zero uncertainty rather than an unchanging prior
             sig += [0.0 if self.camera.model == "none" else cfg.sigma_calib_distortion] * 4
             st.P[i : i + 8, i : i + 8] = np.diag(np.square(sig))
         self.state_ = st
@@ -463,7 +464,7 @@ class MsckfEstimator:
             return None
         if ids.shape[0] == 0:
             c.frames_without_features += 1
-        if cfg.try_zupt and zupt_update(st, cfg, self.db, self._last_samples, ids, uv):
+        if cfg.try_zupt and zupt_update(st, cfg, self.db, self._last_samples, t_cam, ids, uv):
             c.zupt_applied += 1
             c.frames_processed += 1
             c.time_frame_s += time.perf_counter() - t0
@@ -558,10 +559,11 @@ class MsckfEstimator:
     def _earliest_created(self, tracks: list, n: int) -> list:
         """The n tracks of `tracks` that entered the database first (its dict keeps creation order).
 
-        New SLAM landmarks are the longest-held of the full-window tracks, as in OpenVINS, whose hash-map
-        listing ends with the earliest-created features and which promotes from that end. Such tracks
-        stay landmarks longer than a random pick: on openvins_sim/udel_gore over seeds the median heading
-        error went 0.26 -> 0.16 deg (OpenVINS 0.153)."""
+        New SLAM landmarks are the longest-held of the full-window tracks. OpenVINS promotes from the end
+        of its hash-map listing, which tends to end with the earliest-created features (libstdc++ order,
+        interleaved by rehashes and bucket collisions); we take them strictly. Such tracks stay landmarks
+        longer than a random pick: on openvins_sim/udel_gore over seeds the median heading error went
+        0.26 -> 0.16 deg (OpenVINS 0.153)."""
         created = {fid: i for i, fid in enumerate(self.db.tracks)}
         return sorted(tracks, key=lambda tr: created[tr.fid])[:n]
 

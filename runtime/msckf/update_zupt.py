@@ -1,10 +1,15 @@
-"""Zero-velocity update (OpenVINS UpdaterZeroVelocity decision rule): the body is taken to stand still
-when the features barely moved since the newest stored observation (mean disparity below
-zupt_max_disparity over more than MIN_DISPARITY_FEATURES features; disabled at 0), or else when the IMU
-samples since the last frame are consistent with standstill (chi-square on w = bg, a = ba + R^T g_up
-within zupt_chi2_multiplier times the 95 % quantile; a multiplier of 0 leaves the disparity test alone)
-and the speed estimate is below zupt_max_velocity. It then updates with those residuals plus v = 0 and
-adds no clone.
+"""Zero-velocity update (OpenVINS UpdaterZeroVelocity's decision rule, own residual): the body is taken
+to stand still when the features barely moved (mean disparity below zupt_max_disparity over more than
+MIN_DISPARITY_FEATURES features; disabled at 0), or else when the IMU samples since the last frame are
+consistent with standstill (chi-square on w = bg, a = ba + R^T g_up within zupt_chi2_multiplier times
+the 95 % quantile; a multiplier of 0 leaves the disparity test alone) and the speed estimate is below
+zupt_max_velocity. It then updates with those IMU residuals plus v = 0 (the velocity row is ours: OpenVINS
+instead does not propagate while still) and adds no clone.
+
+Unlike OpenVINS, which compares with the previous frame, the disparity is measured against each
+feature's newest stored observation at least zupt_disparity_span_s older than this frame: slow motion
+(a few px per second) accumulates disparity over that span instead of passing a frame-to-frame test
+and being held at zero velocity.
 """
 from __future__ import annotations
 
@@ -17,38 +22,47 @@ from runtime.msckf.state import State
 from runtime.msckf.state_helper import chi2_95, compress, ekf_update
 
 MIN_DISPARITY_FEATURES = 20
-"""The disparity test needs more features than this seen in both frames (OpenVINS: 20)."""
+"""The disparity test needs more features than this (OpenVINS: 20)."""
 
 
-def mean_disparity(db: FeatureDatabase, ids: np.ndarray, uv: np.ndarray) -> tuple[float, int]:
-    """Mean pixel distance between this frame's features and their newest stored observation, and the
-    number of features it averages (inf, 0 when none was seen before)."""
+def mean_disparity(db: FeatureDatabase, t_cam_ns: int, ids: np.ndarray, uv: np.ndarray,
+                   span_ns: int = 0) -> tuple[float, int]:
+    """Mean pixel distance between this frame's features (camera time t_cam_ns) and, per feature, its
+    newest stored observation at least span_ns older; and the number of features averaged (inf, 0 when
+    none has such an observation)."""
     d = []
     for k in range(ids.shape[0]):
         tr = db.tracks.get(int(ids[k]))
-        if tr is not None and tr.uv:
-            d.append(float(np.linalg.norm(uv[k] - tr.uv[-1])))
+        if tr is None:
+            continue
+        j = len(tr.t_ns) - 1
+        while j >= 0 and t_cam_ns - tr.t_ns[j] < span_ns:
+            j -= 1
+        if j >= 0:
+            d.append(float(np.linalg.norm(uv[k] - tr.uv[j])))
     return (float(np.mean(d)) if d else float("inf")), len(d)
 
 
-def disparity_says_static(cfg: MsckfConfig, db: FeatureDatabase, ids: np.ndarray, uv: np.ndarray) -> bool:
-    """True when the disparity test is enabled and the features barely moved."""
+def disparity_says_static(cfg: MsckfConfig, db: FeatureDatabase, t_cam_ns: int, ids: np.ndarray,
+                          uv: np.ndarray) -> bool:
+    """True when the disparity test is enabled and the features barely moved over the span."""
     if not cfg.zupt_max_disparity > 0:
         return False
-    disp, n = mean_disparity(db, ids, uv)
+    span_ns = int(round(cfg.zupt_disparity_span_s * 1e9))
+    disp, n = mean_disparity(db, t_cam_ns, ids, uv, span_ns)
     return disp < cfg.zupt_max_disparity and n > MIN_DISPARITY_FEATURES
 
 
-def zupt_update(st: State, cfg: MsckfConfig, db: FeatureDatabase, samples: tuple | None, ids: np.ndarray,
-                uv: np.ndarray) -> bool:
+def zupt_update(st: State, cfg: MsckfConfig, db: FeatureDatabase, samples: tuple | None, t_cam_ns: int,
+                ids: np.ndarray, uv: np.ndarray) -> bool:
     """Try a zero-velocity update with the IMU samples (t (n,) s, w (n,3), a (n,3)) of the last propagation
-    interval and this frame's features (ids, uv); True when applied."""
+    interval and this frame's features (camera time t_cam_ns, ids, uv); True when applied."""
     if samples is None or not st.clones:
         return False
     t, ws, as_ = samples
     if t.shape[0] < 2:
         return False
-    still = disparity_says_static(cfg, db, ids, uv)
+    still = disparity_says_static(cfg, db, t_cam_ns, ids, uv)
     if not still and (cfg.zupt_chi2_multiplier <= 0 or float(np.linalg.norm(st.v)) > cfg.zupt_max_velocity):
         return False
     n = t.shape[0]
@@ -59,7 +73,7 @@ def zupt_update(st: State, cfg: MsckfConfig, db: FeatureDatabase, samples: tuple
     H = np.zeros((m, 15))
     r = np.zeros(m)
     sig = np.zeros(m)
-    mult = cfg.zupt_noise_multiplier
+    mult = np.sqrt(cfg.zupt_noise_multiplier)   # a variance multiplier, as OpenVINS's R = mult * I
     for k in range(n):
         o = 6 * k
         r[o:o + 3] = ws[k] - st.bg
@@ -76,10 +90,11 @@ def zupt_update(st: State, cfg: MsckfConfig, db: FeatureDatabase, samples: tuple
     Hw = H / sig[:, None]
     rw = r / sig
     cols = np.arange(15)
-    Pcc = st.P[:15, :15]
-    S = Hw[: 6 * n] @ Pcc @ Hw[: 6 * n].T + np.eye(6 * n)
-    d2 = float(rw[: 6 * n] @ np.linalg.solve(S, rw[: 6 * n]))
-    if not still and not d2 < cfg.zupt_chi2_multiplier * chi2_95(6 * n):
-        return False
+    if not still:
+        Pcc = st.P[:15, :15]
+        S = Hw[: 6 * n] @ Pcc @ Hw[: 6 * n].T + np.eye(6 * n)
+        d2 = float(rw[: 6 * n] @ np.linalg.solve(S, rw[: 6 * n]))
+        if not d2 < cfg.zupt_chi2_multiplier * chi2_95(6 * n):
+            return False
     Hc, rc = compress(Hw, rw)
     return ekf_update(st, cols, Hc, rc, 1.0)

@@ -282,8 +282,9 @@ def test_bench_online_calib_reports_intrinsics(capsys) -> None:
 
 
 def test_pinhole_camera_estimates_no_distortion() -> None:
-    """A camera without a distortion model: nothing observes d0..d3, so they start with zero variance and
-    stay exactly zero, while the focal length and principal point are estimated."""
+    """A camera without a distortion model: nothing observes d0..d3, so they are reported with zero
+    uncertainty (not the 0.005 prior) and stay zero, while the focal length and principal point are
+    estimated."""
     from calib import Pinhole
 
     imu, frames = _circle_seen_through("none", PRM, 3.0, seed=2, px_sigma=0.5)

@@ -112,11 +112,14 @@ def test_perturbed_init_draws_from_the_initial_covariance() -> None:
         sigma = getattr(cfg, f"init_sigma_{name}")
         assert np.allclose(e.std(axis=0), sigma, rtol=0.06), (name, e.std(axis=0), sigma)
         assert np.all(np.abs(e.mean(axis=0)) < 4 * sigma / np.sqrt(len(draws))), name
-    # the same seed gives the same draw
+    # the same seed gives the same draw, and the rotation error is the first draw in the body frame
     a, b = perturbed_init(init, cfg, 7), perturbed_init(init, cfg, 7)
     assert all(np.array_equal(x, y) for x, y in zip(a[1:], b[1:], strict=True))
+    first = cfg.init_sigma_ori * np.random.default_rng(7).standard_normal(3)
+    assert np.allclose(log3(R0.T @ a[1]), first, atol=1e-12)
 
 
+@pytest.mark.slow
 @pytest.mark.shared_data
 def test_bench_perturb_init_reports_mean_nees(capsys) -> None:
     import argparse

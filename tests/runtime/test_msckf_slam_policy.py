@@ -40,7 +40,7 @@ def test_new_landmarks_are_the_earliest_created_full_window_tracks() -> None:
                     and tr.t_ns[0] <= marg_t and len(tr) + 1 > CFG.max_clones]
         k = _feed(est, imu, k, frame)
         new = set(est.state_.slam) - before
-        free = CFG.updated(max_slam=6).max_slam - len(before)
+        free = est.config.max_slam - len(before)
         if new and 0 < free < len(full):
             assert new <= set(full[:free]), (sorted(new), full[:free], full)
             checked += 1
