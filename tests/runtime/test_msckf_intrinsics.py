@@ -30,6 +30,19 @@ def _random_params(rng: np.random.Generator, model: str) -> np.ndarray:
     return prm
 
 
+def _numeric_jacobian(fun, prm: np.ndarray) -> np.ndarray:
+    """Central differences of fun (array-valued) w.r.t. the 8 intrinsics prm[:8] (steps 1e-4 px for
+    fx fy cx cy, 1e-7 for the distortion coefficients); (fun's size, 8)."""
+    cols = []
+    for j in range(8):
+        h = 1e-4 if j < 4 else 1e-7
+        pp, pm = prm.copy(), prm.copy()
+        pp[j] += h
+        pm[j] -= h
+        cols.append((np.ravel(fun(pp)) - np.ravel(fun(pm))) / (2 * h))
+    return np.stack(cols, axis=1)
+
+
 @pytest.mark.parametrize("model", ["radtan", "equidistant", "none"])
 def test_intrinsics_jacobian_matches_central_differences(model: str) -> None:
     rng = np.random.default_rng(7)
@@ -38,15 +51,7 @@ def test_intrinsics_jacobian_matches_central_differences(model: str) -> None:
         prm = _random_params(rng, model)
         x, y = rng.uniform(-0.8, 0.8, 2)
         J = distort_jacobian_params(code, prm, x, y)
-        num = np.zeros((2, 8))
-        for j in range(8):
-            h = 1e-4 if j < 4 else 1e-7
-            pp, pm = prm.copy(), prm.copy()
-            pp[j] += h
-            pm[j] -= h
-            up, vp, _ = distort_point(code, pp, x, y)
-            um, vm, _ = distort_point(code, pm, x, y)
-            num[:, j] = [(up - um) / (2 * h), (vp - vm) / (2 * h)]
+        num = _numeric_jacobian(lambda q, x=x, y=y: distort_point(code, q, x, y)[:2], prm)
         if model == "none":
             num[:, 4:] = 0.0           # "none" ignores the coefficients: so does its Jacobian
         assert np.allclose(J, num, rtol=1e-6, atol=1e-6), (model, J - num)
@@ -71,15 +76,8 @@ def test_feature_intrinsics_jacobian_matches_the_residual() -> None:
     uv = np.full((4, 2), 300.0)
     prm = PRM.copy()
     Hk = feature_intrinsics_jacobian(Rc, pc, p_O, R_IC, p_IC, 1, prm)
-    num = np.zeros((8, 8))
-    for j in range(8):
-        h = 1e-4 if j < 4 else 1e-7
-        pp, pm = prm.copy(), prm.copy()
-        pp[j] += h
-        pm[j] -= h
-        rp = feature_jacobians(Rc, pc, Rc, pc, uv, p_O, p_O, R_IC, p_IC, 1, pp)[1]
-        rm = feature_jacobians(Rc, pc, Rc, pc, uv, p_O, p_O, R_IC, p_IC, 1, pm)[1]
-        num[:, j] = -(rp - rm) / (2 * h)
+    num = -_numeric_jacobian(lambda q: feature_jacobians(Rc, pc, Rc, pc, uv, p_O, p_O, R_IC, p_IC, 1, q)[1],
+                             prm)
     assert np.allclose(Hk, num, rtol=1e-6, atol=1e-5)
 
 
@@ -103,13 +101,7 @@ def test_slam_rows_intrinsics_columns_match_the_residual() -> None:
     assert np.array_equal(Hk0, np.zeros((1, 2, 8))) and np.array_equal(Hc0, Hc) and np.array_equal(Hl0, Hl)
     # the gate includes the intrinsics' uncertainty: a larger innovation covariance, a smaller distance
     assert d2[0] < d20[0]
-    num = np.zeros((2, 8))
-    for j in range(8):
-        h = 1e-4 if j < 4 else 1e-7
-        pp, pm = PRM.copy(), PRM.copy()
-        pp[j] += h
-        pm[j] -= h
-        num[:, j] = -(rows(pp, 6)[2][0] - rows(pm, 6)[2][0]) / (2 * h)
+    num = -_numeric_jacobian(lambda q: rows(q, 6)[2][0], PRM)
     assert np.allclose(Hk[0], num, rtol=1e-6, atol=1e-5)
 
 
