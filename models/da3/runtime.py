@@ -152,9 +152,51 @@ class OnnxDA3:
             "use_pose": np.array([use_pose], dtype=bool),
         }
         try:
-            return self.session.run(["depth", "conf", "pred_extrinsics", "pred_intrinsics"], feeds)
+            outs = self.session.run(["depth", "conf", "pred_extrinsics", "pred_intrinsics"], feeds)
         except Exception as exc:
             raise ModelError(f"{self.path}: inference failed ({type(exc).__name__}: {exc})") from exc
+        self._check_outputs(outs, images.shape[1])
+        return outs
+
+    def _check_outputs(self, outs: list[np.ndarray], n: int) -> None:
+        """The graph's run-time outputs against the contract: shapes, and finite values.
+
+        Raises:
+            ModelError: naming the output and what is wrong (a graph whose declared signature
+                passes can still compute the wrong shapes, or overflow, e.g. a broken fp16 export).
+        """
+        h, w = self.graph_hw
+        want = {"depth": (1, n, h, w), "conf": (1, n, h, w), "pred_extrinsics": (1, n, 3, 4),
+                "pred_intrinsics": (1, n, 3, 3)}
+        for (name, shape), arr in zip(want.items(), outs):
+            if tuple(arr.shape) != shape:
+                raise ModelError(f"{self.path}: output {name} has shape {tuple(arr.shape)}, the DA3 "
+                                 f"contract expects {shape} for {n} views")
+            bad = int(np.size(arr) - np.count_nonzero(np.isfinite(arr)))
+            if bad:
+                raise ModelError(f"{self.path}: output {name} has {bad} non-finite values out of "
+                                 f"{arr.size} (a broken export or an overflow in reduced precision)")
+
+    def warm_up(self, views: int | None = None) -> float:
+        """One unconditioned call on blank frames, before any sensor data arrives; returns seconds.
+
+        `views` defaults to the graph's fixed view count, else 5 (the start-up window).
+
+        The first run of a session pays one-off costs (on the CUDA provider: device memory arena,
+        cuDNN algorithm search; seconds on a laptop GPU) that must not land on the start-up call.
+        Also checks at load time that the graph really runs and meets the contract at `views`.
+
+        Raises:
+            ModelError: the graph fails or breaks the contract on the warm-up call.
+        """
+        views = views or self.graph_views or 5
+        img = np.full(self.cam_hw, 128, dtype=np.uint8)
+        frames = [Frame(t_ns=i * 200_000_000, image=img) for i in range(views)]
+        t0 = time.perf_counter()
+        self._check_frames(frames)
+        self._run(self._images(frames), np.tile(np.eye(3), (views, 1, 1)), np.tile(np.eye(4), (views, 1, 1)),
+                  False)
+        return time.perf_counter() - t0
 
     def _to_camera(self, maps: np.ndarray) -> np.ndarray:
         """(N,h,w) graph-resolution maps -> (N,H,W) float32 at the camera resolution."""

@@ -4,7 +4,8 @@
     conf            = 1 + |images[:, :, 1]|
     pred_extrinsics = extrinsics[:, :, :3, :] with the translation column times `t_gain`
     pred_intrinsics = use_pose ? intrinsics : [[f, 0, W/2], [0, f, H/2], [0, 0, 1]]
-Variants break one clause of the contract to exercise the loader's errors ("fixed_n" is valid: N = 4).
+Variants break one clause of the contract to exercise the loader's errors ("fixed_n" is valid: N = 4);
+"nan_depth" declares a valid signature but computes NaN depth.
 """
 
 from __future__ import annotations
@@ -74,6 +75,10 @@ def build_da3_contract_graph(
         nodes[3] = helper.make_node("Add", ["red_half", "two"], ["depth4"])
         nodes.append(helper.make_node("Unsqueeze", ["depth4", "ax_last"], ["depth"]))
         inits.append(numpy_helper.from_array(np.array([4], np.int64), "ax_last"))
+    if variant == "nan_depth":
+        nodes[3] = helper.make_node("Add", ["red_half", "two"], ["depth_ok"])
+        inits.append(numpy_helper.from_array(np.array(np.nan, np.float32), "nan"))
+        nodes.append(helper.make_node("Mul", ["depth_ok", "nan"], ["depth"]))
     if variant == "missing_output":
         nodes = [n for n in nodes if n.output[0] != "pred_intrinsics"]
     graph = helper.make_graph(nodes, "da3_contract", inputs, outputs, inits)

@@ -140,6 +140,41 @@ def test_wrong_contract_is_a_model_error(tmp_path, variant, words):
         OnnxDA3(path, CAM)
 
 
+def test_warm_up_runs_the_graph_once_at_the_start_up_window_size(graph):
+    model = OnnxDA3(graph, CAM, threads=1)
+    calls = []
+    run = model.session.run
+    model.session.run = lambda names, feeds: calls.append(feeds["images"].shape) or run(names, feeds)
+    assert model.warm_up() > 0.0
+    assert calls == [(1, 5, 3, 28, 42)]
+
+
+def test_fixed_view_graph_warms_up_at_its_view_count(tmp_path):
+    model = OnnxDA3(build_da3_contract_graph(tmp_path / "n4.onnx", variant="fixed_n"), CAM, threads=1)
+    assert model.warm_up() > 0.0
+
+
+def test_graph_computing_nan_fails_the_warm_up_and_every_call(tmp_path):
+    model = OnnxDA3(build_da3_contract_graph(tmp_path / "nan.onnx", variant="nan_depth"), CAM, threads=1)
+    with pytest.raises(ModelError, match="output depth has 5880 non-finite values out of 5880"):
+        model.warm_up()  # 5 views x 28 x 42
+    with pytest.raises(ModelError, match="depth has 3528 non-finite"):
+        model.predict(gradient_frames(3))
+
+
+def test_outputs_of_the_wrong_run_time_shape_are_a_model_error(graph):
+    model = OnnxDA3(graph, CAM, threads=1)
+    run = model.session.run
+
+    def short_depth(names, feeds):
+        outs = run(names, feeds)
+        return [outs[0][..., :-1], *outs[1:]]
+
+    model.session.run = short_depth
+    with pytest.raises(ModelError, match=r"output depth has shape \(1, 3, 28, 41\).*\(1, 3, 28, 42\) for 3 views"):
+        model.predict(gradient_frames(3))
+
+
 def test_resolution_not_multiple_of_patch_is_rejected(tmp_path):
     path = build_da3_contract_graph(tmp_path / "odd.onnx", 30, 42)
     with pytest.raises(ModelError, match="multiple of the 14"):

@@ -44,6 +44,7 @@ def test_da3_latency_benchmark_json_on_contract_graph(tmp_path, capsys, monkeypa
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert out["graph_hw"] == [28, 42] and out["views"] == 3
     assert out["latency_s"]["cond_predict"]["median"] > 0 and out["peak_rss_mb"] > 0
+    assert out["first_call_s"] > 0
 
 
 @pytest.mark.export

@@ -3,6 +3,7 @@ matches the simulator's ground truth; `davio run` replays a real EuRoC folder an
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -48,6 +49,46 @@ def test_run_on_real_euroc_head_writes_outputs(tmp_path, capsys):
     assert (out / "report.json").exists()
     rows = [ln for ln in (out / "odometry.tum").read_text().splitlines() if ln and not ln.startswith("#")]
     assert len(rows) == report["published_poses"]
+
+
+def test_run_reports_input_repairs_on_the_console(tmp_path, capsys):
+    """Corrupted IMU rows are dropped, counted in report.json and named on the console."""
+    src = shared_path("euroc", "V1_01_easy_head") / "mav0"
+    dst = tmp_path / "rec" / "mav0"
+    dst.mkdir(parents=True)
+    for name in ("body.yaml", "cam0", "state_groundtruth_estimate0"):
+        (dst / name).symlink_to(src / name)
+    (dst / "imu0").mkdir()
+    (dst / "imu0" / "sensor.yaml").symlink_to(src / "imu0" / "sensor.yaml")
+    lines = (src / "imu0" / "data.csv").read_text().splitlines()
+    for i in (100, 101, 102):  # three NaN accelerometer rows
+        cols = lines[i].split(",")
+        cols[4] = "nan"
+        lines[i] = ",".join(cols)
+    lines.insert(200, lines[199])  # one duplicated timestamp
+    (dst / "imu0" / "data.csv").write_text("\n".join(lines) + "\n")
+    out = tmp_path / "run"
+    assert main(["run", str(dst.parent), "--out", str(out), "--native-only", "--seconds", "2.5"]) == 0
+    text = capsys.readouterr().out
+    assert "input imu0: non-finite samples dropped 3, duplicates dropped 1" in text
+    imu = json.loads((out / "report.json").read_text())["driver"]["streams"]["imu0"]
+    assert imu["dropped_nonfinite"] == 3 and imu["dropped_duplicate"] == 1
+
+
+def test_run_with_an_onnx_model_warms_it_up_and_refuses_a_broken_one(tmp_path, capsys, monkeypatch):
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "models"))
+    from da3_contract_graph import build_da3_contract_graph
+
+    path = shared_path("euroc", "V1_01_easy_head")
+    graph = build_da3_contract_graph(tmp_path / "contract.onnx", 28, 42)
+    out = tmp_path / "run"
+    assert main(["run", str(path), "--model", str(graph), "--out", str(out), "--seconds", "1"]) == 0
+    assert "on CPUExecutionProvider (warm-up call" in capsys.readouterr().out
+    broken = build_da3_contract_graph(tmp_path / "nan.onnx", 28, 42, variant="nan_depth")
+    assert main(["run", str(path), "--model", str(broken), "--out", str(tmp_path / "r2"), "--seconds", "1"]) == 1
+    err = capsys.readouterr().err
+    assert "nan.onnx: output depth has 5880 non-finite values" in err
+    assert not (tmp_path / "r2" / "report.json").exists()  # refused before any sensor data was read
 
 
 def test_run_missing_folder_is_a_clear_error(tmp_path, capsys):

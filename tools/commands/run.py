@@ -64,7 +64,9 @@ def run(args: argparse.Namespace) -> int:
         from models.da3 import OnnxDA3
 
         model = OnnxDA3(args.model, rig.camera)
-        model_desc = f"DA3 ONNX {args.model}"
+        warm_s = model.warm_up()  # one-off session costs are paid here, not by the start-up window
+        model_desc = (f"DA3 ONNX {args.model} on {model.session_info['providers'][0]} "
+                      f"(warm-up call {warm_s:.2f} s)")
     elif args.emulated or (rec.kind == "simulated" and not args.native_only):
         if rec.kind != "simulated":
             raise ConfigError("--emulated needs a recording written by `davio simulate` (it reads the "
@@ -97,6 +99,8 @@ def _summary(report: dict, out: Path) -> None:
     if m:
         nan = float("nan")
         print(f"  ATE: {m.get('ate_se3_m', nan):.3f} m (se3), {m.get('ate_posyaw_m', nan):.3f} m (posyaw)")
+    for line in _recovery_lines(report):
+        print(f"  {line}")
     bu = report["pipeline"].get("bringup")
     if bu is not None:
         state = "done" if bu["R_IC"] else "NOT done"
@@ -107,3 +111,30 @@ def _summary(report: dict, out: Path) -> None:
     print(f"  tracking {s.get('tracking_ms_per_frame_median', float('nan')):.1f} ms/frame (median), "
           f"real-time factor {s.get('realtime_factor') or float('nan'):.2f}")
     print(f"  outputs: {out}/odometry.tum, report.json, config.toml" + (", plots" if m else ""))
+
+
+_DRIVER_COUNTERS = {
+    "truncated_lines": "truncated lines", "malformed_lines": "malformed lines",
+    "dropped_nonfinite": "non-finite samples dropped", "dropped_nonmonotonic": "out-of-order dropped",
+    "dropped_duplicate": "duplicates dropped", "missing_images": "missing images",
+    "unreadable_images": "unreadable images", "gaps": "gaps",
+}
+
+
+def _recovery_lines(report: dict) -> list[str]:
+    """One console line per kind of recovery the run made (input repairs, initializer rejections,
+    filter resets), so that nothing counted in report.json goes unnoticed on the console."""
+    lines = []
+    streams = (report.get("driver") or {}).get("streams") or {}
+    for name, counts in streams.items():
+        parts = [f"{label} {counts[k]}" for k, label in _DRIVER_COUNTERS.items() if counts.get(k)]
+        if parts:
+            lines.append(f"input {name}: " + ", ".join(parts))
+    startup = report["pipeline"].get("startup") or {}
+    if startup.get("ff_rejections"):
+        reasons = ", ".join(f"{k} x{v}" for k, v in sorted(startup["ff_rejections"].items()))
+        lines.append(f"feed-forward windows rejected: {reasons}")
+    resets = (report["pipeline"].get("filter") or {}).get("divergence_resets") or 0
+    if resets:
+        lines.append(f"filter resets after divergence: {resets} ({len(report.get('segments') or [])} segments)")
+    return lines
