@@ -168,7 +168,7 @@ class OnnxDA3:
         h, w = self.graph_hw
         want = {"depth": (1, n, h, w), "conf": (1, n, h, w), "pred_extrinsics": (1, n, 3, 4),
                 "pred_intrinsics": (1, n, 3, 3)}
-        for (name, shape), arr in zip(want.items(), outs):
+        for (name, shape), arr in zip(want.items(), outs, strict=True):
             if tuple(arr.shape) != shape:
                 raise ModelError(f"{self.path}: output {name} has shape {tuple(arr.shape)}, the DA3 "
                                  f"contract expects {shape} for {n} views")

@@ -171,7 +171,8 @@ def test_outputs_of_the_wrong_run_time_shape_are_a_model_error(graph):
         return [outs[0][..., :-1], *outs[1:]]
 
     model.session.run = short_depth
-    with pytest.raises(ModelError, match=r"output depth has shape \(1, 3, 28, 41\).*\(1, 3, 28, 42\) for 3 views"):
+    want = r"output depth has shape \(1, 3, 28, 41\).*\(1, 3, 28, 42\) for 3 views"
+    with pytest.raises(ModelError, match=want):
         model.predict(gradient_frames(3))
 
 

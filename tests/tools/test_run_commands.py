@@ -85,7 +85,8 @@ def test_run_with_an_onnx_model_warms_it_up_and_refuses_a_broken_one(tmp_path, c
     assert main(["run", str(path), "--model", str(graph), "--out", str(out), "--seconds", "1"]) == 0
     assert "on CPUExecutionProvider (warm-up call" in capsys.readouterr().out
     broken = build_da3_contract_graph(tmp_path / "nan.onnx", 28, 42, variant="nan_depth")
-    assert main(["run", str(path), "--model", str(broken), "--out", str(tmp_path / "r2"), "--seconds", "1"]) == 1
+    args = ["run", str(path), "--model", str(broken), "--out", str(tmp_path / "r2"), "--seconds", "1"]
+    assert main(args) == 1
     err = capsys.readouterr().err
     assert "nan.onnx: output depth has 5880 non-finite values" in err
     assert not (tmp_path / "r2" / "report.json").exists()  # refused before any sensor data was read

@@ -136,5 +136,6 @@ def _recovery_lines(report: dict) -> list[str]:
         lines.append(f"feed-forward windows rejected: {reasons}")
     resets = (report["pipeline"].get("filter") or {}).get("divergence_resets") or 0
     if resets:
-        lines.append(f"filter resets after divergence: {resets} ({len(report.get('segments') or [])} segments)")
+        segments = len(report.get("segments") or [])
+        lines.append(f"filter resets after divergence: {resets} ({segments} segments)")
     return lines
