@@ -95,6 +95,17 @@ def _quat_rows(q: np.ndarray, lines: list[int], path: Path) -> None:
         raise TrajectoryError(f"quaternion norm {norms[bad[0]]:.4f} is not 1", path, lines[int(bad[0])])
 
 
+def _finish(path: Path, fmt: str, t_ns: list[int], lines: list[int], p: np.ndarray, q_wxyz: np.ndarray,
+            strictly_increasing: bool, **extra: np.ndarray) -> PoseTrajectory:
+    """The checks every format shares (non-empty, stamp order, unit quaternions), then the trajectory."""
+    if not t_ns:
+        raise TrajectoryError("no poses in file", path)
+    repeats = _check_order(t_ns, lines, path, strictly_increasing)
+    _quat_rows(q_wxyz, lines, path)
+    return PoseTrajectory(np.array(t_ns, dtype=np.int64), p, quat_wxyz_to_rot(q_wxyz),
+                          meta={"source": str(path), "format": fmt, "repeated_stamps": repeats}, **extra)
+
+
 def read_tum(path: str | Path, strictly_increasing: bool = False) -> PoseTrajectory:
     """Read a TUM file (`t[s] x y z qx qy qz qw`, '#' comments) into poses T_WB."""
     path = Path(path)
@@ -111,14 +122,8 @@ def read_tum(path: str | Path, strictly_increasing: bool = False) -> PoseTraject
             raise TrajectoryError(f"bad timestamp: {exc}", path, lineno) from exc
         vals.append(_floats(f[1:], path, lineno))
         lines.append(lineno)
-    if not t_ns:
-        raise TrajectoryError("no poses in file", path)
-    repeats = _check_order(t_ns, lines, path, strictly_increasing)
-    v = np.array(vals)
-    q_wxyz = v[:, [6, 3, 4, 5]]
-    _quat_rows(q_wxyz, lines, path)
-    return PoseTrajectory(np.array(t_ns, dtype=np.int64), v[:, 0:3], quat_wxyz_to_rot(q_wxyz),
-                          meta={"source": str(path), "format": "tum", "repeated_stamps": repeats})
+    v = np.array(vals).reshape(-1, 7)
+    return _finish(path, "tum", t_ns, lines, v[:, 0:3], v[:, [6, 3, 4, 5]], strictly_increasing)
 
 
 def read_euroc_csv(path: str | Path, strictly_increasing: bool = False) -> PoseTrajectory:
@@ -146,14 +151,9 @@ def read_euroc_csv(path: str | Path, strictly_increasing: bool = False) -> PoseT
         t_ns.append(int(f[0]))
         vals.append(_floats(f[1:], path, lineno))
         lines.append(lineno)
-    if not t_ns:
-        raise TrajectoryError("no poses in file", path)
-    repeats = _check_order(t_ns, lines, path, strictly_increasing)
-    v = np.array(vals)
-    _quat_rows(v[:, 3:7], lines, path)
-    extra = {} if width == 8 else {"v": v[:, 7:10], "bg": v[:, 10:13], "ba": v[:, 13:16]}
-    return PoseTrajectory(np.array(t_ns, dtype=np.int64), v[:, 0:3], quat_wxyz_to_rot(v[:, 3:7]),
-                          meta={"source": str(path), "format": "euroc", "repeated_stamps": repeats}, **extra)
+    v = np.array(vals).reshape(-1, 7 if width is None else width - 1)
+    extra = {} if width in (None, 8) else {"v": v[:, 7:10], "bg": v[:, 10:13], "ba": v[:, 13:16]}
+    return _finish(path, "euroc", t_ns, lines, v[:, 0:3], v[:, 3:7], strictly_increasing, **extra)
 
 
 def detect_format(path: str | Path) -> str:
