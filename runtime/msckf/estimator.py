@@ -97,6 +97,8 @@ class _Counters:
     divergence_resets: int = 0
     #: largest rejected share over a window of MsckfConfig.chi2_health_frames frames
     chi2_rejection_fraction_max: float = 0.0
+    #: fewest visual measurements accepted over a full window of chi2_health_frames visual frames
+    visual_accepted_min: int | None = None
     init_sources: dict = field(default_factory=dict)
     divergence_reasons: list = field(default_factory=list)
     time_frame_s: float = 0.0
@@ -144,6 +146,8 @@ class MsckfEstimator:
         self._t_init_ns = 0
         self._frames_without_update = 0
         self._chi2_window: deque = deque(maxlen=self.config.chi2_health_frames)  # (tested, rejected)
+        #: accepted visual measurements per visual-update frame since the last zero-velocity update
+        self._accepted_window: deque = deque(maxlen=self.config.chi2_health_frames)
         self._last_w = np.zeros(3)
         self._last_samples: tuple | None = None
         seed = self.config.feature_order_seed
@@ -224,6 +228,7 @@ class MsckfEstimator:
         self._t_init_ns = int(t_ns)
         self._frames_without_update = 0
         self._chi2_window.clear()
+        self._accepted_window.clear()
         self.db.clear()
         self._pending = deque(f for f in self._pending if f[0] + int(round(st.t_d * 1e9)) > st.t_ns)
         self.counters.initializations += 1
@@ -466,6 +471,7 @@ class MsckfEstimator:
             c.frames_without_features += 1
         if cfg.try_zupt and zupt_update(st, cfg, self.db, self._last_samples, t_cam, ids, uv):
             c.zupt_applied += 1
+            self._accepted_window.clear()  # standing still: no parallax to triangulate, and no need
             c.frames_processed += 1
             c.time_frame_s += time.perf_counter() - t0
             c.cpu_frame_s += time.thread_time() - t0_cpu
@@ -551,6 +557,7 @@ class MsckfEstimator:
         updated = ms.used > 0 or sst.updated > 0 or len(added) > 0
         rejected = ms.chi2_rejected + sst.chi2_rejected
         self._chi2_window.append((ms.used + sst.updated + rejected, rejected))
+        self._accepted_window.append(ms.used + sst.updated)
         c.frames_processed += 1
         c.time_frame_s += time.perf_counter() - t0
         c.cpu_frame_s += time.thread_time() - t0_cpu
@@ -581,7 +588,13 @@ class MsckfEstimator:
         if tested >= self.config.min_chi2_health_tests:
             self.counters.chi2_rejection_fraction_max = max(self.counters.chi2_rejection_fraction_max,
                                                             rejected / tested)
-        reason = divergence_reason(self.state_, self.config, self._frames_without_update, tested, rejected)
+        acc = self._accepted_window
+        accepted = sum(acc) if len(acc) == acc.maxlen else None
+        if accepted is not None:
+            self.counters.visual_accepted_min = (accepted if self.counters.visual_accepted_min is None
+                                                 else min(self.counters.visual_accepted_min, accepted))
+        reason = divergence_reason(self.state_, self.config, self._frames_without_update, tested, rejected,
+                                   accepted)
         if reason is not None:
             self.reset(reason)
             return None
@@ -596,6 +609,7 @@ class MsckfEstimator:
         self.init_source = None
         self._frames_without_update = 0
         self._chi2_window.clear()
+        self._accepted_window.clear()
         self.db.clear()
         self._pending.clear()
         for ini in self.initializers:

@@ -9,11 +9,14 @@ from runtime.msckf.state import State
 
 
 def divergence_reason(state: State, cfg: MsckfConfig, frames_without_update: int,
-                      chi2_tested: int = 0, chi2_rejected: int = 0) -> str | None:
+                      chi2_tested: int = 0, chi2_rejected: int = 0,
+                      visual_accepted: int | None = None) -> str | None:
     """A short reason when the filter has diverged, else None.
 
     chi2_tested / chi2_rejected: visual measurements that reached the chi-square gate over the last
     `cfg.chi2_health_frames` frames, and how many of them it rejected.
+    visual_accepted: visual measurements accepted over the last `cfg.chi2_health_frames` frames with a
+    visual update since the last zero-velocity update, or None while fewer frames have passed.
     """
     vals = (state.R, state.p, state.v, state.bg, state.ba)
     if not all(np.all(np.isfinite(x)) for x in vals) or not np.all(np.isfinite(state.P)):
@@ -32,6 +35,9 @@ def divergence_reason(state: State, cfg: MsckfConfig, frames_without_update: int
         return f"accel bias {np.abs(state.ba).max():.3g} m/s^2 > {cfg.max_accel_bias}"
     if frames_without_update > cfg.max_frames_without_features:
         return f"no feature update for {frames_without_update} frames"
+    if visual_accepted is not None and visual_accepted < cfg.min_visual_measurements:
+        return (f"only {visual_accepted} visual measurements accepted over {cfg.chi2_health_frames} frames "
+                f"(< {cfg.min_visual_measurements}): dead reckoning on the IMU")
     if (cfg.max_chi2_rejection_fraction < 1.0 and chi2_tested >= cfg.min_chi2_health_tests
             and chi2_rejected > cfg.max_chi2_rejection_fraction * chi2_tested):
         return (f"chi-square rejected {chi2_rejected} of {chi2_tested} visual measurements over "

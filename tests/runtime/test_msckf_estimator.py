@@ -92,7 +92,7 @@ def _init(est: MsckfEstimator, dv: np.ndarray) -> None:
 def test_features_correct_a_velocity_error() -> None:
     imu, frames = _stream(8.0)
     dv = np.array([0.05, -0.05, 0.02])
-    cfg = MsckfConfig(max_frames_without_features=10_000)
+    cfg = MsckfConfig(max_frames_without_features=10_000, min_visual_measurements=0)  # dead reckoning arm
     with_f = MsckfEstimator(_rig(), cfg)
     _init(with_f, dv)
     s1 = _run(with_f, imu, frames, True)
@@ -277,6 +277,21 @@ def test_zero_velocity_update_holds_a_static_body() -> None:
     assert np.linalg.norm(snaps[-1].p_OI) < 0.02
     # the velocity uncertainty is pulled down by the zero-velocity pseudo-measurements
     assert np.sqrt(snaps[-1].covariance[6, 6]) < 0.01
+
+
+def test_standing_still_is_not_taken_for_a_blind_filter() -> None:
+    """At rest nothing triangulates; the zero-velocity updates restart the count of accepted visual
+    measurements, so the blind-filter check stays quiet; without them it resets the filter."""
+    imu, frames = _static_stream(3.0)
+    for zupt, resets in ((True, 0), (False, 1)):
+        cfg = replace(MsckfConfig(**IMU_ZUPT), try_zupt=zupt, chi2_health_frames=10)
+        est = MsckfEstimator(_rig(), cfg)
+        est.initialize_from_state(0, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3))
+        _run(est, imu, frames)
+        rep = est.report()
+        assert rep["divergence_resets"] == resets
+        if resets:
+            assert "0 visual measurements accepted over 10 frames" in rep["divergence_reasons"][0]
 
 
 @pytest.mark.parametrize("disparity", [False, True])
@@ -498,7 +513,42 @@ def test_images_that_contradict_the_state_reset_the_filter() -> None:
     _run(bad, imu, shuffled)
     rep = bad.report()
     assert rep["divergence_resets"] >= 1 and "chi-square rejected" in rep["divergence_reasons"][0]
-    off = MsckfEstimator(_rig(), replace(cfg, max_chi2_rejection_fraction=1.0))
+    off = MsckfEstimator(_rig(), replace(cfg, max_chi2_rejection_fraction=1.0, min_visual_measurements=0))
     _init(off, np.zeros(3))
     _run(off, imu, shuffled)
     assert off.report()["divergence_resets"] == 0 and off.report()["chi2_rejection_fraction_max"] > 0.75
+
+
+def test_a_filter_that_only_dead_reckons_is_reset() -> None:
+    """After 1.5 s only one real landmark is tracked, among 150 image points that stay put while the
+    camera moves (nothing triangulates). The rare update from the real landmark keeps the
+    consecutive-frames starvation counter from firing, and the chi-square share stays low; the count of
+    accepted visual measurements over the window catches it (MsckfConfig.min_visual_measurements)."""
+    imu, frames = _stream(8.0)
+    rng = np.random.default_rng(3)
+    fixed = rng.uniform([20, 20], [730, 460], size=(150, 2))
+    blind = frames[:15]
+    for t, ids, uv in frames[15:]:
+        keep = ids == ids.min()
+        blind.append((t, np.r_[ids[keep], 10_000 + np.arange(150)],
+                      np.r_[uv[keep], fixed + rng.normal(0, 0.5, fixed.shape)]))
+    cfg = MsckfConfig(max_frames_without_features=15, chi2_health_frames=20)
+    est = MsckfEstimator(_rig(), cfg)
+    _init(est, np.zeros(3))
+    _run(est, imu, blind)
+    rep = est.report()
+    assert rep["divergence_resets"] == 1
+    reason = rep["divergence_reasons"][0]
+    assert "visual measurements accepted over 20 frames (< 10): dead reckoning" in reason
+    off = MsckfEstimator(_rig(), replace(cfg, min_visual_measurements=0))
+    _init(off, np.zeros(3))
+    _run(off, imu, blind)
+    rep_off = off.report()
+    assert rep_off["divergence_resets"] == 0 and rep_off["msckf_features_used"] > 0
+    assert rep_off["visual_accepted_min"] < 10 and rep_off["chi2_rejection_fraction_max"] < 0.75
+    good = MsckfEstimator(_rig(), cfg)
+    _init(good, np.zeros(3))
+    _run(good, imu, frames)
+    assert good.report()["divergence_resets"] == 0 and good.report()["visual_accepted_min"] > 100
+    with pytest.raises(ConfigError, match="min_visual_measurements"):
+        MsckfConfig(min_visual_measurements=-1)
