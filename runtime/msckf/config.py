@@ -121,13 +121,15 @@ class MsckfConfig:
     chi2_health_frames: int = 40  #: frames with a visual update in that window (2 s at 20 Hz)
     min_chi2_health_tests: int = 100  #: tested measurements the window needs before the share is judged
     #: fewest visual measurements (MSCKF features + SLAM observations) the filter must accept over its last
-    #: `chi2_health_frames` frames with a visual update (a zero-velocity update restarts the count);
+    #: `visual_health_frames` frames with a visual update (a zero-velocity update restarts the count);
     #: below it the filter only dead-reckons on the IMU while a rare accepted feature keeps the
     #: `max_frames_without_features` counter from firing, and is reset. Its tracks then fail triangulation
-    #: because the state is wrong (a wrong-scale start). Measured over `davio bench startup` windows of the
-    #: presets and V1_02 / MH_03: healthy segments accept >= 32 (most > 300), the segments that drifted
-    #: 0.9-15 m accepted 0-1. 0 disables the check
-    min_visual_measurements: int = 10
+    #: because the state is wrong (a wrong-scale or wrong-velocity start). Measured over every
+    #: `davio bench startup` window of the presets and V1_02 / MH_03 (60 frames): healthy published segments
+    #: accepted >= 116 (nearly all > 400), the segments that drifted 1-15 m accepted 1-8. 40 frames was too
+    #: short: a healthy start that stood still and then moved slowly accepted 0 for 40 frames. 0 disables
+    min_visual_measurements: int = 20
+    visual_health_frames: int = 60  #: frames with a visual update in that window (3 s at 20 Hz)
 
     def __post_init__(self) -> None:
         if self.integration not in ("rk4",):
@@ -164,8 +166,9 @@ class MsckfConfig:
                               f"got {self.max_chi2_rejection_fraction}")
         if self.chi2_health_frames < 1 or self.min_chi2_health_tests < 1:
             raise ConfigError("chi2_health_frames and min_chi2_health_tests must be >= 1")
-        if self.min_visual_measurements < 0:
-            raise ConfigError(f"min_visual_measurements must be >= 0, got {self.min_visual_measurements}")
+        if self.min_visual_measurements < 0 or self.visual_health_frames < 1:
+            raise ConfigError("min_visual_measurements must be >= 0 and visual_health_frames >= 1, got "
+                              f"{self.min_visual_measurements} and {self.visual_health_frames}")
         if self.calib_intrinsics:
             for f in ("sigma_calib_focal", "sigma_calib_center", "sigma_calib_distortion"):
                 v = getattr(self, f)

@@ -97,7 +97,7 @@ class _Counters:
     divergence_resets: int = 0
     #: largest rejected share over a window of MsckfConfig.chi2_health_frames frames
     chi2_rejection_fraction_max: float = 0.0
-    #: fewest visual measurements accepted over a full window of chi2_health_frames visual frames
+    #: fewest visual measurements accepted over a full window of visual_health_frames visual frames
     visual_accepted_min: int | None = None
     init_sources: dict = field(default_factory=dict)
     divergence_reasons: list = field(default_factory=list)
@@ -147,7 +147,7 @@ class MsckfEstimator:
         self._frames_without_update = 0
         self._chi2_window: deque = deque(maxlen=self.config.chi2_health_frames)  # (tested, rejected)
         #: accepted visual measurements per visual-update frame since the last zero-velocity update
-        self._accepted_window: deque = deque(maxlen=self.config.chi2_health_frames)
+        self._accepted_window: deque = deque(maxlen=self.config.visual_health_frames)
         self._last_w = np.zeros(3)
         self._last_samples: tuple | None = None
         seed = self.config.feature_order_seed

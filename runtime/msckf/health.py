@@ -15,7 +15,7 @@ def divergence_reason(state: State, cfg: MsckfConfig, frames_without_update: int
 
     chi2_tested / chi2_rejected: visual measurements that reached the chi-square gate over the last
     `cfg.chi2_health_frames` frames, and how many of them it rejected.
-    visual_accepted: visual measurements accepted over the last `cfg.chi2_health_frames` frames with a
+    visual_accepted: visual measurements accepted over the last `cfg.visual_health_frames` frames with a
     visual update since the last zero-velocity update, or None while fewer frames have passed.
     """
     vals = (state.R, state.p, state.v, state.bg, state.ba)
@@ -36,7 +36,7 @@ def divergence_reason(state: State, cfg: MsckfConfig, frames_without_update: int
     if frames_without_update > cfg.max_frames_without_features:
         return f"no feature update for {frames_without_update} frames"
     if visual_accepted is not None and visual_accepted < cfg.min_visual_measurements:
-        return (f"only {visual_accepted} visual measurements accepted over {cfg.chi2_health_frames} frames "
+        return (f"only {visual_accepted} visual measurements accepted over {cfg.visual_health_frames} frames "
                 f"(< {cfg.min_visual_measurements}): dead reckoning on the IMU")
     if (cfg.max_chi2_rejection_fraction < 1.0 and chi2_tested >= cfg.min_chi2_health_tests
             and chi2_rejected > cfg.max_chi2_rejection_fraction * chi2_tested):

@@ -284,7 +284,7 @@ def test_standing_still_is_not_taken_for_a_blind_filter() -> None:
     measurements, so the blind-filter check stays quiet; without them it resets the filter."""
     imu, frames = _static_stream(3.0)
     for zupt, resets in ((True, 0), (False, 1)):
-        cfg = replace(MsckfConfig(**IMU_ZUPT), try_zupt=zupt, chi2_health_frames=10)
+        cfg = replace(MsckfConfig(**IMU_ZUPT), try_zupt=zupt, visual_health_frames=10)
         est = MsckfEstimator(_rig(), cfg)
         est.initialize_from_state(0, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3))
         _run(est, imu, frames)
@@ -532,23 +532,25 @@ def test_a_filter_that_only_dead_reckons_is_reset() -> None:
         keep = ids == ids.min()
         blind.append((t, np.r_[ids[keep], 10_000 + np.arange(150)],
                       np.r_[uv[keep], fixed + rng.normal(0, 0.5, fixed.shape)]))
-    cfg = MsckfConfig(max_frames_without_features=15, chi2_health_frames=20)
+    cfg = MsckfConfig(max_frames_without_features=15, visual_health_frames=20)
     est = MsckfEstimator(_rig(), cfg)
     _init(est, np.zeros(3))
     _run(est, imu, blind)
     rep = est.report()
     assert rep["divergence_resets"] == 1
     reason = rep["divergence_reasons"][0]
-    assert "visual measurements accepted over 20 frames (< 10): dead reckoning" in reason
+    assert "visual measurements accepted over 20 frames (< 20): dead reckoning" in reason
     off = MsckfEstimator(_rig(), replace(cfg, min_visual_measurements=0))
     _init(off, np.zeros(3))
     _run(off, imu, blind)
     rep_off = off.report()
     assert rep_off["divergence_resets"] == 0 and rep_off["msckf_features_used"] > 0
-    assert rep_off["visual_accepted_min"] < 10 and rep_off["chi2_rejection_fraction_max"] < 0.75
+    assert rep_off["visual_accepted_min"] < 20 and rep_off["chi2_rejection_fraction_max"] < 0.75
     good = MsckfEstimator(_rig(), cfg)
     _init(good, np.zeros(3))
     _run(good, imu, frames)
     assert good.report()["divergence_resets"] == 0 and good.report()["visual_accepted_min"] > 100
     with pytest.raises(ConfigError, match="min_visual_measurements"):
         MsckfConfig(min_visual_measurements=-1)
+    with pytest.raises(ConfigError, match="visual_health_frames"):
+        MsckfConfig(visual_health_frames=0)
