@@ -178,7 +178,7 @@ class OnnxDA3:
                                  f"{arr.size} (a broken export or an overflow in reduced precision)")
 
     def warm_up(self, views: int | None = None) -> float:
-        """One unconditioned call on blank frames, before any sensor data arrives; returns seconds.
+        """One unconditioned call on synthetic frames, before the run starts; returns seconds.
 
         `views` defaults to the graph's fixed view count, else 5 (the start-up window).
 
@@ -190,8 +190,12 @@ class OnnxDA3:
             ModelError: the graph fails or breaks the contract on the warm-up call.
         """
         views = views or self.graph_views or 5
-        img = np.full(self.cam_hw, 128, dtype=np.uint8)
-        frames = [Frame(t_ns=i * 200_000_000, image=img) for i in range(views)]
+        # textured and different per view (a flat or repeated image could take degenerate paths in a real
+        # network); fixed seed, so a warm-up failure is reproducible
+        h, w = self.cam_hw
+        tex = np.random.default_rng(0).integers(0, 256, (h, w + 8 * views), np.uint8)
+        frames = [Frame(t_ns=i * 200_000_000, image=np.ascontiguousarray(tex[:, 8 * i : 8 * i + w]))
+                  for i in range(views)]
         t0 = time.perf_counter()
         self._check_frames(frames)
         self._run(self._images(frames), np.tile(np.eye(3), (views, 1, 1)), np.tile(np.eye(4), (views, 1, 1)),

@@ -121,15 +121,17 @@ class MsckfConfig:
     chi2_health_frames: int = 40  #: frames with a visual update in that window (2 s at 20 Hz)
     min_chi2_health_tests: int = 100  #: tested measurements the window needs before the share is judged
     #: fewest visual measurements (MSCKF features + SLAM observations) the filter must accept over its last
-    #: `visual_health_frames` frames with a visual update (a zero-velocity update restarts the count);
+    #: `visual_health_frames` frames past the update step (a zero-velocity update restarts the count);
     #: below it the filter only dead-reckons on the IMU while a rare accepted feature keeps the
     #: `max_frames_without_features` counter from firing, and is reset. Its tracks then fail triangulation
     #: because the state is wrong (a wrong-scale or wrong-velocity start). Measured over every
     #: `davio bench startup` window of the presets and V1_02 / MH_03 (60 frames): healthy published segments
     #: accepted >= 116 (nearly all > 400), the segments that drifted 1-15 m accepted 1-8. 40 frames was too
-    #: short: a healthy start that stood still and then moved slowly accepted 0 for 40 frames. 0 disables
+    #: short: a healthy start that stood still and then moved slowly accepted 0 for 40 frames. 0 disables the
+    #: check.
     min_visual_measurements: int = 20
-    visual_health_frames: int = 60  #: frames with a visual update in that window (3 s at 20 Hz)
+    #: frames past the update step in that window: 3 s at EuRoC's 20 Hz (scale it with the camera rate)
+    visual_health_frames: int = 60
 
     def __post_init__(self) -> None:
         if self.integration not in ("rk4",):

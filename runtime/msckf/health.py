@@ -15,8 +15,8 @@ def divergence_reason(state: State, cfg: MsckfConfig, frames_without_update: int
 
     chi2_tested / chi2_rejected: visual measurements that reached the chi-square gate over the last
     `cfg.chi2_health_frames` frames, and how many of them it rejected.
-    visual_accepted: visual measurements accepted over the last `cfg.visual_health_frames` frames with a
-    visual update since the last zero-velocity update, or None while fewer frames have passed.
+    visual_accepted: visual measurements accepted over the last `cfg.visual_health_frames` frames past the
+    update step since the last zero-velocity update, or None while fewer frames have passed.
     """
     vals = (state.R, state.p, state.v, state.bg, state.ba)
     if not all(np.all(np.isfinite(x)) for x in vals) or not np.all(np.isfinite(state.P)):

@@ -112,3 +112,25 @@ def test_odometry_file_round_trips_published_states(tmp_path):
     traj = published_trajectory(pub)
     assert list(traj.t_ns) == [1_000_000_000, 1_000_000_001, 1_000_000_002]
     np.testing.assert_allclose(traj.p[:, 0], [0, 1, 2])
+
+
+def test_recovery_lines_name_every_counted_recovery():
+    from tools.commands.run import _recovery_lines
+
+    clean = {"driver": {"streams": {"imu0": {"dropped_nonfinite": 0, "emitted": 10}}},
+             "pipeline": {"startup": {"ff_rejections": {}, "restarts_after_divergence": 0}}}
+    assert _recovery_lines(clean) == []
+    report = {
+        "driver": {"streams": {"imu0": {"dropped_duplicate": 2, "gaps": 1, "emitted": 10},
+                               "cam0": {"unreadable_images": 1}}},
+        "pipeline": {"startup": {"ff_rejections": {"small_baseline": 3, "refit_failed": 1},
+                                 "restarts_after_divergence": 2},
+                     "filter": {"divergence_resets": 0}},  # the last filter's own counter: not the total
+        "segments": [{}, {}, {}],
+    }
+    assert _recovery_lines(report) == [
+        "input imu0: duplicates dropped 2, gaps 1",
+        "input cam0: unreadable images 1",
+        "feed-forward windows rejected: refit_failed x1, small_baseline x3",
+        "filter resets after divergence: 2 (3 segments)",
+    ]

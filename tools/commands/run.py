@@ -64,7 +64,8 @@ def run(args: argparse.Namespace) -> int:
         from models.da3 import OnnxDA3
 
         model = OnnxDA3(args.model, rig.camera)
-        warm_s = model.warm_up()  # one-off session costs are paid here, not by the start-up window
+        # one-off session costs are paid here, at the start-up window's shape, not by the first window
+        warm_s = model.warm_up(config.startup.window_images)
         model_desc = (f"DA3 ONNX {args.model} on {model.session_info['providers'][0]} "
                       f"(warm-up call {warm_s:.2f} s)")
     elif args.emulated or (rec.kind == "simulated" and not args.native_only):
@@ -134,7 +135,8 @@ def _recovery_lines(report: dict) -> list[str]:
     if startup.get("ff_rejections"):
         reasons = ", ".join(f"{k} x{v}" for k, v in sorted(startup["ff_rejections"].items()))
         lines.append(f"feed-forward windows rejected: {reasons}")
-    resets = (report["pipeline"].get("filter") or {}).get("divergence_resets") or 0
+    # every diverged filter sends start-up back to both initializers (the filter counters only know their own)
+    resets = startup.get("restarts_after_divergence") or 0
     if resets:
         segments = len(report.get("segments") or [])
         lines.append(f"filter resets after divergence: {resets} ({segments} segments)")
