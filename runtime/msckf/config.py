@@ -121,17 +121,19 @@ class MsckfConfig:
     chi2_health_frames: int = 40  #: frames with a visual update in that window (2 s at 20 Hz)
     min_chi2_health_tests: int = 100  #: tested measurements the window needs before the share is judged
     #: fewest visual measurements (MSCKF features + SLAM observations) the filter must accept over its last
-    #: `visual_health_frames` frames past the update step (a zero-velocity update restarts the count);
-    #: below it the filter only dead-reckons on the IMU while a rare accepted feature keeps the
-    #: `max_frames_without_features` counter from firing, and is reset. Its tracks then fail triangulation
-    #: because the state is wrong (a wrong-scale or wrong-velocity start). Measured over every
-    #: `davio bench startup` window of the presets and V1_02 / MH_03 (60 frames): healthy published segments
-    #: accepted >= 116 (nearly all > 400), the segments that drifted 1-15 m accepted 1-8. 40 frames was too
-    #: short: a healthy start that stood still and then moved slowly accepted 0 for 40 frames. 0 disables the
-    #: check.
-    min_visual_measurements: int = 20
-    #: frames past the update step in that window: 3 s at EuRoC's 20 Hz (scale it with the camera rate)
-    visual_health_frames: int = 60
+    #: `visual_health_frames` frames past the update step; below it the filter only dead-reckons on the IMU
+    #: while a rare accepted feature keeps the `max_frames_without_features` counter from firing, and is
+    #: reset. Its tracks then fail triangulation because the state is wrong (a wrong-scale or wrong-velocity
+    #: start). Measured over every `davio bench startup` window of the presets and V1_02 / MH_03 with the
+    #: check off: healthy published segments accepted >= 32 (nearly all > 300), the segments that drifted
+    #: 0.9-15 m accepted 0-1. 0 disables the check.
+    min_visual_measurements: int = 10
+    #: frames past the update step in that window: 2 s at EuRoC's 20 Hz (scale it with the camera rate)
+    visual_health_frames: int = 40
+    #: after a zero-velocity update the count restarts and is first judged after this many frames: motion out
+    #: of a standstill needs time to build parallax (a healthy MH_03 start that stood still, then moved
+    #: slowly, accepted 0 measurements over its first 40 frames and 415 over its first 60)
+    visual_health_frames_after_zupt: int = 60
 
     def __post_init__(self) -> None:
         if self.integration not in ("rk4",):
@@ -171,6 +173,9 @@ class MsckfConfig:
         if self.min_visual_measurements < 0 or self.visual_health_frames < 1:
             raise ConfigError("min_visual_measurements must be >= 0 and visual_health_frames >= 1, got "
                               f"{self.min_visual_measurements} and {self.visual_health_frames}")
+        if self.visual_health_frames_after_zupt < self.visual_health_frames:
+            raise ConfigError(f"visual_health_frames_after_zupt ({self.visual_health_frames_after_zupt}) "
+                              f"must be >= visual_health_frames ({self.visual_health_frames})")
         if self.calib_intrinsics:
             for f in ("sigma_calib_focal", "sigma_calib_center", "sigma_calib_distortion"):
                 v = getattr(self, f)

@@ -146,8 +146,10 @@ class MsckfEstimator:
         self._t_init_ns = 0
         self._frames_without_update = 0
         self._chi2_window: deque = deque(maxlen=self.config.chi2_health_frames)  # (tested, rejected)
-        #: accepted visual measurements per visual-update frame since the last zero-velocity update
+        #: accepted visual measurements per frame past the update step, since the last restart of the count
         self._accepted_window: deque = deque(maxlen=self.config.visual_health_frames)
+        self._accepted_frames = 0  # frames appended since that restart
+        self._accepted_needed = self.config.visual_health_frames  # frames before the first judgement
         self._last_w = np.zeros(3)
         self._last_samples: tuple | None = None
         seed = self.config.feature_order_seed
@@ -228,7 +230,7 @@ class MsckfEstimator:
         self._t_init_ns = int(t_ns)
         self._frames_without_update = 0
         self._chi2_window.clear()
-        self._accepted_window.clear()
+        self._restart_visual_count(self.config.visual_health_frames)
         self.db.clear()
         self._pending = deque(f for f in self._pending if f[0] + int(round(st.t_d * 1e9)) > st.t_ns)
         self.counters.initializations += 1
@@ -471,7 +473,8 @@ class MsckfEstimator:
             c.frames_without_features += 1
         if cfg.try_zupt and zupt_update(st, cfg, self.db, self._last_samples, t_cam, ids, uv):
             c.zupt_applied += 1
-            self._accepted_window.clear()  # standing still: no parallax to triangulate, and no need
+            # standing still: no parallax to triangulate, and no need; moving off needs time to build it
+            self._restart_visual_count(cfg.visual_health_frames_after_zupt)
             c.frames_processed += 1
             c.time_frame_s += time.perf_counter() - t0
             c.cpu_frame_s += time.thread_time() - t0_cpu
@@ -558,10 +561,17 @@ class MsckfEstimator:
         rejected = ms.chi2_rejected + sst.chi2_rejected
         self._chi2_window.append((ms.used + sst.updated + rejected, rejected))
         self._accepted_window.append(ms.used + sst.updated)
+        self._accepted_frames += 1
         c.frames_processed += 1
         c.time_frame_s += time.perf_counter() - t0
         c.cpu_frame_s += time.thread_time() - t0_cpu
         return self._after_frame(t_cam, updated)
+
+    def _restart_visual_count(self, needed: int) -> None:
+        """Restart the blind-filter count; the first judgement comes after `needed` frames (>= the window)."""
+        self._accepted_window.clear()
+        self._accepted_frames = 0
+        self._accepted_needed = needed
 
     def _earliest_created(self, tracks: list, n: int) -> list:
         """The n tracks of `tracks` that entered the database first (its dict keeps creation order).
@@ -589,7 +599,7 @@ class MsckfEstimator:
             self.counters.chi2_rejection_fraction_max = max(self.counters.chi2_rejection_fraction_max,
                                                             rejected / tested)
         acc = self._accepted_window
-        accepted = sum(acc) if len(acc) == acc.maxlen else None
+        accepted = sum(acc) if self._accepted_frames >= self._accepted_needed else None
         if accepted is not None:
             self.counters.visual_accepted_min = (accepted if self.counters.visual_accepted_min is None
                                                  else min(self.counters.visual_accepted_min, accepted))
@@ -609,7 +619,7 @@ class MsckfEstimator:
         self.init_source = None
         self._frames_without_update = 0
         self._chi2_window.clear()
-        self._accepted_window.clear()
+        self._restart_visual_count(self.config.visual_health_frames)
         self.db.clear()
         self._pending.clear()
         for ini in self.initializers:

@@ -16,7 +16,8 @@ def divergence_reason(state: State, cfg: MsckfConfig, frames_without_update: int
     chi2_tested / chi2_rejected: visual measurements that reached the chi-square gate over the last
     `cfg.chi2_health_frames` frames, and how many of them it rejected.
     visual_accepted: visual measurements accepted over the last `cfg.visual_health_frames` frames past the
-    update step since the last zero-velocity update, or None while fewer frames have passed.
+    update step, or None until the count may be judged (after an initialization, a reset or a
+    zero-velocity update: see `MsckfConfig.visual_health_frames_after_zupt`).
     """
     vals = (state.R, state.p, state.v, state.bg, state.ba)
     if not all(np.all(np.isfinite(x)) for x in vals) or not np.all(np.isfinite(state.P)):

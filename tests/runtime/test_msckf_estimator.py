@@ -309,6 +309,44 @@ def test_standing_still_is_not_taken_for_a_blind_filter(monkeypatch) -> None:
     assert "0 visual measurements accepted over 5 frames" in est.report()["divergence_reasons"][0]
 
 
+def _zupt_for_first(n: int, real):
+    """A zupt_update that answers as `real` for its first n calls and 'moving' after."""
+    calls = [0]
+
+    def zupt(*args):
+        calls[0] += 1
+        return calls[0] <= n and real(*args)
+
+    return zupt
+
+
+def test_after_a_standstill_the_blind_count_waits_longer(monkeypatch) -> None:
+    """The zero-velocity update holds for 2 s, then stops (forced here); the body still stands, so every
+    later frame accepts nothing. The reset comes `visual_health_frames_after_zupt` frames after the last
+    zero-velocity update: 7 frames later with 12 than with 5 (the window itself is 5 frames)."""
+    import runtime.msckf.estimator as estimator_module
+
+    imu, frames = _static_stream(6.0)
+    real_zupt = estimator_module.zupt_update
+    reset_at = {}
+    for after in (5, 12):
+        monkeypatch.setattr(estimator_module, "zupt_update", _zupt_for_first(20, real_zupt))
+        cfg = replace(MsckfConfig(**IMU_ZUPT), visual_health_frames=5, visual_health_frames_after_zupt=after)
+        est = MsckfEstimator(_rig(), cfg)
+        est.initialize_from_state(0, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3))
+        k = 0
+        for i, (t_ns, ids, uv) in enumerate(frames):
+            while k < len(imu) and imu[k].t_ns <= t_ns + 5_000_000:
+                est.feed_imu(imu[k])
+                k += 1
+            est.feed_tracks(t_ns, ids, uv)
+            if not est.initialized:
+                reset_at[after] = i
+                break
+        assert 15 <= est.report()["zupt_applied"] <= 20
+    assert reset_at[12] - reset_at[5] == 7
+
+
 @pytest.mark.parametrize("disparity", [False, True])
 def test_zero_velocity_update_is_not_applied_while_moving(disparity: bool) -> None:
     imu, frames = _stream(2.0)
@@ -554,13 +592,13 @@ def test_a_filter_that_only_dead_reckons_is_reset() -> None:
     rep = est.report()
     assert rep["divergence_resets"] == 1
     reason = rep["divergence_reasons"][0]
-    assert "visual measurements accepted over 20 frames (< 20): dead reckoning" in reason
+    assert "visual measurements accepted over 20 frames (< 10): dead reckoning" in reason
     off = MsckfEstimator(_rig(), replace(cfg, min_visual_measurements=0))
     _init(off, np.zeros(3))
     _run(off, imu, blind)
     rep_off = off.report()
     assert rep_off["divergence_resets"] == 0 and rep_off["msckf_features_used"] > 0
-    assert rep_off["visual_accepted_min"] < 20 and rep_off["chi2_rejection_fraction_max"] < 0.75
+    assert rep_off["visual_accepted_min"] < 10 and rep_off["chi2_rejection_fraction_max"] < 0.75
     good = MsckfEstimator(_rig(), cfg)
     _init(good, np.zeros(3))
     _run(good, imu, frames)
@@ -569,3 +607,5 @@ def test_a_filter_that_only_dead_reckons_is_reset() -> None:
         MsckfConfig(min_visual_measurements=-1)
     with pytest.raises(ConfigError, match="visual_health_frames"):
         MsckfConfig(visual_health_frames=0)
+    with pytest.raises(ConfigError, match="visual_health_frames_after_zupt"):
+        MsckfConfig(visual_health_frames=40, visual_health_frames_after_zupt=30)
