@@ -1,0 +1,53 @@
+"""Mapping configuration (paper Sec. III and V): keyframe windows, the conditioned-call gates, frame
+scales, multi-view rejection and voxel fusion. Defaults are the paper's numbers."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass
+class MappingConfig:
+    """Pose-conditioned dense mapping."""
+
+    enabled: bool = True
+    """Map whenever a depth model is given (`davio run --no-map` turns it off)."""
+    keyframe_spacing_s: float = 0.5
+    """Keyframes at this sensor-time spacing during tracking (Sec. III)."""
+    window_images: int = 5
+    """Keyframes per mapping window."""
+    shared_images: int = 2
+    """Keyframes shared by consecutive windows (a new window every window_images - shared_images)."""
+    max_pending_windows: int = 2
+    """Bounded mapping queue: when it is full the oldest pending window is dropped (counted)."""
+    min_baseline_m: float = 0.05
+    """Accept a window only if its metric baseline (largest camera-centre distance) exceeds this."""
+    max_fit_rmse_m: float = 0.15
+    """... and the similarity fit of returned to VIO camera centres has at most this RMSE ..."""
+    max_abs_log_scale: float = 0.3
+    """... and |log s_hat| of that fit is at most this."""
+    frame_scale_rounds: int = 8
+    """Rounds of depth-normalised, outlier-reweighted least squares for the per-frame scales."""
+    frame_scale_prior_sigma: float = 0.1
+    """Weak unit prior on each per-frame scale (in units of the depth-normalised residual)."""
+    frame_scale_huber: float = 0.05
+    """Scale of the outlier weights 1 / (1 + (r / this)^2) on the depth-normalised match residual."""
+    frame_scale_min_matches: int = 20
+    """Pairs with fewer matches than this do not enter the per-frame scale solve."""
+    frame_scale_pair_offsets: tuple[int, ...] = (1, 2)
+    """Images this many positions apart are matched for the per-frame scales."""
+    multiview_rel_depth: float = 0.10
+    """A depth is kept only if another frame of the window re-observes it within this relative depth."""
+    conf_percentile: float = 25.0
+    """DA3 confidence filter: pixels below this percentile of the window's confidence are dropped."""
+    pixel_stride: int = 4
+    """Depth pixels are sampled on this grid (pixels) before rejection, fusion and archiving."""
+    max_depth_m: float = 20.0
+    """Depths beyond this are not mapped (DA3's far range is unreliable)."""
+    voxel_m: float = 0.04
+    """Fusion voxel size (m)."""
+    max_resident_submaps: int = 24
+    """Submaps kept in memory (their voxels stay fused; older ones leave memory, archives stay on disk)."""
+    min_overlap_pixels: int = 200
+    """Fewest aligned valid pixels for a shared-image or projected-overlap depth ratio."""
+    min_scale_sigma: float = 0.03
+    """Floor of sigma_ab for the shared-image scale residual (eq. shared)."""

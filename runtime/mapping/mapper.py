@@ -1,0 +1,302 @@
+"""The mapper: one accepted window -> one submap, committed to the fused map and handed to a sink.
+
+Per window (run by the model worker, never by the tracking thread):
+  1. the conditioned DA3 call and its gates (conditioned.py);
+  2. per-frame scales from in-window matches (frame_scales.py);
+  3. depth samples on a pixel grid, the confidence filter and multi-view rejection (multiview.py);
+  4. the submap (frame S_j = the centre image's camera, points kept in their image's camera frame);
+  5. the relative-scale link to the previous submap (shared_scale.py);
+  6. fusion into voxels over at most `max_resident_submaps` resident submaps (fusion.py);
+  7. the commit: a new map version, handed to the sink (the run's map archive).
+Here the submap poses come straight from the filter (T_MS_j = T_OS_j: the graph is the identity).
+"""
+from __future__ import annotations
+
+import time
+from collections import OrderedDict
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+
+from models.depth_model import DepthModel
+from runtime.errors import DavioError
+from runtime.mapping.conditioned import WindowFit, depth_call
+from runtime.mapping.config import MappingConfig
+from runtime.mapping.frame_scales import FrameScaleResult, PairMatches, solve_frame_scales
+from runtime.mapping.fusion import VoxelGrid
+from runtime.mapping.multiview import confidence_mask, reobserved, sample_grid
+from runtime.mapping.placement import backproject
+from runtime.mapping.shared_scale import ScaleLink, overlap_link, shared_link
+from runtime.mapping.submap import Submap
+from runtime.mapping.windows import MappingWindow
+
+MAX_ERROR_MESSAGES = 10
+
+
+@dataclass
+class MappingStats:
+    """Counters of the mapping layer (report.json "mapping")."""
+
+    windows_offered: int = 0
+    windows_dropped_queue: int = 0
+    windows_processed: int = 0
+    windows_accepted: int = 0
+    windows_rejected: dict = field(default_factory=dict)
+    model_errors: list = field(default_factory=list)
+    points_sampled: int = 0
+    rejected_invalid_depth: int = 0
+    rejected_confidence: int = 0
+    rejected_multiview: int = 0
+    points_retained: int = 0
+    frame_scale_solves: int = 0
+    frame_scale_unconstrained: int = 0
+    frame_scale_matches: int = 0
+    links_shared: int = 0
+    links_overlap: int = 0
+    links_missing: int = 0
+    submaps_resident: int = 0
+    submaps_evicted: int = 0
+    voxels: int = 0
+    map_version: int = 0
+    matcher: str = ""
+    stage_s: dict = field(default_factory=dict)
+
+    def reject(self, reason: str) -> None:
+        self.windows_rejected[reason] = self.windows_rejected.get(reason, 0) + 1
+
+
+@dataclass
+class MapCommit:
+    """What one commit changed: the new submap and its scale link to the previous one."""
+
+    version: int
+    submap: Submap
+    link: ScaleLink | None
+
+
+class Rectifier:
+    """Undistorts camera images to the pinhole view K_rect at the camera resolution (OpenCV remap
+    maps built once per rig; pinhole, radial-tangential and equidistant models)."""
+
+    def __init__(self, camera: Any, K_rect: np.ndarray) -> None:
+        self.K = np.asarray(K_rect, np.float64)
+        self.size = (int(camera.width), int(camera.height))
+        self._maps = None if camera.is_pinhole_rectified and np.allclose(camera.K, self.K) \
+            else camera.undistortion_maps(self.K, self.size)
+
+    def __call__(self, image: np.ndarray) -> np.ndarray:
+        img = np.asarray(image)
+        if img.ndim == 3:
+            img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+        if self._maps is None:
+            return img
+        return cv2.remap(img, self._maps[0], self._maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+
+
+class Mapper:
+    """Pose-conditioned dense mapping of tracking windows.
+
+    Args:
+        model: the depth model (DA3 ONNX graph or the emulated DA3); `model.K_rect` is the view.
+        camera: the rig's camera model (for the rectification maps).
+        cfg: mapping configuration.
+        matcher: a models.matcher.Matcher for the per-frame scales (default: XFeat, ORB fallback),
+            or False to skip the per-frame scales.
+        sink: called with each MapCommit and the current stats (the run's map archive).
+        conditioned: False runs DA3 without poses (the unconditioned reference of the benchmark).
+    """
+
+    def __init__(self, model: DepthModel, camera: Any, cfg: MappingConfig | None = None,
+                 matcher: Any = None, sink: Callable[[MapCommit, MappingStats], None] | None = None,
+                 conditioned: bool = True) -> None:
+        self.model = model
+        self.cfg = cfg or MappingConfig()
+        self.K = np.asarray(model.K_rect, np.float64)
+        self.rectify = Rectifier(camera, self.K)
+        if matcher is None:
+            from models.matcher import Matcher
+
+            matcher = Matcher.default(top_k=1024)
+        self.matcher = matcher or None
+        self.sink = sink
+        self.conditioned = conditioned
+        self.stats = MappingStats(matcher=getattr(self.matcher, "backend", "none"))
+        self.grid = VoxelGrid(self.cfg.voxel_m)
+        self.resident: list[Submap] = []
+        self.links: list[ScaleLink] = []
+        self.submap_count = 0
+        self._prev: tuple[Submap, dict[int, np.ndarray]] | None = None
+        self._features: OrderedDict[int, Any] = OrderedDict()
+
+    # ------------------------------------------------------------------ the window job
+    def process(self, window: MappingWindow) -> MapCommit | WindowFit | None:
+        """Map one window; returns the commit, or the refused window's WindowFit (None on a model error)."""
+        st = self.stats
+        st.windows_processed += 1
+        t0 = time.perf_counter()
+        try:
+            pred, fit = depth_call(self.model, window, self.cfg, self.conditioned)
+        except (DavioError, ValueError, np.linalg.LinAlgError) as exc:
+            st.reject("model_error")
+            if len(st.model_errors) < MAX_ERROR_MESSAGES:
+                st.model_errors.append(f"window {window.window_id}: {type(exc).__name__}: {exc}")
+            return None
+        self._time("depth_call", t0)
+        if not fit.accepted:
+            st.reject(fit.reason)
+            return fit
+        n = len(window.frames)
+        c = n // 2
+        T_OC = np.asarray(window.T_OC, np.float64)
+        T_OS = T_OC[c]
+        T_SC = np.linalg.inv(T_OS) @ T_OC
+        depth = np.asarray(pred.depth, np.float64)
+        conf = np.asarray(pred.conf, np.float32)
+        t1 = time.perf_counter()
+        grey = [self.rectify(f.image) for f in window.frames]
+        scales = self._frame_scales(window, grey, depth, conf, T_SC)
+        self._time("frame_scales", t1)
+        depth *= scales.scales[:, None, None]
+        t2 = time.perf_counter()
+        points_C, image, pconf, pgrey = self._retained_points(depth, conf, grey, T_SC)
+        self._time("rejection", t2)
+        self.submap_count += 1
+        st.map_version += 1
+        sub = Submap(index=self.submap_count - 1, frame_t_ns=window.t_ns, centre=c, T_OS=T_OS, T_SC=T_SC,
+                     K=self.K.copy(), s_hat=float(np.exp(fit.log_s_hat)), frame_scales=scales.scales,
+                     points_C=points_C.astype(np.float32), image=image.astype(np.uint8),
+                     conf=pconf.astype(np.float32), grey=pgrey, T_MS=T_OS.copy(), lam=0.0,
+                     version=st.map_version, segment=window.segment,
+                     fit={**fit.as_dict(), "window_id": window.window_id,
+                          "frame_scale_rms_before": scales.rms_before,
+                          "frame_scale_rms_after": scales.rms_after,
+                          "frame_scale_matches": scales.matches_used})
+        depths_by_t = {int(t): depth[i] for i, t in enumerate(window.t_ns)}
+        link = self._link(sub, depths_by_t, T_OC)
+        t3 = time.perf_counter()
+        self.grid.integrate(sub.points_M(), sub.grey)
+        self.resident.append(sub)
+        while len(self.resident) > self.cfg.max_resident_submaps:
+            self.resident.pop(0)            # its voxels stay fused; its archive stays on disk
+            st.submaps_evicted += 1
+        self._prev = (sub, depths_by_t)
+        st.submaps_resident = len(self.resident)
+        st.voxels = len(self.grid)
+        st.windows_accepted += 1
+        self._time("fusion", t3)
+        commit = MapCommit(st.map_version, sub, link)
+        if self.sink is not None:
+            t4 = time.perf_counter()
+            self.sink(commit, st)
+            self._time("archive", t4)
+        return commit
+
+    # ------------------------------------------------------------------ stages
+    def _time(self, stage: str, t0: float) -> None:
+        self.stats.stage_s[stage] = self.stats.stage_s.get(stage, 0.0) + time.perf_counter() - t0
+
+    def _features_of(self, t_ns: int, image: np.ndarray) -> Any:
+        if t_ns in self._features:
+            return self._features[t_ns]
+        f = self.matcher.detect(image)
+        self._features[t_ns] = f
+        if len(self._features) > 2 * self.cfg.window_images:
+            self._features.popitem(last=False)
+        return f
+
+    def _frame_scales(self, window: MappingWindow, grey: list[np.ndarray], depth: np.ndarray,
+                      conf: np.ndarray, T_SC: np.ndarray) -> FrameScaleResult:
+        n = len(window.frames)
+        cfg = self.cfg
+        if self.matcher is None:
+            return FrameScaleResult(np.ones(n))
+        feats = [self._features_of(int(f.t_ns), g) for f, g in zip(window.frames, grey, strict=True)]
+        h, w = depth.shape[1:]
+        ok_conf = confidence_mask(conf, cfg.conf_percentile)
+        pairs = []
+        for off in cfg.frame_scale_pair_offsets:
+            for i in range(n - off):
+                j = i + off
+                m = self.matcher.match_features(feats[i], feats[j])
+                if len(m) < cfg.frame_scale_min_matches:
+                    continue
+                ui, uj = np.round(m.points_a).astype(np.int64), np.round(m.points_b).astype(np.int64)
+                inside = ((ui[:, 0] >= 0) & (ui[:, 0] < w) & (ui[:, 1] >= 0) & (ui[:, 1] < h)
+                          & (uj[:, 0] >= 0) & (uj[:, 0] < w) & (uj[:, 1] >= 0) & (uj[:, 1] < h))
+                ui, uj = ui[inside], uj[inside]
+                di, dj = depth[i][ui[:, 1], ui[:, 0]], depth[j][uj[:, 1], uj[:, 0]]
+                good = (np.isfinite(di) & np.isfinite(dj) & (di > 0) & (dj > 0)
+                        & (di < cfg.max_depth_m) & (dj < cfg.max_depth_m)
+                        & ok_conf[i][ui[:, 1], ui[:, 0]] & ok_conf[j][uj[:, 1], uj[:, 0]])
+                if good.sum() < cfg.frame_scale_min_matches:
+                    continue
+                pi = backproject(di[good], self.K, ui[good, 0], ui[good, 1])
+                pj = backproject(dj[good], self.K, uj[good, 0], uj[good, 1])
+                pairs.append(PairMatches(i, j, pi, pj))
+        res = solve_frame_scales(pairs, T_SC, cfg.frame_scale_rounds, cfg.frame_scale_prior_sigma,
+                                 cfg.frame_scale_huber, cfg.frame_scale_min_matches)
+        if res.rounds:
+            self.stats.frame_scale_solves += 1
+            self.stats.frame_scale_matches += res.matches_used
+        else:
+            self.stats.frame_scale_unconstrained += 1
+        return res
+
+    def _retained_points(self, depth: np.ndarray, conf: np.ndarray, grey: list[np.ndarray],
+                         T_SC: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Grid samples that pass the range, confidence and multi-view tests (counted)."""
+        cfg, st = self.cfg, self.stats
+        n, h, w = depth.shape
+        u, v = sample_grid(h, w, cfg.pixel_stride)
+        d = depth[:, v, u]                               # (N, G)
+        c = conf[:, v, u]
+        valid = np.isfinite(d) & (d > 0) & (d <= cfg.max_depth_m)
+        st.points_sampled += int(d.size)
+        st.rejected_invalid_depth += int((~valid).sum())
+        ok_c = valid & confidence_mask(np.where(valid, c, np.nan), cfg.conf_percentile)
+        st.rejected_confidence += int((valid & ~ok_c).sum())
+        img_idx, g_idx = np.nonzero(ok_c)
+        pts_C = backproject(d[img_idx, g_idx], self.K, u[g_idx], v[g_idx])
+        R, t = T_SC[img_idx, :3, :3], T_SC[img_idx, :3, 3]
+        pts_S = np.einsum("pij,pj->pi", R, pts_C) + t
+        dmaps = np.where(np.isfinite(depth) & (depth > 0), depth, np.nan)
+        keep = reobserved(pts_S, img_idx, T_SC, dmaps, self.K, cfg.multiview_rel_depth)
+        st.rejected_multiview += int((~keep).sum())
+        st.points_retained += int(keep.sum())
+        img_idx, g_idx = img_idx[keep], g_idx[keep]
+        grey_vals = np.stack([g[v, u] for g in grey])[img_idx, g_idx].astype(np.uint8)
+        return pts_C[keep], img_idx, c[img_idx, g_idx], grey_vals
+
+    def _link(self, sub: Submap, depths_by_t: dict[int, np.ndarray], T_OC: np.ndarray) -> ScaleLink | None:
+        """kappa_ab to the previous submap of the same segment (shared images, else projected overlap)."""
+        if self._prev is None or self._prev[0].segment != sub.segment:
+            return None
+        prev, prev_depths = self._prev
+        cfg = self.cfg
+        link = shared_link(prev.index, sub.index, prev_depths, depths_by_t, cfg.min_overlap_pixels,
+                           cfg.min_scale_sigma)
+        if link is None:
+            # nearest camera of the previous submap to the new centre sees most of the same surface
+            T_OC_prev = prev.T_OS @ prev.T_SC
+            k = int(np.argmin(np.linalg.norm(T_OC_prev[:, :3, 3] - sub.T_OS[:3, 3], axis=1)))
+            P_O = (sub.T_OS @ np.c_[sub.points_S(), np.ones(sub.n_points)].T).T[:, :3]
+            t_prev = int(prev.frame_t_ns[k])
+            link = overlap_link(prev.index, sub.index, P_O, T_OC_prev[k], prev_depths[t_prev], self.K,
+                                cfg.min_overlap_pixels, cfg.min_scale_sigma)
+        if link is None:
+            self.stats.links_missing += 1
+        else:
+            self.links.append(link)
+            if link.method == "shared":
+                self.stats.links_shared += 1
+            else:
+                self.stats.links_overlap += 1
+        return link
+
+    # ------------------------------------------------------------------ results
+    def fused_points(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(positions (V,3), grey (V,), counts (V,)) of the fused map (map frame)."""
+        return self.grid.points()
