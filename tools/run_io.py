@@ -23,17 +23,30 @@ from tools.evaluation.trajectory_io import atomic_write_text
 
 @dataclass
 class OpenedRecording:
-    """A driver plus what the run needs to know about where it came from."""
+    """A driver plus what the run needs to know about where it came from.
+
+    Attributes:
+        driver: the EurocDriver reading the folder.
+        kind: "euroc" | "simulated".
+        description: one line for the console and the report.
+        ground_truth_source: the rebuilt simulation's GroundTruthSource for the emulated DA3
+            (simulated recordings opened with rebuild=True only; None otherwise).
+    """
 
     driver: Any
     kind: str  # "euroc" | "simulated"
     description: str
-    ground_truth_source: Any = None  # for the emulated DA3 (simulated recordings only)
+    ground_truth_source: Any = None
 
 
-def open_recording(path: str | Path) -> OpenedRecording:
-    """An EuRoC ASL folder, or a folder written by `davio simulate` (its scene is rebuilt from the
-    manifest for the emulated DA3 and checked against the folder's ground truth)."""
+def open_recording(path: str | Path, rebuild: bool = True) -> OpenedRecording:
+    """An EuRoC ASL folder, or a folder written by `davio simulate`.
+
+    With `rebuild` a simulated folder's scene and motion are rebuilt from its manifest (preset or
+    trajectory mode) for the emulated DA3 and checked against the folder's ground truth; without it
+    (native-only runs need no ground-truth renderer) the folder is only read, and
+    `ground_truth_source` is None.
+    """
     from drivers.euroc import EurocDriver
 
     p = Path(path)
@@ -47,18 +60,37 @@ def open_recording(path: str | Path) -> OpenedRecording:
         info = json.loads(manifest.read_text())
     except json.JSONDecodeError as exc:
         raise DataError(f"manifest.json is not valid JSON: {exc}", manifest) from exc
-    rec = _rebuild_simulation(info, manifest)
-    gt_file, gt_sim = driver.groundtruth(), rec.groundtruth()
+    sim = info.get("simulation") if isinstance(info, dict) else None
+    description = f"simulated recording {p} ({sim})"
+    if not rebuild:
+        return OpenedRecording(driver, "simulated", description)
+    gt_file = driver.groundtruth()
+    rec = _rebuild_simulation(info, manifest, gt_file)
+    gt_sim = rec.groundtruth()
     if gt_file is not None and len(gt_file) and len(gt_sim):
-        k = int(np.searchsorted(gt_sim.t_ns, gt_file.t_ns[0]))
-        if k >= len(gt_sim) or np.linalg.norm(gt_sim.p[k] - gt_file.p[0]) > 1e-3:
-            raise DataError("the simulation rebuilt from manifest.json does not match the folder's "
-                            "ground truth (edited folder or another davio version)", manifest)
-    return OpenedRecording(driver, "simulated", f"simulated recording {p} ({info['simulation']})",
-                           rec.gt_source)
+        for t, p_file in ((gt_file.t_ns[0], gt_file.p[0]), (gt_file.t_ns[-1], gt_file.p[-1])):
+            k = int(np.searchsorted(gt_sim.t_ns, t))
+            if k >= len(gt_sim) or gt_sim.t_ns[k] != t or np.linalg.norm(gt_sim.p[k] - p_file) > 1e-3:
+                raise DataError("the simulation rebuilt from manifest.json does not match the folder's "
+                                "ground truth (edited folder, changed input files or another davio "
+                                "version); `davio run --native-only` still works", manifest)
+    return OpenedRecording(driver, "simulated", description, rec.gt_source)
 
 
-def _rebuild_simulation(info: dict, manifest: Path) -> Any:
+_TRAJECTORY_MODES = ("trajectory-spline", "euroc-trajectory")
+
+
+def _rebuild_simulation(info: dict, manifest: Path, groundtruth: PoseTrajectory | None = None) -> Any:
+    """The SimRecording that `manifest` (a `davio simulate` manifest.json, parsed as `info`)
+    describes, rebuilt with the default rig at the recorded time offset.
+
+    Preset mode needs only the manifest. Trajectory modes ("trajectory-spline", "euroc-trajectory")
+    re-read the trajectory file or euroc_imu_gt folder the manifest names (DataError naming it when
+    it is gone); the replayed IMU file, when gone, is replaced by the folder's own imu0 (the same
+    rows). `groundtruth` (the folder's) gives the crop start for manifests that predate `start_s`.
+    """
+    from dataclasses import replace
+
     from drivers.sim import SimConfig, SimRecording
 
     try:
@@ -66,13 +98,58 @@ def _rebuild_simulation(info: dict, manifest: Path) -> Any:
         sim = info["simulation"]
         mode = sim.get("mode", "preset")
         base = SimConfig(preset=cfg["preset"], seconds=cfg["seconds"], seed=cfg["seed"], style=cfg["style"],
-                         imu_rate_hz=cfg["imu_rate_hz"], time_offset_s=cfg.get("time_offset_s") or 0.0)
-    except (KeyError, TypeError) as exc:
+                         imu_rate_hz=cfg["imu_rate_hz"], time_offset_s=cfg.get("time_offset_s") or 0.0,
+                         camera_rate_hz=cfg.get("camera_rate_hz"), start_s=cfg.get("start_s") or 0.0)
+    except (KeyError, TypeError, AttributeError) as exc:
         raise DataError(f"manifest.json lacks {exc}", manifest) from exc
     if mode == "preset":
         return SimRecording.from_preset(base)
-    raise DataError(f"the emulated DA3 can only rebuild preset simulations, not mode {mode!r}; "
-                    "run it in memory with `davio bench startup` instead", manifest)
+    if mode not in _TRAJECTORY_MODES:
+        raise DataError(f"the emulated DA3 cannot rebuild a simulation of mode {mode!r}; "
+                        "`davio run --native-only` still works", manifest)
+    inputs = info.get("inputs") or {}
+    source = _input_file(inputs.get("source"), sim.get("source"), "trajectory file", manifest)
+    folder_mode = source.is_dir()
+    gt_path = source
+    if folder_mode:
+        gt_path = next((source / n for n in ("groundtruth.csv", "groundtruth_tum.txt")
+                        if (source / n).is_file()), source / "groundtruth.csv")
+        _require_file(gt_path, "ground-truth file", manifest)
+    imu = None
+    if mode == "euroc-trajectory" and not folder_mode:
+        named = inputs.get("imu") or sim.get("imu")
+        imu = next((Path(c) for c in (inputs.get("imu"), sim.get("imu")) if c and Path(c).is_file()), None)
+        if imu is None:  # the folder's imu0 holds the replayed rows
+            imu = manifest.parent / "mav0" / "imu0" / "data.csv"
+            _require_file(imu, f"IMU file (named {named!r} in the manifest, also gone)", manifest)
+    elif folder_mode:
+        _require_file(source / "imu0.csv", "IMU file", manifest)
+    if "start_s" not in cfg and groundtruth is not None and len(groundtruth):
+        from drivers.trajectory_files import read_trajectory
+
+        first = int(read_trajectory(gt_path).t_ns[0])
+        base = replace(base, start_s=(int(groundtruth.t_ns[0]) - first) * 1e-9)
+    if folder_mode:
+        return SimRecording.from_euroc_imu_gt(source, base)
+    return SimRecording.from_trajectory(source, base, imu_path=imu)
+
+
+def _input_file(resolved: str | None, recorded: str | None, what: str, manifest: Path) -> Path:
+    """The first existing of the manifest's absolute and as-recorded paths of an input file."""
+    for c in (resolved, recorded):
+        if c and Path(c).exists():
+            return Path(c)
+    if not (resolved or recorded):
+        raise DataError(f"manifest.json names no {what} to rebuild the simulation from; "
+                        "`davio run --native-only` still works (it needs no rebuild)", manifest)
+    return _require_file(Path(resolved or recorded), what, manifest)
+
+
+def _require_file(path: Path, what: str, manifest: Path) -> Path:
+    if not path.exists():
+        raise DataError(f"cannot rebuild the simulation for the emulated DA3: its {what} {path} is "
+                        "missing (restore it, or run with --native-only, which needs no rebuild)", manifest)
+    return path
 
 
 def published_segments(published: list) -> list[list]:

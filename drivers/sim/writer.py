@@ -137,6 +137,14 @@ def _versions() -> dict:
     return out
 
 
+def _input_files(info: dict) -> dict:
+    """Absolute paths of the files a trajectory-mode simulation read (its trajectory file or
+    euroc_imu_gt folder, and the replayed IMU), so that `davio run` can rebuild it from any folder."""
+    if info.get("mode", "preset") == "preset":
+        return {}
+    return {key: str(Path(info[key]).resolve()) for key in ("source", "imu") if info.get(key)}
+
+
 def write_euroc(
     recording,
     out_dir: str | Path,
@@ -211,7 +219,10 @@ def write_euroc(
             "imu_errors": None
             if recording.config.imu_errors is None
             else recording.config.imu_errors.__dict__,
+            "start_s": recording.config.start_s,
+            "camera_rate_hz": recording.config.camera_rate_hz,
         },
+        "inputs": _input_files(recording.info),
         "rig": {
             "name": rig.name,
             "camera_model": cam.distortion_model,
