@@ -1,0 +1,119 @@
+"""`davio map info|export|view D`: inspect, re-export and picture a run's map archive.
+
+D is a run folder holding `map/`, or the `map/` folder itself.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+NAME = "map"
+HELP = "inspect, re-export (PLY) or picture a run's map archive"
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    sub = p.add_subparsers(dest="map_command", metavar="ACTION")
+    folder_help = "a run folder holding map/, or the map/ folder itself"
+    fmt = argparse.ArgumentDefaultsHelpFormatter
+    pi = sub.add_parser("info", help="submaps, points, extent, versions and integrity (exit 1 if damaged)",
+                        formatter_class=fmt)
+    pi.add_argument("folder", type=Path, help=folder_help)
+    pi.add_argument("--json", action="store_true", help="print the summary as JSON")
+    pe = sub.add_parser("export", help="fuse every submap at its latest graph state and write a PLY",
+                        formatter_class=fmt)
+    pe.add_argument("folder", type=Path, help=folder_help)
+    pe.add_argument("--voxel", type=float, default=0.04, help="voxel edge length (m)")
+    pe.add_argument("--out", type=Path, default=None, help="PLY file (default: map.ply in the run folder)")
+    pv = sub.add_parser("view", help="a PNG with a top and an oblique view coloured by height",
+                        formatter_class=fmt)
+    pv.add_argument("folder", type=Path, help=folder_help)
+    pv.add_argument("--voxel", type=float, default=0.04, help="voxel edge length (m) of the fused cloud")
+    pv.add_argument("--out", type=Path, default=None, help="PNG file (default: map.png in the run folder)")
+    pv.add_argument("--interactive", action="store_true", help="also open open3d's viewer (needs a display)")
+
+
+def resolve(folder: Path) -> tuple[Path, Path]:
+    """(archive folder, run folder) of D: D/map when it is a folder, else D itself (run folder = parent)."""
+    folder = Path(folder)
+    if (folder / "map").is_dir():
+        return folder / "map", folder
+    return folder, folder.parent
+
+
+class _Progress:
+    """Progress lines on stderr, at most one a second (long exports only)."""
+
+    def __init__(self, what: str) -> None:
+        self.what, self.t0, self.last = what, time.monotonic(), time.monotonic()
+
+    def __call__(self, done: int, total: int) -> None:
+        now = time.monotonic()
+        if now - self.last >= 1.0:
+            self.last = now
+            print(f"davio map {self.what}: {done}/{total} submaps fused ({now - self.t0:.0f} s)",
+                  file=sys.stderr, flush=True)
+
+
+def _print_info(info: dict) -> None:
+    print(f"map archive  {info['folder']}")
+    print(f"format       {info['format']} schema {info['schema_version']} ({info['created_by']})")
+    print(f"map version  {info['map_version']}")
+    print(f"submaps      {info['submaps']} in {info['segments']} segment(s), {info['pairs']} pairs")
+    print(f"points       {info['points']} ({info['points_placed']} placed)")
+    ext = info["extent"]
+    if ext:
+        lo, hi, sz = (" ".join(f"{v:.2f}" for v in ext[k]) for k in ("min", "max", "size"))
+        print(f"extent [m]   min {lo}  max {hi}  size {sz}")
+    else:
+        print("extent [m]   (no points)")
+    vers = ", ".join(f"v{v}: {n}" for v, n in info["node_versions"].items()) or "-"
+    print(f"node versions {vers}")
+    print(f"on disk      {info['bytes_on_disk'] / 1e6:.2f} MB")
+    if info["problems"]:
+        print(f"integrity    {len(info['problems'])} problem(s):")
+        for line in info["problems"]:
+            print(f"  {line}")
+    else:
+        print("integrity    ok")
+    for line in info["orphans"]:
+        print(f"  note: {line}")
+
+
+def run(args: argparse.Namespace) -> int:
+    action = getattr(args, "map_command", None)
+    if action is None:
+        print("davio map: name an action: info, export, view")
+        return 2
+    archive, run_folder = resolve(args.folder)
+    if action == "info":
+        from tools.map_archive.info import map_info
+
+        info = map_info(archive)
+        if args.json:
+            print(json.dumps(info, indent=2))
+        else:
+            _print_info(info)
+        return 1 if info["problems"] else 0
+    if action == "export":
+        from tools.map_archive.export import export_map
+
+        out = args.out or run_folder / "map.ply"
+        t0 = time.monotonic()
+        n = export_map(archive, out, args.voxel, _Progress("export"))
+        print(f"davio map export: {n} voxels ({args.voxel} m) -> {out} in {time.monotonic() - t0:.1f} s")
+        return 0
+    from tools.map_archive.export import fuse_archive
+    from tools.map_archive.view import interactive, render_views
+
+    points, grey, _ = fuse_archive(archive, args.voxel, _Progress("view"))
+    out = args.out or run_folder / "map.png"
+    render_views(points, grey, out)
+    print(f"davio map view: {len(points)} voxels -> {out}")
+    if args.interactive:
+        why = interactive(points, grey)
+        if why:
+            print(f"davio map view: no interactive viewer: {why}", file=sys.stderr)
+    return 0

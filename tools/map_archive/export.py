@@ -1,0 +1,65 @@
+"""Final re-export: every archived submap placed with its latest graph state, fused, written as PLY."""
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from runtime.mapping.fusion import VoxelGrid
+from tools.map_archive.format import atomic_write_bytes
+from tools.map_archive.reader import iter_submaps, read_manifest
+
+
+def fuse_archive(folder: str | Path, voxel_m: float = 0.04, progress: Callable[[int, int], None] | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Fuse every submap of the archive at its manifest state (eq. placement) into voxels.
+
+    Each voxel holds the unweighted mean of the points that fall in it. Points that are not finite
+    (a submap whose state was written as null) are left out.
+
+    Args:
+        folder: the archive folder.
+        voxel_m: voxel edge length, metres.
+        progress: called with (submaps done, submaps total) after each submap.
+
+    Returns:
+        (points (V,3) float64 in M, grey (V,) uint8, counts (V,) int64 points per voxel).
+    """
+    info = read_manifest(folder)
+    total = len(info["submaps"])
+    grid = VoxelGrid(voxel_m)
+    for k, sm in enumerate(iter_submaps(folder, info), start=1):
+        pts = sm.points_M()
+        ok = np.isfinite(pts).all(axis=1)
+        grid.integrate(pts[ok], sm.grey[ok])
+        if progress is not None:
+            progress(k, total)
+    return grid.points()
+
+
+def write_ply(path: str | Path, points: np.ndarray, grey: np.ndarray) -> None:
+    """Write a binary little-endian PLY: float x, y, z and uchar red, green, blue (= grey), atomically."""
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    g = np.asarray(grey).reshape(-1)
+    if g.shape[0] != pts.shape[0]:
+        raise ValueError(f"{pts.shape[0]} points but {g.shape[0]} grey values")
+    rows = np.empty(len(pts), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
+                                     ("red", "u1"), ("green", "u1"), ("blue", "u1")])
+    for a, name in enumerate("xyz"):
+        rows[name] = pts[:, a]
+    g8 = np.clip(g, 0, 255).astype(np.uint8)
+    rows["red"], rows["green"], rows["blue"] = g8, g8, g8
+    header = ("ply\nformat binary_little_endian 1.0\ncomment davio map\n"
+              f"element vertex {len(pts)}\n"
+              "property float x\nproperty float y\nproperty float z\n"
+              "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n")
+    atomic_write_bytes(Path(path), header.encode("ascii") + rows.tobytes())
+
+
+def export_map(folder: str | Path, out_ply: str | Path, voxel_m: float = 0.04,
+               progress: Callable[[int, int], None] | None = None) -> int:
+    """Fuse the archive in `folder` and write it to `out_ply`; returns the number of voxels written."""
+    points, grey, _ = fuse_archive(folder, voxel_m, progress)
+    write_ply(out_ply, points, grey)
+    return int(len(points))

@@ -1,0 +1,76 @@
+"""Names, schema constants and the strict-JSON and atomic-write helpers of the map archive."""
+from __future__ import annotations
+
+import math
+import os
+import re
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+FORMAT = "davio-map"
+"""Value of the manifest's `format` key."""
+SCHEMA_VERSION = 1
+"""Schema written by this davio (and the newest it reads)."""
+MIN_SCHEMA_VERSION = 1
+"""Oldest schema this davio reads."""
+MANIFEST_NAME = "manifest.json"
+SUBMAP_RE = re.compile(r"^submap_(\d{6,})\.npz$")
+"""Names of submap files (orphans are matched with it)."""
+TEMP_RE = re.compile(r"^\.(manifest\.json|submap_\d{6,}\.npz)\..*\.tmp$")
+"""Names of temporary files an interrupted write may leave behind."""
+
+ARRAYS: dict[str, str] = {
+    "index": "int64", "frame_t_ns": "int64", "centre": "int64", "T_OS": "float64", "T_SC": "float64",
+    "K": "float64", "s_hat": "float64", "frame_scales": "float64", "points_C": "float32",
+    "image": "uint8", "conf": "float32", "grey": "uint8",
+}
+"""Arrays of a submap .npz and their stored dtypes."""
+
+
+def submap_filename(index: int) -> str:
+    """File name of submap `index` (e.g. submap_000012.npz)."""
+    return f"submap_{int(index):06d}.npz"
+
+
+def davio_version() -> str:
+    """'davio X.Y.Z' of the installed package ('davio unknown' when not installed)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return f"davio {version('davio')}"
+    except PackageNotFoundError:
+        return "davio unknown"
+
+
+def jsonable(x: Any) -> Any:
+    """`x` as strict-JSON data: numpy scalars and arrays to Python, non-finite floats to None."""
+    if isinstance(x, dict):
+        return {str(k): jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple, np.ndarray)):
+        return [jsonable(v) for v in (x.tolist() if isinstance(x, np.ndarray) else x)]
+    if isinstance(x, (bool, np.bool_)):
+        return bool(x)
+    if isinstance(x, (int, np.integer)):
+        return int(x)
+    if isinstance(x, (float, np.floating)):
+        return float(x) if math.isfinite(x) else None
+    if x is None or isinstance(x, str):
+        return x
+    return str(x)
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write `data` to `path` (mode 0644) through a temporary file in the same folder and a rename."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

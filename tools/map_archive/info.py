@@ -1,0 +1,62 @@
+"""Summary of a map archive: submaps, points, extent in M, versions, integrity and size on disk."""
+from __future__ import annotations
+
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+from runtime.errors import DataError
+from runtime.mapping.fusion import VoxelGrid
+from tools.map_archive.reader import integrity, load_submap, read_manifest
+
+
+def map_info(folder: str | Path, voxel_m: float | None = None) -> dict:
+    """What the archive in `folder` holds.
+
+    Points and the extent (axis-aligned box of every finite point in M, metres) come from placing the
+    archived points with their manifest state; files that fail the integrity check are not loaded.
+
+    Args:
+        folder: the archive folder.
+        voxel_m: also count fused voxels of this size (slower); None skips it.
+
+    Returns:
+        dict with folder, format, schema_version, created_by, map_version, submaps, points,
+        points_placed, extent ({"min", "max", "size"} or None), voxels (or None), node_versions
+        ({version: submaps}), segments, pairs, problems, orphans, bytes_on_disk.
+    """
+    folder = Path(folder)
+    info = read_manifest(folder)
+    problems, orphans = integrity(folder, info)
+    bad = {p.split(":", 1)[0] for p in problems}
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    placed = 0
+    grid = VoxelGrid(voxel_m) if voxel_m else None
+    for e in info["submaps"]:
+        if e["file"] in bad:
+            continue
+        try:
+            sm = load_submap(folder, e)
+        except DataError as exc:
+            problems.append(f"{e['file']}: {exc}")
+            continue
+        pts = sm.points_M()
+        pts = pts[np.isfinite(pts).all(axis=1)]
+        if len(pts):
+            lo, hi = np.minimum(lo, pts.min(axis=0)), np.maximum(hi, pts.max(axis=0))
+            placed += len(pts)
+            if grid is not None:
+                grid.integrate(pts)
+    extent = None if placed == 0 else {"min": lo.tolist(), "max": hi.tolist(), "size": (hi - lo).tolist()}
+    versions = Counter(int(e["version"]) for e in info["submaps"])
+    return {
+        "folder": str(folder), "format": info["format"], "schema_version": info["schema_version"],
+        "created_by": info.get("created_by"), "map_version": info.get("map_version"),
+        "submaps": len(info["submaps"]), "points": int(sum(int(e["n_points"]) for e in info["submaps"])),
+        "points_placed": placed, "extent": extent, "voxels": None if grid is None else len(grid),
+        "node_versions": {str(v): versions[v] for v in sorted(versions)},
+        "segments": len({int(e.get("segment", 0)) for e in info["submaps"]}),
+        "pairs": len(info.get("pairs") or []), "problems": problems, "orphans": orphans,
+        "bytes_on_disk": int(sum(p.stat().st_size for p in folder.iterdir() if p.is_file())),
+    }

@@ -1,0 +1,158 @@
+"""Reading the map archive: manifest checks, file integrity, submaps back as `Submap` objects."""
+from __future__ import annotations
+
+import hashlib
+import json
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from runtime.errors import DataError
+from runtime.mapping.submap import Submap
+from tools.map_archive.format import (
+    ARRAYS,
+    FORMAT,
+    MANIFEST_NAME,
+    MIN_SCHEMA_VERSION,
+    SCHEMA_VERSION,
+    SUBMAP_RE,
+    TEMP_RE,
+)
+
+_ENTRY_KEYS = ("index", "file", "sha256", "bytes", "n_points", "T_MS", "lam", "version")
+
+
+def read_manifest(folder: str | Path) -> dict:
+    """The manifest of the archive in `folder`, after checking its format and schema.
+
+    Raises:
+        DataError: missing folder or manifest, not JSON, foreign format, unsupported schema, or a
+            submap entry lacking a key (each naming the file).
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise DataError("map archive folder not found", folder)
+    path = folder / MANIFEST_NAME
+    if not path.is_file():
+        raise DataError("no manifest.json: not a davio map archive, or the run stopped before its first "
+                        "map commit", path)
+    try:
+        info = json.loads(path.read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise DataError(f"manifest is not valid JSON: {exc}", path) from exc
+    if not isinstance(info, dict) or info.get("format") != FORMAT:
+        fmt = info.get("format") if isinstance(info, dict) else None
+        raise DataError(f"foreign archive: format is {fmt!r}, expected {FORMAT!r}", path)
+    schema = info.get("schema_version")
+    if not isinstance(schema, int) or isinstance(schema, bool):
+        raise DataError(f"schema_version is {schema!r}, expected an integer", path)
+    if schema > SCHEMA_VERSION:
+        raise DataError(f"written by a newer davio ({info.get('created_by', '?')}); needs schema {schema} "
+                        f"support, this davio reads schemas {MIN_SCHEMA_VERSION}..{SCHEMA_VERSION}", path)
+    if schema < MIN_SCHEMA_VERSION:
+        raise DataError(f"schema {schema} is no longer supported (this davio reads schemas "
+                        f"{MIN_SCHEMA_VERSION}..{SCHEMA_VERSION}); needs a davio with schema {schema} "
+                        "support", path)
+    subs = info.get("submaps")
+    if not isinstance(subs, list):
+        raise DataError("manifest lacks the 'submaps' list", path)
+    for k, e in enumerate(subs):
+        missing = [key for key in _ENTRY_KEYS if not isinstance(e, dict) or key not in e]
+        if missing:
+            raise DataError(f"submaps[{k}] lacks {', '.join(missing)}", path)
+    return info
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def integrity(folder: str | Path, manifest: dict | None = None) -> tuple[list[str], list[str]]:
+    """(problems, orphans) of the archive: each referenced file against the manifest's size and
+    sha256; orphans are submap or temporary files the manifest does not reference (left by an
+    interrupted commit; harmless). Each line starts with the file name."""
+    folder = Path(folder)
+    info = read_manifest(folder) if manifest is None else manifest
+    problems, referenced = [], set()
+    for e in info["submaps"]:
+        name = str(e["file"])
+        referenced.add(name)
+        path = folder / name
+        if not path.is_file():
+            problems.append(f"{name}: missing (submap {e['index']})")
+            continue
+        size = path.stat().st_size
+        if size != e["bytes"]:
+            problems.append(f"{name}: {size} bytes, the manifest says {e['bytes']} (truncated or replaced)")
+        elif _sha256(path) != e["sha256"]:
+            problems.append(f"{name}: sha256 differs from the manifest (damaged or edited)")
+    stray = [p for p in sorted(folder.iterdir()) if p.name not in referenced and p.is_file()
+             and (SUBMAP_RE.match(p.name) or TEMP_RE.match(p.name))]
+    orphans = [f"{p.name}: orphan, not referenced by the manifest (left by an interrupted commit; harmless)"
+               for p in stray]
+    return problems, orphans
+
+
+def check_integrity(folder: str | Path) -> list[str]:
+    """Problems, then orphan notes (which say 'orphan'), of the archive in `folder`; empty when clean."""
+    problems, orphans = integrity(folder)
+    return problems + orphans
+
+
+def _matrix(value: object, shape: tuple[int, ...], what: str, path: Path) -> np.ndarray:
+    try:
+        a = np.array(value, dtype=np.float64)  # null (non-finite when written) reads as NaN
+    except (TypeError, ValueError) as exc:
+        raise DataError(f"{what} is not numeric: {exc}", path) from exc
+    if a.shape != shape:
+        raise DataError(f"{what} has shape {a.shape}, expected {shape}", path)
+    return a
+
+
+def load_submap(folder: str | Path, entry: dict) -> Submap:
+    """The submap of manifest entry `entry`: arrays from its npz, graph state from the entry.
+
+    Raises:
+        DataError: missing, truncated or corrupt file, a missing array, or inconsistent shapes.
+    """
+    path = Path(folder) / str(entry["file"])
+    if not path.is_file():
+        raise DataError(f"submap file missing (submap {entry['index']})", path)
+    arrays = {}
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            for name, dtype in ARRAYS.items():
+                if name not in npz.files:
+                    raise DataError(f"array {name!r} missing from the submap file", path)
+                arrays[name] = npz[name].astype(dtype, copy=False)
+    except DataError:
+        raise
+    except Exception as exc:  # damaged zip/npy bytes surface as many types (BadZipFile, zlib, tokenize...)
+        raise DataError(f"corrupt or truncated submap file: {type(exc).__name__}: {exc}", path) from exc
+    if int(arrays["index"]) != int(entry["index"]):
+        raise DataError(f"file holds submap {int(arrays['index'])}, the manifest says {entry['index']}", path)
+    manifest = Path(folder) / MANIFEST_NAME
+    T_MS = _matrix(entry["T_MS"], (4, 4), f"submap {entry['index']} T_MS", manifest)
+    lam = entry["lam"]
+    try:
+        return Submap(index=int(entry["index"]), frame_t_ns=arrays["frame_t_ns"],
+                      centre=int(arrays["centre"]), T_OS=arrays["T_OS"], T_SC=arrays["T_SC"], K=arrays["K"],
+                      s_hat=float(arrays["s_hat"]),
+                      frame_scales=arrays["frame_scales"], points_C=arrays["points_C"], image=arrays["image"],
+                      conf=arrays["conf"], grey=arrays["grey"], T_MS=T_MS,
+                      lam=float("nan") if lam is None else float(lam), version=int(entry["version"]),
+                      segment=int(entry.get("segment", 0)), fit=dict(entry.get("fit") or {}))
+    except (TypeError, ValueError) as exc:
+        raise DataError(f"inconsistent submap arrays: {exc}", path) from exc
+
+
+def iter_submaps(folder: str | Path, manifest: dict | None = None) -> Iterator[Submap]:
+    """Every submap of the archive, by index, with its manifest state (loaded one at a time)."""
+    info = read_manifest(folder) if manifest is None else manifest
+    for e in sorted(info["submaps"], key=lambda e: int(e["index"])):
+        yield load_submap(folder, e)

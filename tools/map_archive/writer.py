@@ -1,0 +1,110 @@
+"""Checkpointing writer of the map archive: new submaps' points once, the manifest at every commit."""
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+
+from runtime.errors import DataError
+from runtime.mapping.submap import Submap
+from tools.map_archive.format import (
+    ARRAYS,
+    FORMAT,
+    MANIFEST_NAME,
+    SCHEMA_VERSION,
+    SUBMAP_RE,
+    TEMP_RE,
+    atomic_write_bytes,
+    davio_version,
+    jsonable,
+    submap_filename,
+)
+
+
+def submap_arrays(sm: Submap) -> dict[str, np.ndarray]:
+    """The arrays of a submap's .npz (ARRAYS names and dtypes); its graph state is not among them."""
+    if len(sm.frame_t_ns) > 256:
+        raise ValueError(f"submap {sm.index}: {len(sm.frame_t_ns)} images; the archive stores at most 256")
+    values = {"index": sm.index, "frame_t_ns": sm.frame_t_ns, "centre": sm.centre, "T_OS": sm.T_OS,
+              "T_SC": sm.T_SC, "K": sm.K, "s_hat": sm.s_hat, "frame_scales": sm.frame_scales,
+              "points_C": sm.points_C, "image": sm.image, "conf": sm.conf, "grey": sm.grey}
+    return {k: np.asarray(values[k]).astype(dt, order="C", copy=False) for k, dt in ARRAYS.items()}
+
+
+class MapArchiveWriter:
+    """Writes a run's `map/` folder, one checkpoint per map commit.
+
+    Submap points are written once (one npz per submap, never rewritten); graph state (T_MS, lambda,
+    version, segment, fit) lives in the manifest, so a state change rewrites only the manifest. The
+    manifest is replaced after the npz files it references, each through a temporary file and a
+    rename, so the folder reloads whenever the process dies.
+
+    Args:
+        folder: the archive folder (created if needed).
+        header: {"rig": dict, "model": dict, "config": dict} copied into every manifest.
+        overwrite: replace an archive already in `folder` (its submap files and manifest are removed);
+            without it such a folder is refused with DataError.
+    """
+
+    def __init__(self, folder: str | Path, header: dict, overwrite: bool = False) -> None:
+        self.folder = Path(folder)
+        self.header = {k: jsonable(header.get(k) or {}) for k in ("rig", "model", "config")}
+        manifest = self.folder / MANIFEST_NAME
+        if manifest.exists() and not overwrite:
+            raise DataError("the folder already holds a map archive (manifest.json); choose another "
+                            "output folder or overwrite it", self.folder)
+        self.folder.mkdir(parents=True, exist_ok=True)
+        if overwrite:
+            for p in self.folder.iterdir():
+                ours = p.name == MANIFEST_NAME or SUBMAP_RE.match(p.name) or TEMP_RE.match(p.name)
+                if ours and p.is_file():
+                    p.unlink()
+        self._entries: dict[int, dict] = {}
+        self.map_version = 0
+
+    @property
+    def entries(self) -> list[dict]:
+        """Manifest entries of every submap committed so far, by index."""
+        return [self._entries[k] for k in sorted(self._entries)]
+
+    def commit(self, submaps: list[Submap], pairs: list[dict], version: int, stats: dict) -> None:
+        """Checkpoint one map commit.
+
+        Args:
+            submaps: new submaps and submaps whose graph state changed (others keep their entries).
+                A submap's points must not change once written.
+            pairs: the graph's pair records (written as given, non-finite floats as null).
+            version: the map version of this commit.
+            stats: counters and figures of the mapper (written as given).
+        """
+        for sm in submaps:
+            entry = self._entries.get(sm.index)
+            if entry is None:
+                entry = self._write_points(sm)
+            elif entry["n_points"] != sm.n_points:
+                raise ValueError(f"submap {sm.index}: points changed after they were archived "
+                                 f"({entry['n_points']} -> {sm.n_points})")
+            entry.update(T_MS=jsonable(np.asarray(sm.T_MS, np.float64)), lam=jsonable(float(sm.lam)),
+                         version=int(sm.version), segment=int(sm.segment), fit=jsonable(dict(sm.fit)))
+            self._entries[sm.index] = entry
+        self.map_version = int(version)
+        manifest = {"format": FORMAT, "schema_version": SCHEMA_VERSION, "created_by": davio_version(),
+                    **self.header, "map_version": self.map_version, "submaps": self.entries,
+                    "pairs": jsonable(list(pairs)), "stats": jsonable(dict(stats))}
+        text = json.dumps(manifest, allow_nan=False, indent=1)
+        atomic_write_bytes(self.folder / MANIFEST_NAME, text.encode())
+
+    def _write_points(self, sm: Submap) -> dict:
+        arrays = submap_arrays(sm)
+        buf = io.BytesIO()
+        np.savez_compressed(buf, **arrays)
+        data = buf.getvalue()
+        name = submap_filename(sm.index)
+        atomic_write_bytes(self.folder / name, data)
+        return {"index": int(sm.index), "file": name, "sha256": hashlib.sha256(data).hexdigest(),
+                "bytes": len(data), "n_points": sm.n_points, "frame_t_ns": [int(t) for t in sm.frame_t_ns],
+                "centre": int(sm.centre), "T_MS": None, "T_OS": jsonable(arrays["T_OS"]), "lam": 0.0,
+                "scale_s_hat": jsonable(float(sm.s_hat)), "version": 0, "segment": 0, "fit": {}}
