@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from runtime.ffinit.config import FFInitConfig
+from runtime.mapping.config import MappingConfig
 from runtime.msckf.config import MsckfConfig
 from runtime.msckf.init_dynamic import DynamicInitConfig
 from runtime.msckf.init_static import StaticInitConfig
@@ -30,3 +31,5 @@ class DavioConfig:
     """Buffered-replay handoff."""
     ffinit: FFInitConfig = field(default_factory=FFInitConfig)
     """Feed-forward initializer thresholds."""
+    mapping: MappingConfig = field(default_factory=MappingConfig)
+    """Pose-conditioned dense mapping (runs whenever a depth model is given)."""

@@ -1,5 +1,6 @@
-"""The tracking pipeline: KLT front-end, the filter(s) with their native initializers, and the
-feed-forward start-up through the buffered-replay handoff. Driven by runtime.scheduler."""
+"""The tracking pipeline: KLT front-end, the filter(s) with their native initializers, the
+feed-forward start-up through the buffered-replay handoff, and the mapping queue. Driven by
+runtime.scheduler: one model worker serves start-up and mapping, start-up windows first."""
 from __future__ import annotations
 
 from collections.abc import Callable
@@ -14,6 +15,8 @@ from runtime.config import DavioConfig
 from runtime.errors import ConfigError
 from runtime.events import Frame, ImuSample
 from runtime.ffinit.initializer import FeedForwardInitializer
+from runtime.mapping.mapper import MapCommit, Mapper, MappingStats
+from runtime.mapping.windows import MappingWindow, WindowBuilder, WindowQueue
 from runtime.msckf.estimator import MsckfEstimator
 from runtime.msckf.init_dynamic import DynamicInitializer
 from runtime.msckf.init_static import StaticInitializer
@@ -38,12 +41,27 @@ class VioPipeline:
         rig: calib.Rig with camera, T_IC, time offset and IMU noise. With T_IC withheld, a hand-eye
             bring-up (runtime.bringup) first estimates R_IC from DA3 and the IMU; tracking then
             starts with zero lever arm and time offset and online calibration of all three.
-        model: a DepthModel for the feed-forward start-up, or None for the native initializer only.
+        model: a DepthModel for the feed-forward start-up and the mapping, or None for the native
+            initializer only (no map).
+        map_sink: called by the model worker with every map commit (the run's map archive).
+        mapper_factory: builds the Mapper (tests and benchmarks inject one); default `Mapper`.
     """
 
-    def __init__(self, rig: Any, model: DepthModel | None = None, config: DavioConfig | None = None) -> None:
+    def __init__(self, rig: Any, model: DepthModel | None = None, config: DavioConfig | None = None,
+                 map_sink: Callable[[MapCommit, MappingStats], None] | None = None,
+                 mapper_factory: Callable[..., Mapper] | None = None) -> None:
         self.config = config or DavioConfig()
         self.model = model
+        self.map_sink = map_sink
+        self._mapper_factory = mapper_factory or Mapper
+        self.mapper: Mapper | None = None
+        self.windows: WindowBuilder | None = None
+        self.map_queue: WindowQueue | None = None
+        if model is not None and self.config.mapping.enabled:
+            self.windows = WindowBuilder(self.config.mapping)
+            self.map_queue = WindowQueue(self.config.mapping.max_pending_windows)
+            self.map_stats = MappingStats()
+            self._frames_waiting: dict[int, Frame] = {}
         self.tracker = KltTracker(rig.camera, self.config.tracker)
         self.published: list[Published] = []
         self.stats = TrackingStats()
@@ -109,6 +127,8 @@ class VioPipeline:
             return []
         out = self.startup.on_imu(sample)
         self.published += out
+        if self.windows is not None and out:
+            self._offer_keyframes(out)
         return out
 
     def on_frame(self, frame: Frame) -> list[Published]:
@@ -122,7 +142,61 @@ class VioPipeline:
             return []
         out = self.startup.on_tracks(int(frame.t_ns), res.ids, res.uv, frame)
         self.published += out
+        if self.windows is not None:
+            self._frames_waiting[int(frame.t_ns)] = frame
+            if len(self._frames_waiting) > 64:   # poses come within a few IMU samples of the frame
+                self._frames_waiting.pop(next(iter(self._frames_waiting)))
+            if out:
+                self._offer_keyframes(out)
         return out
+
+    # ------------------------------------------------------------------ mapping queue
+    def _offer_keyframes(self, out: list[Published]) -> None:
+        """Published poses of buffered frames go to the keyframe selector; full windows are queued.
+        (The filter publishes a frame's state once the IMU covers its time, often on a later IMU sample.)"""
+        for pose in out:
+            frame = self._frames_waiting.pop(int(pose.t_cam_ns), None)
+            if frame is None:
+                continue
+            for t in [t for t in self._frames_waiting if t < pose.t_cam_ns]:
+                del self._frames_waiting[t]     # older frames never got a pose of their own
+            T_OI = np.eye(4)
+            T_OI[:3, :3], T_OI[:3, 3] = pose.R_OI, pose.p_OI
+            window = self.windows.add(frame, T_OI @ self.T_IC, pose.segment)
+            if window is None:
+                continue
+            self._mapping_stats().windows_offered += 1
+            if self.map_queue.put(window) is not None:
+                self._mapping_stats().windows_dropped_queue += 1
+
+    def _mapping_stats(self) -> MappingStats:
+        return self.mapper.stats if self.mapper is not None else self.map_stats
+
+    def _mapping_job(self, window: MappingWindow) -> Callable[[], Any]:
+        if self.mapper is None:
+            mapper = self._mapper_factory(self.model, self.rig.camera, self.config.mapping,
+                                          sink=self.map_sink)
+            # counters of the windows offered before the mapper existed carry over
+            mapper.stats.windows_offered = self.map_stats.windows_offered
+            mapper.stats.windows_dropped_queue = self.map_stats.windows_dropped_queue
+            self.mapper = mapper
+        mapper = self.mapper
+
+        def job() -> Any:
+            return mapper.process(window)
+
+        return job
+
+    def finish_mapping(self) -> int:
+        """Map the windows still queued when the recording ended (in the calling thread); returns
+        how many were processed. Call after the scheduler returned (no model job in flight)."""
+        if self.map_queue is None:
+            return 0
+        done = 0
+        while (window := self.map_queue.pop()) is not None:
+            self._mapping_job(window)()
+            done += 1
+        return done
 
     def next_model_job(self) -> Callable[[], Any] | None:
         """A model job when one is due (run by the model worker): a hand-eye window during a
@@ -131,7 +205,18 @@ class VioPipeline:
             job = self.bringup.next_job()
             self._job_kind = "bringup" if job is not None else self._job_kind
             return job
-        self._job_kind = "feedforward"
+        job = self._feedforward_job()
+        if job is not None:
+            self._job_kind = "feedforward"
+            return job
+        window = self.map_queue.pop() if self.map_queue is not None else None
+        if window is None:
+            return None
+        self._job_kind = "mapping"
+        return self._mapping_job(window)
+
+    def _feedforward_job(self) -> Callable[[], Any] | None:
+        """A feed-forward attempt on the newest start-up window, or None."""
         if self.ffinit is None:
             return None
         frames = self.startup.window()
@@ -151,6 +236,12 @@ class VioPipeline:
         return job
 
     def on_model_result(self, result: Any) -> None:
+        if self._job_kind == "mapping":   # the mapper counted it; an exception is a mapping error
+            if isinstance(result, Exception):
+                st = self._mapping_stats()
+                st.reject("exception")
+                st.model_errors.append(f"{type(result).__name__}: {result}")
+            return
         if isinstance(result, Exception):
             self.stats.ff_exceptions.append(f"{type(result).__name__}: {result}")
             return
@@ -170,5 +261,9 @@ class VioPipeline:
         if self.startup is not None:
             rep["startup"] = asdict(self.startup.report)
             rep["filter"] = (self.startup.publisher or self.startup.native).report()
+        if self.windows is not None:
+            rep["mapping"] = asdict(self._mapping_stats())
+            rep["mapping"]["keyframes"] = self.windows.keyframes
+            rep["mapping"]["windows_dropped_ids"] = list(self.map_queue.dropped)
         rep["tracking"]["mean_tracks_per_frame"] = self.stats.tracks_total / max(self.stats.frames, 1)
         return rep

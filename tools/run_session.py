@@ -18,9 +18,12 @@ class RunResult:
 
 def run_pipeline(driver: Any, model: Any, config: DavioConfig, paced: bool = False, speed: float = 1.0,
                  model_latency_s: float = 0.5, show_progress: bool = True, seconds: float | None = None,
-                 rig: Any = None) -> RunResult:
-    """Run `driver` (events, rig) through a VioPipeline; returns the pipeline and scheduler report."""
-    pipe = VioPipeline(rig if rig is not None else driver.rig, model, config)
+                 rig: Any = None, map_sink: Any = None) -> RunResult:
+    """Run `driver` (events, rig) through a VioPipeline; returns the pipeline and scheduler report.
+
+    With a model and mapping enabled, the windows still queued when the recording ends are mapped
+    after the scheduler returns (`map_sink` receives every commit)."""
+    pipe = VioPipeline(rig if rig is not None else driver.rig, model, config, map_sink=map_sink)
     clock = PacedClock(speed) if paced else FastClock(model_latency_s)
     events = driver.events()
     if seconds is not None:
@@ -50,6 +53,11 @@ def run_pipeline(driver: Any, model: Any, config: DavioConfig, paced: bool = Fal
     finally:
         if bar is not None:
             bar.stop()
+    pending = len(pipe.map_queue) if pipe.map_queue is not None else 0
+    if pending and show_progress:
+        print(f"  mapping the {pending} window(s) still queued at the end of the recording", file=sys.stderr,
+              flush=True)
+    pipe.finish_mapping()
     return RunResult(pipe, rep)
 
 

@@ -3,6 +3,7 @@ DAVIO on it end to end with the emulated DA3 (no download, no hardware)."""
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 from pathlib import Path
 
 NAME = "demo"
@@ -13,7 +14,8 @@ DESCRIPTION = (
     "feed-forward start-up through the buffered-replay handoff using the EMULATED DA3 (simulator ground "
     "truth plus DA3's error modes -- not a real network). Prints when the first metric state was "
     "published and the trajectory error, and writes the run folder (odometry.tum, report.json, "
-    "config.toml, plots)."
+    "config.toml, plots) with the dense map the emulated DA3 conditioned on the filter's poses gives "
+    "(map/ archive, map.ply; --no-map turns it off)."
 )
 
 
@@ -29,7 +31,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="emulated DA3 preset (models/emulated_da3/PRESETS.md)")
     p.add_argument("--model-latency", type=float, default=0.5, metavar="S",
                    help="simulated DA3 latency in sensor seconds (deterministic replay)")
-    p.add_argument("--native-only", action="store_true", help="disable the feed-forward start-up")
+    p.add_argument("--native-only", action="store_true", help="disable the feed-forward start-up and the map")
+    p.add_argument("--no-map", action="store_true", help="do not build the dense map")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -38,6 +41,7 @@ def run(args: argparse.Namespace) -> int:
     from runtime.config import DavioConfig
     from tools.commands.run import _summary
     from tools.run_io import write_run
+    from tools.run_map import MapOutput
     from tools.run_session import run_pipeline
 
     print(f"davio demo: simulating {args.seconds:.0f} s ({args.preset} motion, seed {args.seed}) and running "
@@ -49,12 +53,17 @@ def run(args: argparse.Namespace) -> int:
     if not args.native_only:
         model = EmulatedDA3(rec.gt_source, cam.K, cam.width, cam.height, preset=args.da3, seed=args.seed)
     config = DavioConfig()
-    res = run_pipeline(rec, model, config, model_latency_s=args.model_latency)
+    if args.no_map:
+        config = replace(config, mapping=replace(config.mapping, enabled=False))
+    model_desc = ("none (native only)" if model is None else
+                  f"EMULATED DA3 ({args.da3}) -- simulator ground truth, not a real network")
+    map_out = MapOutput.create(Path(args.out), rec.rig, model_desc, model, config)
+    res = run_pipeline(rec, model, config, model_latency_s=args.model_latency,
+                       map_sink=None if map_out is None else map_out.sink)
     report = write_run(Path(args.out), res.pipeline, res.scheduler, rec.groundtruth(),
                        {"recording": f"simulated in memory: preset {args.preset}, {args.seconds} s, seed "
                                      f"{args.seed}",
-                        "model": "none (native only)" if model is None else
-                        f"EMULATED DA3 ({args.da3}) -- simulator ground truth, not a real network"},
+                        "model": model_desc, "map": None if map_out is None else map_out.finish()},
                        config)
     _summary(report, Path(args.out))
     st = report["pipeline"].get("startup")

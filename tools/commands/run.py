@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import replace
 from pathlib import Path
 
 NAME = "run"
@@ -11,8 +12,9 @@ DESCRIPTION = (
     "Replay a recording through DAVIO (KLT + MSCKF with its native initializer, plus the feed-forward "
     "DA3 start-up). The model is an exported DA3 ONNX graph (--model), or for recordings written by "
     "`davio simulate` the emulated DA3 (--emulated). Outputs go to --out: odometry.tum (IMU poses in the "
-    "odometry frame), report.json (metrics, timings, counters, configuration, versions), config.toml "
-    "and plots when ground truth exists."
+    "odometry frame), report.json (metrics, timings, counters, configuration, versions), config.toml, "
+    "plots when ground truth exists, and with a model the dense map: map/ (the versioned submap archive, "
+    "checkpointed at every commit) and map.ply (the fused 4 cm cloud)."
 )
 
 
@@ -31,7 +33,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    choices=_emulated_presets(),
                    help="emulated DA3 (simulated recordings only): small, base or large, or <size>_upper "
                         "with the upper-bound pose errors (models/emulated_da3/PRESETS.md)")
-    g.add_argument("--native-only", action="store_true", help="no feed-forward start-up")
+    g.add_argument("--native-only", action="store_true", help="no feed-forward start-up and no map")
+    p.add_argument("--no-map", action="store_true",
+                   help="do not map (mapping runs whenever a depth model is given)")
     p.add_argument("--config", metavar="TOML", help="configuration file (see config.toml of a run)")
     p.add_argument("--withhold-extrinsics", action="store_true",
                    help="ignore the rig's camera-IMU extrinsics and time offset: hand-eye bring-up from "
@@ -50,10 +54,11 @@ def run(args: argparse.Namespace) -> int:
     from runtime.config_io import load_toml
     from runtime.errors import ConfigError
     from tools.run_io import open_recording, write_run
+    from tools.run_map import MapOutput
     from tools.run_session import run_pipeline
 
     config = load_toml(DavioConfig, args.config) if args.config else DavioConfig()
-    rec = open_recording(args.path)
+    rec = open_recording(args.path, rebuild=not args.native_only)
     rig = rec.driver.rig
     if rig is None or rig.camera is None:
         raise ConfigError(f"{args.path}: no camera calibration (cam0/sensor.yaml); DAVIO needs intrinsics")
@@ -78,13 +83,20 @@ def run(args: argparse.Namespace) -> int:
         cam = rig.camera
         model = EmulatedDA3(rec.ground_truth_source, cam.K, cam.width, cam.height, preset=preset)
         model_desc = f"EMULATED DA3 ({preset}) from simulator ground truth -- not a real network"
-    print(f"davio run: {rec.description}\n  model: {model_desc}")
+    if args.no_map:
+        config = replace(config, mapping=replace(config.mapping, enabled=False))
+    out = Path(args.out)
+    map_out = MapOutput.create(out, rig, model_desc, model, config)
+    print(f"davio run: {rec.description}\n  model: {model_desc}"
+          + (f"\n  mapping: on (archive {out / 'map'})" if map_out is not None else ""))
     res = run_pipeline(rec.driver, model, config, paced=args.paced, speed=args.speed,
-                       model_latency_s=args.model_latency, seconds=args.seconds, rig=rig)
+                       model_latency_s=args.model_latency, seconds=args.seconds, rig=rig,
+                       map_sink=None if map_out is None else map_out.sink)
     gt = rec.driver.groundtruth()
-    report = write_run(Path(args.out), res.pipeline, res.scheduler, gt,
+    map_summary = map_out.finish() if map_out is not None else None
+    report = write_run(out, res.pipeline, res.scheduler, gt,
                        {"recording": rec.description, "model": model_desc,
-                        "driver": rec.driver.report()}, config)
+                        "driver": rec.driver.report(), "map": map_summary}, config)
     if args.json:
         print(json.dumps(report, default=str))
     else:
@@ -111,7 +123,22 @@ def _summary(report: dict, out: Path) -> None:
     s = report["scheduler"]
     print(f"  tracking {s.get('tracking_ms_per_frame_median', float('nan')):.1f} ms/frame (median), "
           f"real-time factor {s.get('realtime_factor') or float('nan'):.2f}")
-    print(f"  outputs: {out}/odometry.tum, report.json, config.toml" + (", plots" if m else ""))
+    mp = report["pipeline"].get("mapping")
+    if mp is not None:
+        print("  " + _mapping_line(mp, report.get("map") or {}))
+    print(f"  outputs: {out}/odometry.tum, report.json, config.toml" + (", plots" if m else "")
+          + (", map/, map.ply" if (report.get("map") or {}).get("ply") else ""))
+
+
+def _mapping_line(mp: dict, summary: dict) -> str:
+    """One console line: windows mapped / offered, drops, rejections by reason, retained points."""
+    rej = ", ".join(f"{k} x{v}" for k, v in sorted(mp["windows_rejected"].items())) or "none"
+    sampled = max(mp["points_sampled"], 1)
+    return (f"map: {mp['windows_accepted']}/{mp['windows_offered']} windows mapped, "
+            f"{mp['windows_dropped_queue']} dropped (queue full), rejected: {rej}; "
+            f"{mp['points_retained']} points kept ({100 * mp['rejected_confidence'] / sampled:.0f} % low "
+            f"confidence, {100 * mp['rejected_multiview'] / sampled:.0f} % not re-observed); "
+            f"{summary.get('voxels', 0)} voxels in map.ply")
 
 
 _DRIVER_COUNTERS = {

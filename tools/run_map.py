@@ -1,0 +1,56 @@
+"""The map outputs of a run: the `map/` archive checkpointed at every commit, and `map.ply`.
+
+    map_out = MapOutput.create(out_dir, rig, model_desc, model, config)   # None when not mapping
+    run_pipeline(..., map_sink=map_out.sink)
+    summary = map_out.finish()     # exports map.ply from the archive; goes into report.json "map"
+"""
+from __future__ import annotations
+
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+
+class MapOutput:
+    """Writes a run's map archive as the mapper commits, and the final export."""
+
+    def __init__(self, out_dir: Path, header: dict, voxel_m: float) -> None:
+        from tools.map_archive import MapArchiveWriter
+
+        self.out_dir = Path(out_dir)
+        self.voxel_m = voxel_m
+        self.archive = MapArchiveWriter(self.out_dir / "map", header, overwrite=True)
+        self.pairs: list[dict] = []
+
+    @classmethod
+    def create(cls, out_dir: Path, rig: Any, model_desc: str, model: Any, config: Any) -> MapOutput | None:
+        """A MapOutput when the run maps (a model is given and mapping is enabled), else None."""
+        if model is None or not config.mapping.enabled:
+            return None
+        from runtime.config_io import config_to_dict
+
+        cam = rig.camera
+        rig_d = {"camera": repr(cam), "width": cam.width, "height": cam.height, "K": cam.K.tolist(),
+                 "T_IC": None if rig.T_IC is None else rig.T_IC.tolist(), "time_offset_s": rig.time_offset_s}
+        model_d = {"description": model_desc, "K_rect": model.K_rect.tolist(), "class": type(model).__name__,
+                   "emulated": "EMULATED" in model_desc}
+        return cls(out_dir, {"rig": rig_d, "model": model_d, "config": config_to_dict(config)},
+                   config.mapping.voxel_m)
+
+    def sink(self, commit: Any, stats: Any) -> None:
+        """Checkpoint the archive at a map commit (called by the model worker)."""
+        if commit.link is not None:
+            self.pairs.append(commit.link.as_dict())
+        self.archive.commit([commit.submap], self.pairs, commit.version, asdict(stats))
+
+    def finish(self) -> dict:
+        """Export map.ply from the archive (every submap with its latest state); returns a summary."""
+        from tools.map_archive import export_map
+
+        n_sub = len(self.archive.entries)
+        summary = {"archive": str(self.out_dir / "map"), "submaps": n_sub,
+                   "map_version": self.archive.map_version, "ply": None, "voxels": 0}
+        if n_sub:
+            summary["voxels"] = export_map(self.out_dir / "map", self.out_dir / "map.ply", self.voxel_m)
+            summary["ply"] = str(self.out_dir / "map.ply")
+        return summary
