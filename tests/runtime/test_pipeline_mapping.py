@@ -1,0 +1,111 @@
+"""Mapping inside a run: keyframe windows come from the published poses, the mapper runs in the model
+worker, and tracking is unaffected by it (identical poses with mapping on and off, even when the
+model is too slow and the queue drops windows)."""
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from runtime.config import DavioConfig
+from runtime.mapping.mapper import Mapper
+from runtime.pipeline import VioPipeline
+from runtime.scheduler import FastClock, PacedClock, Scheduler
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def recording():
+    from drivers.sim import SimConfig, SimRecording
+
+    rec = SimRecording.from_preset(SimConfig(preset="euroc", seconds=8.0, seed=1))
+    return rec, list(rec.events())
+
+
+def _config(mapping: bool, pending: int = 2) -> DavioConfig:
+    cfg = DavioConfig()
+    # the feed-forward start-up off: the model serves only the mapper, so tracking is deterministic
+    return replace(cfg, startup=replace(cfg.startup, feedforward=False),
+                   mapping=replace(cfg.mapping, enabled=mapping, max_pending_windows=pending))
+
+
+def _model(rec):
+    from models.emulated_da3 import EmulatedDA3
+
+    cam = rec.rig.camera
+    return EmulatedDA3(rec.gt_source, cam.K, cam.width, cam.height, preset="base", seed=1)
+
+
+def _no_matcher(model, camera, cfg, sink=None):
+    return Mapper(model, camera, cfg, matcher=False, sink=sink)
+
+
+def _poses(pipe) -> np.ndarray:
+    return np.array([np.r_[p.t_ns, p.p_OI, p.R_OI.ravel()] for p in pipe.published])
+
+
+def test_windows_follow_published_poses_and_the_map_lies_on_the_scene(recording):
+    from tools.evaluation import align, associate
+    from tools.evaluation.surface import nearest_distances
+    from tools.run_io import published_trajectory
+
+    rec, events = recording
+    commits = []
+    pipe = VioPipeline(rec.rig, _model(rec), _config(True), map_sink=lambda c, s: commits.append(c),
+                       mapper_factory=_no_matcher)
+    Scheduler(FastClock(0.5)).run(iter(events), pipe)
+    pipe.finish_mapping()
+    st = pipe.report()["mapping"]
+    assert st["windows_offered"] >= 3 and st["windows_accepted"] == st["windows_offered"] == len(commits)
+    # each submap's frame S_j is the centre keyframe's camera at its published pose
+    by_t = {p.t_cam_ns: p for p in pipe.published}
+    for c in commits:
+        sm = c.submap
+        p = by_t[int(sm.frame_t_ns[sm.centre])]
+        T_OI = np.eye(4)
+        T_OI[:3, :3], T_OI[:3, 3] = p.R_OI, p.p_OI
+        assert np.allclose(sm.T_OS, T_OI @ rec.rig.T_IC)
+        assert np.all(np.diff(sm.frame_t_ns) >= 0.49e9)             # 0.5 s keyframes
+    assert all(len(set(a.submap.frame_t_ns) & set(b.submap.frame_t_ns)) == 2
+               for a, b in zip(commits, commits[1:], strict=False))
+    assert all(c.link is not None and c.link.method == "shared" for c in commits[1:])
+    # the fused map, moved into the simulator's world by the trajectory's SE(3) alignment, lies on the scene
+    est, ref = associate(published_trajectory(pipe.published), rec.groundtruth())
+    _, al = align(est, ref, "se3")
+    pts, _, _ = pipe.mapper.fused_points()
+    pts_W = pts @ al.R.T + al.t
+    scene, _ = rec.scene.surface_points(0.02)
+    d = nearest_distances(pts_W, scene)
+    assert np.mean(d < 0.10) > 0.6 and np.median(d) < 0.08
+
+
+class _SlowModel:
+    """The emulated DA3 with an extra 2.5 s of wall time per call (a model slower than the windows)."""
+
+    def __init__(self, model) -> None:
+        self.inner, self.K_rect = model, model.K_rect
+
+    def predict(self, frames, K=None, T_CW=None):
+        time.sleep(2.5)
+        return self.inner.predict(frames, K, T_CW)
+
+
+def test_tracking_is_identical_with_mapping_on_and_drops_are_counted(recording):
+    rec, events = recording
+    off = VioPipeline(rec.rig, None, _config(False))
+    Scheduler(FastClock(0.5)).run(iter(events), off)
+    on = VioPipeline(rec.rig, _SlowModel(_model(rec)), _config(True, pending=1), mapper_factory=_no_matcher)
+    sched = Scheduler(PacedClock(4.0))                                # 8 s of sensor time in 2 s
+    rep = sched.run(iter(events), on)
+    st = on.report()["mapping"]
+    # windows come every 1.5 s of sensor time = 0.375 s of wall time, each takes > 2.5 s: the queue
+    # (one pending window) drops
+    assert st["windows_dropped_queue"] >= 1
+    assert st["windows_dropped_queue"] == len(st["windows_dropped_ids"])
+    assert st["windows_offered"] == st["windows_processed"] + st["windows_dropped_queue"] + len(on.map_queue)
+    assert rep.frames == len(rec)
+    # tracking never waited for the mapper: the same states as without mapping
+    assert np.array_equal(_poses(on), _poses(off))
