@@ -32,6 +32,17 @@ def test_demo_publishes_metric_trajectory_matching_ground_truth(tmp_path, capsys
     assert report["metrics"]["ate_se3_m"] == pytest.approx(res.trans["rmse"], rel=1e-6)
     assert "model" in report and "EMULATED" in report["model"]
     assert (out / "config.toml").exists() and (out / "trajectory.png").exists()
+    # the dense map: archive checkpointed per commit, map.ply re-exported from it
+    from tools.evaluation.ply import read_ply_vertices
+    from tools.map_archive import check_integrity, read_manifest
+
+    mapping = report["pipeline"]["mapping"]
+    assert mapping["windows_accepted"] >= 2
+    manifest = read_manifest(out / "map")
+    assert len(manifest["submaps"]) == mapping["windows_accepted"] == report["map"]["submaps"]
+    assert check_integrity(out / "map") == []
+    assert len(read_ply_vertices(out / "map.ply")) == report["map"]["voxels"] > 10_000
+    assert "map: " in text and "windows mapped" in text
 
 
 def test_run_on_real_euroc_head_writes_outputs(tmp_path, capsys):
