@@ -52,3 +52,24 @@ def test_gates(step, log_s, rmse, reason):
         assert pred is None and model.calls == 0       # refused before the model runs
     else:
         assert np.isclose(fit.log_s_hat, log_s)
+
+
+@pytest.mark.parametrize("t_gain, reason", [(1.0, ""), (2.0, "scale")])
+def test_onnx_graph_path_through_the_gates(tmp_path, monkeypatch, t_gain, reason):
+    """The same call through a real ONNX graph (the DA3 contract graph: it returns the input poses with
+    translations times t_gain, i.e. s_hat = 1 / t_gain) and the OnnxDA3 wrapper."""
+    from pathlib import Path
+
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "models"))
+    from da3_contract_graph import build_da3_contract_graph
+
+    from calib.camera import Pinhole
+    from models.da3 import OnnxDA3
+
+    graph = build_da3_contract_graph(tmp_path / "g.onnx", 28, 42, t_gain=t_gain)
+    cam = Pinhole(W_TEST, H_TEST, K_TEST[0, 0], K_TEST[1, 1], K_TEST[0, 2], K_TEST[1, 2])
+    model = OnnxDA3(graph, cam)
+    pred, fit = depth_call(model, _window(0.15), MappingConfig())
+    assert fit.reason == reason
+    assert np.isclose(fit.log_s_hat, -np.log(t_gain), atol=1e-5) and fit.fit_rmse_m < 1e-5
+    assert pred.depth.shape == (5, H_TEST, W_TEST) and np.isfinite(pred.depth).all()
