@@ -1,0 +1,40 @@
+"""Submap-graph configuration (paper Sec. V.C, eqs. graphres and objective).
+
+Defaults are the paper's numbers."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass
+class GraphConfig:
+    """The gravity-preserving submap graph: factor noise models, robust loss and solver limits."""
+
+    drift_trans_sigma_min_m: float = 0.02
+    """Odometry drift model, translation: sigma_t = max(this, drift_trans_sigma_per_m |t_ab|) (m)."""
+    drift_trans_sigma_per_m: float = 0.005
+    """... growth of the translation sigma with the VIO distance |t_ab| between centres (m per m)."""
+    drift_rot_sigma_min_deg: float = 0.5
+    """Odometry drift model, rotation: sigma_r = max(this, drift_rot_sigma_per_m_deg |t_ab|) (deg)."""
+    drift_rot_sigma_per_m_deg: float = 0.5
+    """... growth of the rotation sigma with |t_ab| (deg per m)."""
+    point_sigma_along_frac: float = 0.10
+    """Point covariance: sigma along the viewing ray as a fraction of the point's depth (range, m/m)."""
+    point_sigma_across_frac: float = 0.01
+    """Point covariance: sigma across the viewing ray as a fraction of the point's depth (m/m)."""
+    point_sigma_min_m: float = 0.10
+    """Floor of both point sigmas (m)."""
+    scale_prior_sigma: float = 0.10
+    """Prior |lambda_j - lambda_0| / this on every non-gauge node (log-scale units)."""
+    huber_threshold: float = 2.0
+    """Huber threshold on each whitened residual block norm: rho(r) = r^2/2 (r <= k), k r - k^2/2 beyond.
+    `math.inf` gives the plain quadratic loss."""
+    max_iterations: int = 8
+    """Levenberg-Marquardt iterations per solve (trial steps; a rejected step counts)."""
+    revisit_scale_sigma: float = 0.03
+    """sigma_ab of the scale link a verified revisit's median depth ratio adds (log-scale units)."""
+    max_resident_nodes: int = 24
+    """Nodes kept in the graph; `SubmapGraph.evict_excess` drops the oldest beyond this."""
+    blas_threads: int | None = 1
+    """BLAS threads during a solve (threadpoolctl; None leaves the process setting). The dense Jacobian
+    SVD (~6000 x 115 at 24 nodes) runs fastest on one thread; threads on shared cores cost 10x more."""

@@ -1,0 +1,282 @@
+"""The gravity-preserving submap graph (paper Sec. V.C): nodes, factors and the robust LM solve.
+
+Node j holds Q_j = T_MS_j (the map pose of the centre camera S_j, (4,4)) and lambda_j (residual
+log-depth scale). The first node fixes the gauge (pose and lambda); after `evict` the first retained
+node becomes the gauge, fixed at its current state. Every other node optimises translation (3, map
+frame), yaw about the map z axis (1, R <- Rz(dyaw) R, so roll and pitch stay exactly as the filter
+observed them) and lambda (1). See `problem.py` for the residuals and `robust.py` for the loss.
+"""
+from __future__ import annotations
+
+import contextlib
+import math
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from runtime.graph.config import GraphConfig
+from runtime.graph.factors import GraphError, OdometryFactor, PointGroup, ScaleFactor, check_pose
+from runtime.graph.problem import NODE_PARAMS, GraphProblem
+
+_X_SCALE = np.array([1.0, 1.0, 1.0, 0.1, 0.1])
+"""Characteristic size of (dt m, dt m, dt m, dyaw rad, dlam) for the trust region: its first radius is
+1 in these units over all free nodes together (scipy's default for a start at x = 0)."""
+
+
+@dataclass(frozen=True)
+class NodeState:
+    """The state of node `id`: T_MS (4,4) map pose of S_j, lam (lambda_j), fixed (the gauge)."""
+
+    id: int
+    T_MS: np.ndarray
+    lam: float
+    fixed: bool
+
+
+@dataclass(frozen=True)
+class NodeChange:
+    """How one solve moved a free node: dt (3,) map-frame translation (m), dyaw (rad), dlam."""
+
+    id: int
+    dt: np.ndarray
+    dyaw: float
+    dlam: float
+
+    @property
+    def moved(self) -> bool:
+        return bool(np.any(self.dt != 0.0) or self.dyaw != 0.0 or self.dlam != 0.0)
+
+    def as_dict(self) -> dict:
+        return {"id": self.id, "dt_m": self.dt.tolist(), "dyaw_rad": self.dyaw, "dlam": self.dlam}
+
+
+@dataclass
+class SolveReport:
+    """One solve: objective E before/after (eq. objective), LM iterations, time and node changes.
+
+    cost_before / cost_after: E at the start and at the returned states, both with the point whitening
+    frozen at the start (the next solve re-freezes it, so its cost_before differs slightly).
+    iterations: trial steps taken (each LM iteration evaluates one step; rejected steps count).
+    jacobians: Jacobian evaluations (the start plus one per accepted step).
+    """
+
+    cost_before: float
+    cost_after: float
+    iterations: int
+    jacobians: int
+    time_s: float
+    status: int
+    message: str
+    n_params: int
+    n_residuals: int
+    changes: dict[int, NodeChange] = field(default_factory=dict)
+
+    @property
+    def changed(self) -> list[int]:
+        """Ids of the nodes the solve moved."""
+        return [j for j, c in self.changes.items() if c.moved]
+
+    def as_dict(self) -> dict:
+        out = {k: v for k, v in asdict(self).items() if k != "changes"}
+        out["changes"] = [c.as_dict() for c in self.changes.values()]
+        return out
+
+
+def _blas_threads(n: int | None) -> contextlib.AbstractContextManager:
+    """A context limiting the BLAS pools to n threads (no-op for None or without threadpoolctl)."""
+    if n is None:
+        return contextlib.nullcontext()
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=int(n), user_api="blas")
+
+
+class SubmapGraph:
+    """Nodes (submaps) and factors of the submap graph; `solve` updates the node states in place."""
+
+    def __init__(self, cfg: GraphConfig | None = None) -> None:
+        self.cfg = cfg or GraphConfig()
+        self._ids: list[int] = []
+        self._T: dict[int, np.ndarray] = {}
+        self._lam: dict[int, float] = {}
+        self.odometry: list[OdometryFactor] = []
+        self.point_groups: list[PointGroup] = []
+        self.scale_links: list[ScaleFactor] = []
+
+    # --- nodes ---------------------------------------------------------------------------------
+    @property
+    def node_ids(self) -> list[int]:
+        """Node ids, oldest first."""
+        return list(self._ids)
+
+    @property
+    def gauge(self) -> int | None:
+        """The fixed node (the oldest), or None for an empty graph."""
+        return self._ids[0] if self._ids else None
+
+    def __len__(self) -> int:
+        return len(self._ids)
+
+    def __contains__(self, j: int) -> bool:
+        return j in self._T
+
+    def add_node(self, j: int, T_MS: np.ndarray, lam: float = 0.0) -> None:
+        """Add node j (ids strictly increasing) with pose T_MS_j (4,4) and lambda_j. The first node is
+        the gauge (the paper starts it with lambda_0 = 0)."""
+        j = int(j)
+        if self._ids and j <= self._ids[-1]:
+            raise GraphError(f"node {j}: ids must increase (last is {self._ids[-1]})")
+        if not math.isfinite(lam):
+            raise GraphError(f"node {j}: lambda must be finite, got {lam}")
+        self._T[j] = check_pose(T_MS, f"T_MS of node {j}")
+        self._lam[j] = float(lam)
+        self._ids.append(j)
+
+    def node_state(self, j: int) -> NodeState:
+        """A copy of node j's state."""
+        self._need(j)
+        return NodeState(j, self._T[j].copy(), self._lam[j], j == self.gauge)
+
+    def evict(self, j: int) -> list[int]:
+        """Remove node j and every older node, with all factors touching them (dropped, not
+        marginalised). The first retained node becomes the gauge, fixed at its current state.
+        Returns the removed ids."""
+        self._need(j)
+        cut = self._ids.index(j) + 1
+        gone = set(self._ids[:cut])
+        for k in gone:
+            del self._T[k], self._lam[k]
+        self._ids = self._ids[cut:]
+        self.odometry = [f for f in self.odometry if f.a not in gone and f.b not in gone]
+        self.point_groups = [f for f in self.point_groups if f.a not in gone and f.b not in gone]
+        self.scale_links = [f for f in self.scale_links if f.a not in gone and f.b not in gone]
+        return sorted(gone)
+
+    def evict_excess(self) -> list[int]:
+        """Evict the oldest nodes beyond `cfg.max_resident_nodes`; returns the removed ids."""
+        extra = len(self._ids) - self.cfg.max_resident_nodes
+        return self.evict(self._ids[extra - 1]) if extra > 0 else []
+
+    # --- factors -------------------------------------------------------------------------------
+    def add_odometry(self, a: int, b: int, Z_ab: np.ndarray) -> None:
+        """Odometry factor with the filter's Z_ab = T_S_aS_b (4,4, metres)."""
+        self._pair(a, b)
+        self.odometry.append(OdometryFactor(int(a), int(b), check_pose(Z_ab, f"Z_ab of odometry {a}-{b}")))
+
+    def add_points(self, a: int, b: int, p_a: np.ndarray, p_b: np.ndarray, adjacent: bool) -> None:
+        """Point group: K corresponding points p_a (K,3) in S_a and p_b (K,3) in S_b, both without lambda
+        (metres); adjacent = consecutive submaps (else a verified revisit)."""
+        self._pair(a, b)
+        p_a = np.array(p_a, dtype=np.float64)
+        p_b = np.array(p_b, dtype=np.float64)
+        if p_a.ndim != 2 or p_a.shape[1] != 3 or p_a.shape != p_b.shape or len(p_a) == 0:
+            raise GraphError(f"points {a}-{b}: p_a and p_b must both be (K,3) with K >= 1, "
+                             f"got {p_a.shape} and {p_b.shape}")
+        if not (np.all(np.isfinite(p_a)) and np.all(np.isfinite(p_b))):
+            raise GraphError(f"points {a}-{b}: non-finite coordinates")
+        self.point_groups.append(PointGroup(int(a), int(b), p_a, p_b, bool(adjacent)))
+
+    def add_scale_link(self, a: int, b: int, kappa: float, sigma: float, kind: str = "shared") -> None:
+        """Scale link lambda_b - lambda_a = kappa with standard deviation sigma (> 0); a verified
+        revisit's ratio uses sigma = cfg.revisit_scale_sigma."""
+        self._pair(a, b)
+        if not (math.isfinite(kappa) and math.isfinite(sigma) and sigma > 0):
+            raise GraphError(f"scale link {a}-{b}: kappa must be finite and sigma > 0, got {kappa}, {sigma}")
+        self.scale_links.append(ScaleFactor(int(a), int(b), float(kappa), float(sigma), str(kind)))
+
+    # --- solve ---------------------------------------------------------------------------------
+    def problem(self) -> GraphProblem:
+        """The least-squares problem at the current states (point whitening frozen here)."""
+        pos = {j: i for i, j in enumerate(self._ids)}
+        T = np.array([self._T[j] for j in self._ids]).reshape(-1, 4, 4)
+        lam = np.array([self._lam[j] for j in self._ids], float)
+        free = np.arange(len(self._ids)) > 0
+
+        def remap(fs: list, make) -> list:
+            return [make(f, pos[f.a], pos[f.b]) for f in fs]
+
+        odo = remap(self.odometry, lambda f, a, b: OdometryFactor(a, b, f.Z_ab))
+        pts = remap(self.point_groups, lambda f, a, b: PointGroup(a, b, f.p_a, f.p_b, f.adjacent))
+        scl = remap(self.scale_links, lambda f, a, b: ScaleFactor(a, b, f.kappa, f.sigma, f.kind))
+        gauge_lam = float(lam[0]) if len(lam) else 0.0
+        return GraphProblem(T[:, :3, :3].copy(), T[:, :3, 3].copy(), lam, free, gauge_lam, odo, pts, scl,
+                            self.cfg)
+
+    def objective(self) -> float:
+        """E (eq. objective) at the current states, with the point whitening of the current states."""
+        prob = self.problem()
+        return prob.cost(np.zeros(prob.n_params))
+
+    def solve(self, max_iterations: int | None = None) -> SolveReport:
+        """Run at most `max_iterations` (default cfg.max_iterations) Levenberg-Marquardt iterations from
+        the current states, write the result into the nodes and report E before/after and the changes.
+
+        Solver: scipy.optimize.least_squares, method "trf" with the exact (dense SVD) trust-region
+        subproblem, which is Moré's Levenberg-Marquardt step, the analytic Jacobian and the block Huber
+        loss of `robust.BlockHuber` (IRLS weights, exact objective). The cap is max_nfev =
+        max_iterations + 1: the start evaluation plus one per trial step (a rejected step counts).
+        """
+        t0 = time.perf_counter()
+        iters = self.cfg.max_iterations if max_iterations is None else int(max_iterations)
+        if iters < 0:
+            raise GraphError(f"max_iterations must be >= 0, got {iters}")
+        prob = self.problem()
+        x0 = np.zeros(prob.n_params)
+        cost0 = prob.cost(x0)
+        if prob.n_params == 0 or prob.n_residuals == 0 or iters == 0:
+            return SolveReport(cost0, cost0, 0, 0, time.perf_counter() - t0, 0, "nothing to solve",
+                               prob.n_params, prob.n_residuals)
+        loss = "linear" if math.isinf(self.cfg.huber_threshold) else prob.loss
+        x_scale = np.tile(_X_SCALE, prob.n_params // NODE_PARAMS)
+        with _blas_threads(self.cfg.blas_threads):
+            res = least_squares(prob.residual, x0, jac=prob.jacobian, method="trf", tr_solver="exact",
+                                loss=loss, x_scale=x_scale, max_nfev=iters + 1)
+        cost1 = prob.cost(res.x)
+        x = res.x if cost1 <= cost0 else x0
+        changes = self._apply(prob, x)
+        return SolveReport(cost0, min(cost1, cost0), int(res.nfev) - 1, int(res.njev or 0),
+                           time.perf_counter() - t0, int(res.status), str(res.message),
+                           prob.n_params, prob.n_residuals, changes)
+
+    def _apply(self, prob: GraphProblem, x: np.ndarray) -> dict[int, NodeChange]:
+        R, t, lam = prob.states(x)
+        X = x.reshape(-1, NODE_PARAMS)
+        changes = {}
+        for row, pos in enumerate(prob.free_pos):
+            j = self._ids[pos]
+            T = self._T[j].copy()
+            T[:3, :3] = R[pos]
+            T[:3, 3] = t[pos]
+            self._T[j] = T
+            self._lam[j] = float(lam[pos])
+            dyaw = float(math.remainder(X[row, 3], 2 * math.pi))
+            changes[j] = NodeChange(j, X[row, :3].copy(), dyaw, float(X[row, 4]))
+        return changes
+
+    # --- manifest ------------------------------------------------------------------------------
+    def as_dict(self, include_points: bool = False) -> dict:
+        """The graph for a manifest: config, nodes (id, T_MS, lam, fixed) and factors."""
+        return {
+            "config": asdict(self.cfg),
+            "gauge": self.gauge,
+            "nodes": [{"id": j, "T_MS": self._T[j].tolist(), "lam": self._lam[j], "fixed": j == self.gauge}
+                      for j in self._ids],
+            "odometry": [f.as_dict() for f in self.odometry],
+            "point_groups": [f.as_dict(include_points) for f in self.point_groups],
+            "scale_links": [f.as_dict() for f in self.scale_links],
+        }
+
+    # --- helpers -------------------------------------------------------------------------------
+    def _need(self, j: int) -> None:
+        if j not in self._T:
+            raise GraphError(f"no node {j} in the graph (nodes {self._ids})")
+
+    def _pair(self, a: int, b: int) -> None:
+        self._need(a)
+        self._need(b)
+        if a == b:
+            raise GraphError(f"a factor needs two different nodes, got {a} and {b}")

@@ -1,0 +1,266 @@
+"""SubmapGraph.solve against independent expectations: synthetic ground-truth graphs (poses, scales,
+points) whose factors are generated from the truth, then perturbed."""
+from __future__ import annotations
+
+import copy
+import json
+import math
+
+import numpy as np
+import pytest
+
+from runtime.geometry import make_pose, se3_exp, se3_inverse, so3_exp
+from runtime.graph import GraphConfig, SubmapGraph, huber_rho, huber_weight
+
+EZ = np.array([0.0, 0.0, 1.0])
+# camera axes (z forward, x right, y down) in a body frame with x forward, z up
+R_BODY_CAM = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+def rz(yaw: float) -> np.ndarray:
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def yaw_of(R: np.ndarray) -> float:
+    """Yaw (rad) of a rotation about z."""
+    return math.atan2(R[1, 0], R[0, 0])
+
+
+def truth_poses(n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """(n,4,4) T_MS along a curved, climbing path with non-zero roll/pitch, and lambdas (lambda_0 = 0)."""
+    Ts = []
+    for j in range(n):
+        tilt = so3_exp(np.array([0.04 * math.sin(j), -0.03 * math.cos(j), 0.0]))
+        R = rz(0.15 * j) @ tilt @ R_BODY_CAM
+        Ts.append(make_pose(R, np.array([0.4 * j, 0.3 * math.sin(0.5 * j), 1.0 + 0.05 * j])))
+    lams = np.concatenate([[0.0], rng.normal(0.0, 0.05, n - 1)])
+    return np.array(Ts), lams
+
+
+def corresponding_points(Ta: np.ndarray, la: float, Tb: np.ndarray, lb: float, k: int,
+                         rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """k true points 2-6 m in front of camera a, as p_a in S_a and p_b in S_b without lambda."""
+    pc = np.column_stack([rng.uniform(-2, 2, k), rng.uniform(-1, 1, k), rng.uniform(2, 6, k)])
+    X = pc @ Ta[:3, :3].T + Ta[:3, 3]
+    pa = (X - Ta[:3, 3]) @ Ta[:3, :3] / math.exp(la)
+    pb = (X - Tb[:3, 3]) @ Tb[:3, :3] / math.exp(lb)
+    return pa, pb
+
+
+def build(n: int, seed: int, k: int = 40, cfg: GraphConfig | None = None, odo_noise: float = 0.0,
+          point_noise: float = 0.0, scale_noise: float = 0.0, points: bool = True, links: bool = True):
+    """A chain graph at the true states with factors from the truth (plus optional noise)."""
+    rng = np.random.default_rng(seed)
+    Ts, lams = truth_poses(n, rng)
+    g = SubmapGraph(cfg)
+    for j in range(n):
+        g.add_node(j, Ts[j], lams[j])
+    for a in range(n - 1):
+        b = a + 1
+        xi = np.concatenate([rng.normal(0, odo_noise, 3), rng.normal(0, odo_noise / 4, 3)])
+        g.add_odometry(a, b, se3_inverse(Ts[a]) @ Ts[b] @ se3_exp(xi))
+        if points:
+            pa, pb = corresponding_points(Ts[a], lams[a], Ts[b], lams[b], k, rng)
+            g.add_points(a, b, pa + rng.normal(0, point_noise, pa.shape),
+                         pb + rng.normal(0, point_noise, pb.shape), adjacent=True)
+        if links:
+            g.add_scale_link(a, b, lams[b] - lams[a] + rng.normal(0, scale_noise), 0.03)
+    return g, Ts, lams, rng
+
+
+def perturb(g: SubmapGraph, rng: np.random.Generator, st: float = 0.2, syaw: float = math.radians(3),
+            slam: float = 0.05) -> SubmapGraph:
+    """A copy of g whose free nodes are moved in translation, yaw and lambda (roll/pitch untouched)."""
+    out = SubmapGraph(g.cfg)
+    for j in g.node_ids:
+        s = g.node_state(j)
+        T = s.T_MS.copy()
+        lam = s.lam
+        if not s.fixed:
+            T[:3, :3] = rz(rng.normal(0, syaw)) @ T[:3, :3]
+            T[:3, 3] += rng.normal(0, st, 3)
+            lam += rng.normal(0, slam)
+        out.add_node(j, T, lam)
+    out.odometry = list(g.odometry)
+    out.point_groups = list(g.point_groups)
+    out.scale_links = list(g.scale_links)
+    return out
+
+
+def errors(g: SubmapGraph, Ts: np.ndarray, lams: np.ndarray) -> tuple[float, float, float]:
+    """Max translation (m), yaw (rad) and lambda errors of all nodes against the truth."""
+    et, ey, el = 0.0, 0.0, 0.0
+    for j in g.node_ids:
+        s = g.node_state(j)
+        et = max(et, float(np.linalg.norm(s.T_MS[:3, 3] - Ts[j][:3, 3])))
+        ey = max(ey, abs(yaw_of(s.T_MS[:3, :3] @ Ts[j][:3, :3].T)))
+        el = max(el, abs(s.lam - lams[j]))
+    return et, ey, el
+
+
+def test_recovers_a_perturbed_synthetic_graph():
+    g, Ts, lams, rng = build(8, seed=1, odo_noise=0.002, point_noise=0.002, scale_noise=0.005)
+    p = perturb(g, rng)
+    before = errors(p, Ts, lams)
+    assert before[0] > 0.2 and before[1] > math.radians(2) and before[2] > 0.03
+    rep = p.solve()
+    assert rep.iterations <= 8 and rep.cost_after < 0.05 * rep.cost_before
+    et, ey, el = errors(p, Ts, lams)
+    assert et < 0.03 and ey < math.radians(0.2) and el < 0.02
+    assert sorted(rep.changed) == list(range(1, 8))
+
+
+def test_gauge_and_gravity_directions_stay_fixed():
+    g, Ts, lams, rng = build(8, seed=2, odo_noise=0.002)
+    p = perturb(g, rng)
+    before = {j: p.node_state(j) for j in p.node_ids}
+    p.solve()
+    p.solve()
+    g0 = p.node_state(0)
+    assert np.array_equal(g0.T_MS, before[0].T_MS) and g0.lam == before[0].lam and g0.fixed
+    for j in p.node_ids:
+        R0, R1 = before[j].T_MS[:3, :3], p.node_state(j).T_MS[:3, :3]
+        np.testing.assert_allclose(R1.T @ EZ, R0.T @ EZ, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(R1.T @ R1, np.eye(3), atol=1e-12)
+
+
+def test_rotation_updates_are_pure_yaw():
+    g, Ts, lams, _ = build(6, seed=3)
+    p = SubmapGraph(g.cfg)
+    for j in g.node_ids:
+        T = g.node_state(j).T_MS.copy()
+        if j == 3:
+            T[:3, :3] = rz(math.radians(4.0)) @ T[:3, :3]
+        p.add_node(j, T, g.node_state(j).lam)
+    p.odometry, p.point_groups, p.scale_links = g.odometry, g.point_groups, g.scale_links
+    R_before = p.node_state(3).T_MS[:3, :3]
+    p.solve()
+    dR = p.node_state(3).T_MS[:3, :3] @ R_before.T
+    np.testing.assert_allclose(dR[2], EZ, atol=1e-12)
+    np.testing.assert_allclose(dR[:, 2], EZ, atol=1e-12)
+    assert math.degrees(yaw_of(dR)) == pytest.approx(-4.0, abs=0.01)
+    assert errors(p, Ts, lams)[1] < math.radians(0.01)
+
+
+def test_huber_weight_is_rho_prime_over_r():
+    h = 1e-6
+    for r, expected in ((1.0, 1.0), (4.0, 0.5)):
+        rho_prime = (huber_rho(r + h) - huber_rho(r - h)) / (2 * h)
+        assert float(huber_weight(r)) == pytest.approx(expected)
+        assert float(huber_weight(r)) == pytest.approx(rho_prime / r, rel=1e-8)
+    assert float(huber_rho(1.0)) == 0.5 and float(huber_rho(4.0)) == 6.0      # r^2/2 and 2r - 2
+
+
+def test_objective_is_the_exact_huber_sum():
+    """E from the graph equals the paper's sum, computed by hand on a two-node graph."""
+    T0 = make_pose(np.eye(3), np.zeros(3))
+    T1 = make_pose(rz(0.3), np.array([1.0, 0.0, 0.0]))
+    g = SubmapGraph()
+    g.add_node(0, T0, 0.0)
+    g.add_node(1, T1, 0.15)
+    g.add_odometry(0, 1, se3_inverse(T0) @ T1)                      # zero residual
+    g.add_scale_link(0, 1, -0.5, 0.03)                               # r = 0.65 / 0.03: linear branch
+    expected = (0.15 / 0.10) ** 2 / 2 + (2 * (0.65 / 0.03) - 2)
+    assert g.objective() == pytest.approx(expected, rel=1e-12)
+
+
+def test_outlier_point_group_moves_huber_less_than_quadratic():
+    results = {}
+    for k in (2.0, math.inf):
+        g, Ts, lams, rng = build(8, seed=4, odo_noise=0.001, cfg=GraphConfig(huber_threshold=k))
+        pa, pb = corresponding_points(Ts[1], lams[1], Ts[6], lams[6], 80, rng)
+        g.add_points(1, 6, pa, pb + np.array([1.5, 0.0, 0.0]), adjacent=False)    # wrong matches
+        g.solve(max_iterations=30)
+        results[k] = errors(g, Ts, lams)[0]
+    assert results[math.inf] > 0.05
+    assert results[2.0] < 0.5 * results[math.inf]
+
+
+def test_eviction_refixes_the_gauge_at_the_current_state():
+    g, Ts, lams, rng = build(6, seed=5, odo_noise=0.002)
+    p = perturb(g, rng)
+    p.solve()
+    s2 = p.node_state(2)
+    assert p.evict(1) == [0, 1]
+    assert p.gauge == 2 and p.node_ids == [2, 3, 4, 5] and p.node_state(2).fixed
+    assert all(f.a >= 2 and f.b >= 2 for f in p.odometry + p.point_groups + p.scale_links)
+    assert len(p.odometry) == 3 and len(p.point_groups) == 3 and len(p.scale_links) == 3
+    # a new node tied only by odometry: its lambda is set by the prior alone, now centred on lambda_2
+    T6 = p.node_state(5).T_MS @ make_pose(np.eye(3), np.array([0.3, 0.0, 0.0]))
+    p.add_node(6, make_pose(rz(0.05) @ T6[:3, :3], T6[:3, 3] + 0.1), s2.lam + 0.3)
+    p.add_odometry(5, 6, se3_inverse(p.node_state(5).T_MS) @ T6)
+    rep = p.solve(max_iterations=20)
+    assert 2 not in rep.changes
+    now = p.node_state(2)
+    assert np.array_equal(now.T_MS, s2.T_MS) and now.lam == s2.lam
+    assert p.node_state(6).lam == pytest.approx(s2.lam, abs=1e-6)
+    assert p.as_dict()["gauge"] == 2
+
+
+def test_evict_excess_keeps_the_newest_nodes():
+    g, *_ = build(6, seed=6, cfg=GraphConfig(max_resident_nodes=4), points=False)
+    assert g.evict_excess() == [0, 1]
+    assert g.node_ids == [2, 3, 4, 5] and g.evict_excess() == []
+
+
+def test_scale_link_chain_recovers_lambda_differences_with_a_weak_prior():
+    kappas = [0.2, -0.1, 0.3, 0.25, -0.05]
+    truth = np.concatenate([[0.0], np.cumsum(kappas)])
+    for sigma_prior, close in ((1e3, True), (0.10, False)):
+        g = SubmapGraph(GraphConfig(scale_prior_sigma=sigma_prior))
+        Ts, _ = truth_poses(6, np.random.default_rng(7))
+        for j in range(6):
+            g.add_node(j, Ts[j], 0.0)
+        for a, kappa in enumerate(kappas):
+            g.add_odometry(a, a + 1, se3_inverse(Ts[a]) @ Ts[a + 1])
+            g.add_scale_link(a, a + 1, kappa, 0.03)
+        g.solve(max_iterations=20)
+        lam = np.array([g.node_state(j).lam for j in range(6)])
+        if close:
+            np.testing.assert_allclose(np.diff(lam), kappas, atol=1e-5)
+            np.testing.assert_allclose(lam, truth, atol=1e-4)
+        else:                                    # the 0.10 prior visibly pulls lambda towards lambda_0
+            assert np.abs(lam - truth).max() > 0.01
+
+
+def test_jacobian_and_gradient_match_finite_differences():
+    g, Ts, lams, rng = build(5, seed=8, k=10, odo_noise=0.002)
+    p = perturb(g, rng, st=0.3)
+    pa, pb = corresponding_points(Ts[0], lams[0], Ts[3], lams[3], 10, rng)
+    p.add_points(0, 3, pa, pb + 1.0, adjacent=False)          # Huber's linear branch is active
+    prob = p.problem()
+    x = rng.normal(0, 0.02, prob.n_params)
+    J = prob.jacobian(x)
+    f = prob.residual(x)
+    h = 1e-6
+    Jn = np.stack([(prob.residual(x + h * e) - prob.residual(x - h * e)) / (2 * h)
+                   for e in np.eye(len(x))], axis=1)
+    np.testing.assert_allclose(J, Jn, atol=2e-4 * np.abs(Jn).max())
+    rho = prob.loss(f * f)
+    assert np.any(rho[1] < 1.0)
+    grad = J.T @ (rho[1] * f)                 # scipy's gradient with the block loss
+    grad_n = np.array([(prob.cost(x + h * e) - prob.cost(x - h * e)) / (2 * h) for e in np.eye(len(x))])
+    np.testing.assert_allclose(grad, grad_n, atol=1e-4 * np.abs(grad_n).max())
+    assert 0.5 * rho[0].sum() == pytest.approx(prob.cost(x), rel=1e-12)
+
+
+def test_iteration_cap_report_and_manifest():
+    g, Ts, lams, rng = build(6, seed=9, odo_noise=0.002)
+    p = perturb(g, rng, st=0.5)
+    q = copy.deepcopy(p)
+    rep1 = p.solve(max_iterations=1)
+    assert rep1.iterations <= 1 and rep1.cost_after <= rep1.cost_before
+    before = {j: q.node_state(j) for j in q.node_ids}
+    rep = q.solve()
+    assert 1 <= rep.iterations <= 8 and rep.jacobians >= 1 and rep.time_s > 0
+    for j, c in rep.changes.items():
+        b, a = before[j], q.node_state(j)
+        np.testing.assert_allclose(c.dt, a.T_MS[:3, 3] - b.T_MS[:3, 3], atol=1e-12)
+        assert c.dyaw == pytest.approx(yaw_of(a.T_MS[:3, :3] @ b.T_MS[:3, :3].T), abs=1e-12)
+        assert c.dlam == pytest.approx(a.lam - b.lam, abs=1e-12)
+    d = q.as_dict()
+    json.dumps(d)
+    json.dumps(rep.as_dict())
+    assert [n["id"] for n in d["nodes"]] == list(range(6)) and d["nodes"][0]["fixed"]
+    assert len(d["odometry"]) == 5 and d["point_groups"][0]["n"] == 40 and "p_a" not in d["point_groups"][0]
