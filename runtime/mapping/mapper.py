@@ -6,7 +6,9 @@ Per window (run by the model worker, never by the tracking thread):
   3. depth samples on a pixel grid, the confidence filter and multi-view rejection (multiview.py);
   4. the submap (frame S_j = the centre image's camera, points kept in their image's camera frame);
   5. the relative-scale link to the previous submap (shared_scale.py);
-  6. fusion into voxels over at most `max_resident_submaps` resident submaps (fusion.py);
+  6. fusion into voxels over the resident submaps (fusion.py): at most `max_resident_submaps` stay in
+     memory; an evicted submap leaves the live grid too (its archive stays on disk, and the final
+     export re-fuses every archive), so memory stays bounded on long runs;
   7. the commit: a new map version, handed to the sink (the run's map archive).
 Here the submap poses come straight from the filter (T_MS_j = T_OS_j: the graph is the identity).
 """
@@ -28,7 +30,7 @@ from runtime.mapping.config import MappingConfig
 from runtime.mapping.frame_scales import FrameScaleResult, PairMatches, solve_frame_scales
 from runtime.mapping.fusion import VoxelGrid
 from runtime.mapping.multiview import confidence_mask, reobserved, sample_grid
-from runtime.mapping.placement import backproject
+from runtime.mapping.placement import backproject, place_points
 from runtime.mapping.shared_scale import ScaleLink, overlap_link, shared_link
 from runtime.mapping.submap import Submap
 from runtime.mapping.windows import MappingWindow
@@ -177,10 +179,10 @@ class Mapper:
         depths_by_t = {int(t): depth[i] for i, t in enumerate(window.t_ns)}
         link = self._link(sub, depths_by_t, T_OC)
         t3 = time.perf_counter()
-        self.grid.integrate(sub.points_M(), sub.grey)
+        self._fuse(sub)
         self.resident.append(sub)
         while len(self.resident) > self.cfg.max_resident_submaps:
-            self.resident.pop(0)            # its voxels stay fused; its archive stays on disk
+            self._unfuse(self.resident.pop(0))   # leaves memory and the live grid; its archive stays on disk
             st.submaps_evicted += 1
         self._prev = (sub, depths_by_t)
         st.submaps_resident = len(self.resident)
@@ -193,6 +195,23 @@ class Mapper:
             self.sink(commit, st)
             self._time("archive", t4)
         return commit
+
+    # ------------------------------------------------------------------ fusion of resident submaps
+    def _fuse(self, sub: Submap) -> None:
+        """Add a submap to the live grid at its current state (remembered, to take it out exactly)."""
+        sub.fused_state = (np.array(sub.T_MS, np.float64), float(sub.lam))
+        self.grid.integrate(sub.points_M(), sub.grey)
+
+    def _unfuse(self, sub: Submap) -> None:
+        """Take a submap out of the live grid, at the state it was fused with."""
+        T_MS, lam = sub.fused_state
+        self.grid.integrate(place_points(sub.points_C, sub.image, sub.T_SC, T_MS, lam), sub.grey, sign=-1)
+        sub.fused_state = None
+
+    def refuse(self, sub: Submap) -> None:
+        """Move a resident submap in the live grid after the graph changed its T_MS or lambda."""
+        self._unfuse(sub)
+        self._fuse(sub)
 
     # ------------------------------------------------------------------ stages
     def _time(self, stage: str, t0: float) -> None:
@@ -298,5 +317,6 @@ class Mapper:
 
     # ------------------------------------------------------------------ results
     def fused_points(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(positions (V,3), grey (V,), counts (V,)) of the fused map (map frame)."""
+        """(positions (V,3), grey (V,), counts (V,)) of the live map: the resident submaps fused
+        (map frame). The whole map of a long run is the archive's export."""
         return self.grid.points()

@@ -53,6 +53,8 @@ class Submap:
     version: int = 0
     segment: int = 0
     fit: dict = field(default_factory=dict)
+    fused_state: tuple | None = field(default=None, repr=False, compare=False)
+    """(T_MS, lambda) the live voxel grid holds this submap at (None: not in the grid)."""
 
     def __post_init__(self) -> None:
         n = len(self.frame_t_ns)
