@@ -264,6 +264,8 @@ class VioPipeline:
         if self.windows is not None:
             rep["mapping"] = asdict(self._mapping_stats())
             rep["mapping"]["keyframes"] = self.windows.keyframes
+            if self.mapper is not None and self.mapper.backend is not None:
+                rep["mapping"]["graph"] = asdict(self.mapper.backend.stats)
             rep["mapping"]["windows_dropped_ids"] = list(self.map_queue.dropped)
         rep["tracking"]["mean_tracks_per_frame"] = self.stats.tracks_total / max(self.stats.frames, 1)
         return rep

@@ -41,7 +41,7 @@ class MapOutput:
         """Checkpoint the archive at a map commit (called by the model worker)."""
         if commit.link is not None:
             self.pairs.append(commit.link.as_dict())
-        self.archive.commit([commit.submap], self.pairs, commit.version, asdict(stats))
+        self.archive.commit([commit.submap, *commit.changed], self.pairs, commit.version, asdict(stats))
 
     def finish(self) -> dict:
         """Export map.ply from the archive (every submap with its latest state); returns a summary."""

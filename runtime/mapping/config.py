@@ -51,3 +51,7 @@ class MappingConfig:
     """Fewest aligned valid pixels for a shared-image or projected-overlap depth ratio."""
     min_scale_sigma: float = 0.03
     """Floor of sigma_ab for the shared-image scale residual (eq. shared)."""
+    graph_points: int = 80
+    """Most correspondences of a point group between the centre images of two submaps."""
+    graph_min_points: int = 10
+    """Fewer verified correspondences than this add no point group."""

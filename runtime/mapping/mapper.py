@@ -10,7 +10,9 @@ Per window (run by the model worker, never by the tracking thread):
      memory; an evicted submap leaves the live grid too (its archive stays on disk, and the final
      export re-fuses every archive), so memory stays bounded on long runs;
   7. the commit: a new map version, handed to the sink (the run's map archive).
-Here the submap poses come straight from the filter (T_MS_j = T_OS_j: the graph is the identity).
+The submap graph (runtime/graph) places the submaps: each commit adds a node with its odometry
+factor, shared-image scale link and adjacent point group, solves, and moves the resident submaps
+whose state changed (their voxels are re-fused). `graph=False` keeps T_MS_j = T_OS_j.
 """
 from __future__ import annotations
 
@@ -25,6 +27,8 @@ import numpy as np
 
 from models.depth_model import DepthModel
 from runtime.errors import DavioError
+from runtime.graph.backend import GraphBackend
+from runtime.graph.config import GraphConfig
 from runtime.mapping.conditioned import WindowFit, depth_call
 from runtime.mapping.config import MappingConfig
 from runtime.mapping.frame_scales import FrameScaleResult, PairMatches, solve_frame_scales
@@ -72,11 +76,23 @@ class MappingStats:
 
 @dataclass
 class MapCommit:
-    """What one commit changed: the new submap and its scale link to the previous one."""
+    """What one commit changed.
+
+    Attributes:
+        version: the map version this commit defines.
+        submap: the new submap.
+        link: its scale link to the previous submap (None when there was none).
+        changed: resident submaps whose graph state (T_MS, lambda) the commit's solve moved.
+        T_MO: (4,4) the odometry-to-map correction the commit defines (eq. correction).
+        t_ns: sensor time of the newest image of the window.
+    """
 
     version: int
     submap: Submap
     link: ScaleLink | None
+    changed: list = field(default_factory=list)
+    T_MO: np.ndarray = field(default_factory=lambda: np.eye(4))
+    t_ns: int = 0
 
 
 class Rectifier:
@@ -109,11 +125,13 @@ class Mapper:
             or False to skip the per-frame scales.
         sink: called with each MapCommit and the current stats (the run's map archive).
         conditioned: False runs DA3 without poses (the unconditioned reference of the benchmark).
+        graph: the submap graph's configuration (None: defaults), or False to place submaps with the
+            filter's poses as they are (T_MS_j = T_OS_j, lambda_j = 0: the "graph off" ablation).
     """
 
     def __init__(self, model: DepthModel, camera: Any, cfg: MappingConfig | None = None,
                  matcher: Any = None, sink: Callable[[MapCommit, MappingStats], None] | None = None,
-                 conditioned: bool = True) -> None:
+                 conditioned: bool = True, graph: GraphConfig | None | bool = None) -> None:
         self.model = model
         self.cfg = cfg or MappingConfig()
         self.K = np.asarray(model.K_rect, np.float64)
@@ -132,6 +150,7 @@ class Mapper:
         self.submap_count = 0
         self._prev: tuple[Submap, dict[int, np.ndarray]] | None = None
         self._features: OrderedDict[int, Any] = OrderedDict()
+        self.backend = None if graph is False else GraphBackend(graph or GraphConfig())
 
     # ------------------------------------------------------------------ the window job
     def process(self, window: MappingWindow) -> MapCommit | WindowFit | None:
@@ -178,7 +197,12 @@ class Mapper:
                           "frame_scale_matches": scales.matches_used})
         depths_by_t = {int(t): depth[i] for i, t in enumerate(window.t_ns)}
         link = self._link(sub, depths_by_t, T_OC)
+        t_graph = time.perf_counter()
+        changed = self._graph_update(sub, depths_by_t, link)
+        self._time("graph", t_graph)
         t3 = time.perf_counter()
+        for other in changed:
+            self.refuse(other)
         self._fuse(sub)
         self.resident.append(sub)
         while len(self.resident) > self.cfg.max_resident_submaps:
@@ -189,12 +213,68 @@ class Mapper:
         st.voxels = len(self.grid)
         st.windows_accepted += 1
         self._time("fusion", t3)
-        commit = MapCommit(st.map_version, sub, link)
+        T_MO = self.backend.T_MO(sub.index) if self.backend is not None else np.eye(4)
+        commit = MapCommit(st.map_version, sub, link, changed, T_MO, int(window.t_ns[-1]))
         if self.sink is not None:
             t4 = time.perf_counter()
             self.sink(commit, st)
             self._time("archive", t4)
         return commit
+
+    # ------------------------------------------------------------------ the submap graph
+    def _graph_update(self, sub: Submap, depths_by_t: dict[int, np.ndarray], link: ScaleLink | None
+                      ) -> list[Submap]:
+        """Add the submap to the graph, solve, and copy the new states to the resident submaps;
+        returns the resident submaps (other than `sub`) whose state changed."""
+        if self.backend is None:
+            return []
+        prev = self._prev[0] if self._prev is not None and self._prev[0].segment == sub.segment else None
+        points = self._adjacent_points(prev, sub, depths_by_t) if prev is not None else None
+        self.backend.add_submap(sub.index, sub.T_OS, sub.segment, None if prev is None else prev.index,
+                                link, points)
+        sub.T_MS, sub.lam = self.backend.state(sub.index)
+        changed = []
+        for other in self.resident:
+            if other.index not in self.backend.graph:
+                continue
+            T_MS, lam = self.backend.state(other.index)
+            if not (np.array_equal(T_MS, other.T_MS) and lam == other.lam):
+                other.T_MS, other.lam, other.version = T_MS, lam, self.stats.map_version
+                changed.append(other)
+        return changed
+
+    def _adjacent_points(self, prev: Submap, sub: Submap, depths_by_t: dict[int, np.ndarray]
+                         ) -> tuple[np.ndarray, np.ndarray] | None:
+        """Up to `graph_points` correspondences between the centre images of consecutive submaps:
+        (p_prev in S_prev, p_sub in S_sub), corrected depths without lambda."""
+        if self.matcher is None or self._prev is None:
+            return None
+        t_a, t_b = int(prev.frame_t_ns[prev.centre]), int(sub.frame_t_ns[sub.centre])
+        fa, fb = self._features.get(t_a), self._features.get(t_b)
+        d_a, d_b = self._prev[1].get(t_a), depths_by_t.get(t_b)
+        if fa is None or fb is None or d_a is None or d_b is None:
+            return None
+        m = self.matcher.match_features(fa, fb)
+        if len(m) == 0:
+            return None
+        h, w = d_b.shape
+        ua, ub = np.round(m.points_a).astype(np.int64), np.round(m.points_b).astype(np.int64)
+        ok = ((ua >= 0) & (ua < [w, h])).all(1) & ((ub >= 0) & (ub < [w, h])).all(1)
+        ua, ub = ua[ok], ub[ok]
+        za, zb = d_a[ua[:, 1], ua[:, 0]], d_b[ub[:, 1], ub[:, 0]]
+        ok = np.isfinite(za) & np.isfinite(zb) & (za > 0) & (zb > 0) & (za < self.cfg.max_depth_m) \
+            & (zb < self.cfg.max_depth_m)
+        p_a = backproject(za[ok], self.K, ua[ok, 0], ua[ok, 1])
+        p_b = backproject(zb[ok], self.K, ub[ok, 0], ub[ok, 1])
+        # keep matches the odometry does not contradict (within 25 % of depth): wrong matches go
+        Z = np.linalg.inv(prev.T_OS) @ sub.T_OS
+        pred = p_b @ Z[:3, :3].T + Z[:3, 3]
+        ok = np.linalg.norm(pred - p_a, axis=1) <= 0.25 * p_a[:, 2]
+        p_a, p_b = p_a[ok], p_b[ok]
+        if len(p_a) < self.cfg.graph_min_points:
+            return None
+        keep = np.unique(np.linspace(0, len(p_a) - 1, min(len(p_a), self.cfg.graph_points)).astype(int))
+        return p_a[keep], p_b[keep]
 
     # ------------------------------------------------------------------ fusion of resident submaps
     def _fuse(self, sub: Submap) -> None:
