@@ -15,6 +15,7 @@ from runtime.config import DavioConfig
 from runtime.errors import ConfigError
 from runtime.events import Frame, ImuSample
 from runtime.ffinit.initializer import FeedForwardInitializer
+from runtime.graph.correction import CorrectionTimeline, final_corrections
 from runtime.mapping.mapper import MapCommit, Mapper, MappingStats
 from runtime.mapping.windows import MappingWindow, WindowBuilder, WindowQueue
 from runtime.msckf.estimator import MsckfEstimator
@@ -62,6 +63,12 @@ class VioPipeline:
             self.map_queue = WindowQueue(self.config.mapping.max_pending_windows)
             self.map_stats = MappingStats()
             self._frames_waiting: dict[int, Frame] = {}
+        #: live odometry-to-map correction (eq. correction), one timeline per odometry segment
+        self.corrections: dict[int, CorrectionTimeline] = {}
+        #: per published state: (T_MI (4,4) as published in the map frame, version, fraction)
+        self.causal: list[tuple[np.ndarray, int, float]] = []
+        #: final per-node corrections: submap index -> (segment, centre camera t_ns, T_MO (4,4))
+        self.node_corrections: dict[int, tuple[int, int, np.ndarray]] = {}
         self.tracker = KltTracker(rig.camera, self.config.tracker)
         self.published: list[Published] = []
         self.stats = TrackingStats()
@@ -126,7 +133,7 @@ class VioPipeline:
             self.bringup.on_imu(sample)
             return []
         out = self.startup.on_imu(sample)
-        self.published += out
+        self._publish_causal(out)
         if self.windows is not None and out:
             self._offer_keyframes(out)
         return out
@@ -141,13 +148,61 @@ class VioPipeline:
             self.bringup.on_frame(frame)
             return []
         out = self.startup.on_tracks(int(frame.t_ns), res.ids, res.uv, frame)
-        self.published += out
+        self._publish_causal(out)
         if self.windows is not None:
             self._frames_waiting[int(frame.t_ns)] = frame
             if len(self._frames_waiting) > 64:   # poses come within a few IMU samples of the frame
                 self._frames_waiting.pop(next(iter(self._frames_waiting)))
             if out:
                 self._offer_keyframes(out)
+        return out
+
+    # ------------------------------------------------------------------ live map-frame poses
+    def _publish_causal(self, out: list[Published]) -> None:
+        """Record the published states and their map-frame poses T_MO(t) T_OI(t) as published."""
+        self.published += out
+        for p in out:
+            T_OI = np.eye(4)
+            T_OI[:3, :3], T_OI[:3, 3] = p.R_OI, p.p_OI
+            tl = self.corrections.get(p.segment)
+            if tl is None:
+                self.causal.append((T_OI, 0, 1.0))
+            else:
+                c = tl.apply(int(p.t_ns), T_OI)
+                self.causal.append((c.T_MI, c.version, c.fraction))
+
+    def _apply_commit(self, commit: MapCommit) -> None:
+        """A map commit defines a new correction from the sensor time it is applied at."""
+        seg = commit.submap.segment
+        tl = self.corrections.setdefault(seg, CorrectionTimeline())
+        tl.commit(max(self._last_t, tl.last_commit_ns or 0), commit.T_MO, commit.version)
+        self._record_nodes(commit)
+
+    def _record_nodes(self, commit: MapCommit) -> None:
+        offset = int(round(self.time_offset_s * 1e9))
+        for sm in (commit.submap, *commit.changed):
+            T_MO = sm.T_MS @ np.linalg.inv(sm.T_OS)
+            self.node_corrections[sm.index] = (sm.segment, int(sm.frame_t_ns[sm.centre]) + offset, T_MO)
+
+    def final_poses(self) -> list[np.ndarray]:
+        """Every published pose re-exported with the completed corrections (T_MI per state): each
+        state gets the final correction of its segment's submaps, interpolated between the submap
+        centres around it (runtime.graph.correction.final_corrections)."""
+        out: list[np.ndarray] = [np.eye(4)] * len(self.published)
+        by_seg: dict[int, list[int]] = {}
+        for k, p in enumerate(self.published):
+            by_seg.setdefault(p.segment, []).append(k)
+        for seg, idx in by_seg.items():
+            nodes = sorted((t, T) for s, t, T in self.node_corrections.values() if s == seg)
+            t_nodes = np.array([t for t, _ in nodes], np.int64)
+            T_nodes = np.array([T for _, T in nodes]).reshape(-1, 4, 4)
+            t_pose = np.array([self.published[k].t_ns for k in idx], np.int64)
+            corr = final_corrections(t_pose, t_nodes, T_nodes)
+            for j, k in enumerate(idx):
+                p = self.published[k]
+                T_OI = np.eye(4)
+                T_OI[:3, :3], T_OI[:3, 3] = p.R_OI, p.p_OI
+                out[k] = corr[j] @ T_OI
         return out
 
     # ------------------------------------------------------------------ mapping queue
@@ -194,7 +249,9 @@ class VioPipeline:
             return 0
         done = 0
         while (window := self.map_queue.pop()) is not None:
-            self._mapping_job(window)()
+            result = self._mapping_job(window)()
+            if isinstance(result, MapCommit):   # after the last pose: only the final trajectory sees it
+                self._record_nodes(result)
             done += 1
         return done
 
@@ -241,6 +298,8 @@ class VioPipeline:
                 st = self._mapping_stats()
                 st.reject("exception")
                 st.model_errors.append(f"{type(result).__name__}: {result}")
+            elif isinstance(result, MapCommit):
+                self._apply_commit(result)
             return
         if isinstance(result, Exception):
             self.stats.ff_exceptions.append(f"{type(result).__name__}: {result}")
@@ -269,3 +328,4 @@ class VioPipeline:
             rep["mapping"]["windows_dropped_ids"] = list(self.map_queue.dropped)
         rep["tracking"]["mean_tracks_per_frame"] = self.stats.tracks_total / max(self.stats.frames, 1)
         return rep
+

@@ -1,6 +1,9 @@
 """Opening recordings and writing the outputs of a run (DESIGN §4 "On-disk outputs of a run").
 
-A run folder holds: odometry.tum (published IMU poses in the odometry frame), report.json
+A run folder holds: odometry.tum (published IMU poses in the odometry frame), causal.tum (each pose
+as published in the map frame, with the map correction in effect then), final.tum (every pose
+re-exported with the completed corrections), poses.csv (per pose: correction version and
+interpolation fraction), report.json
 (metrics, timings, counters, configuration, versions), config.toml (the resolved configuration)
 and plots (trajectory and error against ground truth when the recording has it). When the filter
 restarted after a divergence, odometry_segment<k>.tum holds each segment (its own odometry frame) and
@@ -215,6 +218,10 @@ def write_run(out_dir: Path, pipeline: Any, sched_report: Any, gt: PoseTrajector
             write_tum(out_dir / f"odometry_segment{k}.tum", published_trajectory(seg))
     est = published_trajectory(segments[-1] if segments else [])
     write_tum(out_dir / "odometry.tum", est)  # atomic
+    causal, final = map_frame_trajectories(pipeline, len(est))
+    write_tum(out_dir / "causal.tum", causal)
+    write_tum(out_dir / "final.tum", final)
+    _write_pose_table(out_dir / "poses.csv", pipeline)
     atomic_write_text(out_dir / "config.toml", dump_toml(config))
     st = pipeline.startup.report if pipeline.startup is not None else None
     t0 = sched_report.first_t_ns
@@ -229,6 +236,8 @@ def write_run(out_dir: Path, pipeline: Any, sched_report: Any, gt: PoseTrajector
         "published_by": None if st is None else st.published_by,
         "T_f_s": None if t_pub is None or t0 is None else (t_pub - t0) * 1e-9,
         "metrics": evaluate(est, gt),
+        "metrics_causal": evaluate(causal, gt),
+        "metrics_final": evaluate(final, gt),
         "scheduler": sched_report.as_dict(),
         "pipeline": pipeline.report(),
         "config": config_to_dict(config),
@@ -238,6 +247,30 @@ def write_run(out_dir: Path, pipeline: Any, sched_report: Any, gt: PoseTrajector
     if gt is not None and len(est) >= 3:
         _plots(out_dir, est, gt)
     return report
+
+
+def map_frame_trajectories(pipeline: Any, n_last: int) -> tuple[PoseTrajectory, PoseTrajectory]:
+    """(causal, final) IMU trajectories in the map frame of the last `n_last` published states (the
+    last segment): causal = each pose as published, T_MO(t) T_OI(t) with the correction in effect
+    then; final = every pose re-exported with the completed corrections."""
+    pub = pipeline.published[len(pipeline.published) - n_last:]
+    if not pub:
+        empty = PoseTrajectory(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3, 3)))
+        return empty, empty
+    t = [p.t_ns for p in pub]
+    causal_T = [c[0] for c in pipeline.causal[len(pipeline.causal) - n_last:]]
+    final_T = pipeline.final_poses()[len(pipeline.published) - n_last:]
+    return (PoseTrajectory(t, [T[:3, 3] for T in causal_T], [T[:3, :3] for T in causal_T]),
+            PoseTrajectory(t, [T[:3, 3] for T in final_T], [T[:3, :3] for T in final_T]))
+
+
+def _write_pose_table(path: Path, pipeline: Any) -> None:
+    """poses.csv: every published state with its segment, source, and the map correction version and
+    interpolation fraction it was published with."""
+    rows = ["t_ns,t_cam_ns,segment,source,correction_version,interpolation_fraction"]
+    for p, (_, version, fraction) in zip(pipeline.published, pipeline.causal, strict=True):
+        rows.append(f"{p.t_ns},{p.t_cam_ns},{p.segment},{p.source},{version},{fraction:.6f}")
+    atomic_write_text(path, "\n".join(rows) + "\n")
 
 
 def _json_default(o: Any) -> Any:

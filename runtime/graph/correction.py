@@ -117,6 +117,11 @@ class CorrectionTimeline:
         """The newest committed version (0 before any commit)."""
         return self._commits[-1].version if self._commits else 0
 
+    @property
+    def last_commit_ns(self) -> int | None:
+        """Sensor time of the newest commit (None before any)."""
+        return self._t[-1] if self._t else None
+
     def commit(self, t_ns: int, T_MO: np.ndarray, version: int) -> bool:
         """Add a map commit at sensor time t_ns with target correction T_MO (4,4) and a new version.
 

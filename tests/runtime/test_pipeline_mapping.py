@@ -72,6 +72,15 @@ def test_windows_follow_published_poses_and_the_map_lies_on_the_scene(recording)
     assert all(len(set(a.submap.frame_t_ns) & set(b.submap.frame_t_ns)) == 2
                for a, b in zip(commits, commits[1:], strict=False))
     assert all(c.link is not None and c.link.method == "shared" for c in commits[1:])
+    # live poses: once a commit's correction is complete, a published pose is T_MO T_OI with T_MO from
+    # that commit's newest node (eq. correction); versions never decrease
+    versions = [v for _, v, _ in pipe.causal]
+    assert versions == sorted(versions) and versions[-1] >= 1
+    last = max((c for c in commits if c.version == versions[-1]), key=lambda c: c.version)
+    T_MO = last.submap.T_MS @ np.linalg.inv(last.submap.T_OS)
+    (T_MI, _, frac), p = pipe.causal[-1], pipe.published[-1]
+    if frac == 1.0:
+        assert np.allclose(T_MI[:3, 3], T_MO[:3, :3] @ p.p_OI + T_MO[:3, 3], atol=1e-9)
     # the fused map, moved into the simulator's world by the trajectory's SE(3) alignment, lies on the scene
     est, ref = associate(published_trajectory(pipe.published), rec.groundtruth())
     _, al = align(est, ref, "se3")
@@ -100,6 +109,9 @@ def test_tracking_is_identical_with_mapping_on_and_drops_are_counted(recording):
     on = VioPipeline(rec.rig, _SlowModel(_model(rec)), _config(True, pending=1), mapper_factory=_no_matcher)
     sched = Scheduler(PacedClock(4.0))                                # 8 s of sensor time in 2 s
     rep = sched.run(iter(events), on)
+    # without a map no correction ever happens: final poses equal the causal ones equal the odometry
+    assert all(np.array_equal(a, c[0]) for a, c in zip(off.final_poses(), off.causal, strict=True))
+    assert all(np.allclose(c[0][:3, 3], p.p_OI) for c, p in zip(off.causal, off.published, strict=True))
     st = on.report()["mapping"]
     # windows come every 1.5 s of sensor time = 0.375 s of wall time, each takes > 2.5 s: the queue
     # (one pending window) drops

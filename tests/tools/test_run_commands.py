@@ -43,6 +43,10 @@ def test_demo_publishes_metric_trajectory_matching_ground_truth(tmp_path, capsys
     assert check_integrity(out / "map") == []
     assert len(read_ply_vertices(out / "map.ply")) == report["map"]["voxels"] > 10_000
     assert "map: " in text and "windows mapped" in text
+    for name in ("causal.tum", "final.tum"):   # map-frame trajectories, one pose per published state
+        assert len(read_tum(out / name)) == report["published_poses"]
+    rows = (out / "poses.csv").read_text().splitlines()
+    assert rows[0].startswith("t_ns,") and len(rows) == report["published_poses"] + 1
 
 
 def test_run_on_real_euroc_head_writes_outputs(tmp_path, capsys):

@@ -112,6 +112,10 @@ def _summary(report: dict, out: Path) -> None:
     if m:
         nan = float("nan")
         print(f"  ATE: {m.get('ate_se3_m', nan):.3f} m (se3), {m.get('ate_posyaw_m', nan):.3f} m (posyaw)")
+        mc, mf = report.get("metrics_causal") or {}, report.get("metrics_final") or {}
+        if report["pipeline"].get("mapping") is not None and mc:
+            print(f"  ATE map frame: causal {mc.get('ate_se3_m', nan):.3f} m, "
+                  f"final {mf.get('ate_se3_m', nan):.3f} m (se3)")
     for line in _recovery_lines(report):
         print(f"  {line}")
     bu = report["pipeline"].get("bringup")
@@ -126,7 +130,8 @@ def _summary(report: dict, out: Path) -> None:
     mp = report["pipeline"].get("mapping")
     if mp is not None:
         print("  " + _mapping_line(mp, report.get("map") or {}))
-    print(f"  outputs: {out}/odometry.tum, report.json, config.toml" + (", plots" if m else "")
+    print(f"  outputs: {out}/odometry.tum, causal.tum, final.tum, poses.csv, report.json, config.toml"
+          + (", plots" if m else "")
           + (", map/, map.ply" if (report.get("map") or {}).get("ply") else ""))
 
 
