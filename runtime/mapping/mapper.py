@@ -29,6 +29,7 @@ from models.depth_model import DepthModel
 from runtime.errors import DavioError
 from runtime.graph.backend import GraphBackend
 from runtime.graph.config import GraphConfig
+from runtime.graph.revisits import RevisitView
 from runtime.mapping.conditioned import WindowFit, depth_call
 from runtime.mapping.config import MappingConfig
 from runtime.mapping.frame_scales import FrameScaleResult, PairMatches, solve_frame_scales
@@ -151,6 +152,7 @@ class Mapper:
         self._prev: tuple[Submap, dict[int, np.ndarray]] | None = None
         self._features: OrderedDict[int, Any] = OrderedDict()
         self.backend = None if graph is False else GraphBackend(graph or GraphConfig())
+        self._centre_views: dict[int, tuple] = {}
 
     # ------------------------------------------------------------------ the window job
     def process(self, window: MappingWindow) -> MapCommit | WindowFit | None:
@@ -206,7 +208,9 @@ class Mapper:
         self._fuse(sub)
         self.resident.append(sub)
         while len(self.resident) > self.cfg.max_resident_submaps:
-            self._unfuse(self.resident.pop(0))   # leaves memory and the live grid; its archive stays on disk
+            old = self.resident.pop(0)
+            self._unfuse(old)               # leaves memory and the live grid; its archive stays on disk
+            self._centre_views.pop(old.index, None)
             st.submaps_evicted += 1
         self._prev = (sub, depths_by_t)
         st.submaps_resident = len(self.resident)
@@ -231,7 +235,11 @@ class Mapper:
         prev = self._prev[0] if self._prev is not None and self._prev[0].segment == sub.segment else None
         points = self._adjacent_points(prev, sub, depths_by_t) if prev is not None else None
         self.backend.add_submap(sub.index, sub.T_OS, sub.segment, None if prev is None else prev.index,
-                                link, points)
+                                link, points, t_ns=int(sub.frame_t_ns[sub.centre]))
+        view = self._centre_view(sub, depths_by_t)
+        if view is not None:
+            self._centre_views[sub.index] = view
+            self.backend.try_revisits(sub.index, self._centre_views, self.matcher)
         sub.T_MS, sub.lam = self.backend.state(sub.index)
         changed = []
         for other in self.resident:
@@ -242,6 +250,21 @@ class Mapper:
                 other.T_MS, other.lam, other.version = T_MS, lam, self.stats.map_version
                 changed.append(other)
         return changed
+
+    def _centre_view(self, sub: Submap, depths_by_t: dict[int, np.ndarray]) -> tuple | None:
+        """(Features, RevisitView) of a submap's centre image, kept while it is resident (revisits)."""
+        if self.matcher is None:
+            return None
+        t = int(sub.frame_t_ns[sub.centre])
+        f, d = self._features.get(t), depths_by_t.get(t)
+        if f is None or d is None:
+            return None
+        h, w = d.shape
+        uv = np.round(np.asarray(f.kpts, np.float64)).astype(np.int64)
+        inside = (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+        z = np.full(len(uv), np.nan)
+        z[inside] = d[uv[inside, 1], uv[inside, 0]]
+        return f, RevisitView(self.K, np.asarray(f.kpts, np.float64), z, (w, h))
 
     def _adjacent_points(self, prev: Submap, sub: Submap, depths_by_t: dict[int, np.ndarray]
                          ) -> tuple[np.ndarray, np.ndarray] | None:
