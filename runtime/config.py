@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from runtime.ffinit.config import FFInitConfig
+from runtime.graph.config import GraphConfig
+from runtime.graph.revisits import RevisitConfig
 from runtime.mapping.config import MappingConfig
 from runtime.msckf.config import MsckfConfig
 from runtime.msckf.init_dynamic import DynamicInitConfig
@@ -33,3 +35,7 @@ class DavioConfig:
     """Feed-forward initializer thresholds."""
     mapping: MappingConfig = field(default_factory=MappingConfig)
     """Pose-conditioned dense mapping (runs whenever a depth model is given)."""
+    graph: GraphConfig = field(default_factory=GraphConfig)
+    """The submap graph (drift model, point covariance, scale prior, Huber, LM iterations)."""
+    revisits: RevisitConfig = field(default_factory=RevisitConfig)
+    """Revisit candidates and their verification gates."""

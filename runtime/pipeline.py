@@ -229,8 +229,10 @@ class VioPipeline:
 
     def _mapping_job(self, window: MappingWindow) -> Callable[[], Any]:
         if self.mapper is None:
-            mapper = self._mapper_factory(self.model, self.rig.camera, self.config.mapping,
-                                          sink=self.map_sink)
+            cfg = self.config
+            mapper = self._mapper_factory(self.model, self.rig.camera, cfg.mapping, sink=self.map_sink,
+                                          graph=cfg.graph if cfg.mapping.graph else False,
+                                          revisits=cfg.revisits)
             # counters of the windows offered before the mapper existed carry over
             mapper.stats.windows_offered = self.map_stats.windows_offered
             mapper.stats.windows_dropped_queue = self.map_stats.windows_dropped_queue

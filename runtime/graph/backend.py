@@ -120,7 +120,7 @@ class GraphBackend:
         innovation against the graph's prediction), and add each accepted one (`add_revisit`).
         `views` maps node ids to (matcher Features of the centre image, RevisitView). Returns the
         number of revisits added; every candidate's outcome is counted by stage."""
-        if b not in self.graph or b not in views:
+        if not self.revisit_cfg.enabled or b not in self.graph or b not in views:
             return 0
         ids = [k for k in self.graph.node_ids if k in views]
         pos = np.array([self.state(k)[0][:3, 3] for k in ids]).reshape(-1, 3)

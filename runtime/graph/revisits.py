@@ -63,6 +63,10 @@ class RevisitConfig:
     scale_sigma: float = 0.03
     """sigma_ab of the revisit's median-depth-ratio scale link (log-scale units); mirrors
     `GraphConfig.revisit_scale_sigma`, which `GraphBackend.add_revisit` uses."""
+    enabled: bool = True
+    """Look for revisits at all (off: the "without revisits" ablation)."""
+    drift_gate: bool = True
+    """Admit a verified revisit's point group only past the drift gate (off: always; an ablation)."""
 
 
 @dataclass
@@ -426,5 +430,5 @@ def verify_revisit(a: RevisitView, b: RevisitView, matches_ab: tuple[np.ndarray,
     res.accepted, res.stage, res.reason = True, "accepted", "accepted"
     res.p_a, res.p_b = p_a, p_b
     res.kappa, res.scale_sigma = -res.log_depth_ratio, float(cfg.scale_sigma)
-    res.admit_points = drift_gate(sp, res.position_sigma)
+    res.admit_points = drift_gate(sp, res.position_sigma) if cfg.drift_gate else True
     return res

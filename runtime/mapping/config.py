@@ -11,6 +11,8 @@ class MappingConfig:
 
     enabled: bool = True
     """Map whenever a depth model is given (`davio run --no-map` turns it off)."""
+    graph: bool = True
+    """Place submaps with the submap graph (off: the filter's poses as they are, lambda = 0)."""
     keyframe_spacing_s: float = 0.5
     """Keyframes at this sensor-time spacing during tracking (Sec. III)."""
     window_images: int = 5

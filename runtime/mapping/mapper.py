@@ -29,7 +29,7 @@ from models.depth_model import DepthModel
 from runtime.errors import DavioError
 from runtime.graph.backend import GraphBackend
 from runtime.graph.config import GraphConfig
-from runtime.graph.revisits import RevisitView
+from runtime.graph.revisits import RevisitConfig, RevisitView
 from runtime.mapping.conditioned import WindowFit, depth_call
 from runtime.mapping.config import MappingConfig
 from runtime.mapping.frame_scales import FrameScaleResult, PairMatches, solve_frame_scales
@@ -128,11 +128,13 @@ class Mapper:
         conditioned: False runs DA3 without poses (the unconditioned reference of the benchmark).
         graph: the submap graph's configuration (None: defaults), or False to place submaps with the
             filter's poses as they are (T_MS_j = T_OS_j, lambda_j = 0: the "graph off" ablation).
+        revisits: revisit retrieval and admission settings (None: defaults).
     """
 
     def __init__(self, model: DepthModel, camera: Any, cfg: MappingConfig | None = None,
                  matcher: Any = None, sink: Callable[[MapCommit, MappingStats], None] | None = None,
-                 conditioned: bool = True, graph: GraphConfig | None | bool = None) -> None:
+                 conditioned: bool = True, graph: GraphConfig | None | bool = None,
+                 revisits: RevisitConfig | None = None) -> None:
         self.model = model
         self.cfg = cfg or MappingConfig()
         self.K = np.asarray(model.K_rect, np.float64)
@@ -151,7 +153,7 @@ class Mapper:
         self.submap_count = 0
         self._prev: tuple[Submap, dict[int, np.ndarray]] | None = None
         self._features: OrderedDict[int, Any] = OrderedDict()
-        self.backend = None if graph is False else GraphBackend(graph or GraphConfig())
+        self.backend = None if graph is False else GraphBackend(graph or GraphConfig(), revisits)
         self._centre_views: dict[int, tuple] = {}
 
     # ------------------------------------------------------------------ the window job

@@ -39,8 +39,8 @@ def _model(rec):
     return EmulatedDA3(rec.gt_source, cam.K, cam.width, cam.height, preset="base", seed=1)
 
 
-def _no_matcher(model, camera, cfg, sink=None):
-    return Mapper(model, camera, cfg, matcher=False, sink=sink)
+def _no_matcher(model, camera, cfg, sink=None, **kw):
+    return Mapper(model, camera, cfg, matcher=False, sink=sink, **kw)
 
 
 def _poses(pipe) -> np.ndarray:
