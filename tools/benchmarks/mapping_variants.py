@@ -1,0 +1,153 @@
+"""The mapper variants of `davio bench mapping` and how one is run on a sequence's windows.
+
+  a  DAVIO: the conditioned mapper on the VIO poses
+  b  unconditioned reference: the same mapper, DA3 called without poses (`Mapper(conditioned=False)`)
+  c  ScaRF-style mapper (tools/benchmarks/scarf_mapper.py) on the VIO poses and the conditioned call
+  d  DAVIO on the true camera poses (no trajectory alignment needed)
+  e  DAVIO without the emulator's conditioning benefit: the conditioned call with the conditioned
+     dense-error levels set to the unconditioned ones (image_log_scale_sigma_cond =
+     image_log_scale_sigma, field_sigma_cond = field_sigma; the per-pixel noise is shared anyway)
+  f  sensitivity: DAVIO with the dense depth errors doubled (per-image log-scale, smooth field and
+     per-pixel noise, conditioned and unconditioned)
+  g  DAVIO with the submap graph off (submaps placed with the filter's poses, lambda = 0)
+  h  unconditioned reference with the emulator's upper-bound pose errors (`<size>_upper`): the
+     reference's window scale comes from DA3's predicted cameras, which the default emulator
+     makes nearly exact (PRESETS.md)
+Every variant gets a fresh emulated DA3 with the same seed and the same windows (frames and poses).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from runtime.mapping.config import MappingConfig
+
+DENSE_ERROR_FIELDS: tuple[str, ...] = (
+    "image_log_scale_sigma", "image_log_scale_sigma_cond", "field_sigma", "field_sigma_cond", "noise_sigma")
+"""The emulator's dense depth-error sigmas (models/emulated_da3/params.py), doubled by variant f."""
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One row of the benchmark.
+
+    Attributes:
+        key: "a".."f"; label: the row's name.
+        mapper: "davio" (runtime.mapping.Mapper) or "scarf" (the ScaRF-style baseline).
+        poses: "vio" (aligned to the truth for evaluation) or "gt" (true camera poses).
+        conditioned: the DA3 call is conditioned on the poses (DAVIO's mapper only).
+        errors: "default", "no_cond_benefit", "depth_x2" (emulated-DA3 overrides) or "upper_pose"
+            (the `<size>_upper` preset).
+        graph: DAVIO's submap graph on (off: T_MS = T_OS, lambda = 0).
+    """
+
+    key: str
+    label: str
+    mapper: str = "davio"
+    poses: str = "vio"
+    conditioned: bool = True
+    errors: str = "default"
+    graph: bool = True
+
+
+VARIANTS: tuple[Variant, ...] = (
+    Variant("a", "DAVIO"),
+    Variant("b", "unconditioned reference", conditioned=False),
+    Variant("c", "ScaRF-style", mapper="scarf"),
+    Variant("d", "DAVIO, true poses", poses="gt"),
+    Variant("e", "DAVIO, no conditioning benefit", errors="no_cond_benefit"),
+    Variant("f", "DAVIO, depth errors x2", errors="depth_x2"),
+    Variant("g", "DAVIO, graph off", graph=False),
+    Variant("h", "unconditioned, upper-bound pose errors", conditioned=False, errors="upper_pose"),
+)
+
+
+def emulator_overrides(errors: str, preset: str) -> dict[str, float]:
+    """The emulated-DA3 parameter overrides of an error setting on top of `preset`."""
+    from models.emulated_da3 import make_params
+
+    p = make_params(preset)
+    if errors in ("default", "upper_pose"):
+        return {}
+    if errors == "no_cond_benefit":
+        return {"image_log_scale_sigma_cond": p.image_log_scale_sigma, "field_sigma_cond": p.field_sigma}
+    if errors == "depth_x2":
+        return {name: 2.0 * getattr(p, name) for name in DENSE_ERROR_FIELDS}
+    raise ValueError(f"unknown error setting {errors!r}")
+
+
+@dataclass
+class VariantRun:
+    """A variant's map (in its poses' frame) and counters.
+
+    Attributes:
+        points: (P,3) the exported cloud (DAVIO: every submap fused into 4 cm voxels; ScaRF: every
+            exported point).
+        offered, accepted: windows given to the mapper and windows it mapped.
+        rejected: refusals by reason (DAVIO's gates; model errors).
+        seconds: wall time of the mapping.
+        overrides: emulated-DA3 overrides used.
+    """
+
+    points: np.ndarray
+    offered: int
+    accepted: int
+    rejected: dict = field(default_factory=dict)
+    seconds: float = 0.0
+    overrides: dict = field(default_factory=dict)
+
+
+def export_points(submaps: list, voxel_m: float) -> np.ndarray:
+    """(V,3) the final map of DAVIO's mapper: every committed submap fused into voxels at its current
+    state (as the run's final export re-fuses every archive; the live grid keeps only the resident
+    submaps)."""
+    from runtime.mapping.fusion import VoxelGrid
+
+    grid = VoxelGrid(voxel_m)
+    for sub in submaps:
+        grid.integrate(sub.points_M(), sub.grey)
+    return grid.points()[0]
+
+
+def run_variant(variant: Variant, inputs: Any, truth: Any, camera: Any, mapping: MappingConfig,
+                preset: str, seed: int, matcher: Any) -> VariantRun:
+    """Map the sequence's windows with one variant (a fresh emulated DA3 seeded with `seed`).
+
+    Args:
+        inputs: tools.benchmarks.mapping_inputs.MappingInputs.
+        truth: the ground-truth source for the emulated DA3 (e.g. a CachedTruth).
+        camera: the rig's camera model (width, height, K: the rectified view of the emulator).
+        matcher: the matcher for DAVIO's per-frame scales (shared by the variants).
+    """
+    from models.emulated_da3 import EmulatedDA3
+    from runtime.mapping.mapper import MapCommit, Mapper
+    from tools.benchmarks.scarf_mapper import ScarfConfig, ScarfMapper
+
+    overrides = emulator_overrides(variant.errors, preset)
+    da3 = f"{preset.removesuffix('_upper')}_upper" if variant.errors == "upper_pose" else preset
+    model = EmulatedDA3(truth, camera.K, camera.width, camera.height, preset=da3, seed=seed, **overrides)
+    windows = inputs.windows_gt if variant.poses == "gt" else inputs.windows
+    t0 = time.perf_counter()
+    if variant.mapper == "scarf":
+        scfg = ScarfConfig(pixel_stride=mapping.pixel_stride, max_depth_m=mapping.max_depth_m)
+        sm = ScarfMapper(model, scfg)
+        for w in windows:
+            sm.process(w)
+        points = sm.points()[0]
+        rejected = {"model_error": len(sm.stats.model_errors)} if sm.stats.model_errors else {}
+        return VariantRun(points, len(windows), sm.stats.windows_accepted, rejected,
+                          time.perf_counter() - t0, overrides)
+    m = Mapper(model, camera, mapping, matcher=matcher, conditioned=variant.conditioned,
+               graph=None if variant.graph else False)
+    submaps = []
+    for w in windows:
+        m.stats.windows_offered += 1
+        out = m.process(w)
+        if isinstance(out, MapCommit):
+            submaps.append(out.submap)
+    points = export_points(submaps, mapping.voxel_m)
+    return VariantRun(points, m.stats.windows_offered, m.stats.windows_accepted,
+                      dict(m.stats.windows_rejected), time.perf_counter() - t0, overrides)
