@@ -3,6 +3,8 @@ windows estimates R_IC (checked against the simulator's true extrinsics), then t
 online calibration and publishes."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -27,7 +29,8 @@ def test_handeye_bringup_then_tracking_with_online_calibration():
     cam = rec.rig.camera
     withheld = rec.rig.replace(T_IC=None, time_offset_s=None)
     model = EmulatedDA3(rec.gt_source, cam.K, cam.width, cam.height, preset="base", seed=2)
-    pipe = VioPipeline(withheld, model, DavioConfig())
+    cfg = DavioConfig()
+    pipe = VioPipeline(withheld, model, replace(cfg, mapping=replace(cfg.mapping, enabled=False)))
     Scheduler(FastClock(0.5)).run(rec.events(), pipe)
     rep = pipe.report()
     assert rep["bringup"]["R_IC"] is not None, rep["bringup"]

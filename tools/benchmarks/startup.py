@@ -181,6 +181,8 @@ def _arms(names: str, base: Any) -> dict:
     """The configurations of the named arms (module docstring), in the order given."""
     from runtime.errors import ConfigError
 
+    # start-up is measured alone: the mapper would share the model worker with post-reset start-up windows
+    base = replace(base, mapping=replace(base.mapping, enabled=False))
     both = replace(base, use_dynamic_init=True)
     known = {
         "feedforward": both,
