@@ -143,7 +143,17 @@ def _mapping_line(mp: dict, summary: dict) -> str:
             f"{mp['windows_dropped_queue']} dropped (queue full), rejected: {rej}; "
             f"{mp['points_retained']} points kept ({100 * mp['rejected_confidence'] / sampled:.0f} % low "
             f"confidence, {100 * mp['rejected_multiview'] / sampled:.0f} % not re-observed); "
-            f"{summary.get('voxels', 0)} voxels in map.ply")
+            f"{summary.get('voxels', 0)} voxels in map.ply" + _graph_text(mp.get("graph")))
+
+
+def _graph_text(g: dict | None) -> str:
+    if not g:
+        return ""
+    rv = g.get("revisits") or {}
+    rej = ", ".join(f"{k} x{v}" for k, v in sorted((rv.get("rejected") or {}).items()) if v) or "none"
+    return (f"; graph: {g['solves']} solves ({g['solve_s_max']:.2f} s max), revisits {rv.get('accepted', 0)}"
+            f"/{rv.get('attempts', 0)} verified (refused: {rej}), {rv.get('point_groups', 0)} past the "
+            "drift gate")
 
 
 _DRIVER_COUNTERS = {
