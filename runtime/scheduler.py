@@ -279,6 +279,10 @@ class Scheduler:
                         worker.jobs.put((job_id, job))
                         in_flight = (job_id, self.clock.release_ns(t))
                 rep.sensor_s = (t - t_first) * 1e-9
+            if in_flight is not None:   # the recording ended with a job running: its result still counts
+                _, res = worker.results.get()
+                in_flight = None
+                pipeline.on_model_result(res)
         finally:
             stop.set()
             q.close()
