@@ -57,3 +57,6 @@ class MappingConfig:
     """Most correspondences of a point group between the centre images of two submaps."""
     graph_min_points: int = 10
     """Fewer verified correspondences than this add no point group."""
+    refuse_tolerance_m: float = 0.005
+    """A resident submap the graph moved by less than this (m, at its farthest point) is not re-fused into
+    the live grid (a fraction of a voxel; its archived state and the final export are exact)."""

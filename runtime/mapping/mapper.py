@@ -206,7 +206,8 @@ class Mapper:
         self._time("graph", t_graph)
         t3 = time.perf_counter()
         for other in changed:
-            self.refuse(other)
+            if self._moved_in_grid(other):
+                self.refuse(other)
         self._fuse(sub)
         self.resident.append(sub)
         while len(self.resident) > self.cfg.max_resident_submaps:
@@ -312,6 +313,18 @@ class Mapper:
         T_MS, lam = sub.fused_state
         self.grid.integrate(place_points(sub.points_C, sub.image, sub.T_SC, T_MS, lam), sub.grey, sign=-1)
         sub.fused_state = None
+
+    def _moved_in_grid(self, sub: Submap) -> bool:
+        """The graph moved the submap by more than `refuse_tolerance_m` at its farthest point since it was
+        fused (smaller moves stay in the live grid as fused; the archive and the export use the state)."""
+        if sub.fused_state is None:
+            return True
+        T_old, lam_old = sub.fused_state
+        d = float(np.max(np.linalg.norm(sub.points_C, axis=1))) if sub.n_points else 0.0
+        dT = np.linalg.inv(T_old) @ sub.T_MS
+        rot = float(np.linalg.norm(dT[:3, :3] - np.eye(3)))   # ~ angle (rad) for small rotations
+        move = np.linalg.norm(dT[:3, 3]) + rot * d + abs(sub.lam - lam_old) * d
+        return move > self.cfg.refuse_tolerance_m
 
     def refuse(self, sub: Submap) -> None:
         """Move a resident submap in the live grid after the graph changed its T_MS or lambda."""
