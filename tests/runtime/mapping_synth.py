@@ -4,21 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from models.emulated_da3.analytic import look_at  # noqa: F401  (re-exported for the mapping tests)
+
 K_TEST = np.array([[200.0, 0.0, 79.5], [0.0, 200.0, 59.5], [0.0, 0.0, 1.0]])
 W_TEST, H_TEST = 160, 120
-
-
-def look_at(centre: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """(4,4) T_WC of a camera at `centre` looking at `target` (z forward, y down, world z up)."""
-    z = target - centre
-    z = z / np.linalg.norm(z)
-    x = np.cross(z, [0.0, 0.0, 1.0])
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    T = np.eye(4)
-    T[:3, :3] = np.stack([x, y, z], axis=1)
-    T[:3, 3] = centre
-    return T
 
 
 def window_poses(n: int = 5, step: float = 0.15) -> np.ndarray:
