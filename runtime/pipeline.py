@@ -162,8 +162,7 @@ class VioPipeline:
         """Record the published states and their map-frame poses T_MO(t) T_OI(t) as published."""
         self.published += out
         for p in out:
-            T_OI = np.eye(4)
-            T_OI[:3, :3], T_OI[:3, 3] = p.R_OI, p.p_OI
+            T_OI = p.T_OI
             tl = self.corrections.get(p.segment)
             if tl is None:
                 self.causal.append((T_OI, 0, 1.0))
@@ -199,10 +198,7 @@ class VioPipeline:
             t_pose = np.array([self.published[k].t_ns for k in idx], np.int64)
             corr = final_corrections(t_pose, t_nodes, T_nodes)
             for j, k in enumerate(idx):
-                p = self.published[k]
-                T_OI = np.eye(4)
-                T_OI[:3, :3], T_OI[:3, 3] = p.R_OI, p.p_OI
-                out[k] = corr[j] @ T_OI
+                out[k] = corr[j] @ self.published[k].T_OI
         return out
 
     # ------------------------------------------------------------------ mapping queue
@@ -215,17 +211,12 @@ class VioPipeline:
                 continue
             for t in [t for t in self._frames_waiting if t < pose.t_cam_ns]:
                 del self._frames_waiting[t]     # older frames never got a pose of their own
-            T_OI = np.eye(4)
-            T_OI[:3, :3], T_OI[:3, 3] = pose.R_OI, pose.p_OI
-            window = self.windows.add(frame, T_OI @ self.T_IC, pose.segment)
+            window = self.windows.add(frame, pose.T_OI @ self.T_IC, pose.segment)
             if window is None:
                 continue
-            self._mapping_stats().windows_offered += 1
+            self.map_stats.windows_offered += 1
             if self.map_queue.put(window) is not None:
-                self._mapping_stats().windows_dropped_queue += 1
-
-    def _mapping_stats(self) -> MappingStats:
-        return self.mapper.stats if self.mapper is not None else self.map_stats
+                self.map_stats.windows_dropped_queue += 1
 
     def _mapping_job(self, window: MappingWindow) -> Callable[[], Any]:
         if self.mapper is None:
@@ -233,9 +224,9 @@ class VioPipeline:
             mapper = self._mapper_factory(self.model, self.rig.camera, cfg.mapping, sink=self.map_sink,
                                           graph=cfg.graph if cfg.mapping.graph else False,
                                           revisits=cfg.revisits)
-            # counters of the windows offered before the mapper existed carry over
-            mapper.stats.windows_offered = self.map_stats.windows_offered
-            mapper.stats.windows_dropped_queue = self.map_stats.windows_dropped_queue
+            # one set of counters: the queue's (kept since the first window) and the mapper's
+            self.map_stats.matcher = mapper.stats.matcher
+            mapper.stats = self.map_stats
             self.mapper = mapper
         mapper = self.mapper
 
@@ -297,7 +288,7 @@ class VioPipeline:
     def on_model_result(self, result: Any) -> None:
         if self._job_kind == "mapping":   # the mapper counted it; an exception is a mapping error
             if isinstance(result, Exception):
-                st = self._mapping_stats()
+                st = self.map_stats
                 st.reject("exception")
                 st.model_errors.append(f"{type(result).__name__}: {result}")
             elif isinstance(result, MapCommit):
@@ -323,7 +314,7 @@ class VioPipeline:
             rep["startup"] = asdict(self.startup.report)
             rep["filter"] = (self.startup.publisher or self.startup.native).report()
         if self.windows is not None:
-            rep["mapping"] = asdict(self._mapping_stats())
+            rep["mapping"] = asdict(self.map_stats)
             rep["mapping"]["keyframes"] = self.windows.keyframes
             if self.mapper is not None and self.mapper.backend is not None:
                 rep["mapping"]["graph"] = asdict(self.mapper.backend.stats)

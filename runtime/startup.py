@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from runtime.events import Frame, ImuSample
+from runtime.geometry.se3 import make_pose
 from runtime.msckf.init_common import InitResult
 
 
@@ -62,6 +63,11 @@ class Published:
     filter_id: int
     segment: int = 0
     """Restarts after a divergence before this state: a new segment starts a new odometry frame."""
+
+    @property
+    def T_OI(self) -> np.ndarray:
+        """(4,4) the IMU pose in the odometry frame."""
+        return make_pose(self.R_OI, self.p_OI)
 
 
 @dataclass

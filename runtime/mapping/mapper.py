@@ -96,6 +96,16 @@ class MapCommit:
     t_ns: int = 0
 
 
+def sample_at(image: np.ndarray, uv: np.ndarray, outside: Any = np.nan) -> np.ndarray:
+    """Values of `image` (H,W) at the nearest pixels of (K,2) positions uv; `outside` beyond the image."""
+    h, w = image.shape[:2]
+    ij = np.round(np.asarray(uv, np.float64)).astype(np.int64).reshape(-1, 2)
+    inside = (ij[:, 0] >= 0) & (ij[:, 0] < w) & (ij[:, 1] >= 0) & (ij[:, 1] < h)
+    out = np.full(len(ij), outside, dtype=np.result_type(image.dtype, np.asarray(outside).dtype))
+    out[inside] = image[ij[inside, 1], ij[inside, 0]]
+    return out
+
+
 class Rectifier:
     """Undistorts camera images to the pinhole view K_rect at the camera resolution (OpenCV remap
     maps built once per rig; pinhole, radial-tangential and equidistant models)."""
@@ -263,11 +273,7 @@ class Mapper:
         if f is None or d is None:
             return None
         h, w = d.shape
-        uv = np.round(np.asarray(f.kpts, np.float64)).astype(np.int64)
-        inside = (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
-        z = np.full(len(uv), np.nan)
-        z[inside] = d[uv[inside, 1], uv[inside, 0]]
-        return f, RevisitView(self.K, np.asarray(f.kpts, np.float64), z, (w, h))
+        return f, RevisitView(self.K, np.asarray(f.kpts, np.float64), sample_at(d, f.kpts), (w, h))
 
     def _adjacent_points(self, prev: Submap, sub: Submap, depths_by_t: dict[int, np.ndarray]
                          ) -> tuple[np.ndarray, np.ndarray] | None:
@@ -280,18 +286,7 @@ class Mapper:
         d_a, d_b = self._prev[1].get(t_a), depths_by_t.get(t_b)
         if fa is None or fb is None or d_a is None or d_b is None:
             return None
-        m = self.matcher.match_features(fa, fb)
-        if len(m) == 0:
-            return None
-        h, w = d_b.shape
-        ua, ub = np.round(m.points_a).astype(np.int64), np.round(m.points_b).astype(np.int64)
-        ok = ((ua >= 0) & (ua < [w, h])).all(1) & ((ub >= 0) & (ub < [w, h])).all(1)
-        ua, ub = ua[ok], ub[ok]
-        za, zb = d_a[ua[:, 1], ua[:, 0]], d_b[ub[:, 1], ub[:, 0]]
-        ok = np.isfinite(za) & np.isfinite(zb) & (za > 0) & (zb > 0) & (za < self.cfg.max_depth_m) \
-            & (zb < self.cfg.max_depth_m)
-        p_a = backproject(za[ok], self.K, ua[ok, 0], ua[ok, 1])
-        p_b = backproject(zb[ok], self.K, ub[ok, 0], ub[ok, 1])
+        p_a, p_b = self._matched_points(self.matcher.match_features(fa, fb), d_a, d_b)
         # keep matches the odometry does not contradict (within 25 % of depth): wrong matches go
         Z = np.linalg.inv(prev.T_OS) @ sub.T_OS
         pred = p_b @ Z[:3, :3].T + Z[:3, 3]
@@ -344,6 +339,19 @@ class Mapper:
             self._features.popitem(last=False)
         return f
 
+    def _matched_points(self, m: Any, d_a: np.ndarray, d_b: np.ndarray, ok_a: np.ndarray | None = None,
+                        ok_b: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Back-projected matches (p_a (K,3), p_b (K,3)) in their cameras, for the matched pixels where
+        both depth maps hold a valid depth (finite, > 0, < max_depth_m) and both masks (if given) hold."""
+        za, zb = sample_at(d_a, m.points_a), sample_at(d_b, m.points_b)
+        good = (za > 0) & (zb > 0) & (za < self.cfg.max_depth_m) & (zb < self.cfg.max_depth_m)  # NaN: False
+        if ok_a is not None:
+            good &= sample_at(ok_a, m.points_a, False) & sample_at(ok_b, m.points_b, False)
+        ua, ub = m.points_a[good], m.points_b[good]
+        ua, ub = np.round(ua), np.round(ub)
+        return (backproject(za[good], self.K, ua[:, 0], ua[:, 1]),
+                backproject(zb[good], self.K, ub[:, 0], ub[:, 1]))
+
     def _frame_scales(self, window: MappingWindow, grey: list[np.ndarray], depth: np.ndarray,
                       conf: np.ndarray, T_SC: np.ndarray) -> FrameScaleResult:
         n = len(window.frames)
@@ -351,7 +359,6 @@ class Mapper:
         if self.matcher is None:
             return FrameScaleResult(np.ones(n))
         feats = [self._features_of(int(f.t_ns), g) for f, g in zip(window.frames, grey, strict=True)]
-        h, w = depth.shape[1:]
         ok_conf = confidence_mask(conf, cfg.conf_percentile)
         pairs = []
         for off in cfg.frame_scale_pair_offsets:
@@ -360,19 +367,9 @@ class Mapper:
                 m = self.matcher.match_features(feats[i], feats[j])
                 if len(m) < cfg.frame_scale_min_matches:
                     continue
-                ui, uj = np.round(m.points_a).astype(np.int64), np.round(m.points_b).astype(np.int64)
-                inside = ((ui[:, 0] >= 0) & (ui[:, 0] < w) & (ui[:, 1] >= 0) & (ui[:, 1] < h)
-                          & (uj[:, 0] >= 0) & (uj[:, 0] < w) & (uj[:, 1] >= 0) & (uj[:, 1] < h))
-                ui, uj = ui[inside], uj[inside]
-                di, dj = depth[i][ui[:, 1], ui[:, 0]], depth[j][uj[:, 1], uj[:, 0]]
-                good = (np.isfinite(di) & np.isfinite(dj) & (di > 0) & (dj > 0)
-                        & (di < cfg.max_depth_m) & (dj < cfg.max_depth_m)
-                        & ok_conf[i][ui[:, 1], ui[:, 0]] & ok_conf[j][uj[:, 1], uj[:, 0]])
-                if good.sum() < cfg.frame_scale_min_matches:
-                    continue
-                pi = backproject(di[good], self.K, ui[good, 0], ui[good, 1])
-                pj = backproject(dj[good], self.K, uj[good, 0], uj[good, 1])
-                pairs.append(PairMatches(i, j, pi, pj))
+                pi, pj = self._matched_points(m, depth[i], depth[j], ok_conf[i], ok_conf[j])
+                if len(pi) >= cfg.frame_scale_min_matches:
+                    pairs.append(PairMatches(i, j, pi, pj))
         res = solve_frame_scales(pairs, T_SC, cfg.frame_scale_rounds, cfg.frame_scale_prior_sigma,
                                  cfg.frame_scale_huber, cfg.frame_scale_min_matches)
         if res.rounds:

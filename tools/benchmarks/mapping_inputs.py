@@ -109,9 +109,7 @@ def track(rec: Any, mapping: MappingConfig | None = None) -> MappingInputs:
         frame = keeper.frames.get(t_cam)
         if frame is None:
             continue
-        T_OI = np.eye(4)
-        T_OI[:3, :3], T_OI[:3, 3] = p.R_OI, p.p_OI
-        w = builder.add(frame, T_OI @ T_IC, p.segment)
+        w = builder.add(frame, p.T_OI @ T_IC, p.segment)
         if w is not None:
             windows.append(w)
     n_frames = len(keeper.frames)
