@@ -10,6 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from runtime.errors import ModelError
+from tools.export.checkpoint import read_state_dict
 
 #: checkpoint licences (DA3 README): only Small and Base are Apache-2.0 and pose-conditionable.
 LICENCES = {
@@ -115,29 +116,19 @@ def randomise_(net, seed: int) -> None:
 def load_checkpoint_(net, path: Path) -> dict:
     """Load DA3 weights (.safetensors, or a torch .pt/.pth/.bin state dict) into `net` strictly.
 
-    HF checkpoints prefix keys with `model.` (the API class wraps the net); the prefix is stripped.
-    Keys of the 3DGS branch are ignored. Returns {'keys': n, 'ignored': [...], 'prefix': str}.
+    The file is read by `tools.export.checkpoint.read_state_dict` (torch pickles only on a torch
+    without known `weights_only` bypasses). HF checkpoints prefix keys with `model.` (the API class
+    wraps the net); the prefix is stripped. Keys of the 3DGS branch are ignored.
+    Returns {'keys': n, 'ignored': [...], 'prefix': str}.
 
     Raises:
-        ModelError: unreadable file, missing or unexpected keys, or shapes of another size.
+        ModelError: unreadable or refused file, missing or unexpected keys, or shapes of another size.
     """
-    import torch
-
     path = Path(path)
-    if not path.is_file():
-        raise ModelError(f"checkpoint not found: {path}")
-    try:
-        if path.suffix == ".safetensors":
-            from safetensors.torch import load_file
-
-            sd = load_file(str(path))
-        else:
-            sd = torch.load(str(path), map_location="cpu", weights_only=True)
-            for wrapper_key in ("state_dict", "model"):
-                if isinstance(sd, dict) and isinstance(sd.get(wrapper_key), dict):
-                    sd = sd[wrapper_key]
-    except Exception as exc:
-        raise ModelError(f"{path}: cannot read checkpoint ({type(exc).__name__}: {exc})") from exc
+    sd = read_state_dict(path)
+    for wrapper_key in ("state_dict", "model"):
+        if isinstance(sd, dict) and isinstance(sd.get(wrapper_key), dict):
+            sd = sd[wrapper_key]
     if not isinstance(sd, dict) or not sd:
         raise ModelError(f"{path}: checkpoint holds no state dict")
     prefix = ""

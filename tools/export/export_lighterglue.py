@@ -18,6 +18,7 @@ from pathlib import Path
 
 from models.matcher.contract import LIGHTERGLUE_CONTRACT, LIGHTERGLUE_VERSION
 from runtime.errors import ModelError
+from tools.export.checkpoint import read_state_dict
 from tools.export.export_xfeat import _package_dir
 
 OPSET = 18
@@ -52,7 +53,7 @@ def lighterglue_graph():
     except ImportError as exc:
         raise ModelError(f"the LighterGlue export needs kornia ({exc}): pip install kornia") from exc
     net = LightGlue(features=None, **CONF)
-    state = torch.load(str(_weights_path()), map_location="cpu", weights_only=True)
+    state = read_state_dict(_weights_path())
     renamed = {}
     for key, value in state.items():
         key = key.removeprefix("matcher.")

@@ -18,6 +18,7 @@ from pathlib import Path
 
 from models.matcher.contract import CONTRACT, CONTRACT_VERSION
 from runtime.errors import ModelError
+from tools.export.checkpoint import read_state_dict
 
 OPSET = 18
 INPUT_NAMES = ["image"]
@@ -95,8 +96,7 @@ def backbone(weights: Path | None = None):
 
     model = Backbone()
     path = weights or _weights_path()
-    state = torch.load(str(path), map_location="cpu", weights_only=True)
-    model.net.load_state_dict(state)
+    model.net.load_state_dict(read_state_dict(path))
     return model.eval()
 
 
