@@ -17,7 +17,7 @@ from calib.rig import ImuNoise, Rig, invert_rigid, rigid_transform
 from runtime.errors import CalibrationError
 
 
-def _locate(path: Path, camera: str) -> tuple[Path, Path, str]:
+def locate(path: Path, camera: str = "cam0") -> tuple[Path, Path, str]:
     """(camera sensor.yaml, imu0 sensor.yaml, rig name) of a sequence, mav0, camera folder or sensor.yaml."""
     if path.is_file():
         cam_yaml = path
@@ -78,8 +78,13 @@ def read_euroc_rig(path: str | os.PathLike, camera: str = "cam0") -> Rig:
             (EuRoC's definition).
         camera: the camera folder used when ``path`` is a sequence or mav0 folder (``cam0``, ``cam1``).
     """
-    cam_yaml, imu_yaml, name = _locate(Path(path), camera)
-    f = Fields(cam_yaml, read_yaml(cam_yaml))
+    cam_yaml, imu_yaml, name = locate(Path(path), camera)
+    return euroc_rig_from(Fields(cam_yaml, read_yaml(cam_yaml)), imu_yaml, name)
+
+
+def euroc_rig_from(f: Fields, imu_yaml: Path, name: str) -> Rig:
+    """Rig from an already parsed camera sensor.yaml ``f`` and the imu0 file (read when present)."""
+    cam_yaml = f.path
     _sensor_type(f, "camera")
     camera = read_camera(f, "distortion_coefficients")
     rate_hz = f.number("rate_hz", nullable=True, positive=True)

@@ -27,8 +27,15 @@ _MISSING = object()
 _OPENCV_DIRECTIVE = re.compile(r"\A(?:\ufeff)?%YAML:[^\n]*\n(?:---[^\n]*\n)?")
 
 
-class _Loader(yaml.SafeLoader):
-    """SafeLoader that also reads OpenCV's ``!!opencv-matrix`` tag as a plain mapping."""
+#: Largest calibration file read, bytes (1 MiB). Kalibr, EuRoC and OpenVINS files are a few KiB;
+#: anything bigger is not a calibration file, and is refused before it is read or parsed.
+MAX_CALIBRATION_BYTES = 1 << 20
+#: Fast libyaml loader when PyYAML was built with it (same results, ~30x faster), else pure Python.
+_BaseLoader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
+class _Loader(_BaseLoader):  # type: ignore[misc, valid-type]
+    """Safe loader that also reads OpenCV's ``!!opencv-matrix`` tag as a plain mapping."""
 
 
 def _opencv_matrix(loader: yaml.SafeLoader, node: yaml.MappingNode) -> dict:
@@ -38,23 +45,72 @@ def _opencv_matrix(loader: yaml.SafeLoader, node: yaml.MappingNode) -> dict:
 _Loader.add_constructor("tag:yaml.org,2002:opencv-matrix", _opencv_matrix)
 
 
+def _first_bad_byte(raw: bytes) -> tuple[int, int, int]:
+    """(offset, byte value, 1-based line) of the first byte that is not valid UTF-8 in ``raw``."""
+    try:
+        raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        return exc.start, raw[exc.start], raw.count(b"\n", 0, exc.start) + 1
+    raise ValueError("raw is valid UTF-8")
+
+
+def _holds_replacement(value: object) -> bool:
+    """True when a parsed YAML value (keys included) holds U+FFFD, the mark of an undecodable byte."""
+    stack = [value]
+    while stack:
+        v = stack.pop()
+        if isinstance(v, str):
+            if "\ufffd" in v:
+                return True
+        elif isinstance(v, Mapping):
+            stack.extend(v.keys())
+            stack.extend(v.values())
+        elif isinstance(v, (list, tuple, set)):
+            stack.extend(v)
+    return False
+
+
 def read_yaml(path: str | os.PathLike) -> dict:
-    """Parse a calibration YAML file (an OpenCV ``%YAML:1.0`` first line is stripped) to a mapping."""
+    """Parse a calibration YAML file (an OpenCV ``%YAML:1.0`` first line is stripped) to a mapping.
+
+    Files above MAX_CALIBRATION_BYTES are refused unread. The text must be UTF-8, with one
+    tolerance: bytes that are not UTF-8 (e.g. a Latin-1 ``é`` written by an editor) are accepted
+    when they all lie in comments, which YAML discards, so nothing that is read depends on them.
+    Such a byte in a key or value is a CalibrationError naming its offset and line.
+    """
     p = Path(path)
     if not p.is_file():
         raise CalibrationError("calibration file not found" if not p.exists() else "not a file", p, None)
     try:
-        text = p.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise CalibrationError(f"cannot read file ({exc})", p, None) from None
+        size = p.stat().st_size
+        if size > MAX_CALIBRATION_BYTES:
+            raise CalibrationError(
+                f"file is {size} bytes, above the {MAX_CALIBRATION_BYTES} byte (1 MiB) limit for "
+                "calibration files; give the camchain / sensor.yaml itself", p, None)
+        raw = p.read_bytes()
+    except OSError as exc:
+        raise CalibrationError(f"cannot read file ({exc.strerror or exc})", p, None) from None
+    bad = None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        bad = _first_bad_byte(raw)
+        text = raw.decode("utf-8", errors="replace")
+    not_utf8 = "" if bad is None else (
+        f"byte 0x{bad[1]:02x} at offset {bad[0]} (line {bad[2]}) is not UTF-8")
     text = _OPENCV_DIRECTIVE.sub("", text, count=1)
     try:
         data = yaml.load(text, Loader=_Loader)  # a SafeLoader subclass
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}" if mark is not None else ""
-        problem = getattr(exc, "problem", None) or str(exc)
-        raise CalibrationError(f"invalid YAML{where}: {problem}", p, None) from None
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        also = f" ({not_utf8}; save the file as UTF-8)" if bad is not None else ""
+        raise CalibrationError(f"invalid YAML{where}: {problem}{also}", p, None) from None
+    except (ValueError, OverflowError, TypeError, RecursionError) as exc:  # e.g. 2021-13-45, deep nesting
+        raise CalibrationError(f"invalid YAML value: {type(exc).__name__}: {exc}", p, None) from None
+    if bad is not None and _holds_replacement(data):
+        raise CalibrationError(f"{not_utf8} and lies in a key or value; save the file as UTF-8", p, None)
     if not isinstance(data, dict):
         raise CalibrationError(f"expected a YAML mapping at top level, got {type(data).__name__}", p, None)
     return data
@@ -76,6 +132,14 @@ def write_text_atomic(path: str | os.PathLike, text: str) -> None:
 
 def _is_number(value: object) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _as_float(value: int | float) -> float:
+    """float(value), or inf for an integer too large for a float (reported as not finite)."""
+    try:
+        return float(value)
+    except OverflowError:
+        return math.inf if value > 0 else -math.inf
 
 
 class Fields:
@@ -129,7 +193,7 @@ class Fields:
             raise self.error(name, "must not be null")
         if not _is_number(value):
             raise self.error(name, f"expected a number, got {value!r}")
-        f = float(value)
+        f = _as_float(value)
         if not math.isfinite(f):
             raise self.error(name, f"must be finite, got {f}")
         if positive and f <= 0.0:
@@ -153,7 +217,7 @@ class Fields:
         for i, v in enumerate(value):
             if not _is_number(v):
                 raise self.error(name, f"element {i} is not a number: {v!r}")
-            if not math.isfinite(float(v)):
+            if not math.isfinite(_as_float(v)):
                 raise self.error(name, f"element {i} is not finite: {v}")
         return [float(v) for v in value]
 
@@ -193,7 +257,7 @@ class Fields:
         for i, v in enumerate(flat):
             if not _is_number(v):
                 raise self.error(name, f"entry {divmod(i, cols)} is not a number: {v!r}")
-            if not math.isfinite(float(v)):
+            if not math.isfinite(_as_float(v)):
                 raise self.error(name, f"entry {divmod(i, cols)} is not finite: {v}")
         return np.array(flat, dtype=np.float64).reshape(rows, cols)
 
@@ -243,4 +307,18 @@ def read_camera(f: Fields, distortion_key: str) -> CameraModel | None:
         "distortion": f.key(distortion_key),
     }
     with rekeyed(f.path, keys):
-        return cls(resolution[0], resolution[1], *intrinsics, coeffs)
+        camera = cls(resolution[0], resolution[1], *intrinsics, coeffs)
+    _check_principal_point(f, camera)
+    return camera
+
+
+def _check_principal_point(f: Fields, cam: CameraModel) -> None:
+    """Refuse a principal point outside the image ([-0.5, size - 0.5] with pixel-centre coordinates):
+    it means swapped intrinsics or a resolution that belongs to another image size."""
+    if -0.5 <= cam.cx <= cam.width - 0.5 and -0.5 <= cam.cy <= cam.height - 0.5:
+        return
+    raise f.error(
+        "intrinsics",
+        f"principal point (cx, cy) = ({cam.cx:g}, {cam.cy:g}) lies outside the {cam.width}x{cam.height} "
+        "image; check the order [fx, fy, cx, cy] and that the resolution is [width, height]",
+    )

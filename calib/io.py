@@ -6,9 +6,9 @@ import os
 from importlib import resources
 from pathlib import Path
 
-from calib.euroc import read_euroc_rig
-from calib.fields import read_yaml
-from calib.kalibr import read_kalibr
+from calib.euroc import euroc_rig_from, locate, read_euroc_rig
+from calib.fields import Fields, read_yaml
+from calib.kalibr import kalibr_rig, read_kalibr
 from calib.rig import Rig
 from runtime.errors import CalibrationError
 
@@ -69,11 +69,12 @@ def load_rig(path: str | os.PathLike, imu_yaml: str | os.PathLike | None = None)
         if camchain is not None and not _is_euroc_folder(p):
             return read_kalibr(camchain, imu_yaml if imu_yaml is not None else find_imu_yaml(camchain))
         return read_euroc_rig(p)
-    data = read_yaml(p)
-    if "cam0" in data:
-        return read_kalibr(p, imu_yaml if imu_yaml is not None else find_imu_yaml(p))
-    if data.get("sensor_type") == "camera":
-        return read_euroc_rig(p)
+    data = Fields(p, read_yaml(p))  # parsed once, handed to the reader
+    if data.has("cam0"):
+        return kalibr_rig(data, imu_yaml if imu_yaml is not None else find_imu_yaml(p))
+    if data.data.get("sensor_type") == "camera":
+        _, imu0, name = locate(p)
+        return euroc_rig_from(data, imu0, name)
     raise CalibrationError(
         "not a recognised calibration file "
         "(expected a Kalibr camchain with cam0 or an EuRoC camera sensor.yaml)",

@@ -71,7 +71,12 @@ def read_kalibr(
     Without ``imu_yaml`` the IMU noise is withheld (None). Accepts Kalibr's ``T_cam_imu`` and
     OpenVINS's ``T_imu_cam``; an OpenCV ``%YAML:1.0`` first line is tolerated.
     """
-    top = Fields(camchain_yaml, read_yaml(camchain_yaml))
+    return kalibr_rig(Fields(camchain_yaml, read_yaml(camchain_yaml)), imu_yaml, camera)
+
+
+def kalibr_rig(top: Fields, imu_yaml: str | os.PathLike | None = None, camera: str = "cam0") -> Rig:
+    """Rig from an already parsed camchain ``top`` (see :func:`calib.io.load_rig`), as read_kalibr."""
+    camchain_yaml = top.path
     f = top.sub(camera)
     cam = read_camera(f, "distortion_coeffs")
     T_IC = _read_T_IC(f)

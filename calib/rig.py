@@ -25,9 +25,7 @@ IMU_FIELDS = ("gyro_noise_density", "gyro_random_walk", "accel_noise_density", "
 RIG_FIELDS = ("camera", "T_IC", "time_offset_s", "camera_rate_hz") + tuple(f"imu.{f}" for f in IMU_FIELDS)
 
 
-def _optional_number(
-    value: object, key: str, positive: bool = False, nonnegative: bool = False
-) -> float | None:
+def _optional_number(value: object, key: str, positive: bool = False, hint: str = "") -> float | None:
     if value is None:
         return None
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
@@ -36,9 +34,7 @@ def _optional_number(
     if not math.isfinite(f):
         raise CalibrationError(f"must be finite, got {f}", None, key)
     if positive and f <= 0.0:
-        raise CalibrationError(f"must be positive, got {f}", None, key)
-    if nonnegative and f < 0.0:
-        raise CalibrationError(f"must not be negative, got {f}", None, key)
+        raise CalibrationError(f"must be positive, got {f}{hint}", None, key)
     return f
 
 
@@ -78,9 +74,15 @@ def invert_rigid(T: np.ndarray) -> np.ndarray:
     return out
 
 
+_IMU_HINT = " (give the IMU's datasheet or Allan-variance value, or null to withhold it)"
+
+
 @dataclass(frozen=True)
 class ImuNoise:
     """Continuous-time IMU noise model (Kalibr / EuRoC convention); None = withheld.
+
+    Every given value must be finite and positive: a zero noise density or random walk would make the
+    filter trust the IMU without limit, so it is refused (CalibrationError), never replaced.
 
     Attributes:
         gyro_noise_density: rad/s/sqrt(Hz).
@@ -98,9 +100,7 @@ class ImuNoise:
 
     def __post_init__(self) -> None:
         for name in IMU_FIELDS:
-            value = _optional_number(
-                getattr(self, name), f"imu.{name}", positive=name == "rate_hz", nonnegative=True
-            )
+            value = _optional_number(getattr(self, name), f"imu.{name}", positive=True, hint=_IMU_HINT)
             object.__setattr__(self, name, value)
 
     def missing(self) -> list[str]:

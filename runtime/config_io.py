@@ -62,7 +62,10 @@ def _coerce(value: Any, tp: Any, key: str) -> Any:
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{key}: expected a number, got {value!r}")
-        return float(value)
+        try:
+            return float(value)
+        except OverflowError:
+            raise ConfigError(f"{key}: {value} is too large for a number") from None
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise ConfigError(f"{key}: expected an integer, got {value!r}")
@@ -102,16 +105,63 @@ def config_from_dict(cls: type[T], data: dict) -> T:
     return _from_dict(cls, data, "")
 
 
+#: Largest configuration file read, bytes (1 MiB; a full resolved config.toml is a few KiB).
+MAX_CONFIG_BYTES = 1 << 20
+
+
+def _toml_text(p: Path) -> tuple[str, str | None]:
+    """(text, None) of a UTF-8 file, or (text with U+FFFD for bad bytes, 'byte 0x.. at offset N (line L)')."""
+    if p.is_dir():
+        raise ConfigError(f"{p}: is a folder, not a TOML file; give the file (e.g. a run's config.toml)")
+    try:
+        size = p.stat().st_size
+        if size > MAX_CONFIG_BYTES:
+            raise ConfigError(f"{p}: file is {size} bytes, above the {MAX_CONFIG_BYTES} byte (1 MiB) limit "
+                              "for configuration files; is this the TOML configuration?")
+        raw = p.read_bytes()
+    except FileNotFoundError:
+        raise ConfigError(f"{p}: configuration file not found") from None
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot read configuration file ({exc.strerror or exc})") from None
+    try:
+        return raw.decode("utf-8"), None
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        return raw.decode("utf-8", errors="replace"), f"byte 0x{raw[exc.start]:02x} at offset {exc.start} " \
+                                                      f"(line {line}) is not UTF-8"
+
+
+def _holds_replacement(value: object) -> bool:
+    if isinstance(value, str):
+        return "\ufffd" in value
+    if isinstance(value, dict):
+        return any(_holds_replacement(k) or _holds_replacement(v) for k, v in value.items())
+    if isinstance(value, list):
+        return any(_holds_replacement(v) for v in value)
+    return False
+
+
 def load_toml(cls: type[T], path: str | Path) -> T:
-    """Read a TOML file into config dataclass `cls` (ConfigError names the file and key)."""
+    """Read a TOML file into config dataclass `cls` (ConfigError names the file and key).
+
+    Folders, files above MAX_CONFIG_BYTES and binary files are refused with a ConfigError. The text
+    must be UTF-8; bytes that are not (e.g. a Latin-1 comment) are tolerated only inside comments,
+    which TOML discards, and are an error naming the byte's offset and line anywhere else.
+    """
     import tomllib
     p = Path(path)
+    text, bad = _toml_text(p)
     try:
-        data = tomllib.loads(p.read_text())
-    except FileNotFoundError as exc:
-        raise ConfigError(f"{p}: configuration file not found") from exc
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{p}: not valid TOML: {exc}") from exc
+        if bad is not None:
+            raise ConfigError(f"{p}: not a UTF-8 TOML text file ({bad}); give a TOML configuration such "
+                              "as a run's config.toml, saved as UTF-8") from None
+        raise ConfigError(f"{p}: not valid TOML: {exc}") from None
+    except RecursionError:
+        raise ConfigError(f"{p}: not valid TOML: arrays or tables nested too deeply") from None
+    if bad is not None and _holds_replacement(data):
+        raise ConfigError(f"{p}: {bad} and lies in a key or value; save the file as UTF-8")
     try:
         return config_from_dict(cls, data)
     except ConfigError as exc:
