@@ -52,13 +52,18 @@ class StreamCounts:
     dropped_nonfinite: int = 0
     """rows holding NaN or Inf"""
     dropped_nonmonotonic: int = 0
-    """rows whose stamp is earlier than the previous kept stamp"""
+    """out-of-order rows whose stamp lies far from every other row's (corrupt stamps)"""
+    reordered: int = 0
+    """out-of-order rows kept and sorted into time order (part of `parsed`)"""
     dropped_duplicate: int = 0
-    """rows whose stamp equals the previous kept stamp"""
+    """rows repeating an earlier row's stamp (the first row in the file is kept)"""
     missing_images: int = 0
     """frames whose image file does not exist"""
     unreadable_images: int = 0
     """frames whose image file exists but does not decode to a grey image of the stream's size"""
+    converted: int = 0
+    """rows or images converted to the expected units or bit depth (accelerometer in g, 12-bit
+    images in 16-bit files); the IntakeReport's notes say which conversion"""
     emitted: int = 0
     """events handed to the consumer"""
     gaps: int = 0
@@ -115,8 +120,9 @@ class IntakeReport:
     def as_dict(self) -> dict:
         """A JSON-ready dict: per-stream counters, totals of the drop counters, and notes."""
         totals = {k: self.total(k) for k in ("truncated_lines", "malformed_lines", "dropped_nonfinite",
-                                             "dropped_nonmonotonic", "dropped_duplicate",
-                                             "missing_images", "unreadable_images", "gaps")}
+                                             "dropped_nonmonotonic", "dropped_duplicate", "reordered",
+                                             "converted", "missing_images", "unreadable_images",
+                                             "gaps")}
         return {"driver": self.driver, "source": self.source, "policy": self.policy,
                 "streams": {k: asdict(v) for k, v in self.streams.items()},
                 "totals": totals, "notes": list(self.notes)}
@@ -127,7 +133,8 @@ class IntakeReport:
         for name, s in self.streams.items():
             parts = [f"{s.parsed}/{s.lines} rows kept", f"{s.emitted} emitted"]
             for key in ("truncated_lines", "malformed_lines", "dropped_nonfinite", "dropped_nonmonotonic",
-                        "dropped_duplicate", "missing_images", "unreadable_images", "gaps"):
+                        "dropped_duplicate", "reordered", "converted", "missing_images",
+                        "unreadable_images", "gaps"):
                 value = getattr(s, key)
                 if value:
                     parts.append(f"{key.replace('_', ' ')} {value}")

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from drivers.base import Driver, IntakeReport, Policy, StreamCounts, check_policy
+from drivers.diagnose import G_STANDARD, accel_looks_like_g, check_stamp_units, explain_unreadable
 from drivers.validation import count_gaps, read_stamped_csv
 from runtime.errors import DataError
 from runtime.events import Frame, ImuSample
@@ -26,6 +27,9 @@ if TYPE_CHECKING:
 
 RATE_TOLERANCE = 0.05
 """Relative difference between measured and declared camera rates that is reported as unequal."""
+
+IMU_COLUMNS = "t_ns, wx, wy, wz [rad/s], ax, ay, az [m/s^2]"
+CAMERA_COLUMNS = "t_ns, filename"
 
 
 def find_mav0(path: str | Path) -> Path:
@@ -136,6 +140,11 @@ class EurocDriver(Driver):
             raise DataError("missing IMU file imu0/data.csv", imu_csv)
         counts = self._report.stream("imu0")
         self._imu_t, self._gyro, self._accel = read_euroc_imu_csv(imu_csv, self.policy, counts, self._report)
+        if self._imu_t.shape[0] == 0:
+            raise DataError("no usable IMU sample: " + explain_unreadable(imu_csv, 6, IMU_COLUMNS, counts),
+                            imu_csv)
+        check_stamp_units(self._imu_t, "IMU", imu_csv)
+        self._accel_units(imu_csv, counts)
         count_gaps(self._imu_t, counts)
 
         self._cam_t: list[np.ndarray] = []
@@ -147,6 +156,19 @@ class EurocDriver(Driver):
         self._check_coverage()
 
     # -- reading -------------------------------------------------------------------------------
+    def _accel_units(self, imu_csv: Path, counts: StreamCounts) -> None:
+        """Convert an accelerometer recorded in g to m/s^2 (counted and noted; an error when strict)."""
+        med = accel_looks_like_g(self._accel)
+        if med is None:
+            return
+        what = (f"accelerometer values look like g, not m/s^2 (median |a| {med:.2f}; gravity is "
+                f"{G_STANDARD} m/s^2)")
+        if self.policy == "strict":
+            raise DataError(f"{what}: multiply columns 5-7 by {G_STANDARD}", imu_csv)
+        self._accel *= G_STANDARD
+        counts.converted += int(self._accel.shape[0])
+        self._report.note(f"imu0: {what}; converted to m/s^2 (x {G_STANDARD})")
+
     def _load_camera(self, name: str) -> None:
         cam_dir = self.mav0 / name
         csv = cam_dir / "data.csv"
@@ -154,14 +176,24 @@ class EurocDriver(Driver):
             raise DataError(f"missing camera file {name}/data.csv", csv)
         counts = self._report.stream(name)
         rows = read_stamped_csv(csv, 1, counts, self.policy, text=True, report=self._report)
+        if rows.t_ns.shape[0] == 0:
+            raise DataError("no usable frame: " + explain_unreadable(csv, 1, CAMERA_COLUMNS, counts), csv)
+        images = (cam_dir / "data").resolve()
         files = [cam_dir / "data" / r[0] for r in rows.text]
         keep = np.ones(len(files), dtype=bool)
         for i, f in enumerate(files):
+            if not f.resolve().is_relative_to(images):
+                raise DataError(f"image file name {rows.text[i][0]!r} points outside {name}/data/",
+                                csv, int(rows.line[i]))
             if not f.is_file():
                 if self.policy == "strict":
                     raise DataError(f"image file {f} does not exist", csv, int(rows.line[i]))
                 counts.missing_images += 1
                 keep[i] = False
+        if not keep.any():
+            raise DataError(f"none of the {len(files)} images it lists exists in {cam_dir / 'data'} "
+                            f"(first: {files[0].name})", csv)
+        check_stamp_units(rows.t_ns, "camera", csv)
         t = rows.t_ns[keep]
         count_gaps(t, counts)
         self._cam_t.append(t)
@@ -217,16 +249,19 @@ class EurocDriver(Driver):
 
         path = self._cam_files[cam][i]
         name = self.cameras[cam]
-        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE | cv2.IMREAD_ANYDEPTH)
         reason = None
         if image is None:
             reason = "cannot be decoded as an image" if path.is_file() else "disappeared"
-        elif image.dtype != np.uint8 or image.ndim != 2:
-            reason = f"decodes to {image.dtype} {image.shape}, expected a uint8 grey image"
         else:
-            first = self._first_shape.setdefault(cam, image.shape)
-            if image.shape != first:
-                reason = f"size {image.shape[::-1]} differs from the stream's {first[::-1]}"
+            if image.dtype == np.uint16 and image.ndim == 2:
+                image = self._to_8bit(cam, image, path, i)
+            if image.dtype != np.uint8 or image.ndim != 2:
+                reason = f"decodes to {image.dtype} {image.shape}, expected an 8- or 16-bit grey image"
+            else:
+                first = self._first_shape.setdefault(cam, image.shape)
+                if image.shape != first:
+                    reason = f"size {image.shape[::-1]} differs from the stream's {first[::-1]}"
         if reason is None:
             return image
         if self.policy == "strict":
@@ -234,6 +269,23 @@ class EurocDriver(Driver):
                             int(self._cam_lines[cam][i]))
         self._report.stream(name).unreadable_images += 1
         return None
+
+    def _to_8bit(self, cam: int, image: np.ndarray, path: Path, i: int) -> np.ndarray:
+        """A 16-bit grey image scaled to 8 bits by the stream's bit depth (fixed by its first image:
+        10-, 12-, 14- or 16-bit data), counted and noted; an error when strict."""
+        name = self.cameras[cam]
+        bits = self._bit_depth.get(cam)
+        if bits is None:
+            used = max(int(image.max()).bit_length(), 8)
+            bits = next(b for b in (10, 12, 14, 16) if used <= b)
+            self._bit_depth[cam] = bits
+            what = f"{name}: 16-bit images holding {bits}-bit data (first image's maximum {int(image.max())})"
+            if self.policy == "strict":
+                raise DataError(f"image {path.name}: {what}; convert the images to 8-bit grey",
+                                self.mav0 / name / "data.csv", int(self._cam_lines[cam][i]))
+            self._report.note(f"{what}: scaled to 8 bits (>> {bits - 8})")
+        self._report.stream(name).converted += 1
+        return np.minimum(image >> (bits - 8), 255).astype(np.uint8)
 
     # -- Driver interface ----------------------------------------------------------------------
     @property
@@ -271,7 +323,9 @@ class EurocDriver(Driver):
         if self._closed:
             raise DataError("driver is closed", self.mav0)
         self._first_shape: dict[int, tuple[int, ...]] = {}
+        self._bit_depth: dict[int, int] = {}
         for name in self.cameras:
+            self._report.stream(name).converted = 0
             self._report.stream(name).emitted = 0
             self._report.stream(name).unreadable_images = 0
         self._report.stream("imu0").emitted = 0

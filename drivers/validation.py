@@ -57,10 +57,10 @@ def read_stamped_csv(path: str | Path, n_values: int, counts: StreamCounts, poli
         report: where notes such as header variations go (optional).
         row_check: extra test of a row's numeric values returning a reason to reject it (counted
             as malformed) or None.
-        monotonic: make stamps strictly increasing: "drop" removes the fewest rows that achieve it
-            (a longest increasing subsequence; dropped rows repeating the previous row's stamp count
-            as duplicates, the others as non-monotonic); "strict" raises at the first stamp not
-            after its predecessor.
+        monotonic: make stamps strictly increasing: "drop" sorts the rows by stamp (rows moved are
+            counted as reordered), drops rows repeating an earlier stamp (duplicates) and moved rows
+            whose stamp is far from every other (corrupt stamps, counted as non-monotonic), see
+            `time_order_repair`; "strict" raises at the first stamp not after its predecessor.
 
     Raises:
         DataError: the file cannot be read, or (strict) a row is bad.
@@ -145,16 +145,56 @@ def read_stamped_csv(path: str | Path, n_values: int, counts: StreamCounts, poli
         else np.zeros((len(stamps), 0))
     line_arr = np.array(lines, dtype=np.int64)
     if monotonic and np.any(np.diff(t_arr) <= 0):
-        keep = monotonic_keep_mask(t_arr)
-        same_as_previous = np.r_[False, t_arr[1:] == t_arr[:-1]]
-        dup = ~keep & same_as_previous
+        order, kept, dup, isolated = time_order_repair(t_arr)
         counts.dropped_duplicate += int(dup.sum())
-        counts.dropped_nonmonotonic += int((~keep & ~dup).sum())
-        t_arr, v_arr, line_arr = t_arr[keep], v_arr[keep], line_arr[keep]
+        counts.dropped_nonmonotonic += int(isolated.sum())
+        counts.reordered += int(kept.sum())
+        keep = ~(dup | isolated)
+        order = order[keep[order]]
+        t_arr, v_arr, line_arr = t_arr[order], v_arr[order], line_arr[order]
         if text:
-            texts = [r for r, k in zip(texts, keep, strict=True) if k]
+            texts = [texts[i] for i in order]
     counts.parsed += int(t_arr.shape[0])
     return StampedRows(t_arr, v_arr, texts, line_arr)
+
+
+ISOLATED_GAP_S = 1.0
+"""An out-of-order row whose stamp lies this far (and 100 median periods) from every other row is
+taken as a corrupt stamp and dropped rather than sorted into place."""
+
+
+def time_order_repair(t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """How to put a stream with stamps out of order into strictly increasing time order.
+
+    Rows are sorted by stamp (stable: at equal stamps the first row in the file is kept and the later
+    ones are duplicates). The rows that had to move are the complement of a longest increasing
+    subsequence (the fewest moves); a moved row whose stamp lies far from every other stamp (a
+    corrupt stamp, e.g. one flipped bit) is dropped instead of sorted in.
+
+    Returns:
+        order: (N,) stable argsort of `t_ns`.
+        moved_kept: (N,) bool, rows sorted into place (counted as reordered).
+        duplicate: (N,) bool, rows repeating an earlier row's stamp.
+        isolated: (N,) bool, moved rows with a corrupt-looking stamp.
+    """
+    n = t_ns.shape[0]
+    order = np.argsort(t_ns, kind="stable")
+    ts = t_ns[order]
+    dup_sorted = np.concatenate([np.zeros(min(n, 1), bool), ts[1:] == ts[:-1]])
+    duplicate = np.zeros(n, bool)
+    duplicate[order[dup_sorted]] = True
+    moved = ~monotonic_keep_mask(t_ns) & ~duplicate
+    # isolation: distance to the nearest other distinct stamp, in sorted order
+    uniq = ts[~dup_sorted]
+    isolated = np.zeros(n, bool)
+    if uniq.shape[0] >= 3 and moved.any():
+        period = float(np.median(np.diff(uniq)))
+        limit = max(ISOLATED_GAP_S * 1e9, 100.0 * period)
+        k = np.searchsorted(uniq, t_ns)
+        left = np.where(k > 0, t_ns - uniq[np.maximum(k - 1, 0)], np.inf)
+        right = np.where(k + 1 < uniq.shape[0], uniq[np.minimum(k + 1, uniq.shape[0] - 1)] - t_ns, np.inf)
+        isolated = moved & (np.minimum(left, right) > limit)
+    return order, moved & ~isolated, duplicate, isolated
 
 
 def monotonic_keep_mask(t_ns: np.ndarray) -> np.ndarray:

@@ -154,17 +154,20 @@ def test_stamps_are_exact_int64(tmp_path: Path) -> None:
 
 
 # ---------------------------------------------------------------------------------------------------
-def test_nonmonotonic_and_duplicate_imu_stamps_dropped(tmp_path: Path) -> None:
+def test_out_of_order_imu_rows_sorted_and_duplicates_dropped(tmp_path: Path) -> None:
     rows = imu_rows(20)
     rows.insert(10, rows[9])                      # duplicate of the previous stamp
-    rows.insert(15, rows[3])                      # a stamp from the past
+    rows.insert(15, rows[3])                      # a repeat of an earlier stamp
+    late = f"{T0 + 3 * 5_000_000 + 7}," + rows[0].split(",", 1)[1]
+    rows.insert(16, late)                         # a sample written late: sorted into place
     seq = write_asl(tmp_path, rows, {"cam0": cam_rows(2)})
     drv = EurocDriver(seq)
     imu, _ = split(list(drv.events()))
     rep = drv.report()
     s = rep["streams"]["imu0"]
-    assert s["dropped_duplicate"] == 1 and s["dropped_nonmonotonic"] == 1
-    assert len(imu) == 20 and s["emitted"] == 20 and s["lines"] == 22
+    assert s["dropped_duplicate"] == 2 and s["dropped_nonmonotonic"] == 0 and s["reordered"] == 1
+    assert len(imu) == 21 and s["emitted"] == 21 and s["lines"] == 23
+    assert imu[4].t_ns == T0 + 3 * 5_000_000 + 7
     assert np.all(np.diff([e.t_ns for e in imu]) > 0)
     assert_accounted(rep)
 
