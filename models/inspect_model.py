@@ -5,30 +5,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from models.onnx_file import check_model_file, model_signature
 from runtime.errors import ModelError
-
-_ELEM = {
-    1: "float",
-    2: "uint8",
-    3: "int8",
-    5: "int16",
-    6: "int32",
-    7: "int64",
-    9: "bool",
-    10: "float16",
-    11: "double",
-    16: "bfloat16",
-}
-
-
-def _graph_signature(values) -> list[tuple[str, str, list]]:
-    """ONNX ValueInfo list -> contract signature (ORT type strings, int or None dims)."""
-    out = []
-    for v in values:
-        tt = v.type.tensor_type
-        dims = [d.dim_value if d.HasField("dim_value") else None for d in tt.shape.dim]
-        out.append((v.name, f"tensor({_ELEM.get(tt.elem_type, str(tt.elem_type))})", dims))
-    return out
 
 
 def model_card_path(path: str | Path) -> Path:
@@ -48,10 +26,9 @@ def inspect_model(path: str | Path, load_session: bool = True) -> dict:
         file size, producer, metadata and the model card (when a `.json` sits beside the graph).
 
     Raises:
-        ModelError: the file is missing, is not a readable ONNX model, or matches neither contract.
+        ModelError: the file is missing, is not a readable ONNX model, reads external data from
+            outside its folder, or matches no contract.
     """
-    import onnx
-
     from models.da3.contract import check_da3_signature
     from models.matcher.contract import check_lighterglue_signature, check_xfeat_signature
 
@@ -61,15 +38,8 @@ def inspect_model(path: str | Path, load_session: bool = True) -> dict:
             f"model file not found: {path} (export DA3 with `davio export-da3`, XFeat with "
             "`davio export-xfeat`)"
         )
-    try:
-        model = onnx.load(str(path), load_external_data=False)
-    except Exception as exc:
-        raise ModelError(f"{path}: not a readable ONNX model ({type(exc).__name__}: {exc})") from exc
-    if len(model.graph.node) == 0:
-        raise ModelError(f"{path}: not a readable ONNX model (the graph has no nodes)")
-    inits = {i.name for i in model.graph.initializer}
-    inputs = _graph_signature([v for v in model.graph.input if v.name not in inits])
-    outputs = _graph_signature(model.graph.output)
+    model = check_model_file(path)
+    inputs, outputs = model_signature(model)
     names = {n for n, _, _ in inputs}
     where = str(path)
     info: dict = {"path": str(path), "size_bytes": path.stat().st_size}

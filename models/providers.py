@@ -14,6 +14,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from models.onnx_file import ContractCheck, check_model_file
 from runtime.errors import ModelError
 
 log = logging.getLogger(__name__)
@@ -95,19 +96,25 @@ def create_session(
     path: str | Path,
     providers: Sequence[str] | None = None,
     threads: int | None = None,
+    contract: ContractCheck | None = None,
 ):
     """Create an ONNX Runtime InferenceSession with explicit providers and thread settings.
+
+    The file is checked first (`models.onnx_file.check_model_file`): ONNX Runtime never parses a
+    file that is not an ONNX model, reads tensor data from outside the model's folder, or (with
+    `contract`) declares inputs and outputs that break the contract.
 
     Args:
         path: the .onnx file.
         providers: explicit execution providers, or None for the automatic choice.
         threads: intra-op threads (None = `default_threads()`); inter-op is 1 (sequential).
+        contract: signature check of the expected contract (e.g. `check_da3_signature`), or None.
 
     Returns:
         (session, info dict with 'providers' actually used, 'reason', 'threads').
 
     Raises:
-        ModelError: the file is missing or ONNX Runtime cannot load it.
+        ModelError: the file is missing, refused by the checks, or ONNX Runtime cannot load it.
     """
     import onnxruntime as ort
 
@@ -116,6 +123,7 @@ def create_session(
         raise ModelError(f"model file not found: {path}")
     if threads is not None and threads < 1:
         raise ModelError(f"intra-op threads must be >= 1, got {threads}")
+    check_model_file(path, contract)
     chosen, reason = choose_providers(providers)
     so = ort.SessionOptions()
     so.intra_op_num_threads = int(threads or default_threads())

@@ -87,7 +87,10 @@ class OnnxDA3:
                 f"DA3 model not found: {self.path}. Export it once from the official checkpoint "
                 f"(Small or Base for commercial use) with: {export_hint(self.path, camera)}"
             )
-        self.session, self.session_info = create_session(self.path, providers, threads)
+        # the contract is checked on the file before ONNX Runtime parses it, then on the session
+        self.session, self.session_info = create_session(
+            self.path, providers, threads, contract=check_da3_signature
+        )
         inputs, outputs = session_signature(self.session)
         self.graph_hw = check_da3_signature(inputs, outputs, where=str(self.path))
         n_dim = inputs[[name for name, _, _ in inputs].index("images")][2][1]

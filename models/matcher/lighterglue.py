@@ -61,7 +61,9 @@ class LighterGlue:
                 f"davio export-xfeat --lighterglue {path}"
             )
         self.path, self.min_conf = path, min_conf
-        self.session, self.session_info = create_session(path, providers, threads)
+        self.session, self.session_info = create_session(
+            path, providers, threads, contract=check_lighterglue_signature
+        )
 
         def sig(args):
             return [(a.name, a.type, [d if isinstance(d, int) else None for d in a.shape]) for a in args]

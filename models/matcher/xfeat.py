@@ -96,7 +96,9 @@ class XFeatDetector:
                 f"XFeat model not found: {path}. Export it with: davio export-xfeat --out {path}"
             )
         self.path = path
-        self.session, self.session_info = create_session(path, providers, threads)
+        self.session, self.session_info = create_session(
+            path, providers, threads, contract=check_xfeat_signature
+        )
         sig = [
             (a.name, a.type, [d if isinstance(d, int) else None for d in a.shape])
             for a in self.session.get_inputs()
