@@ -25,18 +25,36 @@ from runtime.geometry.trajectory import PoseTrajectory
 _NS = Decimal(1_000_000_000)
 
 
-def seconds_text_to_ns(text: str) -> int:
-    """Exact int nanoseconds of a decimal seconds string ('1403715529.112143517', '1.4037e+09').
+#: Stamps must fit int64 nanoseconds (about +-292 years around 1970).
+_INT64_LIMIT = 2**63
+#: A TUM stamp above this many "seconds" (31,700 years) is clearly in nanoseconds.
+NS_STAMP_THRESHOLD = Decimal(10) ** 12
 
-    Digits below 1 ns are rounded half-to-even. Raises ValueError for anything but a finite number.
-    """
+
+def _decimal(text: str) -> Decimal:
     try:
         value = Decimal(text)
     except InvalidOperation as exc:
         raise ValueError(f"not a number: {text!r}") from exc
     if not value.is_finite():
         raise ValueError(f"not a finite number: {text!r}")
-    return int((value * _NS).to_integral_value(rounding=ROUND_HALF_EVEN))
+    return value
+
+
+def _int64_ns(value: Decimal, text: str) -> int:
+    """Exact int nanoseconds of a Decimal count of nanoseconds (half-to-even); ValueError outside int64."""
+    if abs(value) >= _INT64_LIMIT:  # compared before int() so '1e999999' costs nothing
+        raise ValueError(f"{text!r} is outside the int64 nanosecond range (+-9.2e18 ns, +-292 years)")
+    return int(value.to_integral_value(rounding=ROUND_HALF_EVEN))
+
+
+def seconds_text_to_ns(text: str) -> int:
+    """Exact int nanoseconds of a decimal seconds string ('1403715529.112143517', '1.4037e+09').
+
+    Digits below 1 ns are rounded half-to-even. Raises ValueError for anything but a finite number
+    whose nanoseconds fit int64.
+    """
+    return _int64_ns(_decimal(text) * _NS, text)
 
 
 def ns_to_seconds_text(t_ns: int) -> str:
@@ -106,24 +124,48 @@ def _finish(path: Path, fmt: str, t_ns: list[int], lines: list[int], p: np.ndarr
                           meta={"source": str(path), "format": fmt, "repeated_stamps": repeats}, **extra)
 
 
+def _tum_stamp(text: str, path: Path, lineno: int) -> tuple[int, bool]:
+    """(t_ns, True when the text was taken as nanoseconds: above NS_STAMP_THRESHOLD)."""
+    try:
+        value = _decimal(text)
+        if abs(value) > NS_STAMP_THRESHOLD:
+            return _int64_ns(value, text), True
+        return _int64_ns(value * _NS, text), False
+    except ValueError as exc:
+        raise TrajectoryError(f"bad timestamp: {exc}", path, lineno) from exc
+
+
 def read_tum(path: str | Path, strictly_increasing: bool = False) -> PoseTrajectory:
-    """Read a TUM file (`t[s] x y z qx qy qz qw`, '#' comments) into poses T_WB."""
+    """Read a TUM file (`t[s] x y z qx qy qz qw`, '#' comments) into poses T_WB.
+
+    Stamps above NS_STAMP_THRESHOLD (1e12) are nanoseconds written where TUM wants seconds (as
+    some exporters do); a file whose stamps are all so is read as nanoseconds and says so in
+    `meta["stamp_note"]`; a file that mixes both units is a TrajectoryError.
+    """
     path = Path(path)
     t_ns: list[int] = []
     vals: list[list[float]] = []
     lines: list[int] = []
+    units: list[bool] = []
     for lineno, line in _data_lines(path):
         f = _fields(line)
         if len(f) != 8:
             raise TrajectoryError(f"{len(f)} fields, expected 8 (t x y z qx qy qz qw)", path, lineno)
-        try:
-            t_ns.append(seconds_text_to_ns(f[0]))
-        except ValueError as exc:
-            raise TrajectoryError(f"bad timestamp: {exc}", path, lineno) from exc
+        t, is_ns = _tum_stamp(f[0], path, lineno)
+        if units and is_ns != units[0]:
+            first = "nanoseconds" if units[0] else "seconds"
+            raise TrajectoryError(f"stamp {f[0]} mixes units: line {lines[0]}'s stamp reads as {first}; "
+                                  "TUM stamps are seconds, in one unit for the whole file", path, lineno)
+        t_ns.append(t)
+        units.append(is_ns)
         vals.append(_floats(f[1:], path, lineno))
         lines.append(lineno)
     v = np.array(vals).reshape(-1, 7)
-    return _finish(path, "tum", t_ns, lines, v[:, 0:3], v[:, [6, 3, 4, 5]], strictly_increasing)
+    traj = _finish(path, "tum", t_ns, lines, v[:, 0:3], v[:, [6, 3, 4, 5]], strictly_increasing)
+    if units and units[0]:
+        traj.meta["stamp_note"] = (f"{path}: stamps above 1e12 read as nanoseconds (TUM stamps are seconds: "
+                                   f"line {lines[0]}'s {t_ns[0]} is {ns_to_seconds_text(t_ns[0])} s)")
+    return traj
 
 
 def read_euroc_csv(path: str | Path, strictly_increasing: bool = False) -> PoseTrajectory:
@@ -146,8 +188,9 @@ def read_euroc_csv(path: str | Path, strictly_increasing: bool = False) -> PoseT
             width = len(f)
         elif len(f) != width:
             raise TrajectoryError(f"{len(f)} fields where earlier rows had {width}", path, lineno)
-        if not f[0].isdigit():
-            raise TrajectoryError(f"timestamp {f[0]!r} is not an integer number of nanoseconds", path, lineno)
+        if not (f[0].isascii() and f[0].isdigit()) or len(f[0]) > 19 or int(f[0]) >= _INT64_LIMIT:
+            raise TrajectoryError(f"timestamp {f[0][:40]!r} is not an integer number of nanoseconds "
+                                  "within int64", path, lineno)
         t_ns.append(int(f[0]))
         vals.append(_floats(f[1:], path, lineno))
         lines.append(lineno)
@@ -163,7 +206,7 @@ def detect_format(path: str | Path) -> str:
         f = [x.strip() for x in line.split(",")]
         if not f[0][:1].isdigit() and len(f) > 1:
             continue  # header line
-        if len(f) in (8, 17) and f[0].isdigit():
+        if len(f) in (8, 17) and f[0].isascii() and f[0].isdigit():
             return "euroc"
         if len(_fields(line)) == 8:
             return "tum"

@@ -2,8 +2,11 @@
 from __future__ import annotations
 
 import argparse
-import json
+import sys
 from pathlib import Path
+
+from runtime.errors import ConfigError
+from tools.json_out import strict_dumps
 
 NAME = "eval"
 HELP = "evaluate a trajectory (ATE, RPE; TUM or EuRoC CSV) or a point cloud (surface metrics)"
@@ -39,7 +42,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--n-align", type=int, default=None, metavar="N",
                    help="fit the alignment on the first N associated poses only")
     p.add_argument("--save-aligned", metavar="FILE", default=None,
-                   help="write the associated, aligned estimate as a TUM file")
+                   help="write the associated, aligned estimate as a TUM file (an existing folder: "
+                        "EST_aligned.tum inside it)")
     p.set_defaults(_eval=_run_ate)
 
     p = sub.add_parser("rpe", help="relative pose error", formatter_class=fmt)
@@ -83,25 +87,57 @@ def _print(*renderables) -> None:
         con.print(r)
 
 
-def _run_ate(args: argparse.Namespace) -> int:
-    from tools.evaluation import ate, read_trajectory, write_tum
+def _read_pair(args: argparse.Namespace) -> tuple:
+    """(estimate, reference) trajectories; a note on stderr for each file read with ns stamps."""
+    from tools.evaluation import read_trajectory
 
-    est, ref = read_trajectory(args.est), read_trajectory(args.ref)
+    trajs = read_trajectory(args.est), read_trajectory(args.ref)
+    for t in trajs:
+        if "stamp_note" in t.meta:
+            print(f"davio eval: note: {t.meta['stamp_note']}", file=sys.stderr)
+    return trajs
+
+
+def _plot_dir(args: argparse.Namespace) -> Path | None:
+    """The --plot folder; ConfigError when it names an existing file."""
+    if not args.plot:
+        return None
+    d = Path(args.plot)
+    if d.exists() and not d.is_dir():
+        raise ConfigError(f"--plot {d}: is a file; --plot takes a folder for the PNG plots")
+    return d
+
+
+def aligned_path(save: str, est: str) -> Path:
+    """Where --save-aligned writes: the path itself, or `<EST stem>_aligned.tum` inside an existing folder."""
+    p = Path(save)
+    return p / f"{Path(est).stem}_aligned.tum" if p.is_dir() else p
+
+
+def _run_ate(args: argparse.Namespace) -> int:
+    from tools.evaluation import ate, write_tum
+
+    plot_dir = _plot_dir(args)
+    est, ref = _read_pair(args)
     res = ate(est, ref, args.align, args.max_diff, args.offset, args.n_align, args.one_to_one)
     out = {**res.as_dict(), "est": str(args.est), "ref": str(args.ref)}
-    if args.plot:
+    if plot_dir is not None:
         from tools.evaluation.plots import plot_errors, plot_trajectories
 
-        d = Path(args.plot)
+        d = plot_dir
         out["plots"] = [str(plot_trajectories(d / "ate_trajectories.png", res.ref, res.est_aligned,
                                               f"ATE, {args.align} alignment")),
                         str(plot_errors(d / "ate_errors.png", res.t_ns, res.trans_err_m, "m",
                                         f"ATE translation, rmse {res.rmse:.4f} m"))]
     if args.save_aligned:
-        write_tum(args.save_aligned, res.est_aligned)
-        out["aligned"] = str(args.save_aligned)
+        target = aligned_path(args.save_aligned, args.est)
+        try:
+            write_tum(target, res.est_aligned)
+        except OSError as exc:
+            raise ConfigError(f"--save-aligned {target}: cannot write ({exc.strerror or exc})") from None
+        out["aligned"] = str(target)
     if args.json:
-        print(json.dumps(out))
+        print(strict_dumps(out))
         return 0
     al = res.alignment
     table, info = _stats_table(f"ATE of {Path(args.est).name} vs {Path(args.ref).name}",
@@ -111,25 +147,27 @@ def _run_ate(args: argparse.Namespace) -> int:
                                 ("pairs", f"{out['pairs']} of {res.n_est} estimate / {res.n_ref} reference "
                                           f"poses (max diff {args.max_diff} s)"),
                                 ("reference path", f"{out['path_length_ref_m']:.3f} m")]
-                               + [("plot", p) for p in out.get("plots", [])])
+                               + [("plot", p) for p in out.get("plots", [])]
+                               + [("aligned estimate", out["aligned"])] * ("aligned" in out))
     _print(table, info)
     return 0
 
 
 def _run_rpe(args: argparse.Namespace) -> int:
-    from tools.evaluation import read_trajectory, rpe
+    from tools.evaluation import rpe
 
-    est, ref = read_trajectory(args.est), read_trajectory(args.ref)
+    plot_dir = _plot_dir(args)
+    est, ref = _read_pair(args)
     res = rpe(est, ref, args.delta, args.delta_unit, args.all_pairs, align_method=args.align,
               max_diff_s=args.max_diff, offset_s=args.offset, one_to_one=args.one_to_one)
     out = {**res.as_dict(), "est": str(args.est), "ref": str(args.ref)}
-    if args.plot:
+    if plot_dir is not None:
         from tools.evaluation.plots import plot_errors
 
-        out["plots"] = [str(plot_errors(Path(args.plot) / "rpe_errors.png", res.t_ns, res.trans_err_m, "m",
+        out["plots"] = [str(plot_errors(plot_dir / "rpe_errors.png", res.t_ns, res.trans_err_m, "m",
                                         f"RPE translation, delta {args.delta} {args.delta_unit}"))]
     if args.json:
-        print(json.dumps(out))
+        print(strict_dumps(out))
         return 0
     unit = "frames" if args.delta_unit == "f" else "m"
     table, info = _stats_table(f"RPE of {Path(args.est).name} vs {Path(args.ref).name}",
@@ -150,7 +188,7 @@ def _run_surface(args: argparse.Namespace) -> int:
     res = surface_metrics(read_point_cloud(args.rec), read_point_cloud(args.ref), args.threshold, args.voxel)
     out = {**res.as_dict(), "rec": str(args.rec), "ref": str(args.ref)}
     if args.json:
-        print(json.dumps(out))
+        print(strict_dumps(out))
         return 0
     t = Table(title=f"surface metrics of {Path(args.rec).name} vs {Path(args.ref).name}", show_header=False)
     t.add_row("accuracy (rec -> ref, mean / median)", f"{res.accuracy_m:.4f} / {res.accuracy_median_m:.4f} m")

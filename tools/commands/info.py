@@ -2,8 +2,9 @@
 from __future__ import annotations
 
 import argparse
-import json
 import platform
+
+from tools.json_out import strict_dumps
 
 NAME = "info"
 HELP = "report versions, ONNX Runtime providers, numba status; validate a model with --model"
@@ -71,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
 
         info["model"] = inspect_model(args.model)
     if args.json:
-        print(json.dumps(info, indent=2, default=str))
+        print(strict_dumps(info, indent=2))
         return 0
     from rich.console import Console
     from rich.table import Table
@@ -93,6 +94,6 @@ def run(args: argparse.Namespace) -> int:
         m = info["model"]
         mt = Table(title=f"model {args.model}", show_header=False)
         for k, v in m.items():
-            mt.add_row(str(k), json.dumps(v, default=str) if not isinstance(v, str) else v)
+            mt.add_row(str(k), strict_dumps(v) if not isinstance(v, str) else v)
         con.print(mt)
     return 0

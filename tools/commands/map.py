@@ -5,10 +5,12 @@ D is a run folder holding `map/`, or the `map/` folder itself.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
+
+from runtime.errors import ConfigError
+from tools.json_out import strict_dumps
 
 NAME = "map"
 HELP = "inspect, re-export (PLY) or picture a run's map archive"
@@ -26,12 +28,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         formatter_class=fmt)
     pe.add_argument("folder", type=Path, help=folder_help)
     pe.add_argument("--voxel", type=float, default=0.04, help="voxel edge length (m)")
-    pe.add_argument("--out", type=Path, default=None, help="PLY file (default: map.ply in the run folder)")
+    pe.add_argument("--out", type=Path, default=None,
+                    help="PLY file, or a folder to write map.ply in (default: map.ply in the run folder)")
     pv = sub.add_parser("view", help="a PNG with a top and an oblique view coloured by height",
                         formatter_class=fmt)
     pv.add_argument("folder", type=Path, help=folder_help)
     pv.add_argument("--voxel", type=float, default=0.04, help="voxel edge length (m) of the fused cloud")
-    pv.add_argument("--out", type=Path, default=None, help="PNG file (default: map.png in the run folder)")
+    pv.add_argument("--out", type=Path, default=None,
+                    help="PNG file, or a folder to write map.png in (default: map.png in the run folder)")
     pv.add_argument("--interactive", action="store_true", help="also open open3d's viewer (needs a display)")
 
 
@@ -55,6 +59,18 @@ class _Progress:
             self.last = now
             print(f"davio map {self.what}: {done}/{total} submaps fused ({now - self.t0:.0f} s)",
                   file=sys.stderr, flush=True)
+
+
+def output_path(out: Path | None, run_folder: Path, name: str) -> Path:
+    """--out as given, `name` inside it when it is an existing folder, or `name` in the run folder."""
+    if out is None:
+        return run_folder / name
+    return out / name if out.is_dir() else out
+
+
+def _check_voxel(voxel: float) -> None:
+    if not voxel > 0:
+        raise ConfigError(f"--voxel must be a positive edge length in metres, got {voxel}")
 
 
 def _print_info(info: dict) -> None:
@@ -93,24 +109,32 @@ def run(args: argparse.Namespace) -> int:
 
         info = map_info(archive)
         if args.json:
-            print(json.dumps(info, indent=2))
+            print(strict_dumps(info, indent=2))
         else:
             _print_info(info)
         return 1 if info["problems"] else 0
     if action == "export":
         from tools.map_archive.export import export_map
 
-        out = args.out or run_folder / "map.ply"
+        _check_voxel(args.voxel)
+        out = output_path(args.out, run_folder, "map.ply")
         t0 = time.monotonic()
-        n = export_map(archive, out, args.voxel, _Progress("export"))
+        try:
+            n = export_map(archive, out, args.voxel, _Progress("export"))
+        except OSError as exc:
+            raise ConfigError(f"--out {out}: cannot write ({exc.strerror or exc})") from None
         print(f"davio map export: {n} voxels ({args.voxel} m) -> {out} in {time.monotonic() - t0:.1f} s")
         return 0
     from tools.map_archive.export import fuse_archive
     from tools.map_archive.view import interactive, render_views
 
+    _check_voxel(args.voxel)
     points, grey, _ = fuse_archive(archive, args.voxel, _Progress("view"))
-    out = args.out or run_folder / "map.png"
-    render_views(points, grey, out)
+    out = output_path(args.out, run_folder, "map.png")
+    try:
+        render_views(points, grey, out)
+    except OSError as exc:
+        raise ConfigError(f"--out {out}: cannot write ({exc.strerror or exc})") from None
     print(f"davio map view: {len(points)} voxels -> {out}")
     if args.interactive:
         why = interactive(points, grey)

@@ -16,53 +16,78 @@ _TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2
           "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
 
 
-def read_ply_vertices(path: str | Path) -> np.ndarray:
-    """(N, 3) float64 vertex positions of a PLY file."""
-    path = Path(path)
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise DataError(f"cannot read PLY file: {exc.strerror or exc}", path) from exc
-    end = data.find(b"end_header")
-    if not data.startswith(b"ply") or end < 0:
-        raise DataError("not a PLY file (missing 'ply' magic or 'end_header')", path)
-    body_start = data.index(b"\n", end) + 1
-    header = data[:end].decode("ascii", errors="replace").splitlines()
+def _split_header(data: bytes, path: Path) -> tuple[list[str], int]:
+    """(header lines before end_header, offset of the first body byte) of a PLY file's bytes."""
+    if not (data.startswith(b"ply\n") or data.startswith(b"ply\r\n")):
+        raise DataError("not a PLY file (the first line must be 'ply')", path)
+    pos = 0
+    while True:
+        nl = data.find(b"\n", pos)
+        line = data[pos:] if nl < 0 else data[pos:nl]
+        if line.strip() == b"end_header":
+            header = data[:pos].decode("ascii", errors="replace").splitlines()
+            return header, len(data) if nl < 0 else nl + 1
+        if nl < 0:
+            raise DataError("PLY header has no 'end_header' line (truncated file, or not a PLY file)", path)
+        pos = nl + 1
+
+
+def _parse_header(header: list[str], path: Path) -> tuple[str, list[tuple[str, int, list[tuple[str, str]]]]]:
+    """(format, [(element name, count, [(property name, numpy type or 'list')])]) of the header lines."""
     fmt = None
     elements: list[tuple[str, int, list[tuple[str, str]]]] = []
     for lineno, line in enumerate(header, start=1):
         parts = line.split()
         if not parts or parts[0] in ("ply", "comment", "obj_info"):
             continue
-        if parts[0] == "format":
-            fmt = parts[1] if len(parts) > 1 else None
-        elif parts[0] == "element" and len(parts) == 3 and parts[2].isdigit():
+        if parts[0] == "format" and len(parts) in (2, 3):
+            fmt = parts[1]
+        elif parts[0] == "element" and len(parts) == 3 and parts[2].isascii() and parts[2].isdigit():
             elements.append((parts[1], int(parts[2]), []))
-        elif parts[0] == "property" and elements:
-            if parts[1] == "list":
+        elif parts[0] == "property" and elements and len(parts) >= 3:
+            props = elements[-1][2]
+            if parts[-1] in [name for name, _ in props]:
+                raise DataError(f"property {parts[-1]!r} appears twice in element {elements[-1][0]!r}",
+                                path, lineno)
+            if parts[1] == "list" and len(parts) == 5:
                 if elements[-1][0] == "vertex":
                     raise DataError("list properties on vertices are not supported", path, lineno)
-                elements[-1][2].append((parts[-1], "list"))
+                props.append((parts[-1], "list"))
             elif parts[1] in _TYPES and len(parts) == 3:
-                elements[-1][2].append((parts[2], _TYPES[parts[1]]))
+                props.append((parts[2], _TYPES[parts[1]]))
             else:
                 raise DataError(f"unknown PLY property type in {line!r}", path, lineno)
         else:
             raise DataError(f"unexpected PLY header line {line!r}", path, lineno)
     if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
         raise DataError(f"unsupported PLY format {fmt!r}", path)
+    return fmt, elements
+
+
+def read_ply_vertices(path: str | Path) -> np.ndarray:
+    """(N, 3) float64 vertex positions of a PLY file; DataError names what is wrong with it."""
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise DataError(f"cannot read PLY file: {exc.strerror or exc}", path) from exc
+    header, body_start = _split_header(data, path)
+    fmt, elements = _parse_header(header, path)
     if not elements or elements[0][0] != "vertex":
         raise DataError("the first PLY element must be 'vertex'", path)
     _, n, props = elements[0]
     names = [p[0] for p in props]
     if not {"x", "y", "z"} <= set(names):
         raise DataError("PLY vertices lack x, y or z", path)
+    if n > 0 and body_start >= len(data):
+        raise DataError(f"PLY file ends at end_header: the header declares {n} vertices but no vertex data "
+                        "follows (truncated file)", path)
     cols = [names.index(c) for c in ("x", "y", "z")]
     if fmt == "ascii":
         rows = data[body_start:].decode("ascii", errors="replace").splitlines()
         rows = [r for r in rows if r.strip()][:n]
         if len(rows) < n:
-            raise DataError(f"PLY body holds {len(rows)} vertex rows, header says {n}", path)
+            raise DataError(f"PLY body holds {len(rows)} vertex rows, header says {n} (truncated file)", path)
         try:
             table = np.array([r.split()[: len(props)] for r in rows], dtype=np.float64).reshape(n, len(props))
         except ValueError as exc:

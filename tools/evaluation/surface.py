@@ -98,7 +98,8 @@ def read_point_cloud(path: str | Path) -> np.ndarray:
     """(N, 3) float64 points of a .ply (numpy reader), .npy array, or other open3d-readable file."""
     path = Path(path)
     if not path.is_file():
-        raise DataError("point cloud file does not exist", path)
+        raise DataError("is a folder, not a point cloud file" if path.is_dir() else
+                        "point cloud file does not exist", path)
     suffix = path.suffix.lower()
     if suffix == ".ply":
         from tools.evaluation.ply import read_ply_vertices
@@ -106,9 +107,9 @@ def read_point_cloud(path: str | Path) -> np.ndarray:
         pts = read_ply_vertices(path)
     elif suffix == ".npy":
         try:
-            pts = np.load(path, allow_pickle=False)
-        except ValueError as exc:
-            raise DataError(f"not a numpy array file: {exc}", path) from exc
+            pts = np.asarray(np.load(path, allow_pickle=False), dtype=np.float64)
+        except (ValueError, TypeError, EOFError, OSError) as exc:
+            raise DataError(f"not a numeric numpy array file: {exc}", path) from exc
     else:
         try:
             import open3d as o3d

@@ -21,6 +21,7 @@ from tools.map_archive.format import (
 )
 
 _ENTRY_KEYS = ("index", "file", "sha256", "bytes", "n_points", "T_MS", "lam", "version")
+_INT_KEYS = ("index", "bytes", "n_points", "version")
 
 
 def read_manifest(folder: str | Path) -> dict:
@@ -61,6 +62,12 @@ def read_manifest(folder: str | Path) -> dict:
         missing = [key for key in _ENTRY_KEYS if not isinstance(e, dict) or key not in e]
         if missing:
             raise DataError(f"submaps[{k}] lacks {', '.join(missing)}", path)
+        bad = [key for key in _INT_KEYS if not isinstance(e[key], int) or isinstance(e[key], bool)]
+        if bad:
+            raise DataError(f"submaps[{k}].{bad[0]} is {e[bad[0]]!r}, expected an integer", path)
+        if not isinstance(e["file"], str) or not SUBMAP_RE.match(e["file"]):
+            raise DataError(f"submaps[{k}].file is {e['file']!r}, expected a name like submap_000000.npz "
+                            "inside the archive folder", path)
     return info
 
 
