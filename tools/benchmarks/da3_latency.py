@@ -19,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from tools.json_out import strict_dumps
+
 NAME = "da3-latency"
 HELP = "DA3 ONNX latency and peak memory (N views at HxW) on the selected execution provider"
 CACHE = Path(os.environ.get("DAVIO_CACHE", Path.home() / ".cache" / "davio"))
@@ -130,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
         "cpu_count": os.cpu_count(),
     }
     if args.json:
-        print(json.dumps(out))
+        print(strict_dumps(out))
         return 0
     print(
         f"DA3 {out['size'] or '?'} {model.graph_hw[0]}x{model.graph_hw[1]}, N={n}, {args.threads} threads, "

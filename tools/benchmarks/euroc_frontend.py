@@ -23,11 +23,12 @@ Caveat: the original EuRoC V1 orientation ground truth is known to be off by up 
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
 import numpy as np
+
+from tools.json_out import strict_dumps
 
 NAME = "euroc-frontend"
 HELP = "KLT tracks per frame, tracker ms/frame and static-init roll/pitch error on real EuRoC data"
@@ -157,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
         out["dynamic"] = run_dynamic(Path(args.dynamic), 10.0, args.windows, args.attempt_every)
 
     if args.json:
-        print(json.dumps(out))
+        print(strict_dumps(out))
         return 0
     print(f"EuRoC front-end on {args.path}")
     print(f"{'frames':<40}{out['frames']}")

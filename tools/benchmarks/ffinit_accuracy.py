@@ -14,13 +14,13 @@ The frames' pixels are not rendered (the emulated DA3 reads the ground truth at 
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from tools.evaluation.state_errors import gt_velocity, state_errors
+from tools.json_out import strict_dumps
 
 NAME = "ffinit-accuracy"
 HELP = "feed-forward initializer alone: accepted windows and velocity/gravity/scale errors vs DA3 pose errors"
@@ -174,7 +174,7 @@ def run(args: argparse.Namespace) -> int:
                       f" {f(s['velocity_err_p90'])} {f(s['gravity_err_deg_median'])}"
                       f" {f(s['abs_log_scale_err_median'])} {s['wrong_scale']:8d}", flush=True)
     if args.out:
-        Path(args.out).write_text(json.dumps({**result, "per_window": per_window}, indent=2))
+        Path(args.out).write_text(strict_dumps({**result, "per_window": per_window}, indent=2))
     if args.json:
-        print(json.dumps(result))
+        print(strict_dumps(result))
     return 0

@@ -21,7 +21,6 @@ Everything is simulated: the depth model is the emulated DA3 (models/emulated_da
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from dataclasses import dataclass
@@ -29,6 +28,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from tools.json_out import strict_dumps
 
 NAME = "mapping"
 HELP = ("dense mapping on simulated sequences: DAVIO vs unconditioned, ScaRF-style, true poses and "
@@ -224,20 +225,12 @@ def run(args: argparse.Namespace) -> int:
               "reference_spacing_m": REF_SPACING_M, "sequences": seqs,
               "goals_met": bool(met) and all(met), "wall_s": time.perf_counter() - t0}
     if args.out:
-        Path(args.out).write_text(json.dumps(result, indent=2, default=_jsonable))
+        Path(args.out).write_text(strict_dumps(result, indent=2))
     if args.json:
-        print(json.dumps(result, default=_jsonable))
+        print(strict_dumps(result))
         return 0
     _print_tables(result)
     return 0
-
-
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, np.generic):
-        return x.item()
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    return str(x)
 
 
 def _print_tables(result: dict) -> None:

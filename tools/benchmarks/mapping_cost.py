@@ -17,12 +17,13 @@ Three parts (each optional):
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from dataclasses import replace
 from typing import Any
 
 import numpy as np
+
+from tools.json_out import strict_dumps
 
 NAME = "mapping-cost"
 HELP = "mapping's cost: tracking ms/frame and pose latency with mapping on/off, throughput, memory"
@@ -198,9 +199,9 @@ def run(args: argparse.Namespace) -> int:
     if args.out:
         from pathlib import Path
 
-        Path(args.out).write_text(json.dumps(out, indent=1))
+        Path(args.out).write_text(strict_dumps(out, indent=1))
     if args.json:
-        print(json.dumps(out))
+        print(strict_dumps(out))
         return 0
     _table(out)
     return 0

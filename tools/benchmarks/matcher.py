@@ -10,12 +10,13 @@ precision = correct / matches whose truth is known, before ('raw') and after LK 
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
 import cv2
 import numpy as np
+
+from tools.json_out import strict_dumps
 
 NAME = "matcher"
 HELP = "XFeat/ORB latency and match precision on image pairs with known homographies"
@@ -248,7 +249,7 @@ def run(args: argparse.Namespace) -> int:
         "results": results,
     }
     if args.json:
-        print(json.dumps(out))
+        print(strict_dumps(out))
         return 0
     print(
         f"matcher on {len(pairs)} {args.source} pairs ({out['image_hw'][1]}x{out['image_hw'][0]}), "

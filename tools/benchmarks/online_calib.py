@@ -14,10 +14,11 @@ distortion errors next to the start ones.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
+
+from tools.json_out import strict_dumps
 
 NAME = "online-calib"
 HELP = "online extrinsic / time-offset calibration from perturbed values on the OpenVINS simulator data"
@@ -165,9 +166,9 @@ def run(args: argparse.Namespace) -> int:
         res["intrinsics_std"] = snaps[-1].intrinsics_std.tolist() if snaps else None
     res.update({f"traj_{k}": v for k, v in evaluate(sim, snaps).items()})
     if args.out is not None:
-        args.out.write_text(json.dumps(res, indent=2))
+        args.out.write_text(strict_dumps(res, indent=2))
     if args.json:
-        print(json.dumps(res))
+        print(strict_dumps(res))
         return 0
     print(
         f"online-calib on {args.folder}, {args.max_seconds:g} s, seed {args.seed} "

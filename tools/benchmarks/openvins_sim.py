@@ -11,12 +11,13 @@ from __future__ import annotations
 
 import argparse
 import gzip
-import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from tools.json_out import strict_dumps
 
 NAME = "openvins-sim"
 HELP = "our MSCKF on the OpenVINS simulator's IMU samples and feature tracks, beside OpenVINS's result"
@@ -485,9 +486,9 @@ def run(args: argparse.Namespace) -> int:
     }
     res["openvins"] = sim.openvins
     if args.out is not None:
-        args.out.write_text(json.dumps(res, indent=2))
+        args.out.write_text(strict_dumps(res, indent=2))
     if args.json:
-        print(json.dumps(res))
+        print(strict_dumps(res))
         return 0
     ov = sim.openvins
     n_runs = f"median [min-max] over tie-break seeds 0..{args.seeds - 1}, " if args.seeds > 0 else ""

@@ -28,12 +28,11 @@ def _best_us(fn, repeats: int) -> float:
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
-
     import numpy as np
 
     from runtime.geometry.kernels import nb_right_jacobian, nb_so3_exp, nb_so3_log
     from runtime.imu import Preintegrator
+    from tools.json_out import strict_dumps
 
     rng = np.random.default_rng(0)
     n = int(round(args.rate * args.seconds)) + 1
@@ -56,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
               "per_sample_with_cov_us": rows["integrate_with_cov_us"] / (n - 1),
               "per_sample_no_cov_us": rows["integrate_no_cov_us"] / (n - 1)}
     if args.json:
-        print(json.dumps(result))
+        print(strict_dumps(result))
     else:
         print(f"preintegration of {args.seconds:g} s at {args.rate:g} Hz ({n} samples), best of 5 batches")
         for key, value in result.items():

@@ -127,12 +127,12 @@ def drift_windows(
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
     from pathlib import Path
 
     from drivers.euroc import read_euroc_imu_csv
     from drivers.trajectory_files import read_trajectory
     from runtime.errors import DataError
+    from tools.json_out import strict_dumps
 
     root = (
         Path(args.data)
@@ -158,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
         results[seq]["fitted_bias"]["bg"] = bias[0].tolist()
         results[seq]["fitted_bias"]["ba"] = bias[1].tolist()
     if args.json:
-        print(json.dumps(results))
+        print(strict_dumps(results))
         return 0
     from rich.console import Console
     from rich.table import Table

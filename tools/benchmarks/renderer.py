@@ -79,11 +79,11 @@ def measure(frames: int = 60, seed: int = 0, threads: int | None = None, layer: 
 
 
 def run(args: argparse.Namespace) -> int:
-    import json
+    from tools.json_out import strict_dumps
 
     res = measure(args.frames, args.seed, args.threads, args.threading_layer)
     if args.json:
-        print(json.dumps(res))
+        print(strict_dumps(res))
         return 0
     from rich.console import Console
     from rich.table import Table

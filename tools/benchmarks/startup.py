@@ -20,12 +20,13 @@ real IMU stream (EuRoC-trajectory mode).
 from __future__ import annotations
 
 import argparse
-import json
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from tools.json_out import strict_dumps
 
 NAME = "startup"
 HELP = "start-up protocol: DAVIO (feed-forward + native armed) vs native initializer over 10 s windows"
@@ -247,9 +248,9 @@ def run(args: argparse.Namespace) -> int:
     result["emulated_da3_overrides"] = overrides
     result["model_latency_s"] = args.model_latency
     if args.out:
-        Path(args.out).write_text(json.dumps({**result, "per_window": rows}, indent=2, default=str))
+        Path(args.out).write_text(strict_dumps({**result, "per_window": rows}, indent=2))
     if args.json:
-        print(json.dumps(result, default=str))
+        print(strict_dumps(result))
         return 0
     from rich.console import Console
     from rich.table import Table

@@ -26,7 +26,6 @@ is the native initializer in every row (the feed-forward start-up would change t
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from dataclasses import dataclass, replace
@@ -35,7 +34,8 @@ from typing import Any
 
 import numpy as np
 
-from tools.benchmarks.mapping import SHARED, Source, _jsonable, _split_style
+from tools.benchmarks.mapping import SHARED, Source, _split_style
+from tools.json_out import strict_dumps
 
 NAME = "trajectory"
 HELP = ("causal and final map-frame trajectories vs the odometry (ATE, coverage, T_f, drift) with the "
@@ -331,9 +331,9 @@ def run(args: argparse.Namespace) -> int:
               "seed": args.seed, "model_latency_s": args.model_latency, "sequences": seqs, "skipped": skipped,
               "anchors": refs, "goals_met": bool(met) and all(met), "wall_s": time.perf_counter() - t0}
     if args.out:
-        Path(args.out).write_text(json.dumps(result, indent=2, default=_jsonable))
+        Path(args.out).write_text(strict_dumps(result, indent=2))
     if args.json:
-        print(json.dumps(result, default=_jsonable))
+        print(strict_dumps(result))
         return 0
     _print_tables(result)
     return 0

@@ -9,11 +9,12 @@ real-time factor at the camera rate (20 Hz, 752x480): sensor seconds / processin
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from typing import Any
 
 import numpy as np
+
+from tools.json_out import strict_dumps
 
 NAME = "vio-sim"
 HELP = "KLT + MSCKF on simulated sequences (presets, EuRoC-trajectory mode): ATE, ms/frame, real-time factor"
@@ -112,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
                   f"{r['ms_per_frame_wall']:.1f} ms/frame  x{r['realtime_factor'] or 0:.1f} real time",
                   flush=True)
     if args.json:
-        print(json.dumps(results))
+        print(strict_dumps(results))
         return 0
     from rich.console import Console
     from rich.table import Table
