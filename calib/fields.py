@@ -30,6 +30,8 @@ _OPENCV_DIRECTIVE = re.compile(r"\A(?:\ufeff)?%YAML:[^\n]*\n(?:---[^\n]*\n)?")
 #: Largest calibration file read, bytes (1 MiB). Kalibr, EuRoC and OpenVINS files are a few KiB;
 #: anything bigger is not a calibration file, and is refused before it is read or parsed.
 MAX_CALIBRATION_BYTES = 1 << 20
+#: Deepest nesting of YAML sequences / mappings accepted (calibration files need 4).
+MAX_YAML_DEPTH = 32
 #: Fast libyaml loader when PyYAML was built with it (same results, ~30x faster), else pure Python.
 _BaseLoader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
@@ -43,6 +45,24 @@ def _opencv_matrix(loader: yaml.SafeLoader, node: yaml.MappingNode) -> dict:
 
 
 _Loader.add_constructor("tag:yaml.org,2002:opencv-matrix", _opencv_matrix)
+
+
+def _nesting_depth(text: str) -> int:
+    """Deepest nesting of sequences and mappings, from the parser's event stream (no objects built).
+
+    Checked before construction: libyaml's composer recurses per level and overflows the C stack
+    (a segmentation fault) at about 100,000 levels, which 200 kB of ``[`` can reach.
+    """
+    depth = deepest = 0
+    for event in yaml.parse(text, Loader=_Loader):
+        if isinstance(event, (yaml.SequenceStartEvent, yaml.MappingStartEvent)):
+            depth += 1
+            deepest = max(deepest, depth)
+            if deepest > MAX_YAML_DEPTH:
+                break
+        elif isinstance(event, (yaml.SequenceEndEvent, yaml.MappingEndEvent)):
+            depth -= 1
+    return deepest
 
 
 def _first_bad_byte(raw: bytes) -> tuple[int, int, int]:
@@ -100,6 +120,10 @@ def read_yaml(path: str | os.PathLike) -> dict:
         f"byte 0x{bad[1]:02x} at offset {bad[0]} (line {bad[2]}) is not UTF-8")
     text = _OPENCV_DIRECTIVE.sub("", text, count=1)
     try:
+        depth = _nesting_depth(text)
+        if depth > MAX_YAML_DEPTH:
+            raise CalibrationError(f"YAML nested deeper than {MAX_YAML_DEPTH} levels; not a calibration file",
+                                   p, None)
         data = yaml.load(text, Loader=_Loader)  # a SafeLoader subclass
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
