@@ -29,7 +29,10 @@ def parse_resolution(text: str) -> tuple[int, int]:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument(
-        "--checkpoint", metavar="PATH", help="DA3 weights: model.safetensors (HF release) or a .pt"
+        "--checkpoint",
+        metavar="PATH",
+        help="DA3 weights: model.safetensors (HF release), or a torch .pt/.pth/.bin state dict (read with "
+        "weights_only=True, and only on torch >= 2.10: older releases have weights_only bypasses)",
     )
     src.add_argument("--random-init", action="store_true", help="random weights (tests and benchmarks only)")
     p.add_argument(
