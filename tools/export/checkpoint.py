@@ -80,4 +80,12 @@ def read_state_dict(path: str | Path) -> dict:
     try:
         return loader()
     except Exception as exc:
-        raise ModelError(f"{path}: cannot read checkpoint ({type(exc).__name__}: {exc})") from exc
+        text = str(exc)
+        if "WeightsUnpickler error:" in text:  # torch's multi-line advice ends in the one line that matters
+            why = text.split("WeightsUnpickler error:", 1)[1].split(". Please", 1)[0].strip()
+            raise ModelError(
+                f"{path}: refused: the checkpoint holds more than tensors ({why}); it may run code when "
+                "unpickled, so it is not loaded. Use the .safetensors release of these weights"
+            ) from exc
+        why = " ".join(text.split())[:300]
+        raise ModelError(f"{path}: cannot read checkpoint ({type(exc).__name__}: {why})") from exc
