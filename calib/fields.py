@@ -30,6 +30,8 @@ _OPENCV_DIRECTIVE = re.compile(r"\A(?:\ufeff)?%YAML:[^\n]*\n(?:---[^\n]*\n)?")
 #: Largest calibration file read, bytes (1 MiB). Kalibr, EuRoC and OpenVINS files are a few KiB;
 #: anything bigger is not a calibration file, and is refused before it is read or parsed.
 MAX_CALIBRATION_BYTES = 1 << 20
+#: Largest image width or height accepted in a calibration file, pixels.
+MAX_IMAGE_SIDE = 1 << 16
 #: Deepest nesting of YAML sequences / mappings accepted (calibration files need 4).
 MAX_YAML_DEPTH = 32
 #: Fast libyaml loader when PyYAML was built with it (same results, ~30x faster), else pure Python.
@@ -131,7 +133,9 @@ def read_yaml(path: str | os.PathLike) -> dict:
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
         also = f" ({not_utf8}; save the file as UTF-8)" if bad is not None else ""
         raise CalibrationError(f"invalid YAML{where}: {problem}{also}", p, None) from None
-    except (ValueError, OverflowError, TypeError, RecursionError) as exc:  # e.g. 2021-13-45, deep nesting
+    except CalibrationError:
+        raise
+    except Exception as exc:  # PyYAML's constructors fail with ValueError, IndexError ('!!float' alone), ...
         raise CalibrationError(f"invalid YAML value: {type(exc).__name__}: {exc}", p, None) from None
     if bad is not None and _holds_replacement(data):
         raise CalibrationError(f"{not_utf8} and lies in a key or value; save the file as UTF-8", p, None)
@@ -321,6 +325,9 @@ def read_camera(f: Fields, distortion_key: str) -> CameraModel | None:
         or not all(isinstance(v, int) and not isinstance(v, bool) for v in resolution)
     ):
         raise f.error("resolution", f"expected [width, height] integers, got {resolution!r}")
+    if not all(0 < v <= MAX_IMAGE_SIDE for v in resolution):
+        raise f.error("resolution", f"expected [width, height] in pixels, 1 to {MAX_IMAGE_SIDE}, "
+                                    f"got {[v if abs(v) < 10**12 else '(huge)' for v in resolution]}")
     with rekeyed(f.path, {"distortion_model": f.key("distortion_model")}):
         cls = camera_class(f.string("distortion_model"))
     coeffs = f.numbers(distortion_key, cls.distortion_sizes)
