@@ -275,7 +275,7 @@ class VioPipeline:
         imu = self.startup.imu_for(frames)
         if imu is None:
             return None
-        self.startup.note_request()
+        self.startup.note_request(frames)
         ffinit = self.ffinit
         t, w, a = imu
         bg = self._bg_prior

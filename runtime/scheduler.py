@@ -21,6 +21,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Protocol
 
 from runtime.errors import DavioError
@@ -78,6 +79,10 @@ class FastClock:
 
 
 _END = object()
+
+
+class IntakeFailure(DavioError):
+    """The sensor thread stopped on an error: the events after it never reached the pipeline."""
 
 
 @dataclass
@@ -217,6 +222,12 @@ class Scheduler:
                 q.put(ev)
         except DavioError as exc:
             self.report.intake_error = str(exc)
+        except Exception as exc:  # noqa: BLE001 - any failure ends the run loudly, never a short run
+            import traceback
+
+            where = traceback.extract_tb(exc.__traceback__)[-1]
+            self.report.intake_error = (f"unexpected {type(exc).__name__} in the sensor thread: {exc} "
+                                        f"({Path(where.filename).name}:{where.lineno})")
         finally:
             q.close()
 
@@ -293,5 +304,6 @@ class Scheduler:
             rep.imu_overflow = q.imu_overflow
             rep.wall_s = time.perf_counter() - wall0
         if rep.intake_error is not None:
-            raise DavioError(f"sensor intake failed: {rep.intake_error}")
+            raise IntakeFailure(f"sensor intake failed after {rep.sensor_s:.1f} s of data: "
+                                f"{rep.intake_error}")
         return rep

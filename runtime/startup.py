@@ -201,6 +201,7 @@ class StartupManager:
         self._newest_ns = 0
         self._cid = 0
         self._tried = 0
+        self._last_request_ns: int | None = None
 
     # ------------------------------------------------------------------ measurements
     @property
@@ -234,14 +235,21 @@ class StartupManager:
 
     # ------------------------------------------------------------------ feed-forward
     def window(self) -> list[Frame] | None:
-        """Five buffered frames spaced 0.2 s ending at the newest frame, or None."""
+        """Five buffered frames spaced 0.2 s ending at the newest frame, or None.
+
+        None also while the newest frame is less than one spacing after the newest frame of the last
+        requested window: with a fast model, consecutive windows would share four of five images, and
+        one request per event would starve tracking."""
         if self.publisher is not None or not self.cfg.feedforward or not self._frames:
             return None
         if self._tried >= self.cfg.max_candidates:
             return None
+        spacing_ns = self.cfg.window_spacing_s * 1e9
+        newest = int(self._frames[-1].t_ns)
+        if self._last_request_ns is not None and newest - self._last_request_ns < 0.999 * spacing_ns:
+            return None
         frames = list(self._frames)
         t = np.array([f.t_ns for f in frames], np.int64)
-        spacing_ns = self.cfg.window_spacing_s * 1e9
         ideal = [int(t[-1]) - int(round(k * spacing_ns)) for k in range(self.cfg.window_images - 1, -1, -1)]
         idx = nearest_stamps(t, ideal, self.cfg.window_tolerance_s)
         return None if idx is None else [frames[i] for i in idx]
@@ -255,8 +263,10 @@ class StartupManager:
             return None
         return t, w, a
 
-    def note_request(self) -> None:
+    def note_request(self, frames: list[Frame]) -> None:
+        """Count a feed-forward request on `frames` (the next window waits one spacing after it)."""
         self.report.ff_requests += 1
+        self._last_request_ns = int(frames[-1].t_ns)
 
     def on_feedforward(self, result: Any) -> None:
         """Apply a finished feed-forward attempt: an InitResult starts a candidate; else counted."""

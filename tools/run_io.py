@@ -42,13 +42,13 @@ class OpenedRecording:
     ground_truth_source: Any = None
 
 
-def open_recording(path: str | Path, rebuild: bool = True) -> OpenedRecording:
+def open_recording(path: str | Path, rebuild: bool = True, policy: str = "drop") -> OpenedRecording:
     """An EuRoC ASL folder, or a folder written by `davio simulate`.
 
     With `rebuild` a simulated folder's scene and motion are rebuilt from its manifest (preset or
     trajectory mode) for the emulated DA3 and checked against the folder's ground truth; without it
     (native-only runs need no ground-truth renderer) the folder is only read, and
-    `ground_truth_source` is None.
+    `ground_truth_source` is None. `policy` is the driver's intake policy ("drop" or "strict").
     """
     from drivers.euroc import EurocDriver
 
@@ -56,15 +56,11 @@ def open_recording(path: str | Path, rebuild: bool = True) -> OpenedRecording:
     if not p.exists():
         raise DataError("recording folder not found", p)
     manifest = p / "manifest.json"
-    driver = EurocDriver(p)
+    driver = EurocDriver(p, policy=policy)
     if not manifest.exists():
         return OpenedRecording(driver, "euroc", f"EuRoC folder {p}")
-    try:
-        info = json.loads(manifest.read_text())
-    except json.JSONDecodeError as exc:
-        raise DataError(f"manifest.json is not valid JSON: {exc}", manifest) from exc
-    sim = info.get("simulation") if isinstance(info, dict) else None
-    description = f"simulated recording {p} ({sim})"
+    info = read_manifest(manifest)
+    description = f"simulated recording {p} ({_describe_simulation(info)})"
     if not rebuild:
         return OpenedRecording(driver, "simulated", description)
     gt_file = driver.groundtruth()
@@ -81,6 +77,48 @@ def open_recording(path: str | Path, rebuild: bool = True) -> OpenedRecording:
 
 
 _TRAJECTORY_MODES = ("trajectory-spline", "euroc-trajectory")
+MANIFEST_MAX_BYTES = 1 << 20
+_MANIFEST_RANGES = {"seconds": (0.0, 4 * 3600.0), "imu_rate_hz": (10.0, 10_000.0),
+                    "camera_rate_hz": (0.2, 1000.0), "time_offset_s": (-1.0, 1.0), "start_s": (0.0, 1e6)}
+"""Plausible values of a `davio simulate` manifest's config (a simulation longer than 4 h would take
+days to rebuild)."""
+
+
+def read_manifest(manifest: Path) -> dict:
+    """A `davio simulate` manifest.json, checked: size, UTF-8, JSON object, plausible config values."""
+    import math
+
+    try:
+        size = manifest.stat().st_size
+        if size > MANIFEST_MAX_BYTES:
+            raise DataError(f"{size} bytes is too large for a simulation manifest (limit "
+                            f"{MANIFEST_MAX_BYTES} bytes)", manifest)
+        info = json.loads(manifest.read_bytes().decode("utf-8"))
+    except OSError as exc:
+        raise DataError(f"cannot read manifest: {exc.strerror or exc}", manifest) from exc
+    except UnicodeDecodeError as exc:
+        raise DataError(f"manifest.json is not UTF-8 text (byte {exc.start})", manifest) from exc
+    except json.JSONDecodeError as exc:
+        raise DataError(f"manifest.json is not valid JSON: {exc}", manifest) from exc
+    if not isinstance(info, dict):
+        raise DataError("manifest.json must hold a JSON object", manifest)
+    cfg = info.get("config")
+    for key, (lo, hi) in _MANIFEST_RANGES.items():
+        v = cfg.get(key) if isinstance(cfg, dict) else None
+        if v is None:
+            continue
+        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or not lo <= v <= hi:
+            raise DataError(f"config.{key} = {v!r} is implausible (expected {lo:g} to {hi:g}); the manifest "
+                            "is damaged or was not written by `davio simulate`", manifest)
+    return info
+
+
+def _describe_simulation(info: dict) -> str:
+    """The manifest's `simulation` entry in one line, numbers rounded."""
+    sim = info.get("simulation")
+    if not isinstance(sim, dict):
+        return str(sim)
+    return ", ".join(f"{k} {round(v, 3) if isinstance(v, float) else v}" for k, v in sim.items())
 
 
 def _rebuild_simulation(info: dict, manifest: Path, groundtruth: PoseTrajectory | None = None) -> Any:

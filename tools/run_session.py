@@ -6,23 +6,34 @@ from dataclasses import dataclass
 from typing import Any
 
 from runtime.config import DavioConfig
+from runtime.errors import DavioError
 from runtime.pipeline import VioPipeline
 from runtime.scheduler import FastClock, PacedClock, Scheduler, SchedulerReport
 
 
 @dataclass
 class RunResult:
+    """The pipeline (its estimates), the scheduler's counters and how the run ended.
+
+    `status` is "complete", "interrupted" (Ctrl-C / SIGTERM) or "failed" (a DavioError after the run
+    started, `reason` says which); the pipeline then holds what was computed up to that moment.
+    """
+
     pipeline: VioPipeline
     scheduler: SchedulerReport
+    status: str = "complete"
+    reason: str | None = None
 
 
 def run_pipeline(driver: Any, model: Any, config: DavioConfig, paced: bool = False, speed: float = 1.0,
                  model_latency_s: float = 0.5, show_progress: bool = True, seconds: float | None = None,
-                 rig: Any = None, map_sink: Any = None) -> RunResult:
+                 rig: Any = None, map_sink: Any = None, keep_partial: bool = False) -> RunResult:
     """Run `driver` (events, rig) through a VioPipeline; returns the pipeline and scheduler report.
 
     With a model and mapping enabled, the windows still queued when the recording ends are mapped
-    after the scheduler returns (`map_sink` receives every commit)."""
+    after the scheduler returns (`map_sink` receives every commit). With `keep_partial`, Ctrl-C
+    (KeyboardInterrupt) and a DavioError during the run end it early and the result says so
+    (`status`, `reason`) with everything computed until then; without, they propagate."""
     pipe = VioPipeline(rig if rig is not None else driver.rig, model, config, map_sink=map_sink)
     clock = PacedClock(speed) if paced else FastClock(model_latency_s)
     events = driver.events()
@@ -48,17 +59,29 @@ def run_pipeline(driver: Any, model: Any, config: DavioConfig, paced: bool = Fal
                 last[0] = int(s) // 5
                 print(f"  t = {s:6.1f} s  published {len(pipe.published):5d} poses"
                       f"  ({_status(pipe)})", file=sys.stderr, flush=True)
+    scheduler = Scheduler(clock, progress=progress)
+    status, reason = "complete", None
     try:
-        rep = Scheduler(clock, progress=progress).run(events, pipe)
+        rep = scheduler.run(events, pipe)
+    except KeyboardInterrupt:
+        if not keep_partial:
+            raise
+        rep, status = scheduler.report, "interrupted"
+        reason = f"interrupted after {scheduler.report.sensor_s:.1f} s of data"
+    except DavioError as exc:
+        if not keep_partial:
+            raise
+        rep, status, reason = scheduler.report, "failed", str(exc)
     finally:
         if bar is not None:
             bar.stop()
-    pending = len(pipe.map_queue) if pipe.map_queue is not None else 0
-    if pending and show_progress:
-        print(f"  mapping the {pending} window(s) still queued at the end of the recording", file=sys.stderr,
-              flush=True)
-    pipe.finish_mapping()
-    return RunResult(pipe, rep)
+    if status == "complete":
+        pending = len(pipe.map_queue) if pipe.map_queue is not None else 0
+        if pending and show_progress:
+            print(f"  mapping the {pending} window(s) still queued at the end of the recording",
+                  file=sys.stderr, flush=True)
+        pipe.finish_mapping()
+    return RunResult(pipe, rep, status, reason)
 
 
 def _status(pipe: VioPipeline) -> str:

@@ -97,8 +97,12 @@ def test_run_with_an_onnx_model_warms_it_up_and_refuses_a_broken_one(tmp_path, c
     path = shared_path("euroc", "V1_01_easy_head")
     graph = build_da3_contract_graph(tmp_path / "contract.onnx", 28, 42)
     out = tmp_path / "run"
-    assert main(["run", str(path), "--model", str(graph), "--out", str(out), "--seconds", "1"]) == 0
-    assert "on CPUExecutionProvider (warm-up call" in capsys.readouterr().out
+    # 1 s of a standstill is too short for either initializer: the run says why and exits 1
+    assert main(["run", str(path), "--model", str(graph), "--out", str(out), "--seconds", "1"]) == 1
+    cap = capsys.readouterr()
+    assert "on CPUExecutionProvider (warm-up call" in cap.out
+    assert "no pose was published: feed-forward start-up: 1 windows tried" in cap.err
+    assert json.loads((out / "run_status.json").read_text())["status"] == "failed"
     broken = build_da3_contract_graph(tmp_path / "nan.onnx", 28, 42, variant="nan_depth")
     args = ["run", str(path), "--model", str(broken), "--out", str(tmp_path / "r2"), "--seconds", "1"]
     assert main(args) == 1
@@ -108,13 +112,14 @@ def test_run_with_an_onnx_model_warms_it_up_and_refuses_a_broken_one(tmp_path, c
 
 
 def test_run_missing_folder_is_a_clear_error(tmp_path, capsys):
-    assert main(["run", str(tmp_path / "nope")]) == 1
+    assert main(["run", str(tmp_path / "nope"), "--out", str(tmp_path / "out")]) == 1
     assert "not found" in capsys.readouterr().err
 
 
-def test_run_emulated_on_real_data_is_refused(capsys):
+def test_run_emulated_on_real_data_is_refused(tmp_path, capsys):
     path = shared_path("euroc", "V1_01_easy_head")
-    assert main(["run", str(path), "--emulated", "base", "--seconds", "1"]) == 1
+    assert main(["run", str(path), "--emulated", "base", "--seconds", "1", "--out", str(tmp_path / "x")]) == 1
+    assert not (tmp_path / "x").exists() and not (tmp_path / "x.partial").exists()
     assert "davio simulate" in capsys.readouterr().err
 
 

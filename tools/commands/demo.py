@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 from dataclasses import replace
-from pathlib import Path
 
 NAME = "demo"
 HELP = "simulate a short recording and run DAVIO end to end on it (emulated DA3; no download)"
@@ -23,7 +22,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from drivers.sim.motion import PRESETS
     from models.emulated_da3.params import PRESETS as DA3_PRESETS
 
-    p.add_argument("--out", default="davio_demo", help="output folder")
+    p.add_argument("--out", default="davio_demo",
+                   help="output folder (new, empty, or a previous DAVIO run, which is replaced)")
     p.add_argument("--seconds", type=float, default=12.0, help="length of the simulated recording")
     p.add_argument("--preset", default="euroc", choices=sorted(PRESETS), help="motion preset")
     p.add_argument("--seed", type=int, default=0, help="seed of scene, motion and noise")
@@ -33,42 +33,68 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="simulated DA3 latency in sensor seconds (deterministic replay)")
     p.add_argument("--native-only", action="store_true", help="disable the feed-forward start-up and the map")
     p.add_argument("--no-map", action="store_true", help="do not build the dense map")
+    p.add_argument("--json", action="store_true",
+                   help="print the report as one JSON object on stdout (progress goes to stderr)")
 
 
 def run(args: argparse.Namespace) -> int:
+    import sys
+
     from drivers.sim import SimConfig, SimRecording
     from models.emulated_da3 import EmulatedDA3
     from runtime.config import DavioConfig
-    from tools.commands.run import _summary
+    from tools.commands.run import _summary, check_run_args
+    from tools.evaluation import write_tum
+    from tools.run_folder import RunFolder
     from tools.run_io import write_run
     from tools.run_map import MapOutput
+    from tools.run_outcome import conclude, interruptible, judge
     from tools.run_session import run_pipeline
 
-    print(f"davio demo: simulating {args.seconds:.0f} s ({args.preset} motion, seed {args.seed}) and running "
+    check_run_args(args)
+    # the demo is a throwaway: a previous DAVIO run in its folder is replaced, anything else is refused
+    folder = RunFolder.prepare(args.out, overwrite=True)
+    log = sys.stderr if args.json else sys.stdout
+    print(f"davio demo: simulating {args.seconds:g} s ({args.preset} motion, seed {args.seed}) and running "
           "DAVIO on it.\n  NOTE: the depth model is the EMULATED DA3 (simulator ground truth + DA3 error "
-          "modes), not a real network; see README 'Using a real DA3 model'.")
-    rec = SimRecording.from_preset(SimConfig(preset=args.preset, seconds=args.seconds, seed=args.seed))
-    cam = rec.rig.camera
-    model = None
-    if not args.native_only:
-        model = EmulatedDA3(rec.gt_source, cam.K, cam.width, cam.height, preset=args.da3, seed=args.seed)
-    config = DavioConfig()
-    if args.no_map:
-        config = replace(config, mapping=replace(config.mapping, enabled=False))
-    model_desc = ("none (native only)" if model is None else
-                  f"EMULATED DA3 ({args.da3}) -- simulator ground truth, not a real network")
-    map_out = MapOutput.create(Path(args.out), rec.rig, model_desc, model, config)
-    res = run_pipeline(rec, model, config, model_latency_s=args.model_latency,
-                       map_sink=None if map_out is None else map_out.sink)
-    report = write_run(Path(args.out), res.pipeline, res.scheduler, rec.groundtruth(),
-                       {"recording": f"simulated in memory: preset {args.preset}, {args.seconds} s, seed "
-                                     f"{args.seed}",
-                        "model": model_desc, "map": None if map_out is None else map_out.finish()},
-                       config)
-    _summary(report, Path(args.out))
+          "modes), not a real network; see README 'Using a real DA3 model'.", file=log)
+    folder.create()
+    with folder.discard_on_error(), interruptible():
+        rec = SimRecording.from_preset(SimConfig(preset=args.preset, seconds=args.seconds, seed=args.seed))
+        cam = rec.rig.camera
+        model = None
+        if not args.native_only:
+            model = EmulatedDA3(rec.gt_source, cam.K, cam.width, cam.height, preset=args.da3, seed=args.seed)
+        config = DavioConfig()
+        if args.no_map:
+            config = replace(config, mapping=replace(config.mapping, enabled=False))
+        model_desc = ("none (native only)" if model is None else
+                      f"EMULATED DA3 ({args.da3}) -- simulator ground truth, not a real network")
+        map_out = MapOutput.create(folder.path, rec.rig, model_desc, model, config)
+        res = run_pipeline(rec, model, config, model_latency_s=args.model_latency,
+                           map_sink=None if map_out is None else map_out.sink, keep_partial=True)
+        judge(res, None)
+        gt = rec.groundtruth()
+        write_tum(folder.path / "groundtruth.tum", gt)   # evo_ape tum groundtruth.tum odometry.tum -a
+        report = write_run(folder.path, res.pipeline, res.scheduler, gt,
+                           {"recording": f"simulated in memory: preset {args.preset}, {args.seconds:g} s, "
+                                         f"seed {args.seed} (ground truth: groundtruth.tum)",
+                            "reproduce": _reproduce(args), "model": model_desc, "status": res.status,
+                            "status_reason": res.reason,
+                            "map": None if map_out is None else map_out.finish()},
+                           config)
+        code = conclude(folder, res, report, as_json=args.json, summary=_summary)
     st = report["pipeline"].get("startup")
-    if st is None:
-        return 0
-    print(f"  start-up: {st['ff_requests']} feed-forward windows, {st['ff_accepted']} accepted, "
-          f"rejections {st['ff_rejections'] or '{}'}; candidates selected {st['candidates_selected']}")
-    return 0
+    if st is not None and not args.json:
+        print(f"  start-up: {st['ff_requests']} feed-forward windows, {st['ff_accepted']} accepted, "
+              f"rejections {st['ff_rejections'] or '{}'}; candidates selected {st['candidates_selected']}")
+    return code
+
+
+def _reproduce(args: argparse.Namespace) -> list[str]:
+    """Commands that write the demo's recording to disk and run it the same way."""
+    mode = "--native-only" if args.native_only else f"--emulated {args.da3}"
+    return [f"davio simulate --preset {args.preset} --seconds {args.seconds:g} --seed {args.seed} "
+            "--out demo_recording",
+            f"davio run demo_recording {mode} --model-latency {args.model_latency:g}"
+            + (" --no-map" if args.no_map else "") + " --out demo_rerun"]

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 from dataclasses import replace
 from pathlib import Path
 
@@ -26,7 +25,11 @@ def _emulated_presets() -> list[str]:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("path", help="EuRoC ASL folder (sequence or mav0) or a `davio simulate` folder")
-    p.add_argument("--out", default="davio_run", help="output folder")
+    p.add_argument("--out", default="davio_run",
+                   help="output folder: must be new or empty (see --overwrite); the run is written into "
+                        "OUT.partial/ and renamed to OUT/ when it ends, with run_status.json")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the previous run in --out (only a folder that holds a DAVIO run)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--model", metavar="ONNX", help="DA3 ONNX graph (made by `davio export-da3`)")
     g.add_argument("--emulated", metavar="PRESET", nargs="?", const="base", default=None,
@@ -37,28 +40,63 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-map", action="store_true",
                    help="do not map (mapping runs whenever a depth model is given)")
     p.add_argument("--config", metavar="TOML", help="configuration file (see config.toml of a run)")
+    p.add_argument("--strict", action="store_true",
+                   help="every input repair (dropped, reordered or converted rows and images) is an error "
+                        "naming the file and line, instead of being counted in report.json")
     p.add_argument("--withhold-extrinsics", action="store_true",
                    help="ignore the rig's camera-IMU extrinsics and time offset: hand-eye bring-up from "
                         "DA3, then online calibration (needs a model)")
     p.add_argument("--paced", action="store_true",
                    help="replay at sensor rate instead of as fast as possible")
-    p.add_argument("--speed", type=float, default=1.0, help="pacing factor with --paced")
+    p.add_argument("--speed", type=float, default=1.0, help="pacing factor with --paced (> 0)")
     p.add_argument("--model-latency", type=float, default=0.5, metavar="S",
-                   help="simulated model latency (sensor seconds) when not paced")
-    p.add_argument("--seconds", type=float, default=None, help="only the first S seconds")
-    p.add_argument("--json", action="store_true", help="print the report as one JSON object")
+                   help="simulated model latency (sensor seconds, >= 0) when not paced")
+    p.add_argument("--seconds", type=float, default=None, help="only the first S seconds (> 0)")
+    p.add_argument("--json", action="store_true",
+                   help="print the report as one JSON object on stdout (progress goes to stderr)")
+
+
+def check_run_args(args: argparse.Namespace) -> None:
+    """ConfigError for option values that cannot work (before any file is read)."""
+    import math
+
+    from runtime.errors import ConfigError
+
+    lat = getattr(args, "model_latency", None)
+    if lat is not None and not (math.isfinite(lat) and lat >= 0):
+        raise ConfigError(f"--model-latency must be a finite number of seconds >= 0 (got {lat!r})")
+    sec = getattr(args, "seconds", None)
+    if sec is not None and not (math.isfinite(sec) and sec > 0):
+        raise ConfigError(f"--seconds must be > 0 (got {sec!r})")
+    speed = getattr(args, "speed", None)
+    if speed is not None and not (math.isfinite(speed) and speed > 0):
+        raise ConfigError(f"--speed must be > 0 (got {speed!r})")
 
 
 def run(args: argparse.Namespace) -> int:
     from runtime.config import DavioConfig
     from runtime.config_io import load_toml
-    from runtime.errors import ConfigError
-    from tools.run_io import open_recording, write_run
-    from tools.run_map import MapOutput
-    from tools.run_session import run_pipeline
+    from tools.run_folder import RunFolder
+    from tools.run_outcome import interruptible
 
+    check_run_args(args)
     config = load_toml(DavioConfig, args.config) if args.config else DavioConfig()
-    rec = open_recording(args.path, rebuild=not args.native_only)
+    folder = RunFolder.prepare(args.out, overwrite=args.overwrite)
+    with interruptible():
+        rec, rig, model, model_desc = _open_inputs(args, config)
+        if args.no_map:
+            config = replace(config, mapping=replace(config.mapping, enabled=False))
+        folder.create()
+        with folder.discard_on_error():
+            return _run(args, folder, rec, rig, model, model_desc, config)
+
+
+def _open_inputs(args: argparse.Namespace, config) -> tuple:
+    """(recording, rig, model, model description) for the run, or a DavioError saying why not."""
+    from runtime.errors import ConfigError
+    from tools.run_io import open_recording
+
+    rec = open_recording(args.path, rebuild=not args.native_only, policy="strict" if args.strict else "drop")
     rig = rec.driver.rig
     if rig is None or rig.camera is None:
         raise ConfigError(f"{args.path}: no camera calibration (cam0/sensor.yaml); DAVIO needs intrinsics")
@@ -83,25 +121,33 @@ def run(args: argparse.Namespace) -> int:
         cam = rig.camera
         model = EmulatedDA3(rec.ground_truth_source, cam.K, cam.width, cam.height, preset=preset)
         model_desc = f"EMULATED DA3 ({preset}) from simulator ground truth -- not a real network"
-    if args.no_map:
-        config = replace(config, mapping=replace(config.mapping, enabled=False))
-    out = Path(args.out)
-    map_out = MapOutput.create(out, rig, model_desc, model, config)
+    return rec, rig, model, model_desc
+
+
+def _run(args, folder, rec, rig, model, model_desc: str, config) -> int:
+    import sys
+
+    from tools.run_io import write_run
+    from tools.run_map import MapOutput
+    from tools.run_outcome import conclude, judge
+    from tools.run_session import run_pipeline
+
+    map_out = MapOutput.create(folder.path, rig, model_desc, model, config)
+    # with --json, stdout holds the JSON object only
+    log = sys.stderr if args.json else sys.stdout
     print(f"davio run: {rec.description}\n  model: {model_desc}"
-          + (f"\n  mapping: on (archive {out / 'map'})" if map_out is not None else ""))
+          + (f"\n  mapping: on (archive {folder.out / 'map'})" if map_out is not None else ""), file=log)
     res = run_pipeline(rec.driver, model, config, paced=args.paced, speed=args.speed,
                        model_latency_s=args.model_latency, seconds=args.seconds, rig=rig,
-                       map_sink=None if map_out is None else map_out.sink)
+                       map_sink=None if map_out is None else map_out.sink, keep_partial=True)
+    judge(res, rec.driver.report())
     gt = rec.driver.groundtruth()
     map_summary = map_out.finish() if map_out is not None else None
-    report = write_run(out, res.pipeline, res.scheduler, gt,
-                       {"recording": rec.description, "model": model_desc,
-                        "driver": rec.driver.report(), "map": map_summary}, config)
-    if args.json:
-        print(json.dumps(report, default=str))
-    else:
-        _summary(report, Path(args.out))
-    return 0
+    report = write_run(folder.path, res.pipeline, res.scheduler, gt,
+                       {"recording": rec.description, "model": model_desc, "status": res.status,
+                        "status_reason": res.reason, "driver": rec.driver.report(), "map": map_summary},
+                       config)
+    return conclude(folder, res, report, as_json=args.json, summary=_summary)
 
 
 def _summary(report: dict, out: Path) -> None:

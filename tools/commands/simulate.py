@@ -68,11 +68,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--no-depth", action="store_true", help="skip the depth0 maps")
     p.add_argument(
-        "--out", required=True, metavar="DIR", help="output folder (created; must not hold a recording)"
+        "--out", required=True, metavar="DIR", help="output folder (created; must be new or empty)"
     )
+    p.add_argument("--json", action="store_true", help="print the manifest as one JSON object on stdout")
 
 
 def run(args: argparse.Namespace) -> int:
+    import math
     from dataclasses import replace
     from pathlib import Path
 
@@ -85,7 +87,15 @@ def run(args: argparse.Namespace) -> int:
     from drivers.sim.threads import prefer_workqueue_layer
     from drivers.sim.writer import write_euroc
     from runtime.errors import ConfigError
+    from tools.json_out import strict_dumps
+    from tools.run_folder import check_writable_target
 
+    out = Path(args.out)
+    check_writable_target(out)
+    if out.is_dir() and any(out.iterdir()):
+        raise ConfigError(f"--out {out} is not empty; choose a new or empty folder")
+    if args.seconds is not None and not (math.isfinite(args.seconds) and args.seconds > 0):
+        raise ConfigError(f"--seconds must be > 0 (got {args.seconds!r})")
     prefer_workqueue_layer()  # idle OpenMP threads spin: costly on a shared 2-core machine
     con = Console(stderr=True)
     image = ImageOptions.exact() if args.exact else ImageOptions()
@@ -133,4 +143,6 @@ def run(args: argparse.Namespace) -> int:
     con.print(f"wrote {args.out}: {manifest['counts']}")
     for note in manifest["notes"]:
         con.print(f"note: {note}")
+    if args.json:
+        print(strict_dumps(manifest))
     return 0

@@ -1,0 +1,134 @@
+"""A run's output folder: checked before the work, written whole or clearly marked unfinished.
+
+    folder = RunFolder.prepare(out, overwrite=args.overwrite)   # errors before any work
+    folder.create()                # once the inputs opened
+    ... write every output into folder.path (the sibling `<out>.partial/`) ...
+    folder.finish("complete")      # run_status.json, then `<out>.partial/` renamed to `<out>/`
+
+While a run works, its files live in `<out>.partial/`; `<out>/` appears (or replaces the previous run,
+with --overwrite) only when the run ends, holding `run_status.json` whose "status" is "complete",
+"interrupted" (Ctrl-C or SIGTERM: the outputs up to the interruption) or "failed" (an error after
+some work: what was computed up to it). A `<out>.partial/` left behind is a run that was killed.
+"""
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from runtime.errors import ConfigError
+
+STATUS_FILE = "run_status.json"
+STATUSES = ("complete", "interrupted", "failed")
+RUN_MARKERS = (STATUS_FILE, "report.json", "odometry.tum")
+"""Files whose presence says a folder holds a DAVIO run (and may be replaced with --overwrite)."""
+
+
+def run_status(folder: str | Path) -> str:
+    """"complete", "interrupted" or "failed" for a finished run folder; "unfinished" for a folder
+    without a readable status (a killed run's `.partial`, or a run from before run_status.json)."""
+    try:
+        status = json.loads((Path(folder) / STATUS_FILE).read_text()).get("status")
+    except (OSError, ValueError, AttributeError):
+        return "unfinished"
+    return status if status in STATUSES else "unfinished"
+
+
+def _partial_of(out: Path) -> Path:
+    return out.with_name(out.name + ".partial")
+
+
+def check_writable_target(out: Path, what: str = "--out") -> None:
+    """ConfigError when `out` cannot become a folder: it is a file, lies under a file, or its nearest
+    existing ancestor is not writable."""
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"{what} {out} is a file, not a folder")
+    parent = out
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise ConfigError(f"{what} {out}: {parent} is a file, so no folder can be made under it")
+    probe = out if out.exists() else parent
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise ConfigError(f"{what} {out}: {probe} is not writable")
+
+
+@dataclass
+class RunFolder:
+    """Where a run writes (`path`, the partial sibling) and where it lands (`out`)."""
+
+    out: Path
+    path: Path
+    replace_existing: bool
+    started_unix_s: float = field(default_factory=time.time)
+
+    @classmethod
+    def prepare(cls, out: str | Path, overwrite: bool = False) -> RunFolder:
+        """Check `out` before any work (nothing is created until `create`).
+
+        Raises ConfigError: `out` is a file or under a file, not writable, or a non-empty folder
+        without `overwrite`, or (with `overwrite`) a non-empty folder that holds no DAVIO run.
+        """
+        out = Path(out)
+        check_writable_target(out)
+        replace_existing = False
+        if out.is_dir() and any(out.iterdir()):
+            if not overwrite:
+                raise ConfigError(f"--out {out} is not empty (a previous run?); pass --overwrite to replace "
+                                  "it, or choose another folder")
+            if not any((out / m).exists() for m in RUN_MARKERS):
+                raise ConfigError(f"--out {out} holds files but no DAVIO run ({', '.join(RUN_MARKERS)}); "
+                                  "--overwrite only replaces run folders: choose another folder")
+            replace_existing = True
+        partial = _partial_of(out)
+        if partial.exists() and not overwrite:
+            raise ConfigError(f"{partial} exists: an unfinished run (killed, or still running); remove "
+                              "it or pass --overwrite")
+        return cls(out, partial, replace_existing)
+
+    def create(self) -> Path:
+        """Create the partial folder the run writes into (a stale one is removed); returns it."""
+        if self.path.exists():
+            shutil.rmtree(self.path)
+        try:
+            self.path.mkdir(parents=True)
+        except OSError as exc:
+            raise ConfigError(f"--out {self.out}: cannot create {self.path}: {exc.strerror or exc}") from exc
+        return self.path
+
+    @contextlib.contextmanager
+    def discard_on_error(self) -> Iterator[None]:
+        """Remove the partial folder when the block fails before any run output was written (a bad
+        recording or model: nothing to keep); a failure after that leaves it, as an unfinished run."""
+        try:
+            yield
+        except BaseException:
+            if self.path.is_dir() and not (self.path / "odometry.tum").exists():
+                shutil.rmtree(self.path, ignore_errors=True)
+            raise
+
+    def finish(self, status: str, reason: str | None = None) -> Path:
+        """Write run_status.json and move the run into place (replacing the previous run when
+        allowed); returns the final folder."""
+        if status not in STATUSES:
+            raise ValueError(f"status must be one of {STATUSES}, got {status!r}")
+        from tools.evaluation.trajectory_io import atomic_write_text
+        from tools.run_io import versions
+
+        files = sorted(str(p.relative_to(self.path)) for p in self.path.rglob("*") if p.is_file())
+        atomic_write_text(self.path / STATUS_FILE, json.dumps({
+            "status": status, "reason": reason, "started_unix_s": self.started_unix_s,
+            "ended_unix_s": time.time(), "davio": versions().get("davio"), "files": files}, indent=1) + "\n")
+        if self.out.exists():
+            old = self.out.with_name(f"{self.out.name}.old-{os.getpid()}")
+            os.replace(self.out, old)   # an empty folder, or a run allowed to be replaced
+            os.replace(self.path, self.out)
+            shutil.rmtree(old, ignore_errors=True)
+        else:
+            os.replace(self.path, self.out)
+        return self.out

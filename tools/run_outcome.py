@@ -1,0 +1,92 @@
+"""How a run ends: its status, why nothing was published when nothing was, the exit code.
+
+A run that cannot publish says why and exits non-zero; Ctrl-C or SIGTERM ends it with the outputs up to
+the interruption (exit 130); an error after the work started keeps what was computed (exit 1).
+"""
+from __future__ import annotations
+
+import contextlib
+import signal
+import sys
+from collections.abc import Callable, Iterator
+from typing import Any
+
+EXIT_OK, EXIT_FAILED, EXIT_INTERRUPTED = 0, 1, 130
+
+
+@contextlib.contextmanager
+def interruptible() -> Iterator[None]:
+    """Within the block SIGTERM acts like Ctrl-C (KeyboardInterrupt), so both finish a run cleanly."""
+    def on_term(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    try:
+        previous = signal.signal(signal.SIGTERM, on_term)
+    except ValueError:   # not the main thread: leave signals alone
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def why_nothing_published(pipeline_report: dict, driver_report: dict | None, sched: Any) -> str:
+    """One paragraph: what reached the pipeline and what each initializer did with it."""
+    parts: list[str] = []
+    if sched.imu_samples == 0:
+        parts.append("no IMU sample reached the filter")
+    if sched.frames == 0:
+        parts.append("no camera frame reached the tracker")
+    streams = (driver_report or {}).get("streams") or {}
+    for name, c in streams.items():
+        bad = {k: c.get(k, 0) for k in ("missing_images", "unreadable_images") if c.get(k)}
+        if bad:
+            parts.append(f"{name}: " + ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in bad.items()))
+    parts.extend((driver_report or {}).get("notes") or [])
+    tracking = pipeline_report.get("tracking") or {}
+    if sched.frames and tracking.get("frames_without_tracks", 0) >= sched.frames:
+        parts.append("no frame had trackable features (dark, blank or unfocused images?)")
+    st = pipeline_report.get("startup") or {}
+    if st.get("ff_requests"):
+        rej = ", ".join(f"{k} x{v}" for k, v in sorted((st.get("ff_rejections") or {}).items())) or "none"
+        parts.append(f"feed-forward start-up: {st.get('ff_requests', 0)} windows tried, "
+                     f"{st.get('ff_accepted', 0)} accepted (rejected: {rej})")
+    errors = tracking.get("ff_exceptions") or []
+    if errors:
+        parts.append(f"{len(errors)} model calls failed (first: {errors[0]})")
+    filt = pipeline_report.get("filter") or {}
+    if filt and not filt.get("initialized"):
+        parts.append(f"the native initializer found no start in {sched.sensor_s:.1f} s of data (it needs a "
+                     "standstill or enough motion with tracked features)")
+    return "; ".join(parts) or "no reason recorded"
+
+
+def judge(res: Any, driver_report: dict | None) -> None:
+    """Mark a run that ended normally but published nothing as failed, with the reason."""
+    if res.status == "complete" and not res.pipeline.published:
+        res.status = "failed"
+        res.reason = "no pose was published: " + why_nothing_published(
+            res.pipeline.report(), driver_report, res.scheduler)
+
+
+def conclude(folder: Any, res: Any, report: dict, as_json: bool,
+             summary: Callable[[dict, Any], None]) -> int:
+    """Move the run folder into place with its status, print the summary (or the JSON report) and
+    the error when the run did not complete; returns the exit code."""
+    from tools.json_out import strict_dumps
+
+    out = folder.finish(res.status, res.reason)
+    if as_json:
+        print(strict_dumps(report))
+    else:
+        summary(report, out)
+    if res.status == "interrupted":
+        print(f"davio: {res.reason}; the outputs up to then are in {out} (run_status.json: interrupted)",
+              file=sys.stderr)
+        return EXIT_INTERRUPTED
+    if res.status == "failed":
+        print(f"davio: error: {res.reason}\n  what was computed is in {out} (run_status.json: failed)",
+              file=sys.stderr)
+        return EXIT_FAILED
+    return EXIT_OK
