@@ -41,11 +41,11 @@ def _decimal(text: str) -> Decimal:
     return value
 
 
-def _int64_ns(value: Decimal, text: str) -> int:
-    """Exact int nanoseconds of a Decimal count of nanoseconds (half-to-even); ValueError outside int64."""
-    if abs(value) >= _INT64_LIMIT:  # compared before int() so '1e999999' costs nothing
-        raise ValueError(f"{text!r} is outside the int64 nanosecond range (+-9.2e18 ns, +-292 years)")
-    return int(value.to_integral_value(rounding=ROUND_HALF_EVEN))
+def _int64_ns(value: Decimal, text: str, scale: Decimal = Decimal(1)) -> int:
+    """Exact int nanoseconds of `value` * `scale` ns (half-to-even); ValueError outside int64."""
+    if value.copy_abs() >= _INT64_LIMIT / scale:  # compared first, so '1e999999999' costs nothing
+        raise ValueError(f"{text[:40]!r} is outside the int64 nanosecond range (+-9.2e18 ns, +-292 years)")
+    return int((value * scale).to_integral_value(rounding=ROUND_HALF_EVEN))
 
 
 def seconds_text_to_ns(text: str) -> int:
@@ -54,7 +54,7 @@ def seconds_text_to_ns(text: str) -> int:
     Digits below 1 ns are rounded half-to-even. Raises ValueError for anything but a finite number
     whose nanoseconds fit int64.
     """
-    return _int64_ns(_decimal(text) * _NS, text)
+    return _int64_ns(_decimal(text), text, _NS)
 
 
 def ns_to_seconds_text(t_ns: int) -> str:
@@ -128,9 +128,9 @@ def _tum_stamp(text: str, path: Path, lineno: int) -> tuple[int, bool]:
     """(t_ns, True when the text was taken as nanoseconds: above NS_STAMP_THRESHOLD)."""
     try:
         value = _decimal(text)
-        if abs(value) > NS_STAMP_THRESHOLD:
+        if value.copy_abs() > NS_STAMP_THRESHOLD:
             return _int64_ns(value, text), True
-        return _int64_ns(value * _NS, text), False
+        return _int64_ns(value, text, _NS), False
     except ValueError as exc:
         raise TrajectoryError(f"bad timestamp: {exc}", path, lineno) from exc
 
