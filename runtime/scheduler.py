@@ -100,7 +100,16 @@ class SchedulerReport:
     wall_s: float = 0.0
     sensor_s: float = 0.0
     first_t_ns: int | None = None
+    first_frame_t_ns: int | None = None
+    last_frame_t_ns: int | None = None
     per_frame_ms: list = field(default_factory=list)
+
+    @property
+    def image_span_s(self) -> float:
+        """Sensor seconds from the first to the last frame (0 without frames)."""
+        if self.first_frame_t_ns is None or self.last_frame_t_ns is None:
+            return 0.0
+        return (self.last_frame_t_ns - self.first_frame_t_ns) * 1e-9
 
     def as_dict(self) -> dict:
         d = {k: v for k, v in self.__dict__.items() if k != "per_frame_ms"}
@@ -108,7 +117,11 @@ class SchedulerReport:
         if ms:
             d["tracking_ms_per_frame_median"] = ms[len(ms) // 2]
             d["tracking_ms_per_frame_p95"] = ms[min(len(ms) - 1, int(0.95 * len(ms)))]
-        d["realtime_factor"] = self.sensor_s / self.wall_s if self.wall_s > 0 else None
+        d["image_span_s"] = self.image_span_s
+        # IMU recorded before the first or after the last image is not camera-rate work: the factor
+        # counts only the span with images
+        span = self.image_span_s
+        d["realtime_factor"] = span / self.wall_s if self.wall_s > 0 and span > 0 else None
         return d
 
 
@@ -272,6 +285,9 @@ class Scheduler:
                 rep.events += 1
                 if hasattr(ev, "image"):
                     rep.frames += 1
+                    if rep.first_frame_t_ns is None:
+                        rep.first_frame_t_ns = t
+                    rep.last_frame_t_ns = t
                     t0 = time.perf_counter()
                     out = pipeline.on_frame(ev)
                     rep.per_frame_ms.append(1e3 * (time.perf_counter() - t0))
