@@ -64,3 +64,42 @@ def test_bad_files_name_the_file(tmp_path):
     bad.write_text("inner = [\n")
     with pytest.raises(ConfigError, match="bad.toml"):
         load_toml(Outer, bad)
+
+
+def test_latin1_byte_in_a_comment_is_tolerated(tmp_path):
+    p = tmp_path / "c.toml"
+    p.write_bytes(b"# r\xe9glages du 3 mai\nname = \"run\"\n")
+    assert load_toml(Outer, p).name == "run"
+
+
+def test_latin1_byte_in_a_value_names_offset_and_line(tmp_path):
+    raw = b"# ok\nname = \"caf\xe9\"\n"
+    p = tmp_path / "c.toml"
+    p.write_bytes(raw)
+    with pytest.raises(ConfigError) as err:
+        load_toml(Outer, p)
+    assert str(err.value) == (f"{p}: byte 0xe9 at offset {raw.index(0xE9)} (line 2) is not UTF-8 and lies "
+                              "in a key or value; save the file as UTF-8")
+
+
+def test_binary_file_folder_and_oversized_file_are_config_errors(tmp_path):
+    binary = tmp_path / "model.onnx"
+    binary.write_bytes(bytes(range(256)))
+    with pytest.raises(ConfigError, match=r"model.onnx: not a UTF-8 TOML text file \(byte 0x80 at offset 1"):
+        load_toml(Outer, binary)
+    with pytest.raises(ConfigError, match="is a folder, not a TOML file"):
+        load_toml(Outer, tmp_path)
+    big = tmp_path / "big.toml"
+    big.write_bytes(b"# " + b"x" * (1 << 20) + b"\n")
+    with pytest.raises(ConfigError, match=r"above the 1048576 byte \(1 MiB\) limit"):
+        load_toml(Outer, big)
+
+
+def test_deep_nesting_and_huge_numbers_are_config_errors(tmp_path):
+    p = tmp_path / "c.toml"
+    p.write_text("window = " + "[" * 5000 + "]" * 5000 + "\n")
+    with pytest.raises(ConfigError, match="nested too deeply"):
+        load_toml(Outer, p)
+    p.write_text("[inner]\nthreshold = 1" + "0" * 400 + "\n")
+    with pytest.raises(ConfigError, match="inner.threshold: 1000.* is too large for a number"):
+        load_toml(Outer, p)

@@ -1,0 +1,114 @@
+"""`davio eval` and `davio map` on bad input: one-line errors (exit 1), nanosecond TUM stamps, output
+paths that are folders, strict JSON."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.tools.test_eval_io import random_traj
+from tests.tools.test_map_archive import write_two_commits
+from tools.cli import main
+from tools.evaluation import write_tum
+
+
+def _strict(text: str) -> dict:
+    return json.loads(text, parse_constant=lambda c: pytest.fail(f"non-strict JSON token {c}"))
+
+
+@pytest.fixture()
+def tum_pair(tmp_path: Path) -> tuple[Path, Path, Path]:
+    """(estimate with seconds stamps, the same estimate with nanosecond stamps, reference)."""
+    traj = random_traj(40)
+    write_tum(tmp_path / "est.tum", traj)
+    write_tum(tmp_path / "ref.tum", traj)
+    rows = [line.split() for line in (tmp_path / "est.tum").read_text().splitlines()[1:]]
+    (tmp_path / "est_ns.tum").write_text("".join(" ".join([r[0].replace(".", "").lstrip("0")] + r[1:]) + "\n"
+                                                 for r in rows))
+    return tmp_path / "est.tum", tmp_path / "est_ns.tum", tmp_path / "ref.tum"
+
+
+@pytest.mark.parametrize("metric", ["ate", "rpe"])
+def test_nanosecond_tum_stamps_are_read_with_a_note(tum_pair, capsys, metric: str) -> None:
+    est, est_ns, ref = tum_pair
+    assert main(["eval", metric, str(est), str(ref), "--json"]) == 0
+    expected = _strict(capsys.readouterr().out)
+    assert main(["eval", metric, str(est_ns), str(ref), "--json"]) == 0
+    captured = capsys.readouterr()
+    got = _strict(captured.out)
+    assert got["pairs"] == expected["pairs"] >= 39 and got["rmse"] == expected["rmse"]
+    assert "davio eval: note:" in captured.err and "read as nanoseconds" in captured.err
+
+
+def test_save_aligned_into_an_existing_folder(tum_pair, tmp_path: Path, capsys) -> None:
+    est, _, ref = tum_pair
+    out = tmp_path / "results"
+    out.mkdir()
+    assert main(["eval", "ate", str(est), str(ref), "--save-aligned", str(out), "--json"]) == 0
+    result = _strict(capsys.readouterr().out)
+    assert result["aligned"] == str(out / "est_aligned.tum")
+    assert len((out / "est_aligned.tum").read_text().splitlines()) == 41  # header + 40 poses
+
+
+@pytest.mark.parametrize("metric", ["ate", "rpe"])
+def test_plot_naming_a_file_is_a_one_line_error(tum_pair, capsys, metric: str) -> None:
+    est, _, ref = tum_pair
+    assert main(["eval", metric, str(est), str(ref), "--plot", str(ref)]) == 1
+    err = capsys.readouterr().err
+    assert err == f"davio eval: error: --plot {ref}: is a file; --plot takes a folder for the PNG plots\n"
+
+
+@pytest.mark.parametrize(
+    "body,message",
+    [
+        (b"", "PLY file ends at end_header: the header declares 3 vertices but no vertex data follows "
+              "(truncated file)"),
+        (b"\n0 0 0\n", "PLY body holds 1 vertex rows, header says 3 (truncated file)"),
+    ],
+)
+def test_surface_on_a_truncated_ply_is_a_one_line_error(tmp_path: Path, capsys, body: bytes,
+                                                        message: str) -> None:
+    rec = tmp_path / "rec.ply"
+    rec.write_bytes(b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                    b"property float z\nend_header" + body)
+    np.save(tmp_path / "ref.npy", np.eye(3))
+    assert main(["eval", "surface", str(rec), str(tmp_path / "ref.npy")]) == 1
+    assert capsys.readouterr().err == f"davio eval: error: {rec}: {message}\n"
+
+
+def test_surface_json_is_strict_and_a_folder_is_refused(tmp_path: Path, capsys) -> None:
+    np.save(tmp_path / "a.npy", np.eye(3))
+    assert main(["eval", "surface", str(tmp_path / "a.npy"), str(tmp_path / "a.npy"), "--json"]) == 0
+    assert _strict(capsys.readouterr().out)["fscore"] == 1.0
+    assert main(["eval", "surface", str(tmp_path), str(tmp_path / "a.npy")]) == 1
+    assert capsys.readouterr().err == f"davio eval: error: {tmp_path}: is a folder, not a point cloud file\n"
+    np.save(tmp_path / "s.npy", np.array([["a", "b", "c"]]))
+    assert main(["eval", "surface", str(tmp_path / "s.npy"), str(tmp_path / "a.npy")]) == 1
+    assert "not a numeric numpy array file" in capsys.readouterr().err
+
+
+def test_map_export_into_a_folder_and_bad_voxel(tmp_path: Path, capsys) -> None:
+    write_two_commits(tmp_path / "run" / "map")
+    out = tmp_path / "exports"
+    out.mkdir()
+    assert main(["map", "export", str(tmp_path / "run"), "--out", str(out)]) == 0
+    assert (out / "map.ply").is_file()
+    capsys.readouterr()
+    assert main(["map", "export", str(tmp_path / "run"), "--voxel", "0"]) == 1
+    assert capsys.readouterr().err == ("davio map: error: --voxel must be a positive edge length in metres, "
+                                       "got 0.0\n")
+    assert main(["map", "info", str(tmp_path / "run"), "--json"]) == 0
+    assert _strict(capsys.readouterr().out)["submaps"] == 3
+
+
+def test_manifest_entry_with_a_foreign_file_name_is_refused(tmp_path: Path, capsys) -> None:
+    folder = tmp_path / "map"
+    write_two_commits(folder)
+    manifest = json.loads((folder / "manifest.json").read_text())
+    manifest["submaps"][1]["file"] = "../../etc/passwd"
+    (folder / "manifest.json").write_text(json.dumps(manifest))
+    assert main(["map", "info", str(folder)]) == 1
+    assert "submaps[1].file is '../../etc/passwd', expected a name like submap_000000.npz" in \
+        capsys.readouterr().err
