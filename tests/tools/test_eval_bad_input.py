@@ -40,6 +40,8 @@ def test_nanosecond_tum_stamps_are_read_with_a_note(tum_pair, capsys, metric: st
     got = _strict(captured.out)
     assert got["pairs"] == expected["pairs"] >= 39 and got["rmse"] == expected["rmse"]
     assert "davio eval: note:" in captured.err and "read as nanoseconds" in captured.err
+    assert main(["eval", metric, str(est_ns), str(ref)]) == 0  # the table too
+    assert "read as nanoseconds" in capsys.readouterr().err
 
 
 def test_save_aligned_into_an_existing_folder(tum_pair, tmp_path: Path, capsys) -> None:
@@ -50,6 +52,8 @@ def test_save_aligned_into_an_existing_folder(tum_pair, tmp_path: Path, capsys) 
     result = _strict(capsys.readouterr().out)
     assert result["aligned"] == str(out / "est_aligned.tum")
     assert len((out / "est_aligned.tum").read_text().splitlines()) == 41  # header + 40 poses
+    assert main(["eval", "ate", str(est), str(ref), "--save-aligned", str(out)]) == 0
+    assert str(out / "est_aligned.tum") in capsys.readouterr().out.replace("\n", "")
 
 
 @pytest.mark.parametrize("metric", ["ate", "rpe"])

@@ -148,7 +148,7 @@ def _run_ate(args: argparse.Namespace) -> int:
                                           f"poses (max diff {args.max_diff} s)"),
                                 ("reference path", f"{out['path_length_ref_m']:.3f} m")]
                                + [("plot", p) for p in out.get("plots", [])]
-                               + [("aligned estimate", out["aligned"])] * ("aligned" in out))
+                               + [("aligned estimate", out[k]) for k in ("aligned",) if k in out])
     _print(table, info)
     return 0
 
