@@ -21,3 +21,15 @@ def shared_path(*parts: str) -> Path:
 def euroc_head() -> Path:
     """The real EuRoC V1_01_easy head folder (95 frames, full IMU)."""
     return shared_path("euroc", "V1_01_easy_head")
+
+
+@pytest.fixture(scope="session")
+def small_sim_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 6 s simulated EuRoC folder (preset 'euroc': 2 s at rest, then take-off; no depth maps), written
+    once per session for the tests that replay files: fault injection, run folders."""
+    from drivers.sim import SimConfig, SimRecording
+    from drivers.sim.writer import write_euroc
+
+    out = tmp_path_factory.mktemp("sim") / "euroc6"
+    write_euroc(SimRecording.from_preset(SimConfig(preset="euroc", seconds=6.0, seed=0)), out, depth=False)
+    return out

@@ -204,8 +204,9 @@ def _graph_text(g: dict | None) -> str:
 
 _DRIVER_COUNTERS = {
     "truncated_lines": "truncated lines", "malformed_lines": "malformed lines",
-    "dropped_nonfinite": "non-finite samples dropped", "dropped_nonmonotonic": "out-of-order dropped",
-    "dropped_duplicate": "duplicates dropped", "missing_images": "missing images",
+    "dropped_nonfinite": "non-finite samples dropped", "dropped_nonmonotonic": "corrupt stamps dropped",
+    "dropped_duplicate": "duplicates dropped", "reordered": "out-of-order rows sorted",
+    "converted": "converted", "missing_images": "missing images",
     "unreadable_images": "unreadable images", "gaps": "gaps",
 }
 
@@ -219,6 +220,13 @@ def _recovery_lines(report: dict) -> list[str]:
         parts = [f"{label} {counts[k]}" for k, label in _DRIVER_COUNTERS.items() if counts.get(k)]
         if parts:
             lines.append(f"input {name}: " + ", ".join(parts))
+    lines.extend(f"input note: {n}" for n in (report.get("driver") or {}).get("notes") or [])
+    errors = (report["pipeline"].get("tracking") or {}).get("ff_exceptions") or []
+    if errors:
+        lines.append(f"feed-forward model calls failed: {len(errors)} (first: {errors[0]})")
+    map_errors = (report["pipeline"].get("mapping") or {}).get("model_errors") or []
+    if map_errors:
+        lines.append(f"mapping model calls failed: {len(map_errors)} (first: {map_errors[0]})")
     startup = report["pipeline"].get("startup") or {}
     if startup.get("ff_rejections"):
         reasons = ", ".join(f"{k} x{v}" for k, v in sorted(startup["ff_rejections"].items()))
