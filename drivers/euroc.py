@@ -95,18 +95,19 @@ def read_euroc_groundtruth(path: str | Path, policy: Policy = "drop",
 
 
 def _declared_rate_hz(sensor_yaml: Path) -> float | None:
-    """`rate_hz` of an ASL sensor.yaml (the `%YAML:1.0` line stripped), or None when absent."""
+    """`rate_hz` of an ASL sensor.yaml, or None when absent or unreadable (the rig reader reports a
+    broken camera file; the size, encoding and nesting limits of `calib.fields.read_yaml` apply)."""
     if not sensor_yaml.is_file():
         return None
-    import yaml
+    from calib.fields import read_yaml
+    from runtime.errors import CalibrationError
 
-    text = "\n".join(ln for ln in sensor_yaml.read_text().splitlines() if not ln.startswith("%YAML"))
     try:
-        data = yaml.safe_load(text) or {}
-    except yaml.YAMLError:
+        data = read_yaml(sensor_yaml)
+    except CalibrationError:
         return None
     rate = data.get("rate_hz") if isinstance(data, dict) else None
-    return float(rate) if isinstance(rate, int | float) else None
+    return float(rate) if isinstance(rate, int | float) and not isinstance(rate, bool) else None
 
 
 class EurocDriver(Driver):

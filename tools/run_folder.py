@@ -117,7 +117,7 @@ class RunFolder:
         allowed); returns the final folder."""
         if status not in STATUSES:
             raise ValueError(f"status must be one of {STATUSES}, got {status!r}")
-        from tools.evaluation.trajectory_io import atomic_write_text
+        from runtime.files import atomic_write_text
         from tools.run_io import versions
 
         files = sorted(str(p.relative_to(self.path)) for p in self.path.rglob("*") if p.is_file())

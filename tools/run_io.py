@@ -20,8 +20,9 @@ from typing import Any
 import numpy as np
 
 from runtime.errors import DataError
+from runtime.files import atomic_write_text
 from runtime.geometry import PoseTrajectory
-from tools.evaluation.trajectory_io import atomic_write_text
+from runtime.json_out import strict_dumps
 
 
 @dataclass
@@ -281,7 +282,7 @@ def write_run(out_dir: Path, pipeline: Any, sched_report: Any, gt: PoseTrajector
         "config": config_to_dict(config),
         "versions": versions(),
     }
-    atomic_write_text(out_dir / "report.json", json.dumps(report, indent=2, default=_json_default))
+    atomic_write_text(out_dir / "report.json", strict_dumps(report, indent=2))
     if gt is not None and len(est) >= 3:
         _plots(out_dir, est, gt)
     return report
@@ -309,16 +310,6 @@ def _write_pose_table(path: Path, pipeline: Any) -> None:
     for p, (_, version, fraction) in zip(pipeline.published, pipeline.causal, strict=True):
         rows.append(f"{p.t_ns},{p.t_cam_ns},{p.segment},{p.source},{version},{fraction:.6f}")
     atomic_write_text(path, "\n".join(rows) + "\n")
-
-
-def _json_default(o: Any) -> Any:
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, (np.integer,)):
-        return int(o)
-    if isinstance(o, (np.floating,)):
-        return float(o)
-    return str(o)
 
 
 def _plots(out_dir: Path, est: PoseTrajectory, gt: PoseTrajectory) -> None:

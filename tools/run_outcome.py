@@ -74,7 +74,7 @@ def conclude(folder: Any, res: Any, report: dict, as_json: bool,
              summary: Callable[[dict, Any], None]) -> int:
     """Move the run folder into place with its status, print the summary (or the JSON report) and
     the error when the run did not complete; returns the exit code."""
-    from tools.json_out import strict_dumps
+    from runtime.json_out import strict_dumps
 
     out = folder.finish(res.status, res.reason)
     if as_json:

@@ -11,7 +11,6 @@ Layout under DIR:
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -251,5 +250,7 @@ def write_euroc(
         "notes": notes,
         "versions": _versions(),
     }
-    (out / "manifest.json").write_text(json.dumps(manifest, indent=2, default=float))
+    from runtime.json_out import strict_dumps
+
+    (out / "manifest.json").write_text(strict_dumps(manifest, indent=2))
     return manifest

@@ -189,7 +189,11 @@ class MsckfConfig:
             return self
         names = ("gyro_noise_density", "gyro_random_walk", "accel_noise_density", "accel_random_walk")
         vals = {n: float(getattr(imu, n)) for n in names if getattr(imu, n, None) is not None}
-        return replace(self, **{n: v for n, v in vals.items() if v > 0})
+        bad = {n: v for n, v in vals.items() if not (math.isfinite(v) and v > 0)}
+        if bad:   # never substitute a default for a value the calibration gave
+            raise ConfigError("IMU noise must be finite and positive (null: withheld, the defaults apply); "
+                              f"got {', '.join(f'{n} = {v!r}' for n, v in bad.items())}")
+        return replace(self, **vals)
 
     def updated(self, **kwargs: object) -> MsckfConfig:
         """A copy with fields replaced; unknown names raise ConfigError."""

@@ -21,6 +21,7 @@ Re-exported for callers: :class:`DynamicInitConfig`, :class:`LinearSolution`, :f
 
 from __future__ import annotations
 
+import math
 from functools import partial
 
 import numpy as np
@@ -54,6 +55,17 @@ _DEFAULT_GYRO_DENSITY = 1.6968e-4
 _DEFAULT_ACCEL_DENSITY = 2.0e-3
 
 
+def _density(imu_noise: object, name: str, default: float) -> float:
+    """A noise density of the rig's IMU; the default only when it is withheld (None), never for 0."""
+    v = getattr(imu_noise, name, None)
+    if v is None:
+        return default
+    v = float(v)
+    if not (math.isfinite(v) and v > 0):
+        raise ConfigError(f"IMU {name} must be finite and positive, got {v!r}")
+    return v
+
+
 class DynamicInitializer:
     """Initialize while moving from tracked features and IMU over a short window.
 
@@ -82,8 +94,8 @@ class DynamicInitializer:
         self.R_IC = T[:3, :3].copy()
         self.p_IC = T[:3, 3].copy()
         self.config = config if config is not None else DynamicInitConfig()
-        self.gyro_density = float(getattr(imu_noise, "gyro_noise_density", None) or _DEFAULT_GYRO_DENSITY)
-        self.accel_density = float(getattr(imu_noise, "accel_noise_density", None) or _DEFAULT_ACCEL_DENSITY)
+        self.gyro_density = _density(imu_noise, "gyro_noise_density", _DEFAULT_GYRO_DENSITY)
+        self.accel_density = _density(imu_noise, "accel_noise_density", _DEFAULT_ACCEL_DENSITY)
         self.time_offset_ns = int(round(float(time_offset_s) * 1e9))
         keep = self.config.window_ns + 500_000_000
         self.imu = ImuWindow(keep)

@@ -53,7 +53,9 @@ def test_run_on_real_euroc_head_writes_outputs(tmp_path, capsys):
     path = shared_path("euroc", "V1_01_easy_head")
     out = tmp_path / "run"
     assert main(["run", str(path), "--out", str(out), "--native-only", "--seconds", "3", "--json"]) == 0
-    report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    # --json: stdout holds the JSON object only, strict (no NaN / Infinity tokens)
+    report = json.loads(capsys.readouterr().out, parse_constant=lambda c: pytest.fail(f"non-strict {c}"))
+    assert report["status"] == "complete"
     assert report["scheduler"]["frames"] == 61  # 20 Hz, first 3 s inclusive
     assert report["scheduler"]["imu_samples"] > 590
     assert report["pipeline"]["tracking"]["mean_tracks_per_frame"] > 150

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.json_out import strict_dumps
+from runtime.json_out import strict_dumps
 
 NAME = "da3-latency"
 HELP = "DA3 ONNX latency and peak memory (N views at HxW) on the selected execution provider"

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.json_out import strict_dumps
+from runtime.json_out import strict_dumps
 
 NAME = "euroc-frontend"
 HELP = "KLT tracks per frame, tracker ms/frame and static-init roll/pitch error on real EuRoC data"

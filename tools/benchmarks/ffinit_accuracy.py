@@ -19,8 +19,8 @@ from typing import Any
 
 import numpy as np
 
+from runtime.json_out import strict_dumps
 from tools.evaluation.state_errors import gt_velocity, state_errors
-from tools.json_out import strict_dumps
 
 NAME = "ffinit-accuracy"
 HELP = "feed-forward initializer alone: accepted windows and velocity/gravity/scale errors vs DA3 pose errors"

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from tools.json_out import strict_dumps
+from runtime.json_out import strict_dumps
 
 NAME = "mapping"
 HELP = ("dense mapping on simulated sequences: DAVIO vs unconditioned, ScaRF-style, true poses and "

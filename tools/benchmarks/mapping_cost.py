@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from tools.json_out import strict_dumps
+from runtime.json_out import strict_dumps
 
 NAME = "mapping-cost"
 HELP = "mapping's cost: tracking ms/frame and pose latency with mapping on/off, throughput, memory"

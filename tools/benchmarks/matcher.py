@@ -16,7 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from tools.json_out import strict_dumps
+from runtime.json_out import strict_dumps
 
 NAME = "matcher"
 HELP = "XFeat/ORB latency and match precision on image pairs with known homographies"

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.json_out import strict_dumps
+from runtime.json_out import strict_dumps
 
 NAME = "online-calib"
 HELP = "online extrinsic / time-offset calibration from perturbed values on the OpenVINS simulator data"

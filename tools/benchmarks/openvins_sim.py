@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.json_out import strict_dumps
+from runtime.json_out import strict_dumps
 
 NAME = "openvins-sim"
 HELP = "our MSCKF on the OpenVINS simulator's IMU samples and feature tracks, beside OpenVINS's result"

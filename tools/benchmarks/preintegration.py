@@ -32,7 +32,7 @@ def run(args: argparse.Namespace) -> int:
 
     from runtime.geometry.kernels import nb_right_jacobian, nb_so3_exp, nb_so3_log
     from runtime.imu import Preintegrator
-    from tools.json_out import strict_dumps
+    from runtime.json_out import strict_dumps
 
     rng = np.random.default_rng(0)
     n = int(round(args.rate * args.seconds)) + 1

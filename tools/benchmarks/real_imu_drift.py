@@ -132,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
     from drivers.euroc import read_euroc_imu_csv
     from drivers.trajectory_files import read_trajectory
     from runtime.errors import DataError
-    from tools.json_out import strict_dumps
+    from runtime.json_out import strict_dumps
 
     root = (
         Path(args.data)

@@ -79,7 +79,7 @@ def measure(frames: int = 60, seed: int = 0, threads: int | None = None, layer: 
 
 
 def run(args: argparse.Namespace) -> int:
-    from tools.json_out import strict_dumps
+    from runtime.json_out import strict_dumps
 
     res = measure(args.frames, args.seed, args.threads, args.threading_layer)
     if args.json:

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from tools.json_out import strict_dumps
+from runtime.json_out import strict_dumps
 
 NAME = "startup"
 HELP = "start-up protocol: DAVIO (feed-forward + native armed) vs native initializer over 10 s windows"

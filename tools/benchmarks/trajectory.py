@@ -34,8 +34,8 @@ from typing import Any
 
 import numpy as np
 
+from runtime.json_out import strict_dumps
 from tools.benchmarks.mapping import SHARED, Source, _split_style
-from tools.json_out import strict_dumps
 
 NAME = "trajectory"
 HELP = ("causal and final map-frame trajectories vs the odometry (ATE, coverage, T_f, drift) with the "

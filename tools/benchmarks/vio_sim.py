@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from tools.json_out import strict_dumps
+from runtime.json_out import strict_dumps
 
 NAME = "vio-sim"
 HELP = "KLT + MSCKF on simulated sequences (presets, EuRoC-trajectory mode): ATE, ms/frame, real-time factor"

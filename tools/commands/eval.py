@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 
 from runtime.errors import ConfigError
-from tools.json_out import strict_dumps
+from runtime.json_out import strict_dumps
 
 NAME = "eval"
 HELP = "evaluate a trajectory (ATE, RPE; TUM or EuRoC CSV) or a point cloud (surface metrics)"

@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 import platform
 
-from tools.json_out import strict_dumps
+from runtime.json_out import strict_dumps
 
 NAME = "info"
 HELP = "report versions, ONNX Runtime providers, numba status; validate a model with --model"

@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 from runtime.errors import ConfigError
-from tools.json_out import strict_dumps
+from runtime.json_out import strict_dumps
 
 NAME = "map"
 HELP = "inspect, re-export (PLY) or picture a run's map archive"

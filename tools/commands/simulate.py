@@ -87,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     from drivers.sim.threads import prefer_workqueue_layer
     from drivers.sim.writer import write_euroc
     from runtime.errors import ConfigError
-    from tools.json_out import strict_dumps
+    from runtime.json_out import strict_dumps
     from tools.run_folder import check_writable_target
 
     out = Path(args.out)

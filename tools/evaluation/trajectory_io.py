@@ -5,8 +5,6 @@ written so that they read back exactly. Files are replaced atomically.
 """
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -19,25 +17,12 @@ from drivers.trajectory_files import (
     read_tum,
     seconds_text_to_ns,
 )
+from runtime.files import atomic_write_text
 from runtime.geometry import rot_to_quat_wxyz, rot_to_quat_xyzw
 from runtime.geometry.trajectory import PoseTrajectory
 
 __all__ = ["atomic_write_text", "detect_format", "ns_to_seconds_text", "read_euroc_csv", "read_trajectory",
            "read_tum", "seconds_text_to_ns", "write_euroc_csv", "write_tum"]
-
-
-def atomic_write_text(path: Path, text: str) -> None:
-    """Write text through a temporary file in the same folder and a rename (never half a file)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def _num(x: float) -> str:

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from runtime.files import atomic_write_bytes
 from runtime.mapping.fusion import VoxelGrid
-from tools.map_archive.format import atomic_write_bytes
 from tools.map_archive.reader import iter_submaps, read_manifest
 
 

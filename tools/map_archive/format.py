@@ -1,11 +1,8 @@
-"""Names, schema constants and the strict-JSON and atomic-write helpers of the map archive."""
+"""Names, schema constants and the strict-JSON helpers of the map archive (atomic writes: runtime.files)."""
 from __future__ import annotations
 
 import math
-import os
 import re
-import tempfile
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -60,17 +57,3 @@ def jsonable(x: Any) -> Any:
     if x is None or isinstance(x, str):
         return x
     return str(x)
-
-
-def atomic_write_bytes(path: Path, data: bytes) -> None:
-    """Write `data` to `path` (mode 0644) through a temporary file in the same folder and a rename."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise

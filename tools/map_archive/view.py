@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.map_archive.format import atomic_write_bytes
+from runtime.files import atomic_write_bytes
 
 
 def _subsample(n: int, max_points: int, seed: int) -> np.ndarray:

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from runtime.errors import DataError
+from runtime.files import atomic_write_bytes
 from runtime.mapping.submap import Submap
 from tools.map_archive.format import (
     ARRAYS,
@@ -17,7 +18,6 @@ from tools.map_archive.format import (
     SCHEMA_VERSION,
     SUBMAP_RE,
     TEMP_RE,
-    atomic_write_bytes,
     davio_version,
     jsonable,
     submap_filename,

@@ -1,0 +1,118 @@
+"""Run folders: --out checked before the work, whole runs renamed into place, interrupted runs kept and
+marked, killed runs recognisable (a kill at a random moment never leaves a folder that reads as
+complete)."""
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from runtime.errors import ConfigError
+from tools.run_folder import RunFolder, run_status
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def test_out_that_cannot_be_a_folder_is_refused_before_the_work(tmp_path: Path, monkeypatch) -> None:
+    f = tmp_path / "file"
+    f.write_text("x")
+    with pytest.raises(ConfigError, match="is a file, not a folder"):
+        RunFolder.prepare(f)
+    with pytest.raises(ConfigError, match="is a file, so no folder can be made under it"):
+        RunFolder.prepare(f / "sub" / "run")
+    monkeypatch.setattr(os, "access", lambda p, mode: False)   # (CI runs as root: permissions never bite)
+    with pytest.raises(ConfigError, match="is not writable"):
+        RunFolder.prepare(tmp_path / "new")
+    assert not (tmp_path / "new").exists() and not (tmp_path / "new.partial").exists()
+
+
+def test_non_empty_folders_need_overwrite_and_only_runs_are_replaced(tmp_path: Path) -> None:
+    other = tmp_path / "photos"
+    other.mkdir()
+    (other / "a.jpg").write_text("x")
+    with pytest.raises(ConfigError, match="not empty"):
+        RunFolder.prepare(other)
+    with pytest.raises(ConfigError, match="holds files but no DAVIO run"):
+        RunFolder.prepare(other, overwrite=True)
+    assert (other / "a.jpg").exists()
+
+    out = tmp_path / "run"
+    first = RunFolder.prepare(out)
+    first.create()
+    (first.path / "odometry.tum").write_text("# first\n")
+    (first.path / "only_in_first.txt").write_text("x")
+    assert not out.exists()                       # nothing lands before the run ends
+    assert first.finish("complete") == out and run_status(out) == "complete"
+    with pytest.raises(ConfigError, match="--overwrite"):
+        RunFolder.prepare(out)
+    second = RunFolder.prepare(out, overwrite=True)
+    second.create()
+    (second.path / "odometry.tum").write_text("# second\n")
+    assert (out / "only_in_first.txt").exists()   # the previous run stays until the new one ends
+    second.finish("interrupted", "Ctrl-C")
+    assert not (out / "only_in_first.txt").exists() and (out / "odometry.tum").read_text() == "# second\n"
+    status = json.loads((out / "run_status.json").read_text())
+    assert status["status"] == "interrupted" and status["files"] == ["odometry.tum"]
+    assert not list(tmp_path.glob("run.*"))       # no partial or old folder left behind
+
+
+def _run_cmd(rec: Path, out: Path) -> list[str]:
+    return [sys.executable, "-m", "tools.cli", "run", str(rec), "--native-only", "--out", str(out)]
+
+
+@pytest.mark.slow
+def test_a_kill_at_a_random_moment_never_leaves_a_folder_that_reads_as_complete(
+        small_sim_folder: Path, tmp_path: Path) -> None:
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    rng = random.Random()   # a different moment each run; printed on failure
+    for k in range(2):
+        out = tmp_path / f"killed{k}"
+        delay = rng.uniform(1.0, 8.0)
+        proc = subprocess.Popen(_run_cmd(small_sim_folder, out), cwd=REPO, env=env,
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        time.sleep(delay)
+        proc.kill()
+        proc.wait()
+        partial = out.with_name(out.name + ".partial")
+        msg = f"killed after {delay:.2f} s"
+        if out.exists():   # the run had ended: whole, and says so
+            assert run_status(out) == "complete", msg
+            assert not partial.exists(), msg
+        else:
+            assert run_status(partial) == "unfinished", msg
+        # the next run into the same --out needs --overwrite only when a partial run is left
+        if partial.exists():
+            r = subprocess.run(_run_cmd(small_sim_folder, out), cwd=REPO, env=env, capture_output=True,
+                               text=True)
+            assert r.returncode == 1 and "unfinished run" in r.stderr, msg
+
+
+@pytest.mark.slow
+def test_sigint_keeps_the_outputs_and_marks_them_interrupted(small_sim_folder: Path, tmp_path: Path) -> None:
+    out = tmp_path / "interrupted"
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    proc = subprocess.Popen(_run_cmd(small_sim_folder, out) + ["--paced"], cwd=REPO, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    partial = out.with_name(out.name + ".partial")
+    deadline = time.monotonic() + 120
+    while not partial.exists() and time.monotonic() < deadline:
+        time.sleep(0.2)
+    time.sleep(4.0)   # paced: about 4 s of sensor data, past the 2 s static start
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert run_status(out) == "interrupted" and not partial.exists()
+    rows = [ln for ln in (out / "odometry.tum").read_text().splitlines() if not ln.startswith("#")]
+    report = json.loads((out / "report.json").read_text())
+    assert report["status"] == "interrupted" and len(rows) == report["published_poses"] > 0
+    umask = os.umask(0)
+    os.umask(umask)
+    for f in ("report.json", "odometry.tum", "run_status.json"):   # the usual permissions, not mkstemp's 0600
+        assert (out / f).stat().st_mode & 0o777 == 0o666 & ~umask, f
