@@ -65,7 +65,7 @@ def explain_unreadable(path: str | Path, n_values: int, columns: str, counts: St
         value = float(stamp)
     except ValueError:
         value = math.nan
-    if not stamp.isdigit() and math.isfinite(value):
+    if not (stamp.isascii() and stamp.isdigit()) and math.isfinite(value):
         if value < 1e11:
             return (f"stamps look like seconds ({stamp!r}); DAVIO reads integer nanoseconds: "
                     "multiply by 1e9 and write them without a decimal point")

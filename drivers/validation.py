@@ -36,7 +36,7 @@ class StampedRows:
 
 def _parse_stamp(field: str) -> int | None:
     """An integer nanosecond stamp from a decimal digit string, or None when it is not one."""
-    if not field.isdigit():  # rejects signs, decimal points, exponents and empty strings
+    if not (field.isascii() and field.isdigit()):  # rejects signs, points, exponents, "" and "¹"
         return None
     return int(field)
 

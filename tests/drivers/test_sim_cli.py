@@ -33,6 +33,28 @@ def test_simulate_writes_a_euroc_folder(tmp_path, capsys) -> None:
     assert img.shape == (480, 752) and img.dtype == np.uint8 and img.std() > 10
 
 
+def test_simulate_refuses_a_non_empty_out_before_building_the_scene(tmp_path, capsys, monkeypatch) -> None:
+    import drivers.sim.recording as recording
+
+    def no_build(*a, **k):
+        raise AssertionError("the scene was built before --out was checked")
+
+    monkeypatch.setattr(recording.SimRecording, "from_preset", no_build)
+    (tmp_path / "o").mkdir()
+    (tmp_path / "o" / "notes.txt").write_text("x")
+    assert main(["simulate", "--out", str(tmp_path / "o")]) == 1
+    assert "is not empty" in capsys.readouterr().err
+    assert main(["simulate", "--seconds", "0", "--out", str(tmp_path / "p")]) == 1
+    assert "--seconds must be > 0" in capsys.readouterr().err
+
+
+def test_simulate_json_prints_only_the_manifest(tmp_path, capsys) -> None:
+    out = tmp_path / "sim"
+    assert main(["simulate", "--seconds", "0.3", "--exact", "--no-depth", "--json", "--out", str(out)]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert printed == json.loads((out / "manifest.json").read_text())
+
+
 def test_simulate_rejects_imu_without_trajectory(tmp_path, capsys) -> None:
     assert main(["simulate", "--imu", "x.csv", "--out", str(tmp_path / "o")]) == 1
     assert "--imu needs --trajectory" in capsys.readouterr().err

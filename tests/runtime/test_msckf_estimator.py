@@ -609,3 +609,22 @@ def test_a_filter_that_only_dead_reckons_is_reset() -> None:
         MsckfConfig(visual_health_frames=0)
     with pytest.raises(ConfigError, match="visual_health_frames_after_zupt"):
         MsckfConfig(visual_health_frames=40, visual_health_frames_after_zupt=30)
+
+
+def test_imu_noise_from_the_rig_is_used_as_given_and_zero_is_an_error():
+    """A calibration's noise is taken as is; 0 or NaN is refused (never silently the default); None is
+    withheld (the default stays)."""
+    from types import SimpleNamespace
+
+    from runtime.errors import ConfigError
+    from runtime.msckf.config import MsckfConfig
+
+    base = MsckfConfig()
+    noise = SimpleNamespace(gyro_noise_density=1e-3, gyro_random_walk=None, accel_noise_density=3e-2,
+                            accel_random_walk=4e-4)
+    cfg = base.with_imu_noise(noise)
+    assert (cfg.gyro_noise_density, cfg.accel_noise_density, cfg.accel_random_walk) == (1e-3, 3e-2, 4e-4)
+    assert cfg.gyro_random_walk == base.gyro_random_walk
+    for bad in (0.0, float("nan"), -1e-3):
+        with pytest.raises(ConfigError, match="gyro_noise_density"):
+            base.with_imu_noise(SimpleNamespace(gyro_noise_density=bad))

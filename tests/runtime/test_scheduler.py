@@ -93,6 +93,22 @@ def test_intake_error_is_reported_not_swallowed():
         Scheduler(FastClock()).run(broken(), TracePipeline(lambda: 0.0))
 
 
+def test_an_unexpected_exception_in_the_sensor_thread_ends_the_run_loudly():
+    """A bug in a driver (any exception, not only DataError) must not look like a shorter recording."""
+    from runtime.scheduler import IntakeFailure
+
+    def buggy():
+        for k in range(50):
+            yield ImuSample(k * 5_000_000, (0, 0, 0), (0, 0, 9.81))
+        raise ValueError("index out of range in the image reader")
+
+    pipe = TracePipeline(lambda: 0.0)
+    sched = Scheduler(FastClock())
+    with pytest.raises(IntakeFailure, match=r"unexpected ValueError in the sensor thread: index out of"):
+        sched.run(buggy(), pipe)
+    assert sched.report.imu_samples == 50   # what came before the failure was processed
+
+
 def test_failed_model_job_is_delivered_as_an_exception():
     class Failing(TracePipeline):
         def next_model_job(self):

@@ -170,3 +170,24 @@ def test_at_most_five_candidates_and_window_selection():
         m.on_feedforward(InitResult(1_900_000_000, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3),
                                     np.zeros(3), None, "feedforward"))
     assert m.report.candidates_started == 5 and m.window() is None
+
+
+def test_an_instant_model_is_offered_one_window_per_spacing_not_one_per_event():
+    """With a model that answers at once (--model-latency 0), asking for a window after every event would
+    re-solve nearly the same five images hundreds of times: requests are at least one spacing apart."""
+    m = StartupManager(lambda native: RecordingFilter(), StartupConfig())
+    ends = []
+    for kind, t in _stream(4.0):
+        if kind == "imu":
+            m.on_imu(ImuSample(t, np.zeros(3), np.array([0, 0, 9.81])))
+        else:
+            m.on_tracks(t, np.arange(3), np.zeros((3, 2)), Frame(t, np.zeros((4, 4), np.uint8)))
+        frames = m.window()               # asked after every event, as the scheduler does
+        if frames is not None:
+            m.note_request(frames)
+            ends.append(frames[-1].t_ns)
+            m.on_feedforward(SimpleNamespace(reason="test_rejection"))   # answered at once
+    spacing = StartupConfig().window_spacing_s * 1e9
+    assert len(ends) >= 15 and np.all(np.diff(ends) >= 0.999 * spacing)
+    assert len(ends) <= 4.0 / StartupConfig().window_spacing_s
+    assert m.report.ff_requests == len(ends)

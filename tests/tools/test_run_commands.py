@@ -156,3 +156,29 @@ def test_recovery_lines_name_every_counted_recovery():
         "feed-forward windows rejected: refit_failed x1, small_baseline x3",
         "filter resets after divergence: 2 (3 segments)",
     ]
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--seconds", "0"], "--seconds must be > 0"), (["--seconds", "nan"], "--seconds must be > 0"),
+    (["--model-latency", "-1"], "--model-latency must be a finite number"),
+    (["--model-latency", "inf"], "--model-latency must be a finite number"),
+    (["--paced", "--speed", "0"], "--speed must be > 0"),
+])
+def test_run_refuses_impossible_options_before_reading_anything(tmp_path, capsys, args, message):
+    assert main(["run", str(tmp_path / "not-even-read"), "--out", str(tmp_path / "o"), *args]) == 1
+    assert message in capsys.readouterr().err and not (tmp_path / "o").exists()
+
+
+def test_a_recording_that_cannot_publish_says_why_and_exits_non_zero(tmp_path, capsys):
+    """A head whose images are all missing stops before the run with the reason (and leaves no folder)."""
+    src = shared_path("euroc", "V1_01_easy_head") / "mav0"
+    dst = tmp_path / "rec" / "mav0"
+    (dst / "cam0").mkdir(parents=True)
+    (dst / "cam0" / "sensor.yaml").symlink_to(src / "cam0" / "sensor.yaml")
+    (dst / "cam0" / "data").mkdir()
+    (dst / "cam0" / "data.csv").symlink_to(src / "cam0" / "data.csv")
+    (dst / "imu0").mkdir()
+    (dst / "imu0" / "data.csv").symlink_to(src / "imu0" / "data.csv")
+    assert main(["run", str(dst.parent), "--out", str(tmp_path / "o"), "--native-only"]) == 1
+    err = capsys.readouterr().err
+    assert "none of the 95 images it lists exists" in err and not (tmp_path / "o.partial").exists()
