@@ -8,7 +8,8 @@ from drivers.euroc import (
     read_euroc_groundtruth,
     read_euroc_imu_csv,
 )
+from drivers.rosbag import RosbagDriver, is_bag
 from runtime.events import Event, Frame, ImuSample
 
-__all__ = ["Driver", "EurocDriver", "Event", "Frame", "ImuSample", "IntakeReport", "Policy", "StreamCounts",
-           "read_camera_timestamps", "read_euroc_groundtruth", "read_euroc_imu_csv"]
+__all__ = ["Driver", "EurocDriver", "Event", "Frame", "ImuSample", "IntakeReport", "Policy", "RosbagDriver",
+           "StreamCounts", "is_bag", "read_camera_timestamps", "read_euroc_groundtruth", "read_euroc_imu_csv"]

@@ -43,19 +43,31 @@ class OpenedRecording:
     ground_truth_source: Any = None
 
 
-def open_recording(path: str | Path, rebuild: bool = True, policy: str = "drop") -> OpenedRecording:
+def open_recording(path: str | Path, rebuild: bool = True, policy: str = "drop", rig: Any = None,
+                   image_topic: str | None = None, imu_topic: str | None = None) -> OpenedRecording:
     """An EuRoC ASL folder, or a folder written by `davio simulate`.
 
     With `rebuild` a simulated folder's scene and motion are rebuilt from its manifest (preset or
     trajectory mode) for the emulated DA3 and checked against the folder's ground truth; without it
     (native-only runs need no ground-truth renderer) the folder is only read, and
     `ground_truth_source` is None. `policy` is the driver's intake policy ("drop" or "strict").
+
+    A ROS bag (`drivers.rosbag.is_bag`) is read by the RosbagDriver with `rig` (or its CameraInfo) and the
+    topics given or auto-detected.
     """
     from drivers.euroc import EurocDriver
+    from drivers.rosbag import RosbagDriver, is_bag
 
     p = Path(path)
     if not p.exists():
         raise DataError("recording folder not found", p)
+    if is_bag(p):
+        bag = RosbagDriver(p, rig=rig, image_topic=image_topic, imu_topic=imu_topic, policy=policy)
+        return OpenedRecording(bag, "bag", f"ROS bag {p} (images {bag.image_topic}, IMU {bag.imu_topic})")
+    if image_topic or imu_topic:
+        from runtime.errors import ConfigError
+
+        raise ConfigError(f"{p} is not a ROS bag: --image-topic and --imu-topic apply to bags only")
     manifest = p / "manifest.json"
     driver = EurocDriver(p, policy=policy)
     if not manifest.exists():

@@ -24,7 +24,13 @@ def _emulated_presets() -> list[str]:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("path", help="EuRoC ASL folder (sequence or mav0) or a `davio simulate` folder")
+    p.add_argument("path", help="EuRoC ASL folder (sequence or mav0), a `davio simulate` folder, or a ROS 1 "
+                                "/ ROS 2 bag (.bag, a bag folder, .db3, .mcap)")
+    p.add_argument("--rig", metavar="FILE",
+                   help="calibration: a Kalibr camchain, EuRoC sensor.yaml or folder, OpenVINS yaml (needed "
+                        "for bags without a CameraInfo; replaces a folder's own sensor.yaml)")
+    p.add_argument("--image-topic", metavar="TOPIC", help="bag image topic (default: auto-detected)")
+    p.add_argument("--imu-topic", metavar="TOPIC", help="bag IMU topic (default: auto-detected)")
     p.add_argument("--out", default="davio_run",
                    help="output folder: must be new or empty (see --overwrite); the run is written into "
                         "OUT.partial/ and renamed to OUT/ when it ends, with run_status.json")
@@ -96,10 +102,18 @@ def _open_inputs(args: argparse.Namespace, config) -> tuple:
     from runtime.errors import ConfigError
     from tools.run_io import open_recording
 
-    rec = open_recording(args.path, rebuild=not args.native_only, policy="strict" if args.strict else "drop")
-    rig = rec.driver.rig
+    given_rig = None
+    if args.rig:
+        from calib import load_rig
+
+        given_rig = load_rig(args.rig)
+    rec = open_recording(args.path, rebuild=not args.native_only, policy="strict" if args.strict else "drop",
+                         rig=given_rig, image_topic=args.image_topic, imu_topic=args.imu_topic)
+    rig = given_rig if given_rig is not None else rec.driver.rig
     if rig is None or rig.camera is None:
-        raise ConfigError(f"{args.path}: no camera calibration (cam0/sensor.yaml); DAVIO needs intrinsics")
+        where = "no CameraInfo in the bag" if rec.kind == "bag" else "no cam0/sensor.yaml"
+        raise ConfigError(f"{args.path}: no camera calibration ({where}); DAVIO needs intrinsics: pass "
+                          "--rig FILE (a Kalibr camchain, an EuRoC sensor.yaml or folder)")
     if args.withhold_extrinsics:
         rig = rig.replace(T_IC=None, time_offset_s=None)
     model, model_desc = None, "none (native initializer only)"

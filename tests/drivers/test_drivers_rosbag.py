@@ -1,0 +1,185 @@
+"""RosbagDriver: ROS 1 / ROS 2 (mcap, sqlite3) bags written with rosbags itself replay exactly as the EuRoC
+folder they came from; topic detection, encodings, CameraInfo, and bad bags counted or refused."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drivers import EurocDriver, Frame
+from drivers.rosbag import RosbagDriver, is_bag
+from runtime.errors import ConfigError, DataError
+from tests.conftest import shared_path
+from tests.drivers.bag_writer import bag_from_arrays, image_msg, imu_msg, typestore, write_bag
+from tools.cli import main
+
+FORMATS = ["ros1", "mcap", "sqlite3"]
+
+
+def _bag_path(tmp: Path, fmt: str, name: str = "rec") -> Path:
+    return tmp / (f"{name}.bag" if fmt == "ros1" else f"{name}_{fmt}")
+
+
+def _synthetic(n_imu: int = 200, n_cam: int = 10, t0: int = 1_000_000_000_000_000_000):
+    rng = np.random.default_rng(0)
+    imu_t = t0 + 5_000_000 * np.arange(n_imu)
+    gyro = rng.normal(0, 0.1, (n_imu, 3))
+    accel = rng.normal(0, 0.1, (n_imu, 3)) + [0, 0, 9.81]
+    cam_t = t0 + 50_000_000 * np.arange(n_cam) + 2_000_000
+    images = [rng.integers(0, 256, (24, 32), dtype=np.uint8) for _ in range(n_cam)]
+    return imu_t, gyro, accel, cam_t, images
+
+
+def _frames(drv) -> list[Frame]:
+    return [e for e in drv.events() if isinstance(e, Frame)]
+
+
+@pytest.fixture(scope="module")
+def head_events() -> tuple:
+    """The first 3.2 s of the real V1_01 head as events, and its rig."""
+    drv = EurocDriver(shared_path("euroc", "V1_01_easy_head"))
+    ev = list(drv.events())
+    ev = [e for e in ev if e.t_ns - ev[0].t_ns <= 3_200_000_000]
+    return ev, drv.rig
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_a_bag_of_a_euroc_folder_replays_the_same_events(tmp_path: Path, head_events: tuple,
+                                                         fmt: str) -> None:
+    ev, rig = head_events
+    imu = [e for e in ev if not isinstance(e, Frame)]
+    frames = [e for e in ev if isinstance(e, Frame)]
+    path = bag_from_arrays(_bag_path(tmp_path, fmt), fmt, [e.t_ns for e in imu], [e.gyro for e in imu],
+                           [e.accel for e in imu], [f.t_ns for f in frames], [f.image for f in frames])
+    assert is_bag(path)
+    got = list(RosbagDriver(path, rig=rig).events())
+    assert len(got) == len(ev)
+    for a, b in zip(ev, got, strict=True):
+        assert type(a) is type(b) and a.t_ns == b.t_ns
+        if isinstance(a, Frame):
+            np.testing.assert_array_equal(a.image, b.image)
+        else:
+            np.testing.assert_array_equal(a.gyro, b.gyro)
+            np.testing.assert_array_equal(a.accel, b.accel)
+
+
+def test_davio_run_on_the_bag_equals_the_run_on_the_folder(tmp_path: Path, head_events: tuple) -> None:
+    ev, _ = head_events
+    head = shared_path("euroc", "V1_01_easy_head")
+    imu = [e for e in ev if not isinstance(e, Frame)]
+    frames = [e for e in ev if isinstance(e, Frame)]
+    bag = bag_from_arrays(tmp_path / "head.bag", "ros1", [e.t_ns for e in imu], [e.gyro for e in imu],
+                          [e.accel for e in imu], [f.t_ns for f in frames], [f.image for f in frames])
+    assert main(["run", str(bag), "--native-only", "--out", str(tmp_path / "bag_run")]) == 1   # no rig
+    common = ["--native-only", "--seconds", "3"]
+    assert main(["run", str(bag), "--rig", str(head), *common, "--out", str(tmp_path / "bag_run")]) == 0
+    assert main(["run", str(head), *common, "--out", str(tmp_path / "dir_run")]) == 0
+    odo = (tmp_path / "bag_run" / "odometry.tum").read_text()
+    assert odo == (tmp_path / "dir_run" / "odometry.tum").read_text() and len(odo.splitlines()) > 15
+
+
+def test_topics_are_detected_and_ambiguity_is_an_error(tmp_path: Path) -> None:
+    ts = typestore("mcap")
+    imu_t, gyro, accel, cam_t, images = _synthetic()
+    msgs = [("/imu0", int(t), imu_msg(ts, False, int(t), k, gyro[k], accel[k])) for k, t in enumerate(imu_t)]
+    for cam in ("/cam0/image_raw", "/cam1/image_raw"):
+        msgs += [(cam, int(t), image_msg(ts, False, int(t), k, images[k])) for k, t in enumerate(cam_t)]
+    two = write_bag(tmp_path / "stereo", "mcap", sorted(msgs, key=lambda m: m[1]))
+    drv = RosbagDriver(two)
+    assert drv.image_topic == "/cam0/image_raw"
+    assert any("choose with --image-topic" in n for n in drv.report()["notes"])
+    assert RosbagDriver(two, image_topic="/cam1/image_raw").image_topic == "/cam1/image_raw"
+    with pytest.raises(ConfigError, match="holds sensor_msgs/msg/Imu"):
+        RosbagDriver(two, image_topic="/imu0")
+    with pytest.raises(ConfigError, match="no topic '/left'"):
+        RosbagDriver(two, image_topic="/left")
+    msgs2 = [(t.replace("cam0", "front").replace("cam1", "rear"), s, m) for t, s, m in msgs]
+    with pytest.raises(ConfigError, match="several image topics"):
+        RosbagDriver(write_bag(tmp_path / "ambiguous", "mcap", sorted(msgs2, key=lambda m: m[1])))
+    no_imu = write_bag(tmp_path / "no_imu", "mcap", [m for m in msgs if m[0] != "/imu0"])
+    with pytest.raises(DataError, match="no IMU topic"):
+        RosbagDriver(no_imu)
+
+
+@pytest.mark.parametrize("encoding, compressed", [("rgb8", False), ("bgr8", False), ("mono16", False),
+                                                  ("mono8", True)])
+def test_encodings_become_the_same_grey_image(tmp_path: Path, encoding: str, compressed: bool) -> None:
+    import cv2
+
+    imu_t, gyro, accel, cam_t, images = _synthetic()
+    if encoding in ("rgb8", "bgr8"):
+        colour = [np.dstack([img, img // 2, 255 - img]) for img in images]
+        code = cv2.COLOR_RGB2GRAY if encoding == "rgb8" else cv2.COLOR_BGR2GRAY
+        expected = [cv2.cvtColor(c, code) for c in colour]
+        sent = colour
+    elif encoding == "mono16":
+        sent = [img.astype(np.uint16) << 4 for img in images]   # 12-bit data
+        expected = images
+    else:
+        sent = expected = images
+    bag = bag_from_arrays(tmp_path / "enc", "sqlite3", imu_t, gyro, accel, cam_t, sent, encoding=encoding,
+                          compressed=compressed)
+    drv = RosbagDriver(bag)
+    frames = _frames(drv)
+    assert len(frames) == len(expected)
+    for f, e in zip(frames, expected, strict=True):
+        np.testing.assert_array_equal(f.image, e)
+    if encoding == "mono16":
+        assert drv.report()["streams"]["cam0"]["converted"] == len(images)
+
+
+def test_bad_messages_are_counted_and_strict_refuses_them(tmp_path: Path) -> None:
+    imu_t, gyro, accel, cam_t, images = _synthetic()
+    gyro[50:53] = np.nan                       # a NaN burst
+    imu_t = imu_t.copy()
+    imu_t[[100, 101]] = imu_t[[101, 100]]      # two samples stamped in swapped order
+    imu_t[150] = imu_t[149]                    # a duplicated stamp
+    record_t = _synthetic()[0]                 # received in index order
+    bag = bag_from_arrays(tmp_path / "bad.bag", "ros1", imu_t, gyro, accel, cam_t, images,
+                          imu_record_t=record_t)
+    drv = RosbagDriver(bag)
+    t, _, _ = drv.imu_arrays()
+    s = drv.report()["streams"]["imu0"]
+    assert (s["dropped_nonfinite"], s["dropped_duplicate"], s["reordered"]) == (3, 1, 1)
+    assert np.all(np.diff(t) > 0) and t.shape[0] == 200 - 3 - 1 and s["parsed"] == t.shape[0]
+    with pytest.raises(DataError, match="NaN or Inf"):
+        RosbagDriver(bag, policy="strict")
+
+
+def test_camera_info_gives_intrinsics_and_a_size_mismatch_is_counted(tmp_path: Path) -> None:
+    from calib import Rig
+    from calib.camera import Pinhole
+
+    ts = typestore("mcap")
+    imu_t, gyro, accel, cam_t, images = _synthetic()
+    msgs = [("/imu0", int(t), imu_msg(ts, False, int(t), k, gyro[k], accel[k])) for k, t in enumerate(imu_t)]
+    msgs += [("/cam0/image_raw", int(t), image_msg(ts, False, int(t), k, images[k]))
+             for k, t in enumerate(cam_t)]
+    Info = ts.types["sensor_msgs/msg/CameraInfo"]
+    hdr = msgs[-1][2].header
+    roi = ts.types["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0,
+                                                       do_rectify=False)
+    info = Info(header=hdr, height=24, width=32, distortion_model="plumb_bob",
+                d=np.array([-0.28, 0.07, 0.0002, 0.00002, 0.0]),
+                k=np.array([30.0, 0, 16, 0, 31.0, 12, 0, 0, 1]),
+                r=np.eye(3).reshape(-1), p=np.zeros(12), binning_x=0, binning_y=0, roi=roi)
+    msgs.append(("/cam0/camera_info", int(cam_t[0]), info))
+    bag = write_bag(tmp_path / "info", "mcap", sorted(msgs, key=lambda m: m[1]))
+    drv = RosbagDriver(bag)
+    cam = drv.rig.camera
+    assert (cam.width, cam.height, cam.fx, cam.cy) == (32, 24, 30.0, 12.0)
+    assert cam.distortion_model == "radtan"
+    assert drv.rig.T_IC is None     # extrinsics withheld: the bring-up estimates them (with a model)
+    wrong = Rig(camera=Pinhole(64, 48, 50.0, 50.0, 32.0, 24.0))
+    drv = RosbagDriver(bag, rig=wrong)
+    assert _frames(drv) == [] and drv.report()["streams"]["cam0"]["unreadable_images"] == len(images)
+    assert any("differs from the calibration's 64x48" in n for n in drv.report()["notes"])
+
+
+def test_not_a_bag_and_a_corrupt_bag_are_clear_errors(tmp_path: Path) -> None:
+    (tmp_path / "x.bag").write_bytes(b"#ROSBAG V2.0\n" + b"\x00" * 40)
+    with pytest.raises(DataError, match="cannot read the bag"):
+        RosbagDriver(tmp_path / "x.bag")
+    with pytest.raises(DataError, match="not a ROS bag"):
+        RosbagDriver(tmp_path)
