@@ -63,6 +63,18 @@ class PacedClock:
         return None
 
 
+class LiveClock:
+    """Live sensors: events are processed as they arrive; model results apply when ready."""
+
+    deterministic = False
+
+    def wait_until(self, t_ns: int) -> None:
+        return None
+
+    def release_ns(self, t_request_ns: int) -> int | None:
+        return None
+
+
 class FastClock:
     """As fast as possible; model results apply `model_latency_s` of sensor time after the request."""
 
@@ -216,7 +228,7 @@ class Scheduler:
         progress: called with (sensor seconds since start) after each frame.
     """
 
-    def __init__(self, clock: PacedClock | FastClock, live: bool = False, queue_size: int = 2048,
+    def __init__(self, clock: PacedClock | FastClock | LiveClock, live: bool = False, queue_size: int = 2048,
                  max_pending_frames: int = 2, on_output: Callable[[list], None] | None = None,
                  progress: Callable[[float], None] | None = None) -> None:
         self.clock = clock

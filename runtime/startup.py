@@ -63,6 +63,8 @@ class Published:
     filter_id: int
     segment: int = 0
     """Restarts after a divergence before this state: a new segment starts a new odometry frame."""
+    covariance: np.ndarray | None = None
+    """(6, 6) covariance of [rotation error (body frame), position] from the filter, or None."""
 
     @property
     def T_OI(self) -> np.ndarray:
@@ -344,9 +346,11 @@ class StartupManager:
         for s in states:
             if self.report.first_publish_t_ns is None:
                 self.report.first_publish_t_ns = int(s.t_ns)
+            cov = getattr(s, "covariance", None)
             out.append(Published(int(s.t_ns), int(s.t_cam_ns), s.R_OI, s.p_OI, s.v_OI,
                                  self.publisher_source, self.publisher_id,
-                                 self.report.restarts_after_divergence))
+                                 self.report.restarts_after_divergence,
+                                 None if cov is None else np.array(cov[:6, :6])))
         if self.publisher is not None and not self.publisher.initialized:
             self._restart()
         return out

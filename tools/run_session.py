@@ -2,27 +2,14 @@
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass
 from typing import Any
 
 from runtime.config import DavioConfig
-from runtime.errors import DavioError
 from runtime.pipeline import VioPipeline
-from runtime.scheduler import FastClock, PacedClock, Scheduler, SchedulerReport
+from runtime.session import Session, SessionResult
 
-
-@dataclass
-class RunResult:
-    """The pipeline (its estimates), the scheduler's counters and how the run ended.
-
-    `status` is "complete", "interrupted" (Ctrl-C / SIGTERM) or "failed" (a DavioError after the run
-    started, `reason` says which); the pipeline then holds what was computed up to that moment.
-    """
-
-    pipeline: VioPipeline
-    scheduler: SchedulerReport
-    status: str = "complete"
-    reason: str | None = None
+RunResult = SessionResult
+"""The pipeline (its estimates), the scheduler's counters and how the run ended (runtime.session)."""
 
 
 def run_pipeline(driver: Any, model: Any, config: DavioConfig, paced: bool = False, speed: float = 1.0,
@@ -34,8 +21,8 @@ def run_pipeline(driver: Any, model: Any, config: DavioConfig, paced: bool = Fal
     after the scheduler returns (`map_sink` receives every commit). With `keep_partial`, Ctrl-C
     (KeyboardInterrupt) and a DavioError during the run end it early and the result says so
     (`status`, `reason`) with everything computed until then; without, they propagate."""
-    pipe = VioPipeline(rig if rig is not None else driver.rig, model, config, map_sink=map_sink)
-    clock = PacedClock(speed) if paced else FastClock(model_latency_s)
+    session = Session(rig if rig is not None else driver.rig, model, config, map_sink=map_sink)
+    pipe = session.pipeline
     events = driver.events()
     if seconds is not None:
         events = _first_seconds(events, seconds)
@@ -59,29 +46,19 @@ def run_pipeline(driver: Any, model: Any, config: DavioConfig, paced: bool = Fal
                 last[0] = int(s) // 5
                 print(f"  t = {s:6.1f} s  published {len(pipe.published):5d} poses"
                       f"  ({_status(pipe)})", file=sys.stderr, flush=True)
-    scheduler = Scheduler(clock, progress=progress)
-    status, reason = "complete", None
     try:
-        rep = scheduler.run(events, pipe)
-    except KeyboardInterrupt:
-        if not keep_partial:
-            raise
-        rep, status = scheduler.report, "interrupted"
-        reason = f"interrupted after {scheduler.report.sensor_s:.1f} s of data"
-    except DavioError as exc:
-        if not keep_partial:
-            raise
-        rep, status, reason = scheduler.report, "failed", str(exc)
+        res = session.replay(events, paced=paced, speed=speed, model_latency_s=model_latency_s,
+                             progress=progress, keep_partial=keep_partial)
     finally:
         if bar is not None:
             bar.stop()
-    if status == "complete":
+    if res.status == "complete":
         pending = len(pipe.map_queue) if pipe.map_queue is not None else 0
         if pending and show_progress:
             print(f"  mapping the {pending} window(s) still queued at the end of the recording",
                   file=sys.stderr, flush=True)
         pipe.finish_mapping()
-    return RunResult(pipe, rep, status, reason)
+    return res
 
 
 def _status(pipe: VioPipeline) -> str:

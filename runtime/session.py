@@ -1,0 +1,234 @@
+"""A DAVIO session fed by your own drivers: push images and IMU samples, get metric poses back.
+
+    from calib import load_rig
+    from runtime.session import Session
+
+    with Session(load_rig("camchain.yaml"), on_pose=lambda p: print(p.t_ns, p.T_MI[:3, 3])) as s:
+        for kind, t_ns, data in my_sensor():           # your driver: IMU and grey images, int64 ns
+            if kind == "imu":
+                s.add_imu(t_ns, data.gyro, data.accel)  # rad/s, m/s^2, IMU frame
+            else:
+                s.add_image(t_ns, data)                 # (H, W) uint8, the rig camera's size
+    print(s.result.pipeline.report())                   # counters, timings (after the with-block)
+
+Pushed samples go through a bounded live queue (every IMU sample kept, the oldest waiting image dropped and
+counted when tracking falls behind) into the same scheduler and pipeline as `davio run`. Poses arrive
+through `on_pose` (called on the session's thread) and through `poses()`; each carries the odometry-frame
+pose T_OI, the map-frame pose T_MI with the live map correction, and the 6x6 covariance of
+[rotation (body frame), position]. `davio run` replays recordings through `Session.replay`.
+"""
+from __future__ import annotations
+
+import math
+import queue
+import threading
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from runtime.config import DavioConfig
+from runtime.errors import ConfigError, DataError, DavioError
+from runtime.events import Frame, ImuSample
+from runtime.pipeline import VioPipeline
+from runtime.scheduler import FastClock, LiveClock, PacedClock, Scheduler, SchedulerReport
+
+
+@dataclass(frozen=True)
+class Pose:
+    """One published IMU state.
+
+    Attributes:
+        t_ns: IMU-clock time (ns); t_cam_ns: the camera time of the frame it followed.
+        T_OI: (4,4) IMU pose in the odometry frame O (gravity-aligned, z up).
+        T_MI: (4,4) IMU pose in the map frame M with the map correction in effect when published.
+        v_OI: (3,) velocity in O, m/s.
+        covariance: (6,6) covariance of [rotation error (body frame, rad), position (m)], or None.
+        source: who published ("native:static", "feedforward", ...); segment: filter restarts before it.
+        correction_version: the map correction's version (0: none yet).
+    """
+
+    t_ns: int
+    t_cam_ns: int
+    T_OI: np.ndarray
+    T_MI: np.ndarray
+    v_OI: np.ndarray
+    covariance: np.ndarray | None
+    source: str
+    segment: int
+    correction_version: int
+
+
+@dataclass
+class SessionResult:
+    """How a session ended: the pipeline (estimates, report()), the scheduler's counters, and the status
+    ("complete", "interrupted" or "failed", with the reason)."""
+
+    pipeline: VioPipeline
+    scheduler: SchedulerReport
+    status: str = "complete"
+    reason: str | None = None
+
+
+_CLOSE = object()
+
+
+class Session:
+    """DAVIO on pushed sensor data (live) or on a recording's events (replay).
+
+    Args:
+        rig: the calibration (`calib.Rig`): camera intrinsics, T_IC (None: bring-up with a model).
+        model: a DepthModel (DA3 ONNX graph or emulated) for the feed-forward start-up and the map;
+            None for tracking with the native initializer only.
+        config: DavioConfig (defaults: the paper's numbers).
+        on_pose: called with each published Pose (on the session's scheduler thread).
+        map_sink: receives every map commit (`tools.run_map.MapOutput.sink`), optional.
+        max_pending_frames: images waiting for the tracker before the oldest is dropped (live).
+    """
+
+    def __init__(self, rig: Any, model: Any = None, config: DavioConfig | None = None,
+                 on_pose: Callable[[Pose], None] | None = None, map_sink: Any = None,
+                 max_pending_frames: int = 2) -> None:
+        if rig is None or getattr(rig, "camera", None) is None:
+            raise ConfigError("a session needs the camera intrinsics (rig.camera); see calib.load_rig")
+        self.rig = rig
+        self.config = config or DavioConfig()
+        self.pipeline = VioPipeline(rig, model, self.config, map_sink=map_sink)
+        self.on_pose = on_pose
+        self.max_pending_frames = max_pending_frames
+        self._poses: queue.Queue[Pose] = queue.Queue()
+        self._inbox: queue.Queue[Any] | None = None
+        self._thread: threading.Thread | None = None
+        self._scheduler: Scheduler | None = None
+        self._error: BaseException | None = None
+        self._last_imu_ns: int | None = None
+        self.result: SessionResult | None = None
+
+    # -- outputs -------------------------------------------------------------------------------
+    def _emit(self, published: list) -> None:
+        causal = self.pipeline.causal[len(self.pipeline.causal) - len(published):]
+        for p, (T_MI, version, _) in zip(published, causal, strict=True):
+            pose = Pose(int(p.t_ns), int(p.t_cam_ns), p.T_OI, T_MI, np.asarray(p.v_OI), p.covariance,
+                        p.source, p.segment, version)
+            self._poses.put(pose)
+            if self.on_pose is not None:
+                self.on_pose(pose)
+
+    def poses(self, timeout: float | None = 0.0) -> Iterator[Pose]:
+        """The poses published since the last call (waits up to `timeout` s for the first one)."""
+        try:
+            yield self._poses.get(timeout=timeout) if timeout else self._poses.get_nowait()
+        except queue.Empty:
+            return
+        while True:
+            try:
+                yield self._poses.get_nowait()
+            except queue.Empty:
+                return
+
+    # -- replay (what `davio run` uses) -------------------------------------------------------
+    def replay(self, events: Iterable[ImuSample | Frame], paced: bool = False, speed: float = 1.0,
+               model_latency_s: float = 0.5, progress: Callable[[float], None] | None = None,
+               keep_partial: bool = False) -> SessionResult:
+        """Run a recording's time-ordered events on this thread: as fast as possible with a deterministic
+        simulated model latency, or paced at `speed` x sensor rate. With `keep_partial`, Ctrl-C and a
+        DavioError end the run early with the status saying so; without, they propagate."""
+        clock = PacedClock(speed) if paced else FastClock(model_latency_s)
+        self._scheduler = Scheduler(clock, progress=progress, on_output=self._emit)
+        status, reason = "complete", None
+        try:
+            rep = self._scheduler.run(events, self.pipeline)
+        except KeyboardInterrupt:
+            if not keep_partial:
+                raise
+            rep, status = self._scheduler.report, "interrupted"
+            reason = f"interrupted after {rep.sensor_s:.1f} s of data"
+        except DavioError as exc:
+            if not keep_partial:
+                raise
+            rep, status, reason = self._scheduler.report, "failed", str(exc)
+        self.result = SessionResult(self.pipeline, rep, status, reason)
+        return self.result
+
+    # -- live push -----------------------------------------------------------------------------
+    def start(self) -> Session:
+        """Start the live scheduler thread (done by the first add_* or by `with`)."""
+        if self._thread is None:
+            self._inbox = queue.Queue()
+            self._scheduler = Scheduler(LiveClock(), live=True, max_pending_frames=self.max_pending_frames,
+                                        on_output=self._emit)
+            self._thread = threading.Thread(target=self._run_live, name="davio-session", daemon=True)
+            self._thread.start()
+        return self
+
+    def _incoming(self) -> Iterator[Any]:
+        while True:
+            ev = self._inbox.get()
+            if ev is _CLOSE:
+                return
+            yield ev
+
+    def _run_live(self) -> None:
+        try:
+            rep = self._scheduler.run(self._incoming(), self.pipeline)
+            self.result = SessionResult(self.pipeline, rep)
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller by add_* / close
+            self._error = exc
+            self.result = SessionResult(self.pipeline, self._scheduler.report, "failed",
+                                        f"{type(exc).__name__}: {exc}")
+
+    def _push(self, ev: Any) -> None:
+        if self._error is not None:
+            raise DavioError(f"the session stopped: {self._error}") from self._error
+        self.start()
+        self._inbox.put(ev)
+
+    def add_imu(self, t_ns: int, gyro: Any, accel: Any) -> None:
+        """One IMU sample: int64 ns stamp (the camera's clock domain, see rig.time_offset_s), gyro in
+        rad/s and accel in m/s^2 in the IMU frame. Non-finite values are counted and dropped by the filter."""
+        g = np.asarray(gyro, np.float64).reshape(3)
+        a = np.asarray(accel, np.float64).reshape(3)
+        t = _stamp(t_ns)
+        self._last_imu_ns = t
+        self._push(ImuSample(t, g, a))
+
+    def add_image(self, t_ns: int, image: np.ndarray) -> None:
+        """One grey image (H, W) uint8 of the rig camera's size, stamped at mid-exposure (int64 ns)."""
+        img = np.asarray(image)
+        cam = self.rig.camera
+        if img.dtype != np.uint8 or img.ndim != 2:
+            raise DataError(f"add_image needs a grey (H, W) uint8 image, got {img.dtype} {img.shape}")
+        if img.shape != (cam.height, cam.width):
+            raise DataError(f"image size {img.shape[1]}x{img.shape[0]} differs from the calibration's "
+                            f"{cam.width}x{cam.height}")
+        self._push(Frame(_stamp(t_ns), img, 0))
+
+    def close(self, timeout_s: float = 60.0) -> SessionResult:
+        """Process what was pushed, stop the threads, map the windows still queued; returns the result."""
+        if self._thread is not None:
+            self._inbox.put(_CLOSE)
+            self._thread.join(timeout_s)
+            if self._thread.is_alive():
+                raise DavioError(f"the session did not stop within {timeout_s:g} s")
+            self._thread = None
+        if self.result is None:
+            self.result = SessionResult(self.pipeline, SchedulerReport())
+        if self.result.status == "complete":
+            self.pipeline.finish_mapping()
+        return self.result
+
+    def __enter__(self) -> Session:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _stamp(t_ns: Any) -> int:
+    if isinstance(t_ns, float) and not math.isfinite(t_ns) or isinstance(t_ns, bool):
+        raise DataError(f"stamp {t_ns!r} is not an integer number of nanoseconds")
+    t = int(t_ns)
+    if t != t_ns or t < 0:
+        raise DataError(f"stamp {t_ns!r} is not a non-negative integer number of nanoseconds")
+    return t
