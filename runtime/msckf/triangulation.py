@@ -134,12 +134,16 @@ def triangulate(
     if x[2] <= 0:
         return False, pO
     pF = np.array([x[0] / x[2], x[1] / x[2], 1.0 / x[2]])
+    # the baseline is the part of each camera's offset from the anchor perpendicular to the ray to the point
+    # (OpenVINS single_gaussnewton: the tangent plane of p_FinA); motion along the ray adds no parallax
+    dist = np.sqrt(pF @ pF)
+    u = pF / dist if dist > 0 else pF
     base = 0.0
     for i in range(1, m):
-        d = np.sqrt(p_AC[i] @ p_AC[i])
+        q = p_AC[i] - (p_AC[i] @ u) * u
+        d = np.sqrt(q @ q)
         if d > base:
             base = d
-    dist = np.sqrt(pF @ pF)
     if (
         pF[2] < min_dist
         or pF[2] > max_dist

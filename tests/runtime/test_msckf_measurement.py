@@ -122,3 +122,20 @@ def test_radtan_matches_opencv_and_round_trips() -> None:
     ref, _ = cv2.projectPoints(np.c_[xy, np.ones(50)], np.zeros(3), np.zeros(3), K, PRM[4:8])
     assert np.allclose(uv, ref.reshape(-1, 2), atol=1e-9)
     assert np.allclose(undistort_points(1, PRM, uv), xy, atol=1e-10)
+
+
+def test_triangulation_baseline_is_perpendicular_to_the_ray() -> None:
+    """The baseline of the depth/baseline check is the cameras' offset across the ray to the point (OpenVINS
+    single_gaussnewton): 2 m of motion along the ray with 0.135 m across it at 6 m depth is a ratio of 44 and
+    is rejected (the offset's full length would give 3); 0.18 m across (ratio 33) is accepted."""
+    p = np.array([0.0, 0.0, 6.0])
+    R = np.repeat(np.eye(3)[None], 4, 0)
+    for across, ok_expected in ((0.135, False), (0.18, True)):
+        pc = np.array([[0, 0, 0], [0, 0, -0.01], [across, 0, -2.0], [across, 0, -2.01]])
+        v = p - pc
+        xn = v[:, :2] / v[:, 2:3]
+        # loose conditioning: the baseline decides
+        ok, p_O = triangulate(R, pc, xn, 1e6, 0.1, 60.0, 40.0, 20)
+        assert ok == ok_expected
+        if ok:
+            assert np.allclose(p_O, p, atol=1e-6)
