@@ -20,12 +20,14 @@ class MsckfConfig:
     # filter
     use_fej: bool = True  #: first-estimate Jacobians (IMU and clones)
     #: with FEJ, linearise feature Jacobians (and set new landmarks' first estimates) at the point
-    #: triangulated from the clones' first estimates, so that one consistent set of first estimates is used
-    #: (OpenVINS uses the point from the current estimates). On openvins_sim/udel_gore over 24 tie-break
-    #: seeds (with a newest-anchor triangulation since reverted): median 0.083 m / 0.243 deg with it,
-    #: 0.093 m / 0.279 deg without, within the seed spread, same NEES; it costs a second triangulation per
-    #: track (about 0.4 ms per frame there)
-    fej_triangulation: bool = True
+    #: triangulated from the clones' first estimates instead of the current ones (OpenVINS: current). Off:
+    #: each clone's first estimate is its pre-update prediction, so the FEJ poses of a window carry the
+    #: corrections applied since, and the point's error from them grows as the window's baseline shrinks
+    #: (11 clones span 0.5 s at 20 Hz, 1 s at 10 Hz). On openvins_sim/udel_gore_mono_20hz it pulled the gyro
+    #: bias 10 sigma off within 5 s (orientation NEES 20 over the first 8 s): whole run 0.245 m / 1.11 deg,
+    #: NEES 4.4 / 6.9 with it, 0.124 m / 0.387 deg, NEES 1.5 / 2.2 without; at 10 Hz 0.090 m / 0.159 deg
+    #: with, 0.088 m / 0.142 deg without (BENCHMARKS.md, OpenVINS simulator)
+    fej_triangulation: bool = False
     integration: str = "rk4"  #: mean integration: "rk4" (analytic covariance either way)
     gravity_mag: float = 9.81  #: |g|, m/s^2
     # sliding window and features

@@ -70,6 +70,7 @@ def test_msckf_update_leaves_a_perfect_window_alone() -> None:
 
 
 def test_linearization_point_uses_first_estimates() -> None:
+    """With fej_triangulation (off by default, as OpenVINS) the point comes from the first estimates."""
     rng = np.random.default_rng(2)
     st, truth, tracks = _window(rng, perturb=False)
     tr = tracks[0]
@@ -77,10 +78,12 @@ def test_linearization_point_uses_first_estimates() -> None:
     pf = np.array([st.clones[k].p_fej for k in range(4)]) + np.array([0.0, 0.0, 0.02])   # shifted FEJ
     xn = np.array(tr.xn)
     p_cur = np.array([5.0, 1.0, 0.0])
-    p_lin = linearization_point(st, MsckfConfig(), Rf, pf, xn, p_cur)
+    on = MsckfConfig(fej_triangulation=True)
+    p_lin = linearization_point(st, on, Rf, pf, xn, p_cur)
     # the FEJ poses are the truth shifted by 2 cm up: the point triangulated from them shifts with them
-    p_true = linearization_point(st, MsckfConfig(), Rf, pf - np.array([0.0, 0.0, 0.02]), xn, p_cur)
+    p_true = linearization_point(st, on, Rf, pf - np.array([0.0, 0.0, 0.02]), xn, p_cur)
     assert np.allclose(p_lin - p_true, [0.0, 0.0, 0.02], atol=1e-6)
-    off = MsckfConfig(fej_triangulation=False)
+    off = MsckfConfig()
     assert np.allclose(linearization_point(st, off, Rf, pf, xn, p_cur), p_cur)
-    assert np.allclose(linearization_point(st, MsckfConfig(use_fej=False), Rf, pf, xn, p_cur), p_cur)
+    no_fej = MsckfConfig(use_fej=False, fej_triangulation=True)
+    assert np.allclose(linearization_point(st, no_fej, Rf, pf, xn, p_cur), p_cur)
