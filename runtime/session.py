@@ -136,6 +136,17 @@ class Session:
         DavioError end the run early with the status saying so; without, they propagate."""
         clock = PacedClock(speed) if paced else FastClock(model_latency_s)
         self._scheduler = Scheduler(clock, progress=progress, on_output=self._emit)
+        return self._run_scheduled(events, keep_partial)
+
+    def run_live(self, events: Iterable[ImuSample | Frame], progress: Callable[[float], None] | None = None,
+                 keep_partial: bool = True) -> SessionResult:
+        """Run a live driver's events on this thread as they arrive (bounded queue: the oldest waiting
+        image is dropped and counted when tracking falls behind; model results apply when ready)."""
+        self._scheduler = Scheduler(LiveClock(), live=True, max_pending_frames=self.max_pending_frames,
+                                    progress=progress, on_output=self._emit)
+        return self._run_scheduled(events, keep_partial)
+
+    def _run_scheduled(self, events: Iterable[ImuSample | Frame], keep_partial: bool) -> SessionResult:
         status, reason = "complete", None
         try:
             rep = self._scheduler.run(events, self.pipeline)
