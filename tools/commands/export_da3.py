@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
+
+from runtime.json_out import strict_dumps
 
 NAME = "export-da3"
 HELP = "export a Depth Anything 3 checkpoint to ONNX (one graph per size and resolution)"
@@ -78,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
     )
     card = export_in_subprocess(req)
     if args.json:
-        print(json.dumps(card, indent=2))
+        print(strict_dumps(card, indent=2))
         return 0
     print(
         f"wrote {out} ({card['parameters'] / 1e6:.1f}M parameters, "

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import json
+
+from runtime.json_out import strict_dumps
 
 NAME = "export-xfeat"
 HELP = "export the XFeat backbone to ONNX (the graph DAVIO ships in models/onnx was made with this)"
@@ -40,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
 
         glue = export_lighterglue(args.lighterglue, threads=args.threads)
     if args.json:
-        print(json.dumps({"xfeat": card, "lighterglue": glue} if glue else card, indent=2))
+        print(strict_dumps({"xfeat": card, "lighterglue": glue} if glue else card, indent=2))
         return 0
     if glue:
         print(

@@ -25,6 +25,7 @@ from pathlib import Path
 
 from models.da3.contract import CONTRACT, CONTRACT_VERSION, MAX_VIEWS, MIN_VIEWS, PATCH
 from runtime.errors import ModelError
+from runtime.json_out import strict_dumps
 
 INPUT_NAMES = ["images", "intrinsics", "extrinsics", "use_pose"]
 OUTPUT_NAMES = ["depth", "conf", "pred_extrinsics", "pred_intrinsics"]
@@ -320,7 +321,7 @@ def export_da3(req: ExportRequest) -> dict:
         "total_seconds": round(time.perf_counter() - t0, 2),
         "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }
-    out.with_suffix(".json").write_text(json.dumps(card, indent=2) + "\n")
+    out.with_suffix(".json").write_text(strict_dumps(card, indent=2) + "\n")
     if not worst <= req.tolerance:
         raise ModelError(
             f"{out}: ONNX Runtime disagrees with torch (max relative error {worst:.3g} > "

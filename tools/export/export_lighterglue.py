@@ -11,13 +11,13 @@ all 6 layers without early stopping or point pruning (data-dependent shapes); ma
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 import time
 from pathlib import Path
 
 from models.matcher.contract import LIGHTERGLUE_CONTRACT, LIGHTERGLUE_VERSION
 from runtime.errors import ModelError
+from runtime.json_out import strict_dumps
 from tools.export.checkpoint import read_state_dict
 from tools.export.export_xfeat import _package_dir
 
@@ -173,7 +173,7 @@ def export_lighterglue(out: str | Path, threads: int = 2, tolerance: float = 1e-
         "export_versions": {p: version(p) for p in ("torch", "onnx", "onnxscript", "onnxruntime", "kornia")},
         "export_seconds": round(export_s, 2),
     }
-    out.with_suffix(".json").write_text(json.dumps(card, indent=2) + "\n")
+    out.with_suffix(".json").write_text(strict_dumps(card, indent=2) + "\n")
     if not worst <= tolerance or not kornia_err <= tolerance:
         raise ModelError(
             f"{out}: check failed (ORT vs torch {worst:.3g}, wrapper vs kornia {kornia_err:.3g})"

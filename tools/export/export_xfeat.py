@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
-import json
 import os
 import time
 from pathlib import Path
 
 from models.matcher.contract import CONTRACT, CONTRACT_VERSION
 from runtime.errors import ModelError
+from runtime.json_out import strict_dumps
 from tools.export.checkpoint import read_state_dict
 
 OPSET = 18
@@ -186,7 +186,7 @@ def export_xfeat(out: str | Path, threads: int = 2, tolerance: float = 1e-3) -> 
         },
         "export_seconds": round(export_s, 2),
     }
-    out.with_suffix(".json").write_text(json.dumps(card, indent=2) + "\n")
+    out.with_suffix(".json").write_text(strict_dumps(card, indent=2) + "\n")
     if not worst <= tolerance:
         raise ModelError(
             f"{out}: ONNX Runtime disagrees with torch (max abs error {worst:.3g} > {tolerance:g})"
