@@ -103,7 +103,9 @@ class MsckfConfig:
     # IMU stream handling
     max_imu_gap_s: float = 0.05  #: a larger gap between IMU samples is counted as a gap
     max_imu_extrapolation_s: float = 0.01  #: a frame may lie this far past the newest IMU sample
-    max_pending_frames: int = 20         #: frames waiting for IMU coverage; older ones are dropped, counted
+    #: s, frames waiting for IMU coverage this much older than the newest frame are dropped, counted (was 20
+    #: frames, 1 s at 20 Hz: a time, so that the bound holds at any camera rate)
+    max_pending_s: float = 1.0
     imu_buffer_s: float = 10.0           #: IMU history kept while uninitialised (for a state in the past), s
     # compute
     blas_threads: int | None = 1  #: BLAS threads for the process (None: leave as is); see blas_threads.py
@@ -112,30 +114,44 @@ class MsckfConfig:
     max_gyro_bias: float = 0.5  #: rad/s
     max_accel_bias: float = 2.0  #: m/s^2
     max_position_std: float = 100.0  #: m, a larger position std is a covariance blow-up
-    max_frames_without_features: int = 50  #: consecutive frames without a feature update before a reset
+    #: s without a feature update before a reset (was 50 frames, 2.5 s at 20 Hz). Every health window below is
+    #: a time, not a frame count, so that a check means the same at 10, 20 or 30 Hz (the frame counts were
+    #: set at EuRoC's 20 Hz and have been converted at that rate)
+    max_time_without_update_s: float = 2.5
     #: share of the chi-square-tested visual measurements (MSCKF features and SLAM landmark observations)
-    #: rejected over the last `chi2_health_frames` frames with a visual update, above which the filter
-    #: contradicts the images and is reset (a wrong-scale or wrong-gravity start drifts this way).
+    #: rejected over the last `chi2_health_window_s` seconds of frames with a visual update, above which the
+    #: filter contradicts the images and is reset (a wrong-scale or wrong-gravity start drifts this way).
     #: Measured: healthy filters stay below 0.1 (openvins-sim 0.07), start-up windows that recovered
     #: reached 0.36-0.64, the three that drifted 3-8 m 0.84-0.87 (`davio bench startup --da3 base_upper`).
     #: 1.0 disables the check
     max_chi2_rejection_fraction: float = 0.75
-    chi2_health_frames: int = 40  #: frames with a visual update in that window (2 s at 20 Hz)
+    chi2_health_window_s: float = 2.0  #: s of frames with a visual update in that window (was 40 frames)
     min_chi2_health_tests: int = 100  #: tested measurements the window needs before the share is judged
     #: fewest visual measurements (MSCKF features + SLAM observations) the filter must accept over its last
-    #: `visual_health_frames` frames past the update step; below it the filter only dead-reckons on the IMU
-    #: while a rare accepted feature keeps the `max_frames_without_features` counter from firing, and is
+    #: `visual_health_window_s` seconds of frames past the update step; below it the filter only dead-reckons
+    #: on the IMU while a rare accepted feature keeps `max_time_without_update_s` from firing, and is
     #: reset. Its tracks then fail triangulation because the state is wrong (a wrong-scale or wrong-velocity
     #: start). Measured over every `davio bench startup` window of the presets and V1_02 / MH_03 with the
     #: check off: healthy published segments accepted >= 32 (nearly all > 300), the segments that drifted
     #: 0.9-15 m accepted 0-1. 0 disables the check.
     min_visual_measurements: int = 10
-    #: frames past the update step in that window: 2 s at EuRoC's 20 Hz (scale it with the camera rate)
-    visual_health_frames: int = 40
-    #: after a zero-velocity update the count restarts and is first judged after this many frames: motion out
-    #: of a standstill needs time to build parallax (a healthy MH_03 start that stood still, then moved
-    #: slowly, accepted 0 measurements over its first 40 frames and 415 over its first 60)
-    visual_health_frames_after_zupt: int = 60
+    #: s of frames past the update step in that window (was 40 frames, 2 s at EuRoC's 20 Hz)
+    visual_health_window_s: float = 2.0
+    #: deg, frames that accept nothing while the filter moves (speed >= zupt_max_velocity, and the
+    #: zero-velocity disparity test does not say standstill) but whose MSCKF/SLAM candidate tracks have a
+    #: median parallax (rotation removed, first to last observation) below this are not counted against the
+    #: filter and restart the count: no filter can triangulate them (the depth/baseline gate at
+    #: tri_max_baseline_ratio 40 needs atan(1/40) = 1.43 deg), so they say nothing about the state. Slow or
+    #: distant motion at a high frame rate is such a case: 11 clones span 0.5 s at 20 Hz, and 0.2 m/s across
+    #: a scene 6 m away gives 0.95 deg (10 Hz: 1.9 deg); the filter was reset after 44 frames at 20 Hz and
+    #: ran through at 10 Hz. Measured on openvins_sim/udel_gore: 1 % of frames have an MSCKF-candidate median
+    #: below 1.6 deg at 20 Hz (2.5 deg at 10 Hz); the 5 frames of 1196 below 1.43 deg triangulated 7 of
+    #: their 50 tracks. 0 disables
+    visual_health_min_parallax_deg: float = 1.43
+    #: s after a zero-velocity update before the restarted count is first judged: motion out of a
+    #: standstill needs time to build parallax (a healthy MH_03 start at 20 Hz that stood still, then moved
+    #: slowly, accepted 0 measurements over its first 40 frames (2 s) and 415 over its first 60 (3 s))
+    visual_health_after_zupt_s: float = 3.0
 
     def __post_init__(self) -> None:
         if self.integration not in ("rk4",):
@@ -170,14 +186,22 @@ class MsckfConfig:
         if not 0.0 < self.max_chi2_rejection_fraction <= 1.0:
             raise ConfigError("max_chi2_rejection_fraction must be in (0, 1], "
                               f"got {self.max_chi2_rejection_fraction}")
-        if self.chi2_health_frames < 1 or self.min_chi2_health_tests < 1:
-            raise ConfigError("chi2_health_frames and min_chi2_health_tests must be >= 1")
-        if self.min_visual_measurements < 0 or self.visual_health_frames < 1:
-            raise ConfigError("min_visual_measurements must be >= 0 and visual_health_frames >= 1, got "
-                              f"{self.min_visual_measurements} and {self.visual_health_frames}")
-        if self.visual_health_frames_after_zupt < self.visual_health_frames:
-            raise ConfigError(f"visual_health_frames_after_zupt ({self.visual_health_frames_after_zupt}) "
-                              f"must be >= visual_health_frames ({self.visual_health_frames})")
+        for f in ("max_pending_s", "max_time_without_update_s", "chi2_health_window_s",
+                  "visual_health_window_s", "visual_health_after_zupt_s"):
+            v = getattr(self, f)
+            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
+                raise ConfigError(f"{f} must be a finite number of seconds > 0, got {v!r}")
+        if self.min_chi2_health_tests < 1:
+            raise ConfigError("min_chi2_health_tests must be >= 1")
+        v = self.visual_health_min_parallax_deg
+        if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
+            raise ConfigError("visual_health_min_parallax_deg must be finite and >= 0, "
+                              f"got {v!r}")
+        if self.min_visual_measurements < 0:
+            raise ConfigError(f"min_visual_measurements must be >= 0, got {self.min_visual_measurements}")
+        if self.visual_health_after_zupt_s < self.visual_health_window_s:
+            raise ConfigError(f"visual_health_after_zupt_s ({self.visual_health_after_zupt_s}) "
+                              f"must be >= visual_health_window_s ({self.visual_health_window_s})")
         if self.calib_intrinsics:
             for f in ("sigma_calib_focal", "sigma_calib_center", "sigma_calib_distortion"):
                 v = getattr(self, f)

@@ -27,7 +27,11 @@ from runtime.msckf.state import State
 from runtime.msckf.state_helper import augment_clone, change_anchor, marginalize
 from runtime.msckf.update_msckf import msckf_update
 from runtime.msckf.update_slam import SlamUpdateStats, delayed_init, slam_update
-from runtime.msckf.update_zupt import zupt_update
+from runtime.msckf.update_zupt import disparity_says_static, zupt_update
+
+WINDOW_SLACK_NS = 1_000_000
+"""Health windows (seconds of camera time) are compared with 1 ms of slack, so that frame-time rounding and
+jitter neither add nor drop a frame at a window's edge."""
 
 
 @dataclass
@@ -93,16 +97,38 @@ class _Counters:
     slam_marginalized: int = 0
     slam_anchor_changes: int = 0
     zupt_applied: int = 0
+    #: frames past the update step that accepted nothing while their tracks lacked the parallax to triangulate
+    #: (MsckfConfig.visual_health_min_parallax_deg): not counted by the blind-filter check
+    frames_low_parallax: int = 0
     initializations: int = 0
     divergence_resets: int = 0
-    #: largest rejected share over a window of MsckfConfig.chi2_health_frames frames
+    #: largest rejected share over a window of MsckfConfig.chi2_health_window_s seconds
     chi2_rejection_fraction_max: float = 0.0
-    #: fewest visual measurements accepted over a full window of visual_health_frames visual frames
+    #: fewest visual measurements accepted over a full window of visual_health_window_s seconds
     visual_accepted_min: int | None = None
     init_sources: dict = field(default_factory=dict)
     divergence_reasons: list = field(default_factory=list)
     time_frame_s: float = 0.0
     cpu_frame_s: float = 0.0
+
+
+def median_parallax_deg(state: State, tracks: list) -> float | None:
+    """Median over `tracks` of the angle (deg) between the rays of each track's first and last observation at
+    the state's clones, both rotated into the odometry frame (the rotation of the camera is removed, so the
+    angle is parallax from translation; it needs only the clones' rotations, which the gyro keeps right even
+    when the translation is wrong). None without a track observed at two clones."""
+    R_IC = state.R_IC
+    angles = []
+    for tr in tracks:
+        ks = [k for k, t in enumerate(tr.t_ns) if t in state.clones]
+        if len(ks) < 2:
+            continue
+        b = []
+        for k in (ks[0], ks[-1]):
+            ray = state.clones[tr.t_ns[k]].R @ (R_IC @ np.array([tr.xn[k][0], tr.xn[k][1], 1.0]))
+            b.append(ray / np.linalg.norm(ray))
+        angles.append(np.arccos(np.clip(float(b[0] @ b[1]), -1.0, 1.0)))
+    return float(np.degrees(np.median(angles))) if angles else None
 
 
 class MsckfEstimator:
@@ -144,12 +170,13 @@ class MsckfEstimator:
         self.db = FeatureDatabase()
         self.state_: State | None = None
         self._t_init_ns = 0
-        self._frames_without_update = 0
-        self._chi2_window: deque = deque(maxlen=self.config.chi2_health_frames)  # (tested, rejected)
-        #: accepted visual measurements per frame past the update step, since the last restart of the count
-        self._accepted_window: deque = deque(maxlen=self.config.visual_health_frames)
-        self._accepted_frames = 0  # frames appended since that restart
-        self._accepted_needed = self.config.visual_health_frames  # frames before the first judgement
+        # health windows are camera times (ns), not frame counts: they mean the same at any frame rate
+        self._last_update_ns: int | None = None  # camera time of the last frame with a feature update
+        self._chi2_window: deque = deque()  # (t_cam, tested, rejected) per frame with a visual update
+        #: (t_cam, accepted visual measurements) per frame past the update step, since the last restart
+        self._accepted_window: deque = deque()
+        self._accepted_since: int | None = None  # camera time the count restarted from
+        self._accepted_needed_s = self.config.visual_health_window_s  # s before the first judgement
         self._last_w = np.zeros(3)
         self._last_samples: tuple | None = None
         seed = self.config.feature_order_seed
@@ -228,9 +255,9 @@ class MsckfEstimator:
             st.P[i : i + 8, i : i + 8] = np.diag(np.square(sig))
         self.state_ = st
         self._t_init_ns = int(t_ns)
-        self._frames_without_update = 0
+        self._last_update_ns = None
         self._chi2_window.clear()
-        self._restart_visual_count(self.config.visual_health_frames)
+        self._restart_visual_count(self.config.visual_health_window_s)
         self.db.clear()
         self._pending = deque(f for f in self._pending if f[0] + int(round(st.t_d * 1e9)) > st.t_ns)
         self.counters.initializations += 1
@@ -360,7 +387,8 @@ class MsckfEstimator:
                 c.frames_before_init += 1
                 return []
         self._pending.append((t_ns, ids, uv))
-        while len(self._pending) > self.config.max_pending_frames:   # IMU stalled: drop the oldest
+        oldest = t_ns - int(round(self.config.max_pending_s * 1e9)) + WINDOW_SLACK_NS
+        while self._pending[0][0] <= oldest:   # IMU stalled: drop the oldest
             self._pending.popleft()
             c.frames_no_imu += 1
         return self._process_pending()
@@ -474,7 +502,7 @@ class MsckfEstimator:
         if cfg.try_zupt and zupt_update(st, cfg, self.db, self._last_samples, t_cam, ids, uv):
             c.zupt_applied += 1
             # standing still: no parallax to triangulate, and no need; moving off needs time to build it
-            self._restart_visual_count(cfg.visual_health_frames_after_zupt)
+            self._restart_visual_count(cfg.visual_health_after_zupt_s, t_cam)
             c.frames_processed += 1
             c.time_frame_s += time.perf_counter() - t0
             c.cpu_frame_s += time.thread_time() - t0_cpu
@@ -486,7 +514,9 @@ class MsckfEstimator:
         seen = set(ids.tolist())
         n_clones = len(st.clones)
         if n_clones < min(cfg.max_clones, 5):
-            # too few clones to triangulate: wait (OpenVINS does the same)
+            # too few clones to triangulate: wait (OpenVINS does the same); the blind count starts after
+            if not self._accepted_window:
+                self._accepted_since = t_cam
             c.frames_processed += 1
             c.time_frame_s += time.perf_counter() - t0
             c.cpu_frame_s += time.thread_time() - t0_cpu
@@ -515,6 +545,7 @@ class MsckfEstimator:
         msckf = [tr for tr in lost + marg + maxtracks if len(tr) >= 2]
         msckf.sort(key=len)
         msckf = msckf[max(len(msckf) - cfg.max_msckf_in_update, 0) :]
+        parallax = median_parallax_deg(st, msckf + new_slam)   # before the update moves the clones
         ms = msckf_update(st, msckf, cfg, self.camera)
         c.msckf_features_used += ms.used
         c.msckf_triangulation_failed += ms.triangulation_failed
@@ -559,19 +590,34 @@ class MsckfEstimator:
         self.db.drop_older_than(st.clone_times()[0])
         updated = ms.used > 0 or sst.updated > 0 or len(added) > 0
         rejected = ms.chi2_rejected + sst.chi2_rejected
-        self._chi2_window.append((ms.used + sst.updated + rejected, rejected))
-        self._accepted_window.append(ms.used + sst.updated)
-        self._accepted_frames += 1
+        self._chi2_window.append((t_cam, ms.used + sst.updated + rejected, rejected))
+        low_parallax = (ms.used + sst.updated == 0 and parallax is not None
+                        and parallax < cfg.visual_health_min_parallax_deg
+                        and float(np.linalg.norm(st.v)) >= cfg.zupt_max_velocity
+                        and not disparity_says_static(cfg, self.db, t_cam, ids, uv))
+        if low_parallax:
+            # the filter moves, but its tracks lack the parallax any filter needs to triangulate them (slow
+            # motion, distant scene, or a short window at a high frame rate): the frame says nothing about the
+            # filter, which dead-reckons as OpenVINS does; neither starvation nor the blind count holds it
+            # against the filter (the blind count restarts after it). Standing still (the filter's speed
+            # below zupt_max_velocity, or the disparity test) without a zero-velocity update stays blind
+            self._restart_visual_count(cfg.visual_health_window_s, t_cam)
+            c.frames_low_parallax += 1
+        else:
+            if self._accepted_since is None:
+                self._accepted_since = t_cam
+            self._accepted_window.append((t_cam, ms.used + sst.updated))
         c.frames_processed += 1
         c.time_frame_s += time.perf_counter() - t0
         c.cpu_frame_s += time.thread_time() - t0_cpu
-        return self._after_frame(t_cam, updated)
+        return self._after_frame(t_cam, updated or low_parallax)
 
-    def _restart_visual_count(self, needed: int) -> None:
-        """Restart the blind-filter count; the first judgement comes after `needed` frames (>= the window)."""
+    def _restart_visual_count(self, needed_s: float, t_cam: int | None = None) -> None:
+        """Restart the blind-filter count from camera time t_cam (None: the next frame past the update step);
+        the first judgement comes `needed_s` seconds later (>= the window)."""
         self._accepted_window.clear()
-        self._accepted_frames = 0
-        self._accepted_needed = needed
+        self._accepted_since = t_cam
+        self._accepted_needed_s = needed_s
 
     def _earliest_created(self, tracks: list, n: int) -> list:
         """The n tracks of `tracks` that entered the database first (its dict keeps creation order).
@@ -592,18 +638,28 @@ class MsckfEstimator:
         return [tracks[i] for i in self._order_rng.permutation(len(tracks))]
 
     def _after_frame(self, t_cam: int, updated: bool) -> FilterState | None:
-        self._frames_without_update = 0 if updated else self._frames_without_update + 1
-        tested = sum(n for n, _ in self._chi2_window)
-        rejected = sum(r for _, r in self._chi2_window)
-        if tested >= self.config.min_chi2_health_tests:
+        cfg = self.config
+        if updated or self._last_update_ns is None:
+            self._last_update_ns = t_cam
+        since_update = (t_cam - self._last_update_ns) * 1e-9
+        for win, span in ((self._chi2_window, cfg.chi2_health_window_s),
+                          (self._accepted_window, cfg.visual_health_window_s)):
+            start = t_cam - int(round(span * 1e9)) + WINDOW_SLACK_NS
+            while win and win[0][0] <= start:
+                win.popleft()
+        tested = sum(n for _, n, _ in self._chi2_window)
+        rejected = sum(r for _, _, r in self._chi2_window)
+        if tested >= cfg.min_chi2_health_tests:
             self.counters.chi2_rejection_fraction_max = max(self.counters.chi2_rejection_fraction_max,
                                                             rejected / tested)
-        acc = self._accepted_window
-        accepted = sum(acc) if self._accepted_frames >= self._accepted_needed else None
+        accepted = None
+        needed_ns = int(round(self._accepted_needed_s * 1e9)) - WINDOW_SLACK_NS
+        if self._accepted_since is not None and t_cam - self._accepted_since >= needed_ns:
+            accepted = sum(n for _, n in self._accepted_window)
         if accepted is not None:
             self.counters.visual_accepted_min = (accepted if self.counters.visual_accepted_min is None
                                                  else min(self.counters.visual_accepted_min, accepted))
-        reason = divergence_reason(self.state_, self.config, self._frames_without_update, tested, rejected,
+        reason = divergence_reason(self.state_, cfg, since_update - WINDOW_SLACK_NS * 1e-9, tested, rejected,
                                    accepted)
         if reason is not None:
             self.reset(reason)
@@ -617,9 +673,9 @@ class MsckfEstimator:
         self.last_reset_reason = reason
         self.state_ = None
         self.init_source = None
-        self._frames_without_update = 0
+        self._last_update_ns = None
         self._chi2_window.clear()
-        self._restart_visual_count(self.config.visual_health_frames)
+        self._restart_visual_count(self.config.visual_health_window_s)
         self.db.clear()
         self._pending.clear()
         for ini in self.initializers:

@@ -8,16 +8,17 @@ from runtime.msckf.config import MsckfConfig
 from runtime.msckf.state import State
 
 
-def divergence_reason(state: State, cfg: MsckfConfig, frames_without_update: int,
+def divergence_reason(state: State, cfg: MsckfConfig, seconds_without_update: float,
                       chi2_tested: int = 0, chi2_rejected: int = 0,
                       visual_accepted: int | None = None) -> str | None:
     """A short reason when the filter has diverged, else None.
 
+    seconds_without_update: camera time since the last frame with a feature update.
     chi2_tested / chi2_rejected: visual measurements that reached the chi-square gate over the last
-    `cfg.chi2_health_frames` frames, and how many of them it rejected.
-    visual_accepted: visual measurements accepted over the last `cfg.visual_health_frames` frames past the
-    update step, or None until the count may be judged (after an initialization, a reset or a
-    zero-velocity update: see `MsckfConfig.visual_health_frames_after_zupt`).
+    `cfg.chi2_health_window_s` seconds, and how many of them it rejected.
+    visual_accepted: visual measurements accepted over the last `cfg.visual_health_window_s` seconds of frames
+    past the update step, or None until the count may be judged (after an initialization, a reset or a
+    zero-velocity update: see `MsckfConfig.visual_health_after_zupt_s`).
     """
     vals = (state.R, state.p, state.v, state.bg, state.ba)
     if not all(np.all(np.isfinite(x)) for x in vals) or not np.all(np.isfinite(state.P)):
@@ -34,13 +35,13 @@ def divergence_reason(state: State, cfg: MsckfConfig, frames_without_update: int
         return f"gyro bias {np.abs(state.bg).max():.3g} rad/s > {cfg.max_gyro_bias}"
     if float(np.abs(state.ba).max()) > cfg.max_accel_bias:
         return f"accel bias {np.abs(state.ba).max():.3g} m/s^2 > {cfg.max_accel_bias}"
-    if frames_without_update > cfg.max_frames_without_features:
-        return f"no feature update for {frames_without_update} frames"
+    if seconds_without_update > cfg.max_time_without_update_s:
+        return f"no feature update for {seconds_without_update:.2f} s"
     if visual_accepted is not None and visual_accepted < cfg.min_visual_measurements:
-        return (f"only {visual_accepted} visual measurements accepted over {cfg.visual_health_frames} frames "
+        return (f"only {visual_accepted} visual measurements accepted over {cfg.visual_health_window_s:g} s "
                 f"(< {cfg.min_visual_measurements}): dead reckoning on the IMU")
     if (cfg.max_chi2_rejection_fraction < 1.0 and chi2_tested >= cfg.min_chi2_health_tests
             and chi2_rejected > cfg.max_chi2_rejection_fraction * chi2_tested):
         return (f"chi-square rejected {chi2_rejected} of {chi2_tested} visual measurements over "
-                f"{cfg.chi2_health_frames} frames (> {cfg.max_chi2_rejection_fraction:.0%})")
+                f"{cfg.chi2_health_window_s:g} s (> {cfg.max_chi2_rejection_fraction:.0%})")
     return None

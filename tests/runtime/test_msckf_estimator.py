@@ -92,7 +92,7 @@ def _init(est: MsckfEstimator, dv: np.ndarray) -> None:
 def test_features_correct_a_velocity_error() -> None:
     imu, frames = _stream(8.0)
     dv = np.array([0.05, -0.05, 0.02])
-    cfg = MsckfConfig(max_frames_without_features=10_000)
+    cfg = MsckfConfig(max_time_without_update_s=1000.0)
     with_f = MsckfEstimator(_rig(), cfg)
     _init(with_f, dv)
     s1 = _run(with_f, imu, frames, True)
@@ -294,7 +294,7 @@ def test_standing_still_is_not_taken_for_a_blind_filter(monkeypatch) -> None:
 
     monkeypatch.setattr(estimator_module, "zupt_update", every_third_refused)
     imu, frames = _static_stream(6.0)
-    cfg = replace(MsckfConfig(**IMU_ZUPT), visual_health_frames=5)
+    cfg = replace(MsckfConfig(**IMU_ZUPT), visual_health_window_s=0.5)
     est = MsckfEstimator(_rig(), cfg)
     est.initialize_from_state(0, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3))
     _run(est, imu, frames)
@@ -306,7 +306,7 @@ def test_standing_still_is_not_taken_for_a_blind_filter(monkeypatch) -> None:
     est = MsckfEstimator(_rig(), replace(cfg, try_zupt=False))
     est.initialize_from_state(0, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3))
     _run(est, imu, frames)
-    assert "0 visual measurements accepted over 5 frames" in est.report()["divergence_reasons"][0]
+    assert "0 visual measurements accepted over 0.5 s" in est.report()["divergence_reasons"][0]
 
 
 def _zupt_for_first(n: int, real):
@@ -322,8 +322,8 @@ def _zupt_for_first(n: int, real):
 
 def test_after_a_standstill_the_blind_count_waits_longer(monkeypatch) -> None:
     """The zero-velocity update holds for 2 s, then stops (forced here); the body still stands, so every
-    later frame accepts nothing. The reset comes `visual_health_frames_after_zupt` frames after the last
-    zero-velocity update: 7 frames later with 12 than with 5 (the window itself is 5 frames)."""
+    later frame accepts nothing. The reset comes `visual_health_after_zupt_s` after the last zero-velocity
+    update: 7 frames (0.7 s at 10 Hz) later with 1.2 s than with 0.5 s (the window itself is 0.5 s)."""
     import runtime.msckf.estimator as estimator_module
 
     imu, frames = _static_stream(6.0)
@@ -331,7 +331,8 @@ def test_after_a_standstill_the_blind_count_waits_longer(monkeypatch) -> None:
     reset_at = {}
     for after in (5, 12):
         monkeypatch.setattr(estimator_module, "zupt_update", _zupt_for_first(20, real_zupt))
-        cfg = replace(MsckfConfig(**IMU_ZUPT), visual_health_frames=5, visual_health_frames_after_zupt=after)
+        cfg = replace(MsckfConfig(**IMU_ZUPT), visual_health_window_s=0.5,
+                      visual_health_after_zupt_s=after / 10)
         est = MsckfEstimator(_rig(), cfg)
         est.initialize_from_state(0, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3))
         k = 0
@@ -406,25 +407,31 @@ def test_disparity_is_measured_over_the_span_and_needs_more_than_twenty_features
     assert not disparity_says_static(MsckfConfig(zupt_max_disparity=0.0), db, t, np.arange(n), uv)
 
 
-@pytest.mark.parametrize("speed", [0.03, 0.05])
-def test_slow_motion_is_not_taken_for_standstill(speed: float) -> None:
-    """Sideways at a few cm/s in front of a wall 6 m away (0.25-0.4 px per 10 Hz frame, 0.2 px noise):
-    the features move over the 0.4 s span, so no zero-velocity update stops the body (measured with a
-    frame-to-frame disparity it was held at v = 0 and ended 0.3-0.5 m behind)."""
+def _sideways_stream(speed: float, rate_hz: int, duration: float = 6.0):
+    """Sideways at `speed` m/s in front of a wall 6 m away: noise-free IMU at 200 Hz, tracks at `rate_hz`
+    with 0.2 px noise."""
     rng = np.random.default_rng(0)
-    duration = 6.0
     L = np.c_[np.full(600, 6.0), rng.uniform(-6, 6 + speed * duration, 600), rng.uniform(-3, 3, 600)]
     imu = [ImuSample(k * 5_000_000, np.zeros(3), np.array([0.0, 0.0, 9.81]))
            for k in range(int(duration * 200) + 11)]
     frames = []
-    for k in range(1, int(duration * 10) + 1):
-        t = k / 10 + 0.0013
+    for k in range(1, int(duration * rate_hz) + 1):
+        t = k / rate_hz + 0.0013
         pC = (R_IC.T @ ((L - np.array([0.0, speed * t, 0.0])).T - p_IC[:, None])).T
         vis = pC[:, 2] > 0.5
         uv = distort_points(1, PRM, pC[vis, :2] / pC[vis, 2:3]) + 0.2 * rng.standard_normal((vis.sum(), 2))
         inside = (uv[:, 0] > 0) & (uv[:, 0] < 751) & (uv[:, 1] > 0) & (uv[:, 1] < 479)
         frames.append((int(round(t * 1e9)), np.flatnonzero(vis)[inside], uv[inside]))
-    est = MsckfEstimator(_rig(), MsckfConfig(max_frames_without_features=10_000))
+    return imu, frames
+
+
+@pytest.mark.parametrize("speed", [0.03, 0.05])
+def test_slow_motion_is_not_taken_for_standstill(speed: float) -> None:
+    """Sideways at a few cm/s in front of a wall 6 m away (0.25-0.4 px per 10 Hz frame, 0.2 px noise):
+    the features move over the 0.4 s span, so no zero-velocity update stops the body (measured with a
+    frame-to-frame disparity it was held at v = 0 and ended 0.3-0.5 m behind)."""
+    imu, frames = _sideways_stream(speed, 10)
+    est = MsckfEstimator(_rig(), MsckfConfig(max_time_without_update_s=1000.0, min_visual_measurements=0))
     zero = np.zeros(3)
     est.initialize_from_state(0, np.eye(3), zero, np.array([0.0, speed, 0.0]), zero, zero)
     last = _run(est, imu, frames)[-1]
@@ -432,6 +439,29 @@ def test_slow_motion_is_not_taken_for_standstill(speed: float) -> None:
     p_true = np.array([0.0, speed * last.t_cam_ns * 1e-9, 0.0])
     assert np.linalg.norm(last.p_OI - p_true) < 0.02
     assert abs(last.v_OI[1] - speed) < 0.01
+
+
+@pytest.mark.parametrize("rate_hz", [10, 20, 30])
+def test_a_short_window_at_a_high_frame_rate_is_not_a_blind_filter(rate_hz: int) -> None:
+    """0.2 m/s across a wall 6 m away: the 11 clones span 1 s at 10 Hz (1.9 deg of parallax: the tracks
+    triangulate) but 0.5 s at 20 Hz and 0.33 s at 30 Hz (0.95 / 0.6 deg: the depth/baseline gate rejects
+    every track, as OpenVINS's would). The filter was reset after 44 frames at 20 Hz as a blind filter
+    and never recovered; the frames lack parallax, not the filter accuracy, so it now dead-reckons
+    through them (as OpenVINS does), and at 10 Hz it uses the features as before."""
+    speed = 0.2
+    imu, frames = _sideways_stream(speed, rate_hz)
+    est = MsckfEstimator(_rig(), MsckfConfig())
+    zero = np.zeros(3)
+    est.initialize_from_state(0, np.eye(3), zero, np.array([0.0, speed, 0.0]), zero, zero)
+    snaps = _run(est, imu, frames)
+    rep = est.report()
+    assert rep["divergence_resets"] == 0 and len(snaps) == len(frames), rep["divergence_reasons"]
+    if rate_hz == 10:
+        assert rep["msckf_features_used"] > 300 and rep["frames_low_parallax"] < 10   # while the window fills
+    else:
+        assert rep["msckf_features_used"] == 0 and rep["frames_low_parallax"] > 0.8 * len(frames)
+    p_true = np.array([0.0, speed * snaps[-1].t_cam_ns * 1e-9, 0.0])
+    assert np.linalg.norm(snaps[-1].p_OI - p_true) < 0.05
 
 
 def test_zupt_settings_are_checked() -> None:
@@ -491,7 +521,7 @@ def test_imu_history_is_bounded_while_uninitialised_and_a_past_state_can_start()
 
 def test_starvation_without_features_resets_the_filter() -> None:
     imu, frames = _stream(2.0)
-    est = MsckfEstimator(_rig(), MsckfConfig(max_frames_without_features=8))
+    est = MsckfEstimator(_rig(), MsckfConfig(max_time_without_update_s=0.8))
     _init(est, np.zeros(3))
     k = 0
     for t_ns, ids, uv in frames[:16]:
@@ -513,9 +543,38 @@ def test_starvation_without_features_resets_the_filter() -> None:
     assert est.report()["initializations"] == 2
 
 
+@pytest.mark.parametrize("rate_hz", [10, 20, 30])
+@pytest.mark.parametrize("check", ["starvation", "blind"])
+def test_health_windows_are_times_not_frame_counts(rate_hz: int, check: str) -> None:
+    """A filter that sees no features is reset `max_time_without_update_s` (2.5 s) after its last update,
+    or, by the blind-filter count, `visual_health_window_s` (2 s) after its first frame past the update step,
+    whatever the camera rate (they were 50 and 40 frames: 5 s and 4 s at 10 Hz, 1.7 s and 1.3 s at 30 Hz)."""
+    imu, _ = _static_stream(4.0)
+    if check == "starvation":
+        cfg, reason, span = MsckfConfig(try_zupt=False, min_visual_measurements=0), "no feature update", 2.5
+    else:
+        cfg, reason, span = MsckfConfig(try_zupt=False), "visual measurements accepted over 2 s", 2.0
+    est = MsckfEstimator(_rig(), cfg)
+    est.initialize_from_state(0, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3))
+    k = 0
+    reset_t = None
+    for i in range(1, int(3.9 * rate_hz)):
+        t_ns = int(round((i / rate_hz + 0.0013) * 1e9))
+        while k < len(imu) and imu[k].t_ns <= t_ns + 5_000_000:
+            est.feed_imu(imu[k])
+            k += 1
+        est.feed_tracks(t_ns, np.zeros(0, dtype=np.int64), np.zeros((0, 2)))
+        if not est.initialized:
+            reset_t = t_ns * 1e-9
+            break
+    assert reset_t is not None and reason in est.report()["divergence_reasons"][0]
+    start = 4 / rate_hz + 0.0013      # the frames that wait for the first clones count as updated
+    assert span - 0.002 < reset_t - start <= span + 1.0 / rate_hz + 0.002
+
+
 def test_frames_waiting_for_a_stalled_imu_are_bounded() -> None:
     imu, frames = _stream(4.0)
-    est = MsckfEstimator(_rig(), MsckfConfig(max_pending_frames=5))
+    est = MsckfEstimator(_rig(), MsckfConfig(max_pending_s=0.5))
     _init(est, np.zeros(3))
     for s in imu[:20]:                 # IMU stops at 0.1 s
         est.feed_imu(s)
@@ -553,7 +612,7 @@ def test_images_that_contradict_the_state_reset_the_filter() -> None:
     pixels are shuffled between features every frame, the chi-square gate rejects most of them and the
     windowed share crosses MsckfConfig.max_chi2_rejection_fraction: a reset with its reason."""
     imu, frames = _stream(6.0)
-    cfg = MsckfConfig(max_frames_without_features=10_000, chi2_health_frames=20, min_chi2_health_tests=50)
+    cfg = MsckfConfig(max_time_without_update_s=1000.0, chi2_health_window_s=2.0, min_chi2_health_tests=50)
     good = MsckfEstimator(_rig(), cfg)
     _init(good, np.zeros(3))
     _run(good, imu, frames)
@@ -585,14 +644,14 @@ def test_a_filter_that_only_dead_reckons_is_reset() -> None:
         keep = ids == ids.min()
         blind.append((t, np.r_[ids[keep], 10_000 + np.arange(150)],
                       np.r_[uv[keep], fixed + rng.normal(0, 0.5, fixed.shape)]))
-    cfg = MsckfConfig(max_frames_without_features=15, visual_health_frames=20)
+    cfg = MsckfConfig(max_time_without_update_s=1.5, visual_health_window_s=2.0)
     est = MsckfEstimator(_rig(), cfg)
     _init(est, np.zeros(3))
     _run(est, imu, blind)
     rep = est.report()
     assert rep["divergence_resets"] == 1
     reason = rep["divergence_reasons"][0]
-    assert "visual measurements accepted over 20 frames (< 10): dead reckoning" in reason
+    assert "visual measurements accepted over 2 s (< 10): dead reckoning" in reason
     off = MsckfEstimator(_rig(), replace(cfg, min_visual_measurements=0))
     _init(off, np.zeros(3))
     _run(off, imu, blind)
@@ -605,10 +664,12 @@ def test_a_filter_that_only_dead_reckons_is_reset() -> None:
     assert good.report()["divergence_resets"] == 0 and good.report()["visual_accepted_min"] > 100
     with pytest.raises(ConfigError, match="min_visual_measurements"):
         MsckfConfig(min_visual_measurements=-1)
-    with pytest.raises(ConfigError, match="visual_health_frames"):
-        MsckfConfig(visual_health_frames=0)
-    with pytest.raises(ConfigError, match="visual_health_frames_after_zupt"):
-        MsckfConfig(visual_health_frames=40, visual_health_frames_after_zupt=30)
+    with pytest.raises(ConfigError, match="visual_health_window_s"):
+        MsckfConfig(visual_health_window_s=0)
+    with pytest.raises(ConfigError, match="visual_health_after_zupt_s"):
+        MsckfConfig(visual_health_window_s=2.0, visual_health_after_zupt_s=1.5)
+    with pytest.raises(ConfigError, match="max_time_without_update_s"):
+        MsckfConfig(max_time_without_update_s=float("nan"))
 
 
 def test_imu_noise_from_the_rig_is_used_as_given_and_zero_is_an_error():

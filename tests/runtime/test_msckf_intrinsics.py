@@ -183,7 +183,7 @@ def test_filter_with_true_intrinsics_stays_at_the_truth(model: str) -> None:
         rig, imu, frames = _equidistant_case(6.0)
         true = EQ_PRM
     prior = np.array([2.0, 2.0, 2.0, 2.0, 0.01, 0.01, 0.01, 0.01])
-    cfg = MsckfConfig(max_frames_without_features=10_000, calib_intrinsics=True, sigma_calib_focal=2.0,
+    cfg = MsckfConfig(max_time_without_update_s=1000.0, calib_intrinsics=True, sigma_calib_focal=2.0,
                       sigma_calib_center=2.0, sigma_calib_distortion=0.01)
     est = MsckfEstimator(rig, cfg)
     assert est.camera.model == model
@@ -281,7 +281,7 @@ def test_pinhole_camera_estimates_no_distortion() -> None:
 
     imu, frames = _circle_seen_through("none", PRM, 3.0, seed=2, px_sigma=0.5)
     rig = dataclasses.replace(_rig(), camera=Pinhole(752, 480, *PRM[:4]))
-    cfg = MsckfConfig(max_frames_without_features=10_000, calib_intrinsics=True)
+    cfg = MsckfConfig(max_time_without_update_s=1000.0, calib_intrinsics=True)
     est = MsckfEstimator(rig, cfg)
     assert est.camera.model == "none"
     _init(est, np.zeros(3))

@@ -8,7 +8,7 @@ from runtime.msckf.config import MsckfConfig
 from runtime.msckf.estimator import MsckfEstimator
 from tests.runtime.test_msckf_estimator import _init, _rig, _stream
 
-CFG = MsckfConfig(max_frames_without_features=10_000, dt_slam_delay=0.0)
+CFG = MsckfConfig(max_time_without_update_s=1000.0, dt_slam_delay=0.0)
 
 
 def _feed(est: MsckfEstimator, imu: list, k: int, frame: tuple) -> int:
