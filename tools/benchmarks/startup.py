@@ -8,12 +8,17 @@ Windows start every 10 s over a sequence; in each, every arm restarts from scrat
   * native: the filter's own initializers alone, no depth model (the paper's OpenVINS row);
   * feedforward_only (diagnosis, not run by default): the feed-forward initializer with the native
     initializers disarmed, to measure it alone.
-A window succeeds if a trajectory published within it has ATE < 0.5 m (SE(3) alignment; a filter
-reset after a divergence ends one published trajectory and starts the next). T_f is the sensor time of
-the first published state after the window start (10 s if none); T_q is the start of the first
-successful trajectory and charges 10 s to every failure. Gravity-direction and velocity errors are
-those of the first state of the successful trajectory (velocity compared after the ATE alignment's
-rotation).
+Scoring as the paper's protocol: each window on its FIRST published trajectory, as is, through the
+window's end (success: ATE < 0.5 m, SE(3) alignment, over at least 1 s of poses). T_f is the sensor time
+of the first published state after the window start (10 s if none); T_q the start of the first
+trajectory when it succeeds and 10 s for every failure. `published_wrong` counts windows whose first
+published trajectory failed (a wrong scale published as metric). Secondary, reset-aware columns: a
+filter reset after a divergence ends one published trajectory and starts the next; the window then
+counts if any trajectory passes, with the time from the failed one's end to the correct one's start.
+Gravity-direction and velocity errors are those of the first published state (velocity compared after
+the ATE alignment's rotation); `ff |log s|` is the sim(3) scale error of the windows the feed-forward
+initializer published. `--pose-error-scale K` and `--depth-error-scale D` set the emulated DA3's error
+levels (the sensitivity sweep in BENCHMARKS.md).
 Recordings are simulated: a motion preset, or images rendered along a real EuRoC ground truth with its
 real IMU stream (EuRoC-trajectory mode).
 """
@@ -54,7 +59,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--da3-param", action="append", default=[], metavar="NAME=VALUE",
                    help="override an emulated-DA3 parameter (repeatable; sensitivity studies), "
                         "e.g. rotation_error_median_deg=0.1")
+    p.add_argument("--pose-error-scale", type=float, default=None, metavar="K",
+                   help="unconditioned DA3 pose errors = K x the upper bound of the preset's size "
+                        "(the presets use K = 0.05; 1.0 = the upper-bound table, PRESETS.md)")
+    p.add_argument("--depth-error-scale", type=float, default=None, metavar="D",
+                   help="multiply the emulated DA3's depth errors (scale jitter, smooth field, noise) by D")
     p.add_argument("--ate-threshold", type=float, default=0.5, help="success threshold, m")
+    p.add_argument("--min-span", type=float, default=1.0, metavar="S",
+                   help="a successful trajectory covers at least S seconds of poses")
     p.add_argument("--config", metavar="TOML", help="configuration for every arm (see config.toml of a run)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", metavar="FILE", help="also write the JSON (with per-window rows) here")
@@ -118,16 +130,37 @@ def _overrides(items: list[str]) -> dict:
     return out
 
 
-def _score(pipe: Any, gt: Any, t0_ns: int, window_s: float, ate_thr: float) -> dict:
-    """One window's row. A filter reset after a divergence starts a new published segment (its own
-    odometry frame): the window succeeds if a segment has ATE < ate_thr; T_f is the first published
-    state, T_q the start of the first successful segment (window_s if none). `source`, gravity and
-    velocity errors are those of the first state of the successful segment (else of the first one)."""
+def _judge(seg: list, gt: Any, ate_thr: float, min_span_s: float) -> tuple[bool, Any, float | None]:
+    """(success, se3 ATE result or None, sim3 scale error |log s| or None) of one published trajectory:
+    success = ATE < ate_thr over at least min_span_s of poses."""
     from runtime.errors import DataError
-    from runtime.geometry import interpolate_poses
     from tools.evaluation import ate
+    from tools.run_io import published_trajectory
+
+    est = published_trajectory(seg)
+    span = (int(seg[-1].t_ns) - int(seg[0].t_ns)) * 1e-9
+    try:
+        res = ate(est, gt, align_method="se3") if len(est) >= 3 else None
+        sim = ate(est, gt, align_method="sim3") if len(est) >= 3 and span >= min_span_s else None
+    except DataError:
+        res = sim = None
+    scale_err = None if sim is None else abs(float(np.log(sim.alignment.s)))
+    ok = res is not None and res.trans["rmse"] < ate_thr and span >= min_span_s
+    return ok, res, scale_err
+
+
+def _score(pipe: Any, gt: Any, t0_ns: int, window_s: float, ate_thr: float, min_span_s: float = 1.0) -> dict:
+    """One window's row, scored as the paper does: on the FIRST published trajectory, as is, through the
+    window's end (success: ATE < ate_thr over at least min_span_s of poses; T_q = its start, or window_s
+    for a failure). `published_wrong`: something was published and that first trajectory failed.
+    Secondary, reset-aware: a filter reset after a divergence starts a new published segment (its own
+    odometry frame); `success_reset_aware` if any segment passes, `T_q_reset_aware` its start, and
+    `T_correct_after_reset` the time from the end of a failed first trajectory to the start of the first
+    passing later one. `source`, gravity and velocity errors are those of the first state of the first
+    trajectory; `scale_err` its sim(3) |log s|."""
+    from runtime.geometry import interpolate_poses
     from tools.evaluation.state_errors import gt_velocity
-    from tools.run_io import published_segments, published_trajectory
+    from tools.run_io import published_segments
 
     segments = published_segments(pipe.published)
     row: dict = {"published": len(pipe.published), "segments": len(segments),
@@ -135,47 +168,93 @@ def _score(pipe: Any, gt: Any, t0_ns: int, window_s: float, ate_thr: float) -> d
     if pipe.startup.publisher is not None:
         row["chi2_rejection_max"] = pipe.startup.publisher.counters.chi2_rejection_fraction_max
     if not segments:
-        return {**row, "source": None, "success": False, "T_f": window_s, "T_q": window_s}
-    row["T_f"] = (int(segments[0][0].t_ns) - t0_ns) * 1e-9
-    row["success"], row["T_q"] = False, window_s
-    chosen, R_al = segments[0], None
-    for seg in segments:
-        est = published_trajectory(seg)
-        try:
-            res = ate(est, gt, align_method="se3") if len(est) >= 3 else None
-        except DataError:
-            res = None
-        if res is None:
-            continue
-        if seg is segments[0] or res.trans["rmse"] < ate_thr:
-            row["ate"], chosen, R_al = float(res.trans["rmse"]), seg, res.alignment.R
-        if res.trans["rmse"] < ate_thr:
-            row["success"], row["T_q"] = True, (int(seg[0].t_ns) - t0_ns) * 1e-9
-            break
-    first = chosen[0]
+        return {**row, "source": None, "success": False, "published_wrong": False, "T_f": window_s,
+                "T_q": window_s, "success_reset_aware": False, "T_q_reset_aware": window_s}
+    start = [(int(seg[0].t_ns) - t0_ns) * 1e-9 for seg in segments]
+    row["T_f"] = start[0]
+    ok, res, row["scale_err"] = _judge(segments[0], gt, ate_thr, min_span_s)
+    row["success"], row["published_wrong"] = ok, not ok
+    row["T_q"] = start[0] if ok else window_s
+    if res is not None:
+        row["ate"] = float(res.trans["rmse"])
+    row["success_reset_aware"], row["T_q_reset_aware"] = ok, row["T_q"]
+    if not ok:
+        end_first = (int(segments[0][-1].t_ns) - t0_ns) * 1e-9
+        for k, seg in enumerate(segments[1:], start=1):
+            if _judge(seg, gt, ate_thr, min_span_s)[0]:
+                row["success_reset_aware"], row["T_q_reset_aware"] = True, start[k]
+                row["T_correct_after_reset"] = start[k] - end_first
+                break
+    first = segments[0][0]
     row["source"] = first.source
     truth = interpolate_poses(gt, np.array([first.t_ns], np.int64))
     up_est = first.R_OI.T @ np.array([0.0, 0.0, 1.0])
     up_gt = truth.R[0].T @ np.array([0.0, 0.0, 1.0])
     row["gravity_err_deg"] = float(np.degrees(np.arccos(np.clip(up_est @ up_gt, -1.0, 1.0))))
-    if R_al is not None:
+    if res is not None:
+        R_al = res.alignment.R
         row["velocity_err"] = float(np.linalg.norm(R_al @ first.v_OI - gt_velocity(gt, int(first.t_ns))))
     return row
 
 
 def _summary(rows: list[dict]) -> dict:
-    def med(key: str) -> float | None:
-        vals = [r[key] for r in rows if r.get(key) is not None and (key in ("T_f", "T_q") or r["success"])]
+    def med(key: str, only_success: bool = True) -> float | None:
+        vals = [r[key] for r in rows if r.get(key) is not None
+                and (key.startswith(("T_f", "T_q")) or not only_success or r["success"])]
         return float(np.median(vals)) if vals else None
 
     sources: dict[str, int] = {}
     for r in rows:
         key = r.get("source") or "none"
         sources[key] = sources.get(key, 0) + 1
+    ff_scale = [r["scale_err"] for r in rows
+                if r.get("source") == "feedforward" and r.get("scale_err") is not None]
     return {"windows": len(rows), "successes": int(sum(r["success"] for r in rows)),
+            "published_wrong": int(sum(r.get("published_wrong", False) for r in rows)),
+            "successes_reset_aware": int(sum(r.get("success_reset_aware", False) for r in rows)),
             "T_f_median": med("T_f"), "T_q_median": med("T_q"),
+            "T_q_reset_aware_median": med("T_q_reset_aware"),
+            "T_correct_after_reset_median": med("T_correct_after_reset", only_success=False),
             "gravity_err_deg_median": med("gravity_err_deg"), "velocity_err_median": med("velocity_err"),
-            "ate_median": med("ate"), "sources": sources}
+            "ate_median": med("ate"), "sources": sources,
+            "ff_scale_err": _distribution(ff_scale)}
+
+
+def _distribution(vals: list[float]) -> dict | None:
+    """Median, 90th percentile, max and the share above 10 % of |log s| over the accepted windows."""
+    if not vals:
+        return None
+    a = np.asarray(vals)
+    return {"n": int(a.size), "median": float(np.median(a)), "p90": float(np.percentile(a, 90)),
+            "max": float(a.max()), "above_10pct": int(np.sum(a > np.log(1.1)))}
+
+
+DEPTH_ERROR_FIELDS = ("image_log_scale_sigma", "image_log_scale_sigma_cond", "window_log_scale_sigma_cond",
+                      "field_sigma", "field_sigma_cond", "noise_sigma")
+"""The emulated DA3's depth-error knobs that --depth-error-scale multiplies."""
+
+
+def _error_scales(args: argparse.Namespace) -> dict:
+    """Emulator overrides for --pose-error-scale K (K x POSE_ERRORS_UPPER of the preset's size) and
+    --depth-error-scale D (D x the preset's depth-error knobs)."""
+    from models.emulated_da3.params import POSE_ERRORS_UPPER, make_params
+    from runtime.errors import ConfigError
+
+    out: dict = {}
+    size = args.da3.removesuffix("_upper")
+    if args.pose_error_scale is not None:
+        k = args.pose_error_scale
+        if not (k >= 0 and np.isfinite(k)) or size not in POSE_ERRORS_UPPER:
+            raise ConfigError(f"--pose-error-scale needs a finite K >= 0 and a sized preset, got {k}, "
+                              f"{args.da3}")
+        out.update({name: v * k for name, v in POSE_ERRORS_UPPER[size].items()})
+    if args.depth_error_scale is not None:
+        d = args.depth_error_scale
+        if not (d >= 0 and np.isfinite(d)):
+            raise ConfigError(f"--depth-error-scale needs a finite D >= 0, got {d}")
+        base = make_params(args.da3)
+        out.update({name: getattr(base, name) * d for name in DEPTH_ERROR_FIELDS})
+    return out
 
 
 def _arms(names: str, base: Any) -> dict:
@@ -208,7 +287,7 @@ def run(args: argparse.Namespace) -> int:
     from runtime.config_io import load_toml
     from tools.run_session import run_pipeline
 
-    overrides = _overrides(args.da3_param)
+    overrides = {**_error_scales(args), **_overrides(args.da3_param)}
     arms = _arms(args.arms, load_toml(DavioConfig, args.config) if args.config else DavioConfig())
     make_params(args.da3, **overrides)  # an unknown preset or parameter fails before the slow part
     rec = _recording(args)
@@ -233,7 +312,7 @@ def run(args: argparse.Namespace) -> int:
                                     seed=args.seed * 1000 + w, **overrides)
             res = run_pipeline(_WindowDriver(rec, t0, t1), model, cfg, model_latency_s=args.model_latency,
                                show_progress=False)
-            row = _score(res.pipeline, gt, t0, args.window, args.ate_threshold)
+            row = _score(res.pipeline, gt, t0, args.window, args.ate_threshold, args.min_span)
             row.update({"window": w, "start_s": (t0 - t_first) * 1e-9,
                         "ff_rejections": res.pipeline.startup.report.ff_rejections})
             rows[arm].append(row)
@@ -246,6 +325,8 @@ def run(args: argparse.Namespace) -> int:
     result["arms"] = list(arms)
     result["emulated_da3"] = args.da3
     result["emulated_da3_overrides"] = overrides
+    result["pose_error_scale"] = args.pose_error_scale
+    result["depth_error_scale"] = args.depth_error_scale
     result["model_latency_s"] = args.model_latency
     if args.out:
         Path(args.out).write_text(strict_dumps({**result, "per_window": rows}, indent=2))
@@ -256,13 +337,18 @@ def run(args: argparse.Namespace) -> int:
     from rich.table import Table
 
     tab = Table(title=f"start-up over {len(starts)} windows ({rec.info.get('source')})")
-    for col in ("initializer", "success", "T_f (s)", "T_q (s)", "grav (deg)", "vel (m/s)", "ATE (m)", "by"):
+    for col in ("initializer", "success", "wrong", "T_f (s)", "T_q (s)", "reset-aware", "grav (deg)",
+                "vel (m/s)", "ATE (m)", "ff |log s| med/max", "by"):
         tab.add_column(col)
     fmt = lambda v: "-" if v is None else f"{v:.2f}" if abs(v) >= 0.1 else f"{v:.3f}"  # noqa: E731
     for arm in arms:
         s = result[arm]
-        tab.add_row(arm, f"{s['successes']}/{s['windows']}", fmt(s["T_f_median"]), fmt(s["T_q_median"]),
-                    fmt(s["gravity_err_deg_median"]), fmt(s["velocity_err_median"]), fmt(s["ate_median"]),
+        sc = s["ff_scale_err"]
+        tab.add_row(arm, f"{s['successes']}/{s['windows']}", str(s["published_wrong"]), fmt(s["T_f_median"]),
+                    fmt(s["T_q_median"]), f"{s['successes_reset_aware']}/{s['windows']} T_q "
+                    f"{fmt(s['T_q_reset_aware_median'])}", fmt(s["gravity_err_deg_median"]),
+                    fmt(s["velocity_err_median"]), fmt(s["ate_median"]),
+                    "-" if sc is None else f"{fmt(sc['median'])}/{fmt(sc['max'])}",
                     ", ".join(f"{_short(k)} {v}" for k, v in sorted(s["sources"].items())))
     Console().print(tab)
     return 0
