@@ -25,6 +25,7 @@ the frames already buffered have been taken (`.error` holds them as soon as they
 from __future__ import annotations
 
 import os
+import re
 import stat
 import sys
 import threading
@@ -272,11 +273,15 @@ class UvcCamera:
 
     def _open(self, cv2: Any) -> Any:
         dev = self.device
-        api = cv2.CAP_ANY
-        if not self.is_file and sys.platform.startswith("linux") and (
-                isinstance(dev, int) or str(dev).startswith("/dev/")):
-            api = cv2.CAP_V4L2
-        cap = cv2.VideoCapture(dev, api)
+        target, api = dev, cv2.CAP_ANY
+        if not self.is_file and sys.platform.startswith("linux"):
+            if isinstance(dev, str) and dev.startswith("/dev/"):
+                # OpenCV's V4L2 backend opens by index only: /dev/video2 or a by-id link to it -> 2
+                m = re.fullmatch(r"/dev/video(\d+)", os.path.realpath(dev))
+                target = int(m.group(1)) if m else dev
+            if isinstance(target, int):
+                api = cv2.CAP_V4L2
+        cap = cv2.VideoCapture(target, api)
         if not cap.isOpened():
             cap.release()
             if self.is_file:

@@ -1,0 +1,235 @@
+"""UvcCamera without hardware: a small MJPG video written with OpenCV, and a fake capture device."""
+from __future__ import annotations
+
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drivers.uvc import NEVER, UvcCamera
+from runtime.errors import DavioError, DeviceError
+
+cv2 = pytest.importorskip("cv2")
+
+W, H, N, FPS = 64, 48, 30, 30.0
+
+
+def write_video(path: Path, n: int = N, fps: float = FPS, size: tuple[int, int] = (W, H)) -> Path:
+    """A colour MJPG .avi of a bar moving right, `n` frames."""
+    w, h = size
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, (w, h))
+    assert writer.isOpened()
+    for i in range(n):
+        img = np.full((h, w, 3), 40, np.uint8)
+        x = (2 * i) % (w - 8)
+        img[:, x:x + 8] = (255, 200, 30)
+        writer.write(img)
+    writer.release()
+    return path
+
+
+@pytest.fixture(scope="module")
+def video(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return write_video(tmp_path_factory.mktemp("uvc") / "moving.avi")
+
+
+def drain(cam: UvcCamera, timeout: float = 2.0) -> list:
+    frames = []
+    while (f := cam.get(timeout)) is not None:
+        frames.append(f)
+    return frames
+
+
+def test_file_frames_grey_sized_counted_with_exact_stamps(video: Path) -> None:
+    with UvcCamera(str(video), file_stamps=True) as cam:
+        frames = drain(cam)
+        assert cam.ended
+        assert cam.get(0.01) is None
+        rep = cam.report()
+    assert len(frames) == N
+    for i, f in enumerate(frames):
+        assert f.image.dtype == np.uint8 and f.image.shape == (H, W) and f.camera_id == 0
+        assert f.t_ns == cam.start_ns + round(i * 1e9 / FPS)
+        assert f.meta["seq"] == i
+    # the bar moves 2 px a frame: its centroid follows
+    for i, f in enumerate(frames[:10]):
+        weight = np.clip(f.image.mean(axis=0) - 80.0, 0.0, None)
+        centre = float((np.arange(W) * weight).sum() / weight.sum())
+        assert centre == pytest.approx(2 * i + 3.5, abs=1.0)
+    assert rep["frames"] == rep["emitted"] == N
+    assert rep["dropped_old"] == 0 and rep["nonmonotonic"] == 0
+    assert rep["size"] == [W, H] and rep["kind"] == "file"
+    assert rep["fps_measured"] == pytest.approx(FPS, rel=1e-3)
+    assert rep["converted"] == N and "grey" in rep["conversion"]
+    assert cam.min_future_ns() == NEVER
+
+
+def test_file_realtime_paced_and_fps_override(video: Path) -> None:
+    cam = UvcCamera(video, fps=60.0, realtime=True, file_stamps=True).start()
+    t0 = time.monotonic()
+    frames = drain(cam)
+    took = time.monotonic() - t0
+    cam.stop()
+    assert len(frames) == N
+    assert 0.35 < took < 1.5  # 30 frames at 60 fps: 0.5 s
+    assert frames[1].t_ns - frames[0].t_ns == round(1e9 / 60.0)
+    # each frame is delivered no earlier than its stamp (paced on the host clock)
+    assert all(f.meta["grab_ns"] >= f.t_ns for f in frames)
+
+
+def test_file_realtime_slow_consumer_keeps_newest(video: Path) -> None:
+    cam = UvcCamera(video, fps=100.0, realtime=True, file_stamps=True, keep_frames=2).start()
+    time.sleep(0.5)  # the whole file (0.3 s) passes while nobody reads
+    frames = drain(cam)
+    cam.stop()
+    rep = cam.report()
+    assert [f.meta["seq"] for f in frames] == [N - 2, N - 1]
+    assert rep["dropped_old"] == N - 2 and rep["frames"] == N
+
+
+def test_host_stamps_increase_and_exposure_moves_them_back(video: Path) -> None:
+    cam = UvcCamera(video, exposure_s=0.01).start()
+    frames = drain(cam)
+    cam.stop()
+    assert len(frames) + cam.nonmonotonic == N
+    t = [f.t_ns for f in frames]
+    assert all(b > a for a, b in zip(t, t[1:], strict=False))
+    assert all(f.meta["grab_ns"] - f.t_ns == 5_000_000 for f in frames)
+    assert "mid-exposure" in cam.report()["stamps"]
+
+
+def test_expected_size_mismatch_names_both_sizes(video: Path) -> None:
+    t0 = time.monotonic()
+    with pytest.raises(DeviceError, match=r"64x48.*640x480"):
+        UvcCamera(video, expected_size=(640, 480)).start()
+    assert time.monotonic() - t0 < 2.0
+    UvcCamera(video, expected_size=(W, H)).start().stop()
+
+
+@pytest.mark.parametrize("device", ["/dev/video97", "/no/such/video.avi", 97])
+def test_missing_device_fails_fast_and_clearly(device: int | str) -> None:
+    t0 = time.monotonic()
+    with pytest.raises(DeviceError, match="97|no such") as info:
+        UvcCamera(device).start()
+    assert time.monotonic() - t0 < 2.0
+    assert "\n" not in str(info.value) and str(device) in str(info.value)
+
+
+def test_undecodable_file_and_directory(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.avi"
+    bad.write_bytes(b"not a video" * 100)
+    with pytest.raises(DeviceError, match="cannot be decoded"):
+        UvcCamera(bad).start()
+    with pytest.raises(DeviceError, match="directory"):
+        UvcCamera(str(tmp_path)).start()
+
+
+def test_stop_is_idempotent_and_get_after_stop(video: Path) -> None:
+    cam = UvcCamera(video, realtime=True, file_stamps=True).start()
+    assert cam.get(1.0) is not None
+    cam.stop()
+    cam.stop()
+    assert cam.get(0.1) is None
+    UvcCamera(video).stop()  # never started
+
+
+# -- a fake capture device: colour/16-bit conversion, unplug and stall -------------------------------
+class FakeCapture:
+    """Stands in for cv2.VideoCapture on a device: `script` yields images, None = read failure,
+    "block" = grab() hangs (a stalled camera)."""
+
+    script: list = []
+    period_s = 0.005
+
+    def __init__(self, target, api=None) -> None:
+        self.items = iter(type(self).script)
+        self.image = None
+        self.released = threading.Event()
+        self.props: dict[int, float] = {}
+
+    def isOpened(self) -> bool:  # noqa: N802 - OpenCV's name
+        return True
+
+    def getBackendName(self) -> str:  # noqa: N802
+        return "FAKE"
+
+    def set(self, prop: int, value: float) -> bool:
+        self.props[prop] = value
+        return True
+
+    def get(self, prop: int) -> float:
+        return self.props.get(prop, 0.0)
+
+    def grab(self) -> bool:
+        time.sleep(self.period_s)
+        item = next(self.items, None)
+        if isinstance(item, str):
+            self.released.wait(5.0)
+            return False
+        self.image = item
+        return item is not None
+
+    def retrieve(self):
+        return True, self.image
+
+    def release(self) -> None:
+        self.released.set()
+
+
+@pytest.fixture
+def fake_cv2(monkeypatch: pytest.MonkeyPatch) -> type[FakeCapture]:
+    monkeypatch.setattr(cv2, "VideoCapture", FakeCapture)
+    return FakeCapture
+
+
+def test_fake_device_16bit_and_colour_conversion(fake_cv2: type[FakeCapture]) -> None:
+    img16 = np.full((H, W), 4095, np.uint16)  # 12-bit data in 16-bit pixels
+    img16[0, 0] = 16
+    fake_cv2.script = [img16, img16] + [None]
+    cam = UvcCamera("fake://cam", width=W, height=H, stall_timeout_s=1.0).start()
+    f = cam.get(1.0)
+    assert f is not None and f.image.dtype == np.uint8 and f.image.shape == (H, W)
+    assert f.image[1, 1] == 255 and f.image[0, 0] == 1  # >> 4
+    assert "12-bit" in cam.report()["conversion"]
+    cam.stop()
+
+
+def test_fake_device_read_failure_raises_after_drain(fake_cv2: type[FakeCapture]) -> None:
+    colour = np.zeros((H, W, 3), np.uint8)
+    fake_cv2.script = [colour] * 3 + [None]
+    cam = UvcCamera("fake://cam", keep_frames=5).start()
+    deadline = time.monotonic() + 2.0
+    while cam.error is None and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert isinstance(cam.error, DeviceError) and "unplugged" in str(cam.error)
+    got = [cam.get(0.1) for _ in range(3)]  # the frames read before the failure still come
+    assert all(g is not None for g in got)
+    with pytest.raises(DeviceError, match="read failed"):
+        cam.get(0.1)
+    cam.stop()
+
+
+def test_fake_device_stall_is_an_error(fake_cv2: type[FakeCapture]) -> None:
+    fake_cv2.script = [np.zeros((H, W), np.uint8)] * 2 + ["block"]
+    cam = UvcCamera("fake://cam", stall_timeout_s=0.3).start()
+    t0 = time.monotonic()
+    with pytest.raises(DeviceError, match="no frame for"):
+        while True:
+            cam.get(0.1)
+    assert time.monotonic() - t0 < 1.0
+    assert isinstance(cam.error, DavioError)
+    t1 = time.monotonic()
+    cam.stop()
+    assert time.monotonic() - t1 < 1.5
+
+
+def test_fake_device_size_mismatch_and_requested_size_note(fake_cv2: type[FakeCapture]) -> None:
+    fake_cv2.script = [np.zeros((H, W), np.uint8)] * 50
+    with pytest.raises(DeviceError, match=r"delivers 64x48 images \(640x480 requested\) but 640x480"):
+        UvcCamera("fake://cam", width=640, height=480, expected_size=(640, 480)).start()
+    cam = UvcCamera("fake://cam", width=640, height=480).start()
+    assert cam.size == (W, H)
+    assert any("640x480 requested" in n for n in cam.report()["notes"])
+    cam.stop()
