@@ -247,8 +247,8 @@ class SerialImu:
                 except (serial.SerialException, OSError) as exc:
                     if not self._stop.is_set():
                         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-                        self._fail("unplugged", f"serial IMU {self.port}: read failed ({first}): the device "
-                                                "was unplugged or the port closed")
+                        self._fail("unplugged", f"serial IMU {self.port}: the device was unplugged or the "
+                                                f"port closed (read failed: {first})")
                     break
                 t_host = time.monotonic_ns()
                 if data:
