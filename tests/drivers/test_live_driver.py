@@ -1,0 +1,242 @@
+"""LiveDriver without hardware: a replayed MJPG video (paced, file stamps on the host clock) and a
+fake 200 Hz IMU thread stamping on the same clock."""
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drivers.base import Driver, StreamCounts
+from drivers.live import LiveDriver
+from drivers.uvc import UvcCamera
+from runtime.errors import DataError, DeviceError
+from runtime.events import Frame, ImuSample
+
+cv2 = pytest.importorskip("cv2")
+
+W, H, N, FPS = 64, 48, 30, 30.0
+IMU_PERIOD_NS = 5_000_000  # 200 Hz
+
+
+@pytest.fixture(scope="module")
+def video(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    path = tmp_path_factory.mktemp("live") / "moving.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), FPS, (W, H))
+    for i in range(N):
+        img = np.full((H, W, 3), 40, np.uint8)
+        img[:, (2 * i) % (W - 8):(2 * i) % (W - 8) + 8] = 255
+        writer.write(img)
+    writer.release()
+    return path
+
+
+class FakeImu:
+    """200 Hz samples stamped on time.monotonic_ns(), delivered `latency_s` after their stamp by a
+    reader thread; `fail_after_s` sets `.error` (a DataError) then; `skew_ns` shifts every stamp."""
+
+    def __init__(self, latency_s: float = 0.002, fail_after_s: float | None = None, skew_ns: int = 0) -> None:
+        self.latency_ns = int(latency_s * 1e9)
+        self.fail_after_s = fail_after_s
+        self.skew_ns = skew_ns
+        self.error: DataError | None = None
+        self.cond = threading.Condition()
+        self.buf: deque[ImuSample] = deque()
+        self.stopped = False
+        self.produced = 0
+        self.thread: threading.Thread | None = None
+
+    def start(self) -> None:
+        self.t0 = time.monotonic_ns() - 50_000_000  # a little IMU history before the camera
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        k = 0
+        while not self.stopped:
+            t = self.t0 + k * IMU_PERIOD_NS
+            wait = (t + self.latency_ns - time.monotonic_ns()) / 1e9
+            if wait > 0:
+                time.sleep(wait)
+            if self.fail_after_s is not None and (time.monotonic_ns() - self.t0) / 1e9 > self.fail_after_s:
+                with self.cond:
+                    self.error = DataError("imu0: serial read failed (device unplugged)", "/dev/ttyFAKE")
+                    self.cond.notify_all()
+                return
+            s = ImuSample(t + self.skew_ns, np.array([0.0, 0.0, 0.1]), np.array([0.0, 0.0, 9.81]))
+            with self.cond:
+                self.buf.append(s)
+                self.produced += 1
+                self.cond.notify_all()
+            k += 1
+
+    def get(self, timeout: float | None = None) -> ImuSample | None:
+        with self.cond:
+            if not self.buf and not self.stopped and self.error is None and timeout:
+                self.cond.wait(timeout)
+            if self.buf and not self.stopped:
+                return self.buf.popleft()
+            return None
+
+    def stop(self) -> None:
+        self.stopped = True
+        if self.thread is not None:
+            self.thread.join(1.0)
+
+    def report(self) -> dict:
+        return {"samples": self.produced, "notes": ["fake IMU"]}
+
+
+def camera(video: Path, fps: float = FPS) -> UvcCamera:
+    return UvcCamera(video, fps=fps, realtime=True, file_stamps=True)
+
+
+def check_order(events: list) -> None:
+    """Non-decreasing stamps, the IMU first at equal stamps."""
+    keys = [(e.t_ns, 0 if isinstance(e, ImuSample) else 1) for e in events]
+    assert keys == sorted(keys)
+
+
+def test_events_ordered_and_every_frame_preceded_by_its_imu(video: Path) -> None:
+    imu = FakeImu()
+    drv = LiveDriver(camera(video), imu, rig=None)
+    assert isinstance(drv, Driver) and drv.rig is None
+    t0 = time.monotonic()
+    with drv:
+        events = list(drv.events())
+    took = time.monotonic() - t0
+    assert took < 3.0 and drv.ended
+    check_order(events)
+    frames = [i for i, e in enumerate(events) if isinstance(e, Frame)]
+    assert len(frames) == N
+    for i in frames:
+        f = events[i]
+        before = [e for e in events[:i] if isinstance(e, ImuSample)]
+        after = [e for e in events[i + 1:] if isinstance(e, ImuSample)]
+        assert before and f.t_ns - before[-1].t_ns < IMU_PERIOD_NS  # the IMU up to its stamp came first
+        if i != frames[-1]:
+            assert after and after[0].t_ns > f.t_ns
+    imus = [e for e in events if isinstance(e, ImuSample)]
+    assert np.all(np.diff([e.t_ns for e in imus]) == IMU_PERIOD_NS)  # nothing lost
+    rep = drv.report()
+    assert rep["driver"] == "live" and set(rep["streams"]) == {"cam0", "imu0"}
+    cam0 = StreamCounts(**rep["streams"]["cam0"])
+    imu0 = StreamCounts(**rep["streams"]["imu0"])
+    assert cam0.emitted == N and cam0.rows_accounted()
+    assert cam0.median_period_ns == pytest.approx(1e9 / FPS, abs=1)
+    assert imu0.emitted == len(imus) and imu0.rows_accounted() and imu0.median_period_ns == IMU_PERIOD_NS
+    assert rep["live"]["frames_ahead_of_imu"] == 0 and rep["live"]["frames_before_imu"] == 0
+    assert rep["sources"]["camera"]["frames"] == N and "imu0: fake IMU" in rep["notes"]
+
+
+def test_positive_time_offset_waits_for_imu_past_the_frame(video: Path) -> None:
+    imu = FakeImu()
+    drv = LiveDriver(camera(video, fps=60.0), imu, time_offset_s=0.02)
+    with drv:
+        events = list(drv.events())
+    check_order(events)
+    frames = [e for e in events if isinstance(e, Frame)]
+    assert len(frames) == N and drv.frames_ahead_of_imu == 0
+    # the frame stamps are not shifted
+    assert frames[1].t_ns - frames[0].t_ns == round(1e9 / 60.0)
+
+
+def test_late_imu_frames_go_ahead_after_imu_wait(video: Path) -> None:
+    imu = FakeImu(latency_s=0.15)  # the IMU arrives 150 ms late: longer than imu_wait_s
+    drv = LiveDriver(camera(video, fps=60.0), imu, imu_wait_s=0.05)
+    with drv:
+        events = list(drv.events())
+    check_order(events)
+    rep = drv.report()
+    assert rep["live"]["frames_ahead_of_imu"] > 0
+    assert rep["streams"]["imu0"]["dropped_nonmonotonic"] > 0  # samples older than released frames
+    assert any("before the IMU reached" in n for n in rep["notes"])
+
+
+def test_stop_from_another_thread_ends_events_promptly(video: Path) -> None:
+    imu = FakeImu()
+    cam = UvcCamera(video, fps=10.0, realtime=True, file_stamps=True)  # 3 s of video
+    drv = LiveDriver(cam, imu).start()
+    seen: list = []
+    stopped_at: list[float] = []
+
+    def stopper() -> None:
+        time.sleep(0.4)
+        stopped_at.append(time.monotonic())
+        drv.stop()
+
+    threading.Thread(target=stopper, daemon=True).start()
+    for ev in drv.events():
+        seen.append(ev)
+    ended = time.monotonic()
+    assert stopped_at and ended - stopped_at[0] < 0.5
+    assert any(isinstance(e, Frame) for e in seen) and not drv.ended
+    check_order(seen)
+    assert imu.stopped and cam.get(0.01) is None
+    drv.stop()  # idempotent
+
+
+def test_imu_error_surfaces_from_events(video: Path) -> None:
+    imu = FakeImu(fail_after_s=0.3)
+    drv = LiveDriver(camera(video), imu)
+    seen: list = []
+    t0 = time.monotonic()
+    with pytest.raises(DataError, match="serial read failed"), drv:
+        for ev in drv.events():
+            seen.append(ev)
+    assert time.monotonic() - t0 < 1.5
+    assert seen and isinstance(drv.error, DataError)
+    assert "serial read failed" in drv.report()["live"]["error"]
+    assert imu.stopped
+
+
+def test_camera_start_failure_stops_the_imu(tmp_path: Path) -> None:
+    imu = FakeImu()
+    drv = LiveDriver(UvcCamera(str(tmp_path / "missing.avi")), imu)
+    with pytest.raises(DeviceError, match="no such"):
+        drv.start()
+    assert imu.stopped
+
+
+class ListSource:
+    """A source replaying a fixed list, then ended (no thread)."""
+
+    def __init__(self, items: list) -> None:
+        self.items = deque(items)
+        self.error = None
+
+    def get(self, timeout: float | None = None):
+        return self.items.popleft() if self.items else None
+
+    @property
+    def ended(self) -> bool:
+        return not self.items
+
+    def min_future_ns(self) -> int:
+        return self.items[0].t_ns if self.items else 2**63 - 1
+
+    def stop(self) -> None:
+        pass
+
+
+def test_out_of_order_input_is_dropped_and_counted() -> None:
+    def s(t: int) -> ImuSample:
+        return ImuSample(t, np.zeros(3), np.zeros(3))
+
+    def f(t: int) -> Frame:
+        return Frame(t, np.zeros((2, 2), np.uint8))
+
+    imu = ListSource([s(t) for t in (0, 10, 20, 20, 15, 30, 40, 50, 60)])
+    cam = ListSource([f(25), f(25), f(22), f(45)])
+    drv = LiveDriver(cam, imu, imu_wait_s=0.0)
+    events = list(drv.events())
+    check_order(events)
+    assert [(type(e).__name__[0], e.t_ns) for e in events] == [
+        ("I", 0), ("I", 10), ("I", 20), ("F", 25), ("I", 30), ("I", 40), ("F", 45), ("I", 50), ("I", 60)]
+    rep = drv.report()
+    imu0, cam0 = rep["streams"]["imu0"], rep["streams"]["cam0"]
+    assert imu0["dropped_duplicate"] == 1 and imu0["dropped_nonmonotonic"] == 1 and imu0["emitted"] == 7
+    assert cam0["dropped_nonmonotonic"] == 2 and cam0["emitted"] == 2 and drv.ended
