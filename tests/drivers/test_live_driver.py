@@ -2,6 +2,7 @@
 fake 200 Hz IMU thread stamping on the same clock."""
 from __future__ import annotations
 
+import signal
 import threading
 import time
 from collections import deque
@@ -240,3 +241,52 @@ def test_out_of_order_input_is_dropped_and_counted() -> None:
     imu0, cam0 = rep["streams"]["imu0"], rep["streams"]["cam0"]
     assert imu0["dropped_duplicate"] == 1 and imu0["dropped_nonmonotonic"] == 1 and imu0["emitted"] == 7
     assert cam0["dropped_nonmonotonic"] == 2 and cam0["emitted"] == 2 and drv.ended
+
+
+class FailingCamera(ListSource):
+    """Delivers its frames, then reports an unplugged device (get raises once drained, like UvcCamera)."""
+
+    def get(self, timeout: float | None = None):
+        if self.items:
+            return self.items.popleft()
+        raise DeviceError("camera 0: read failed (grab() failed): unplugged or no longer streaming")
+
+    @property
+    def ended(self) -> bool:
+        return False
+
+
+def test_camera_error_surfaces_from_events() -> None:
+    imu = FakeImu()
+    now = time.monotonic_ns()
+    cam = FailingCamera([Frame(now + k * 10_000_000, np.zeros((2, 2), np.uint8)) for k in range(3)])
+    drv = LiveDriver(cam, imu)
+    seen: list = []
+    with pytest.raises(DeviceError, match="unplugged"):
+        for ev in drv.events():
+            seen.append(ev)
+    assert sum(isinstance(e, Frame) for e in seen) == 3 and imu.stopped
+    assert "unplugged" in drv.report()["live"]["error"]
+
+
+@pytest.mark.skipif(not hasattr(signal, "setitimer"), reason="needs POSIX interval timers")
+def test_stop_from_a_signal_handler(video: Path) -> None:
+    imu = FakeImu()
+    cam = UvcCamera(video, fps=10.0, realtime=True, file_stamps=True)
+    drv = LiveDriver(cam, imu).start()
+    fired: list[float] = []
+
+    def handler(signum, frame) -> None:
+        fired.append(time.monotonic())
+        drv.stop()
+
+    old = signal.signal(signal.SIGALRM, handler)
+    try:
+        signal.setitimer(signal.ITIMER_REAL, 0.3)
+        n = sum(1 for _ in drv.events())
+        ended = time.monotonic()
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+    assert fired and ended - fired[0] < 0.5 and n > 0
+    assert imu.stopped and cam.get(0.01) is None
