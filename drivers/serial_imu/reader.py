@@ -156,16 +156,26 @@ class SerialImu:
         self._ser = self._open()
         self._started = True
         if self.configure:
-            for cmd in (go_to_config(), set_output_configuration(self.output_rate_hz), go_to_measurement()):
-                self.send(cmd)
-                time.sleep(0.05)
+            try:
+                rate = self.output_rate_hz
+                commands = (go_to_config(), set_output_configuration(rate), go_to_measurement())
+                for cmd in commands:
+                    self.send(cmd)
+                    time.sleep(0.05)
+            except DeviceError:
+                self.stop()
+                raise
         self._running = True
         self._thread = threading.Thread(target=self._run, name=f"serial-imu {self.port}", daemon=True)
         self._thread.start()
         return self
 
     def _open(self) -> Any:
-        import serial  # lazily: only live use needs pyserial
+        try:
+            import serial  # lazily: only live use needs pyserial
+        except ImportError:
+            raise device_error(self.port, "open", "reading a serial IMU needs pyserial: pip install "
+                                                  "pyserial") from None
 
         result: dict[str, Any] = {}
         kwargs: dict[str, Any] = {"baudrate": self.baudrate, "timeout": READ_TIMEOUT_S}
@@ -317,21 +327,25 @@ class SerialImu:
             self._cond.notify_all()
 
     # --- consumer ------------------------------------------------------------------------------
-    def get(self, timeout: float) -> ImuSample | None:
+    def get(self, timeout: float | None) -> ImuSample | None:
         """The next sample (host-clock int64 ns stamp, gyro rad/s, accel m/s^2, float64 arrays).
 
-        Returns None when nothing arrives within `timeout` s, or when stopped and drained. Raises
-        the reader's DeviceError once the queue is drained (and on every later call).
+        Returns None when nothing arrives within `timeout` s (None: wait until a sample, an error or
+        `stop()`), or when stopped and drained. Raises the reader's DeviceError once the queue is
+        drained (and on every later call).
         """
         if not self._started:
             raise device_error(self.port, "not_started", f"serial IMU {self.port}: get() before start()")
-        deadline = time.monotonic() + max(0.0, float(timeout))
+        deadline = None if timeout is None else time.monotonic() + max(0.0, float(timeout))
         with self._cond:
             while not self._queue:
                 if self.error is not None:
                     raise self.error.with_traceback(None)
                 if not self._running:
                     return None
+                if deadline is None:
+                    self._cond.wait(0.25)
+                    continue
                 remaining = deadline - time.monotonic()
                 if remaining <= 0:
                     return None

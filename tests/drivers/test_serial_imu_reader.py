@@ -186,7 +186,7 @@ def test_loop_url_text_protocol_and_overflow() -> None:
         assert imu.take_overflow() == 40 and imu.take_overflow() == 0
         got = collect(imu, 10, 2.0)
         assert [int(s.accel[0] * 2) for s in got] == list(range(40, 50))   # the newest 10 are kept
-    assert imu.get(timeout=0.01) is None        # stopped and drained
+    assert imu.get(timeout=0.01) is None and imu.get(None) is None   # stopped and drained
 
 
 def test_configure_sends_the_xsens_commands_only_when_asked() -> None:
