@@ -183,6 +183,9 @@ class LiveDriver(Driver):
             rep.note(f"imu0: {self.imu_out_of_order} samples older than events already released were dropped")
         if self.imu_duplicate:
             rep.note(f"imu0: {self.imu_duplicate} samples repeating the previous stamp were dropped")
+        overflow = int(imu_rep.get("overflow", 0) or 0)
+        if overflow:
+            rep.note(f"imu0: {overflow} samples lost to the IMU queue's overflow (the consumer fell behind)")
         if cam.converted and cam_rep.get("conversion"):
             rep.note(f"cam0: images converted ({cam_rep['conversion']})")
         for name, sub in (("cam0", cam_rep), ("imu0", imu_rep)):
