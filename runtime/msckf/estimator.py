@@ -521,7 +521,13 @@ class MsckfEstimator:
             c.time_frame_s += time.perf_counter() - t0
             c.cpu_frame_s += time.thread_time() - t0_cpu
             return self._after_frame(t_cam, updated=True)
-        marg_t = st.clone_times()[0] if n_clones > min(cfg.max_clones, 5) else None
+        # a clone taken less than min_clone_spacing_s after the one before it is dropped when the next frame
+        # comes (after this frame's updates), so the window spans the same time at any camera rate; the oldest
+        # clone then stays, and the tracks seen at it wait for its marginalisation
+        times = st.clone_times()
+        thin_t = (times[-2] if cfg.min_clone_spacing_s > 0 and n_clones >= 3
+                  and times[-2] - times[-3] < int(round(cfg.min_clone_spacing_s * 1e9)) else None)
+        marg_t = times[0] if n_clones > min(cfg.max_clones, 5) and thin_t is None else None
         lost, marg, maxtracks = [], [], []
         for tr in self._candidate_order():
             fid = tr.fid
@@ -578,7 +584,7 @@ class MsckfEstimator:
         c.slam_initialized += sst.initialized
         c.slam_init_failed += sst.init_failed
         times = st.clone_times()
-        old_clones = times[: max(len(times) - cfg.max_clones, 0)]
+        old_clones = [thin_t] if thin_t is not None else times[: max(len(times) - cfg.max_clones, 0)]
         lost_set = set(lost_lms)
         for fid, lm in st.slam.items():
             if lm.anchor_t is not None and lm.anchor_t in old_clones and fid not in lost_set:
@@ -588,6 +594,8 @@ class MsckfEstimator:
         for fid in st.slam:
             self.db.keep_only_last(fid)
         self.db.drop_older_than(st.clone_times()[0])
+        if thin_t is not None:
+            self.db.drop_time(thin_t)
         updated = ms.used > 0 or sst.updated > 0 or len(added) > 0
         rejected = ms.chi2_rejected + sst.chi2_rejected
         self._chi2_window.append((t_cam, ms.used + sst.updated + rejected, rejected))

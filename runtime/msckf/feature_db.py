@@ -65,5 +65,18 @@ class FeatureDatabase:
         for fid in dead:
             del self.tracks[fid]
 
+    def drop_time(self, t_ns: int) -> None:
+        """Remove the observations at time t_ns (a clone dropped from the middle of the window); empty tracks
+        are deleted."""
+        dead = []
+        for fid, tr in self.tracks.items():
+            if t_ns in tr.t_ns:
+                k = tr.t_ns.index(t_ns)
+                del tr.t_ns[k], tr.uv[k], tr.xn[k]
+                if not tr.t_ns:
+                    dead.append(fid)
+        for fid in dead:
+            del self.tracks[fid]
+
     def clear(self) -> None:
         self.tracks.clear()

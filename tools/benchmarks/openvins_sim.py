@@ -348,6 +348,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-slam", type=int, default=None, help="override max_slam (0: MSCKF features only)")
     p.add_argument("--max-msckf", type=int, default=None, help="override max_msckf_in_update")
     p.add_argument(
+        "--min-clone-spacing", type=float, default=None,
+        help="override min_clone_spacing_s (s; 0: every frame keeps its clone, as OpenVINS)",
+    )
+    p.add_argument(
         "--seeds",
         type=int,
         default=0,
@@ -389,6 +393,8 @@ def _config(sim: SimRun, args: argparse.Namespace) -> object:
         cfg = cfg.updated(max_slam=args.max_slam)
     if args.max_msckf is not None:
         cfg = cfg.updated(max_msckf_in_update=args.max_msckf)
+    if args.min_clone_spacing is not None:
+        cfg = cfg.updated(min_clone_spacing_s=args.min_clone_spacing)
     if args.slam_rep is not None:
         cfg = cfg.updated(slam_representation=args.slam_rep)
     return cfg
@@ -476,6 +482,7 @@ def run(args: argparse.Namespace) -> int:
         k: getattr(cfg, k)
         for k in (
             "max_clones",
+            "min_clone_spacing_s",
             "max_slam",
             "slam_representation",
             "max_slam_in_update",
