@@ -8,8 +8,12 @@ from drivers.euroc import (
     read_euroc_groundtruth,
     read_euroc_imu_csv,
 )
+from drivers.live import LiveDriver
 from drivers.rosbag import RosbagDriver, is_bag
+from drivers.serial_imu import SerialImu
+from drivers.uvc import UvcCamera
 from runtime.events import Event, Frame, ImuSample
 
-__all__ = ["Driver", "EurocDriver", "Event", "Frame", "ImuSample", "IntakeReport", "Policy", "RosbagDriver",
-           "StreamCounts", "is_bag", "read_camera_timestamps", "read_euroc_groundtruth", "read_euroc_imu_csv"]
+__all__ = ["Driver", "EurocDriver", "Event", "Frame", "ImuSample", "IntakeReport", "LiveDriver", "Policy",
+           "RosbagDriver", "SerialImu", "StreamCounts", "UvcCamera", "is_bag", "read_camera_timestamps",
+           "read_euroc_groundtruth", "read_euroc_imu_csv"]

@@ -1,0 +1,108 @@
+"""`davio live uvc`, no hardware: a video file stands in for the UVC camera (paced at its frame rate) and a
+pseudo-terminal for the serial IMU (the text protocol, written at sensor rate by a thread); the run
+publishes metric poses and writes a complete run folder. Missing devices are one-line errors."""
+from __future__ import annotations
+
+import json
+import os
+import threading
+import time
+from pathlib import Path
+
+import cv2
+import pytest
+
+from drivers.serial_imu.text import encode_line
+from tools.cli import main
+from tools.run_folder import run_status
+
+
+def _video(rec: Path, out: Path) -> Path:
+    files = sorted((rec / "mav0" / "cam0" / "data").glob("*.png"))
+    first = cv2.imread(str(files[0]), cv2.IMREAD_GRAYSCALE)
+    h, w = first.shape
+    writer = cv2.VideoWriter(str(out), cv2.VideoWriter_fourcc(*"MJPG"), 20.0, (w, h), isColor=False)
+    for f in files:
+        writer.write(cv2.imread(str(f), cv2.IMREAD_GRAYSCALE))
+    writer.release()
+    return out
+
+
+def _imu_writer(rec: Path, fd: int, go: threading.Event, stop: threading.Event) -> threading.Thread:
+    """Writes the recording's IMU rows as `$IMU` lines at sensor rate, from the moment `go` is set (the
+    camera's first frame), so that camera and IMU share one clock as on a real module."""
+    rows = [ln.split(",") for ln in (rec / "mav0" / "imu0" / "data.csv").read_text().splitlines()
+            if ln and not ln.startswith("#")]
+
+    def run() -> None:
+        go.wait(30)
+        t0_dev, t0_host = int(rows[0][0]), time.monotonic()
+        for k, r in enumerate(rows):
+            due = t0_host + (int(r[0]) - t0_dev) * 1e-9
+            while not stop.is_set() and time.monotonic() < due:
+                time.sleep(0.001)
+            if stop.is_set():
+                return
+            gyro, accel = [float(x) for x in r[1:4]], [float(x) for x in r[4:7]]
+            try:
+                os.write(fd, encode_line(k, (int(r[0]) - t0_dev) // 1000, accel, gyro))
+            except OSError:
+                return
+
+    th = threading.Thread(target=run, daemon=True)
+    th.start()
+    return th
+
+
+@pytest.mark.slow
+def test_live_uvc_with_a_serial_imu_publishes_and_writes_a_complete_run(small_sim_folder: Path,
+                                                                       tmp_path: Path, capsys,
+                                                                       monkeypatch) -> None:
+    from drivers.uvc import UvcCamera
+
+    video = _video(small_sim_folder, tmp_path / "cam.avi")
+    master, slave = os.openpty()
+    stop, go = threading.Event(), threading.Event()
+    start = UvcCamera.start
+
+    def start_and_go(self):   # the "module" starts streaming both sensors when the camera starts
+        out = start(self)
+        go.set()
+        return out
+
+    monkeypatch.setattr(UvcCamera, "start", start_and_go)
+    writer = _imu_writer(small_sim_folder, master, go, stop)
+    try:
+        code = main(["live", "uvc", "--camera", str(video), "--imu-port", os.ttyname(slave),
+                     "--imu-protocol", "text", "--rig", str(small_sim_folder), "--native-only",
+                     "--seconds", "5", "--out", str(tmp_path / "run")])
+    finally:
+        stop.set()
+        writer.join(2)
+        os.close(master)
+        os.close(slave)
+    err = capsys.readouterr().err
+    assert code == 0, err
+    out = tmp_path / "run"
+    assert run_status(out) == "complete"
+    report = json.loads((out / "report.json").read_text())
+    assert report["published_poses"] > 20 and report["published_by"].startswith("native")
+    streams = report["driver"]["streams"]
+    assert streams["cam0"]["emitted"] > 60 and streams["imu0"]["emitted"] > 600
+    rows = [ln for ln in (out / "odometry.tum").read_text().splitlines() if not ln.startswith("#")]
+    assert len(rows) == report["published_poses"]
+
+
+def test_live_without_devices_or_calibration_is_a_clear_error(tmp_path: Path, capsys) -> None:
+    assert main(["live", "oak", "--out", str(tmp_path / "a")]) == 1
+    assert "OAK (depthai) driver is not built yet" in capsys.readouterr().err
+    assert main(["live", "uvc", "--out", str(tmp_path / "b")]) == 1
+    assert "needs --imu-port" in capsys.readouterr().err
+    rig = Path(__file__).resolve().parents[2] / "calib" / "rigs"
+    rig_file = next(rig.glob("*.yaml"))
+    t0 = time.monotonic()
+    assert main(["live", "uvc", "--camera", str(tmp_path / "no-such-video.avi"), "--imu-port",
+                 str(tmp_path / "ttyUSB9"), "--rig", str(rig_file), "--out", str(tmp_path / "c")]) == 1
+    err = capsys.readouterr().err
+    assert "davio live: error:" in err and time.monotonic() - t0 < 10
+    assert not (tmp_path / "c").exists() and not (tmp_path / "c.partial").exists()

@@ -1,0 +1,169 @@
+"""`davio live uvc`: run on a live camera-IMU module (a UVC camera and a serial IMU), ROS-free."""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from dataclasses import replace
+
+NAME = "live"
+HELP = "run live on a UVC camera + serial IMU (OAK: not yet); Ctrl-C finishes and writes the run"
+DESCRIPTION = (
+    "Runs DAVIO on live sensors: a UVC camera read with OpenCV (host monotonic stamps at mid-exposure) "
+    "and a serial IMU (Xsens MTData2 or the documented text protocol; device time mapped to the host clock "
+    "by an online offset and drift fit). Bounded queues between drivers, tracker and model worker: IMU "
+    "samples are never dropped, the oldest waiting image is (counted). A one-line status shows rate, tracks, "
+    "state and drops. Ctrl-C or SIGTERM finishes cleanly: trajectories, report and the map archive are "
+    "written to --out (run_status.json 'interrupted'). The camera-IMU time offset is refined by the filter."
+)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("source", choices=["uvc", "oak"], help="the sensor module")
+    p.add_argument("--camera", default="0", help="UVC device index or path (a video file replays it)")
+    p.add_argument("--width", type=int, default=None, help="requested image width (px)")
+    p.add_argument("--height", type=int, default=None, help="requested image height (px)")
+    p.add_argument("--fps", type=float, default=None, help="requested camera rate (Hz)")
+    p.add_argument("--imu-port", metavar="PORT", help="serial port of the IMU (e.g. /dev/ttyUSB0)")
+    p.add_argument("--imu-protocol", choices=["xsens", "text"], default="xsens",
+                   help="xsens: Xbus MTData2 (counter, SampleTimeFine, accel, gyro); text: "
+                        "$IMU,seq,t_dev_us,ax,ay,az,gx,gy,gz*HH lines")
+    p.add_argument("--baud", type=int, default=460800, help="serial baud rate")
+    p.add_argument("--rig", metavar="FILE", help="calibration (Kalibr camchain, EuRoC sensor.yaml or folder)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--model", metavar="ONNX", help="DA3 ONNX graph: feed-forward start-up and the map")
+    g.add_argument("--native-only", action="store_true", help="native initializer only, no map")
+    p.add_argument("--no-map", action="store_true", help="do not map")
+    p.add_argument("--config", metavar="TOML", help="configuration file")
+    p.add_argument("--seconds", type=float, default=None, help="stop after S seconds of data (> 0)")
+    p.add_argument("--out", default="davio_live", help="output folder (new or empty; see --overwrite)")
+    p.add_argument("--overwrite", action="store_true", help="replace the previous run in --out")
+    p.add_argument("--json", action="store_true", help="print the report as one JSON object at the end")
+
+
+def run(args: argparse.Namespace) -> int:
+    from runtime.config import DavioConfig
+    from runtime.config_io import load_toml
+    from runtime.errors import ConfigError
+    from tools.commands.run import check_run_args
+    from tools.run_folder import RunFolder
+    from tools.run_outcome import interruptible
+
+    if args.source == "oak":
+        raise ConfigError("the OAK (depthai) driver is not built yet; use `davio live uvc --imu-port PORT`, "
+                          "or record a ROS bag and replay it with `davio run BAG --rig FILE`")
+    check_run_args(args)
+    if not args.imu_port:
+        raise ConfigError("davio live uvc needs --imu-port (the serial IMU, e.g. /dev/ttyUSB0)")
+    if not args.rig:
+        raise ConfigError("davio live needs --rig FILE (the camera intrinsics; a Kalibr camchain, an EuRoC "
+                          "sensor.yaml or folder)")
+    config = load_toml(DavioConfig, args.config) if args.config else DavioConfig()
+    # host-stamped camera and IMU: the filter estimates the camera-IMU time offset online
+    config = replace(config, msckf=replace(config.msckf, calib_time_offset=True))
+    if args.no_map:
+        config = replace(config, mapping=replace(config.mapping, enabled=False))
+    folder = RunFolder.prepare(args.out, overwrite=args.overwrite)
+    from calib import load_rig
+
+    rig = load_rig(args.rig)
+    if rig.camera is None:
+        raise ConfigError(f"{args.rig}: no camera intrinsics")
+    model, model_desc = None, "none (native initializer only)"
+    if args.model:
+        from models.da3 import OnnxDA3
+
+        model = OnnxDA3(args.model, rig.camera)
+        warm_s = model.warm_up(config.startup.window_images)
+        model_desc = f"DA3 ONNX {args.model} on {model.session_info['providers'][0]} (warm-up {warm_s:.2f} s)"
+    with interruptible():
+        driver = _open_driver(args, rig)
+        folder.create()
+        with folder.discard_on_error():
+            try:
+                return _run(args, folder, driver, rig, model, model_desc, config)
+            finally:
+                driver.stop()
+
+
+def _open_driver(args: argparse.Namespace, rig):
+    from pathlib import Path
+
+    from drivers.live import LiveDriver
+    from drivers.serial_imu import SerialImu
+    from drivers.uvc import UvcCamera
+
+    device = int(args.camera) if str(args.camera).isdigit() else args.camera
+    is_file = not isinstance(device, int) and Path(device).is_file()
+    cam = rig.camera
+    camera = UvcCamera(device, width=args.width or cam.width, height=args.height or cam.height, fps=args.fps,
+                       expected_size=(cam.width, cam.height), realtime=is_file)
+    imu = SerialImu(args.imu_port, protocol=args.imu_protocol, baudrate=args.baud)
+    driver = LiveDriver(camera, imu, rig=rig, time_offset_s=rig.time_offset_s or 0.0)
+    try:
+        driver.start()
+    except BaseException:
+        driver.stop()
+        raise
+    return driver
+
+
+def _run(args, folder, driver, rig, model, model_desc: str, config) -> int:
+    from runtime.session import Session
+    from tools.commands.run import _summary
+    from tools.run_io import write_run
+    from tools.run_map import MapOutput
+    from tools.run_outcome import conclude, judge
+    from tools.run_session import _first_seconds
+
+    map_out = MapOutput.create(folder.path, rig, model_desc, model, config)
+    print(f"davio live: {args.source} camera {args.camera} + IMU {args.imu_port} ({args.imu_protocol})\n"
+          f"  model: {model_desc}\n  Ctrl-C to finish", file=sys.stderr)
+    session = Session(rig, model, config, map_sink=None if map_out is None else map_out.sink)
+    events = driver.events()
+    if args.seconds is not None:
+        events = _first_seconds(events, args.seconds)
+    status = _StatusLine(session, driver)
+    res = session.run_live(events, progress=status, keep_partial=True)
+    status.done()
+    driver.stop()
+    if res.status == "complete":
+        session.pipeline.finish_mapping()
+    judge(res, driver.report())
+    map_summary = map_out.finish() if map_out is not None else None
+    report = write_run(folder.path, res.pipeline, res.scheduler, None,
+                       {"recording": f"live {args.source}: camera {args.camera}, IMU {args.imu_port} "
+                                     f"({args.imu_protocol})", "model": model_desc, "status": res.status,
+                        "status_reason": res.reason, "driver": driver.report(), "map": map_summary},
+                       config)
+    return conclude(folder, res, report, as_json=args.json, summary=_summary)
+
+
+class _StatusLine:
+    """One live line on stderr, refreshed once a second: data time, frame rate, tracks, state, drops."""
+
+    def __init__(self, session, driver) -> None:
+        self.session, self.driver = session, driver
+        self.last = 0.0
+        self.frames0 = 0
+        self.tty = sys.stderr.isatty()
+
+    def __call__(self, sensor_s: float) -> None:
+        now = time.monotonic()
+        if now - self.last < 1.0:
+            return
+        pipe = self.session.pipeline
+        rep = self.session._scheduler.report if self.session._scheduler is not None else None
+        frames = rep.frames if rep is not None else 0
+        rate = (frames - self.frames0) / (now - self.last) if self.last else 0.0
+        self.last, self.frames0 = now, frames
+        st = pipe.startup.report.published_by if pipe.startup is not None else "calibration bring-up"
+        tracks = pipe.stats.tracks_total / max(pipe.stats.frames, 1)
+        drops = rep.frames_dropped if rep is not None else 0
+        line = (f"  {sensor_s:7.1f} s  {rate:5.1f} fps  {tracks:4.0f} tracks  {st or 'starting':<16} "
+                f"{len(pipe.published):6d} poses  drops {drops}")
+        print(("\r" + line) if self.tty else line, end="" if self.tty else "\n", file=sys.stderr, flush=True)
+
+    def done(self) -> None:
+        if self.tty and self.last:
+            print(file=sys.stderr)
