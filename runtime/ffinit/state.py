@@ -47,4 +47,14 @@ def state_at_last_image(window: InitWindow, ref: Refined, t_imu_ns: int) -> Init
     return InitResult(
         t_ns=int(t_imu_ns), R_OI=R_OI0 @ R_I0In, p_OI=R_OI0 @ p_I0In, v_OI=R_OI0 @ v_In_I0,
         bg=window.bg + ref.dbg, ba=ref.ba.copy(), cov=np.diag(var), source="feedforward",
-        info={"scale": ref.scale, "refine_cost": ref.cost, "refine_success": ref.success})
+        info={"scale": ref.scale, "refine_cost": ref.cost, "refine_success": ref.success,
+              "scale_rel_std": scale_relative_std(ref)})
+
+
+def scale_relative_std(ref: Refined) -> float:
+    """sigma(s) / s of the refined metric scale from the refinement's covariance (theta[0] is the
+    softplus pre-image of s, so ds/dtheta0 = sigmoid(theta0) = 1 - exp(-s)); inf when not finite."""
+    var = float(ref.cov_theta[0, 0]) if ref.cov_theta.size else float("nan")
+    if not (np.isfinite(var) and var >= 0 and ref.scale > 0):
+        return float("inf")
+    return float(np.sqrt(var) * -np.expm1(-ref.scale) / ref.scale)

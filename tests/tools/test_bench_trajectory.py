@@ -217,8 +217,9 @@ def test_offline_causal_equals_a_live_pipeline_run():
     np.testing.assert_allclose(rep.causal, causal_live, atol=1e-9, rtol=0)
     assert rep.versions.tolist() == [c[1] for c in live.causal]
     assert rep.fractions == pytest.approx([c[2] for c in live.causal], abs=1e-9)
-    # the graph moved the live stream (a test of nothing otherwise)
-    assert np.abs(causal_live[:, :3, 3] - odometry_poses(live.published)[:, :3, 3]).max() > 1e-4
+    # the graph moved the live stream (a test of nothing otherwise): by far more than the 1e-9 agreement
+    # above (about 0.1 mm on these 8 s since the 20 Hz filter fixes of issue 16 cut the drift)
+    assert np.abs(causal_live[:, :3, 3] - odometry_poses(live.published)[:, :3, 3]).max() > 1e-5
     # final: the same per-node corrections as the live pipeline wherever it recorded the node (it drops
     # the result of the job in flight when the recording ends: see the module docstring of trajectory_replay)
     recorded = [s for s in rep.submaps if s.index in live.node_corrections]

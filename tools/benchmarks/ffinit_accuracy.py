@@ -135,6 +135,7 @@ def measure_recording(rec: Any, ks: list[float], reference: str, every_s: float,
                 row["median_residual"] = float(res.info["median_residual"])
                 row["log_refined_over_linear_scale"] = float(np.log(res.info["scale"]
                                                                     / res.info["linear_scale"]))
+                row["scale_rel_std"] = float(res.info["scale_rel_std"])
             else:
                 row["reason"] = res.reason
             rows[k].append(row)
