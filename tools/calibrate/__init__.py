@@ -1,0 +1,12 @@
+"""`davio calibrate`: camera–IMU extrinsics and time offset from a recording (hand–eye bring-up + the
+filter's online refinement) written as a Kalibr camchain, with the evidence (report, plots).
+
+- `tools.calibrate.core`: runs the pipeline with T_IC withheld and collects the filter's calibration
+  states over time, plus the rotation excitation of the gyro stream.
+- `tools.calibrate.checks`: the refusal rules and their thresholds.
+- `tools.calibrate.output`: the camchain, `<out stem>.report.json` and the convergence plots.
+"""
+from tools.calibrate.checks import Thresholds, judge
+from tools.calibrate.core import CalibrationRun, calibrate
+
+__all__ = ["CalibrationRun", "Thresholds", "calibrate", "judge"]

@@ -1,0 +1,93 @@
+"""When `davio calibrate` refuses to write a rig file, and why.
+
+In this order (the first that applies is the refusal; each names what was observed):
+
+1. the replay failed or was interrupted;
+2. the rotation excitation is insufficient: fewer than two principal axes of the gyro stream with an RMS
+   rate of at least `min_axis_rate_dps` (a hand–eye calibration needs rotation about two non-parallel
+   axes; a static or purely translating recording has none);
+3. the hand–eye bring-up never completed (too few windows rotating >= 5 deg, or every estimate was
+   rejected: the rejections are named);
+4. the filter never published a calibrated state (no covariance of the calibration);
+5. the final 1-sigma (worst direction of each block of the filter's covariance) exceeds
+   `max_rot_std_deg`, `max_lever_std_m` or `max_offset_std_ms`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from tools.calibrate.core import CalibrationRun
+
+
+@dataclass(frozen=True)
+class Thresholds:
+    """Refusal thresholds (the `davio calibrate` options of the same names)."""
+
+    min_axis_rate_dps: float = 5.0
+    """RMS angular rate (deg/s) the second-strongest principal rotation axis must reach."""
+    max_rot_std_deg: float = 0.3
+    max_lever_std_m: float = 0.01
+    max_offset_std_ms: float = 1.0
+
+
+@dataclass
+class Verdict:
+    ok: bool
+    code: str
+    """"ok" or the refusal: "replay_failed", "insufficient_rotation", "bringup_incomplete",
+    "no_calibrated_state", "uncertain"."""
+    message: str
+
+
+def _fmt_rates(rates: list) -> str:
+    return ", ".join(f"{r:.1f}" for r in rates)
+
+
+def judge(run: CalibrationRun, th: Thresholds) -> Verdict:
+    """The first refusal rule that applies (see the module docstring), else ok."""
+    if run.status != "complete":
+        return Verdict(False, "replay_failed", f"the replay did not complete ({run.status}: {run.reason})")
+    ex = run.excitation
+    rates = list(ex.rms_rate_dps) or [0.0, 0.0, 0.0]
+    axes_ok = sum(r >= th.min_axis_rate_dps for r in rates)
+    bu = run.bringup or {}
+    if axes_ok < 2:
+        return Verdict(False, "insufficient_rotation",
+                       f"the motion does not excite the rotation enough: {axes_ok} of 3 principal axes reach "
+                       f"{th.min_axis_rate_dps:g} deg/s RMS (observed {_fmt_rates(rates)} deg/s over "
+                       f"{ex.seconds:.1f} s; need 2) - rotate the rig about at least two different axes; "
+                       f"bring-up: {_bringup_text(bu)}")
+    if not bu.get("R_IC"):
+        return Verdict(False, "bringup_incomplete",
+                       f"the hand-eye bring-up never completed: {_bringup_text(bu)} (principal-axis RMS rates "
+                       f"{_fmt_rates(rates)} deg/s) - record longer, or with more rotation per second")
+    final = run.final
+    std = None if final is None else final.std()
+    if std is None:
+        return Verdict(False, "no_calibrated_state",
+                       "the filter never published a state with calibration after the bring-up "
+                       f"(published by: {(run.pipeline.get('startup') or {}).get('published_by')})")
+    rot, lev, dt = std
+    over = []
+    if not rot <= th.max_rot_std_deg:
+        over.append(f"rotation {rot:.3f} deg > {th.max_rot_std_deg:g}")
+    if not lev <= th.max_lever_std_m:
+        over.append(f"lever arm {100 * lev:.2f} cm > {100 * th.max_lever_std_m:g}")
+    if not 1e3 * dt <= th.max_offset_std_ms:
+        over.append(f"time offset {1e3 * dt:.3f} ms > {th.max_offset_std_ms:g}")
+    if over:
+        return Verdict(False, "uncertain",
+                       "the calibration is too uncertain after "
+                       f"{run.sensor_s:.1f} s (1-sigma {'; '.join(over)}) - record longer or with more motion, "
+                       "or relax --max-rot-std-deg / --max-lever-std-m / --max-offset-std-ms")
+    return Verdict(True, "ok", f"1-sigma rotation {rot:.3f} deg, lever arm {100 * lev:.2f} cm, "
+                               f"time offset {1e3 * dt:.3f} ms")
+
+
+def _bringup_text(bu: dict) -> str:
+    if not bu:
+        return "not run"
+    rej = ", ".join(f"{k} x{v}" for k, v in sorted((bu.get("rejections") or {}).items())) or "none"
+    state = "done" if bu.get("R_IC") else "not done"
+    return (f"{state}, {bu.get('windows_used', 0)} windows used, {bu.get('windows_skipped_static', 0)} skipped "
+            f"(rotating < 5 deg), {bu.get('attempts', 0)} estimates, rejections: {rej}")

@@ -1,0 +1,211 @@
+"""Run DAVIO with the camera–IMU extrinsics and time offset withheld and collect the calibration.
+
+The pipeline (runtime.pipeline.VioPipeline) first runs the hand–eye bring-up (R_IC and the gyro bias
+from DA3 vs preintegrated rotations), then starts tracking with zero lever arm and time offset and the
+filter's online calibration of all three on. After every published pose (at most every
+`sample_every_s` of camera time) we read the publishing filter's state (`startup.publisher.state()`:
+R_IC, p_IC, time_offset_s and the (7, 7) calib_covariance [dphi right on R_IC, dp_IC, dt]).
+
+Beside that, the gyro stream gives the rotation excitation: the principal axes of sum(w w^T dt) and,
+per axis, the RMS rate and the rotation angle swept about it. A hand–eye calibration needs rotation
+about at least two non-parallel axes.
+"""
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from runtime.config import DavioConfig
+from runtime.events import ImuSample
+
+
+@dataclass
+class CalibSample:
+    """The publishing filter's calibration at one frame."""
+
+    t_cam_ns: int
+    R_IC: np.ndarray
+    p_IC: np.ndarray
+    time_offset_s: float
+    calib_covariance: np.ndarray | None
+    segment: int
+
+    def std(self) -> tuple[float, float, float] | None:
+        """1-sigma (rotation deg, lever arm m, time offset s): the square root of the largest eigenvalue of
+        each block (the worst direction), or None without a covariance."""
+        return covariance_std(self.calib_covariance)
+
+
+def covariance_std(cov: np.ndarray | None) -> tuple[float, float, float] | None:
+    """(rot deg, lever m, offset s) 1-sigma of a (7, 7) [dphi, dp, dt] covariance, worst direction."""
+    if cov is None or np.shape(cov) != (7, 7):
+        return None
+    c = np.asarray(cov, float)
+    rot = float(np.degrees(np.sqrt(max(np.linalg.eigvalsh(c[:3, :3]).max(), 0.0))))
+    lev = float(np.sqrt(max(np.linalg.eigvalsh(c[3:6, 3:6]).max(), 0.0)))
+    dt = float(np.sqrt(max(c[6, 6], 0.0)))
+    return rot, lev, dt
+
+
+@dataclass
+class Excitation:
+    """Rotation excitation of the gyro stream (IMU frame): principal axes of sum(w w^T dt)."""
+
+    seconds: float = 0.0
+    axes: list = field(default_factory=list)
+    """(3, 3) rows: the principal axes, strongest first."""
+    rms_rate_dps: list = field(default_factory=list)
+    """RMS angular rate about each principal axis, deg/s."""
+    angle_deg: list = field(default_factory=list)
+    """Rotation swept about each principal axis, sum |w . axis| dt, deg."""
+
+
+class ExcitationMeter:
+    """Accumulates the gyro's second moment and, at the end, the swept angle per principal axis."""
+
+    def __init__(self) -> None:
+        self.M = np.zeros((3, 3))
+        self.T = 0.0
+        self._t: int | None = None
+        self._w: list[np.ndarray] = []
+        self._dt: list[float] = []
+
+    def add(self, t_ns: int, gyro: np.ndarray) -> None:
+        w = np.asarray(gyro, float)
+        if not np.all(np.isfinite(w)):
+            return
+        if self._t is not None:
+            dt = (int(t_ns) - self._t) * 1e-9
+            if 0.0 < dt < 0.1:   # gaps carry no rate
+                self.M += np.outer(w, w) * dt
+                self.T += dt
+                self._w.append(w)
+                self._dt.append(dt)
+        self._t = int(t_ns)
+
+    def result(self) -> Excitation:
+        if self.T <= 0.0:
+            return Excitation(0.0, np.eye(3).tolist(), [0.0] * 3, [0.0] * 3)
+        vals, vecs = np.linalg.eigh(self.M / self.T)
+        order = np.argsort(vals)[::-1]
+        axes = vecs[:, order].T
+        w = np.array(self._w)
+        dt = np.array(self._dt)
+        angles = np.degrees(np.abs(w @ axes.T).T @ dt)
+        rms = np.degrees(np.sqrt(np.maximum(vals[order], 0.0)))
+        return Excitation(float(self.T), axes.tolist(), rms.tolist(), angles.tolist())
+
+
+@dataclass
+class CalibrationRun:
+    """What `calibrate` collected.
+
+    Attributes:
+        samples: the publishing filter's calibration over time (CalibSample, camera time order).
+        bringup: the hand–eye bring-up report (runtime.bringup.BringUpReport as a dict), None when the
+            rig had extrinsics.
+        excitation: the gyro stream's rotation excitation.
+        pipeline: the pipeline's report() at the end.
+        status, reason: how the replay ended ("complete", "interrupted", "failed").
+        t0_ns: the first event's time (plots and the report count seconds from it).
+        sensor_s: seconds of data replayed.
+    """
+
+    samples: list[CalibSample]
+    bringup: dict | None
+    excitation: Excitation
+    pipeline: dict
+    status: str
+    reason: str | None
+    t0_ns: int
+    sensor_s: float
+
+    @property
+    def final(self) -> CalibSample | None:
+        return self.samples[-1] if self.samples else None
+
+
+def calibration_config(config: DavioConfig | None = None) -> DavioConfig:
+    """`config` without mapping (calibration needs only the filter; the map would cost model calls)."""
+    cfg = config or DavioConfig()
+    return replace(cfg, mapping=replace(cfg.mapping, enabled=False))
+
+
+def calibrate(events: Iterable[Any], rig: Any, model: Any, config: DavioConfig | None = None,
+              seconds: float | None = None, model_latency_s: float = 0.5, sample_every_s: float = 0.1,
+              progress: Callable[[float, str], None] | None = None) -> CalibrationRun:
+    """Replay `events` through DAVIO with `rig`'s extrinsics and time offset withheld; collect the filter's
+    calibration states and the rotation excitation.
+
+    Args:
+        events: a recording's time-ordered ImuSample / Frame events (a driver's `events()`).
+        rig: calib.Rig with the camera intrinsics (T_IC and time_offset_s are ignored: withheld).
+        model: a DepthModel (DA3 ONNX or emulated): the bring-up needs it.
+        seconds: only the first S seconds of data.
+        sample_every_s: camera seconds between collected calibration states.
+        progress: called with (sensor seconds, phase) about every 5 s of data.
+    """
+    from runtime.errors import ConfigError
+    from runtime.session import Session
+
+    if model is None:
+        raise ConfigError("calibration needs a depth model for the hand-eye bring-up: pass --model DA3.onnx "
+                          "(or --emulated for a `davio simulate` recording)")
+    withheld = rig.replace(T_IC=None, time_offset_s=None)
+    session = Session(withheld, model, calibration_config(config))
+    pipe = session.pipeline
+    samples: list[CalibSample] = []
+    step_ns = int(sample_every_s * 1e9)
+
+    def take(force: bool = False) -> None:
+        st = pipe.startup
+        filt = None if st is None else (st.publisher or (st.native if st.native.initialized else None))
+        s = None if filt is None else filt.state()
+        if s is None:
+            return
+        if not force and samples and int(s.t_cam_ns) - samples[-1].t_cam_ns < step_ns:
+            return
+        if samples and int(s.t_cam_ns) <= samples[-1].t_cam_ns:
+            return
+        cov = None if s.calib_covariance is None else np.array(s.calib_covariance)
+        samples.append(CalibSample(int(s.t_cam_ns), np.array(s.R_IC), np.array(s.p_IC), float(s.time_offset_s),
+                                   cov, int(st.report.restarts_after_divergence)))
+
+    session.on_pose = lambda _pose: take()
+    meter = ExcitationMeter()
+    first: list[int] = []
+
+    def feed() -> Iterator[Any]:
+        last_report = -1
+        for ev in events:
+            t = int(ev.t_ns)
+            if not first:
+                first.append(t)
+            rel = (t - first[0]) * 1e-9
+            if seconds is not None and rel > seconds:
+                return
+            if isinstance(ev, ImuSample):
+                meter.add(t, ev.gyro)
+            if progress is not None and int(rel) // 5 != last_report:
+                last_report = int(rel) // 5
+                progress(rel, "bring-up" if pipe.startup is None else
+                         (pipe.startup.report.published_by or "starting"))
+            yield ev
+
+    res = session.replay(feed(), model_latency_s=model_latency_s, keep_partial=True)
+    take(force=True)
+    rep = pipe.report()
+    return CalibrationRun(samples, rep.get("bringup"), meter.result(), rep, res.status, res.reason,
+                          first[0] if first else 0, float(res.scheduler.sensor_s))
+
+
+def stderr_progress(rel_s: float, phase: str) -> None:
+    print(f"  t = {rel_s:6.1f} s  ({phase})", file=sys.stderr, flush=True)
+
+
+def as_dict(x: Any) -> dict:
+    return asdict(x)
