@@ -1,0 +1,791 @@
+"""Luxonis OAK (depthai 3): one camera socket and the on-board IMU, read on threads (notes/drivers.md §1).
+
+`OakDevice` builds one depthai pipeline (a `Camera` node with one GRAY8 output at the requested size and
+rate, an `IMU` node with ACCELEROMETER_RAW + GYROSCOPE_RAW at one rate, batch threshold 1, at most 10
+reports a batch; both host queues non-blocking and bounded) and exposes two sources for `LiveDriver`:
+
+- `device.camera` (`OakCamera`): `Frame`s, grey (H, W) uint8 of the requested size. Each is stamped
+  with `getTimestampDevice(dai.CameraExposureOffset.MIDDLE)`: the DEVICE clock at mid-exposure, int64
+  ns (depthai hands it over as a timedelta, so with microsecond resolution). Keeps the newest
+  `keep_frames` frames, counts the older ones it drops (`dropped_old`), the frames the device skipped
+  (`seq_gaps`, from the sequence numbers) and stamps that did not increase (`nonmonotonic`, dropped).
+  The colour socket (CAM_A) is requested as NV12 and its luma plane is the grey image (`converted`).
+- `device.imu` (`OakImu`): every report of every packet of every batch, as `ImuSample`s on the same
+  device clock (the reports' `tsDevice`, ns). Accelerometer and gyroscope reports are paired by stamp:
+  a sample is emitted at each gyroscope stamp, with the accelerometer taken at that stamp (linearly
+  interpolated between the two accelerometer reports around it when the stamps differ). A report that
+  repeats or precedes its stream's previous stamp is dropped and counted. The queue is meant to be
+  lossless; on overflow the oldest sample goes and is counted (`overflow`, `take_overflow()`).
+
+Camera and IMU share the device clock, so LiveDriver merges them without any clock mapping; the Rig's
+time offset is 0 (`read_oak_rig`). The reader threads only read, convert and enqueue.
+
+Errors are `runtime.errors.DeviceError`, one line: `start()` raises "no OAK device found (...)"
+within `probe_timeout_s` (2 s) when none is attached (probe: `dai.Device.getAllAvailableDevices()`),
+or why the device or the pipeline could not be opened. A queue that fails while running (the device
+was unplugged or crashed: depthai closes the queues and raises `MessageQueue.QueueException`) or that
+stays silent for `stall_timeout_s` sets `.error` on both sources; `get` raises it once the samples
+already buffered have been taken. `stop()` is idempotent.
+
+Calibration (`read_oak_rig`): intrinsics are `getCameraIntrinsics(socket, width, height)` (depthai's
+own scaling / centre-crop to the output size); distortion `Perspective` (OpenCV's 14 coefficients
+k1 k2 p1 p2 k3 k4 k5 k6 s1..s4 tx ty) becomes radtan (k1 k2 p1 p2[ k3]) when k4.. are zero, and is
+refused otherwise (the rational model is not one of DAVIO's camera models); `Fisheye` becomes
+equidistant (k1..k4).
+
+Extrinsics direction. `getImuToCameraExtrinsics(socket, False, dai.LengthUnit.METER)` (its default
+unit is CENTIMETRES) returns the matrix that maps IMU coordinates to camera coordinates,
+x_C = M x_I, i.e. T_CI in DESIGN §3's notation, so `T_IC = inverse(M)` (which is what
+`getCameraToImuExtrinsics` returns). Evidence: depthai-core chains the stored links as
+`getImuToCameraExtrinsics(cam) = getCameraExtrinsics(imu_link, cam) @ M_imu` and
+`getCameraExtrinsics(src, dst) = inv(dst->origin) @ (src->origin)`, a composition that is only valid
+when each stored matrix maps source coordinates into destination coordinates (tested on synthetic
+calibrations in tests/drivers/test_oak.py: a rig of known geometry written in that convention reads
+back as its T_IC through the chain); and the factory stereo link left->right of an OAK-D stores
+t = (-7.5, 0, 0) cm, the left camera's centre in right-camera coordinates. Whether a given device's
+IMU block was written in the same convention can be checked at rest with
+`check_extrinsics_direction(rig.T_IC, mean_accel_I)` while the camera is held level (image up = -y_C):
+the accelerometer reads +g along "up", so accel_I must be parallel to R_IC @ up_C.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from runtime.errors import CalibrationError, DavioError, DeviceError
+from runtime.events import Frame, ImuSample
+
+if TYPE_CHECKING:
+    from calib import Rig
+
+NEVER = 2**63 - 1
+"""A stamp later than any frame (the floor of a source that will deliver nothing more)."""
+
+SOCKETS: tuple[str, ...] = ("CAM_A", "CAM_B", "CAM_C")
+"""Camera sockets: CAM_A = colour (its luma is used), CAM_B = left mono, CAM_C = right mono."""
+
+NO_DEVICE_HINT = ("is it plugged in? USB3? udev rules: SUBSYSTEM==\"usb\", ATTRS{idVendor}==\"03e7\", "
+                  "MODE=\"0666\" in /etc/udev/rules.d/80-movidius.rules, then "
+                  "`sudo udevadm control --reload-rules && sudo udevadm trigger`")
+
+RATIONAL_TOLERANCE = 1e-6
+"""Perspective coefficients k4.. with |value| at most this count as zero (radtan is then exact)."""
+
+_POLL_S = 0.05
+"""How long one queue read waits (bounds how fast `stop()` and stalls are seen)."""
+
+
+def _import_depthai() -> Any:
+    try:
+        import depthai as dai
+    except ImportError:
+        raise DeviceError("the OAK driver needs depthai 3: pip install 'depthai>=3'") from None
+    return dai
+
+
+def _one_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
+def timedelta_ns(td: _dt.timedelta) -> int:
+    """Integer nanoseconds of a timedelta (exact: days, seconds and microseconds are integers)."""
+    return (td.days * 86400 + td.seconds) * 1_000_000_000 + td.microseconds * 1000
+
+
+def _report_ns(report: Any) -> int:
+    """Device stamp of an IMU report, ns (0: the report is absent from its packet)."""
+    ts = getattr(report, "tsDevice", None)
+    if ts is not None:
+        return int(ts.sec) * 1_000_000_000 + int(ts.nsec)
+    return timedelta_ns(report.getTimestampDevice())
+
+
+# -- probing -------------------------------------------------------------------------------------
+def oak_available(timeout_s: float = 2.0) -> list[dict[str, Any]]:
+    """The OAK devices depthai can see, as dicts (device_id, name, state, protocol, platform).
+
+    `[]` when none is attached. Raises DeviceError when depthai is not installed or the probe does not
+    finish within `timeout_s`."""
+    dai = _import_depthai()
+    result: dict[str, Any] = {}
+
+    def probe() -> None:
+        try:
+            result["infos"] = list(dai.Device.getAllAvailableDevices())
+        except BaseException as exc:  # noqa: BLE001 - reported to the caller below
+            result["exc"] = exc
+
+    t = threading.Thread(target=probe, name="davio-oak-probe", daemon=True)
+    t.start()
+    t.join(timeout_s)
+    if t.is_alive():
+        raise DeviceError(f"probing for OAK devices did not finish within {timeout_s:g} s")
+    if "exc" in result:
+        raise DeviceError(f"probing for OAK devices failed: {_one_line(result['exc'])}")
+    out = []
+    for info in result["infos"]:
+        out.append({"device_id": str(getattr(info, "deviceId", "") or ""),
+                    "name": str(getattr(info, "name", "") or ""),
+                    "state": str(getattr(info, "state", "")).split(".")[-1],
+                    "protocol": str(getattr(info, "protocol", "")).split(".")[-1],
+                    "platform": str(getattr(info, "platform", "")).split(".")[-1],
+                    "info": info})
+    return out
+
+
+# -- pipeline ------------------------------------------------------------------------------------
+@dataclass
+class OakPipeline:
+    """What a pipeline factory returns: two depthai-like output queues and what owns them.
+
+    `camera_queue.get(timedelta)` and `imu_queue.get(timedelta)` return a message (`dai.ImgFrame`,
+    `dai.IMUData` or objects with the same methods) or None on timeout, and raise once the queue is
+    closed (device gone, pipeline stopped). `pipeline` (optional) has `stop()`; it is started by the
+    factory. `calibration` is the device's `dai.CalibrationHandler` (or None)."""
+
+    camera_queue: Any
+    imu_queue: Any
+    pipeline: Any = None
+    calibration: Any = None
+    device_info: str = ""
+    device: Any = None
+
+    def stop(self) -> None:
+        for obj in (self.pipeline, self.device):
+            if obj is None:
+                continue
+            for name in ("stop", "close"):
+                fn = getattr(obj, name, None)
+                if callable(fn):
+                    try:
+                        fn()
+                    except Exception:  # noqa: BLE001 - a dead device may fail to stop; nothing to do
+                        pass
+                    break
+
+
+def build_pipeline(dev: OakDevice) -> OakPipeline:
+    """The default pipeline factory: probe, open the device, build and start the pipeline."""
+    dai = _import_depthai()
+    found = oak_available(dev.probe_timeout_s)
+    if not found:
+        raise DeviceError(f"no OAK device found ({NO_DEVICE_HINT})")
+    info = found[0]
+    if dev.device_id is not None:
+        match = [d for d in found if dev.device_id in (d["device_id"], d["name"])]
+        if not match:
+            listed = ", ".join(f"{d['device_id']} ({d['name']}, {d['state']})" for d in found)
+            raise DeviceError(f"OAK device {dev.device_id} not found; attached: {listed}")
+        info = match[0]
+    what = f"OAK {info['device_id'] or info['name']}"
+    try:
+        device = dai.Device(info["info"])
+    except Exception as exc:  # noqa: BLE001 - any depthai failure is a device error
+        raise DeviceError(f"{what}: cannot be opened ({_one_line(exc)}; state {info['state']}: "
+                          f"in use by another program?)") from None
+    try:
+        pipeline = dai.Pipeline(device)
+        try:
+            calibration = device.readCalibration()
+        except Exception:  # noqa: BLE001 - streaming works without it; read_oak_rig says what is missing
+            calibration = None
+        socket = getattr(dai.CameraBoardSocket, dev.socket)
+        cam = pipeline.create(dai.node.Camera).build(socket)
+        kind = dai.ImgFrame.Type.NV12 if dev.socket == "CAM_A" else dai.ImgFrame.Type.GRAY8
+        out = cam.requestOutput((dev.width, dev.height), kind, dai.ImgResizeMode.CROP, dev.fps, False)
+        q_img = out.createOutputQueue(dev.camera_queue_size, False)
+        imu = pipeline.create(dai.node.IMU)
+        imu.enableIMUSensor([dai.IMUSensor.ACCELEROMETER_RAW, dai.IMUSensor.GYROSCOPE_RAW], int(dev.imu_rate_hz))
+        imu.setBatchReportThreshold(1)
+        imu.setMaxBatchReports(10)
+        q_imu = imu.out.createOutputQueue(dev.imu_queue_size, False)
+        pipeline.start()
+    except DavioError:
+        raise
+    except Exception as exc:  # noqa: BLE001
+        try:
+            device.close()
+        except Exception:  # noqa: BLE001
+            pass
+        raise DeviceError(f"{what}: the pipeline could not be started ({_one_line(exc)})") from None
+    return OakPipeline(q_img, q_imu, pipeline, calibration, what, device)
+
+
+# -- the device ----------------------------------------------------------------------------------
+class OakDevice:
+    """An OAK camera socket and its IMU; `camera` and `imu` are the sources for `LiveDriver`.
+
+    Args:
+        socket: "CAM_B" (left mono, default), "CAM_C" (right mono) or "CAM_A" (colour; its luma).
+        width, height, fps: the camera output (the Camera node crops to the aspect ratio and scales).
+        imu_rate_hz: the rate requested for both accelerometer and gyroscope (the chip may round it).
+        device_id: the device's id (MxId) or name when several are attached; None: the first one.
+        pipeline_factory: `factory(device) -> OakPipeline` (tests inject recorded queues); default
+            `build_pipeline` (a real device).
+        keep_frames: newest frames kept for the consumer; older ones are dropped and counted.
+        imu_queue_seconds: the IMU sample queue holds this long at `imu_rate_hz` (x1.5).
+        stall_timeout_s: a stream silent this long after its first message is an error.
+        first_message_timeout_s: a stream that delivers nothing this long after start is an error.
+        probe_timeout_s: the device probe's limit (start() fails within it when none is attached).
+        camera_id: the `Frame.camera_id`.
+    """
+
+    def __init__(self, socket: str = "CAM_B", width: int = 640, height: int = 400, fps: float = 30.0,
+                 imu_rate_hz: int = 200, device_id: str | None = None,
+                 pipeline_factory: Callable[[OakDevice], OakPipeline] | None = None, *,
+                 keep_frames: int = 2, imu_queue_seconds: float = 5.0, stall_timeout_s: float = 2.0,
+                 first_message_timeout_s: float = 10.0, probe_timeout_s: float = 2.0,
+                 camera_id: int = 0) -> None:
+        if socket not in SOCKETS:
+            raise DeviceError(f"OAK socket must be one of {', '.join(SOCKETS)}, not {socket!r}")
+        if int(width) <= 0 or int(height) <= 0:
+            raise DeviceError(f"OAK image size must be positive, not {width}x{height}")
+        if not fps > 0 or not imu_rate_hz > 0:
+            raise DeviceError(f"OAK fps and imu_rate_hz must be > 0, not {fps} and {imu_rate_hz}")
+        if keep_frames < 1 or not imu_queue_seconds > 0 or not stall_timeout_s > 0:
+            raise DeviceError("OAK keep_frames must be >= 1, imu_queue_seconds and stall_timeout_s > 0")
+        self.socket = socket
+        self.width, self.height = int(width), int(height)
+        self.fps = float(fps)
+        self.imu_rate_hz = int(imu_rate_hz)
+        self.device_id = device_id
+        self.pipeline_factory = pipeline_factory or build_pipeline
+        self.stall_timeout_s = float(stall_timeout_s)
+        self.first_message_timeout_s = float(first_message_timeout_s)
+        self.probe_timeout_s = float(probe_timeout_s)
+        self.camera_queue_size = 4
+        """Device-to-host queue of the camera (non-blocking: the oldest is overwritten)."""
+        self.imu_queue_size = 50
+        """Device-to-host queue of IMU batches (non-blocking)."""
+        self.device = f"OAK {device_id}" if device_id else "OAK"
+        self.camera = OakCamera(self, keep_frames=keep_frames, camera_id=camera_id)
+        self.imu = OakImu(self, capacity=max(1, int(round(imu_queue_seconds * self.imu_rate_hz * 1.5))))
+        self.pipe: OakPipeline | None = None
+        self._lock = threading.Lock()
+        self._started = False
+        self._stopped = False
+        self._threads: list[threading.Thread] = []
+        self.start_ns: int | None = None
+
+    @property
+    def calibration(self) -> Any:
+        """The device's `dai.CalibrationHandler` (None before `start()` or when unreadable)."""
+        return None if self.pipe is None else self.pipe.calibration
+
+    def rig(self, time_offset_s: float = 0.0) -> Rig:
+        """`read_oak_rig` of the device's calibration for this socket and output size."""
+        if self.calibration is None:
+            raise CalibrationError(f"{self.device}: no calibration read from the device", None, "oak")
+        return read_oak_rig(self.calibration, self.socket, self.width, self.height, fps=self.fps,
+                            time_offset_s=time_offset_s)
+
+    def start(self) -> OakDevice:
+        """Open the device, start the pipeline and both readers. Idempotent (both sources call it).
+        Raises DeviceError (one line) when no device is attached or it cannot be opened."""
+        with self._lock:
+            if self._started:
+                if self._stopped:
+                    raise DeviceError(f"{self.device}: start() after stop()")
+                return self
+            try:
+                pipe = self.pipeline_factory(self)
+            except DavioError:
+                raise
+            except Exception as exc:  # noqa: BLE001 - any factory failure is a device error
+                raise DeviceError(f"{self.device}: cannot be opened ({_one_line(exc)})") from None
+            self.pipe = pipe
+            if pipe.device_info:
+                self.device = pipe.device_info
+            self._started = True
+            self.start_ns = time.monotonic_ns()
+            self.camera._running = self.imu._running = True
+            for name, src, queue in (("camera", self.camera, pipe.camera_queue), ("imu", self.imu, pipe.imu_queue)):
+                t = threading.Thread(target=self._read, args=(name, src, queue), name=f"davio-oak-{name}",
+                                     daemon=True)
+                self._threads.append(t)
+                t.start()
+            return self
+
+    def stop(self) -> None:
+        """Stop the readers and the pipeline (idempotent). Buffered events stay readable."""
+        with self._lock:
+            if self._stopped:
+                return
+            self._stopped = True
+            for src in (self.camera, self.imu):
+                with src._cond:
+                    src._stopping = True
+                    src._cond.notify_all()
+        if self.pipe is not None:
+            self.pipe.stop()
+        for t in self._threads:
+            if t is not threading.current_thread():
+                t.join(timeout=1.0)
+        for src in (self.camera, self.imu):
+            with src._cond:
+                src._running = False
+                src._cond.notify_all()
+
+    close = stop
+
+    def __enter__(self) -> OakDevice:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def report(self) -> dict[str, Any]:
+        """Both sources' reports and the configuration."""
+        return {"device": self.device, "socket": self.socket, "size": [self.width, self.height],
+                "fps": self.fps, "imu_rate_hz": self.imu_rate_hz,
+                "camera": self.camera.report(), "imu": self.imu.report()}
+
+    # -- readers ---------------------------------------------------------------------------------
+    def _fail(self, message: str) -> None:
+        """The device is gone: both sources get the error (once), unless we are stopping."""
+        err = DeviceError(message)
+        for src in (self.camera, self.imu):
+            with src._cond:
+                if src.error is None and not src._stopping:
+                    src.error = err
+                src._cond.notify_all()
+
+    def _read(self, name: str, src: OakCamera | OakImu, queue: Any) -> None:
+        poll = _dt.timedelta(seconds=_POLL_S)
+        last = time.monotonic()
+        got_any = False
+        try:
+            while not src._stopping:
+                try:
+                    msg = queue.get(poll)
+                except Exception as exc:  # noqa: BLE001 - QueueException: closed (unplugged / stopped)
+                    if not src._stopping:
+                        self._fail(f"{self.device}: the {name} queue failed ({_one_line(exc)}): the device "
+                                   f"was unplugged or crashed")
+                    return
+                now = time.monotonic()
+                if msg is None:
+                    limit = self.stall_timeout_s if got_any else self.first_message_timeout_s
+                    if now - last > limit and not src._stopping:
+                        what = "no message" if got_any else "no first message"
+                        self._fail(f"{self.device}: {what} on the {name} queue for {now - last:.1f} s "
+                                   f"(limit {limit:g} s): unplugged or stalled")
+                        return
+                    continue
+                got_any, last = True, now
+                src._ingest(msg, time.monotonic_ns())
+        except DavioError as exc:
+            self._fail(str(exc))
+        except Exception as exc:  # noqa: BLE001 - never a traceback from the thread
+            self._fail(f"{self.device}: {name} reader failed: {type(exc).__name__}: {_one_line(exc)}")
+        finally:
+            with src._cond:
+                src._running = False
+                src._cond.notify_all()
+
+
+class _Source:
+    """What both OAK sources share: the device, a condition, a buffer, the error."""
+
+    def __init__(self, owner: OakDevice) -> None:
+        self.owner = owner
+        self._cond = threading.Condition()
+        self._stopping = False
+        self._running = False
+        self.error: DavioError | None = None
+        """The failure of the device (unplugged, stalled); `get` raises it once the buffer is drained."""
+
+    @property
+    def device(self) -> str:
+        return self.owner.device
+
+    def start(self) -> Any:
+        self.owner.start()
+        return self
+
+    def stop(self) -> None:
+        self.owner.stop()
+
+    close = stop
+
+    def _take(self, buf: deque, timeout: float | None) -> Any:
+        if not self.owner._started:
+            raise DeviceError(f"{self.device}: get() before start()")
+        deadline = None if timeout is None else time.monotonic() + max(0.0, float(timeout))
+        with self._cond:
+            while not buf:
+                if self.error is not None:
+                    raise self.error.with_traceback(None)
+                if not self._running:
+                    return None
+                wait = _POLL_S if deadline is None else min(_POLL_S, deadline - time.monotonic())
+                if wait <= 0:
+                    return None
+                self._cond.wait(wait)
+            return buf.popleft()
+
+
+class OakCamera(_Source):
+    """The camera source of an `OakDevice` (see the module docstring)."""
+
+    def __init__(self, owner: OakDevice, keep_frames: int = 2, camera_id: int = 0) -> None:
+        super().__init__(owner)
+        self.keep_frames = int(keep_frames)
+        self.camera_id = int(camera_id)
+        self._buf: deque[Frame] = deque()
+        self.frames = self.emitted = self.dropped_old = self.nonmonotonic = 0
+        self.seq_gaps = self.converted = 0
+        self.conversion: str | None = None
+        self._last_t: int | None = None
+        self._first_t: int | None = None
+        self._last_seq: int | None = None
+
+    def get(self, timeout: float | None = None) -> Frame | None:
+        """The oldest kept frame, waiting up to `timeout` s (None: until one comes). None on timeout or
+        once stopped and drained; raises the device's DeviceError once drained."""
+        frame = self._take(self._buf, timeout)
+        if frame is not None:
+            with self._cond:
+                self.emitted += 1
+        return frame
+
+    def min_future_ns(self) -> int:
+        """A lower bound of the device-clock stamp of every frame `get` will still return: the oldest
+        buffered frame's, else just after the last frame's (stamps increase); NEVER once nothing more
+        will come, -NEVER before the first frame."""
+        with self._cond:
+            if self._buf:
+                return self._buf[0].t_ns
+            if self.error is not None or not self._running or self._stopping:
+                return NEVER
+            return -NEVER if self._last_t is None else self._last_t + 1
+
+    def fps_measured(self) -> float | None:
+        if self._first_t is None or self._last_t is None or self.frames < 2 or self._last_t <= self._first_t:
+            return None
+        return (self.frames - 1) * 1e9 / (self._last_t - self._first_t)
+
+    def report(self) -> dict[str, Any]:
+        """Counters: frames (kept), emitted, dropped_old (buffer), seq_gaps (frames the device or its
+        queue skipped), nonmonotonic (dropped stamps), converted; the stamp source; error."""
+        fps_m = self.fps_measured()
+        notes = []
+        if self.seq_gaps:
+            notes.append(f"{self.seq_gaps} frames skipped before reaching the host (sequence numbers)")
+        return {"device": self.device, "socket": self.owner.socket, "kind": "oak",
+                "size": [self.owner.width, self.owner.height], "fps_requested": self.owner.fps,
+                "fps_measured": None if fps_m is None else round(fps_m, 3),
+                "frames": self.frames, "emitted": self.emitted, "dropped_old": self.dropped_old,
+                "seq_gaps": self.seq_gaps, "nonmonotonic": self.nonmonotonic,
+                "converted": self.converted, "conversion": self.conversion, "keep_frames": self.keep_frames,
+                "stamps": "device clock, mid-exposure (getTimestampDevice(MIDDLE))",
+                "error": None if self.error is None else str(self.error), "notes": notes}
+
+    # reader side
+    def _ingest(self, msg: Any, t_host: int) -> None:
+        dai = _import_depthai()
+        t_ns = timedelta_ns(msg.getTimestampDevice(dai.CameraExposureOffset.MIDDLE))
+        seq = int(msg.getSequenceNum())
+        if self._last_seq is not None and seq > self._last_seq + 1:
+            self.seq_gaps += seq - self._last_seq - 1
+        self._last_seq = seq
+        if self._last_t is not None and t_ns <= self._last_t:
+            self.nonmonotonic += 1
+            return
+        grey = self._to_grey(dai, msg)
+        if grey.shape != (self.owner.height, self.owner.width):
+            raise DeviceError(f"{self.device}: delivers {grey.shape[1]}x{grey.shape[0]} images, "
+                              f"{self.owner.width}x{self.owner.height} were requested")
+        frame = Frame(t_ns, grey, self.camera_id, meta={"seq": seq, "host_ns": t_host})
+        with self._cond:
+            if self._stopping:
+                return
+            if len(self._buf) >= self.keep_frames:
+                self._buf.popleft()
+                self.dropped_old += 1
+            self._buf.append(frame)
+            self.frames += 1
+            if self._first_t is None:
+                self._first_t = t_ns
+            self._last_t = t_ns
+            self._cond.notify_all()
+
+    def _to_grey(self, dai: Any, msg: Any) -> np.ndarray:
+        kind = msg.getType()
+        w, h = int(msg.getWidth()), int(msg.getHeight())
+        T = dai.ImgFrame.Type
+        if kind in (T.GRAY8, T.RAW8, T.NV12, T.NV21, T.YUV420p):
+            stride = int(msg.getStride()) or w
+            data = np.asarray(msg.getData(), dtype=np.uint8).reshape(-1)
+            if data.size < h * stride:
+                raise DeviceError(f"{self.device}: a {w}x{h} {kind.name} frame holds {data.size} bytes")
+            img = data[: h * stride].reshape(h, stride)[:, :w]
+            if kind not in (T.GRAY8, T.RAW8):
+                self.converted += 1
+                self.conversion = f"{kind.name} luma plane"
+            return np.ascontiguousarray(img)
+        import cv2
+
+        img = np.asarray(msg.getCvFrame())
+        if img.ndim == 3:
+            img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+            self.converted += 1
+            self.conversion = f"{kind.name} to grey"
+        if img.dtype != np.uint8 or img.ndim != 2:
+            raise DeviceError(f"{self.device}: unsupported image type {kind.name}")
+        return np.ascontiguousarray(img)
+
+
+class ImuPairer:
+    """Pairs accelerometer and gyroscope reports into samples at the gyroscope stamps.
+
+    `add_accel(t, xyz)` / `add_gyro(t, xyz)` take one report each (device ns); `pop()` returns the
+    samples that can be formed so far: each gyroscope report waits until an accelerometer report at or
+    after its stamp exists, then takes the accelerometer at its stamp (exact when equal, else linear
+    between the two reports around it). Gyroscope reports older than the first accelerometer report
+    are dropped (`unpaired`); so are the oldest of more than `max_pending` waiting ones (an
+    accelerometer that stopped). A report whose stamp does not increase is dropped (`repeated`).
+    """
+
+    def __init__(self, max_pending: int = 64) -> None:
+        self.max_pending = int(max_pending)
+        self._acc: deque[tuple[int, np.ndarray]] = deque()
+        self._gyr: deque[tuple[int, np.ndarray]] = deque()
+        self._last_acc: int | None = None
+        self._last_gyr: int | None = None
+        self.accel_reports = self.gyro_reports = 0
+        self.repeated = self.unpaired = self.paired = self.interpolated = 0
+
+    def add_accel(self, t_ns: int, xyz: Sequence[float]) -> None:
+        self.accel_reports += 1
+        if self._last_acc is not None and t_ns <= self._last_acc:
+            self.repeated += 1
+            return
+        self._last_acc = t_ns
+        self._acc.append((t_ns, np.asarray(xyz, dtype=np.float64)))
+
+    def add_gyro(self, t_ns: int, xyz: Sequence[float]) -> None:
+        self.gyro_reports += 1
+        if self._last_gyr is not None and t_ns <= self._last_gyr:
+            self.repeated += 1
+            return
+        self._last_gyr = t_ns
+        self._gyr.append((t_ns, np.asarray(xyz, dtype=np.float64)))
+        while len(self._gyr) > self.max_pending:
+            self._gyr.popleft()
+            self.unpaired += 1
+
+    def pop(self) -> list[ImuSample]:
+        out: list[ImuSample] = []
+        acc, gyr = self._acc, self._gyr
+        while gyr and acc:
+            t, g = gyr[0]
+            if t < acc[0][0]:  # before every accelerometer report still held: cannot be paired
+                gyr.popleft()
+                self.unpaired += 1
+                continue
+            if acc[-1][0] < t:  # the accelerometer has not reached it yet
+                break
+            while len(acc) >= 2 and acc[1][0] <= t:
+                acc.popleft()
+            t0, a0 = acc[0]
+            if t0 == t:
+                a = a0.copy()
+            else:
+                t1, a1 = acc[1]
+                w = (t - t0) / (t1 - t0)
+                a = a0 + w * (a1 - a0)
+                self.interpolated += 1
+            gyr.popleft()
+            self.paired += 1
+            out.append(ImuSample(int(t), g, a))
+        return out
+
+    def counts(self) -> dict[str, int]:
+        return {"accel_reports": self.accel_reports, "gyro_reports": self.gyro_reports,
+                "repeated": self.repeated, "unpaired": self.unpaired, "paired": self.paired,
+                "interpolated": self.interpolated, "waiting": len(self._gyr)}
+
+
+class OakImu(_Source):
+    """The IMU source of an `OakDevice` (see the module docstring)."""
+
+    def __init__(self, owner: OakDevice, capacity: int = 1500) -> None:
+        super().__init__(owner)
+        self.capacity = int(capacity)
+        self.pairer = ImuPairer()
+        self._queue: deque[ImuSample] = deque()
+        self.batches = self.packets = self.enqueued = self.delivered = 0
+        self.overflow = 0
+        self._overflow_pending = 0
+        self.port = None  # LiveDriver._describe looks for .port or .device
+
+    def get(self, timeout: float | None = None) -> ImuSample | None:
+        """The next sample (device-clock int64 ns, gyro rad/s, accel m/s^2 in the IMU chip's axes).
+        None on timeout or once stopped and drained; raises the device's DeviceError once drained."""
+        s = self._take(self._queue, timeout)
+        if s is not None:
+            with self._cond:
+                self.delivered += 1
+        return s
+
+    def take_overflow(self) -> int:
+        """Samples lost to overflow since the last call (non-zero: reset the IMU preintegration)."""
+        with self._cond:
+            n, self._overflow_pending = self._overflow_pending, 0
+            return n
+
+    def queued(self) -> int:
+        return len(self._queue)
+
+    def report(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"driver": "oak_imu", "device": self.device, "rate_hz": self.owner.imu_rate_hz,
+                               "batches": self.batches, "packets": self.packets, "samples": self.enqueued,
+                               "delivered": self.delivered, "queued": len(self._queue),
+                               "queue_capacity": self.capacity, "overflow": self.overflow}
+        out.update(self.pairer.counts())
+        notes = []
+        if self.pairer.interpolated:
+            notes.append(f"{self.pairer.interpolated} accelerometer values interpolated to gyroscope stamps")
+        if self.pairer.unpaired:
+            notes.append(f"{self.pairer.unpaired} gyroscope reports without an accelerometer around them dropped")
+        if self.pairer.repeated:
+            notes.append(f"{self.pairer.repeated} reports repeating or preceding their stream's stamp dropped")
+        out["notes"] = notes
+        out["error"] = None if self.error is None else str(self.error)
+        return out
+
+    def _ingest(self, msg: Any, t_host: int) -> None:
+        self.batches += 1
+        p = self.pairer
+        for pkt in msg.packets:
+            self.packets += 1
+            a, g = pkt.acceleroMeter, pkt.gyroscope
+            ta, tg = _report_ns(a), _report_ns(g)
+            if ta:
+                p.add_accel(ta, (a.x, a.y, a.z))
+            if tg:
+                p.add_gyro(tg, (g.x, g.y, g.z))
+        samples = p.pop()
+        if not samples:
+            return
+        with self._cond:
+            for s in samples:
+                if len(self._queue) >= self.capacity:
+                    self._queue.popleft()
+                    self.overflow += 1
+                    self._overflow_pending += 1
+                self._queue.append(s)
+            self.enqueued += len(samples)
+            self._cond.notify_all()
+
+
+# -- calibration ---------------------------------------------------------------------------------
+def _orthonormal(T: np.ndarray) -> np.ndarray:
+    """The nearest rigid transform (SVD of the rotation; depthai stores float32)."""
+    U, _, Vt = np.linalg.svd(T[:3, :3])
+    R = U @ Vt
+    if np.linalg.det(R) < 0:
+        U[:, -1] *= -1
+        R = U @ Vt
+    out = np.eye(4)
+    out[:3, :3] = R
+    out[:3, 3] = T[:3, 3]
+    return out
+
+
+def read_oak_rig(calib: Any, socket: str = "CAM_B", width: int = 640, height: int = 400, *,
+                 fps: float | None = None, time_offset_s: float | None = 0.0,
+                 require_extrinsics: bool = False) -> Rig:
+    """A `calib.Rig` from a `dai.CalibrationHandler` for one socket at one output size.
+
+    Camera: `getCameraIntrinsics(socket, width, height)` and the distortion mapped as in the module
+    docstring (CalibrationError naming the socket when the model is not representable). T_IC: the
+    inverse of `getImuToCameraExtrinsics(socket, False, METER)` (x_C = M x_I; see the module
+    docstring), in metres; None when the calibration holds no IMU extrinsics (CalibrationError with
+    `require_extrinsics`). time_offset_s: 0 by default (camera and IMU share the device clock and the
+    frames are stamped at mid-exposure). IMU noise: withheld (OAK calibrations do not carry it).
+    """
+    dai = _import_depthai()
+    from calib import PinholeEquidistant, PinholeRadtan, Rig
+    from calib.rig import invert_rigid
+
+    if socket not in SOCKETS:
+        raise CalibrationError(f"socket must be one of {', '.join(SOCKETS)}, not {socket!r}", None, "socket")
+    sock = getattr(dai.CameraBoardSocket, socket)
+    where = f"OAK calibration {socket}"
+    try:
+        K = np.array(calib.getCameraIntrinsics(sock, int(width), int(height)), dtype=np.float64)
+        model = calib.getDistortionModel(sock)
+        coeffs = np.array(calib.getDistortionCoefficients(sock), dtype=np.float64)
+    except RuntimeError as exc:
+        raise CalibrationError(f"{where}: {_one_line(exc)}", None, "intrinsics") from None
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    if model == dai.CameraModel.Perspective:
+        c = np.zeros(14)
+        c[: min(14, coeffs.size)] = coeffs[:14]
+        rest = c[5:]
+        if np.any(np.abs(rest) > RATIONAL_TOLERANCE):
+            named = ", ".join(f"{n}={v:.4g}" for n, v in zip(
+                ("k4", "k5", "k6", "s1", "s2", "s3", "s4", "tx", "ty"), rest, strict=True) if abs(v) > RATIONAL_TOLERANCE)
+            raise CalibrationError(
+                f"{where}: the lens uses OpenCV's rational/thin-prism model ({named}), which DAVIO's camera "
+                f"models (radtan, equidistant) cannot represent; calibrate the camera with Kalibr "
+                f"(pinhole-radtan or pinhole-equi) and pass that calibration instead", None, "distortion")
+        dist = c[:5] if abs(c[4]) > RATIONAL_TOLERANCE else c[:4]
+        camera = PinholeRadtan(int(width), int(height), fx, fy, cx, cy, dist)
+    elif model == dai.CameraModel.Fisheye:
+        if coeffs.size < 4:
+            raise CalibrationError(f"{where}: a fisheye calibration with {coeffs.size} coefficients", None,
+                                   "distortion")
+        camera = PinholeEquidistant(int(width), int(height), fx, fy, cx, cy, coeffs[:4])
+    else:
+        raise CalibrationError(f"{where}: distortion model {model.name} is not supported (Perspective "
+                               f"without rational terms, or Fisheye)", None, "distortion")
+    T_IC = None
+    try:
+        M = np.array(calib.getImuToCameraExtrinsics(sock, False, dai.LengthUnit.METER), dtype=np.float64)
+    except RuntimeError as exc:
+        if require_extrinsics:
+            raise CalibrationError(f"{where}: {_one_line(exc)}", None, "T_IC") from None
+    else:
+        T_IC = invert_rigid(_orthonormal(M))
+    return Rig(camera=camera, T_IC=T_IC, time_offset_s=time_offset_s, imu=None, camera_rate_hz=fps,
+               name=f"oak {socket} {int(width)}x{int(height)}")
+
+
+def check_extrinsics_direction(T_IC: np.ndarray, accel_at_rest_I: Sequence[float],
+                               up_C: Sequence[float] = (0.0, -1.0, 0.0), tol_deg: float = 10.0) -> dict[str, Any]:
+    """Which direction of T_IC agrees with gravity at rest.
+
+    At rest the accelerometer reads +g along "up": accel_I is parallel to R_IC @ up_C. `up_C` is "up"
+    in camera coordinates while the samples were taken (held level, image upright: (0, -1, 0)).
+    Returns the angles (degrees) between the measured accel and R_IC @ up_C ("as_given") and
+    R_IC^T @ up_C ("inverse"), and a verdict: "as_given", "inverse", "ambiguous" (both agree: the
+    rotation maps up_C to the same direction both ways, e.g. a 180 degree turn; only the translation
+    differs and cannot be told from gravity) or "neither" (the camera was not level or the axes are
+    wrong).
+    """
+    R = np.asarray(T_IC, dtype=np.float64)[:3, :3]
+    a = np.asarray(accel_at_rest_I, dtype=np.float64).reshape(3)
+    u = np.asarray(up_C, dtype=np.float64).reshape(3)
+    if not (np.linalg.norm(a) > 0 and np.linalg.norm(u) > 0):
+        raise ValueError("accel_at_rest_I and up_C must be non-zero vectors")
+    a, u = a / np.linalg.norm(a), u / np.linalg.norm(u)
+
+    def angle(v: np.ndarray) -> float:
+        return math.degrees(math.acos(float(np.clip(a @ (v / np.linalg.norm(v)), -1.0, 1.0))))
+
+    given, inverse = angle(R @ u), angle(R.T @ u)
+    ok_g, ok_i = given <= tol_deg, inverse <= tol_deg
+    verdict = ("ambiguous" if ok_g and ok_i else "as_given" if ok_g else "inverse" if ok_i else "neither")
+    return {"angle_as_given_deg": given, "angle_inverse_deg": inverse, "verdict": verdict, "tol_deg": tol_deg}

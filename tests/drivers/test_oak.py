@@ -1,0 +1,597 @@
+"""OakDevice / read_oak_rig without an OAK (notes/drivers.md §1).
+
+- In process: real depthai message classes (`dai.ImgFrame`, `dai.IMUData` / `IMUPacket` /
+  `IMUReport*`, built host-side) are fed through `FakeQueue`s (the `dai.MessageQueue` contract:
+  `get(timedelta)` returns a message or None, raises once closed) injected with `pipeline_factory`.
+- In a subprocess: the same driver over REAL `dai.MessageQueue`s of a host-only `dai.Pipeline(False)`
+  whose `ThreadedHostNode` sends the recorded messages, merged by LiveDriver; then the pipeline is
+  stopped under the readers (what an unplug does to the queues). A subprocess, because tearing down a
+  host-only pipeline with a Python node can hang or crash the interpreter at exit (measured).
+- Calibration: tests/drivers/fixtures/oak_calib.json, written by `make_calibration()` below with
+  `eepromToJsonFile` (regenerate: `python tests/drivers/test_oak.py`), read with
+  `dai.CalibrationHandler(path)`.
+- `start()` without a device: the real depthai probe (no OAK is attached here).
+"""
+from __future__ import annotations
+
+import datetime as dt
+import json
+import os
+import queue
+import re
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+os.environ.setdefault("DEPTHAI_LEVEL", "error")
+dai = pytest.importorskip("depthai")
+
+from drivers.live import LiveDriver  # noqa: E402
+from drivers.oak import (  # noqa: E402
+    NEVER,
+    ImuPairer,
+    OakDevice,
+    OakPipeline,
+    check_extrinsics_direction,
+    read_oak_rig,
+    timedelta_ns,
+)
+from runtime.errors import CalibrationError, DeviceError  # noqa: E402
+from runtime.events import Frame, ImuSample  # noqa: E402
+
+FIXTURE = Path(__file__).parent / "fixtures" / "oak_calib.json"
+ROOT = Path(__file__).resolve().parents[2]
+W, H = 64, 40
+EXPOSURE_US = 8000
+T0 = 1_000 * 10**9  # device clock at the first frame's END of exposure
+G = 9.80665
+
+
+# -- synthetic rig geometry (ground truth for the calibration fixture) --------------------------
+def rot(axis: tuple[float, float, float], deg: float) -> np.ndarray:
+    a = np.asarray(axis, float) / np.linalg.norm(axis)
+    K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+    t = np.radians(deg)
+    return np.eye(3) + np.sin(t) * K + (1 - np.cos(t)) * K @ K
+
+
+def rigid(R: np.ndarray, p: tuple[float, float, float]) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, p
+    return T
+
+
+# x_C = T x_I (IMU -> right camera CAM_C) and x_C = T x_B (left -> right), metres. The rotation of the
+# IMU is not symmetric, so its direction is observable from gravity.
+T_CcI = rigid(rot((1, 2, 3), 100.0), (0.021, -0.0052, 0.0113))
+T_CcB = rigid(rot((0, 1, 0), 0.5), (-0.075, 0.0002, 0.0))
+T_IB_TRUE = np.linalg.inv(T_CcI) @ T_CcB  # what read_oak_rig(CAM_B) must return as T_IC
+K_MONO = [[800.0, 0.0, 640.5], [0.0, 801.0, 400.25], [0.0, 0.0, 1.0]]
+RADTAN5 = [-0.11, 0.07, 0.0004, -0.0003, -0.012]
+EQUI4 = [0.02, -0.01, 0.003, -0.0005]
+RATIONAL = [-5.6, 16.1, 0.0002, 0.0001, -2.3, -5.5, 15.8, -1.9, 0, 0, 0, 0, 0, 0]
+
+
+def make_calibration() -> dai.CalibrationHandler:
+    """CAM_A colour (rational model), CAM_B left (radtan, k3), CAM_C right (fisheye, origin);
+    IMU linked to CAM_C. Translations in centimetres, as depthai stores them; each link written in
+    depthai's convention x_dst = M x_src."""
+    S = dai.CameraBoardSocket
+    c = dai.CalibrationHandler()
+    for sock, K, size, model, dist in (
+            (S.CAM_A, [[1500.0, 0, 960.0], [0, 1500.0, 540.0], [0, 0, 1]], (1920, 1080),
+             dai.CameraModel.Perspective, RATIONAL),
+            (S.CAM_B, K_MONO, (1280, 800), dai.CameraModel.Perspective, RADTAN5 + [0.0] * 9),
+            (S.CAM_C, K_MONO, (1280, 800), dai.CameraModel.Fisheye, EQUI4)):
+        c.setCameraIntrinsics(sock, K, *size)
+        c.setCameraType(sock, model)
+        c.setDistortionCoefficients(sock, dist)
+    c.setCameraExtrinsics(S.CAM_B, S.CAM_C, T_CcB[:3, :3].tolist(), (T_CcB[:3, 3] * 100).tolist())
+    c.setImuExtrinsics(S.CAM_C, T_CcI[:3, :3].tolist(), (T_CcI[:3, 3] * 100).tolist())
+    return c
+
+
+@pytest.fixture(scope="module")
+def calib() -> dai.CalibrationHandler:
+    return dai.CalibrationHandler(str(FIXTURE))
+
+
+# -- recorded messages (real depthai classes) ---------------------------------------------------
+def img_frame(i: int, period_ns: int, w: int = W, h: int = H, kind: str = "GRAY8") -> dai.ImgFrame:
+    f = dai.ImgFrame()
+    f.setType(getattr(dai.ImgFrame.Type, kind))
+    f.setWidth(w)
+    f.setHeight(h)
+    n = w * h * 3 // 2 if kind == "NV12" else w * h
+    data = np.full(n, 0, np.uint8)
+    data[: w * h] = (np.arange(w * h) + i) % 251
+    f.setData(data)
+    f.setSequenceNum(i)
+    f.setTimestampDevice(dt.timedelta(microseconds=(T0 + i * period_ns) // 1000))
+    cs = f.cam
+    cs.exposureTimeUs = EXPOSURE_US
+    f.cam = cs
+    return f
+
+
+def report(cls: type, t_ns: int, xyz: tuple[float, float, float]) -> object:
+    r = cls()
+    r.x, r.y, r.z = xyz
+    ts = dai.Timestamp()
+    ts.sec, ts.nsec = divmod(t_ns, 10**9)
+    r.tsDevice = ts
+    return r
+
+
+def imu_batch(stamps: list[tuple[int | None, int | None]], accel: np.ndarray = np.array([0.0, 0.0, G]),
+              gyro_of: object = None) -> dai.IMUData:
+    """One IMUData: a packet per (accel stamp, gyro stamp); None leaves that report out. Gyro x = the
+    stamp in seconds (so pairing can be checked), accel = `accel` + (stamp in s, 0, 0)."""
+    d = dai.IMUData()
+    pkts = []
+    for ta, tg in stamps:
+        p = dai.IMUPacket()
+        if ta is not None:
+            p.acceleroMeter = report(dai.IMUReportAccelerometer, ta, tuple(accel + [ta * 1e-9, 0, 0]))
+        if tg is not None:
+            p.gyroscope = report(dai.IMUReportGyroscope, tg, (tg * 1e-9, 0.01, -0.02))
+        pkts.append(p)
+    d.packets = pkts
+    return d
+
+
+class QueueClosed(Exception):
+    """Stands in for dai.MessageQueue.QueueException."""
+
+
+class FakeQueue:
+    """The dai.MessageQueue contract: get(timedelta) -> message | None; raises once closed."""
+
+    def __init__(self) -> None:
+        self.q: queue.Queue = queue.Queue()
+        self.closed = False
+
+    def put(self, msg: object) -> None:
+        self.q.put(msg)
+
+    def close(self) -> None:
+        self.closed = True
+
+    def get(self, timeout: dt.timedelta) -> object:
+        if self.closed:
+            raise QueueClosed("MessageQueue was closed")
+        try:
+            return self.q.get(timeout=timeout.total_seconds())
+        except queue.Empty:
+            return None
+
+
+class FakePipe:
+    def __init__(self, *queues: FakeQueue) -> None:
+        self.queues = queues
+        self.stopped = 0
+
+    def stop(self) -> None:
+        self.stopped += 1
+        for q in self.queues:
+            q.close()
+
+
+def fake_device(calibration: object = None, **kw: object) -> tuple[OakDevice, FakeQueue, FakeQueue, FakePipe]:
+    cq, iq = FakeQueue(), FakeQueue()
+    pipe = FakePipe(cq, iq)
+    kw.setdefault("stall_timeout_s", 5.0)
+    dev = OakDevice("CAM_B", W, H, 30.0, 200,
+                    pipeline_factory=lambda d: OakPipeline(cq, iq, pipe, calibration, "OAK fake"), **kw)
+    return dev, cq, iq, pipe
+
+
+def wait_until(cond: object, timeout: float = 2.0) -> None:
+    t_end = time.monotonic() + timeout
+    while not cond():  # type: ignore[operator]
+        assert time.monotonic() < t_end, "timed out"
+        time.sleep(0.002)
+
+
+# -- camera -------------------------------------------------------------------------------------
+def test_frames_grey_sized_mid_exposure_device_stamps_and_drops() -> None:
+    dev, cq, _, pipe = fake_device(keep_frames=2)
+    period = 33_333_333
+    for i in range(5):
+        cq.put(img_frame(i, period))
+    with dev:
+        wait_until(lambda: dev.camera.frames + dev.camera.dropped_old >= 5 and dev.camera.frames >= 5)
+        assert dev.camera.min_future_ns() == dev.camera._buf[0].t_ns
+        frames = [dev.camera.get(0.5), dev.camera.get(0.5)]
+        assert dev.camera.get(0.01) is None
+        last = frames[-1].t_ns
+        assert dev.camera.min_future_ns() == last + 1  # later frames are stamped after it
+        rep = dev.camera.report()
+    assert pipe.stopped == 1
+    assert rep["frames"] == 5 and rep["dropped_old"] == 3 and rep["emitted"] == 2 and rep["seq_gaps"] == 0
+    for f, i in zip(frames, (3, 4), strict=True):
+        assert isinstance(f, Frame) and f.image.dtype == np.uint8 and f.image.shape == (H, W)
+        assert f.meta["seq"] == i
+        assert int(f.image[0, 0]) == i % 251
+        # device clock, mid-exposure: end-of-exposure stamp minus half the exposure, int ns
+        assert type(f.t_ns) is int
+        assert f.t_ns == (T0 + i * period) // 1000 * 1000 - EXPOSURE_US * 500
+    assert dev.camera.min_future_ns() == NEVER  # stopped
+
+
+def test_sequence_gaps_nonmonotonic_and_nv12_luma() -> None:
+    dev, cq, _, _ = fake_device(keep_frames=10)
+    period = 33_333_333
+    for i in (0, 1, 4):  # the device skipped 2 and 3
+        cq.put(img_frame(i, period))
+    cq.put(img_frame(5, -period))  # a stamp that goes back
+    nv = img_frame(6, period, kind="NV12")
+    cq.put(nv)
+    with dev:
+        wait_until(lambda: dev.camera.frames + dev.camera.nonmonotonic >= 5)
+        frames = [dev.camera.get(0.5) for _ in range(4)]
+        rep = dev.camera.report()
+    assert [f.meta["seq"] for f in frames] == [0, 1, 4, 6]
+    assert rep["seq_gaps"] == 2 and rep["nonmonotonic"] == 1  # 2 and 3 skipped; 5 went back in time
+    assert rep["converted"] == 1 and "NV12" in rep["conversion"]
+    assert frames[-1].image.shape == (H, W) and int(frames[-1].image[0, 1]) == 7
+
+
+def test_wrong_size_is_a_device_error() -> None:
+    dev, cq, _, _ = fake_device()
+    cq.put(img_frame(0, 1, w=32, h=20))
+    with dev:
+        with pytest.raises(DeviceError, match="32x20 images, 64x40 were requested"):
+            dev.camera.get(1.0)
+
+
+# -- IMU ----------------------------------------------------------------------------------------
+def test_pairer_equal_and_offset_stamps() -> None:
+    p = ImuPairer()
+    ms = 1_000_000
+    # equal stamps: exact pairs
+    for k in range(3):
+        p.add_accel(10 * ms + 5 * k * ms, (k, 0, 0))
+        p.add_gyro(10 * ms + 5 * k * ms, (0, k, 0))
+    out = p.pop()
+    assert [s.t_ns for s in out] == [10 * ms, 15 * ms, 20 * ms]
+    assert [s.accel[0] for s in out] == [0, 1, 2] and p.interpolated == 0
+    # gyro 2 ms after each accel: interpolated, the last waits for the next accel
+    q = ImuPairer()
+    q.add_gyro(1 * ms, (9, 9, 9))  # before any accel: dropped
+    for k in range(4):
+        q.add_accel(10 * ms + 5 * k * ms, (10.0 * k, 0, 0))
+        q.add_gyro(12 * ms + 5 * k * ms, (k, 0, 0))
+    out = q.pop()
+    assert [s.t_ns for s in out] == [12 * ms, 17 * ms, 22 * ms]
+    np.testing.assert_allclose([s.accel[0] for s in out], [4.0, 14.0, 24.0])
+    assert q.unpaired == 1 and q.interpolated == 3 and q.counts()["waiting"] == 1
+    q.add_accel(10 * ms, (0, 0, 0))  # repeated stamp
+    assert q.repeated == 1
+
+
+def test_imu_batches_paired_ordered_device_clock() -> None:
+    dev, _, iq, _ = fake_device()
+    ms = 1_000_000
+    t = [T0 + k * 5 * ms for k in range(30)]
+    iq.put(imu_batch([(x, x) for x in t[:10]]))  # a batch of 10 packets, equal stamps
+    iq.put(imu_batch([(x, x) for x in t[9:20]]))  # repeats the last packet of the previous batch
+    # then accel and gyro 1 ms apart; one packet without gyro, one without accel
+    iq.put(imu_batch([(x, x + ms) for x in t[20:25]] + [(t[25], None), (None, t[25] + ms)]
+                     + [(x, x + ms) for x in t[26:30]]))
+    with dev:
+        wait_until(lambda: dev.imu.batches == 3)
+        out = []
+        while (s := dev.imu.get(0.05)) is not None:
+            out.append(s)
+        rep = dev.imu.report()
+    stamps = [s.t_ns for s in out]
+    assert stamps == t[:20] + [x + ms for x in t[20:29]]  # the last gyro waits for the next accel
+    assert all(isinstance(s, ImuSample) and type(s.t_ns) is int for s in out)
+    for s in out:  # gyro x carries its stamp; accel x carries the (interpolated) accel stamp
+        assert s.gyro[0] == pytest.approx(s.t_ns * 1e-9, abs=1e-3)
+        assert s.accel[0] == pytest.approx(s.t_ns * 1e-9, abs=1e-3)
+        assert s.accel[2] == pytest.approx(G, abs=1e-5)
+    assert rep["packets"] == 32 and rep["repeated"] == 2 and rep["interpolated"] == 9
+    assert rep["samples"] == 29 and rep["overflow"] == 0
+
+
+def test_imu_overflow_counted() -> None:
+    dev, _, iq, _ = fake_device(imu_queue_seconds=0.05)  # 15 samples at 200 Hz x 1.5
+    iq.put(imu_batch([(T0 + k * 5_000_000,) * 2 for k in range(40)]))
+    with dev:
+        wait_until(lambda: dev.imu.batches == 1)
+        assert dev.imu.queued() == 15 and dev.imu.take_overflow() == 25 and dev.imu.take_overflow() == 0
+        assert dev.imu.get(0.1).t_ns == T0 + 25 * 5_000_000
+
+
+# -- errors -------------------------------------------------------------------------------------
+def test_disconnect_surfaces_as_device_error_after_drain() -> None:
+    dev, cq, iq, _ = fake_device(keep_frames=4)
+    for i in range(2):
+        cq.put(img_frame(i, 33_333_333))
+    iq.put(imu_batch([(T0, T0)]))
+    with dev:
+        wait_until(lambda: dev.camera.frames == 2 and dev.imu.enqueued == 1)
+        cq.close()  # the device goes away: depthai closes the queues
+        wait_until(lambda: dev.camera.error is not None)
+        assert isinstance(dev.imu.error, DeviceError)  # the whole device is gone
+        assert "unplugged" in str(dev.camera.error) and "\n" not in str(dev.camera.error)
+        assert dev.camera.get(0.1) is not None and dev.camera.get(0.1) is not None  # drained first
+        with pytest.raises(DeviceError, match="camera queue failed"):
+            dev.camera.get(0.1)
+        assert dev.imu.get(0.1) is not None
+        with pytest.raises(DeviceError):
+            dev.imu.get(0.1)
+        assert dev.camera.min_future_ns() == NEVER
+    dev.stop()  # idempotent
+
+
+def test_stall_is_a_device_error() -> None:
+    dev, _, _, _ = fake_device(first_message_timeout_s=0.2)
+    with dev:
+        with pytest.raises(DeviceError, match="no first message on the (camera|imu) queue"):
+            dev.camera.get(2.0)
+
+
+def test_factory_failure_is_one_line_device_error() -> None:
+    def boom(d: OakDevice) -> OakPipeline:
+        raise RuntimeError("X_LINK_ERROR\nsecond line")
+
+    with pytest.raises(DeviceError, match=r"^OAK: cannot be opened \(X_LINK_ERROR\)$"):
+        OakDevice(pipeline_factory=boom).start()
+    with pytest.raises(DeviceError, match="socket"):
+        OakDevice(socket="CAM_Z")
+
+
+def test_start_without_device_fails_fast_and_clearly() -> None:
+    t0 = time.monotonic()
+    dev = OakDevice()
+    with pytest.raises(DeviceError) as info:
+        dev.start()
+    elapsed = time.monotonic() - t0
+    assert elapsed < 2.0
+    msg = str(info.value)
+    assert msg.startswith("no OAK device found (is it plugged in? USB3? udev rules:") and "\n" not in msg
+    assert "03e7" in msg
+
+
+# -- LiveDriver over the fake pipeline -----------------------------------------------------------
+def feed_live(cq: FakeQueue, iq: FakeQueue, seconds: float = 0.5, speed: float = 4.0) -> threading.Thread:
+    """Device time T0.. at 30 fps and 200 Hz, IMU in batches of 2, sent in device-time order at
+    `speed` x real time; frames arrive 10 ms (device time) after their end of exposure."""
+    period, imu_dt = 33_333_333, 5_000_000
+
+    def run() -> None:
+        events = []
+        for i in range(int(seconds * 30)):
+            events.append((T0 + i * period + 10_000_000, 1, img_frame(i, period)))
+        for k in range(0, int(seconds * 200), 2):
+            ts = [T0 - 50_000_000 + (k + j) * imu_dt for j in range(2)]
+            events.append((ts[-1] + 1_000_000, 0, imu_batch([(x, x) for x in ts])))
+        events.sort(key=lambda e: (e[0], e[1]))
+        start, t_first = time.monotonic(), events[0][0]
+        for t, kind, msg in events:
+            delay = (t - t_first) / 1e9 / speed - (time.monotonic() - start)
+            if delay > 0:
+                time.sleep(delay)
+            (cq if kind else iq).put(msg)
+
+    th = threading.Thread(target=run, daemon=True)
+    th.start()
+    return th
+
+
+def test_live_driver_over_fake_pipeline_time_ordered() -> None:
+    dev, cq, iq, _ = fake_device()
+    feeder = feed_live(cq, iq)
+    live = LiveDriver(dev.camera, dev.imu, imu_wait_s=0.2)
+    events = []
+    t_end = time.monotonic() + 5.0
+    for ev in live.events():
+        events.append(ev)
+        if sum(isinstance(e, Frame) for e in events) >= 14 or time.monotonic() > t_end:
+            live.stop()
+    feeder.join(2.0)
+    frames = [e for e in events if isinstance(e, Frame)]
+    imu = [e for e in events if isinstance(e, ImuSample)]
+    assert len(frames) >= 14 and len(imu) > 50
+    keys = [(e.t_ns, 0 if isinstance(e, ImuSample) else 1) for e in events]
+    assert keys == sorted(keys)
+    for f in frames[1:]:  # every frame is preceded by IMU samples reaching its stamp
+        before = [s.t_ns for s in imu if s.t_ns <= f.t_ns]
+        assert before and f.t_ns - before[-1] < 5_000_000
+    rep = live.report()
+    assert rep["live"]["frames_ahead_of_imu"] == 0 and rep["sources"]["camera"]["socket"] == "CAM_B"
+
+
+# -- real depthai queues (host-only pipeline) in a subprocess ------------------------------------
+ROUND_TRIP = textwrap.dedent("""
+    import datetime as dt, json, os, sys, time
+    sys.path[:0] = [{root!r}, {tests!r}]
+    import depthai as dai
+    import test_oak as t
+    from drivers.live import LiveDriver
+    from drivers.oak import OakDevice, OakPipeline
+    from runtime.errors import DeviceError
+    from runtime.events import Frame
+
+    class Src(dai.node.ThreadedHostNode):
+        def __init__(self):
+            super().__init__()
+            self.img = self.createOutput()
+            self.imu = self.createOutput()
+        def run(self):
+            period = 33_333_333
+            for i in range(12):
+                ts = [t.T0 - 20_000_000 + (7 * i + j) * 5_000_000 for j in range(7)]
+                self.imu.send(t.imu_batch([(x, x) for x in ts]))
+                self.img.send(t.img_frame(i, period))
+                time.sleep(0.01)
+            while self.isRunning():
+                time.sleep(0.01)
+
+    keep = []
+    def factory(d):
+        p = dai.Pipeline(False)
+        s = p.create(Src)
+        q_img = s.img.createOutputQueue(4, False)
+        q_imu = s.imu.createOutputQueue(50, False)
+        p.start()
+        keep.append((p, s))
+        return OakPipeline(q_img, q_imu, p, dai.CalibrationHandler(str(t.FIXTURE)), "OAK host-only")
+
+    out = {{}}
+    dev = OakDevice("CAM_B", t.W, t.H, 30.0, 200, pipeline_factory=factory)
+    live = LiveDriver(dev.camera, dev.imu, rig=None, imu_wait_s=0.2)
+    evs = []
+    t_end = time.monotonic() + 4
+    for ev in live.events():
+        evs.append((ev.t_ns, isinstance(ev, Frame), ev.image.shape if isinstance(ev, Frame) else None))
+        if sum(e[1] for e in evs) >= 10 or time.monotonic() > t_end:
+            live.stop()
+    out["events"] = evs
+    out["rig_fx"] = dev.rig().camera.fx
+    out["queue_type"] = type(dev.pipe.camera_queue).__name__
+
+    dev2 = OakDevice("CAM_B", t.W, t.H, 30.0, 200, pipeline_factory=factory)
+    dev2.start()
+    while dev2.camera.frames < 2:
+        time.sleep(0.01)
+    dev2.pipe.pipeline.stop()   # closes the queues under the readers, as an unplug does
+    try:
+        while True:
+            dev2.camera.get(1.0)
+    except DeviceError as exc:
+        out["error"] = str(exc)
+    print("RESULT " + json.dumps(out), flush=True)
+    os._exit(0)
+""")
+
+
+def test_round_trip_through_real_depthai_queues() -> None:
+    code = ROUND_TRIP.format(root=str(ROOT), tests=str(Path(__file__).parent))
+    env = dict(os.environ, DEPTHAI_LEVEL="error")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, env=env,
+                          cwd=str(ROOT))
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
+    assert lines, proc.stdout[-2000:] + proc.stderr[-2000:]
+    out = json.loads(lines[0][7:])
+    assert out["queue_type"] == "MessageQueue"
+    evs = out["events"]
+    frames = [e for e in evs if e[1]]
+    assert len(frames) >= 10 and all(e[2] == [H, W] for e in frames)
+    keys = [(e[0], int(e[1])) for e in evs]
+    assert keys == sorted(keys) and len(evs) - len(frames) > 40
+    assert frames[0][0] == T0 - EXPOSURE_US * 500  # device clock, mid-exposure
+    assert out["rig_fx"] == pytest.approx(800.0 * W / 1280, rel=1e-6)
+    assert re.search("(camera|imu) queue failed", out["error"]) and "MessageQueue was closed" in out["error"]
+
+
+# -- calibration --------------------------------------------------------------------------------
+def test_fixture_is_what_make_calibration_writes(tmp_path: Path) -> None:
+    path = tmp_path / "c.json"
+    make_calibration().eepromToJsonFile(str(path))
+    assert json.loads(path.read_text()) == json.loads(FIXTURE.read_text())
+
+
+def test_read_oak_rig_intrinsics_distortion_units_and_direction(calib: dai.CalibrationHandler) -> None:
+    rig = read_oak_rig(calib, "CAM_B", 640, 400, fps=30.0)
+    cam = rig.camera
+    assert cam.distortion_model == "radtan" and cam.size == (640, 400)
+    np.testing.assert_allclose(cam.distortion, RADTAN5, rtol=1e-6)
+    # depthai scales the calibration (1280x800) to the output: K * 0.5
+    np.testing.assert_allclose([cam.fx, cam.fy, cam.cx, cam.cy], [400.0, 400.5, 320.25, 200.125], rtol=1e-6)
+    assert rig.time_offset_s == 0.0 and rig.camera_rate_hz == 30.0 and rig.imu is None
+    # T_IC in metres (depthai's default unit is cm), and through depthai's own chain
+    # IMU -> CAM_C -> CAM_B: equals the ground truth only if each stored link maps x_src to x_dst
+    np.testing.assert_allclose(rig.T_IC, T_IB_TRUE, atol=2e-6)
+    assert np.linalg.norm(rig.p_IC) < 0.2
+    raw = np.array(calib.getImuToCameraExtrinsics(dai.CameraBoardSocket.CAM_B, False, dai.LengthUnit.METER))
+    np.testing.assert_allclose(np.linalg.inv(raw), rig.T_IC, atol=2e-6)  # T_IC = inverse of depthai's
+    # the other reading (each stored link = pose of dst in src, x_src = M x_dst): written that way,
+    # depthai's chain gives a matrix that is neither T_IB nor T_BI, so depthai composes in x_dst = M x_src
+    S = dai.CameraBoardSocket
+    other = make_calibration()
+    B_C, I_C = np.linalg.inv(T_CcB), np.linalg.inv(T_CcI)
+    other.setCameraExtrinsics(S.CAM_B, S.CAM_C, B_C[:3, :3].tolist(), (B_C[:3, 3] * 100).tolist())
+    other.setImuExtrinsics(S.CAM_C, I_C[:3, :3].tolist(), (I_C[:3, 3] * 100).tolist())
+    chained = np.array(other.getImuToCameraExtrinsics(S.CAM_B, False, dai.LengthUnit.METER))
+    for candidate in (chained, np.linalg.inv(chained)):
+        assert not np.allclose(candidate, T_IB_TRUE, atol=1e-3)
+    # directly linked camera: fisheye -> equidistant, and the same T_IC convention
+    rig_c = read_oak_rig(calib, "CAM_C", 1280, 800)
+    assert rig_c.camera.distortion_model == "equidistant"
+    np.testing.assert_allclose(rig_c.camera.distortion, EQUI4, rtol=1e-6)
+    np.testing.assert_allclose(rig_c.T_IC, np.linalg.inv(T_CcI), atol=2e-6)
+
+
+def test_read_oak_rig_refuses_rational_model(calib: dai.CalibrationHandler) -> None:
+    with pytest.raises(CalibrationError, match=r"CAM_A.*rational.*k4=-5\.5.*Kalibr"):
+        read_oak_rig(calib, "CAM_A", 640, 400)
+
+
+def test_read_oak_rig_radtan4_and_missing_imu() -> None:
+    c = dai.CalibrationHandler()
+    S = dai.CameraBoardSocket
+    c.setCameraIntrinsics(S.CAM_B, K_MONO, 1280, 800)
+    c.setCameraType(S.CAM_B, dai.CameraModel.Perspective)
+    c.setDistortionCoefficients(S.CAM_B, RADTAN5[:4] + [0.0] * 10)
+    rig = read_oak_rig(c, "CAM_B", 1280, 800)
+    assert rig.camera.distortion.size == 4 and rig.T_IC is None
+    with pytest.raises(CalibrationError, match="IMU calibration data is not available"):
+        read_oak_rig(c, "CAM_B", 1280, 800, require_extrinsics=True)
+
+
+def test_gravity_at_rest_tells_the_direction(calib: dai.CalibrationHandler) -> None:
+    """Synthetic rest recording through the driver: the camera (CAM_B) held level, image upright,
+    so up is -y in camera coordinates and the accelerometer reads g along R_IB @ up_B."""
+    dev, _, iq, _ = fake_device(calibration=calib)
+    up_B = np.array([0.0, -1.0, 0.0])
+    g_I = G * (T_IB_TRUE[:3, :3] @ up_B)
+    rng = np.random.default_rng(3)
+    for b in range(5):
+        ts = [T0 + (10 * b + k) * 5_000_000 for k in range(10)]
+        d = dai.IMUData()
+        pkts = []
+        for x in ts:
+            p = dai.IMUPacket()
+            p.acceleroMeter = report(dai.IMUReportAccelerometer, x, tuple(g_I + rng.normal(0, 0.05, 3)))
+            p.gyroscope = report(dai.IMUReportGyroscope, x, tuple(rng.normal(0, 0.002, 3)))
+            pkts.append(p)
+        d.packets = pkts
+        iq.put(d)
+    with dev:
+        wait_until(lambda: dev.imu.enqueued == 50)
+        acc = np.mean([dev.imu.get(0.1).accel for _ in range(50)], axis=0)
+        rig = dev.rig()
+    res = check_extrinsics_direction(rig.T_IC, acc)
+    assert res["verdict"] == "as_given" and res["angle_as_given_deg"] < 1.0
+    assert res["angle_inverse_deg"] > 30.0
+    assert check_extrinsics_direction(np.linalg.inv(rig.T_IC), acc)["verdict"] == "inverse"
+    assert check_extrinsics_direction(rig.T_IC, -acc)["verdict"] == "neither"
+    flip = np.diag([1.0, -1.0, -1.0, 1.0])  # a 180 degree turn: its own inverse
+    assert check_extrinsics_direction(flip, flip[:3, :3] @ up_B)["verdict"] == "ambiguous"
+
+
+def test_timedelta_ns_exact() -> None:
+    assert timedelta_ns(dt.timedelta(days=2, seconds=3, microseconds=7)) == (2 * 86400 + 3) * 10**9 + 7000
+    assert timedelta_ns(dt.timedelta(microseconds=-1)) == -1000
+
+
+def test_module_imports_depthai_lazily() -> None:
+    code = "import sys, drivers.oak; print('depthai' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=str(ROOT), timeout=30)
+    assert out.stdout.strip() == "False", out.stderr
+
+
+if __name__ == "__main__":  # regenerate the calibration fixture
+    FIXTURE.parent.mkdir(parents=True, exist_ok=True)
+    make_calibration().eepromToJsonFile(str(FIXTURE))
+    print(f"wrote {FIXTURE}")
