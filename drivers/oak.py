@@ -111,7 +111,8 @@ def _report_ns(report: Any) -> int:
 
 # -- probing -------------------------------------------------------------------------------------
 def oak_available(timeout_s: float = 2.0) -> list[dict[str, Any]]:
-    """The OAK devices depthai can see, as dicts (device_id, name, state, protocol, platform).
+    """The OAK devices depthai can see, as dicts: device_id, name, state, protocol, platform (strings)
+    and info (the `dai.DeviceInfo`, to open that device).
 
     `[]` when none is attached. Raises DeviceError when depthai is not installed or the probe does not
     finish within `timeout_s`."""
@@ -204,7 +205,8 @@ def build_pipeline(dev: OakDevice) -> OakPipeline:
         out = cam.requestOutput((dev.width, dev.height), kind, dai.ImgResizeMode.CROP, dev.fps, False)
         q_img = out.createOutputQueue(dev.camera_queue_size, False)
         imu = pipeline.create(dai.node.IMU)
-        imu.enableIMUSensor([dai.IMUSensor.ACCELEROMETER_RAW, dai.IMUSensor.GYROSCOPE_RAW], int(dev.imu_rate_hz))
+        sensors = [dai.IMUSensor.ACCELEROMETER_RAW, dai.IMUSensor.GYROSCOPE_RAW]
+        imu.enableIMUSensor(sensors, int(dev.imu_rate_hz))
         imu.setBatchReportThreshold(1)
         imu.setMaxBatchReports(10)
         q_imu = imu.out.createOutputQueue(dev.imu_queue_size, False)
@@ -308,7 +310,8 @@ class OakDevice:
             self._started = True
             self.start_ns = time.monotonic_ns()
             self.camera._running = self.imu._running = True
-            for name, src, queue in (("camera", self.camera, pipe.camera_queue), ("imu", self.imu, pipe.imu_queue)):
+            readers = (("camera", self.camera, pipe.camera_queue), ("imu", self.imu, pipe.imu_queue))
+            for name, src, queue in readers:
                 t = threading.Thread(target=self._read, args=(name, src, queue), name=f"davio-oak-{name}",
                                      daemon=True)
                 self._threads.append(t)
@@ -657,9 +660,11 @@ class OakImu(_Source):
         if self.pairer.interpolated:
             notes.append(f"{self.pairer.interpolated} accelerometer values interpolated to gyroscope stamps")
         if self.pairer.unpaired:
-            notes.append(f"{self.pairer.unpaired} gyroscope reports without an accelerometer around them dropped")
+            notes.append(f"{self.pairer.unpaired} gyroscope reports without accelerometer reports around "
+                         f"them dropped")
         if self.pairer.repeated:
-            notes.append(f"{self.pairer.repeated} reports repeating or preceding their stream's stamp dropped")
+            notes.append(f"{self.pairer.repeated} reports repeating or preceding their stream's stamp "
+                         f"dropped")
         out["notes"] = notes
         out["error"] = None if self.error is None else str(self.error)
         return out
@@ -735,8 +740,9 @@ def read_oak_rig(calib: Any, socket: str = "CAM_B", width: int = 640, height: in
         c[: min(14, coeffs.size)] = coeffs[:14]
         rest = c[5:]
         if np.any(np.abs(rest) > RATIONAL_TOLERANCE):
-            named = ", ".join(f"{n}={v:.4g}" for n, v in zip(
-                ("k4", "k5", "k6", "s1", "s2", "s3", "s4", "tx", "ty"), rest, strict=True) if abs(v) > RATIONAL_TOLERANCE)
+            names = ("k4", "k5", "k6", "s1", "s2", "s3", "s4", "tx", "ty")
+            named = ", ".join(f"{n}={v:.4g}" for n, v in zip(names, rest, strict=True)
+                              if abs(v) > RATIONAL_TOLERANCE)
             raise CalibrationError(
                 f"{where}: the lens uses OpenCV's rational/thin-prism model ({named}), which DAVIO's camera "
                 f"models (radtan, equidistant) cannot represent; calibrate the camera with Kalibr "
@@ -764,7 +770,8 @@ def read_oak_rig(calib: Any, socket: str = "CAM_B", width: int = 640, height: in
 
 
 def check_extrinsics_direction(T_IC: np.ndarray, accel_at_rest_I: Sequence[float],
-                               up_C: Sequence[float] = (0.0, -1.0, 0.0), tol_deg: float = 10.0) -> dict[str, Any]:
+                               up_C: Sequence[float] = (0.0, -1.0, 0.0),
+                               tol_deg: float = 10.0) -> dict[str, Any]:
     """Which direction of T_IC agrees with gravity at rest.
 
     At rest the accelerometer reads +g along "up": accel_I is parallel to R_IC @ up_C. `up_C` is "up"

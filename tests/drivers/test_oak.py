@@ -129,8 +129,8 @@ def report(cls: type, t_ns: int, xyz: tuple[float, float, float]) -> object:
     return r
 
 
-def imu_batch(stamps: list[tuple[int | None, int | None]], accel: np.ndarray = np.array([0.0, 0.0, G]),
-              gyro_of: object = None) -> dai.IMUData:
+def imu_batch(stamps: list[tuple[int | None, int | None]],
+              accel: tuple[float, ...] = (0.0, 0.0, G)) -> dai.IMUData:
     """One IMUData: a packet per (accel stamp, gyro stamp); None leaves that report out. Gyro x = the
     stamp in seconds (so pairing can be checked), accel = `accel` + (stamp in s, 0, 0)."""
     d = dai.IMUData()
@@ -138,7 +138,7 @@ def imu_batch(stamps: list[tuple[int | None, int | None]], accel: np.ndarray = n
     for ta, tg in stamps:
         p = dai.IMUPacket()
         if ta is not None:
-            p.acceleroMeter = report(dai.IMUReportAccelerometer, ta, tuple(accel + [ta * 1e-9, 0, 0]))
+            p.acceleroMeter = report(dai.IMUReportAccelerometer, ta, tuple(np.add(accel, (ta * 1e-9, 0, 0))))
         if tg is not None:
             p.gyroscope = report(dai.IMUReportGyroscope, tg, (tg * 1e-9, 0.01, -0.02))
         pkts.append(p)
@@ -587,7 +587,8 @@ def test_timedelta_ns_exact() -> None:
 
 def test_module_imports_depthai_lazily() -> None:
     code = "import sys, drivers.oak; print('depthai' in sys.modules)"
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=str(ROOT), timeout=30)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=str(ROOT),
+                         timeout=30)
     assert out.stdout.strip() == "False", out.stderr
 
 
