@@ -7,9 +7,11 @@ import time
 from dataclasses import replace
 
 NAME = "live"
-HELP = "run live on a UVC camera + serial IMU (OAK: not yet); Ctrl-C finishes and writes the run"
+HELP = "run live on an OAK (depthai) or a UVC camera + serial IMU; Ctrl-C finishes and writes the run"
 DESCRIPTION = (
-    "Runs DAVIO on live sensors: a UVC camera read with OpenCV (host monotonic stamps at mid-exposure) "
+    "Runs DAVIO on live sensors: an OAK module (depthai 3: a mono camera, or the colour one in grey, and "
+    "its IMU on the device clock, mid-exposure stamps, the factory calibration unless --rig), or a UVC "
+    "camera read with OpenCV (host monotonic stamps at mid-exposure) "
     "and a serial IMU (Xsens MTData2 or the documented text protocol; device time mapped to the host clock "
     "by an online offset and drift fit). Bounded queues between drivers, tracker and model worker: IMU "
     "samples are never dropped, the oldest waiting image is (counted). A one-line status shows rate, tracks, "
@@ -21,6 +23,10 @@ DESCRIPTION = (
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("source", choices=["uvc", "oak"], help="the sensor module")
     p.add_argument("--camera", default="0", help="UVC device index or path (a video file replays it)")
+    p.add_argument("--socket", choices=["CAM_B", "CAM_C", "CAM_A"], default="CAM_B",
+                   help="OAK camera socket (CAM_B/CAM_C: mono; CAM_A: colour, used in grey)")
+    p.add_argument("--imu-rate", type=int, default=200, help="OAK IMU rate (Hz)")
+    p.add_argument("--device-id", default=None, help="OAK device id (default: the first found)")
     p.add_argument("--width", type=int, default=None, help="requested image width (px)")
     p.add_argument("--height", type=int, default=None, help="requested image height (px)")
     p.add_argument("--fps", type=float, default=None, help="requested camera rate (Hz)")
@@ -29,7 +35,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="xsens: Xbus MTData2 (counter, SampleTimeFine, accel, gyro); text: "
                         "$IMU,seq,t_dev_us,ax,ay,az,gx,gy,gz*HH lines")
     p.add_argument("--baud", type=int, default=460800, help="serial baud rate")
-    p.add_argument("--rig", metavar="FILE", help="calibration (Kalibr camchain, EuRoC sensor.yaml or folder)")
+    p.add_argument("--rig", metavar="FILE",
+                   help="calibration (Kalibr camchain, EuRoC sensor.yaml or folder); an OAK's factory "
+                        "calibration is used without it")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--model", metavar="ONNX", help="DA3 ONNX graph: feed-forward start-up and the map")
     g.add_argument("--native-only", action="store_true", help="native initializer only, no map")
@@ -49,15 +57,12 @@ def run(args: argparse.Namespace) -> int:
     from tools.run_folder import RunFolder
     from tools.run_outcome import interruptible
 
-    if args.source == "oak":
-        raise ConfigError("the OAK (depthai) driver is not built yet; use `davio live uvc --imu-port PORT`, "
-                          "or record a ROS bag and replay it with `davio run BAG --rig FILE`")
     check_run_args(args)
-    if not args.imu_port:
+    if args.source == "uvc" and not args.imu_port:
         raise ConfigError("davio live uvc needs --imu-port (the serial IMU, e.g. /dev/ttyUSB0)")
-    if not args.rig:
-        raise ConfigError("davio live needs --rig FILE (the camera intrinsics; a Kalibr camchain, an EuRoC "
-                          "sensor.yaml or folder)")
+    if args.source == "uvc" and not args.rig:
+        raise ConfigError("davio live uvc needs --rig FILE (the camera intrinsics; a Kalibr camchain, an "
+                          "EuRoC sensor.yaml or folder)")
     config = load_toml(DavioConfig, args.config) if args.config else DavioConfig()
     # host-stamped camera and IMU: the filter estimates the camera-IMU time offset online
     config = replace(config, msckf=replace(config.msckf, calib_time_offset=True))
@@ -66,24 +71,52 @@ def run(args: argparse.Namespace) -> int:
     folder = RunFolder.prepare(args.out, overwrite=args.overwrite)
     from calib import load_rig
 
-    rig = load_rig(args.rig)
-    if rig.camera is None:
+    rig = load_rig(args.rig) if args.rig else None
+    if rig is not None and rig.camera is None:
         raise ConfigError(f"{args.rig}: no camera intrinsics")
-    model, model_desc = None, "none (native initializer only)"
-    if args.model:
-        from models.da3 import OnnxDA3
-
-        model = OnnxDA3(args.model, rig.camera)
-        warm_s = model.warm_up(config.startup.window_images)
-        model_desc = f"DA3 ONNX {args.model} on {model.session_info['providers'][0]} (warm-up {warm_s:.2f} s)"
     with interruptible():
-        driver = _open_driver(args, rig)
+        driver, rig = _open_oak(args, rig) if args.source == "oak" else (_open_driver(args, rig), rig)
+        try:
+            model, model_desc = _open_model(args, rig, config)
+        except BaseException:
+            driver.stop()
+            raise
         folder.create()
         with folder.discard_on_error():
             try:
                 return _run(args, folder, driver, rig, model, model_desc, config)
             finally:
                 driver.stop()
+
+
+def _open_model(args: argparse.Namespace, rig, config) -> tuple:
+    """(model, description): the DA3 ONNX graph warmed up at the start-up window's shape, or None."""
+    if not args.model:
+        return None, "none (native initializer only)"
+    from models.da3 import OnnxDA3
+
+    model = OnnxDA3(args.model, rig.camera)
+    warm_s = model.warm_up(config.startup.window_images)
+    return model, f"DA3 ONNX {args.model} on {model.session_info['providers'][0]} (warm-up {warm_s:.2f} s)"
+
+
+def _open_oak(args: argparse.Namespace, rig):
+    """(LiveDriver over an OAK's camera and IMU, the rig: --rig, else the device's factory calibration)."""
+    from drivers.live import LiveDriver
+    from drivers.oak import OakDevice
+
+    dev = OakDevice(socket=args.socket, width=args.width or 640, height=args.height or 400,
+                    fps=args.fps or 30.0, imu_rate_hz=args.imu_rate, device_id=args.device_id)
+    dev.start()
+    try:
+        if rig is None:
+            rig = dev.rig()
+        driver = LiveDriver(dev.camera, dev.imu, rig=rig, time_offset_s=rig.time_offset_s or 0.0)
+        driver.start()
+    except BaseException:
+        dev.stop()
+        raise
+    return driver, rig
 
 
 def _open_driver(args: argparse.Namespace, rig):
@@ -117,7 +150,9 @@ def _run(args, folder, driver, rig, model, model_desc: str, config) -> int:
     from tools.run_session import _first_seconds
 
     map_out = MapOutput.create(folder.path, rig, model_desc, model, config)
-    print(f"davio live: {args.source} camera {args.camera} + IMU {args.imu_port} ({args.imu_protocol})\n"
+    where = (f"OAK {args.socket}" if args.source == "oak" else
+             f"uvc camera {args.camera} + IMU {args.imu_port} ({args.imu_protocol})")
+    print(f"davio live: {where}\n"
           f"  model: {model_desc}\n  Ctrl-C to finish", file=sys.stderr)
     session = Session(rig, model, config, map_sink=None if map_out is None else map_out.sink)
     events = driver.events()
@@ -132,8 +167,7 @@ def _run(args, folder, driver, rig, model, model_desc: str, config) -> int:
     judge(res, driver.report())
     map_summary = map_out.finish() if map_out is not None else None
     report = write_run(folder.path, res.pipeline, res.scheduler, None,
-                       {"recording": f"live {args.source}: camera {args.camera}, IMU {args.imu_port} "
-                                     f"({args.imu_protocol})", "model": model_desc, "status": res.status,
+                       {"recording": f"live {where}", "model": model_desc, "status": res.status,
                         "status_reason": res.reason, "driver": driver.report(), "map": map_summary},
                        config)
     return conclude(folder, res, report, as_json=args.json, summary=_summary)
