@@ -7,6 +7,7 @@ Tolerances come from measurements (BENCHMARKS.md "Calibration-withheld bring-up 
 lever arm and offset errors were about 0.05 deg, 0.5 cm and 0.1 ms; the asserted bounds (0.5 deg, 3 cm,
 1 ms) leave room for other platforms' floating point and the filter's short convergence.
 """
+
 from __future__ import annotations
 
 import json
@@ -37,8 +38,9 @@ def _simulate(out: Path, **cfg) -> Path:
 def aggressive_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """12 s of the 'aggressive' preset at 10 Hz (half the rendering of 20 Hz), camera 5 ms behind the IMU."""
     out = tmp_path_factory.mktemp("calib") / "aggressive12"
-    return _simulate(out, preset="aggressive", seconds=12.0, seed=4, camera_rate_hz=10.0,
-                     time_offset_s=TRUE_OFFSET_S)
+    return _simulate(
+        out, preset="aggressive", seconds=12.0, seed=4, camera_rate_hz=10.0, time_offset_s=TRUE_OFFSET_S
+    )
 
 
 @pytest.fixture(scope="module")
@@ -46,9 +48,12 @@ def translation_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """5 s of pure translation (constant attitude, camera looking along +x) at 10 Hz."""
     d = tmp_path_factory.mktemp("calib_translation")
     t = np.arange(0.0, 5.0 + 1e-9, 0.05)
-    q = np.array([0.0, np.sqrt(0.5), 0.0, np.sqrt(0.5)])   # x y z w: R_y(90 deg), IMU z -> world x
-    lines = [f"{100 + s:.3f} 0.0 {0.5 * np.sin(0.9 * s):.6f} {1.2 + 0.1 * np.sin(1.7 * s):.6f} "
-             + " ".join(f"{v:.9f}" for v in q) for s in t]
+    q = np.array([0.0, np.sqrt(0.5), 0.0, np.sqrt(0.5)])  # x y z w: R_y(90 deg), IMU z -> world x
+    lines = [
+        f"{100 + s:.3f} 0.0 {0.5 * np.sin(0.9 * s):.6f} {1.2 + 0.1 * np.sin(1.7 * s):.6f} "
+        + " ".join(f"{v:.9f}" for v in q)
+        for s in t
+    ]
     (d / "line.tum").write_text("\n".join(lines) + "\n")
     return _simulate(d / "rec", trajectory=d / "line.tum", seconds=None, seed=1, camera_rate_hz=10.0)
 
@@ -65,20 +70,35 @@ def test_calibrate_writes_a_camchain_close_to_the_simulator_rig(aggressive_folde
 
     out = tmp_path / "camchain.yaml"
     # 12 s leave about 6 s to the filter: thresholds relaxed (the defaults are for >= 30 s of motion)
-    rc = main(["calibrate", str(aggressive_folder), "--out", str(out), "--max-rot-std-deg", "1",
-               "--max-lever-std-m", "0.05", "--max-offset-std-ms", "2", "--json"])
+    rc = main(
+        [
+            "calibrate",
+            str(aggressive_folder),
+            "--out",
+            str(out),
+            "--max-rot-std-deg",
+            "1",
+            "--max-lever-std-m",
+            "0.05",
+            "--max-offset-std-ms",
+            "2",
+            "--json",
+        ]
+    )
     captured = capsys.readouterr()
     report = json.loads(captured.out)
     assert rc == 0, (report["message"], captured.err)
     assert report["status"] == "ok" and report["bringup"]["R_IC"] is not None
     rig = load_rig(out)
     truth = open_recording(aggressive_folder, rebuild=False).driver.rig
-    assert rig.imu is not None and rig.imu == truth.imu          # imu.yaml beside the camchain, found
+    assert rig.imu is not None and rig.imu == truth.imu  # imu.yaml beside the camchain, found
     assert rig.camera.width == truth.camera.width and np.allclose(rig.camera.K, truth.camera.K)
     rot = np.degrees(np.linalg.norm(so3_log(rig.T_IC[:3, :3].T @ truth.T_IC[:3, :3])))
     lever = np.linalg.norm(rig.T_IC[:3, 3] - truth.T_IC[:3, 3])
-    print(f"written: rotation {rot:.3f} deg, lever arm {100 * lever:.2f} cm, "
-          f"offset {1e3 * rig.time_offset_s:.3f} ms (true {1e3 * TRUE_OFFSET_S} ms)")
+    print(
+        f"written: rotation {rot:.3f} deg, lever arm {100 * lever:.2f} cm, "
+        f"offset {1e3 * rig.time_offset_s:.3f} ms (true {1e3 * TRUE_OFFSET_S} ms)"
+    )
     assert rot < 0.5
     assert lever < 0.03
     # Kalibr's sign: the camera stamps are 5 ms behind the IMU clock, so t_imu = t_cam + 0.005
@@ -122,9 +142,13 @@ def _run(rates=(40.0, 30.0, 20.0), bringup_done=True, std=(0.01, 0.001, 2e-5), s
 
     cov = None if std is None else np.diag([np.radians(std[0]) ** 2] * 3 + [std[1] ** 2] * 3 + [std[2] ** 2])
     samples = [CalibSample(10**9, np.eye(3), np.zeros(3), 0.0, cov, 0)]
-    bu = {"windows_used": 9 if bringup_done else 3, "windows_skipped_static": 2, "attempts": 1,
-          "rejections": {} if bringup_done else {"handeye_validation_failed": 2},
-          "R_IC": np.eye(3).tolist() if bringup_done else None}
+    bu = {
+        "windows_used": 9 if bringup_done else 3,
+        "windows_skipped_static": 2,
+        "attempts": 1,
+        "rejections": {} if bringup_done else {"handeye_validation_failed": 2},
+        "R_IC": np.eye(3).tolist() if bringup_done else None,
+    }
     ex = Excitation(60.0, np.eye(3).tolist(), list(rates), [r * 60 for r in rates])
     return CalibrationRun(samples, bu, ex, {}, status, None, 0, 60.0)
 
@@ -134,16 +158,19 @@ def test_judge_accepts_a_well_excited_converged_run():
     assert v.ok and v.code == "ok"
 
 
-@pytest.mark.parametrize("kwargs, code, words", [
-    (dict(rates=(30.0, 0.5, 0.2)), "insufficient_rotation", "1 of 3 principal axes"),
-    (dict(rates=(0.2, 0.1, 0.1), bringup_done=False), "insufficient_rotation", "0 of 3"),
-    (dict(bringup_done=False), "bringup_incomplete", "handeye_validation_failed x2"),
-    (dict(std=None), "no_calibrated_state", "never published"),
-    (dict(std=(0.5, 0.001, 2e-5)), "uncertain", "rotation 0.500 deg > 0.3"),
-    (dict(std=(0.01, 0.02, 2e-5)), "uncertain", "lever arm 2.00 cm > 1"),
-    (dict(std=(0.01, 0.001, 3e-3)), "uncertain", "time offset 3.000 ms > 1"),
-    (dict(status="failed"), "replay_failed", "did not complete"),
-])
+@pytest.mark.parametrize(
+    "kwargs, code, words",
+    [
+        (dict(rates=(30.0, 0.5, 0.2)), "insufficient_rotation", "1 of 3 principal axes"),
+        (dict(rates=(0.2, 0.1, 0.1), bringup_done=False), "insufficient_rotation", "0 of 3"),
+        (dict(bringup_done=False), "bringup_incomplete", "handeye_validation_failed x2"),
+        (dict(std=None), "no_calibrated_state", "never published"),
+        (dict(std=(0.5, 0.001, 2e-5)), "uncertain", "rotation 0.500 deg > 0.1"),
+        (dict(std=(0.01, 0.02, 2e-5)), "uncertain", "lever arm 2.00 cm > 0.5"),
+        (dict(std=(0.01, 0.001, 3e-3)), "uncertain", "time offset 3.000 ms > 0.3"),
+        (dict(status="failed"), "replay_failed", "did not complete"),
+    ],
+)
 def test_judge_refusals_name_what_was_observed(kwargs, code, words):
     v = judge(_run(**kwargs), Thresholds())
     assert not v.ok and v.code == code
@@ -172,12 +199,15 @@ def test_covariance_std_takes_the_worst_direction():
 # ------------------------------------------------------------------ bad arguments
 
 
-@pytest.mark.parametrize("extra, words", [
-    (["--seconds", "0"], "--seconds must be > 0"),
-    (["--max-rot-std-deg", "-1"], "--max-rot-std-deg must be a finite number > 0"),
-    (["--min-axis-rate-dps", "nan"], "--min-axis-rate-dps must be"),
-    (["--model-latency", "-2"], "--model-latency must be"),
-])
+@pytest.mark.parametrize(
+    "extra, words",
+    [
+        (["--seconds", "0"], "--seconds must be > 0"),
+        (["--max-rot-std-deg", "-1"], "--max-rot-std-deg must be a finite number > 0"),
+        (["--min-axis-rate-dps", "nan"], "--min-axis-rate-dps must be"),
+        (["--model-latency", "-2"], "--model-latency must be"),
+    ],
+)
 def test_bad_option_values_are_clear_errors(tmp_path, capsys, extra, words):
     assert main(["calibrate", str(tmp_path), "--out", str(tmp_path / "rig.yaml"), *extra]) == 1
     assert words in capsys.readouterr().err

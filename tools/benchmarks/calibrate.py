@@ -8,6 +8,7 @@ time offset): rotation (deg), lever arm (cm), time offset (ms, signed), the filt
 `davio calibrate`'s default refusal rules accept it, and when each error settled below the goal
 (< 0.3 deg, < 1 cm, < 1 ms after 60 s of motion). Uses the EMULATED DA3: not DA3 results.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -22,13 +23,25 @@ HELP = "davio calibrate on simulated recordings with a known rig: errors of the 
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("folders", type=Path, nargs="+", help="`davio simulate` folders (e.g. --seconds 60 "
-                                                          "--time-offset 0.005)")
+    p.add_argument(
+        "folders",
+        type=Path,
+        nargs="+",
+        help="`davio simulate` folders (e.g. --seconds 60 --time-offset 0.005)",
+    )
     p.add_argument("--seconds", type=float, default=None, help="only the first S seconds of each")
-    p.add_argument("--pose-error-scales", default="1", metavar="K,K,...",
-                   help="factors on the emulated DA3's unconditioned pose errors (e.g. 1,2,5,20)")
-    p.add_argument("--scales-on", default="first", choices=["first", "all"],
-                   help="apply the factors other than 1 to the first folder only, or to all")
+    p.add_argument(
+        "--pose-error-scales",
+        default="1",
+        metavar="K,K,...",
+        help="factors on the emulated DA3's unconditioned pose errors (e.g. 1,2,5,20)",
+    )
+    p.add_argument(
+        "--scales-on",
+        default="first",
+        choices=["first", "all"],
+        help="apply the factors other than 1 to the first folder only, or to all",
+    )
     p.add_argument("--preset", default="base", help="emulated DA3 preset")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
     p.add_argument("--out", type=Path, default=None, help="also write the JSON result to this file")
@@ -57,10 +70,18 @@ def measure(folder: Path, scale: float, seconds: float | None, preset: str = "ba
     run = calibrate(rec.driver.events(), rig, model, seconds=seconds)
     wall = time.perf_counter() - t0
     verdict = judge(run, Thresholds())
-    row: dict = {"folder": str(folder), "preset": cfg.get("preset"), "pose_error_scale": scale,
-                 "sensor_s": run.sensor_s, "wall_s": wall, "verdict": verdict.code, "message": verdict.message,
-                 "bringup": run.bringup, "excitation_rms_dps": run.excitation.rms_rate_dps,
-                 "true_time_offset_ms": 1e3 * true_dt}
+    row: dict = {
+        "folder": str(folder),
+        "preset": cfg.get("preset"),
+        "pose_error_scale": scale,
+        "sensor_s": run.sensor_s,
+        "wall_s": wall,
+        "verdict": verdict.code,
+        "message": verdict.message,
+        "bringup": run.bringup,
+        "excitation_rms_dps": run.excitation.rms_rate_dps,
+        "true_time_offset_ms": 1e3 * true_dt,
+    }
     bu = run.bringup or {}
     if bu.get("R_IC") is not None:
         row["bringup_rot_err_deg"] = rotation_deg(np.array(bu["R_IC"]), true_T[:3, :3])
@@ -75,22 +96,39 @@ def measure(folder: Path, scale: float, seconds: float | None, preset: str = "ba
     with tempfile.TemporaryDirectory() as tmp:
         paths = paths_for(Path(tmp) / "camchain.yaml")
         if std is not None:
-            report = build_report(run, verdict, Thresholds(), "emulated", str(folder),
-                                  {"source": "simulator", "T_IC": true_T, "time_offset_s": true_dt}, paths)
+            report = build_report(
+                run,
+                verdict,
+                Thresholds(),
+                "emulated",
+                str(folder),
+                {"source": "simulator", "T_IC": true_T, "time_offset_s": true_dt},
+                paths,
+            )
             write_outputs(run, rig, paths, report)
             back = load_rig(paths["camchain"])
             row["settled_s"] = report["reference"]["errors"]["settled_s"]
         else:
             back = estimated_rig(rig, final, "x")
     R, p, dt = back.T_IC[:3, :3], back.T_IC[:3, 3], back.time_offset_s
-    row.update(rot_err_deg=rotation_deg(R, true_T[:3, :3]), lever_err_cm=float(100 * np.linalg.norm(p - true_T[:3, 3])),
-               offset_err_ms=float(1e3 * (dt - true_dt)))
+    row.update(
+        rot_err_deg=rotation_deg(R, true_T[:3, :3]),
+        lever_err_cm=float(100 * np.linalg.norm(p - true_T[:3, 3])),
+        offset_err_ms=float(1e3 * (dt - true_dt)),
+    )
     # mean error over the last 10 s (how steady the end is)
     last = [s for s in run.samples if s.t_cam_ns >= final.t_cam_ns - 10_000_000_000]
-    errs = np.array([[e["rotation_deg"], e["lever_arm_cm"], abs(e["time_offset_ms"])]
-                     for e in (errors_against(s, true_T, true_dt) for s in last)])
-    row.update(rot_err_deg_last10s=float(errs[:, 0].mean()), lever_err_cm_last10s=float(errs[:, 1].mean()),
-               offset_err_ms_last10s=float(errs[:, 2].mean()))
+    errs = np.array(
+        [
+            [e["rotation_deg"], e["lever_arm_cm"], abs(e["time_offset_ms"])]
+            for e in (errors_against(s, true_T, true_dt) for s in last)
+        ]
+    )
+    row.update(
+        rot_err_deg_last10s=float(errs[:, 0].mean()),
+        lever_err_cm_last10s=float(errs[:, 1].mean()),
+        offset_err_ms_last10s=float(errs[:, 2].mean()),
+    )
     return row
 
 
@@ -100,7 +138,10 @@ def run(args: argparse.Namespace) -> int:
     try:
         scales = [float(s) for s in args.pose_error_scales.split(",") if s.strip()]
     except ValueError:
-        print(f"calibrate: --pose-error-scales must be numbers separated by commas, got {args.pose_error_scales!r}")
+        print(
+            "calibrate: --pose-error-scales must be numbers separated by commas, "
+            f"got {args.pose_error_scales!r}"
+        )
         return 2
     if not scales or any(not (s >= 0) for s in scales):
         print("calibrate: --pose-error-scales must hold numbers >= 0")
@@ -113,8 +154,11 @@ def run(args: argparse.Namespace) -> int:
             rows.append(measure(folder, k, args.seconds, args.preset))
             if not args.json:
                 _print_row(rows[-1], header=len(rows) == 1)
-    res = {"goal": {"rot_deg": 0.3, "lever_cm": 1.0, "offset_ms": 1.0, "after_s": 60},
-           "model": f"EMULATED DA3 ({args.preset}) -- not a real network", "rows": rows}
+    res = {
+        "goal": {"rot_deg": 0.3, "lever_cm": 1.0, "offset_ms": 1.0, "after_s": 60},
+        "model": f"EMULATED DA3 ({args.preset}) -- not a real network",
+        "rows": rows,
+    }
     if args.out is not None:
         args.out.write_text(strict_dumps(res, indent=1))
     if args.json:
@@ -122,17 +166,28 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-_COLS = (("preset", "preset", "{}"), ("pose_error_scale", "DA3 err x", "{:g}"), ("sensor_s", "s", "{:.0f}"),
-         ("bringup_done_s", "bring-up s", "{:.1f}"), ("bringup_rot_err_deg", "bring-up deg", "{:.2f}"),
-         ("rot_err_deg", "rot deg", "{:.3f}"), ("lever_err_cm", "lever cm", "{:.2f}"),
-         ("offset_err_ms", "dt ms", "{:+.3f}"), ("std_rot_deg", "1s rot", "{:.3f}"),
-         ("std_lever_cm", "1s cm", "{:.2f}"), ("std_offset_ms", "1s ms", "{:.3f}"), ("verdict", "verdict", "{}"),
-         ("wall_s", "wall s", "{:.0f}"))
+_COLS = (
+    ("preset", "preset", "{}"),
+    ("pose_error_scale", "DA3 err x", "{:g}"),
+    ("sensor_s", "s", "{:.0f}"),
+    ("bringup_done_s", "bring-up s", "{:.1f}"),
+    ("bringup_rot_err_deg", "bring-up deg", "{:.2f}"),
+    ("rot_err_deg", "rot deg", "{:.3f}"),
+    ("lever_err_cm", "lever cm", "{:.2f}"),
+    ("offset_err_ms", "dt ms", "{:+.3f}"),
+    ("std_rot_deg", "1s rot", "{:.3f}"),
+    ("std_lever_cm", "1s cm", "{:.2f}"),
+    ("std_offset_ms", "1s ms", "{:.3f}"),
+    ("verdict", "verdict", "{}"),
+    ("wall_s", "wall s", "{:.0f}"),
+)
 
 
 def _print_row(row: dict, header: bool) -> None:
     if header:
-        print("davio calibrate on simulated recordings (EMULATED DA3; goal < 0.3 deg / 1 cm / 1 ms after 60 s)")
+        print(
+            "davio calibrate on simulated recordings (EMULATED DA3; goal < 0.3 deg / 1 cm / 1 ms after 60 s)"
+        )
         print(" ".join(f"{h:>12}" for _, h, _ in _COLS))
     cells = []
     for key, _, fmt in _COLS:

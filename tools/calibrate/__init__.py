@@ -6,6 +6,7 @@ filter's online refinement) written as a Kalibr camchain, with the evidence (rep
 - `tools.calibrate.checks`: the refusal rules and their thresholds.
 - `tools.calibrate.output`: the camchain, `<out stem>.report.json` and the convergence plots.
 """
+
 from tools.calibrate.checks import Thresholds, judge
 from tools.calibrate.core import CalibrationRun, calibrate
 

@@ -10,6 +10,7 @@ Beside that, the gyro stream gives the rotation excitation: the principal axes o
 per axis, the RMS rate and the rotation angle swept about it. A hand–eye calibration needs rotation
 about at least two non-parallel axes.
 """
+
 from __future__ import annotations
 
 import sys
@@ -80,7 +81,7 @@ class ExcitationMeter:
             return
         if self._t is not None:
             dt = (int(t_ns) - self._t) * 1e-9
-            if 0.0 < dt < 0.1:   # gaps carry no rate
+            if 0.0 < dt < 0.1:  # gaps carry no rate
                 self.M += np.outer(w, w) * dt
                 self.T += dt
                 self._w.append(w)
@@ -135,9 +136,16 @@ def calibration_config(config: DavioConfig | None = None) -> DavioConfig:
     return replace(cfg, mapping=replace(cfg.mapping, enabled=False))
 
 
-def calibrate(events: Iterable[Any], rig: Any, model: Any, config: DavioConfig | None = None,
-              seconds: float | None = None, model_latency_s: float = 0.5, sample_every_s: float = 0.1,
-              progress: Callable[[float, str], None] | None = None) -> CalibrationRun:
+def calibrate(
+    events: Iterable[Any],
+    rig: Any,
+    model: Any,
+    config: DavioConfig | None = None,
+    seconds: float | None = None,
+    model_latency_s: float = 0.5,
+    sample_every_s: float = 0.1,
+    progress: Callable[[float, str], None] | None = None,
+) -> CalibrationRun:
     """Replay `events` through DAVIO with `rig`'s extrinsics and time offset withheld; collect the filter's
     calibration states and the rotation excitation.
 
@@ -153,8 +161,10 @@ def calibrate(events: Iterable[Any], rig: Any, model: Any, config: DavioConfig |
     from runtime.session import Session
 
     if model is None:
-        raise ConfigError("calibration needs a depth model for the hand-eye bring-up: pass --model DA3.onnx "
-                          "(or --emulated for a `davio simulate` recording)")
+        raise ConfigError(
+            "calibration needs a depth model for the hand-eye bring-up: pass --model DA3.onnx "
+            "(or --emulated for a `davio simulate` recording)"
+        )
     withheld = rig.replace(T_IC=None, time_offset_s=None)
     session = Session(withheld, model, calibration_config(config))
     pipe = session.pipeline
@@ -172,8 +182,16 @@ def calibrate(events: Iterable[Any], rig: Any, model: Any, config: DavioConfig |
         if samples and int(s.t_cam_ns) <= samples[-1].t_cam_ns:
             return
         cov = None if s.calib_covariance is None else np.array(s.calib_covariance)
-        samples.append(CalibSample(int(s.t_cam_ns), np.array(s.R_IC), np.array(s.p_IC), float(s.time_offset_s),
-                                   cov, int(st.report.restarts_after_divergence)))
+        samples.append(
+            CalibSample(
+                int(s.t_cam_ns),
+                np.array(s.R_IC),
+                np.array(s.p_IC),
+                float(s.time_offset_s),
+                cov,
+                int(st.report.restarts_after_divergence),
+            )
+        )
 
     session.on_pose = lambda _pose: take()
     meter = ExcitationMeter()
@@ -192,15 +210,25 @@ def calibrate(events: Iterable[Any], rig: Any, model: Any, config: DavioConfig |
                 meter.add(t, ev.gyro)
             if progress is not None and int(rel) // 5 != last_report:
                 last_report = int(rel) // 5
-                progress(rel, "bring-up" if pipe.startup is None else
-                         (pipe.startup.report.published_by or "starting"))
+                progress(
+                    rel,
+                    "bring-up" if pipe.startup is None else (pipe.startup.report.published_by or "starting"),
+                )
             yield ev
 
     res = session.replay(feed(), model_latency_s=model_latency_s, keep_partial=True)
     take(force=True)
     rep = pipe.report()
-    return CalibrationRun(samples, rep.get("bringup"), meter.result(), rep, res.status, res.reason,
-                          first[0] if first else 0, float(res.scheduler.sensor_s))
+    return CalibrationRun(
+        samples,
+        rep.get("bringup"),
+        meter.result(),
+        rep,
+        res.status,
+        res.reason,
+        first[0] if first else 0,
+        float(res.scheduler.sensor_s),
+    )
 
 
 def stderr_progress(rel_s: float, phase: str) -> None:

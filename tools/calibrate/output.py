@@ -6,6 +6,7 @@ The camchain's cam0 holds the given intrinsics, `T_cam_imu` = inverse of the est
 rejections, the excitation, the final estimate with its 1-sigma, the convergence over time and, when the
 recording has its own extrinsics (EuRoC sensor.yaml, `davio simulate` folders), the errors against them.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -25,8 +26,12 @@ def paths_for(out: Path) -> dict[str, Path]:
     else:
         imu = out.with_name("imu.yaml")
     stem = out.with_suffix("") if out.suffix in (".yaml", ".yml") else out
-    return {"camchain": out, "imu": imu, "report": Path(f"{stem}.report.json"),
-            "plot": Path(f"{stem}.convergence.png")}
+    return {
+        "camchain": out,
+        "imu": imu,
+        "report": Path(f"{stem}.report.json"),
+        "plot": Path(f"{stem}.convergence.png"),
+    }
 
 
 def estimated_rig(rig: Any, sample: CalibSample, name: str) -> Any:
@@ -54,13 +59,25 @@ def errors_against(sample: CalibSample, T_IC_ref: np.ndarray | None, offset_ref:
     return out
 
 
-def convergence(run: CalibrationRun, T_IC_ref: np.ndarray | None = None,
-                offset_ref: float | None = None) -> dict:
+def convergence(
+    run: CalibrationRun, T_IC_ref: np.ndarray | None = None, offset_ref: float | None = None
+) -> dict:
     """Per collected state (seconds from the first event): the change from the final estimate and the
     1-sigma, and the errors against the reference when given."""
     final = run.final
-    rows: dict[str, list] = {k: [] for k in ("t_s", "segment", "rot_from_final_deg", "p_IC_m", "time_offset_ms",
-                                             "rot_std_deg", "lever_std_m", "offset_std_ms")}
+    rows: dict[str, list] = {
+        k: []
+        for k in (
+            "t_s",
+            "segment",
+            "rot_from_final_deg",
+            "p_IC_m",
+            "time_offset_ms",
+            "rot_std_deg",
+            "lever_std_m",
+            "offset_std_ms",
+        )
+    }
     ref_rows: dict[str, list] = {"rotation_deg": [], "lever_arm_cm": [], "time_offset_ms": []}
     for s in run.samples:
         rows["t_s"].append((s.t_cam_ns - run.t0_ns) * 1e-9)

@@ -1,4 +1,5 @@
 """The `davio calibrate` report (a strict-JSON dict) and the files written when the estimate is accepted."""
+
 from __future__ import annotations
 
 from dataclasses import asdict
@@ -12,8 +13,15 @@ from tools.calibrate.core import CalibrationRun
 from tools.calibrate.output import convergence, errors_against, estimated_rig, settle_time
 
 
-def build_report(run: CalibrationRun, verdict: Verdict, th: Thresholds, model_desc: str, recording: str,
-                 reference: dict, paths: dict[str, Path]) -> dict:
+def build_report(
+    run: CalibrationRun,
+    verdict: Verdict,
+    th: Thresholds,
+    model_desc: str,
+    recording: str,
+    reference: dict,
+    paths: dict[str, Path],
+) -> dict:
     """Everything the evidence needs: status, bring-up, excitation, final estimate + 1-sigma, convergence,
     errors against the reference (when the recording has one)."""
     from tools.run_io import versions
@@ -31,8 +39,11 @@ def build_report(run: CalibrationRun, verdict: Verdict, th: Thresholds, model_de
         "replay": {"status": run.status, "reason": run.reason},
         "thresholds": asdict(th),
         "convention": "T_IC: camera pose in the IMU frame (x_I = T_IC x_C); T_cam_imu = inv(T_IC); "
-                      "t_imu = t_cam + timeshift_cam_imu (Kalibr, = DAVIO time_offset_s)",
+        "t_imu = t_cam + timeshift_cam_imu (Kalibr, = DAVIO time_offset_s)",
         "bringup": run.bringup,
+        "bringup_done_s": None
+        if not (run.bringup or {}).get("done_t_ns")
+        else (run.bringup["done_t_ns"] - run.t0_ns) * 1e-9,
         "excitation": asdict(run.excitation),
         "estimate": None,
         "reference": None,
@@ -49,8 +60,9 @@ def build_report(run: CalibrationRun, verdict: Verdict, th: Thresholds, model_de
             "T_IC": T_IC.tolist(),
             "T_cam_imu": np.linalg.inv(T_IC).tolist(),
             "timeshift_cam_imu_s": final.time_offset_s,
-            "std": None if std is None else {"rotation_deg": std[0], "lever_arm_m": std[1],
-                                             "time_offset_ms": 1e3 * std[2]},
+            "std": None
+            if std is None
+            else {"rotation_deg": std[0], "lever_arm_m": std[1], "time_offset_ms": 1e3 * std[2]},
             "calib_covariance": None if final.calib_covariance is None else final.calib_covariance.tolist(),
             "t_s": (final.t_cam_ns - run.t0_ns) * 1e-9,
             "filter_segments": final.segment + 1,
@@ -65,11 +77,16 @@ def build_report(run: CalibrationRun, verdict: Verdict, th: Thresholds, model_de
             err["settled_s"] = {
                 "rotation_0.3deg": settle_time(t, ref["rotation_deg"], 0.3) if T_ref is not None else None,
                 "lever_arm_1cm": settle_time(t, ref["lever_arm_cm"], 1.0) if T_ref is not None else None,
-                "time_offset_1ms": settle_time(t, ref["time_offset_ms"], 1.0) if off_ref is not None else None,
+                "time_offset_1ms": settle_time(t, ref["time_offset_ms"], 1.0)
+                if off_ref is not None
+                else None,
             }
-            rep["reference"] = {"source": reference.get("source"),
-                                "T_IC": None if T_ref is None else np.asarray(T_ref).tolist(),
-                                "time_offset_s": off_ref, "errors": err}
+            rep["reference"] = {
+                "source": reference.get("source"),
+                "T_IC": None if T_ref is None else np.asarray(T_ref).tolist(),
+                "time_offset_s": off_ref,
+                "errors": err,
+            }
     return rep
 
 
@@ -79,10 +96,12 @@ def write_outputs(run: CalibrationRun, rig: Any, paths: dict[str, Path], report:
 
     est = report["estimate"]
     std = est["std"]
-    comment = (f"davio calibrate: {report['recording']}\nmodel: {report['model']}\n"
-               f"1-sigma: rotation {std['rotation_deg']:.3f} deg, lever arm {100 * std['lever_arm_m']:.2f} cm, "
-               f"time offset {std['time_offset_ms']:.3f} ms after {report['sensor_s']:.1f} s; "
-               "timeshift_cam_imu: t_imu = t_cam + shift")
+    comment = (
+        f"davio calibrate: {report['recording']}\nmodel: {report['model']}\n"
+        f"1-sigma: rotation {std['rotation_deg']:.3f} deg, lever arm {100 * std['lever_arm_m']:.2f} cm, "
+        f"time offset {std['time_offset_ms']:.3f} ms after {report['sensor_s']:.1f} s; "
+        "timeshift_cam_imu: t_imu = t_cam + shift"
+    )
     new = estimated_rig(rig, run.final, name=f"davio_calibrate_{paths['camchain'].stem}")
     write_kalibr(new, paths["camchain"], paths["imu"] if rig.imu is not None else None, comment=comment)
     report["files"]["camchain"] = str(paths["camchain"])
@@ -96,25 +115,37 @@ def summary_lines(report: dict) -> list[str]:
     if bu:
         rej = ", ".join(f"{k} x{v}" for k, v in sorted((bu.get("rejections") or {}).items())) or "none"
         fit, val = bu.get("fit_rms_deg"), bu.get("validation_rms_deg")
-        done = bu.get("done_t_ns")
-        lines.append(f"hand-eye bring-up: {'done' if bu.get('R_IC') else 'NOT done'}; "
-                     f"{bu.get('windows_used', 0)} windows used, {bu.get('windows_skipped_static', 0)} skipped "
-                     f"(too little rotation), {bu.get('attempts', 0)} estimates, rejections {rej}"
-                     + (f"; fit RMS {fit:.2f} deg, validation {val:.2f} deg" if fit is not None and val is not None
-                        else "") + ("" if done is None else ""))
+        done = report.get("bringup_done_s")
+        lines.append(
+            f"hand-eye bring-up: {'done' if bu.get('R_IC') else 'NOT done'}; "
+            f"{bu.get('windows_used', 0)} windows used, {bu.get('windows_skipped_static', 0)} skipped "
+            f"(too little rotation), {bu.get('attempts', 0)} estimates, rejections {rej}"
+            + (
+                f"; fit RMS {fit:.2f} deg, validation {val:.2f} deg"
+                if fit is not None and val is not None
+                else ""
+            )
+            + ("" if done is None else f"; done at {done:.1f} s")
+        )
     ex = report["excitation"]
-    lines.append("rotation excitation: principal-axis RMS rates "
-                 + ", ".join(f"{r:.1f}" for r in ex["rms_rate_dps"]) + " deg/s, swept "
-                 + ", ".join(f"{a:.0f}" for a in ex["angle_deg"]) + f" deg over {ex['seconds']:.1f} s")
+    lines.append(
+        "rotation excitation: principal-axis RMS rates "
+        + ", ".join(f"{r:.1f}" for r in ex["rms_rate_dps"])
+        + " deg/s, swept "
+        + ", ".join(f"{a:.0f}" for a in ex["angle_deg"])
+        + f" deg over {ex['seconds']:.1f} s"
+    )
     est = report.get("estimate")
     if est is not None:
         T = np.array(est["T_IC"])
         std = est["std"] or {}
-        lines.append(f"estimate after {report['sensor_s']:.1f} s: p_IC [{', '.join(f'{v:.4f}' for v in T[:3, 3])}] m, "
-                     f"timeshift_cam_imu {1e3 * est['timeshift_cam_imu_s']:.3f} ms; 1-sigma rotation "
-                     f"{std.get('rotation_deg', float('nan')):.3f} deg, lever arm "
-                     f"{100 * std.get('lever_arm_m', float('nan')):.2f} cm, time offset "
-                     f"{std.get('time_offset_ms', float('nan')):.3f} ms")
+        lines.append(
+            f"estimate after {report['sensor_s']:.1f} s: p_IC [{', '.join(f'{v:.4f}' for v in T[:3, 3])}] m, "
+            f"timeshift_cam_imu {1e3 * est['timeshift_cam_imu_s']:.3f} ms; 1-sigma rotation "
+            f"{std.get('rotation_deg', float('nan')):.3f} deg, lever arm "
+            f"{100 * std.get('lever_arm_m', float('nan')):.2f} cm, time offset "
+            f"{std.get('time_offset_ms', float('nan')):.3f} ms"
+        )
     ref = report.get("reference")
     if ref:
         e = ref["errors"]

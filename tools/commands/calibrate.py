@@ -1,4 +1,5 @@
 """`davio calibrate SOURCE --out rig.yaml`: camera–IMU extrinsics and time offset from a recording."""
+
 from __future__ import annotations
 
 import argparse
@@ -37,38 +38,82 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     from tools.calibrate.checks import Thresholds
 
     th = Thresholds()
-    p.add_argument("source", help="EuRoC ASL folder, a `davio simulate` folder, or a ROS 1 / ROS 2 bag (.bag, a "
-                                  "bag folder, .db3, .mcap); a live device: record a bag first")
-    p.add_argument("--out", required=True, metavar="RIG.yaml",
-                   help="the Kalibr camchain to write (refused if it exists, unless --overwrite)")
+    p.add_argument(
+        "source",
+        help="EuRoC ASL folder, a `davio simulate` folder, or a ROS 1 / ROS 2 bag (.bag, a "
+        "bag folder, .db3, .mcap); a live device: record a bag first",
+    )
+    p.add_argument(
+        "--out",
+        required=True,
+        metavar="RIG.yaml",
+        help="the Kalibr camchain to write (refused if it exists, unless --overwrite)",
+    )
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--model", metavar="ONNX", help="DA3 ONNX graph (made by `davio export-da3`)")
-    g.add_argument("--emulated", metavar="PRESET", nargs="?", const="base", default=None,
-                   choices=_emulated_presets(),
-                   help="emulated DA3 (simulated recordings only; the default there): small, base, large, "
-                        "or <size>_upper")
-    p.add_argument("--rig", metavar="FILE",
-                   help="calibration whose camera intrinsics are used (Kalibr camchain, EuRoC sensor.yaml or "
-                        "folder, OpenVINS yaml); its extrinsics and time offset are ignored")
+    g.add_argument(
+        "--emulated",
+        metavar="PRESET",
+        nargs="?",
+        const="base",
+        default=None,
+        choices=_emulated_presets(),
+        help="emulated DA3 (simulated recordings only; the default there): small, base, large, "
+        "or <size>_upper",
+    )
+    p.add_argument(
+        "--rig",
+        metavar="FILE",
+        help="calibration whose camera intrinsics are used (Kalibr camchain, EuRoC sensor.yaml or "
+        "folder, OpenVINS yaml); its extrinsics and time offset are ignored",
+    )
     p.add_argument("--image-topic", metavar="TOPIC", help="bag image topic (default: auto-detected)")
     p.add_argument("--imu-topic", metavar="TOPIC", help="bag IMU topic (default: auto-detected)")
     p.add_argument("--seconds", type=float, default=None, help="only the first S seconds (> 0)")
     p.add_argument("--config", metavar="TOML", help="configuration file (see config.toml of a run)")
     p.add_argument("--strict", action="store_true", help="every input repair is an error")
-    p.add_argument("--model-latency", type=float, default=0.5, metavar="S",
-                   help="simulated model latency (sensor seconds, >= 0)")
-    p.add_argument("--min-axis-rate-dps", type=float, default=th.min_axis_rate_dps, metavar="DEG_S",
-                   help="refuse unless two principal rotation axes of the gyro stream reach this RMS rate")
-    p.add_argument("--max-rot-std-deg", type=float, default=th.max_rot_std_deg, metavar="DEG",
-                   help="refuse when the final rotation 1-sigma (worst axis) exceeds this")
-    p.add_argument("--max-lever-std-m", type=float, default=th.max_lever_std_m, metavar="M",
-                   help="refuse when the final lever-arm 1-sigma (worst axis) exceeds this")
-    p.add_argument("--max-offset-std-ms", type=float, default=th.max_offset_std_ms, metavar="MS",
-                   help="refuse when the final time-offset 1-sigma exceeds this")
+    p.add_argument(
+        "--model-latency",
+        type=float,
+        default=0.5,
+        metavar="S",
+        help="simulated model latency (sensor seconds, >= 0)",
+    )
+    p.add_argument(
+        "--min-axis-rate-dps",
+        type=float,
+        default=th.min_axis_rate_dps,
+        metavar="DEG_S",
+        help="refuse unless two principal rotation axes of the gyro stream reach this RMS rate",
+    )
+    p.add_argument(
+        "--max-rot-std-deg",
+        type=float,
+        default=th.max_rot_std_deg,
+        metavar="DEG",
+        help="refuse when the final rotation 1-sigma (worst axis) exceeds this",
+    )
+    p.add_argument(
+        "--max-lever-std-m",
+        type=float,
+        default=th.max_lever_std_m,
+        metavar="M",
+        help="refuse when the final lever-arm 1-sigma (worst axis) exceeds this",
+    )
+    p.add_argument(
+        "--max-offset-std-ms",
+        type=float,
+        default=th.max_offset_std_ms,
+        metavar="MS",
+        help="refuse when the final time-offset 1-sigma exceeds this",
+    )
     p.add_argument("--no-plots", action="store_true", help="do not draw the convergence plots")
-    p.add_argument("--json", action="store_true",
-                   help="print the report as one JSON object on stdout (progress goes to stderr)")
+    p.add_argument(
+        "--json",
+        action="store_true",
+        help="print the report as one JSON object on stdout (progress goes to stderr)",
+    )
 
 
 def check_args(args: argparse.Namespace) -> None:
@@ -81,14 +126,18 @@ def check_args(args: argparse.Namespace) -> None:
     if sec is not None and not (math.isfinite(sec) and sec > 0):
         raise ConfigError(f"--seconds must be > 0 (got {sec!r})")
     if not (math.isfinite(args.model_latency) and args.model_latency >= 0):
-        raise ConfigError(f"--model-latency must be a finite number of seconds >= 0 (got {args.model_latency!r})")
+        raise ConfigError(
+            f"--model-latency must be a finite number of seconds >= 0 (got {args.model_latency!r})"
+        )
     for opt in ("min_axis_rate_dps", "max_rot_std_deg", "max_lever_std_m", "max_offset_std_ms"):
         v = getattr(args, opt)
         if not (math.isfinite(v) and v > 0):
             raise ConfigError(f"--{opt.replace('_', '-')} must be a finite number > 0 (got {v!r})")
     out = Path(args.out)
     if out.is_dir():
-        raise ConfigError(f"--out {out} is a folder: name the camchain file to write (e.g. {out / 'camchain.yaml'})")
+        raise ConfigError(
+            f"--out {out} is a folder: name the camchain file to write (e.g. {out / 'camchain.yaml'})"
+        )
     if out.suffix not in (".yaml", ".yml"):
         raise ConfigError(f"--out {out}: the camchain must be a .yaml file")
     parent = out.parent if str(out.parent) else Path(".")
@@ -110,24 +159,36 @@ def open_inputs(args: argparse.Namespace) -> tuple:
         from calib import load_rig
 
         given = load_rig(args.rig)
-    rec = open_recording(args.source, rebuild=not args.model, policy="strict" if args.strict else "drop",
-                         rig=given, image_topic=args.image_topic, imu_topic=args.imu_topic)
+    rec = open_recording(
+        args.source,
+        rebuild=not args.model,
+        policy="strict" if args.strict else "drop",
+        rig=given,
+        image_topic=args.image_topic,
+        imu_topic=args.imu_topic,
+    )
     own = rec.driver.rig
     rig = given if given is not None else own
     if rig is None or rig.camera is None:
         where = "no CameraInfo in the bag" if rec.kind == "bag" else "no cam0/sensor.yaml"
-        raise ConfigError(f"{args.source}: no camera intrinsics ({where}); pass --rig FILE (a Kalibr camchain, "
-                          "an EuRoC sensor.yaml or folder)")
+        raise ConfigError(
+            f"{args.source}: no camera intrinsics ({where}); pass --rig FILE (a Kalibr camchain, "
+            "an EuRoC sensor.yaml or folder)"
+        )
     if rig.imu is None and own is not None and own.imu is not None:
         rig = rig.replace(imu=own.imu)
     # the recording's own extrinsics (if any) are only a reference for the report, never an input
     reference = {"source": None, "T_IC": None, "time_offset_s": None}
     if own is not None and own.T_IC is not None:
-        reference.update(source="the recording's own calibration", T_IC=own.T_IC, time_offset_s=own.time_offset_s)
+        reference.update(
+            source="the recording's own calibration", T_IC=own.T_IC, time_offset_s=own.time_offset_s
+        )
     if rec.kind == "simulated":
         cfg = read_manifest(Path(args.source) / "manifest.json").get("config") or {}
-        reference.update(source="the simulator's rig (manifest.json, sensor.yaml)",
-                         time_offset_s=float(cfg.get("time_offset_s") or 0.0))
+        reference.update(
+            source="the simulator's rig (manifest.json, sensor.yaml)",
+            time_offset_s=float(cfg.get("time_offset_s") or 0.0),
+        )
     if args.model:
         from models.da3 import OnnxDA3
 
@@ -142,8 +203,10 @@ def open_inputs(args: argparse.Namespace) -> tuple:
         model = EmulatedDA3(rec.ground_truth_source, cam.K, cam.width, cam.height, preset=preset)
         desc = f"EMULATED DA3 ({preset}) from simulator ground truth -- not a real network"
     elif args.emulated:
-        raise ConfigError("--emulated needs a recording written by `davio simulate` (it reads the simulator's "
-                          "ground truth); for real data pass --model DA3.onnx")
+        raise ConfigError(
+            "--emulated needs a recording written by `davio simulate` (it reads the simulator's "
+            "ground truth); for real data pass --model DA3.onnx"
+        )
     else:
         raise ConfigError("calibration needs a depth model for the hand-eye bring-up: pass --model DA3.onnx")
     return rec, rig, model, desc, reference
@@ -158,19 +221,33 @@ def run(args: argparse.Namespace) -> int:
 
     check_args(args)
     config = load_toml(DavioConfig, args.config) if args.config else DavioConfig()
-    th = Thresholds(args.min_axis_rate_dps, args.max_rot_std_deg, args.max_lever_std_m, args.max_offset_std_ms)
+    th = Thresholds(
+        args.min_axis_rate_dps, args.max_rot_std_deg, args.max_lever_std_m, args.max_offset_std_ms
+    )
     log = sys.stderr if args.json else sys.stdout
     with interruptible():
         rec, rig, model, desc, reference = open_inputs(args)
-        print(f"davio calibrate: {rec.description}\n  model: {desc}\n  extrinsics and time offset withheld: "
-              "hand-eye bring-up, then online calibration", file=log, flush=True)
-        run_ = calibrate(rec.driver.events(), rig, model, config, seconds=args.seconds,
-                         model_latency_s=args.model_latency, progress=stderr_progress)
+        print(
+            f"davio calibrate: {rec.description}\n  model: {desc}\n  extrinsics and time offset withheld: "
+            "hand-eye bring-up, then online calibration",
+            file=log,
+            flush=True,
+        )
+        run_ = calibrate(
+            rec.driver.events(),
+            rig,
+            model,
+            config,
+            seconds=args.seconds,
+            model_latency_s=args.model_latency,
+            progress=stderr_progress,
+        )
     return finish(args, run_, rig, th, desc, rec.description, reference, log)
 
 
-def finish(args: argparse.Namespace, run_, rig, th, model_desc: str, recording: str, reference: dict,
-           log) -> int:
+def finish(
+    args: argparse.Namespace, run_, rig, th, model_desc: str, recording: str, reference: dict, log
+) -> int:
     """Judge the run, write the report (always), the camchain (only when accepted) and the plots."""
     from runtime.files import atomic_write_text
     from runtime.json_out import strict_dumps
