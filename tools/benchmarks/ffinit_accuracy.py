@@ -136,6 +136,8 @@ def measure_recording(rec: Any, ks: list[float], reference: str, every_s: float,
                 row["log_refined_over_linear_scale"] = float(np.log(res.info["scale"]
                                                                     / res.info["linear_scale"]))
                 row["scale_rel_std"] = float(res.info["scale_rel_std"])
+                row["rotation_residual_rms_deg"] = float(res.info["rotation_residual_rms_deg"])
+                row["gyro_bias_change"] = float(np.linalg.norm(res.info["gyro_bias_change"]))
             else:
                 row["reason"] = res.reason
             rows[k].append(row)
