@@ -61,8 +61,12 @@ def solve_window(window: InitWindow, cfg: FFInitConfig, rebuild=None) -> InitRes
     if rebuild is not None and np.linalg.norm(dbg) > 0:
         window = rebuild(window.bg + dbg)
         dbg = np.zeros(3)
-    # DA3-gyro consistency after the bias alignment (diagnostic: BENCHMARKS.md "Scored as the paper")
+    # DA3-gyro consistency after the bias alignment: large DA3 rotation errors make wrong scales
     rot_rms_deg = float(np.degrees(np.sqrt(np.mean(np.sum(rotation_residuals(window, dbg) ** 2, axis=1)))))
+    if not rot_rms_deg <= cfg.max_rotation_residual_deg:
+        return Rejection("rotation_inconsistent",
+                         f"DA3 and gyro rotations differ by {rot_rms_deg:.3f} deg RMS after the bias "
+                         f"alignment (> {cfg.max_rotation_residual_deg})")
     robust = robust_solve(window, cfg)
     if isinstance(robust, Rejection):
         return robust

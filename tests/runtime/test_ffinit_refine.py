@@ -90,3 +90,21 @@ def test_accelerometer_bias_along_gravity_is_absorbed_not_forced_into_scale():
     fixed = solve_window(window, FFInitConfig(gravity_magnitude="fixed"))
     if not isinstance(fixed, Rejection):
         assert abs(fixed.info["linear_scale"] / truth.scale - 1) > 3 * err_absorbed
+
+
+def test_da3_gyro_rotation_consistency_gate_at_its_boundary():
+    """Windows whose DA3 rotations disagree with the gyro after the bias alignment are refused
+    ("rotation_inconsistent"); the threshold is the measured one (0.2 deg) and is pinned at its boundary."""
+    from runtime.ffinit.gyro_bias import rotation_residuals
+    from runtime.msckf.init_common import InitResult
+
+    clean, _ = make_window("general", rot_noise_deg=0.02, seed=3)
+    noisy, _ = make_window("general", rot_noise_deg=0.6, seed=3)
+    assert isinstance(solve_window(clean, FFInitConfig()), InitResult)
+    rej = solve_window(noisy, FFInitConfig())
+    assert isinstance(rej, Rejection) and rej.reason == "rotation_inconsistent"
+    rms = float(np.degrees(np.sqrt(np.mean(np.sum(rotation_residuals(noisy, np.zeros(3)) ** 2, axis=1)))))
+    assert 0.2 < rms < 1.0
+    assert isinstance(solve_window(noisy, FFInitConfig(max_rotation_residual_deg=rms * 1.001)), InitResult)
+    assert solve_window(noisy, FFInitConfig(max_rotation_residual_deg=rms * 0.999)).reason == \
+        "rotation_inconsistent"
