@@ -24,7 +24,6 @@ def test_demo_publishes_metric_trajectory_matching_ground_truth(tmp_path, capsys
     assert report["T_f_s"] is not None and report["T_f_s"] < 6.0
     # independent check: re-simulate the same recording and score odometry.tum against its truth
     from drivers.sim import SimConfig, SimRecording
-
     from tools.commands.demo import DEFAULT_PRESET
 
     gt = SimRecording.from_preset(SimConfig(preset=DEFAULT_PRESET, seconds=9, seed=1)).groundtruth()
