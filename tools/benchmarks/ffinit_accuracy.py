@@ -54,6 +54,18 @@ def window_frame_indices(stamps_ns: np.ndarray, t0_ns: int, n: int = 5, spacing_
     return nearest_stamps(stamps_ns, [t0_ns + int(round(j * spacing_s * 1e9)) for j in range(n)], tol_s)
 
 
+def window_excitation(t_ns: np.ndarray, gyro: np.ndarray, accel: np.ndarray, t0_ns: int,
+                      t1_ns: int) -> dict:
+    """What the IMU saw over a window (for looking for an excitation gate): the RMS deviation of the
+    specific force from its window mean (m/s^2) and the RMS gyro rate (deg/s)."""
+    m = (t_ns >= t0_ns) & (t_ns <= t1_ns)
+    if m.sum() < 3:
+        return {"accel_dev_rms": None, "gyro_rms_dps": None}
+    a = accel[m]
+    return {"accel_dev_rms": float(np.sqrt(np.mean(np.sum((a - a.mean(axis=0)) ** 2, axis=1)))),
+            "gyro_rms_dps": float(np.degrees(np.sqrt(np.mean(np.sum(gyro[m] ** 2, axis=1)))))}
+
+
 def summarise(rows: list[dict]) -> dict:
     """Accepted count and medians over accepted windows (None where none was accepted)."""
     acc = [r for r in rows if r["accepted"]]
@@ -116,13 +128,16 @@ def measure_recording(rec: Any, ks: list[float], reference: str, every_s: float,
         if idx is None:
             continue
         frames = [Frame(int(stamps[i]), blank) for i in idx]
+        excitation = window_excitation(imu.t_ns, imu.gyro, imu.accel, int(stamps[idx[0]]) + off_ns,
+                                       int(stamps[idx[-1]]) + off_ns)
         model = EmulatedDA3(rec.gt_source, cam.K, cam.width, cam.height, preset=reference,
                             seed=seed * 1000 + w)
         init = FeedForwardInitializer(model, T_IC[:3, :3], T_IC[:3, 3], rec.rig.time_offset_s or 0.0)
         for k in ks:
             model.params, model.calls = params[k], 0  # the same draws for every k
             res = init.solve(frames, imu.t_ns, imu.gyro, imu.accel)
-            row: dict = {"window": w, "t_s": (t0 - t_lo) * 1e-9, "accepted": isinstance(res, InitResult)}
+            row: dict = {"window": w, "t_s": (t0 - t_lo) * 1e-9, "accepted": isinstance(res, InitResult),
+                         **excitation}
             if isinstance(res, InitResult):
                 g = interpolate_poses(gt, np.array([res.t_ns], np.int64))
                 v_true = gt_velocity(gt, res.t_ns)
