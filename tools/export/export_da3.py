@@ -14,7 +14,6 @@ in a fresh Python process (`python -m tools.export.export_da3 REQUEST_JSON`).
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import json
 import os
 import subprocess
@@ -25,6 +24,7 @@ from pathlib import Path
 
 from models.da3.contract import CONTRACT, CONTRACT_VERSION, MAX_VIEWS, MIN_VIEWS, PATCH
 from runtime.errors import ModelError
+from runtime.files import sha256_file
 from runtime.json_out import strict_dumps
 
 INPUT_NAMES = ["images", "intrinsics", "extrinsics", "use_pose"]
@@ -233,14 +233,6 @@ def _versions() -> dict:
     return out
 
 
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 def export_da3(req: ExportRequest) -> dict:
     """Export in this process (use `export_in_subprocess` unless this process is fresh); returns the card."""
     req.validate()
@@ -256,7 +248,7 @@ def export_da3(req: ExportRequest) -> dict:
         randomise_(net, req.seed)
         ckpt = {"checkpoint": "random-init", "seed": req.seed}
     else:
-        ckpt = {"checkpoint": str(Path(req.checkpoint).resolve()), "sha256": _sha256(Path(req.checkpoint))}
+        ckpt = {"checkpoint": str(Path(req.checkpoint).resolve()), "sha256": sha256_file(req.checkpoint)}
         ckpt.update(load_checkpoint_(net, Path(req.checkpoint)))
     inputs = check_inputs(req.check_views, req.height, req.width, req.seed + 1)
     refs = torch_reference(net, inputs)
@@ -308,7 +300,7 @@ def export_da3(req: ExportRequest) -> dict:
         **ckpt,
         "parameters": n_params,
         "file": out.name,
-        "sha256": _sha256(out),
+        "sha256": sha256_file(out),
         "check": {
             "views": req.check_views,
             "seed": req.seed + 1,

