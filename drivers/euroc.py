@@ -17,6 +17,7 @@ import numpy as np
 
 from drivers.base import Driver, IntakeReport, Policy, StreamCounts, check_policy
 from drivers.diagnose import G_STANDARD, accel_looks_like_g, check_stamp_units, explain_unreadable
+from drivers.images import data_bit_depth, to_8bit
 from drivers.validation import count_gaps, read_stamped_csv
 from runtime.errors import DataError
 from runtime.events import Frame, ImuSample
@@ -273,12 +274,11 @@ class EurocDriver(Driver):
 
     def _to_8bit(self, cam: int, image: np.ndarray, path: Path, i: int) -> np.ndarray:
         """A 16-bit grey image scaled to 8 bits by the stream's bit depth (fixed by its first image:
-        10-, 12-, 14- or 16-bit data), counted and noted; an error when strict."""
+        8- to 16-bit data, drivers.images), counted and noted; an error when strict."""
         name = self.cameras[cam]
         bits = self._bit_depth.get(cam)
         if bits is None:
-            used = max(int(image.max()).bit_length(), 8)
-            bits = next(b for b in (10, 12, 14, 16) if used <= b)
+            bits = data_bit_depth(image)
             self._bit_depth[cam] = bits
             what = f"{name}: 16-bit images holding {bits}-bit data (first image's maximum {int(image.max())})"
             if self.policy == "strict":
@@ -286,7 +286,7 @@ class EurocDriver(Driver):
                                 self.mav0 / name / "data.csv", int(self._cam_lines[cam][i]))
             self._report.note(f"{what}: scaled to 8 bits (>> {bits - 8})")
         self._report.stream(name).converted += 1
-        return np.minimum(image >> (bits - 8), 255).astype(np.uint8)
+        return to_8bit(image, bits)
 
     # -- Driver interface ----------------------------------------------------------------------
     @property

@@ -23,6 +23,7 @@ import numpy as np
 
 from drivers.base import Driver, IntakeReport, Policy, StreamCounts, check_policy
 from drivers.diagnose import G_STANDARD, accel_looks_like_g, check_stamp_units
+from drivers.images import data_bit_depth, to_8bit
 from drivers.validation import count_gaps, time_order_repair
 from runtime.errors import ConfigError, DataError
 from runtime.events import Frame, ImuSample
@@ -263,14 +264,13 @@ class RosbagDriver(Driver):
 
     def _to_8bit(self, img: np.ndarray) -> np.ndarray:
         if self._bits is None:
-            used = max(int(img.max()).bit_length(), 8)
-            self._bits = next(b for b in (10, 12, 14, 16) if used <= b)
+            self._bits = data_bit_depth(img)
             what = f"cam0: 16-bit images holding {self._bits}-bit data"
             if self.policy == "strict":
                 raise DataError(f"{self.image_topic}: {what}; convert to 8-bit grey", self.path)
             self._report.note(f"{what}: scaled to 8 bits (>> {self._bits - 8})")
         self._report.stream("cam0").converted += 1
-        return np.minimum(img >> (self._bits - 8), 255).astype(np.uint8)
+        return to_8bit(img, self._bits)
 
     # -- Driver interface --------------------------------------------------------------------
     @property

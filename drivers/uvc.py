@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers.images import data_bit_depth, to_8bit
 from runtime.errors import DavioError, DeviceError
 from runtime.events import Frame
 
@@ -491,9 +492,8 @@ class UvcCamera:
             raise DeviceError(f"camera {self.device}: unsupported image layout {img.shape} {img.dtype}")
         if img.dtype == np.uint16:
             if self.bit_depth is None:
-                used = max(int(img.max()).bit_length(), 8)
-                self.bit_depth = next(b for b in (8, 10, 12, 14, 16) if used <= b)
-            img = np.minimum(img >> (self.bit_depth - 8), 255).astype(np.uint8)
+                self.bit_depth = data_bit_depth(img)
+            img = to_8bit(img, self.bit_depth)
             what.append(f"16-bit holding {self.bit_depth}-bit data to 8 bits (>> {self.bit_depth - 8})")
         elif img.dtype != np.uint8:
             raise DeviceError(f"camera {self.device}: unsupported pixel type {img.dtype}")
