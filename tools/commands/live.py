@@ -21,6 +21,8 @@ DESCRIPTION = (
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from tools.live_view import add_view_argument
+
     p.add_argument("source", choices=["uvc", "oak"], help="the sensor module")
     p.add_argument("--camera", default="0", help="UVC device index or path (a video file replays it)")
     p.add_argument("--socket", choices=["CAM_B", "CAM_C", "CAM_A"], default="CAM_B",
@@ -47,6 +49,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default="davio_live", help="output folder (new or empty; see --overwrite)")
     p.add_argument("--overwrite", action="store_true", help="replace the previous run in --out")
     p.add_argument("--json", action="store_true", help="print the report as one JSON object at the end")
+    add_view_argument(p)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -144,6 +147,7 @@ def _open_driver(args: argparse.Namespace, rig):
 def _run(args, folder, driver, rig, model, model_desc: str, config) -> int:
     from runtime.session import Session
     from tools.commands.run import _summary
+    from tools.live_view import open_view
     from tools.run_io import write_run
     from tools.run_map import MapOutput
     from tools.run_outcome import conclude, judge
@@ -154,21 +158,30 @@ def _run(args, folder, driver, rig, model, model_desc: str, config) -> int:
              f"uvc camera {args.camera} + IMU {args.imu_port} ({args.imu_protocol})")
     print(f"davio live: {where}\n"
           f"  model: {model_desc}\n  Ctrl-C to finish", file=sys.stderr)
-    session = Session(rig, model, config, map_sink=None if map_out is None else map_out.sink)
+    view = open_view(args.view)
+    sink = None if map_out is None else map_out.sink
+    session = Session(rig, model, config, map_sink=view.chain(sink) if view is not None else sink,
+                      on_pose=None if view is None else view.on_pose)
     events = driver.events()
     if args.seconds is not None:
         events = _first_seconds(events, args.seconds)
     status = _StatusLine(session, driver)
-    res = session.run_live(events, progress=status, keep_partial=True)
-    status.done()
-    driver.stop()
-    if res.status == "complete":
-        session.pipeline.finish_mapping()
+    try:
+        res = session.run_live(events, progress=status, keep_partial=True)
+        status.done()
+        driver.stop()
+        if res.status == "complete":
+            session.pipeline.finish_mapping()
+    finally:
+        driver.stop()
+        if view is not None:
+            view.close()
     judge(res, driver.report())
     map_summary = map_out.finish() if map_out is not None else None
     report = write_run(folder.path, res.pipeline, res.scheduler, None,
                        {"recording": f"live {where}", "model": model_desc, "status": res.status,
-                        "status_reason": res.reason, "driver": driver.report(), "map": map_summary},
+                        "status_reason": res.reason, "driver": driver.report(), "map": map_summary,
+                        "view": None if view is None else view.report()},
                        config)
     return conclude(folder, res, report, as_json=args.json, summary=_summary)
 

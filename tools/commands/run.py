@@ -24,6 +24,8 @@ def _emulated_presets() -> list[str]:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from tools.live_view import add_view_argument
+
     p.add_argument("path", help="EuRoC ASL folder (sequence or mav0), a `davio simulate` folder, or a ROS 1 "
                                 "/ ROS 2 bag (.bag, a bag folder, .db3, .mcap)")
     p.add_argument("--rig", metavar="FILE",
@@ -60,6 +62,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seconds", type=float, default=None, help="only the first S seconds (> 0)")
     p.add_argument("--json", action="store_true",
                    help="print the report as one JSON object on stdout (progress goes to stderr)")
+    add_view_argument(p)
 
 
 def check_run_args(args: argparse.Namespace) -> None:
@@ -141,6 +144,7 @@ def _open_inputs(args: argparse.Namespace, config) -> tuple:
 def _run(args, folder, rec, rig, model, model_desc: str, config) -> int:
     import sys
 
+    from tools.live_view import open_view
     from tools.run_io import write_run
     from tools.run_map import MapOutput
     from tools.run_outcome import conclude, judge
@@ -151,15 +155,23 @@ def _run(args, folder, rec, rig, model, model_desc: str, config) -> int:
     log = sys.stderr if args.json else sys.stdout
     print(f"davio run: {rec.description}\n  model: {model_desc}"
           + (f"\n  mapping: on (archive {folder.out / 'map'})" if map_out is not None else ""), file=log)
-    res = run_pipeline(rec.driver, model, config, paced=args.paced, speed=args.speed,
-                       model_latency_s=args.model_latency, seconds=args.seconds, rig=rig,
-                       map_sink=None if map_out is None else map_out.sink, keep_partial=True)
+    view = open_view(args.view)
+    sink = None if map_out is None else map_out.sink
+    try:
+        res = run_pipeline(rec.driver, model, config, paced=args.paced, speed=args.speed,
+                           model_latency_s=args.model_latency, seconds=args.seconds, rig=rig,
+                           map_sink=view.chain(sink) if view is not None else sink, keep_partial=True,
+                           on_pose=None if view is None else view.on_pose)
+    finally:
+        if view is not None:
+            view.close()
     judge(res, rec.driver.report())
     gt = rec.driver.groundtruth()
     map_summary = map_out.finish() if map_out is not None else None
     report = write_run(folder.path, res.pipeline, res.scheduler, gt,
                        {"recording": rec.description, "model": model_desc, "status": res.status,
-                        "status_reason": res.reason, "driver": rec.driver.report(), "map": map_summary},
+                        "status_reason": res.reason, "driver": rec.driver.report(), "map": map_summary,
+                        "view": None if view is None else view.report()},
                        config)
     return conclude(folder, res, report, as_json=args.json, summary=_summary)
 

@@ -1,0 +1,102 @@
+"""The optional live view (tools/live_view.py, viser): what it draws equals what the session published and
+committed, the page is served over HTTP, a broken update is counted and never raised, and `davio run
+--view` serves it during a run and reports it."""
+from __future__ import annotations
+
+import json
+import socket
+import urllib.request
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+pytest.importorskip("viser", reason="the live view's optional package (pip install 'davio[view]')")
+
+from runtime.errors import ConfigError  # noqa: E402
+from runtime.geometry import make_pose, so3_exp  # noqa: E402
+from runtime.mapping.submap import Submap  # noqa: E402
+from tools.live_view import LiveView, open_view  # noqa: E402
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def submap(index: int, T_MS: np.ndarray, n: int = 50) -> Submap:
+    rng = np.random.default_rng(index)
+    T_SC = np.stack([np.eye(4), make_pose(np.eye(3), np.array([0.2, 0.0, 0.0]))])
+    points = rng.uniform(-1, 1, (n, 3)).astype(np.float32) + [0, 0, 3]
+    return Submap(index, np.array([0, 1], np.int64), 0, np.eye(4), T_SC, np.eye(3), 1.0, np.ones(2), points,
+                  rng.integers(0, 2, n).astype(np.uint8), np.ones(n, np.float32),
+                  rng.integers(0, 255, n).astype(np.uint8), T_MS, lam=0.05)
+
+
+@pytest.fixture
+def view():
+    v = LiveView(port=free_port(), host="127.0.0.1", min_interval_s=0.0)
+    yield v
+    v.close()
+
+
+def test_the_trajectory_and_body_frame_follow_the_published_poses(view: LiveView) -> None:
+    Ts = [make_pose(so3_exp(np.array([0.0, 0.0, 0.1 * k])), np.array([0.5 * k, 0.1 * k, 1.0]))
+          for k in range(6)]
+    for T in Ts:
+        view.on_pose(SimpleNamespace(T_MI=T))
+    seg = np.asarray(view.path.points)
+    expect = np.array([T[:3, 3] for T in Ts])
+    np.testing.assert_allclose(seg[:, 0], expect[:-1], atol=1e-5)
+    np.testing.assert_allclose(seg[:, 1], expect[1:], atol=1e-5)
+    np.testing.assert_allclose(view.body.position, Ts[-1][:3, 3], atol=1e-6)
+    w, x, y, z = view.body.wxyz
+    yaw = 2 * np.arctan2(z, w)
+    assert yaw == pytest.approx(0.5, abs=1e-6) and abs(x) < 1e-9 and abs(y) < 1e-9
+    assert view.report()["poses"] == 6 and view.errors == 0
+
+
+def test_map_commits_draw_each_submap_at_its_graph_state(view: LiveView) -> None:
+    a = submap(0, np.eye(4))
+    b = submap(1, make_pose(np.eye(3), np.array([1.0, 0.0, 0.0])))
+    view.on_map(SimpleNamespace(submap=a, changed=[]))
+    view.on_map(SimpleNamespace(submap=b, changed=[]))
+    a.T_MS = make_pose(np.eye(3), np.array([0.0, 0.3, 0.0]))      # the graph moved a
+    gone = SimpleNamespace(index=7)                                 # a SubmapState: left memory
+    view.on_map(SimpleNamespace(submap=submap(2, np.eye(4)), changed=[a, gone]))
+    assert sorted(view.clouds) == [0, 1, 2] and view.submaps == 3 and view.errors == 0
+    np.testing.assert_allclose(view.clouds[0].points, a.points_M(), atol=2e-3)   # float16 transport
+    np.testing.assert_allclose(view.clouds[1].points, b.points_M(), atol=2e-3)
+    np.testing.assert_array_equal(view.clouds[1].colors[:, 0], b.grey)
+
+
+def test_the_page_is_served_and_a_broken_update_is_counted(view: LiveView) -> None:
+    html = urllib.request.urlopen(view.url, timeout=10).read()
+    assert b"<html" in html[:200].lower()
+    view.on_pose(SimpleNamespace(T_MI=np.full((4, 4), np.nan)))
+    view.on_map(SimpleNamespace(submap=None, changed=[]))
+    assert view.errors >= 1 and view.last_error
+
+
+def test_open_view_checks_the_port() -> None:
+    assert open_view(None) is None
+    with pytest.raises(ConfigError, match="port"):
+        open_view(70000)
+
+
+@pytest.mark.slow
+def test_davio_run_serves_the_view_and_reports_it(small_sim_folder: Path, tmp_path: Path, capsys) -> None:
+    from tools.cli import main
+
+    port = free_port()
+    out = tmp_path / "run"
+    rc = main(["run", str(small_sim_folder), "--emulated", "--seconds", "4", "--out", str(out),
+               "--view", str(port), "--json"])
+    assert rc == 0
+    report = json.loads((out / "report.json").read_text())
+    v = report["view"]
+    assert v["url"].endswith(f":{port}") and v["errors"] == 0
+    assert v["poses"] == report["published_poses"]
+    json.loads(capsys.readouterr().out)          # stdout holds the JSON object only

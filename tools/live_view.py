@@ -1,0 +1,178 @@
+"""An optional browser view of a running session: the map-frame trajectory, the current body frame and
+the map's points as the mapper commits them.
+
+It uses viser (https://github.com/nerfstudio-project/viser, MIT): a pure-Python package (a 4 MB wheel)
+whose server runs inside the DAVIO process and serves the viewer as a web page, so a robot without a
+screen is watched from any laptop's browser at http://ROBOT:PORT with nothing to install there. (rerun
+is as well kept, but ships a 170 MB native viewer and needs its viewer on the watching machine; foxglove
+needs its desktop or web app and an account.) viser is an optional extra: `pip install 'davio[view]'`;
+nothing else in DAVIO imports it.
+
+    view = LiveView(port=8080)                       # prints nothing; view.url says where to look
+    session = Session(rig, model, on_pose=view.on_pose, map_sink=view.chain(map_out.sink))
+    ...
+    view.close()
+
+Updates come from the session's threads (poses from the scheduler, map commits from the model worker);
+every update is cheap and throttled, and a failing view never stops the run (errors are counted).
+"""
+from __future__ import annotations
+
+import contextlib
+import sys
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from runtime.errors import ConfigError
+
+TRAJECTORY_RGB = (255, 140, 0)
+"""Colour of the published map-frame trajectory."""
+
+
+def _wxyz(R: np.ndarray) -> np.ndarray:
+    """Hamilton quaternion (w, x, y, z) of a rotation matrix (viser's convention)."""
+    from scipy.spatial.transform import Rotation
+
+    x, y, z, w = Rotation.from_matrix(R).as_quat()
+    return np.array([w, x, y, z])
+
+
+class LiveView:
+    """A viser server showing a session (module docstring).
+
+    Args:
+        port: TCP port of the web viewer (viser takes the next free one when it is busy: see `url`).
+        host: interface to listen on ("0.0.0.0": reachable from other machines).
+        max_trajectory: trajectory points kept (older ones are thinned out by half when full).
+        max_points_per_submap: map points sent per committed submap (a random subset).
+        min_interval_s: the trajectory is redrawn at most this often.
+    """
+
+    def __init__(self, port: int = 8080, host: str = "0.0.0.0", max_trajectory: int = 20000,
+                 max_points_per_submap: int = 20000, min_interval_s: float = 0.1) -> None:
+        try:
+            import viser
+        except ImportError as exc:
+            raise ConfigError("the live view needs viser: pip install 'davio[view]' (or pip install viser)"
+                              ) from exc
+        with contextlib.redirect_stdout(sys.stderr):     # viser's banner: stdout stays for --json
+            self.server = viser.ViserServer(host=host, port=port, verbose=False)
+        self.server.scene.set_up_direction("+z")
+        self.max_trajectory = int(max_trajectory)
+        self.max_points = int(max_points_per_submap)
+        self.min_interval_s = float(min_interval_s)
+        self._lock = threading.Lock()
+        self._trajectory: list[np.ndarray] = []
+        self._last_draw = 0.0
+        self._rng = np.random.default_rng(0)
+        self.poses = 0
+        self.submaps = 0
+        self.errors = 0
+        self.last_error = ""
+        self.body = self.server.scene.add_frame("/body", axes_length=0.3, axes_radius=0.015)
+        self.path = None
+        self.clouds: dict[int, Any] = {}
+
+    @property
+    def url(self) -> str:
+        """Where to point a browser (localhost; from another machine use this machine's address)."""
+        return f"http://localhost:{self.server.get_port()}"
+
+    def _guard(self, fn: Callable[[], None]) -> None:
+        try:
+            fn()
+        except Exception as exc:  # noqa: BLE001 - the view must never stop the run
+            self.errors += 1
+            self.last_error = f"{type(exc).__name__}: {exc}"
+
+    # -- poses ---------------------------------------------------------------------------------
+    def on_pose(self, pose: Any) -> None:
+        """A published pose (runtime.session.Pose): moves the body frame, extends the trajectory."""
+        self._guard(lambda: self._pose(np.asarray(pose.T_MI, np.float64)))
+
+    def _pose(self, T_MI: np.ndarray) -> None:
+        with self._lock:
+            self.poses += 1
+            self._trajectory.append(T_MI[:3, 3].copy())
+            if len(self._trajectory) > self.max_trajectory:
+                self._trajectory = self._trajectory[::2]
+            now = time.monotonic()
+            if now - self._last_draw < self.min_interval_s:
+                return
+            self._last_draw = now
+            pts = np.array(self._trajectory)
+        self.body.position = T_MI[:3, 3]
+        self.body.wxyz = _wxyz(T_MI[:3, :3])
+        if len(pts) >= 2:
+            seg = np.stack([pts[:-1], pts[1:]], axis=1)
+            if self.path is None:
+                self.path = self.server.scene.add_line_segments("/trajectory", seg, TRAJECTORY_RGB,
+                                                               thickness=2.0, thickness_units="screen")
+            else:
+                self.path.points = seg
+
+    # -- map -----------------------------------------------------------------------------------
+    def on_map(self, commit: Any, stats: Any = None) -> None:
+        """A map commit (runtime.mapping.MapCommit): shows the new submap's points at its graph state and
+        moves the resident submaps the graph moved."""
+        self._guard(lambda: self._map(commit))
+
+    def _map(self, commit: Any) -> None:
+        for sm in (commit.submap, *commit.changed):
+            if not hasattr(sm, "points_M"):      # a submap that left memory: its points stay as drawn
+                continue
+            P = sm.points_M()
+            grey = np.asarray(sm.grey)
+            if len(P) > self.max_points:
+                keep = self._rng.choice(len(P), self.max_points, replace=False)
+                P, grey = P[keep], grey[keep]
+            rgb = np.repeat(grey[:, None], 3, axis=1).astype(np.uint8)
+            old = self.clouds.pop(sm.index, None)
+            if old is not None:
+                old.remove()
+            self.clouds[sm.index] = self.server.scene.add_point_cloud(
+                f"/map/submap_{sm.index:05d}", P.astype(np.float32), rgb, point_size=0.03)
+        self.submaps += 1
+
+    def chain(self, sink: Callable[[Any, Any], None] | None) -> Callable[[Any, Any], None]:
+        """A map sink that calls `sink` (the run's archive, or None) and then shows the commit."""
+
+        def both(commit: Any, stats: Any) -> None:
+            if sink is not None:
+                sink(commit, stats)
+            self.on_map(commit, stats)
+
+        return both
+
+    def report(self) -> dict:
+        """Counters for report.json: poses and commits shown, view errors."""
+        return {"url": self.url, "poses": self.poses, "submaps": self.submaps, "errors": self.errors,
+                "last_error": self.last_error}
+
+    def close(self) -> None:
+        """Stop the web server."""
+        with contextlib.redirect_stdout(sys.stderr):
+            self._guard(self.server.stop)
+
+
+def add_view_argument(p: Any) -> None:
+    """The `--view [PORT]` option of `davio run` and `davio live`."""
+    p.add_argument("--view", nargs="?", const=8080, type=int, default=None, metavar="PORT",
+                   help="serve a live view of the trajectory and the map in a browser at http://HOST:PORT "
+                        "(default 8080; needs the optional viser package: pip install 'davio[view]')")
+
+
+def open_view(port: int | None) -> LiveView | None:
+    """The live view on `port` (None: no view), its address printed on stderr."""
+    if port is None:
+        return None
+    if not 0 < int(port) < 65536:
+        raise ConfigError(f"--view: {port} is not a TCP port (1-65535)")
+    view = LiveView(port=int(port))
+    print(f"  live view: {view.url} (from another machine: http://<this machine's address>:"
+          f"{view.server.get_port()})", file=sys.stderr, flush=True)
+    return view
