@@ -14,10 +14,14 @@ scale links (1 each). Every block is whitened and, for point groups, multiplied 
 Huber loss on each block norm is applied by `robust.BlockHuber` (`self.loss`), so that
 `self.loss.cost(f)` is the objective E exactly. The ray-aligned point whitening is frozen at the start
 state (paper: frozen within a solve); the robust weights follow every accepted step.
+
+The Jacobian is sparse (scipy CSR): each block touches the five columns of at most two nodes, so a solve
+costs about linear in the factors and a wide graph window stays affordable.
 """
 from __future__ import annotations
 
 import numpy as np
+from scipy.sparse import csr_matrix
 
 from runtime.geometry import make_pose, se3_inverse, se3_log, skew
 from runtime.graph.config import GraphConfig
@@ -142,38 +146,44 @@ class GraphProblem:
         """(m,) whitened residual rows at x (a copy: scipy rescales what it gets in place)."""
         return self._evaluate(x)[0].copy()
 
-    def jacobian(self, x: np.ndarray) -> np.ndarray:
-        """(m, n) dense Jacobian of `residual` at x (a copy)."""
+    def jacobian(self, x: np.ndarray) -> csr_matrix:
+        """(m, n) sparse (CSR) Jacobian of `residual` at x (a copy)."""
         return self._evaluate(x)[1].copy()
 
     def cost(self, x: np.ndarray) -> float:
         """The objective E (eq. objective): sum of rho over block norms, point blocks weighted 1/N_ab."""
         return self.loss.cost(self.residual(x))
 
-    def _evaluate(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _evaluate(self, x: np.ndarray) -> tuple[np.ndarray, csr_matrix]:
         x = np.asarray(x, np.float64)
         if self._cache_x is not None and np.array_equal(x, self._cache_x):
             return self._cache
         R, t, lam = self.states(x)
         f = np.zeros(self.n_residuals)
-        J = np.zeros((self.n_residuals, self.n_params))
+        J: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []     # (rows, cols, values) triplets
         self._odometry(R, t, f, J)
         self._points(R, t, lam, f, J)
         self._scalars(lam, f, J)
-        self._cache_x, self._cache = x.copy(), (f, J)
-        return f, J
+        if J:
+            r, c, v = (np.concatenate([part[i].ravel() for part in J]) for i in range(3))
+        else:
+            r, c, v = np.zeros(0, int), np.zeros(0, int), np.zeros(0)
+        Jm = csr_matrix((v, (r, c)), shape=(self.n_residuals, self.n_params))   # duplicates are summed
+        self._cache_x, self._cache = x.copy(), (f, Jm)
+        return f, Jm
 
-    def _put(self, J: np.ndarray, rows: np.ndarray, node: np.ndarray, blocks: np.ndarray,
-             cols: slice) -> None:
-        """Write blocks (B, d, c) into J at rows (B, d) and the columns `cols` of each block's node."""
+    def _put(self, J: list, rows: np.ndarray, node: np.ndarray, blocks: np.ndarray, cols: slice) -> None:
+        """Add blocks (B, d, c) at rows (B, d) and the columns `cols` of each block's node."""
         c = self.col[node]
         ok = c >= 0
         if not np.any(ok):
             return
         idx = c[ok][:, None] + np.arange(NODE_PARAMS)[cols][None, :]
-        J[rows[ok][:, :, None], idx[:, None, :]] = blocks[ok]
+        b = blocks[ok]
+        J.append((np.broadcast_to(rows[ok][:, :, None], b.shape),
+                  np.broadcast_to(idx[:, None, :], b.shape), b))
 
-    def _odometry(self, R: np.ndarray, t: np.ndarray, f: np.ndarray, J: np.ndarray) -> None:
+    def _odometry(self, R: np.ndarray, t: np.ndarray, f: np.ndarray, J: list) -> None:
         n = len(self.o_a)
         if n == 0:
             return
@@ -197,7 +207,7 @@ class GraphProblem:
                 G = pre @ G
             self._put(J, rows, node, sign * (WJ @ G), slice(0, 4))
 
-    def _points(self, R: np.ndarray, t: np.ndarray, lam: np.ndarray, f: np.ndarray, J: np.ndarray) -> None:
+    def _points(self, R: np.ndarray, t: np.ndarray, lam: np.ndarray, f: np.ndarray, J: list) -> None:
         n = len(self.p_a)
         if n == 0:
             return
@@ -215,12 +225,12 @@ class GraphProblem:
             G[:, :, 4] = X                              # d(e^lam X)/d lam = X
             self._put(J, rows, node, sign * (M @ G), slice(0, NODE_PARAMS))
 
-    def _scalars(self, lam: np.ndarray, f: np.ndarray, J: np.ndarray) -> None:
+    def _scalars(self, lam: np.ndarray, f: np.ndarray, J: list) -> None:
         fp = self.free_pos
         if len(fp):
             rows = self.row_prior + np.arange(len(fp))
             f[rows] = (lam[fp] - self.gauge_lam) / self.prior_sigma
-            J[rows, self.col[fp] + 4] = 1.0 / self.prior_sigma
+            J.append((rows, self.col[fp] + 4, np.full(len(fp), 1.0 / self.prior_sigma)))
         if len(self.s_a):
             rows = self.row_s + np.arange(len(self.s_a))
             f[rows] = (lam[self.s_b] - lam[self.s_a] - self.s_kappa) / self.s_sigma
@@ -228,4 +238,4 @@ class GraphProblem:
             for node, sign in ((self.s_b, 1.0), (self.s_a, -1.0)):
                 c = self.col[node]
                 ok = c >= 0
-                J[rows[ok], c[ok] + 4] += sign * d[ok]
+                J.append((rows[ok], c[ok] + 4, sign * d[ok]))

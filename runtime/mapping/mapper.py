@@ -19,7 +19,7 @@ from __future__ import annotations
 import time
 from collections import OrderedDict
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import cv2
@@ -37,7 +37,7 @@ from runtime.mapping.fusion import VoxelGrid
 from runtime.mapping.multiview import confidence_mask, reobserved, sample_grid
 from runtime.mapping.placement import backproject, place_points
 from runtime.mapping.shared_scale import ScaleLink, overlap_link, shared_link
-from runtime.mapping.submap import Submap
+from runtime.mapping.submap import Submap, SubmapState
 from runtime.mapping.windows import MappingWindow
 
 MAX_ERROR_MESSAGES = 10
@@ -83,7 +83,8 @@ class MapCommit:
         version: the map version this commit defines.
         submap: the new submap.
         link: its scale link to the previous submap (None when there was none).
-        changed: resident submaps whose graph state (T_MS, lambda) the commit's solve moved.
+        changed: submaps whose graph state (T_MS, lambda) the commit's solve moved: resident ones as
+            Submap, ones that already left memory (still in the graph's wider window) as SubmapState.
         T_MO: (4,4) the odometry-to-map correction the commit defines (eq. correction).
         t_ns: sensor time of the newest image of the window.
     """
@@ -164,7 +165,8 @@ class Mapper:
         self._prev: tuple[Submap, dict[int, np.ndarray]] | None = None
         self._features: OrderedDict[int, Any] = OrderedDict()
         self.backend = None if graph is False else GraphBackend(graph or GraphConfig(), revisits)
-        self._centre_views: dict[int, tuple] = {}
+        self._states: dict[int, SubmapState] = {}
+        """Graph states of submaps that left memory while their node is still in the graph."""
 
     # ------------------------------------------------------------------ the window job
     def process(self, window: MappingWindow) -> MapCommit | WindowFit | None:
@@ -216,14 +218,15 @@ class Mapper:
         self._time("graph", t_graph)
         t3 = time.perf_counter()
         for other in changed:
-            if self._moved_in_grid(other):
+            if isinstance(other, Submap) and self._moved_in_grid(other):
                 self.refuse(other)
         self._fuse(sub)
         self.resident.append(sub)
         while len(self.resident) > self.cfg.max_resident_submaps:
             old = self.resident.pop(0)
             self._unfuse(old)               # leaves memory and the live grid; its archive stays on disk
-            self._centre_views.pop(old.index, None)
+            if self.backend is not None and old.index in self.backend.graph:
+                self._states[old.index] = old.state()
             st.submaps_evicted += 1
         self._prev = (sub, depths_by_t)
         st.submaps_resident = len(self.resident)
@@ -242,7 +245,8 @@ class Mapper:
     def _graph_update(self, sub: Submap, depths_by_t: dict[int, np.ndarray], link: ScaleLink | None
                       ) -> list[Submap]:
         """Add the submap to the graph, solve, and copy the new states to the resident submaps;
-        returns the resident submaps (other than `sub`) whose state changed."""
+        returns the submaps (other than `sub`) whose state changed: resident ones (Submap) and ones that
+        left memory while their node stays in the graph (SubmapState)."""
         if self.backend is None:
             return []
         prev = self._prev[0] if self._prev is not None and self._prev[0].segment == sub.segment else None
@@ -251,10 +255,11 @@ class Mapper:
                                 link, points, t_ns=int(sub.frame_t_ns[sub.centre]))
         view = self._centre_view(sub, depths_by_t)
         if view is not None:
-            self._centre_views[sub.index] = view
-            self.backend.try_revisits(sub.index, self._centre_views, self.matcher)
+            self.backend.add_view(sub.index, *view)
+            self.backend.try_revisits(sub.index, self.matcher)
+        self.backend.finish_commit()
         sub.T_MS, sub.lam = self.backend.state(sub.index)
-        changed = []
+        changed: list = []
         for other in self.resident:
             if other.index not in self.backend.graph:
                 continue
@@ -262,10 +267,19 @@ class Mapper:
             if not (np.array_equal(T_MS, other.T_MS) and lam == other.lam):
                 other.T_MS, other.lam, other.version = T_MS, lam, self.stats.map_version
                 changed.append(other)
+        for k in list(self._states):
+            if k not in self.backend.graph:         # evicted from the graph: its state is final
+                del self._states[k]
+                continue
+            old = self._states[k]
+            T_MS, lam = self.backend.state(k)
+            if not (np.array_equal(T_MS, old.T_MS) and lam == old.lam):
+                self._states[k] = replace(old, T_MS=T_MS, lam=lam, version=self.stats.map_version)
+                changed.append(self._states[k])
         return changed
 
     def _centre_view(self, sub: Submap, depths_by_t: dict[int, np.ndarray]) -> tuple | None:
-        """(Features, RevisitView) of a submap's centre image, kept while it is resident (revisits)."""
+        """(Features, RevisitView) of a submap's centre image, kept by the graph for revisits."""
         if self.matcher is None:
             return None
         t = int(sub.frame_t_ns[sub.centre])

@@ -9,6 +9,23 @@ from runtime.mapping.placement import place_points
 
 
 @dataclass
+class SubmapState:
+    """The graph state of a committed submap that left memory (its points are in the archive only):
+    what a commit reports when the graph moves it. Attributes as in `Submap`; n_points: archived points."""
+
+    index: int
+    frame_t_ns: np.ndarray
+    centre: int
+    T_OS: np.ndarray
+    T_MS: np.ndarray
+    lam: float
+    version: int
+    segment: int
+    fit: dict
+    n_points: int
+
+
+@dataclass
 class Submap:
     """The retained depths of one window, stored so that the graph can move and rescale it.
 
@@ -70,6 +87,12 @@ class Submap:
     @property
     def n_points(self) -> int:
         return int(len(self.points_C))
+
+    def state(self) -> SubmapState:
+        """Its graph state without the points (a copy)."""
+        return SubmapState(self.index, self.frame_t_ns.copy(), self.centre, self.T_OS.copy(),
+                           np.array(self.T_MS, np.float64), float(self.lam), self.version, self.segment,
+                           dict(self.fit), self.n_points)
 
     def points_S(self) -> np.ndarray:
         """(P,3) points in the submap frame S_j with the current lambda (metres)."""

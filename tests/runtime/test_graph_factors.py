@@ -21,7 +21,8 @@ def test_config_holds_the_paper_numbers():
     assert (c.drift_rot_sigma_min_deg, c.drift_rot_sigma_per_m_deg) == (0.5, 0.5)
     assert (c.point_sigma_along_frac, c.point_sigma_across_frac, c.point_sigma_min_m) == (0.10, 0.01, 0.10)
     assert (c.scale_prior_sigma, c.huber_threshold, c.max_iterations) == (0.10, 2.0, 8)
-    assert (c.revisit_scale_sigma, c.max_resident_nodes) == (0.03, 24)
+    assert c.revisit_scale_sigma == 0.03
+    assert c.max_resident_nodes == 64          # ours: the paper bounds the fused submaps (24), not the graph
 
 
 def test_drift_model_floors_and_growth():

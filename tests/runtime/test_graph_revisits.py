@@ -260,13 +260,19 @@ def test_revisit_pose_sigma_averages_independent_pairs_and_adds_the_depth_scale(
 def test_drift_gate_opens_only_when_drift_exceeds_the_revisit_uncertainty():
     a, b, m, _ = scene(seed=8)
     res = verify_revisit(a, b, m, small_drift(T_SaSb_true()), SIGMA_SMALL, CFG)
-    assert res.accepted and res.position_sigma is not None
-    ps = res.position_sigma
-    assert 0.2 < np.linalg.norm(ps) < 0.6                # ray-aligned: 10 % of ~4 m along, 10 cm across
+    assert res.accepted and res.revisit_sigma is not None
+    ps = res.revisit_sigma[:3]
+    # the measured relative pose: ~80 ray-aligned pairs, plus a's 10 % depth scale over the ~1 m baseline
+    t_ab = np.linalg.norm(T_SaSb_true()[:3, 3])
+    assert 0.1 * t_ab / 2 < np.linalg.norm(ps) < 0.1 * t_ab * 2
+    np.testing.assert_allclose(ps, revisit_pose_sigma(res.p_a, res.p_b, se3_inverse(
+        se3_inverse(T_SaSb_true())), CFG.innovation_scale_sigma)[:3], rtol=0.2)
     step = make_pose(so3_exp(np.array([0.0, 0.1, 0.0])), np.array([1.0, 0.0, 0.0]))
     short = chain_drift_sigma([step] * 3)                # 3 m of odometry: a few cm
     long = chain_drift_sigma([step] * 40)                # 40 m around a loop: about a metre
     assert not drift_gate(short, ps) and drift_gate(long, ps)
+    assert not res.admit_points
+    assert verify_revisit(a, b, m, small_drift(T_SaSb_true()), long, CFG).admit_points
     r = np.linalg.norm(ps)
     assert not drift_gate(np.r_[[0.99 * r / math.sqrt(3)] * 3, [1.0] * 3], ps)   # rotation is not gated
     assert drift_gate(np.array([1.01 * r / math.sqrt(3)] * 3), ps)

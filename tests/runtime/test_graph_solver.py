@@ -8,18 +8,12 @@ import math
 
 import numpy as np
 import pytest
+from graph_synth import R_BODY_CAM, corresponding_points, loop_poses, rz
 
 from runtime.geometry import make_pose, se3_exp, se3_inverse, so3_exp
-from runtime.graph import GraphConfig, SubmapGraph, huber_rho, huber_weight
+from runtime.graph import GraphConfig, GraphError, SubmapGraph, huber_rho, huber_weight
 
 EZ = np.array([0.0, 0.0, 1.0])
-# camera axes (z forward, x right, y down) in a body frame with x forward, z up
-R_BODY_CAM = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
-
-
-def rz(yaw: float) -> np.ndarray:
-    c, s = math.cos(yaw), math.sin(yaw)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def yaw_of(R: np.ndarray) -> float:
@@ -36,16 +30,6 @@ def truth_poses(n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarra
         Ts.append(make_pose(R, np.array([0.4 * j, 0.3 * math.sin(0.5 * j), 1.0 + 0.05 * j])))
     lams = np.concatenate([[0.0], rng.normal(0.0, 0.05, n - 1)])
     return np.array(Ts), lams
-
-
-def corresponding_points(Ta: np.ndarray, la: float, Tb: np.ndarray, lb: float, k: int,
-                         rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """k true points 2-6 m in front of camera a, as p_a in S_a and p_b in S_b without lambda."""
-    pc = np.column_stack([rng.uniform(-2, 2, k), rng.uniform(-1, 1, k), rng.uniform(2, 6, k)])
-    X = pc @ Ta[:3, :3].T + Ta[:3, 3]
-    pa = (X - Ta[:3, 3]) @ Ta[:3, :3] / math.exp(la)
-    pb = (X - Tb[:3, 3]) @ Tb[:3, :3] / math.exp(lb)
-    return pa, pb
 
 
 def build(n: int, seed: int, k: int = 40, cfg: GraphConfig | None = None, odo_noise: float = 0.0,
@@ -231,7 +215,7 @@ def test_jacobian_and_gradient_match_finite_differences():
     p.add_points(0, 3, pa, pb + 1.0, adjacent=False)          # Huber's linear branch is active
     prob = p.problem()
     x = rng.normal(0, 0.02, prob.n_params)
-    J = prob.jacobian(x)
+    J = prob.jacobian(x).toarray()
     f = prob.residual(x)
     h = 1e-6
     Jn = np.stack([(prob.residual(x + h * e) - prob.residual(x - h * e)) / (2 * h)
@@ -264,3 +248,49 @@ def test_iteration_cap_report_and_manifest():
     json.dumps(rep.as_dict())
     assert [n["id"] for n in d["nodes"]] == list(range(6)) and d["nodes"][0]["fixed"]
     assert len(d["odometry"]) == 5 and d["point_groups"][0]["n"] == 40 and "p_a" not in d["point_groups"][0]
+
+
+def test_an_anchor_pulls_the_drifted_chain_and_stays_fixed():
+    """A loop of 16 submaps: nodes 4..15 are resident (4 the gauge, at the truth) and placed by odometry
+    that drifts 3 cm per edge sideways; node 0, evicted long ago, comes back as an anchor at its true state,
+    and a revisit point group 0-15 closes the loop: node 15 moves towards the truth (the group weighs as one
+    point with ray-aligned sigmas, so part of the way), while the anchor and the gauge do not move."""
+    rng = np.random.default_rng(21)
+    n = 16
+    Ts = loop_poses(n)
+    bias = make_pose(np.eye(3), np.array([0.03, 0.0, 0.0]))
+    g = SubmapGraph()
+    g.add_node(4, Ts[4], 0.0)
+    T = Ts[4]
+    for b in range(5, n):
+        Z = se3_inverse(Ts[b - 1]) @ Ts[b] @ bias
+        T = T @ Z
+        g.add_node(b, T, 0.0)
+        g.add_odometry(b - 1, b, Z)
+    with pytest.raises(GraphError, match="older than the gauge"):
+        g.add_anchor(99, Ts[5], 0.0)
+    g.add_anchor(0, Ts[0], 0.0)
+    with pytest.raises(GraphError, match="already"):
+        g.add_anchor(0, Ts[0], 0.0)
+    assert g.anchor_ids == [0] and len(g) == n - 4 and g.node_state(0).fixed and g.is_fixed(4)
+    last = n - 1
+    before = float(np.linalg.norm(g.node_state(last).T_MS[:3, 3] - Ts[last][:3, 3]))
+    unclosed = copy.deepcopy(g)
+    unclosed.solve(max_iterations=20)
+    pa, pb = corresponding_points(Ts[0], 0.0, Ts[last], 0.0, 80, rng)
+    g.add_points(0, last, pa, pb, adjacent=False)
+    rep = g.solve(max_iterations=20)
+    after = float(np.linalg.norm(g.node_state(last).T_MS[:3, 3] - Ts[last][:3, 3]))
+    stays = float(np.linalg.norm(unclosed.node_state(last).T_MS[:3, 3] - Ts[last][:3, 3]))
+    assert before > 0.1 and stays == pytest.approx(before, abs=1e-9) and after < 0.85 * before
+    assert 0 not in rep.changes and 4 not in rep.changes
+    np.testing.assert_array_equal(g.node_state(0).T_MS, Ts[0])
+    np.testing.assert_array_equal(g.node_state(4).T_MS, Ts[4])
+    d = g.as_dict()
+    assert d["nodes"][0]["id"] == 0 and d["nodes"][0]["anchor"] and not d["nodes"][1]["anchor"]
+    # the anchor stays while a factor reaches it, and leaves with the last one
+    assert g.evict(last - 1) == list(range(4, last)) and g.anchor_ids == [0] and g.gauge == last
+    step = make_pose(np.eye(3), np.array([0.3, 0.0, 0.0]))
+    g.add_node(n, g.node_state(last).T_MS @ step, 0.0)
+    g.add_odometry(last, n, step)
+    assert g.evict(last) == [last] and g.anchor_ids == [] and 0 not in g

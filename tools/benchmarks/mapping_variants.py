@@ -100,6 +100,17 @@ class VariantRun:
     overrides: dict = field(default_factory=dict)
 
 
+def keep_submaps(commit: Any, by_index: dict[int, Any]) -> None:
+    """Record a commit's new submap in `by_index` (index -> Submap) and carry the new graph states it
+    reports for submaps that left the mapper's memory over to their Submap objects, so that
+    `by_index` ends with every submap at its final state (as the archive's manifest does)."""
+    by_index[commit.submap.index] = commit.submap
+    for ch in commit.changed:
+        sm = by_index[ch.index]
+        if sm is not ch:
+            sm.T_MS, sm.lam, sm.version = ch.T_MS, ch.lam, ch.version
+
+
 def export_points(submaps: list, voxel_m: float) -> np.ndarray:
     """(V,3) the final map of DAVIO's mapper: every committed submap fused into voxels at its current
     state (as the run's final export re-fuses every archive; the live grid keeps only the resident
@@ -142,12 +153,12 @@ def run_variant(variant: Variant, inputs: Any, truth: Any, camera: Any, mapping:
                           time.perf_counter() - t0, overrides)
     m = Mapper(model, camera, mapping, matcher=matcher, conditioned=variant.conditioned,
                graph=None if variant.graph else False)
-    submaps = []
+    by_index: dict[int, Any] = {}
     for w in windows:
         m.stats.windows_offered += 1
         out = m.process(w)
         if isinstance(out, MapCommit):
-            submaps.append(out.submap)
-    points = export_points(submaps, mapping.voxel_m)
+            keep_submaps(out, by_index)
+    points = export_points(list(by_index.values()), mapping.voxel_m)
     return VariantRun(points, m.stats.windows_offered, m.stats.windows_accepted,
                       dict(m.stats.windows_rejected), time.perf_counter() - t0, overrides)

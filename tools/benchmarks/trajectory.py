@@ -162,7 +162,10 @@ def _graph_counters(mapper: Any) -> dict:
             "point_groups_revisit": st.point_groups_revisit,
             "revisit_scale_links": st.revisit_scale_links, "revisits_attempted": rv.attempts,
             "revisits_accepted": rv.accepted, "revisit_point_groups": rv.point_groups,
-            "revisits_rejected": {k: v for k, v in rv.rejected.items() if v}, "solve_s": st.solve_s}
+            "revisits_rejected": {k: v for k, v in rv.rejected.items() if v}, "solve_s": st.solve_s,
+            "solve_s_max": st.solve_s_max, "anchors_added": st.anchors_added,
+            "candidates_low_overlap": st.candidates_low_overlap, "views_archived": st.views.archived,
+            "views_thinned": st.views.thinned}
 
 
 def _tracking_health(report: dict) -> dict:

@@ -22,6 +22,7 @@ import numpy as np
 
 from runtime.geometry.trajectory import PoseTrajectory
 from runtime.graph.correction import CorrectionTimeline, final_corrections
+from tools.benchmarks.mapping_variants import keep_submaps
 from tools.benchmarks.trajectory_inputs import TrackingRun
 
 
@@ -33,7 +34,8 @@ class Replay:
         causal: (N,4,4) T_MI of every published state as the live stream would publish it.
         versions, fractions: (N,) the correction version and blend fraction of each causal pose.
         final: (N,4,4) T_MI re-exported with the final per-node corrections.
-        submaps: the committed submaps (final states), in commit order.
+        submaps: the committed submaps (final states, including changes reported for submaps that had
+            left the mapper's memory), in commit order.
         commits: commits made; applied: commits applied to the live stream during tracking.
         seconds: wall time of the mapping.
     """
@@ -106,6 +108,7 @@ def replay(run: TrackingRun, mapper: Any) -> Replay:
         done = max(done, k_end)
 
     submaps = []
+    by_index: dict[int, Any] = {}
     applied = 0
     t0 = time.perf_counter()
     for slot in run.slots:
@@ -114,6 +117,7 @@ def replay(run: TrackingRun, mapper: Any) -> Replay:
         commit = result if isinstance(result, MapCommit) else None
         if commit is not None:
             submaps.append(commit.submap)
+            keep_submaps(commit, by_index)
         if slot.applied is None:
             continue
         n_before, t_last = slot.applied
