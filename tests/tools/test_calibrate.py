@@ -236,7 +236,90 @@ def test_a_euroc_folder_needs_a_model(euroc_head, tmp_path, capsys):
     assert not (tmp_path / "rig.yaml").exists()
 
 
-def test_help_says_live_devices_need_a_bag(capsys):
+def test_help_names_the_live_modules(capsys):
     with pytest.raises(SystemExit):
         main(["calibrate", "--help"])
-    assert "record a bag first" in " ".join(capsys.readouterr().out.split())
+    out = " ".join(capsys.readouterr().out.split())
+    assert "a live module: oak or uvc" in out and "--imu-port" in out
+
+
+def test_a_live_module_needs_its_imu_intrinsics_and_a_real_model(tmp_path, capsys):
+    out = str(tmp_path / "rig.yaml")
+    assert main(["calibrate", "uvc", "--out", out]) == 1
+    assert "davio calibrate uvc needs --imu-port" in capsys.readouterr().err
+    assert main(["calibrate", "uvc", "--imu-port", "/dev/null", "--out", out]) == 1
+    assert "needs --rig FILE" in capsys.readouterr().err
+    assert main(["calibrate", "oak", "--emulated", "--out", out]) == 1
+    assert "a live module needs --model" in capsys.readouterr().err
+    assert main(["calibrate", "oak", "--out", out]) == 1
+    assert "--model DA3.onnx" in capsys.readouterr().err
+    assert not (tmp_path / "rig.yaml").exists()
+
+
+def test_live_run_ended_by_ctrl_c_is_judged_on_its_data():
+    assert judge(_run(status="interrupted"), Thresholds()).code == "replay_failed"
+    live = _run(status="interrupted")
+    live.live = True
+    assert judge(live, Thresholds()).ok
+
+
+@pytest.mark.slow
+def test_calibrate_reads_a_live_uvc_module_and_judges_its_motion(small_sim_folder, tmp_path, capsys,
+                                                                 monkeypatch):
+    """`davio calibrate uvc`: a video file as the camera and a pseudo-terminal as the serial IMU, at sensor
+    rate. The DA3 graph here is a contract graph without weights (its depth is a colour ramp and it returns
+    the input cameras), so the hand-eye bring-up cannot complete: the run must refuse with the reason and a
+    report whose rotation excitation is the one of the IMU rows fed through the serial port."""
+    import importlib.util
+    import os
+    import threading
+
+    from live_sources import imu_writer, video_from_recording
+
+    from drivers.uvc import UvcCamera
+
+    spec = importlib.util.spec_from_file_location(
+        "da3_contract_graph", Path(__file__).resolve().parents[1] / "models" / "da3_contract_graph.py")
+    graphs = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(graphs)
+    graph = graphs.build_da3_contract_graph(tmp_path / "contract.onnx", 28, 42)
+    video = video_from_recording(small_sim_folder, tmp_path / "cam.avi")
+    master, slave = os.openpty()
+    stop, go = threading.Event(), threading.Event()
+    start = UvcCamera.start
+
+    def start_and_go(self):
+        out = start(self)
+        go.set()
+        return out
+
+    monkeypatch.setattr(UvcCamera, "start", start_and_go)
+    writer = imu_writer(small_sim_folder, master, go, stop)
+    out = tmp_path / "rig.yaml"
+    try:
+        code = main(["calibrate", "uvc", "--camera", str(video), "--imu-port", os.ttyname(slave),
+                     "--imu-protocol", "text", "--rig", str(small_sim_folder), "--model", str(graph),
+                     "--seconds", "5", "--no-plots", "--out", str(out)])
+    finally:
+        stop.set()
+        writer.join(2)
+        os.close(master)
+        os.close(slave)
+    err = capsys.readouterr().err
+    assert code == 3, err
+    assert "refused" in err and not out.exists()
+    report = json.loads(out.with_name("rig.report.json").read_text())
+    assert report["recording"].startswith("live uvc camera")
+    # the excitation of the IMU rows the port carried, measured here from the recording's csv
+    rows = [ln.split(",") for ln in (small_sim_folder / "mav0" / "imu0" / "data.csv").read_text().splitlines()
+            if ln and not ln.startswith("#")]
+    meter = ExcitationMeter()
+    t0 = int(rows[0][0])
+    seen = report["excitation"]["seconds"]
+    for r in rows:
+        if (int(r[0]) - t0) * 1e-9 <= seen:
+            meter.add(int(r[0]), np.array([float(x) for x in r[1:4]]))
+    expected = meter.result()
+    assert 4.0 < seen <= 5.05
+    np.testing.assert_allclose(report["excitation"]["rms_rate_dps"], expected.rms_rate_dps, rtol=0.05,
+                               atol=0.2)

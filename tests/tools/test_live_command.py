@@ -9,49 +9,11 @@ import threading
 import time
 from pathlib import Path
 
-import cv2
 import pytest
+from live_sources import imu_writer, video_from_recording
 
-from drivers.serial_imu.text import encode_line
 from tools.cli import main
 from tools.run_folder import run_status
-
-
-def _video(rec: Path, out: Path) -> Path:
-    files = sorted((rec / "mav0" / "cam0" / "data").glob("*.png"))
-    first = cv2.imread(str(files[0]), cv2.IMREAD_GRAYSCALE)
-    h, w = first.shape
-    writer = cv2.VideoWriter(str(out), cv2.VideoWriter_fourcc(*"MJPG"), 20.0, (w, h), isColor=False)
-    for f in files:
-        writer.write(cv2.imread(str(f), cv2.IMREAD_GRAYSCALE))
-    writer.release()
-    return out
-
-
-def _imu_writer(rec: Path, fd: int, go: threading.Event, stop: threading.Event) -> threading.Thread:
-    """Writes the recording's IMU rows as `$IMU` lines at sensor rate, from the moment `go` is set (the
-    camera's first frame), so that camera and IMU share one clock as on a real module."""
-    rows = [ln.split(",") for ln in (rec / "mav0" / "imu0" / "data.csv").read_text().splitlines()
-            if ln and not ln.startswith("#")]
-
-    def run() -> None:
-        go.wait(30)
-        t0_dev, t0_host = int(rows[0][0]), time.monotonic()
-        for k, r in enumerate(rows):
-            due = t0_host + (int(r[0]) - t0_dev) * 1e-9
-            while not stop.is_set() and time.monotonic() < due:
-                time.sleep(0.001)
-            if stop.is_set():
-                return
-            gyro, accel = [float(x) for x in r[1:4]], [float(x) for x in r[4:7]]
-            try:
-                os.write(fd, encode_line(k, (int(r[0]) - t0_dev) // 1000, accel, gyro))
-            except OSError:
-                return
-
-    th = threading.Thread(target=run, daemon=True)
-    th.start()
-    return th
 
 
 @pytest.mark.slow
@@ -60,7 +22,7 @@ def test_live_uvc_with_a_serial_imu_publishes_and_writes_a_complete_run(small_si
                                                                        monkeypatch) -> None:
     from drivers.uvc import UvcCamera
 
-    video = _video(small_sim_folder, tmp_path / "cam.avi")
+    video = video_from_recording(small_sim_folder, tmp_path / "cam.avi")
     master, slave = os.openpty()
     stop, go = threading.Event(), threading.Event()
     start = UvcCamera.start
@@ -71,7 +33,7 @@ def test_live_uvc_with_a_serial_imu_publishes_and_writes_a_complete_run(small_si
         return out
 
     monkeypatch.setattr(UvcCamera, "start", start_and_go)
-    writer = _imu_writer(small_sim_folder, master, go, stop)
+    writer = imu_writer(small_sim_folder, master, go, stop)
     try:
         code = main(["live", "uvc", "--camera", str(video), "--imu-port", os.ttyname(slave),
                      "--imu-protocol", "text", "--rig", str(small_sim_folder), "--native-only",

@@ -2,7 +2,7 @@
 
 In this order (the first that applies is the refusal; each names what was observed):
 
-1. the replay failed or was interrupted;
+1. the replay failed or was interrupted (a live run ends with Ctrl-C: its data is judged);
 2. the rotation excitation is insufficient: fewer than two principal axes of the gyro stream with an RMS
    rate of at least `min_axis_rate_dps` (a hand–eye calibration needs rotation about two non-parallel
    axes; a static or purely translating recording has none);
@@ -51,7 +51,7 @@ def _fmt_rates(rates: list) -> str:
 
 def judge(run: CalibrationRun, th: Thresholds) -> Verdict:
     """The first refusal rule that applies (see the module docstring), else ok."""
-    if run.status != "complete":
+    if run.status != "complete" and not (run.live and run.status == "interrupted"):
         return Verdict(False, "replay_failed", f"the replay did not complete ({run.status}: {run.reason})")
     ex = run.excitation
     rates = list(ex.rms_rate_dps) or [0.0, 0.0, 0.0]

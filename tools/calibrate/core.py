@@ -114,6 +114,7 @@ class CalibrationRun:
         status, reason: how the replay ended ("complete", "interrupted", "failed").
         t0_ns: the first event's time (plots and the report count seconds from it).
         sensor_s: seconds of data replayed.
+        live: the events came from a live device (Ctrl-C is how such a run ends: "interrupted" is normal).
     """
 
     samples: list[CalibSample]
@@ -124,6 +125,7 @@ class CalibrationRun:
     reason: str | None
     t0_ns: int
     sensor_s: float
+    live: bool = False
 
     @property
     def final(self) -> CalibSample | None:
@@ -145,6 +147,7 @@ def calibrate(
     model_latency_s: float = 0.5,
     sample_every_s: float = 0.1,
     progress: Callable[[float, str], None] | None = None,
+    live: bool = False,
 ) -> CalibrationRun:
     """Replay `events` through DAVIO with `rig`'s extrinsics and time offset withheld; collect the filter's
     calibration states and the rotation excitation.
@@ -156,6 +159,8 @@ def calibrate(
         seconds: only the first S seconds of data.
         sample_every_s: camera seconds between collected calibration states.
         progress: called with (sensor seconds, phase) about every 5 s of data.
+        live: `events` come from a live driver (runtime.session.Session.run_live: real time, bounded
+            queues, model results applied when ready); Ctrl-C ends the data, not the calibration.
     """
     from runtime.errors import ConfigError
     from runtime.session import Session
@@ -216,7 +221,10 @@ def calibrate(
                 )
             yield ev
 
-    res = session.replay(feed(), model_latency_s=model_latency_s, keep_partial=True)
+    if live:
+        res = session.run_live(feed(), keep_partial=True)
+    else:
+        res = session.replay(feed(), model_latency_s=model_latency_s, keep_partial=True)
     take(force=True)
     rep = pipe.report()
     return CalibrationRun(
@@ -228,6 +236,7 @@ def calibrate(
         res.reason,
         first[0] if first else 0,
         float(res.scheduler.sensor_s),
+        live,
     )
 
 

@@ -12,9 +12,12 @@ HELP = "estimate the camera-IMU extrinsics and time offset of a recording; write
 DESCRIPTION = (
     "Calibrate the camera-IMU rig from a recording: the hand-eye bring-up (R_IC and the gyro bias from DA3 "
     "vs preintegrated IMU rotations) and the filter's online refinement of rotation, lever arm and time "
-    "offset. SOURCE is an EuRoC folder, a `davio simulate` folder or a ROS 1 / ROS 2 bag; a live device: "
-    "record a bag first. The intrinsics come from the recording's own calibration or --rig (its camera part "
-    "is kept; its extrinsics and time offset are withheld and estimated). Writes --out (a Kalibr camchain: "
+    "offset. SOURCE is an EuRoC folder, a `davio simulate` folder, a ROS 1 / ROS 2 bag, or a live module: "
+    "`oak` (depthai) or `uvc` (a UVC camera and a serial IMU, --imu-port; the options of `davio live`), "
+    "moved by hand until --seconds or Ctrl-C. The intrinsics come from the recording's own calibration, "
+    "an OAK's factory calibration, or --rig (its camera part is kept; its extrinsics and time offset are "
+    "withheld and estimated; an OAK's factory extrinsics are shown beside the estimate). Writes --out "
+    "(a Kalibr camchain: "
     "cam0 intrinsics, T_cam_imu, timeshift_cam_imu with t_imu = t_cam + shift), the IMU noise YAML beside it "
     "(imu.yaml, or the camchain's name with 'camchain' -> 'imu', so that calib.load_rig finds it), "
     "<out stem>.report.json (bring-up windows, residuals and rejections, rotation excitation, the final "
@@ -40,8 +43,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     th = Thresholds()
     p.add_argument(
         "source",
-        help="EuRoC ASL folder, a `davio simulate` folder, or a ROS 1 / ROS 2 bag (.bag, a "
-        "bag folder, .db3, .mcap); a live device: record a bag first",
+        help="EuRoC ASL folder, a `davio simulate` folder, a ROS 1 / ROS 2 bag (.bag, a bag folder, "
+        ".db3, .mcap), or a live module: oak or uvc (see the device options below)",
     )
     p.add_argument(
         "--out",
@@ -109,6 +112,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="refuse when the final time-offset 1-sigma exceeds this",
     )
     p.add_argument("--no-plots", action="store_true", help="do not draw the convergence plots")
+    from tools.commands.live import add_device_arguments
+
+    dev = p.add_argument_group("live module (SOURCE oak or uvc)")
+    add_device_arguments(dev)
     p.add_argument(
         "--json",
         action="store_true",
@@ -147,6 +154,50 @@ def check_args(args: argparse.Namespace) -> None:
         existing = [str(p) for p in paths_for(out).values() if p.exists()]
         if existing:
             raise ConfigError(f"--out {out}: {', '.join(existing)} exist(s); pass --overwrite to replace")
+
+
+LIVE_SOURCES = ("oak", "uvc")
+
+
+def is_live(source: str) -> bool:
+    """SOURCE names a live module (and no file or folder of that name exists here)."""
+    return source in LIVE_SOURCES and not Path(source).exists()
+
+
+def open_live(args: argparse.Namespace) -> tuple:
+    """(LiveDriver, rig with the intrinsics, model, model description, reference dict) for a live module,
+    or a DavioError. The model must be a DA3 graph: the emulated DA3 needs a simulator's ground truth."""
+    from runtime.errors import ConfigError
+    from tools.commands.live import check_device_args, open_device
+
+    check_device_args(args, "davio calibrate")
+    if args.emulated:
+        raise ConfigError("--emulated needs a recording written by `davio simulate`; a live module needs "
+                          "--model DA3.onnx")
+    if not args.model:
+        raise ConfigError("calibration needs a depth model for the hand-eye bring-up: pass --model DA3.onnx")
+    given = None
+    if args.rig:
+        from calib import load_rig
+
+        given = load_rig(args.rig)
+        if given.camera is None:
+            raise ConfigError(f"{args.rig}: no camera intrinsics")
+    driver, rig = open_device(args, given)
+    try:
+        from models.da3 import OnnxDA3
+
+        model = OnnxDA3(args.model, rig.camera)
+        warm_s = model.warm_up(5)
+    except BaseException:
+        driver.stop()
+        raise
+    desc = f"DA3 ONNX {args.model} on {model.session_info['providers'][0]} (warm-up {warm_s:.2f} s)"
+    reference = {"source": None, "T_IC": None, "time_offset_s": None}
+    if args.source == "oak" and given is None and rig.T_IC is not None:
+        reference.update(source="the OAK's factory calibration", T_IC=rig.T_IC,
+                         time_offset_s=rig.time_offset_s)
+    return driver, rig, model, desc, reference
 
 
 def open_inputs(args: argparse.Namespace) -> tuple:
@@ -225,24 +276,39 @@ def run(args: argparse.Namespace) -> int:
         args.min_axis_rate_dps, args.max_rot_std_deg, args.max_lever_std_m, args.max_offset_std_ms
     )
     log = sys.stderr if args.json else sys.stdout
+    live = is_live(args.source)
     with interruptible():
-        rec, rig, model, desc, reference = open_inputs(args)
+        if live:
+            from tools.commands.live import describe_device
+
+            driver, rig, model, desc, reference = open_live(args)
+            what = f"live {describe_device(args)}"
+        else:
+            rec, rig, model, desc, reference = open_inputs(args)
+            driver, what = rec.driver, rec.description
         print(
-            f"davio calibrate: {rec.description}\n  model: {desc}\n  extrinsics and time offset withheld: "
-            "hand-eye bring-up, then online calibration",
+            f"davio calibrate: {what}\n  model: {desc}\n  extrinsics and time offset withheld: "
+            "hand-eye bring-up, then online calibration"
+            + ("\n  move the module about at least two axes; Ctrl-C (or --seconds) ends the data" if live
+               else ""),
             file=log,
             flush=True,
         )
-        run_ = calibrate(
-            rec.driver.events(),
-            rig,
-            model,
-            config,
-            seconds=args.seconds,
-            model_latency_s=args.model_latency,
-            progress=stderr_progress,
-        )
-    return finish(args, run_, rig, th, desc, rec.description, reference, log)
+        try:
+            run_ = calibrate(
+                driver.events(),
+                rig,
+                model,
+                config,
+                seconds=args.seconds,
+                model_latency_s=args.model_latency,
+                progress=stderr_progress,
+                live=live,
+            )
+        finally:
+            if live:
+                driver.stop()
+    return finish(args, run_, rig, th, desc, what, reference, log)
 
 
 def finish(

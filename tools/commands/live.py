@@ -20,10 +20,8 @@ DESCRIPTION = (
 )
 
 
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    from tools.live_view import add_view_argument
-
-    p.add_argument("source", choices=["uvc", "oak"], help="the sensor module")
+def add_device_arguments(p: argparse.ArgumentParser) -> None:
+    """The options that open a live module (`open_device`), shared with `davio calibrate oak|uvc`."""
     p.add_argument("--camera", default="0", help="UVC device index or path (a video file replays it)")
     p.add_argument("--socket", choices=["CAM_B", "CAM_C", "CAM_A"], default="CAM_B",
                    help="OAK camera socket (CAM_B/CAM_C: mono; CAM_A: colour, used in grey)")
@@ -37,6 +35,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="xsens: Xbus MTData2 (counter, SampleTimeFine, accel, gyro); text: "
                         "$IMU,seq,t_dev_us,ax,ay,az,gx,gy,gz*HH lines")
     p.add_argument("--baud", type=int, default=460800, help="serial baud rate")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from tools.live_view import add_view_argument
+
+    p.add_argument("source", choices=["uvc", "oak"], help="the sensor module")
+    add_device_arguments(p)
     p.add_argument("--rig", metavar="FILE",
                    help="calibration (Kalibr camchain, EuRoC sensor.yaml or folder); an OAK's factory "
                         "calibration is used without it")
@@ -61,11 +66,7 @@ def run(args: argparse.Namespace) -> int:
     from tools.run_outcome import interruptible
 
     check_run_args(args)
-    if args.source == "uvc" and not args.imu_port:
-        raise ConfigError("davio live uvc needs --imu-port (the serial IMU, e.g. /dev/ttyUSB0)")
-    if args.source == "uvc" and not args.rig:
-        raise ConfigError("davio live uvc needs --rig FILE (the camera intrinsics; a Kalibr camchain, an "
-                          "EuRoC sensor.yaml or folder)")
+    check_device_args(args, "davio live")
     config = load_toml(DavioConfig, args.config) if args.config else DavioConfig()
     # host-stamped camera and IMU: the filter estimates the camera-IMU time offset online
     config = replace(config, msckf=replace(config.msckf, calib_time_offset=True))
@@ -78,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
     if rig is not None and rig.camera is None:
         raise ConfigError(f"{args.rig}: no camera intrinsics")
     with interruptible():
-        driver, rig = _open_oak(args, rig) if args.source == "oak" else (_open_driver(args, rig), rig)
+        driver, rig = open_device(args, rig)
         try:
             model, model_desc = _open_model(args, rig, config)
         except BaseException:
@@ -101,6 +102,31 @@ def _open_model(args: argparse.Namespace, rig, config) -> tuple:
     model = OnnxDA3(args.model, rig.camera)
     warm_s = model.warm_up(config.startup.window_images)
     return model, f"DA3 ONNX {args.model} on {model.session_info['providers'][0]} (warm-up {warm_s:.2f} s)"
+
+
+def check_device_args(args: argparse.Namespace, command: str) -> None:
+    """ConfigError when a UVC source lacks its serial IMU or its intrinsics (before any device opens)."""
+    from runtime.errors import ConfigError
+
+    if args.source == "uvc" and not args.imu_port:
+        raise ConfigError(f"{command} uvc needs --imu-port (the serial IMU, e.g. /dev/ttyUSB0)")
+    if args.source == "uvc" and not args.rig:
+        raise ConfigError(f"{command} uvc needs --rig FILE (the camera intrinsics; a Kalibr camchain, an "
+                          "EuRoC sensor.yaml or folder)")
+
+
+def open_device(args: argparse.Namespace, rig):
+    """(a started LiveDriver for args.source "oak" or "uvc", the rig: `rig`, else an OAK's factory
+    calibration)."""
+    if args.source == "oak":
+        return _open_oak(args, rig)
+    return _open_driver(args, rig), rig
+
+
+def describe_device(args: argparse.Namespace) -> str:
+    """A one-line description of the live source."""
+    return (f"OAK {args.socket}" if args.source == "oak" else
+            f"uvc camera {args.camera} + IMU {args.imu_port} ({args.imu_protocol})")
 
 
 def _open_oak(args: argparse.Namespace, rig):
@@ -154,8 +180,7 @@ def _run(args, folder, driver, rig, model, model_desc: str, config) -> int:
     from tools.run_session import _first_seconds
 
     map_out = MapOutput.create(folder.path, rig, model_desc, model, config)
-    where = (f"OAK {args.socket}" if args.source == "oak" else
-             f"uvc camera {args.camera} + IMU {args.imu_port} ({args.imu_protocol})")
+    where = describe_device(args)
     print(f"davio live: {where}\n"
           f"  model: {model_desc}\n  Ctrl-C to finish", file=sys.stderr)
     view = open_view(args.view)

@@ -1,0 +1,50 @@
+"""Stand-ins for a live camera-IMU module, for the tests of `davio live` and `davio calibrate oak|uvc`: a
+recording's images as a video file (the UVC camera) and its IMU rows written at sensor rate to a
+pseudo-terminal (the serial IMU, text protocol)."""
+from __future__ import annotations
+
+import os
+import threading
+import time
+from pathlib import Path
+
+import cv2
+
+from drivers.serial_imu.text import encode_line
+
+
+def video_from_recording(rec: Path, out: Path) -> Path:
+    files = sorted((rec / "mav0" / "cam0" / "data").glob("*.png"))
+    first = cv2.imread(str(files[0]), cv2.IMREAD_GRAYSCALE)
+    h, w = first.shape
+    writer = cv2.VideoWriter(str(out), cv2.VideoWriter_fourcc(*"MJPG"), 20.0, (w, h), isColor=False)
+    for f in files:
+        writer.write(cv2.imread(str(f), cv2.IMREAD_GRAYSCALE))
+    writer.release()
+    return out
+
+
+def imu_writer(rec: Path, fd: int, go: threading.Event, stop: threading.Event) -> threading.Thread:
+    """Writes the recording's IMU rows as `$IMU` lines at sensor rate, from the moment `go` is set (the
+    camera's first frame), so that camera and IMU share one clock as on a real module."""
+    rows = [ln.split(",") for ln in (rec / "mav0" / "imu0" / "data.csv").read_text().splitlines()
+            if ln and not ln.startswith("#")]
+
+    def run() -> None:
+        go.wait(30)
+        t0_dev, t0_host = int(rows[0][0]), time.monotonic()
+        for k, r in enumerate(rows):
+            due = t0_host + (int(r[0]) - t0_dev) * 1e-9
+            while not stop.is_set() and time.monotonic() < due:
+                time.sleep(0.001)
+            if stop.is_set():
+                return
+            gyro, accel = [float(x) for x in r[1:4]], [float(x) for x in r[4:7]]
+            try:
+                os.write(fd, encode_line(k, (int(r[0]) - t0_dev) // 1000, accel, gyro))
+            except OSError:
+                return
+
+    th = threading.Thread(target=run, daemon=True)
+    th.start()
+    return th
