@@ -18,12 +18,16 @@ Merging (`events()`), in non-decreasing t_ns order with the IMU first at equal s
   (`frames_ahead_of_imu`); if no IMU sample has arrived at all, it is dropped (`frames_before_imu`).
 - Anything that would break the order (an IMU sample older than what was already released, a frame
   stamp that does not increase) is dropped and counted.
+- Samples an IMU source lost to its queue's overflow (`take_overflow()`, optional) are flagged on the
+  next sample it delivers (`ImuSample.lost_before`): the filter counts the gap and the feed-forward
+  start-up never solves a window across it.
 `events()` returns when `stop()` is called (from any thread or a signal handler; within about
 `poll_s`), or when a source ends (the rest is flushed first). A source error is raised from
 `events()` as that DavioError (anything else is wrapped in a DeviceError).
 """
 from __future__ import annotations
 
+import dataclasses
 import statistics
 import threading
 import time
@@ -86,6 +90,7 @@ class LiveDriver(Driver):
         self.cam_received = self.cam_emitted = self.cam_out_of_order = 0
         self.frames_ahead_of_imu = self.frames_before_imu = self.frames_after_imu_end = 0
         self.imu_received = self.imu_emitted = self.imu_out_of_order = self.imu_duplicate = 0
+        self.imu_lost_flagged = 0
         self._periods: dict[str, deque[int]] = {"cam0": deque(maxlen=_PERIODS_KEPT),
                                                 "imu0": deque(maxlen=_PERIODS_KEPT)}
         self._last_emitted: dict[str, int | None] = {"cam0": None, "imu0": None}
@@ -185,7 +190,8 @@ class LiveDriver(Driver):
             rep.note(f"imu0: {self.imu_duplicate} samples repeating the previous stamp were dropped")
         overflow = int(imu_rep.get("overflow", 0) or 0)
         if overflow:
-            rep.note(f"imu0: {overflow} samples lost to the IMU queue's overflow (the consumer fell behind)")
+            rep.note(f"imu0: {overflow} samples lost to the IMU queue's overflow (the consumer fell behind); "
+                     f"{self.imu_lost_flagged} flagged to the filter as gaps")
         if cam.converted and cam_rep.get("conversion"):
             rep.note(f"cam0: images converted ({cam_rep['conversion']})")
         for name, sub in (("cam0", cam_rep), ("imu0", imu_rep)):
@@ -198,6 +204,7 @@ class LiveDriver(Driver):
                        "frames_before_imu": self.frames_before_imu,
                        "frames_after_imu_end": self.frames_after_imu_end,
                        "frames_dropped_by_camera_buffer": dropped_old,
+                       "imu_lost_flagged": self.imu_lost_flagged,
                        "imu_wait_s": self.imu_wait_s, "time_offset_s": self.time_offset_s,
                        "ended": self.ended, "stopped": self._stop_requested,
                        "error": None if self.error is None else str(self.error)}
@@ -214,8 +221,14 @@ class LiveDriver(Driver):
         floor_of = getattr(cam, "min_future_ns", None)
         cam_done = imu_done = False
 
+        take_overflow = getattr(imu, "take_overflow", None)
+
         def accept_imu(s: ImuSample) -> None:
             self.imu_received += 1
+            lost = int(take_overflow() or 0) if take_overflow is not None else 0
+            if lost:     # the source dropped its oldest samples: they preceded this one
+                s = dataclasses.replace(s, lost_before=int(s.lost_before) + lost)
+                self.imu_lost_flagged += lost
             t = int(s.t_ns)
             newest = state["imu_newest"]
             if newest is not None and t == newest:

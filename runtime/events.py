@@ -14,11 +14,14 @@ class ImuSample:
         t_ns: sensor-clock time, int64 nanoseconds.
         gyro: (3,) angular rate, rad/s.
         accel: (3,) specific force, m/s^2 (reads +g upward at rest).
+        lost_before: samples a live driver lost right before this one (its bounded queue overflowed):
+            the interval since the previous sample is a gap, whatever its length.
     """
 
     t_ns: int
     gyro: np.ndarray
     accel: np.ndarray
+    lost_before: int = 0
 
 
 @dataclass(frozen=True, slots=True)

@@ -171,6 +171,8 @@ class StartupReport:
     candidates_abandoned: int = 0
     candidates_refused_buffer: int = 0
     candidates_diverged: int = 0
+    ff_windows_imu_lost: int = 0
+    """Feed-forward windows not solved: the live driver lost IMU samples inside them."""
     published_by: str | None = None
     first_publish_t_ns: int | None = None
     first_measurement_t_ns: int | None = None
@@ -204,6 +206,8 @@ class StartupManager:
         self._cid = 0
         self._tried = 0
         self._last_request_ns: int | None = None
+        self._imu_loss_ns: deque[int] = deque(maxlen=256)
+        self._refused_window_ns: int | None = None
 
     # ------------------------------------------------------------------ measurements
     @property
@@ -214,6 +218,8 @@ class StartupManager:
         if self.report.first_measurement_t_ns is None:
             self.report.first_measurement_t_ns = int(sample.t_ns)
         self._newest_ns = max(self._newest_ns, int(sample.t_ns))
+        if getattr(sample, "lost_before", 0):
+            self._imu_loss_ns.append(int(sample.t_ns))
         if self.publisher is not None:
             return self._publish(self.publisher.feed_imu(sample))
         self.buffer.append("imu", sample.t_ns, sample)
@@ -257,11 +263,17 @@ class StartupManager:
         return None if idx is None else [frames[i] for i in idx]
 
     def imu_for(self, frames: list[Frame]) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """IMU arrays covering the window on the IMU clock, or None if not yet covered."""
+        """IMU arrays covering the window on the IMU clock, or None if not yet covered or if IMU samples
+        were lost inside it (counted once per window: preintegration across the loss would be wrong)."""
         t0 = int(frames[0].t_ns) + self.offset_ns
         t1 = int(frames[-1].t_ns) + self.offset_ns
         t, w, a = self.buffer.imu_arrays(t0 - 20_000_000, t1 + 20_000_000)
         if t.size < 2 or t[0] > t0 or t[-1] < t1:
+            return None
+        if any(t[0] < lost <= t[-1] for lost in self._imu_loss_ns):
+            if self._refused_window_ns != t1:
+                self._refused_window_ns = t1
+                self.report.ff_windows_imu_lost += 1
             return None
         return t, w, a
 

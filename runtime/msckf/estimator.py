@@ -80,6 +80,7 @@ class _Counters:
     imu_nonfinite: int = 0
     imu_out_of_order: int = 0
     imu_gaps: int = 0
+    imu_lost: int = 0  #: samples a live driver reported lost before a sample (ImuSample.lost_before)
     frames: int = 0
     frames_processed: int = 0
     frames_out_of_order: int = 0
@@ -347,7 +348,9 @@ class MsckfEstimator:
         if self._imu_t and t <= self._imu_t[-1]:
             c.imu_out_of_order += 1
             return []
-        if self._imu_t and (t - self._imu_t[-1]) * 1e-9 > self.config.max_imu_gap_s:
+        lost = int(getattr(sample, "lost_before", 0) or 0)
+        c.imu_lost += lost
+        if self._imu_t and (lost or (t - self._imu_t[-1]) * 1e-9 > self.config.max_imu_gap_s):
             c.imu_gaps += 1
         c.imu_samples += 1
         self._imu_t.append(t)

@@ -290,3 +290,61 @@ def test_stop_from_a_signal_handler(video: Path) -> None:
         signal.signal(signal.SIGALRM, old)
     assert fired and ended - fired[0] < 0.5 and n > 0
     assert imu.stopped and cam.get(0.01) is None
+
+
+class OverflowingImu(FakeImu):
+    """FakeImu whose bounded queue holds `capacity` samples: when the consumer is late, the oldest go and
+    are counted for `take_overflow()`, as the serial and OAK IMU sources do."""
+
+    def __init__(self, capacity: int) -> None:
+        super().__init__()
+        self.capacity = capacity
+        self.lost = 0
+        self.pending = 0
+        self.dropped_stamps: list[int] = []
+
+    def _run(self) -> None:
+        k = 0
+        while not self.stopped:
+            t = self.t0 + k * IMU_PERIOD_NS
+            wait = (t + self.latency_ns - time.monotonic_ns()) / 1e9
+            if wait > 0:
+                time.sleep(wait)
+            with self.cond:
+                if len(self.buf) >= self.capacity:
+                    self.dropped_stamps.append(self.buf.popleft().t_ns)
+                    self.lost += 1
+                    self.pending += 1
+                self.buf.append(ImuSample(t, np.array([0.0, 0.0, 0.1]), np.array([0.0, 0.0, 9.81])))
+                self.produced += 1
+                self.cond.notify_all()
+            k += 1
+
+    def take_overflow(self) -> int:
+        with self.cond:
+            n, self.pending = self.pending, 0
+            return n
+
+    def report(self) -> dict:
+        return {"samples": self.produced, "overflow": self.lost}
+
+
+def test_imu_overflow_is_flagged_on_the_next_sample_delivered(video: Path) -> None:
+    imu = OverflowingImu(capacity=4)
+    drv = LiveDriver(camera(video), imu)
+    with drv:
+        it = drv.events()
+        events = [next(it)]
+        time.sleep(0.2)                         # the consumer stalls: 40 samples arrive, 4 fit
+        events += list(it)
+    imus = [e for e in events if isinstance(e, ImuSample)]
+    flagged = [e for e in imus if e.lost_before]
+    assert imu.lost > 20 and sum(e.lost_before for e in imus) == imu.lost
+    for e in flagged:                           # every flagged sample follows the samples it lost
+        k = imus.index(e)
+        lost_here = [t for t in imu.dropped_stamps if (imus[k - 1].t_ns if k else 0) < t < e.t_ns]
+        assert len(lost_here) == e.lost_before
+    rep = drv.report()
+    assert rep["live"]["imu_lost_flagged"] == imu.lost
+    assert any(f"{imu.lost} samples lost" in n and f"{imu.lost} flagged to the filter" in n
+               for n in rep["notes"])

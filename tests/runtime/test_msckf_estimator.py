@@ -131,6 +131,10 @@ def test_bad_imu_samples_are_dropped_and_counted() -> None:
     rep = est.report()
     assert rep["imu_nonfinite"] == 2 and rep["imu_out_of_order"] == 1 and rep["imu_gaps"] == 1
     assert rep["imu_samples"] == 3
+    # a live driver's queue overflow: a gap however short the interval, the lost samples counted
+    est.feed_imu(ImuSample(505_000_000, np.zeros(3), np.array([0, 0, 9.81]), lost_before=3))
+    rep = est.report()
+    assert rep["imu_gaps"] == 2 and rep["imu_lost"] == 3 and rep["imu_samples"] == 4
 
 
 def test_frames_without_features_and_bad_tracks_do_not_crash() -> None:

@@ -191,3 +191,28 @@ def test_an_instant_model_is_offered_one_window_per_spacing_not_one_per_event():
     assert len(ends) >= 15 and np.all(np.diff(ends) >= 0.999 * spacing)
     assert len(ends) <= 4.0 / StartupConfig().window_spacing_s
     assert m.report.ff_requests == len(ends)
+
+
+def test_feedforward_windows_across_lost_imu_samples_are_not_solved():
+    """A live driver flags samples lost to its IMU queue's overflow (ImuSample.lost_before): a start-up
+    window spanning the loss gets no IMU (preintegration across it would be wrong), counted once; the
+    next window after the loss is solved as usual."""
+    m = StartupManager(lambda native: RecordingFilter(), StartupConfig())
+    frames = []
+    loss_ns = 1_505_000_000
+    for kind, t in _stream(3.0):
+        if kind == "imu":
+            m.on_imu(ImuSample(t, np.zeros(3), np.array([0, 0, 9.81]), lost_before=4 if t == loss_ns else 0))
+        else:
+            f = Frame(t, np.zeros((4, 4), np.uint8))
+            frames.append(f)
+            m.on_tracks(t, np.zeros(0, np.int64), np.zeros((0, 2)), f)
+    by_t = {f.t_ns: f for f in frames}
+    spanning = [by_t[t] for t in (1_000_000_000, 1_200_000_000, 1_400_000_000, 1_600_000_000, 1_800_000_000)]
+    after = [by_t[t] for t in (1_600_000_000, 1_800_000_000, 2_000_000_000, 2_200_000_000, 2_400_000_000)]
+    before = [by_t[t] for t in (200_000_000, 400_000_000, 600_000_000, 800_000_000, 1_000_000_000)]
+    assert m.imu_for(spanning) is None and m.imu_for(spanning) is None
+    assert m.report.ff_windows_imu_lost == 1
+    t, w, a = m.imu_for(after)
+    assert t[0] <= 1_600_000_000 and t[-1] >= 2_400_000_000 and len(t) == len(w) == len(a)
+    assert m.imu_for(before) is not None and m.report.ff_windows_imu_lost == 1
