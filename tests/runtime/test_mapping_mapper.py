@@ -80,3 +80,25 @@ def test_evicted_submaps_leave_the_live_grid():
     assert np.array_equal(mapper.grid.keys, fresh.keys)            # both sorted by voxel key
     assert np.array_equal(live[2], fresh_pts[2])
     assert np.allclose(live[0], fresh_pts[0], atol=1e-9)
+
+
+def test_graph_moves_of_submaps_that_left_memory_are_reported_as_states():
+    """The graph keeps more nodes than the fused submaps: when a solve moves a submap that already left
+    memory, the commit reports its new state (a SubmapState, points in the archive only)."""
+    from runtime.mapping.submap import SubmapState
+
+    mapper = _mapper(_ExactModel(), max_resident_submaps=2)
+    for k in range(5):
+        mapper.process(_window(k, start=0.45 * k))
+    assert [s.index for s in mapper.resident] == [3, 4] and 1 in mapper.backend.graph
+    before = mapper.backend.state(1)[1]
+    mapper.backend.add_revisit(1, 4, 0.2, None)          # a scale link that pulls lambda_1 down
+    commit = mapper.process(_window(5, start=2.25))
+    states = {c.index: c for c in commit.changed if isinstance(c, SubmapState)}
+    resident = {s.index for s in mapper.resident}
+    assert 1 in states and not set(states) & resident
+    assert all(c.index in resident for c in commit.changed if not isinstance(c, SubmapState))
+    s1 = states[1]
+    T_MS, lam = mapper.backend.state(1)
+    assert s1.lam == lam != before and np.array_equal(s1.T_MS, T_MS)
+    assert s1.version == commit.version and s1.n_points > 0 and s1.segment == 0
