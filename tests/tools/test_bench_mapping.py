@@ -137,9 +137,30 @@ def test_bench_mapping_short_run(capsys):
     assert main(["bench", "mapping", "--preset", "euroc", "--seconds", "6", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     seq = out["sequences"]["preset euroc (room)"]
-    assert sorted(seq["rows"]) == list("abcdefgh")
+    assert sorted(seq["rows"]) == list("abcdefghi")
     assert seq["windows"] >= 1 and seq["reference"]["reference_voxels"] > 1000
     for row in seq["rows"].values():
         assert row["windows_offered"] == seq["windows"]
     assert seq["rows"]["d"]["precision"] > 0.5
     assert set(seq["goals"]) == {"f10_a_minus_c", "mean_a_over_c", "f10_a_minus_b"}
+
+
+def test_relative_truth_windows_keep_the_vio_centre_and_the_true_relative_poses():
+    from types import SimpleNamespace
+
+    from runtime.geometry import make_pose, so3_exp
+    from runtime.mapping.windows import MappingWindow
+    from tools.benchmarks.mapping_variants import relative_truth_windows
+
+    rng = np.random.default_rng(5)
+    truth = np.array([make_pose(so3_exp(rng.normal(0, 0.2, 3)), rng.normal(0, 1, 3)) for _ in range(5)])
+    vio = np.array([T @ make_pose(so3_exp(rng.normal(0, 0.02, 3)), rng.normal(0, 0.05, 3)) for T in truth])
+    frames = [None] * 5
+    inputs = SimpleNamespace(windows=[MappingWindow(0, frames, vio, 0)],
+                             windows_gt=[MappingWindow(0, frames, truth, 0)])
+    (w,) = relative_truth_windows(inputs)
+    np.testing.assert_allclose(w.T_OC[2], vio[2], atol=1e-12)
+    for i in range(5):
+        np.testing.assert_allclose(np.linalg.inv(w.T_OC[2]) @ w.T_OC[i], np.linalg.inv(truth[2]) @ truth[i],
+                                   atol=1e-12)
+    assert w.window_id == 0 and w.segment == 0

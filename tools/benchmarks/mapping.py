@@ -6,7 +6,8 @@ EuRoC trajectories with the real IMU), cut to `--seconds`:
      poses give the keyframe windows (mapping_inputs.py), identical for every variant;
   2. each variant (mapping_variants.py: a DAVIO, b unconditioned reference, c ScaRF-style,
      d DAVIO on true poses, e DAVIO without the conditioning benefit, f DAVIO with depth errors x2,
-     g DAVIO with the submap graph off, h the unconditioned reference with upper-bound pose errors)
+     g DAVIO with the submap graph off, h the unconditioned reference with upper-bound pose errors,
+     i DAVIO with true poses within each window: a diagnosis)
      maps them with a fresh emulated DA3 of the same seed;
   3. evaluation as the paper: VIO-pose maps (in the odometry frame: the mapper's submap poses are
      the filter's) are moved by the rigid (SE(3), no scale, no ICP) alignment of the VIO trajectory
@@ -62,7 +63,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seconds", type=float, default=20.0, help="length of each sequence, s")
     p.add_argument("--seed", type=int, default=0, help="simulation and emulated-DA3 seed")
     p.add_argument("--da3", default="base", help="emulated DA3 preset (small, base, large)")
-    p.add_argument("--variants", default="abcdefgh", help="rows to run (letters a-h, module docstring)")
+    p.add_argument("--variants", default="abcdefghi", help="rows to run (letters a-i, module docstring)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", metavar="FILE.json", help="also write the JSON here")
 
@@ -202,9 +203,9 @@ def run_sequence(src: Source, args: argparse.Namespace, log: Any = None) -> dict
 def run(args: argparse.Namespace) -> int:
     from runtime.errors import ConfigError
 
-    bad = set(args.variants) - set("abcdefgh")
+    bad = set(args.variants) - set("abcdefghi")
     if bad or not args.variants:
-        raise ConfigError(f"--variants takes letters from a-h, got {args.variants!r}")
+        raise ConfigError(f"--variants takes letters from a-i, got {args.variants!r}")
     from models.emulated_da3 import make_params
 
     make_params(args.da3)  # an unknown preset fails before the slow part

@@ -13,6 +13,9 @@
   h  unconditioned reference with the emulator's upper-bound pose errors (`<size>_upper`): the
      reference's window scale comes from DA3's predicted cameras, which the default emulator
      makes nearly exact (PRESETS.md)
+  i  diagnosis: DAVIO on windows whose centre camera keeps its VIO pose but whose other images sit at
+     their TRUE poses relative to it (`relative_truth_windows`): what the filter's pose error within a
+     window costs the map, apart from the error of where the window sits
 Every variant gets a fresh emulated DA3 with the same seed and the same windows (frames and poses).
 """
 from __future__ import annotations
@@ -37,7 +40,8 @@ class Variant:
     Attributes:
         key: "a".."f"; label: the row's name.
         mapper: "davio" (runtime.mapping.Mapper) or "scarf" (the ScaRF-style baseline).
-        poses: "vio" (aligned to the truth for evaluation) or "gt" (true camera poses).
+        poses: "vio" (aligned to the truth for evaluation), "gt" (true camera poses) or "vio_centre"
+            (VIO centre poses, true poses within each window; aligned like "vio").
         conditioned: the DA3 call is conditioned on the poses (DAVIO's mapper only).
         errors: "default", "no_cond_benefit", "depth_x2" (emulated-DA3 overrides) or "upper_pose"
             (the `<size>_upper` preset).
@@ -62,6 +66,7 @@ VARIANTS: tuple[Variant, ...] = (
     Variant("f", "DAVIO, depth errors x2", errors="depth_x2"),
     Variant("g", "DAVIO, graph off", graph=False),
     Variant("h", "unconditioned, upper-bound pose errors", conditioned=False, errors="upper_pose"),
+    Variant("i", "DAVIO, true poses within windows", poses="vio_centre"),
 )
 
 
@@ -98,6 +103,20 @@ class VariantRun:
     rejected: dict = field(default_factory=dict)
     seconds: float = 0.0
     overrides: dict = field(default_factory=dict)
+
+
+def relative_truth_windows(inputs: Any) -> list:
+    """The VIO windows with each image moved to its true pose relative to the window's centre image:
+    T_OC_i = T_OC_c (T_WC_c^-1 T_WC_i) (odometry frame, so the map is aligned like the VIO map)."""
+    from runtime.mapping.windows import MappingWindow
+
+    out = []
+    for w, wg in zip(inputs.windows, inputs.windows_gt, strict=True):
+        c = len(w.T_OC) // 2
+        T_gt = np.asarray(wg.T_OC, np.float64)
+        rel = np.linalg.inv(T_gt[c]) @ T_gt
+        out.append(MappingWindow(w.window_id, w.frames, np.asarray(w.T_OC, np.float64)[c] @ rel, w.segment))
+    return out
 
 
 def keep_submaps(commit: Any, by_index: dict[int, Any]) -> None:
@@ -140,7 +159,9 @@ def run_variant(variant: Variant, inputs: Any, truth: Any, camera: Any, mapping:
     overrides = emulator_overrides(variant.errors, preset)
     da3 = f"{preset.removesuffix('_upper')}_upper" if variant.errors == "upper_pose" else preset
     model = EmulatedDA3(truth, camera.K, camera.width, camera.height, preset=da3, seed=seed, **overrides)
-    windows = inputs.windows_gt if variant.poses == "gt" else inputs.windows
+    windows = {"gt": inputs.windows_gt, "vio_centre": None}.get(variant.poses, inputs.windows)
+    if variant.poses == "vio_centre":
+        windows = relative_truth_windows(inputs)
     t0 = time.perf_counter()
     if variant.mapper == "scarf":
         scfg = ScarfConfig(pixel_stride=mapping.pixel_stride, max_depth_m=mapping.max_depth_m)
