@@ -155,6 +155,10 @@ def _memory_run(args: argparse.Namespace, progress: bool) -> dict:
             "rss_slope_second_half_mb_per_min": slope,
             "submaps": mp.get("windows_accepted"), "submaps_resident": mp.get("submaps_resident"),
             "submaps_evicted": mp.get("submaps_evicted"), "voxels": mp.get("voxels"),
+            "graph_nodes_evicted": (mp.get("graph") or {}).get("evicted"),
+            "revisit_views": (mp.get("graph") or {}).get("views"),
+            "revisits_accepted": ((mp.get("graph") or {}).get("revisits") or {}).get("accepted"),
+            "anchors_added": (mp.get("graph") or {}).get("anchors_added"),
             "wall_s": time.perf_counter() - t_wall}
 
 
@@ -234,4 +238,5 @@ def _table(out: dict) -> None:
               f"50 % {m['rss_mb_at_50pct']:.0f}, "
               f"end {m['rss_mb_end']:.0f}, max {m['rss_mb_max']:.0f} MB; second-half slope {slope} MB/min; "
               f"{m['submaps']} submaps ({m['submaps_resident']} resident, {m['submaps_evicted']} evicted), "
-              f"{m['voxels']} voxels")
+              f"{m['voxels']} voxels; revisit views {m.get('revisit_views')}, revisits accepted "
+              f"{m.get('revisits_accepted')}, anchors {m.get('anchors_added')}")
