@@ -130,6 +130,9 @@ def read_yaml(path: str | os.PathLike) -> dict:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}" if mark is not None else ""
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        if "nesting depth" in problem:   # PyYAML >= 6.0.3 stops deep nesting in its own parser first
+            raise CalibrationError(f"YAML nested deeper than {MAX_YAML_DEPTH} levels; not a calibration file",
+                                   p, None) from None
         also = f" ({not_utf8}; save the file as UTF-8)" if bad is not None else ""
         raise CalibrationError(f"invalid YAML{where}: {problem}{also}", p, None) from None
     except CalibrationError:
