@@ -26,9 +26,12 @@ class DavioConfig:
     static_init: StaticInitConfig = field(default_factory=StaticInitConfig)
     """Native static initializer (standing still; with no zero-velocity update, then a jerk)."""
     dynamic_init: DynamicInitConfig = field(default_factory=DynamicInitConfig)
-    """Native dynamic initializer (off by default, as OpenVINS's EuRoC configuration)."""
-    use_dynamic_init: bool = False
-    """Arm the native dynamic initializer too."""
+    """Native dynamic initializer."""
+    use_dynamic_init: bool = True
+    """Arm the native dynamic initializer beside the static one (DESIGN: static + dynamic, always armed).
+    OpenVINS's EuRoC configuration leaves it off; without it a filter that starts, or is reset, while
+    moving never re-initializes unless the feed-forward start-up succeeds, e.g. after a calibration-
+    withheld bring-up on a moving rig."""
     startup: StartupConfig = field(default_factory=StartupConfig)
     """Buffered-replay handoff."""
     ffinit: FFInitConfig = field(default_factory=FFInitConfig)
