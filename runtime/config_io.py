@@ -85,8 +85,19 @@ def _coerce(value: Any, tp: Any, key: str) -> Any:
     return value
 
 
+#: options that no longer exist, with the one value they could hold: a config.toml written by an older run
+#: still loads when it holds that value (nothing changes); any other value is refused
+_RETIRED = {"msckf.integration": ("rk4", "the mean is always integrated with RK4")}
+
+
 def _from_dict(cls: type[T], data: dict, prefix: str) -> T:
     hints = typing.get_type_hints(cls)
+    data = dict(data)
+    for key in [k for k in data if f"{prefix}.{k}" in _RETIRED]:
+        only, why = _RETIRED[f"{prefix}.{key}"]
+        if data[key] != only:
+            raise ConfigError(f"{prefix}.{key} was removed ({why}); got {data[key]!r}, delete the line")
+        del data[key]
     names = {f.name for f in dataclasses.fields(cls) if f.init}
     unknown = sorted(set(data) - names)
     if unknown:

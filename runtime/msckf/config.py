@@ -9,12 +9,21 @@ from runtime.errors import ConfigError
 
 SLAM_REPRESENTATIONS = ("anchored_inverse_depth", "global_3d")
 
+#: the IMU noise densities used when neither the configuration nor the rig gives one (EuRoC/Kalibr ADIS16448)
+DEFAULT_IMU_NOISE = {
+    "gyro_noise_density": 1.6968e-4,   # rad/s/sqrt(Hz)
+    "gyro_random_walk": 1.9393e-5,     # rad/s^2/sqrt(Hz)
+    "accel_noise_density": 2.0e-3,     # m/s^2/sqrt(Hz)
+    "accel_random_walk": 3.0e-3,       # m/s^3/sqrt(Hz)
+}
+
 
 @dataclass(frozen=True)
 class MsckfConfig:
     """Every threshold of the filter, as a named field.
 
-    Noise densities default to the EuRoC/Kalibr values; `for_rig` replaces them by the rig's own.
+    IMU noise densities left None come from the rig's calibration, else DEFAULT_IMU_NOISE; a value set here
+    overrides the rig (`with_imu_noise`, which the filter always applies).
     """
 
     # filter
@@ -28,7 +37,6 @@ class MsckfConfig:
     #: NEES 4.4 / 6.9 with it, 0.124 m / 0.387 deg, NEES 1.5 / 2.2 without; at 10 Hz 0.090 m / 0.159 deg
     #: with, 0.088 m / 0.142 deg without (BENCHMARKS.md, OpenVINS simulator)
     fej_triangulation: bool = False
-    integration: str = "rk4"  #: mean integration: "rk4" (analytic covariance either way)
     gravity_mag: float = 9.81  #: |g|, m/s^2
     # sliding window and features
     max_clones: int = 11  #: clones kept after marginalisation
@@ -80,11 +88,12 @@ class MsckfConfig:
     #: prior std of each of the four distortion coefficients (OpenVINS State constructor and simulator
     #: perturbation: 0.005)
     sigma_calib_distortion: float = 0.005
-    # IMU noise (continuous-time densities; EuRoC/Kalibr)
-    gyro_noise_density: float = 1.6968e-4  #: rad/s/sqrt(Hz)
-    gyro_random_walk: float = 1.9393e-5  #: rad/s^2/sqrt(Hz)
-    accel_noise_density: float = 2.0e-3  #: m/s^2/sqrt(Hz)
-    accel_random_walk: float = 3.0e-3  #: m/s^3/sqrt(Hz)
+    # IMU noise (continuous-time densities). None: the rig's value, else DEFAULT_IMU_NOISE; a value here
+    # overrides the rig's
+    gyro_noise_density: float | None = None  #: rad/s/sqrt(Hz)
+    gyro_random_walk: float | None = None  #: rad/s^2/sqrt(Hz)
+    accel_noise_density: float | None = None  #: m/s^2/sqrt(Hz)
+    accel_random_walk: float | None = None  #: m/s^3/sqrt(Hz)
     # zero-velocity update. On by default with OpenVINS's disparity-based decision (its ZUPT configs:
     # chi2 multiplier 0, 0.5 px), although its EuRoC file has try_zupt false: a robot standing still has
     # no parallax, so without it the filter dead-reckons. `bench vio-sim` EuRoC-trajectory V1_02 (2.5 s at
@@ -163,8 +172,6 @@ class MsckfConfig:
     visual_health_after_zupt_s: float = 3.0
 
     def __post_init__(self) -> None:
-        if self.integration not in ("rk4",):
-            raise ConfigError(f"integration must be 'rk4', got {self.integration!r}")
         if self.slam_representation not in SLAM_REPRESENTATIONS:
             raise ConfigError(
                 f"slam_representation must be one of {SLAM_REPRESENTATIONS}, got {self.slam_representation!r}"
@@ -178,13 +185,13 @@ class MsckfConfig:
             "sigma_pix",
             "chi2_multiplier",
             "gravity_mag",
-            "gyro_noise_density",
-            "accel_noise_density",
-            "gyro_random_walk",
-            "accel_random_walk",
         ):
             if not getattr(self, f) > 0:
                 raise ConfigError(f"{f} must be > 0, got {getattr(self, f)}")
+        for f in DEFAULT_IMU_NOISE:
+            v = getattr(self, f)
+            if v is not None and not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
+                raise ConfigError(f"{f} must be finite and > 0 (or unset: the rig's value), got {v!r}")
         if not (math.isfinite(self.zupt_noise_multiplier) and self.zupt_noise_multiplier > 0):
             raise ConfigError("zupt_noise_multiplier must be finite and > 0, "
                               f"got {self.zupt_noise_multiplier!r}")
@@ -222,15 +229,23 @@ class MsckfConfig:
                                       f"got {v!r}")
 
     def with_imu_noise(self, imu: object | None) -> MsckfConfig:
-        """A copy with the IMU noise densities of an ImuNoise-like object (None, withheld: unchanged)."""
-        if imu is None:
-            return self
-        names = ("gyro_noise_density", "gyro_random_walk", "accel_noise_density", "accel_random_walk")
-        vals = {n: float(getattr(imu, n)) for n in names if getattr(imu, n, None) is not None}
-        bad = {n: v for n, v in vals.items() if not (math.isfinite(v) and v > 0)}
-        if bad:   # never substitute a default for a value the calibration gave
-            raise ConfigError("IMU noise must be finite and positive (null: withheld, the defaults apply); "
-                              f"got {', '.join(f'{n} = {v!r}' for n, v in bad.items())}")
+        """A copy with every IMU noise density resolved: the value set in this configuration, else the
+        ImuNoise-like `imu`'s (None, or a field None: withheld), else DEFAULT_IMU_NOISE."""
+        vals = {}
+        for n, default in DEFAULT_IMU_NOISE.items():
+            own = getattr(self, n)
+            if own is not None:
+                vals[n] = float(own)
+                continue
+            v = getattr(imu, n, None) if imu is not None else None
+            if v is None:
+                vals[n] = default
+                continue
+            v = float(v)
+            if not (math.isfinite(v) and v > 0):   # never substitute a default for a value the calibration gave
+                raise ConfigError("IMU noise must be finite and positive (null: withheld, the defaults apply); "
+                                  f"got {n} = {v!r}")
+            vals[n] = v
         return replace(self, **vals)
 
     def updated(self, **kwargs: object) -> MsckfConfig:

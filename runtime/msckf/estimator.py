@@ -24,9 +24,9 @@ from runtime.msckf.feature_db import FeatureDatabase
 from runtime.msckf.health import divergence_reason
 from runtime.msckf.propagator import propagate_interval, select_samples
 from runtime.msckf.state import State
-from runtime.msckf.state_helper import augment_clone, change_anchor, marginalize
+from runtime.msckf.state_helper import augment_clone, marginalize
 from runtime.msckf.update_msckf import msckf_update
-from runtime.msckf.update_slam import SlamUpdateStats, delayed_init, slam_update
+from runtime.msckf.update_slam import SlamUpdateStats, change_anchor, delayed_init, slam_update
 from runtime.msckf.update_zupt import disparity_says_static, zupt_update
 
 WINDOW_SLACK_NS = 1_000_000
@@ -91,6 +91,9 @@ class _Counters:
     msckf_features_used: int = 0
     msckf_triangulation_failed: int = 0
     msckf_chi2_rejected: int = 0
+    #: stacked EKF updates (MSCKF, SLAM, landmark initialisation) not applied: innovation covariance not
+    #: positive definite (a covariance that has lost definiteness)
+    ekf_update_failed: int = 0
     slam_updates: int = 0
     slam_chi2_rejected: int = 0
     slam_initialized: int = 0
@@ -143,7 +146,8 @@ class MsckfEstimator:
         initializers: list[Any] | None = None,
     ) -> None:
         cfg = config or MsckfConfig()
-        self.config = cfg.with_imu_noise(getattr(rig, "imu", None)) if config is None else cfg
+        # noise densities the configuration leaves unset come from the rig (its own, else the defaults)
+        self.config = cfg.with_imu_noise(getattr(rig, "imu", None))
         if self.config.blas_threads is not None:
             limit_blas_threads(self.config.blas_threads)
         if getattr(rig, "camera", None) is None:
@@ -559,6 +563,7 @@ class MsckfEstimator:
         c.msckf_features_used += ms.used
         c.msckf_triangulation_failed += ms.triangulation_failed
         c.msckf_chi2_rejected += ms.chi2_rejected
+        c.ekf_update_failed += ms.update_failed
         # offered tracks are used up; lost/marginal tracks beyond max_msckf_in_update are dropped too unless
         # keep_unselected_tracks (OpenVINS keeps them for a later update)
         for tr in msckf if cfg.keep_unselected_tracks else lost + marg + maxtracks:
@@ -586,6 +591,7 @@ class MsckfEstimator:
         c.slam_chi2_rejected += sst.chi2_rejected
         c.slam_initialized += sst.initialized
         c.slam_init_failed += sst.init_failed
+        c.ekf_update_failed += sst.update_failed
         times = st.clone_times()
         old_clones = [thin_t] if thin_t is not None else times[: max(len(times) - cfg.max_clones, 0)]
         lost_set = set(lost_lms)

@@ -88,9 +88,6 @@ class State:
         `fixed` (the camera's)."""
         return self.cam_params if self.cam_params is not None else fixed
 
-    def imu_pose_at_clone(self, t_cam_ns: int) -> Clone:
-        return self.clones[t_cam_ns]
-
     def add_variable(self, size: int, value_cov: np.ndarray, cross: np.ndarray) -> int:
         """Append `size` error states with covariance value_cov and cross-covariance cross (size, n)."""
         n = self.size

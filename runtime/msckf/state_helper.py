@@ -73,18 +73,6 @@ def augment_clone(state: State, t_cam_ns: int, w_body: np.ndarray) -> Clone:
     return c
 
 
-def marginalize_clone(state: State, t_cam_ns: int) -> None:
-    """Remove a clone (its rows/columns of the covariance)."""
-    c = state.clones.pop(t_cam_ns)
-    state.remove_variable(c.idx, 6)
-
-
-def marginalize_landmark(state: State, fid: int) -> None:
-    """Remove a SLAM landmark."""
-    lm = state.slam.pop(fid)
-    state.remove_variable(lm.idx, 3)
-
-
 def marginalize(state: State, clone_times: list[int], landmark_ids: list[int]) -> None:
     """Remove several clones and landmarks in one covariance copy."""
     blocks = []
@@ -137,38 +125,3 @@ def initialize_landmark(state: State, fid: int, p_O: np.ndarray, cols: np.ndarra
             H2, rr2 = compress(Hx2, r2)
             ekf_update(state, cols, H2, rr2, sigma)
     return True
-
-
-def change_anchor(state: State, lm: Landmark, new_t: int) -> None:
-    """Re-express an anchored inverse-depth landmark in the clone at new_t (value, FEJ and covariance).
-
-    Before its anchor clone is marginalised (OpenVINS UpdaterSLAM::change_anchors). The new parameters are a
-    function of (old lam, old anchor, new anchor, extrinsics); the covariance rows of lam are replaced by the
-    linearisation of that function at the first estimates.
-    """
-    from runtime.msckf.landmark_repr import anchored_to_global, global_to_anchored
-
-    old = state.clones[lm.anchor_t]
-    new = state.clones[new_t]
-    if new is old:
-        return
-    R_IC, p_IC = state.R_IC, state.p_IC
-    p_O, _, _, _ = anchored_to_global(lm.p, old.R, old.p, R_IC, p_IC)
-    lam_new, _, _, _ = global_to_anchored(p_O, new.R, new.p, R_IC, p_IC)
-    p_Of, Jl_o, Ja_o, Je_o = anchored_to_global(lm.p_fej, old.R_fej, old.p_fej, R_IC, p_IC)
-    lam_new_fej, Jp_n, Ja_n, Je_n = global_to_anchored(p_Of, new.R_fej, new.p_fej, R_IC, p_IC)
-    blocks = [(lm.idx, Jp_n @ Jl_o), (old.idx, Jp_n @ Ja_o), (new.idx, Ja_n)]
-    if state.idx_ext >= 0:
-        blocks.append((state.idx_ext, Jp_n @ Je_o + Je_n))
-    cols = np.concatenate([np.arange(i, i + J.shape[1]) for i, J in blocks])
-    J = np.hstack([J for _, J in blocks])
-    P = state.P
-    row = J @ P[cols, :]                      # 3 x n
-    corner = row[:, cols] @ J.T
-    li = np.arange(lm.idx, lm.idx + 3)
-    P[li, :] = row
-    P[:, li] = row.T
-    P[np.ix_(li, li)] = 0.5 * (corner + corner.T)
-    lm.p = lam_new
-    lm.p_fej = lam_new_fej
-    lm.anchor_t = new_t

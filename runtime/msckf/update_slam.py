@@ -14,9 +14,9 @@ from runtime.msckf.config import MsckfConfig
 from runtime.msckf.feature_db import Track
 from runtime.msckf.landmark_repr import anchored_to_global, global_to_anchored
 from runtime.msckf.measurement import feature_intrinsics_jacobian, feature_jacobians
-from runtime.msckf.state import State
+from runtime.msckf.state import Landmark, State
 from runtime.msckf.state_helper import chi2_95, compress, ekf_update, initialize_landmark
-from runtime.msckf.update_msckf import linearize_track, window_columns
+from runtime.msckf.track_linearization import linearize_track, window_columns
 
 
 @dataclass
@@ -27,6 +27,9 @@ class SlamUpdateStats:
     chi2_rejected: int = 0
     initialized: int = 0
     init_failed: int = 0
+    #: stacked EKF updates not applied (innovation covariance not positive definite); their observations are
+    #: not counted in `updated`
+    update_failed: int = 0
 
 
 @njit(cache=True, nogil=True)
@@ -165,7 +168,6 @@ def slam_update(state: State, t_cam_ns: int, obs: list[tuple[int, np.ndarray]], 
         sel = np.flatnonzero(good)
         if sel.size == 0:
             continue
-        stats.updated += int(sel.size)
         # column blocks: measuring clone, extrinsics, intrinsics, then anchors and landmarks as they appear
         offset: dict[int, int] = {c.idx: 0}
         cols = list(range(c.idx, c.idx + 6))
@@ -195,7 +197,10 @@ def slam_update(state: State, t_cam_ns: int, obs: list[tuple[int, np.ndarray]], 
                 H[rows, o:o + size] += Hb
         H = H[:, :len(cols)]
         Hq, rq = compress(H, r[sel].reshape(-1))
-        ekf_update(state, np.asarray(cols, dtype=np.int64), Hq, rq, cfg.sigma_pix)
+        if ekf_update(state, np.asarray(cols, dtype=np.int64), Hq, rq, cfg.sigma_pix):
+            stats.updated += int(sel.size)
+        else:
+            stats.update_failed += 1
 
 
 def delayed_init(state: State, tracks: list[Track], cfg: MsckfConfig, cam: CameraParams,
@@ -240,5 +245,39 @@ def delayed_init(state: State, tracks: list[Track], cfg: MsckfConfig, cam: Camer
             stats.init_failed += 1
     if deferred:
         H, r = compress(np.vstack([h for h, _ in deferred]), np.concatenate([x for _, x in deferred]))
-        ekf_update(state, cols, H, r, cfg.sigma_pix)
+        if not ekf_update(state, cols, H, r, cfg.sigma_pix):
+            stats.update_failed += 1   # the landmarks keep their invertible part; the rest is not applied
     return added
+
+
+def change_anchor(state: State, lm: Landmark, new_t: int) -> None:
+    """Re-express an anchored inverse-depth landmark in the clone at new_t (value, FEJ and covariance).
+
+    Before its anchor clone is marginalised (OpenVINS UpdaterSLAM::change_anchors). The new parameters are a
+    function of (old lam, old anchor, new anchor, extrinsics); the covariance rows of lam are replaced by the
+    linearisation of that function at the first estimates.
+    """
+    old = state.clones[lm.anchor_t]
+    new = state.clones[new_t]
+    if new is old:
+        return
+    R_IC, p_IC = state.R_IC, state.p_IC
+    p_O, _, _, _ = anchored_to_global(lm.p, old.R, old.p, R_IC, p_IC)
+    lam_new, _, _, _ = global_to_anchored(p_O, new.R, new.p, R_IC, p_IC)
+    p_Of, Jl_o, Ja_o, Je_o = anchored_to_global(lm.p_fej, old.R_fej, old.p_fej, R_IC, p_IC)
+    lam_new_fej, Jp_n, Ja_n, Je_n = global_to_anchored(p_Of, new.R_fej, new.p_fej, R_IC, p_IC)
+    blocks = [(lm.idx, Jp_n @ Jl_o), (old.idx, Jp_n @ Ja_o), (new.idx, Ja_n)]
+    if state.idx_ext >= 0:
+        blocks.append((state.idx_ext, Jp_n @ Je_o + Je_n))
+    cols = np.concatenate([np.arange(i, i + J.shape[1]) for i, J in blocks])
+    J = np.hstack([J for _, J in blocks])
+    P = state.P
+    row = J @ P[cols, :]                      # 3 x n
+    corner = row[:, cols] @ J.T
+    li = np.arange(lm.idx, lm.idx + 3)
+    P[li, :] = row
+    P[:, li] = row.T
+    P[np.ix_(li, li)] = 0.5 * (corner + corner.T)
+    lm.p = lam_new
+    lm.p_fej = lam_new_fej
+    lm.anchor_t = new_t

@@ -103,3 +103,28 @@ def test_deep_nesting_and_huge_numbers_are_config_errors(tmp_path):
     p.write_text("[inner]\nthreshold = 1" + "0" * 400 + "\n")
     with pytest.raises(ConfigError, match="inner.threshold: 1000.* is too large for a number"):
         load_toml(Outer, p)
+
+
+def test_a_retired_option_with_its_only_value_still_loads_and_any_other_is_refused():
+    """msckf.integration could only be "rk4"; an older run's config.toml still loads, a different value names
+    the key (never silently dropped)."""
+    from runtime.config import DavioConfig
+
+    cfg = config_from_dict(DavioConfig, {"msckf": {"integration": "rk4", "max_clones": 9}})
+    assert cfg.msckf.max_clones == 9 and not hasattr(cfg.msckf, "integration")
+    with pytest.raises(ConfigError, match=r"msckf\.integration was removed"):
+        config_from_dict(DavioConfig, {"msckf": {"integration": "euler"}})
+
+
+def test_imu_noise_left_unset_is_not_written_and_a_set_value_round_trips(tmp_path):
+    """The filter's IMU noise comes from the rig unless the configuration sets it: an unset density is not
+    written to config.toml (reloading it keeps taking the rig's), a set one survives the round trip."""
+    from runtime.config import DavioConfig
+    from runtime.msckf.config import MsckfConfig
+
+    path = tmp_path / "c.toml"
+    path.write_text(dump_toml(DavioConfig()))
+    assert "gyro_noise_density" not in tomllib.loads(path.read_text())["msckf"]
+    cfg = DavioConfig(msckf=MsckfConfig(gyro_noise_density=5e-4))
+    path.write_text(dump_toml(cfg))
+    assert load_toml(DavioConfig, path).msckf.gyro_noise_density == 5e-4

@@ -684,18 +684,55 @@ def test_a_filter_that_only_dead_reckons_is_reset() -> None:
 
 def test_imu_noise_from_the_rig_is_used_as_given_and_zero_is_an_error():
     """A calibration's noise is taken as is; 0 or NaN is refused (never silently the default); None is
-    withheld (the default stays)."""
+    withheld (the default applies)."""
     from types import SimpleNamespace
 
     from runtime.errors import ConfigError
-    from runtime.msckf.config import MsckfConfig
+    from runtime.msckf.config import DEFAULT_IMU_NOISE, MsckfConfig
 
     base = MsckfConfig()
     noise = SimpleNamespace(gyro_noise_density=1e-3, gyro_random_walk=None, accel_noise_density=3e-2,
                             accel_random_walk=4e-4)
     cfg = base.with_imu_noise(noise)
     assert (cfg.gyro_noise_density, cfg.accel_noise_density, cfg.accel_random_walk) == (1e-3, 3e-2, 4e-4)
-    assert cfg.gyro_random_walk == base.gyro_random_walk
+    assert cfg.gyro_random_walk == DEFAULT_IMU_NOISE["gyro_random_walk"] == 1.9393e-5
+    assert base.with_imu_noise(None).accel_noise_density == 2.0e-3
     for bad in (0.0, float("nan"), -1e-3):
         with pytest.raises(ConfigError, match="gyro_noise_density"):
             base.with_imu_noise(SimpleNamespace(gyro_noise_density=bad))
+        with pytest.raises(ConfigError, match="gyro_noise_density"):
+            MsckfConfig(gyro_noise_density=bad)
+
+
+def test_an_explicit_config_keeps_the_rigs_imu_noise_unless_it_sets_its_own():
+    """Passing any MsckfConfig used to drop the rig's noise (issue 16): the filter's propagation covariance
+    must follow the rig's densities whatever other field the configuration sets, and a density set in the
+    configuration wins over the rig's."""
+    from dataclasses import replace as dc_replace
+
+    rig = _rig()
+    loud = dc_replace(rig, imu=ImuNoise(1.6968e-3, 1.9393e-4, 2.0e-2, 3.0e-2, 200.0))   # 10x the EuRoC noise
+    est = MsckfEstimator(loud, MsckfConfig(max_clones=9))
+    assert est.config.max_clones == 9
+    assert (est.config.gyro_noise_density, est.config.accel_random_walk) == (1.6968e-3, 3.0e-2)
+    own = MsckfEstimator(loud, MsckfConfig(gyro_noise_density=5e-4))
+    assert own.config.gyro_noise_density == 5e-4 and own.config.accel_noise_density == 2.0e-2
+    # and it reaches the filter: the same IMU data propagated from the same state grows the covariance
+    # with the rig's (10x) density, i.e. ~100x the variance of the EuRoC rig over a short interval
+    quiet = MsckfConfig(max_clones=9, **{n: 1e-12 for n in ("gyro_noise_density", "gyro_random_walk",
+                                                              "accel_noise_density", "accel_random_walk")})
+    P0 = _propagated_covariance(MsckfEstimator(rig, quiet))   # the initial covariance carried, no noise added
+    added = {name: _propagated_covariance(MsckfEstimator(r, MsckfConfig(max_clones=9))) - P0
+             for name, r in (("euroc", rig), ("loud", loud))}
+    d = np.diag_indices(15)
+    assert np.all(added["euroc"][d] > 0)
+    assert added["loud"][d] == pytest.approx(100.0 * added["euroc"][d], rel=1e-6)
+
+
+def _propagated_covariance(est: MsckfEstimator) -> np.ndarray:
+    """The 15x15 IMU covariance after propagating 0.5 s of a constant turn from a fixed initial state."""
+    est.initialize_from_state(0, np.eye(3), np.zeros(3), np.array([1.0, 0.0, 0.0]), np.zeros(3), np.zeros(3))
+    for k in range(101):
+        est.feed_imu(ImuSample(k * 5_000_000, np.array([0.0, 0.0, 0.5]), np.array([0.0, 0.5, 9.81])))
+    assert est._propagate_to(500_000_000)
+    return est.state_.P[:15, :15].copy()

@@ -7,7 +7,8 @@ import numpy as np
 from runtime.msckf.landmark_repr import anchored_to_global, global_to_anchored
 from runtime.msckf.so3_kernels import exp3
 from runtime.msckf.state import Landmark, State
-from runtime.msckf.state_helper import augment_clone, change_anchor
+from runtime.msckf.state_helper import augment_clone
+from runtime.msckf.update_slam import change_anchor
 
 R_IC = exp3(np.array([1.2, -1.2, 1.2]) / np.sqrt(3))
 p_IC = np.array([-0.02, -0.06, 0.01])

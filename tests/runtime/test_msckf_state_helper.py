@@ -10,7 +10,7 @@ from runtime.msckf.state_helper import (
     compress,
     ekf_update,
     initialize_landmark,
-    marginalize_clone,
+    marginalize,
 )
 
 
@@ -61,7 +61,7 @@ def test_marginalization_keeps_remaining_block() -> None:
     c_mid = st.clones[times[1]]
     keep = np.r_[0:c_mid.idx, c_mid.idx + 6:st.size]
     later_idx = st.clones[times[2]].idx
-    marginalize_clone(st, times[1])
+    marginalize(st, [times[1]], [])
     assert np.array_equal(st.P, P0[np.ix_(keep, keep)])
     assert st.clones[times[2]].idx == later_idx - 6
 

@@ -9,7 +9,8 @@ from runtime.msckf.feature_db import Track
 from runtime.msckf.so3_kernels import exp3, log3
 from runtime.msckf.state import State
 from runtime.msckf.state_helper import augment_clone
-from runtime.msckf.update_msckf import linearization_point, msckf_update
+from runtime.msckf.track_linearization import linearization_point
+from runtime.msckf.update_msckf import msckf_update
 
 PRM = np.array([458.654, 457.296, 367.215, 248.375, -0.28340811, 0.07395907, 0.00019359, 1.76187114e-05, 0.0])
 CAM = CameraParams("radtan", PRM, 752, 480)
@@ -87,3 +88,21 @@ def test_linearization_point_uses_first_estimates() -> None:
     assert np.allclose(linearization_point(st, off, Rf, pf, xn, p_cur), p_cur)
     no_fej = MsckfConfig(use_fej=False, fej_triangulation=True)
     assert np.allclose(linearization_point(st, no_fej, Rf, pf, xn, p_cur), p_cur)
+
+
+def test_an_update_the_filter_cannot_apply_uses_nothing() -> None:
+    """An innovation covariance that is not positive definite (here a covariance that lost definiteness)
+    leaves the state untouched and is reported as a failed update with no track used (issue 16: it was
+    ignored and every gated track still counted as used)."""
+    rng = np.random.default_rng(3)
+    st, truth, tracks = _window(rng, perturb=True)
+    c = st.clones[2]
+    st.P[c.idx:c.idx + 6, :] *= -1.0    # symmetric, indefinite
+    st.P[:, c.idx:c.idx + 6] *= -1.0
+    st.P[c.idx:c.idx + 6, c.idx:c.idx + 6] *= -1.0 * 50.0
+    P0, clones0 = st.P.copy(), {k: (v.R.copy(), v.p.copy()) for k, v in st.clones.items()}
+    stats = msckf_update(st, tracks, MsckfConfig(chi2_multiplier=1e12), CAM)
+    assert stats.update_failed == 1 and stats.used == 0 and stats.rows == 0
+    assert np.array_equal(st.P, P0)
+    assert all(np.array_equal(st.clones[k].R, R) and np.array_equal(st.clones[k].p, p)
+               for k, (R, p) in clones0.items())
