@@ -242,9 +242,9 @@ class MsckfConfig:
                 vals[n] = default
                 continue
             v = float(v)
-            if not (math.isfinite(v) and v > 0):   # never substitute a default for a value the calibration gave
-                raise ConfigError("IMU noise must be finite and positive (null: withheld, the defaults apply); "
-                                  f"got {n} = {v!r}")
+            if not (math.isfinite(v) and v > 0):   # never a default for a value the calibration gave
+                raise ConfigError("IMU noise must be finite and positive (null: withheld, the defaults "
+                                  f"apply); got {n} = {v!r}")
             vals[n] = v
         return replace(self, **vals)
 
