@@ -69,10 +69,14 @@ class FakeImu:
                 return
             s = ImuSample(t + self.skew_ns, np.array([0.0, 0.0, 0.1]), np.array([0.0, 0.0, 9.81]))
             with self.cond:
-                self.buf.append(s)
+                self._push(s)
                 self.produced += 1
                 self.cond.notify_all()
             k += 1
+
+    def _push(self, s: ImuSample) -> None:
+        """Queue one sample (called with `cond` held)."""
+        self.buf.append(s)
 
     def get(self, timeout: float | None = None) -> ImuSample | None:
         with self.cond:
@@ -303,22 +307,12 @@ class OverflowingImu(FakeImu):
         self.pending = 0
         self.dropped_stamps: list[int] = []
 
-    def _run(self) -> None:
-        k = 0
-        while not self.stopped:
-            t = self.t0 + k * IMU_PERIOD_NS
-            wait = (t + self.latency_ns - time.monotonic_ns()) / 1e9
-            if wait > 0:
-                time.sleep(wait)
-            with self.cond:
-                if len(self.buf) >= self.capacity:
-                    self.dropped_stamps.append(self.buf.popleft().t_ns)
-                    self.lost += 1
-                    self.pending += 1
-                self.buf.append(ImuSample(t, np.array([0.0, 0.0, 0.1]), np.array([0.0, 0.0, 9.81])))
-                self.produced += 1
-                self.cond.notify_all()
-            k += 1
+    def _push(self, s: ImuSample) -> None:
+        if len(self.buf) >= self.capacity:
+            self.dropped_stamps.append(self.buf.popleft().t_ns)
+            self.lost += 1
+            self.pending += 1
+        self.buf.append(s)
 
     def take_overflow(self) -> int:
         with self.cond:
