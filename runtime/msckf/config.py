@@ -51,6 +51,10 @@ class MsckfConfig:
     min_clone_spacing_s: float = 0.075
     max_slam: int = 50  #: SLAM landmarks in the state
     max_slam_in_update: int = 25  #: SLAM features per batched update
+    #: a SLAM landmark leaves the state once more than this many of its observations failed the chi-square
+    #: gate (OpenVINS 2.7: 1; UpdaterSLAM.cpp increments update_fail_count on each rejection and
+    #: VioManager.cpp marginalises above 1); None: a rejection drops only that observation
+    slam_max_chi2_failures: int | None = None
     max_msckf_in_update: int = 40  #: MSCKF features per update (longest tracks first)
     dt_slam_delay: float = 1.0  #: s after initialisation before SLAM features are added
     slam_representation: str = "anchored_inverse_depth"  #: SLAM landmark parameters: or "global_3d"
@@ -178,6 +182,9 @@ class MsckfConfig:
             )
         if self.max_clones < 2:
             raise ConfigError(f"max_clones must be >= 2, got {self.max_clones}")
+        if self.slam_max_chi2_failures is not None and self.slam_max_chi2_failures < 0:
+            raise ConfigError("slam_max_chi2_failures must be >= 0 or unset, "
+                              f"got {self.slam_max_chi2_failures}")
         for f in ("max_slam", "max_slam_in_update", "max_msckf_in_update"):
             if getattr(self, f) < 0:
                 raise ConfigError(f"{f} must be >= 0, got {getattr(self, f)}")

@@ -576,7 +576,9 @@ class MsckfEstimator:
             if fid in seen and tr is not None and tr.t_ns and tr.t_ns[-1] == t_cam:
                 obs.append((fid, tr.uv[-1]))
         slam_update(st, t_cam, obs, cfg, self.camera, sst)
-        lost_lms = [fid for fid, lm in st.slam.items() if fid not in seen or lm.fail_count > 1]
+        max_chi2 = cfg.slam_max_chi2_failures
+        lost_lms = [fid for fid, lm in st.slam.items() if fid not in seen or lm.fail_count > 1
+                    or (max_chi2 is not None and lm.chi2_failures > max_chi2)]
         # landmarks leave the state after the delayed initialisation (one covariance copy for all)
         added = delayed_init(st, new_slam, cfg, self.camera, sst)
         for tr in new_slam:

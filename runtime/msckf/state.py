@@ -37,6 +37,7 @@ class Landmark:
     p_fej: np.ndarray
     idx: int
     fail_count: int = 0  #: updates in which it could not be projected; marginalised after two
+    chi2_failures: int = 0  #: observations the chi-square gate refused (MsckfConfig.slam_max_chi2_failures)
     anchor_t: int | None = None
 
 

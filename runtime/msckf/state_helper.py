@@ -18,6 +18,22 @@ def chi2_95(dof: int) -> float:
     return float(_CHI2_95[dof - 1]) if dof <= _CHI2_95.size else float(_chi2.ppf(0.95, dof))
 
 
+def chi2_accepts(d2: float, dof: int, multiplier: float) -> bool:
+    """The filters' chi-square gate: d2 below multiplier times the 95 % quantile with dof degrees of freedom
+    (False for NaN)."""
+    return bool(d2 < multiplier * chi2_95(dof))
+
+
+def innovation_mahalanobis(Pcc: np.ndarray, H: np.ndarray, r: np.ndarray, sigma: float) -> float:
+    """r^T (H Pcc H^T + sigma^2 I)^-1 r for the covariance Pcc of H's columns (inf when singular)."""
+    S = H @ Pcc @ H.T
+    S[np.diag_indices_from(S)] += sigma * sigma
+    try:
+        return float(r @ np.linalg.solve(S, r))
+    except np.linalg.LinAlgError:
+        return float("inf")
+
+
 def compress(H: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """QR measurement compression: rows beyond the column count carry no information for isotropic noise."""
     m, n = H.shape
@@ -46,13 +62,8 @@ def ekf_update(state: State, cols: np.ndarray, H: np.ndarray, r: np.ndarray, sig
 
 
 def mahalanobis(state: State, cols: np.ndarray, H: np.ndarray, r: np.ndarray, sigma: float) -> float:
-    """r^T (H P H^T + sigma^2 I)^-1 r."""
-    Pcc = state.P[np.ix_(cols, cols)]
-    S = H @ Pcc @ H.T + sigma * sigma * np.eye(H.shape[0])
-    try:
-        return float(r @ np.linalg.solve(S, r))
-    except np.linalg.LinAlgError:
-        return float("inf")
+    """r^T (H P H^T + sigma^2 I)^-1 r over the state columns cols."""
+    return innovation_mahalanobis(state.P[np.ix_(cols, cols)], H, r, sigma)
 
 
 def augment_clone(state: State, t_cam_ns: int, w_body: np.ndarray) -> Clone:
@@ -101,8 +112,7 @@ def initialize_landmark(state: State, fid: int, p_O: np.ndarray, cols: np.ndarra
     """
     Hx2, r2, Hf1, Hx1, r1 = givens_left_nullspace(Hf.copy(), Hx.copy(), r.copy())
     if Hx2.shape[0] > 0:
-        d2 = mahalanobis(state, cols, Hx2, r2, sigma)
-        if not d2 < chi2_multiplier * chi2_95(r.shape[0]):
+        if not chi2_accepts(mahalanobis(state, cols, Hx2, r2, sigma), r.shape[0], chi2_multiplier):
             return False
     try:
         Hf1_inv = np.linalg.inv(Hf1)

@@ -11,7 +11,7 @@ from runtime.msckf.config import MsckfConfig
 from runtime.msckf.feature_db import Track
 from runtime.msckf.measurement import givens_left_nullspace
 from runtime.msckf.state import State
-from runtime.msckf.state_helper import chi2_95, compress, ekf_update
+from runtime.msckf.state_helper import chi2_accepts, compress, ekf_update, innovation_mahalanobis
 from runtime.msckf.track_linearization import linearize_track, window_columns
 
 
@@ -36,7 +36,6 @@ def msckf_update(state: State, tracks: list[Track], cfg: MsckfConfig, cam: Camer
     cols, offset = window_columns(state)
     ncol = cols.size
     Pcc = state.P[np.ix_(cols, cols)]
-    sig2 = cfg.sigma_pix ** 2
     Hs: list[np.ndarray] = []
     rs: list[np.ndarray] = []
     for tr in tracks:
@@ -47,13 +46,8 @@ def msckf_update(state: State, tracks: list[Track], cfg: MsckfConfig, cam: Camer
         Hx2, r2, _, _, _ = givens_left_nullspace(lin.Hf, lin.Hx, lin.r)
         if Hx2.shape[0] == 0:
             continue
-        S = Hx2 @ Pcc @ Hx2.T
-        S[np.diag_indices_from(S)] += sig2
-        try:
-            d2 = float(r2 @ np.linalg.solve(S, r2))
-        except np.linalg.LinAlgError:
-            d2 = np.inf
-        if not d2 < cfg.chi2_multiplier * chi2_95(r2.shape[0]):
+        d2 = innovation_mahalanobis(Pcc, Hx2, r2, cfg.sigma_pix)
+        if not chi2_accepts(d2, r2.shape[0], cfg.chi2_multiplier):
             st.chi2_rejected += 1
             continue
         Hs.append(Hx2)

@@ -159,11 +159,14 @@ def slam_update(state: State, t_cam_ns: int, obs: list[tuple[int, np.ndarray]], 
             RA, pA, RAf, pAf, state.R_IC, state.p_IC, cam.code, state.camera_params(cam.params),
             cfg.sigma_pix, state.idx_intr)
         good = ok & (d2 < gate)
-        # a chi-square rejection only drops this observation (OpenVINS keeps the landmark while it is
-        # tracked); a landmark that cannot be projected (behind the camera) is counted toward removal
-        for lm, projected in zip(lms, ok, strict=True):
+        # a landmark that cannot be projected (behind the camera) is counted toward removal; a chi-square
+        # rejection drops this observation and counts toward it unless cfg.slam_max_chi2_failures is None
+        count_chi2 = cfg.slam_max_chi2_failures is not None
+        for lm, projected, passed in zip(lms, ok, good, strict=True):
             if not projected:
                 lm.fail_count += 1
+            elif not passed and count_chi2:
+                lm.chi2_failures += 1
         stats.chi2_rejected += int((ok & ~good).sum())  # a failed projection is not a chi-square rejection
         sel = np.flatnonzero(good)
         if sel.size == 0:

@@ -19,7 +19,7 @@ from runtime.msckf.config import MsckfConfig
 from runtime.msckf.feature_db import FeatureDatabase
 from runtime.msckf.so3_kernels import skew3
 from runtime.msckf.state import State
-from runtime.msckf.state_helper import chi2_95, compress, ekf_update
+from runtime.msckf.state_helper import chi2_accepts, compress, ekf_update, innovation_mahalanobis
 
 MIN_DISPARITY_FEATURES = 20
 """The disparity test needs more features than this (OpenVINS: 20)."""
@@ -91,10 +91,8 @@ def zupt_update(st: State, cfg: MsckfConfig, db: FeatureDatabase, samples: tuple
     rw = r / sig
     cols = np.arange(15)
     if not still:
-        Pcc = st.P[:15, :15]
-        S = Hw[: 6 * n] @ Pcc @ Hw[: 6 * n].T + np.eye(6 * n)
-        d2 = float(rw[: 6 * n] @ np.linalg.solve(S, rw[: 6 * n]))
-        if not d2 < cfg.zupt_chi2_multiplier * chi2_95(6 * n):
+        d2 = innovation_mahalanobis(st.P[:15, :15], Hw[: 6 * n], rw[: 6 * n], 1.0)
+        if not chi2_accepts(d2, 6 * n, cfg.zupt_chi2_multiplier):
             return False
     Hc, rc = compress(Hw, rw)
     return ekf_update(st, cols, Hc, rc, 1.0)

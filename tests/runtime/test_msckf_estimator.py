@@ -269,18 +269,28 @@ IMU_ZUPT = dict(try_zupt=True, zupt_chi2_multiplier=1.0, zupt_max_disparity=0.0,
 
 
 def test_zero_velocity_update_holds_a_static_body() -> None:
+    """An accelerometer bias of 0.03 m/s^2 the initial state does not know: dead reckoning drifts (0.09
+    m/s, 0.13 m in 3 s, nothing triangulates at rest); the zero-velocity updates hold the body."""
     imu, frames = _static_stream(3.0)
-    cfg = MsckfConfig(**IMU_ZUPT)
-    est = MsckfEstimator(_rig(), cfg)
-    est.initialize_from_state(0, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3))
-    snaps = _run(est, imu, frames)
-    rep = est.report()
+    imu = [replace(s, accel=s.accel + np.array([0.03, 0.0, 0.0])) for s in imu]
+
+    def run(cfg: MsckfConfig) -> tuple[list, dict]:
+        est = MsckfEstimator(_rig(), cfg)
+        est.initialize_from_state(0, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3))
+        return _run(est, imu, frames), est.report()
+
+    snaps, rep = run(MsckfConfig(**IMU_ZUPT))
     assert rep["zupt_applied"] >= len(frames) - 3
     assert snaps[-1].num_clones <= 2                      # standstill frames add no clone
     assert np.linalg.norm(snaps[-1].v_OI) < 0.01
     assert np.linalg.norm(snaps[-1].p_OI) < 0.02
     # the velocity uncertainty is pulled down by the zero-velocity pseudo-measurements
     assert np.sqrt(snaps[-1].covariance[6, 6]) < 0.01
+    # the same bounds fail without the zero-velocity update (no reset: the health checks are off)
+    off, rep_off = run(MsckfConfig(try_zupt=False, max_time_without_update_s=1000.0,
+                                   min_visual_measurements=0))
+    assert rep_off["zupt_applied"] == 0 and rep_off["divergence_resets"] == 0
+    assert np.linalg.norm(off[-1].v_OI) > 0.05 and np.linalg.norm(off[-1].p_OI) > 0.05
 
 
 def test_standing_still_is_not_taken_for_a_blind_filter(monkeypatch) -> None:
@@ -598,23 +608,26 @@ def test_frames_waiting_for_a_stalled_imu_are_bounded() -> None:
 def test_feature_order_seed_changes_only_the_tie_break() -> None:
     # with a small MSCKF budget many equal-length tracks compete; the seed picks among them reproducibly
     imu, frames = _stream(3.0, pix_noise=1.0, seed=3)
-    cfg = MsckfConfig(max_msckf_in_update=3, max_slam=0)
+    cfg = MsckfConfig(max_msckf_in_update=8, max_slam=0, max_time_without_update_s=1000.0)
+    dv = np.array([0.03, -0.03, 0.02])        # a 3-sigma initial velocity error for the features to correct
 
-    def run(seed: int | None) -> np.ndarray:
-        est = MsckfEstimator(_rig(), cfg.updated(feature_order_seed=seed))
-        _init(est, np.zeros(3))
-        snaps = _run(est, imu, frames)
-        assert est.report()["msckf_features_used"] > 0
+    def run(seed: int | None, features: bool = True) -> np.ndarray:
+        est = MsckfEstimator(_rig(), cfg.updated(feature_order_seed=seed, min_visual_measurements=0))
+        _init(est, dv)
+        snaps = _run(est, imu, frames, features)
+        assert (est.report()["msckf_features_used"] > 0) == features
         return np.array([np.r_[s.p_OI, s.v_OI] for s in snaps])
 
     a, a2, b, none, none2 = run(1), run(1), run(2), run(None), run(None)
     assert np.array_equal(a, a2) and np.array_equal(none, none2)     # reproducible
     assert not np.allclose(a, b, atol=1e-9, rtol=0)                  # another seed, another selection
     assert not np.allclose(a, none, atol=1e-9, rtol=0)
-    # every order is a valid filter run: velocity stays near the truth (no velocity error at the start)
-    _, _, v_end, _ = _truth(frames[-1][0] * 1e-9)
+    # every order is a valid filter run: each corrects the drift of dead reckoning from the same start
+    # (measured: 0.08-0.10 m against 0.14 m after 3 s)
+    _, p_end, _, _ = _truth(frames[-1][0] * 1e-9)
+    dead_reckoning = np.linalg.norm(run(None, features=False)[-1, 0:3] - p_end)
     for traj in (a, b, none):
-        assert np.linalg.norm(traj[-1, 3:6] - v_end) < 0.1
+        assert np.linalg.norm(traj[-1, 0:3] - p_end) < 0.8 * dead_reckoning
 
 
 def test_images_that_contradict_the_state_reset_the_filter() -> None:

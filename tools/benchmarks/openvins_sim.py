@@ -377,11 +377,32 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "filter's NEES averages 3; OpenVINS's figures start exactly at the truth",
     )
     p.add_argument(
+        "--slam-max-chi2-failures",
+        type=_optional_count,
+        default=argparse.SUPPRESS,
+        metavar="N|none",
+        help="override slam_max_chi2_failures: a SLAM landmark leaves the state after more than N chi-square "
+        "rejections (OpenVINS 2.7: 1); none: a rejection drops only that observation",
+    )
+    p.add_argument(
         "--slam-rep",
         choices=("global_3d", "anchored_inverse_depth"),
         default=None,
         help="override the SLAM landmark representation (default: the folder's feat_rep_slam)",
     )
+
+
+def _optional_count(text: str) -> int | None:
+    """argparse type: a count >= 0, or 'none'."""
+    if text.strip().lower() == "none":
+        return None
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a count or 'none', got {text!r}") from None
+    if n < 0:
+        raise argparse.ArgumentTypeError(f"expected a count >= 0, got {n}")
+    return n
 
 
 _SIM: SimRun | None = None  # the loaded folder, shared with --jobs worker processes (fork)
@@ -397,6 +418,8 @@ def _config(sim: SimRun, args: argparse.Namespace) -> object:
         cfg = cfg.updated(min_clone_spacing_s=args.min_clone_spacing)
     if args.slam_rep is not None:
         cfg = cfg.updated(slam_representation=args.slam_rep)
+    if getattr(args, "slam_max_chi2_failures", "default") != "default":
+        cfg = cfg.updated(slam_max_chi2_failures=args.slam_max_chi2_failures)
     return cfg
 
 
