@@ -25,6 +25,7 @@ from runtime.msckf.health import divergence_reason
 from runtime.msckf.propagator import propagate_interval, select_samples
 from runtime.msckf.state import State
 from runtime.msckf.state_helper import augment_clone, marginalize
+from runtime.msckf.track_linearization import WindowArrays, pack_tracks
 from runtime.msckf.update_msckf import msckf_update
 from runtime.msckf.update_slam import SlamUpdateStats, change_anchor, delayed_init, slam_update
 from runtime.msckf.update_zupt import disparity_says_static, zupt_update
@@ -116,23 +117,27 @@ class _Counters:
     cpu_frame_s: float = 0.0
 
 
-def median_parallax_deg(state: State, tracks: list) -> float | None:
+def median_parallax_deg(state: State, tracks: list, cam: CameraParams) -> float | None:
     """Median over `tracks` of the angle (deg) between the rays of each track's first and last observation at
     the state's clones, both rotated into the odometry frame (the rotation of the camera is removed, so the
     angle is parallax from translation; it needs only the clones' rotations, which the gyro keeps right even
     when the translation is wrong). None without a track observed at two clones."""
-    R_IC = state.R_IC
-    angles = []
-    for tr in tracks:
-        ks = [k for k, t in enumerate(tr.t_ns) if t in state.clones]
-        if len(ks) < 2:
-            continue
-        b = []
-        for k in (ks[0], ks[-1]):
-            ray = state.clones[tr.t_ns[k]].R @ (R_IC @ np.array([tr.xn[k][0], tr.xn[k][1], 1.0]))
-            b.append(ray / np.linalg.norm(ray))
-        angles.append(np.arccos(np.clip(float(b[0] @ b[1]), -1.0, 1.0)))
-    return float(np.degrees(np.median(angles))) if angles else None
+    if not tracks or not state.clones:
+        return None
+    win = WindowArrays(state)
+    ptr, slots, _, xn = pack_tracks(state, win, tracks, cam)
+    first, last = ptr[:-1], ptr[1:] - 1
+    two = last > first
+    if not np.any(two):
+        return None
+
+    def rays(k: np.ndarray) -> np.ndarray:
+        f = np.c_[xn[k], np.ones(k.size)] @ state.R_IC.T
+        b = np.einsum("nij,nj->ni", win.R[slots[k]], f)
+        return b / np.linalg.norm(b, axis=1, keepdims=True)
+
+    cos = np.einsum("ni,ni->n", rays(first[two]), rays(last[two]))
+    return float(np.degrees(np.median(np.arccos(np.clip(cos, -1.0, 1.0)))))
 
 
 class MsckfEstimator:
@@ -558,7 +563,8 @@ class MsckfEstimator:
         msckf = [tr for tr in lost + marg + maxtracks if len(tr) >= 2]
         msckf.sort(key=len)
         msckf = msckf[max(len(msckf) - cfg.max_msckf_in_update, 0) :]
-        parallax = median_parallax_deg(st, msckf + new_slam)   # before the update moves the clones
+        # before the update moves the clones
+        parallax = median_parallax_deg(st, msckf + new_slam, self.camera)
         ms = msckf_update(st, msckf, cfg, self.camera)
         c.msckf_features_used += ms.used
         c.msckf_triangulation_failed += ms.triangulation_failed

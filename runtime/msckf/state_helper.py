@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.linalg as sla
+from numba import njit
+from scipy.linalg.blas import dsyrk
 from scipy.stats import chi2 as _chi2
 
 from runtime.msckf.measurement import givens_left_nullspace
@@ -43,20 +45,37 @@ def compress(H: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return Rq, Q.T @ r
 
 
+@njit(cache=True, nogil=True)
+def _mirror_lower_to_upper(P: np.ndarray) -> None:
+    """P[i, j] = P[j, i] for j < i (in place)."""
+    n = P.shape[0]
+    for i in range(n):
+        for j in range(i + 1, n):
+            P[i, j] = P[j, i]
+
+
 def ekf_update(state: State, cols: np.ndarray, H: np.ndarray, r: np.ndarray, sigma: float) -> bool:
-    """EKF update with measurement r = H dx[cols] + n, n ~ N(0, sigma^2 I). Returns False if S is not PD."""
+    """EKF update with measurement r = H dx[cols] + n, n ~ N(0, sigma^2 I). Returns False if S is not PD.
+
+    With S = L L^T and W = L^-1 H P[cols, :], the covariance update P - W^T W is one symmetric rank-m
+    update of one triangle (BLAS syrk, in place), mirrored to the other; dx = W^T L^-1 r."""
+    if not state.P.flags.c_contiguous:
+        state.P = np.ascontiguousarray(state.P)
     P = state.P
-    Pc = P[:, cols]                        # n x k
-    A = H @ Pc.T                           # m x n  (= H P[cols, :])
-    S = A[:, cols] @ H.T + sigma * sigma * np.eye(H.shape[0])
+    A = H @ P[cols]                        # m x n  (= H P[cols, :], P symmetric)
+    S = A[:, cols] @ H.T
+    S[np.diag_indices_from(S)] += sigma * sigma
     try:
-        cf = sla.cho_factor(S, lower=True, check_finite=False)
+        L = np.linalg.cholesky(S)
     except np.linalg.LinAlgError:
         return False
-    X = sla.cho_solve(cf, A, check_finite=False)   # S^-1 H P  (m x n)
-    P -= A.T @ X
-    dx = X.T @ r
-    state.P = 0.5 * (P + P.T)
+    W = sla.solve_triangular(L, A, lower=True, check_finite=False)
+    dx = W.T @ sla.solve_triangular(L, r, lower=True, check_finite=False)
+    # P.T is P's memory in Fortran order: syrk's upper triangle there is the lower triangle of P
+    out = dsyrk(-1.0, W, beta=1.0, c=P.T, trans=1, lower=0, overwrite_c=1)
+    if not np.shares_memory(out, P):
+        P[...] = out.T
+    _mirror_lower_to_upper(P)
     state.apply_correction(dx)
     return True
 

@@ -1,58 +1,25 @@
-"""One feature track linearised at the filter's clone window: its observations at the clones, triangulation,
-the linearisation point and the stacked pixel Jacobians in the window's column layout. Shared by the MSCKF
-update and the SLAM delayed initialisation."""
+"""Feature tracks linearised at the filter's clone window, all tracks of one update in one numba call:
+packing the tracks' observations at the window into flat arrays, and the kernels that triangulate, linearise,
+project out the feature and gate each track. Shared by the MSCKF update and the SLAM delayed initialisation.
+
+Done in one call per frame, the per-track steps leave the Python interpreter out of the per-track loop, which
+dominated the filter's time per frame.
+
+Packed layout: `ptr` (T+1,) offsets of each track's observations into `slots` (clone slot in the window,
+oldest first), `uv` (pixels) and `xn` (normalised coordinates).
+"""
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
+from numba import njit
 
 from runtime.msckf.camera_kernels import CameraParams, undistort_points
 from runtime.msckf.config import MsckfConfig
 from runtime.msckf.feature_db import Track
-from runtime.msckf.measurement import feature_intrinsics_jacobian, feature_jacobians
+from runtime.msckf.measurement import feature_intrinsics_jacobian, feature_jacobians, givens_left_nullspace
 from runtime.msckf.state import State
+from runtime.msckf.state_helper import _CHI2_95
 from runtime.msckf.triangulation import triangulate
-
-
-def track_arrays(state: State, tr: Track, cam: CameraParams) -> tuple:
-    """Clone poses (current and FEJ) and measurements of a track's observations at existing clones.
-
-    With online intrinsics the normalised coordinates xn are recomputed from the pixels with the state's
-    current intrinsics through `cam`'s model (the database's were undistorted with older ones)."""
-    ts = [t for t in tr.t_ns if t in state.clones]
-    sel = [k for k, t in enumerate(tr.t_ns) if t in state.clones]
-    cl = [state.clones[t] for t in ts]
-    Rc = np.array([c.R for c in cl])
-    pc = np.array([c.p for c in cl])
-    Rf = np.array([c.R_fej for c in cl])
-    pf = np.array([c.p_fej for c in cl])
-    uv = np.array([tr.uv[k] for k in sel])
-    if state.cam_params is not None:
-        xn = undistort_points(cam.code, state.cam_params, uv)
-    else:
-        xn = np.array([tr.xn[k] for k in sel])
-    return cl, Rc, pc, Rf, pf, uv, xn
-
-
-def triangulate_track(state: State, cfg: MsckfConfig, Rc: np.ndarray, pc: np.ndarray, xn: np.ndarray
-                      ) -> tuple[bool, np.ndarray]:
-    """Triangulate with the current clone and extrinsic estimates."""
-    R_OC = Rc @ state.R_IC
-    p_OC = pc + Rc @ state.p_IC
-    return triangulate(R_OC, p_OC, xn, cfg.tri_max_cond, cfg.tri_min_dist, cfg.tri_max_dist,
-                       cfg.tri_max_baseline_ratio, cfg.tri_gn_iterations)
-
-
-def linearization_point(state: State, cfg: MsckfConfig, Rf: np.ndarray, pf: np.ndarray, xn: np.ndarray,
-                        p_O: np.ndarray) -> np.ndarray:
-    """The feature position at which the Jacobians are evaluated: with FEJ and cfg.fej_triangulation, the
-    point triangulated from the clones' first estimates, so that the linearisation is one consistent set of
-    first estimates (p_O, from the current estimates, when that fails or FEJ is off)."""
-    if not (cfg.use_fej and cfg.fej_triangulation):
-        return p_O
-    ok, p_f = triangulate_track(state, cfg, Rf, pf, xn)
-    return p_f if ok else p_O
 
 
 def window_columns(state: State) -> tuple[np.ndarray, dict[int, int]]:
@@ -71,60 +38,251 @@ def window_columns(state: State) -> tuple[np.ndarray, dict[int, int]]:
     return np.asarray(cols, dtype=np.int64), offset
 
 
-@dataclass
-class TrackLinearization:
-    """A track triangulated and linearised at the window's clones.
-
-    clones, Rc, pc, Rf, pf, uv, xn: as track_arrays; p_O: triangulated point (odometry frame);
-    p_lin: its linearisation point; r (2M,): pixel residuals; Hx (2M, ncol): Jacobian w.r.t. the
-    window columns (extrinsics, intrinsics, clones); Hf (2M, 3): w.r.t. the point.
-    """
-
-    clones: list
-    Rc: np.ndarray
-    pc: np.ndarray
-    Rf: np.ndarray
-    pf: np.ndarray
-    uv: np.ndarray
-    p_O: np.ndarray
-    p_lin: np.ndarray
-    r: np.ndarray
-    Hx: np.ndarray
-    Hf: np.ndarray
+#: status codes of the kernels, per track
+OK, NOT_LINEARIZED, NO_ROWS, CHI2_REJECTED = 0, 1, 2, 3
 
 
-def fill_window_columns(Hx: np.ndarray, He: np.ndarray, Hc: np.ndarray, clones: list, offset: dict,
-                        has_extrinsics: bool, Hk: np.ndarray | None = None) -> None:
-    """Write the extrinsics block He, the intrinsics block Hk (None: not estimated) and each observation's
-    clone block of Hc into Hx (in place), in the window_columns layout."""
-    if has_extrinsics:
+class WindowArrays:
+    """The clone window as arrays: current and first-estimate poses, oldest first (the window_columns
+    order), with each clone's slot by camera time."""
+
+    def __init__(self, state: State) -> None:
+        times = state.clone_times()
+        clones = [state.clones[t] for t in times]
+        self.slot = {t: j for j, t in enumerate(times)}
+        self.R = np.array([c.R for c in clones])
+        self.p = np.array([c.p for c in clones])
+        self.R_fej = np.array([c.R_fej for c in clones])
+        self.p_fej = np.array([c.p_fej for c in clones])
+
+
+def pack_tracks(state: State, win: WindowArrays, tracks: list[Track], cam: CameraParams) -> tuple:
+    """(ptr, slots, uv, xn) of the tracks' observations at the window's clones (see the module docstring).
+
+    With online intrinsics xn is recomputed from the pixels with the state's current intrinsics (the
+    database's were undistorted with older ones)."""
+    slot = win.slot
+    ptr = np.zeros(len(tracks) + 1, dtype=np.int64)
+    slots: list[int] = []
+    uv: list[np.ndarray] = []
+    xn: list[np.ndarray] = []
+    for i, tr in enumerate(tracks):
+        for k, t in enumerate(tr.t_ns):
+            j = slot.get(t)
+            if j is not None:
+                slots.append(j)
+                uv.append(tr.uv[k])
+                xn.append(tr.xn[k])
+        ptr[i + 1] = len(slots)
+    n = len(slots)
+    uv_a = np.array(uv, dtype=float).reshape(n, 2)
+    if state.cam_params is not None:
+        xn_a = undistort_points(cam.code, state.cam_params, uv_a)
+    else:
+        xn_a = np.array(xn, dtype=float).reshape(n, 2)
+    return ptr, np.array(slots, dtype=np.int64), uv_a, xn_a
+
+
+@njit(cache=True, nogil=True)
+def linearize_packed(Rw: np.ndarray, pw: np.ndarray, Rfw: np.ndarray, pfw: np.ndarray, slots: np.ndarray,
+                     uv: np.ndarray, xn: np.ndarray, R_IC: np.ndarray, p_IC: np.ndarray, code: int,
+                     prm: np.ndarray, tri: np.ndarray, tri_iterations: int, fej_triangulation: bool,
+                     has_ext: bool, has_intr: bool, ncol: int) -> tuple:
+    """One track (its observations slots/uv/xn) triangulated from the current clone poses (Rw, pw: the
+    window's, by slot) and linearised in the window_columns layout (extrinsics, intrinsics, clones).
+
+    tri: [max_cond, min_dist, max_dist, max_baseline_ratio]. Returns (ok, p_O, p_lin, r (2m,), Hx (2m, ncol),
+    Hf (2m, 3)); p_lin is the Jacobians' point (with fej_triangulation the one triangulated from the first
+    estimates, when that succeeds)."""
+    m = slots.shape[0]
+    Rc = np.empty((m, 3, 3))
+    pc = np.empty((m, 3))
+    Rf = np.empty((m, 3, 3))
+    pf = np.empty((m, 3))
+    R_OC = np.empty((m, 3, 3))
+    p_OC = np.empty((m, 3))
+    for i in range(m):
+        j = slots[i]
+        Rc[i] = Rw[j]
+        pc[i] = pw[j]
+        Rf[i] = Rfw[j]
+        pf[i] = pfw[j]
+        R_OC[i] = Rc[i] @ R_IC
+        p_OC[i] = pc[i] + Rc[i] @ p_IC
+    p_lin = np.zeros(3)
+    empty = (False, p_lin, p_lin, np.zeros(0), np.zeros((0, ncol)), np.zeros((0, 3)))
+    if m < 2:
+        return empty
+    ok, p_O = triangulate(R_OC, p_OC, xn, tri[0], tri[1], tri[2], tri[3], tri_iterations)
+    if not ok:
+        return empty
+    p_lin = p_O
+    if fej_triangulation:
+        for i in range(m):
+            R_OC[i] = Rf[i] @ R_IC
+            p_OC[i] = pf[i] + Rf[i] @ p_IC
+        ok_f, p_f = triangulate(R_OC, p_OC, xn, tri[0], tri[1], tri[2], tri[3], tri_iterations)
+        if ok_f:
+            p_lin = p_f
+    ok, r, Hc, He, Hf = feature_jacobians(Rc, pc, Rf, pf, uv, p_O, p_lin, R_IC, p_IC, code, prm)
+    if not ok:
+        return empty
+    Hx = np.zeros((2 * m, ncol))
+    o = 0
+    if has_ext:
         Hx[:, 0:6] = He
-    if Hk is not None:
-        o = 6 if has_extrinsics else 0
-        Hx[:, o:o + 8] = Hk
-    for i, c in enumerate(clones):
-        o = offset[c.t_cam_ns]
-        Hx[2 * i:2 * i + 2, o:o + 6] = Hc[2 * i:2 * i + 2]
+        o = 6
+    if has_intr:
+        Hx[:, o:o + 8] = feature_intrinsics_jacobian(Rf, pf, p_lin, R_IC, p_IC, code, prm)
+        o += 8
+    for i in range(m):
+        c = o + 6 * slots[i]
+        Hx[2 * i:2 * i + 2, c:c + 6] = Hc[2 * i:2 * i + 2]
+    return True, p_O, p_lin, r, Hx, Hf
 
 
-def linearize_track(state: State, tr: Track, cfg: MsckfConfig, cam: CameraParams, ncol: int,
-                    offset: dict) -> TrackLinearization | None:
-    """Triangulate `tr` and build its residuals and Jacobians; None when it cannot be used."""
-    cl, Rc, pc, Rf, pf, uv, xn = track_arrays(state, tr, cam)
-    if len(cl) < 2:
-        return None
-    ok, p_O = triangulate_track(state, cfg, Rc, pc, xn)
-    if not ok:
-        return None
-    p_lin = linearization_point(state, cfg, Rf, pf, xn, p_O)
-    prm = state.camera_params(cam.params)
-    ok, r, Hc, He, Hf = feature_jacobians(Rc, pc, Rf, pf, uv, p_O, p_lin, state.R_IC, state.p_IC,
-                                          cam.code, prm)
-    if not ok:
-        return None
-    Hk = None
-    if state.idx_intr >= 0:
-        Hk = feature_intrinsics_jacobian(Rf, pf, p_lin, state.R_IC, state.p_IC, cam.code, prm)
-    Hx = np.zeros((r.shape[0], ncol))
-    fill_window_columns(Hx, He, Hc, cl, offset, state.idx_ext >= 0, Hk)
-    return TrackLinearization(cl, Rc, pc, Rf, pf, uv, p_O, p_lin, r, Hx, Hf)
+@njit(cache=True, nogil=True)
+def spd_mahalanobis(S: np.ndarray, r: np.ndarray) -> float:
+    """r^T S^-1 r by a Cholesky factorisation of the symmetric S (inf when S is not positive definite)."""
+    n = S.shape[0]
+    L = np.zeros((n, n))
+    for j in range(n):
+        d = S[j, j]
+        for k in range(j):
+            d -= L[j, k] * L[j, k]
+        if not d > 0.0:
+            return np.inf
+        L[j, j] = np.sqrt(d)
+        for i in range(j + 1, n):
+            s = S[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            L[i, j] = s / L[j, j]
+    y = np.empty(n)
+    q = 0.0
+    for i in range(n):
+        s = r[i]
+        for k in range(i):
+            s -= L[i, k] * y[k]
+        y[i] = s / L[i, i]
+        q += y[i] * y[i]
+    return q
+
+
+@njit(cache=True, nogil=True)
+def msckf_rows_packed(Rw: np.ndarray, pw: np.ndarray, Rfw: np.ndarray, pfw: np.ndarray, ptr: np.ndarray,
+                      slots: np.ndarray, uv: np.ndarray, xn: np.ndarray, R_IC: np.ndarray, p_IC: np.ndarray,
+                      code: int, prm: np.ndarray, tri: np.ndarray, tri_iterations: int,
+                      fej_triangulation: bool, has_ext: bool, has_intr: bool, Pcc: np.ndarray, sigma: float,
+                      chi2_multiplier: float, chi2_table: np.ndarray) -> tuple:
+    """MSCKF rows of all packed tracks: each triangulated, linearised, projected onto the left nullspace of
+    its feature Jacobian and chi-square gated against Pcc, the covariance of the window columns.
+
+    Returns (status (T,) of OK / NOT_LINEARIZED / NO_ROWS / CHI2_REJECTED, H (rows, ncol), r (rows,)) with the
+    accepted tracks' rows stacked in track order."""
+    ntr = ptr.shape[0] - 1
+    ncol = Pcc.shape[0]
+    status = np.zeros(ntr, dtype=np.int64)
+    cap = 0
+    for t in range(ntr):
+        cap += max(2 * (ptr[t + 1] - ptr[t]) - 3, 0)
+    H = np.zeros((cap, ncol))
+    r = np.zeros(cap)
+    row = 0
+    s2 = sigma * sigma
+    for t in range(ntr):
+        a, b = ptr[t], ptr[t + 1]
+        ok, _, _, rt, Hx, Hf = linearize_packed(Rw, pw, Rfw, pfw, slots[a:b], uv[a:b], xn[a:b], R_IC, p_IC,
+                                                code, prm, tri, tri_iterations, fej_triangulation, has_ext,
+                                                has_intr, ncol)
+        if not ok:
+            status[t] = NOT_LINEARIZED
+            continue
+        Hx2, r2, _, _, _ = givens_left_nullspace(Hf, Hx, rt)
+        k = Hx2.shape[0]
+        if k == 0:
+            status[t] = NO_ROWS
+            continue
+        S = Hx2 @ Pcc @ Hx2.T
+        for i in range(k):
+            S[i, i] += s2
+        d2 = spd_mahalanobis(S, r2)
+        limit = chi2_multiplier * chi2_table[k - 1] if k <= chi2_table.shape[0] else np.inf
+        if not d2 < limit:
+            status[t] = CHI2_REJECTED
+            continue
+        H[row:row + k] = Hx2
+        r[row:row + k] = r2
+        row += k
+    return status, H[:row], r[:row]
+
+
+@njit(cache=True, nogil=True)
+def linearize_all_packed(Rw: np.ndarray, pw: np.ndarray, Rfw: np.ndarray, pfw: np.ndarray, ptr: np.ndarray,
+                         slots: np.ndarray, uv: np.ndarray, xn: np.ndarray, R_IC: np.ndarray,
+                         p_IC: np.ndarray, code: int, prm: np.ndarray, tri: np.ndarray, tri_iterations: int,
+                         fej_triangulation: bool, has_ext: bool, has_intr: bool, ncol: int) -> tuple:
+    """linearize_packed for every packed track: (ok (T,), p_O (T,3), p_lin (T,3), r (2N,), Hx (2N, ncol),
+    Hf (2N, 3)), track t's rows at 2 ptr[t] .. 2 ptr[t+1] (zero when not ok)."""
+    ntr = ptr.shape[0] - 1
+    nobs = ptr[ntr]
+    ok_all = np.zeros(ntr, dtype=np.bool_)
+    p_all = np.zeros((ntr, 3))
+    plin_all = np.zeros((ntr, 3))
+    r_all = np.zeros(2 * nobs)
+    Hx_all = np.zeros((2 * nobs, ncol))
+    Hf_all = np.zeros((2 * nobs, 3))
+    for t in range(ntr):
+        a, b = ptr[t], ptr[t + 1]
+        ok, p_O, p_lin, r, Hx, Hf = linearize_packed(Rw, pw, Rfw, pfw, slots[a:b], uv[a:b], xn[a:b], R_IC,
+                                                     p_IC, code, prm, tri, tri_iterations, fej_triangulation,
+                                                     has_ext, has_intr, ncol)
+        if not ok:
+            continue
+        ok_all[t] = True
+        p_all[t] = p_O
+        plin_all[t] = p_lin
+        r_all[2 * a:2 * b] = r
+        Hx_all[2 * a:2 * b] = Hx
+        Hf_all[2 * a:2 * b] = Hf
+    return ok_all, p_all, plin_all, r_all, Hx_all, Hf_all
+
+
+def tri_params(cfg: MsckfConfig) -> np.ndarray:
+    """The triangulation thresholds as the kernels take them."""
+    return np.array([cfg.tri_max_cond, cfg.tri_min_dist, cfg.tri_max_dist, cfg.tri_max_baseline_ratio])
+
+
+def msckf_rows(state: State, tracks: list[Track], cfg: MsckfConfig, cam: CameraParams, Pcc: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(status, H, r) of msckf_rows_packed for `tracks` at the state's window (chi-square gated with
+    cfg.chi2_multiplier; the tracks' 95 % quantiles from state_helper's table)."""
+    win = WindowArrays(state)
+    ptr, slots, uv, xn = pack_tracks(state, win, tracks, cam)
+    return msckf_rows_packed(
+        win.R, win.p, win.R_fej, win.p_fej, ptr, slots, uv, xn, state.R_IC, state.p_IC, cam.code,
+        state.camera_params(cam.params), tri_params(cfg), cfg.tri_gn_iterations,
+        cfg.use_fej and cfg.fej_triangulation, state.idx_ext >= 0, state.idx_intr >= 0, Pcc, cfg.sigma_pix,
+        cfg.chi2_multiplier, _CHI2_95,
+    )
+
+
+def linearize_tracks(state: State, tracks: list[Track], cfg: MsckfConfig, cam: CameraParams) -> list:
+    """Per track, None when it cannot be used, else (p_O, p_lin, r, Hx, Hf) of linearize_packed in the
+    window_columns layout."""
+    win = WindowArrays(state)
+    ptr, slots, uv, xn = pack_tracks(state, win, tracks, cam)
+    ncol = 6 * len(win.slot) + (6 if state.idx_ext >= 0 else 0) + (8 if state.idx_intr >= 0 else 0)
+    ok, p_O, p_lin, r, Hx, Hf = linearize_all_packed(
+        win.R, win.p, win.R_fej, win.p_fej, ptr, slots, uv, xn, state.R_IC, state.p_IC, cam.code,
+        state.camera_params(cam.params), tri_params(cfg), cfg.tri_gn_iterations,
+        cfg.use_fej and cfg.fej_triangulation, state.idx_ext >= 0, state.idx_intr >= 0, ncol,
+    )
+    out: list = []
+    for t in range(len(tracks)):
+        if not ok[t]:
+            out.append(None)
+            continue
+        rows = slice(2 * ptr[t], 2 * ptr[t + 1])
+        out.append((p_O[t], p_lin[t], r[rows], Hx[rows], Hf[rows]))
+    return out

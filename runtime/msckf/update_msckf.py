@@ -9,10 +9,9 @@ import numpy as np
 from runtime.msckf.camera_kernels import CameraParams
 from runtime.msckf.config import MsckfConfig
 from runtime.msckf.feature_db import Track
-from runtime.msckf.measurement import givens_left_nullspace
 from runtime.msckf.state import State
-from runtime.msckf.state_helper import chi2_accepts, compress, ekf_update, innovation_mahalanobis
-from runtime.msckf.track_linearization import linearize_track, window_columns
+from runtime.msckf.state_helper import compress, ekf_update
+from runtime.msckf.track_linearization import CHI2_REJECTED, NOT_LINEARIZED, OK, msckf_rows, window_columns
 
 
 @dataclass
@@ -33,33 +32,17 @@ def msckf_update(state: State, tracks: list[Track], cfg: MsckfConfig, cam: Camer
     st = MsckfUpdateStats(candidates=len(tracks))
     if not tracks:
         return st
-    cols, offset = window_columns(state)
-    ncol = cols.size
-    Pcc = state.P[np.ix_(cols, cols)]
-    Hs: list[np.ndarray] = []
-    rs: list[np.ndarray] = []
-    for tr in tracks:
-        lin = linearize_track(state, tr, cfg, cam, ncol, offset)
-        if lin is None:
-            st.triangulation_failed += 1
-            continue
-        Hx2, r2, _, _, _ = givens_left_nullspace(lin.Hf, lin.Hx, lin.r)
-        if Hx2.shape[0] == 0:
-            continue
-        d2 = innovation_mahalanobis(Pcc, Hx2, r2, cfg.sigma_pix)
-        if not chi2_accepts(d2, r2.shape[0], cfg.chi2_multiplier):
-            st.chi2_rejected += 1
-            continue
-        Hs.append(Hx2)
-        rs.append(r2)
-        st.used += 1
-    if not Hs:
+    cols, _ = window_columns(state)
+    status, H, r = msckf_rows(state, tracks, cfg, cam, state.P[np.ix_(cols, cols)])
+    st.triangulation_failed = int(np.count_nonzero(status == NOT_LINEARIZED))
+    st.chi2_rejected = int(np.count_nonzero(status == CHI2_REJECTED))
+    used = int(np.count_nonzero(status == OK))
+    if used == 0:
         return st
-    H = np.vstack(Hs)
-    r = np.concatenate(rs)
     H, r = compress(H, r)
     if not ekf_update(state, cols, H, r, cfg.sigma_pix):
-        st.update_failed, st.used = 1, 0   # the state is unchanged: no track informed it
+        st.update_failed = 1   # the state is unchanged: no track informed it
         return st
+    st.used = used
     st.rows = H.shape[0]
     return st

@@ -16,7 +16,7 @@ from runtime.msckf.landmark_repr import anchored_to_global, global_to_anchored
 from runtime.msckf.measurement import feature_intrinsics_jacobian, feature_jacobians
 from runtime.msckf.state import Landmark, State
 from runtime.msckf.state_helper import chi2_95, compress, ekf_update, initialize_landmark
-from runtime.msckf.track_linearization import linearize_track, window_columns
+from runtime.msckf.track_linearization import linearize_tracks, window_columns
 
 
 @dataclass
@@ -61,8 +61,12 @@ def slam_rows(P: np.ndarray, cidx: int, eidx: int, lidx: np.ndarray, aidx: np.nd
     for i in range(k):
         anchored = aidx[i] >= 0
         if anchored:
+            # linearised at the current point re-expressed through the anchor's first estimate (OpenVINS
+            # UpdaterHelper::get_feature_jacobian_representation): the landmark has no first estimate of its
+            # own, only the anchor's pose is held at its first estimate
             p_O, _, _, _ = anchored_to_global(lp[i], RA[i], pA[i], R_IC, p_IC)
-            p_Of, J_lam, J_anc, J_ext = anchored_to_global(lfej[i], RAf[i], pAf[i], R_IC, p_IC)
+            lam_f, _, _, _ = global_to_anchored(p_O, RAf[i], pAf[i], R_IC, p_IC)
+            p_Of, J_lam, J_anc, J_ext = anchored_to_global(lam_f, RAf[i], pAf[i], R_IC, p_IC)
         else:
             p_O = lp[i]
             p_Of = lfej[i]
@@ -219,13 +223,12 @@ def delayed_init(state: State, tracks: list[Track], cfg: MsckfConfig, cam: Camer
     deferred: list = []
     anchored = cfg.slam_representation == "anchored_inverse_depth"
     anchor = state.clones[state.clone_times()[-1]] if anchored else None
-    for tr in tracks:
-        lin = linearize_track(state, tr, cfg, cam, cols.size, offset)
+    for tr, lin in zip(tracks, linearize_tracks(state, tracks, cfg, cam), strict=True):
         if lin is None:
             stats.init_failed += 1
             continue
-        p_O, p_lin, r, Hx = lin.p_O, lin.p_lin, lin.r, lin.Hx
-        value, H_lm, fej = p_O, lin.Hf, p_lin
+        p_O, p_lin, r, Hx, Hf = lin
+        value, H_lm, fej = p_O, Hf, p_lin
         if anchor is not None:
             # lam in the newest clone's camera; its first estimate maps back to p_lin through the anchor's
             # first estimate, so the pixel Jacobians of `lin` hold and only the chain rule is added
@@ -234,10 +237,10 @@ def delayed_init(state: State, tracks: list[Track], cfg: MsckfConfig, cam: Camer
             _, J_lam, J_anc, J_ext = anchored_to_global(fej, anchor.R_fej, anchor.p_fej, state.R_IC,
                                                         state.p_IC)
             if state.idx_ext >= 0:
-                Hx[:, 0:6] += lin.Hf @ J_ext
+                Hx[:, 0:6] += Hf @ J_ext
             o = offset[anchor.t_cam_ns]
-            Hx[:, o:o + 6] += lin.Hf @ J_anc
-            H_lm = lin.Hf @ J_lam
+            Hx[:, o:o + 6] += Hf @ J_anc
+            H_lm = Hf @ J_lam
         if initialize_landmark(state, tr.fid, value, cols, Hx, H_lm, r, cfg.sigma_pix, cfg.chi2_multiplier,
                                deferred, fej):
             if anchor is not None:
@@ -258,7 +261,7 @@ def change_anchor(state: State, lm: Landmark, new_t: int) -> None:
 
     Before its anchor clone is marginalised (OpenVINS UpdaterSLAM::change_anchors). The new parameters are a
     function of (old lam, old anchor, new anchor, extrinsics); the covariance rows of lam are replaced by the
-    linearisation of that function at the first estimates.
+    linearisation of that function at the current point, the anchors held at their first estimates.
     """
     old = state.clones[lm.anchor_t]
     new = state.clones[new_t]
@@ -267,7 +270,9 @@ def change_anchor(state: State, lm: Landmark, new_t: int) -> None:
     R_IC, p_IC = state.R_IC, state.p_IC
     p_O, _, _, _ = anchored_to_global(lm.p, old.R, old.p, R_IC, p_IC)
     lam_new, _, _, _ = global_to_anchored(p_O, new.R, new.p, R_IC, p_IC)
-    p_Of, Jl_o, Ja_o, Je_o = anchored_to_global(lm.p_fej, old.R_fej, old.p_fej, R_IC, p_IC)
+    # Jacobians at the current point through the anchors' first estimates (OpenVINS perform_anchor_change)
+    lam_old_fej, _, _, _ = global_to_anchored(p_O, old.R_fej, old.p_fej, R_IC, p_IC)
+    p_Of, Jl_o, Ja_o, Je_o = anchored_to_global(lam_old_fej, old.R_fej, old.p_fej, R_IC, p_IC)
     lam_new_fej, Jp_n, Ja_n, Je_n = global_to_anchored(p_Of, new.R_fej, new.p_fej, R_IC, p_IC)
     blocks = [(lm.idx, Jp_n @ Jl_o), (old.idx, Jp_n @ Ja_o), (new.idx, Ja_n)]
     if state.idx_ext >= 0:

@@ -24,7 +24,7 @@ def _feed(est: MsckfEstimator, imu: list, k: int, frame: tuple) -> int:
 def test_new_landmarks_are_the_earliest_created_full_window_tracks() -> None:
     """When more full-window tracks compete than there are free landmark slots, the new landmarks come
     from the ones that entered the database first (its creation order, read before each frame)."""
-    imu, frames = _stream(4.0)
+    imu, frames = _stream(6.0)
     est = MsckfEstimator(_rig(), CFG.updated(max_slam=6, feature_order_seed=3))
     _init(est, np.zeros(3))
     k, checked = 0, 0
@@ -47,13 +47,13 @@ def test_new_landmarks_are_the_earliest_created_full_window_tracks() -> None:
     assert checked >= 3
 
 
-def test_a_chi_square_rejection_does_not_remove_a_tracked_landmark() -> None:
-    """Three observations of one landmark shifted by 40 px are rejected by the gate, but the landmark
-    stays in the state while it is tracked (OpenVINS drops only that observation)."""
+def _corrupt_one_landmark(cfg: MsckfConfig, hits_wanted: int = 3) -> tuple[MsckfEstimator, int, list[bool]]:
+    """Shift one tracked landmark's observation by 40 px in hits_wanted frames; returns the estimator, the
+    landmark id and, after each corrupted frame, whether the landmark was still in the state."""
     imu, frames = _stream(5.0)
-    est = MsckfEstimator(_rig(), CFG.updated(max_slam=10))
+    est = MsckfEstimator(_rig(), cfg)
     _init(est, np.zeros(3))
-    k, target, hits = 0, None, 0
+    k, target, still = 0, None, []
     for frame in frames:
         t_ns, ids, uv = frame
         st = est.state_
@@ -61,18 +61,33 @@ def test_a_chi_square_rejection_does_not_remove_a_tracked_landmark() -> None:
             cand = [fid for fid in st.slam if fid in set(ids.tolist())]
             if cand:
                 target = cand[0]
-        if target is not None and hits < 3 and target in set(ids.tolist()):
+        if target is not None and len(still) < hits_wanted and target in set(ids.tolist()):
+            if still and not still[-1]:
+                break
             uv = uv.copy()
             uv[ids == target] += 40.0
-            hits += 1
             rejected_before = est.report()["slam_chi2_rejected"]
             k = _feed(est, imu, k, (t_ns, ids, uv))
             assert est.report()["slam_chi2_rejected"] > rejected_before
-            assert target in est.state_.slam
+            still.append(target in est.state_.slam)
             continue
         k = _feed(est, imu, k, frame)
-        if target is not None and hits == 3:
+        if target is not None and len(still) == hits_wanted:
             break
-    assert hits == 3
-    # it keeps being updated after the corrupted frames
+    return est, target, still
+
+
+def test_a_landmark_leaves_after_its_second_chi_square_rejection() -> None:
+    """OpenVINS 2.7 (UpdaterSLAM.cpp, VioManager.cpp): each chi-square rejection of a landmark's observation
+    increments its update_fail_count, and a landmark whose count exceeds 1 is marginalised."""
+    est, target, still = _corrupt_one_landmark(CFG.updated(max_slam=10))
+    assert still == [True, False]
+    assert est.report()["slam_marginalized"] >= 1
+
+
+def test_without_the_failure_limit_a_rejection_drops_only_the_observation() -> None:
+    """slam_max_chi2_failures None: three rejected observations, and the landmark stays in the state while it
+    is tracked, and keeps being updated afterwards."""
+    est, target, still = _corrupt_one_landmark(CFG.updated(max_slam=10, slam_max_chi2_failures=None))
+    assert still == [True, True, True]
     assert target in est.state_.slam and est.state_.slam[target].fail_count == 0

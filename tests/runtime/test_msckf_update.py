@@ -9,7 +9,7 @@ from runtime.msckf.feature_db import Track
 from runtime.msckf.so3_kernels import exp3, log3
 from runtime.msckf.state import State
 from runtime.msckf.state_helper import augment_clone
-from runtime.msckf.track_linearization import linearization_point
+from runtime.msckf.track_linearization import linearize_tracks
 from runtime.msckf.update_msckf import msckf_update
 
 PRM = np.array([458.654, 457.296, 367.215, 248.375, -0.28340811, 0.07395907, 0.00019359, 1.76187114e-05, 0.0])
@@ -74,26 +74,56 @@ def test_linearization_point_uses_first_estimates() -> None:
     """With fej_triangulation (off by default, as OpenVINS) the point comes from the first estimates."""
     rng = np.random.default_rng(2)
     st, truth, tracks = _window(rng, perturb=False)
-    tr = tracks[0]
-    Rf = np.array([st.clones[k].R_fej for k in range(4)])
-    pf = np.array([st.clones[k].p_fej for k in range(4)]) + np.array([0.0, 0.0, 0.02])   # shifted FEJ
-    xn = np.array(tr.xn)
-    p_cur = np.array([5.0, 1.0, 0.0])
-    on = MsckfConfig(fej_triangulation=True)
-    p_lin = linearization_point(st, on, Rf, pf, xn, p_cur)
-    # the FEJ poses are the truth shifted by 2 cm up: the point triangulated from them shifts with them
-    p_true = linearization_point(st, on, Rf, pf - np.array([0.0, 0.0, 0.02]), xn, p_cur)
-    assert np.allclose(p_lin - p_true, [0.0, 0.0, 0.02], atol=1e-6)
-    off = MsckfConfig()
-    assert np.allclose(linearization_point(st, off, Rf, pf, xn, p_cur), p_cur)
-    no_fej = MsckfConfig(use_fej=False, fej_triangulation=True)
-    assert np.allclose(linearization_point(st, no_fej, Rf, pf, xn, p_cur), p_cur)
+    shift = np.array([0.0, 0.0, 0.02])
+    for c in st.clones.values():       # first estimates: the truth shifted by 2 cm up
+        c.p_fej = c.p_fej + shift
+
+    def point(cfg: MsckfConfig) -> tuple[np.ndarray, np.ndarray]:
+        p_O, p_lin, _, _, _ = linearize_tracks(st, tracks[:1], cfg, CAM)[0]
+        return p_O, p_lin
+
+    p_O, p_lin = point(MsckfConfig(fej_triangulation=True))
+    # the current clones are the truth: p_O is the true point; the one from the FEJ poses shifts with them
+    assert np.allclose(p_lin - p_O, shift, atol=1e-6)
+    for cfg in (MsckfConfig(), MsckfConfig(use_fej=False, fej_triangulation=True)):
+        p_O, p_lin = point(cfg)
+        assert np.array_equal(p_lin, p_O)
 
 
-def test_an_update_the_filter_cannot_apply_uses_nothing() -> None:
+def test_batched_linearisation_matches_the_measurement_model_per_track() -> None:
+    """The packed kernel's rows for each track equal feature_jacobians on that track's own arrays, placed in
+    the window's clone columns; a track seen by one clone is not linearised."""
+    from runtime.msckf.measurement import feature_jacobians
+
+    rng = np.random.default_rng(4)
+    st, truth, tracks = _window(rng, perturb=True)
+    short = Track(99, [2], [tracks[0].uv[2]], [tracks[0].xn[2]])
+    lins = linearize_tracks(st, tracks[:5] + [short], MsckfConfig(), CAM)
+    assert lins[-1] is None
+    for tr, lin in zip(tracks[:5], lins[:5], strict=True):
+        p_O, p_lin, r, Hx, Hf = lin
+        Rc = np.array([st.clones[t].R for t in tr.t_ns])
+        pc = np.array([st.clones[t].p for t in tr.t_ns])
+        ok, r1, Hc1, _, Hf1 = feature_jacobians(Rc, pc, Rc, pc, np.array(tr.uv), p_O, p_O, R_IC, p_IC, 1,
+                                                 PRM)
+        assert ok and np.allclose(r, r1) and np.allclose(Hf, Hf1)
+        for i, t in enumerate(tr.t_ns):
+            o = 6 * t                  # clone k = slot k; no calibration columns
+            assert np.allclose(Hx[2 * i:2 * i + 2, o:o + 6], Hc1[2 * i:2 * i + 2])
+            assert np.all(np.delete(Hx[2 * i:2 * i + 2], np.s_[o:o + 6], axis=1) == 0.0)
+        # the triangulated point reprojects onto the measured pixels within the perturbation's effect
+        assert np.isfinite(p_O).all()
+
+
+def test_an_update_the_filter_cannot_apply_uses_nothing(monkeypatch) -> None:
     """An innovation covariance that is not positive definite (here a covariance that lost definiteness)
-    leaves the state untouched and is reported as a failed update with no track used (issue 16: it was
-    ignored and every gated track still counted as used)."""
+    leaves the state untouched: each track's gate refuses it, and the stacked EKF update refuses it too;
+    when the stacked update fails the MSCKF update reports it with no track used (issue 16: it was ignored
+    and every gated track still counted as used)."""
+    import runtime.msckf.update_msckf as update_msckf_module
+    from runtime.msckf.state_helper import ekf_update
+    from runtime.msckf.track_linearization import window_columns
+
     rng = np.random.default_rng(3)
     st, truth, tracks = _window(rng, perturb=True)
     c = st.clones[2]
@@ -101,8 +131,20 @@ def test_an_update_the_filter_cannot_apply_uses_nothing() -> None:
     st.P[:, c.idx:c.idx + 6] *= -1.0
     st.P[c.idx:c.idx + 6, c.idx:c.idx + 6] *= -1.0 * 50.0
     P0, clones0 = st.P.copy(), {k: (v.R.copy(), v.p.copy()) for k, v in st.clones.items()}
+
+    def untouched() -> bool:
+        return np.array_equal(st.P, P0) and all(
+            np.array_equal(st.clones[k].R, R) and np.array_equal(st.clones[k].p, p)
+            for k, (R, p) in clones0.items())
+
     stats = msckf_update(st, tracks, MsckfConfig(chi2_multiplier=1e12), CAM)
+    assert stats.used == 0 and stats.rows == 0 and stats.chi2_rejected == len(tracks) and untouched()
+    cols, _ = window_columns(st)
+    H = np.zeros((6, cols.size))
+    H[:, 12:18] = np.eye(6)              # observe clone 2 directly: S = -50 P_22 + 1e-4 I, not PD
+    assert not ekf_update(st, cols, H, np.ones(6), 0.01) and untouched()
+    # the stacked update's failure, as the MSCKF update reports it (healthy covariance, failing update)
+    st2, _, tracks2 = _window(rng, perturb=True)
+    monkeypatch.setattr(update_msckf_module, "ekf_update", lambda *args: False)
+    stats = msckf_update(st2, tracks2, MsckfConfig(chi2_multiplier=1e12), CAM)
     assert stats.update_failed == 1 and stats.used == 0 and stats.rows == 0
-    assert np.array_equal(st.P, P0)
-    assert all(np.array_equal(st.clones[k].R, R) and np.array_equal(st.clones[k].p, p)
-               for k, (R, p) in clones0.items())
