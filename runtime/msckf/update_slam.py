@@ -134,6 +134,51 @@ def slam_rows(P: np.ndarray, cidx: int, eidx: int, lidx: np.ndarray, aidx: np.nd
     return ok, d2, r, Hc, Ha, He, Hl, Hk
 
 
+@njit(cache=True, nogil=True)
+def assemble_slam_rows(sel: np.ndarray, cidx: int, eidx: int, kidx: int, aidx: np.ndarray, lidx: np.ndarray,
+                       Hc: np.ndarray, He: np.ndarray, Hk: np.ndarray, Ha: np.ndarray, Hl: np.ndarray,
+                       n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Stack the selected landmarks' row pairs (slam_rows' blocks) into one Jacobian over the columns it
+    touches: the measuring clone, extrinsics and intrinsics (when estimated), then anchors and landmarks in
+    order of appearance (an anchor that is the measuring clone adds to its block). n: state size.
+    Returns (H (2 len(sel), ncols), cols (ncols,) state indices)."""
+    ns = sel.shape[0]
+    offset = np.full(n, -1, dtype=np.int64)
+    cols = np.empty(6 + 6 + 8 + 9 * ns, dtype=np.int64)
+    nc = 0
+    for start, size in ((cidx, 6), (eidx, 6), (kidx, 8)):
+        if start >= 0:
+            offset[start] = nc
+            for j in range(size):
+                cols[nc + j] = start + j
+            nc += size
+    H = np.zeros((2 * ns, cols.shape[0]))
+    for k in range(ns):
+        i = sel[k]
+        H[2 * k:2 * k + 2, 0:6] = Hc[i]
+        if eidx >= 0:
+            H[2 * k:2 * k + 2, 6:12] = He[i]
+        if kidx >= 0:
+            o = offset[kidx]
+            H[2 * k:2 * k + 2, o:o + 8] = Hk[i]
+        for b in range(2):
+            start = aidx[i] if b == 0 else lidx[i]
+            size = 6 if b == 0 else 3
+            if b == 0 and (start < 0 or start == cidx):
+                continue
+            if offset[start] < 0:
+                offset[start] = nc
+                for j in range(size):
+                    cols[nc + j] = start + j
+                nc += size
+            o = offset[start]
+            if b == 0:
+                H[2 * k:2 * k + 2, o:o + 6] += Ha[i]
+            else:
+                H[2 * k:2 * k + 2, o:o + 3] += Hl[i]
+    return H[:, :nc].copy(), cols[:nc].copy()
+
+
 def slam_update(state: State, t_cam_ns: int, obs: list[tuple[int, np.ndarray]], cfg: MsckfConfig,
                 cam: CameraParams, stats: SlamUpdateStats) -> None:
     """Update with landmarks observed at clone t_cam_ns; obs = [(fid, uv (2,))], in batches."""
@@ -175,36 +220,10 @@ def slam_update(state: State, t_cam_ns: int, obs: list[tuple[int, np.ndarray]], 
         sel = np.flatnonzero(good)
         if sel.size == 0:
             continue
-        # column blocks: measuring clone, extrinsics, intrinsics, then anchors and landmarks as they appear
-        offset: dict[int, int] = {c.idx: 0}
-        cols = list(range(c.idx, c.idx + 6))
-        if state.idx_ext >= 0:
-            offset[state.idx_ext] = len(cols)
-            cols += list(range(state.idx_ext, state.idx_ext + 6))
-        if state.idx_intr >= 0:
-            offset[state.idx_intr] = len(cols)
-            cols += list(range(state.idx_intr, state.idx_intr + 8))
-
-        H = np.zeros((2 * sel.size, len(cols) + 9 * sel.size))
-        for k, i in enumerate(sel):
-            rows = slice(2 * k, 2 * k + 2)
-            H[rows, 0:6] = Hc[i]
-            if state.idx_ext >= 0:
-                H[rows, 6:12] = He[i]
-            if state.idx_intr >= 0:
-                o = offset[state.idx_intr]
-                H[rows, o:o + 8] = Hk[i]
-            for start, size, Hb in ((int(aidx[i]), 6, Ha[i]), (int(lidx[i]), 3, Hl[i])):
-                if size == 6 and (start < 0 or start == c.idx):
-                    continue
-                if start not in offset:
-                    offset[start] = len(cols)
-                    cols.extend(range(start, start + size))
-                o = offset[start]
-                H[rows, o:o + size] += Hb
-        H = H[:, :len(cols)]
+        H, cols = assemble_slam_rows(sel, c.idx, state.idx_ext, state.idx_intr, aidx, lidx, Hc, He, Hk, Ha,
+                                     Hl, state.size)
         Hq, rq = compress(H, r[sel].reshape(-1))
-        if ekf_update(state, np.asarray(cols, dtype=np.int64), Hq, rq, cfg.sigma_pix):
+        if ekf_update(state, cols, Hq, rq, cfg.sigma_pix):
             stats.updated += int(sel.size)
         else:
             stats.update_failed += 1
