@@ -48,3 +48,32 @@ def imu_writer(rec: Path, fd: int, go: threading.Event, stop: threading.Event) -
     th = threading.Thread(target=run, daemon=True)
     th.start()
     return th
+
+
+def run_live_uvc(rec: Path, video: Path, argv: list[str], monkeypatch: object) -> int:
+    """Run the CLI with `argv` + ["--camera", video, "--imu-port", <pty>, "--imu-protocol", "text"]: the
+    recording's IMU rows reach the pseudo-terminal at sensor rate from the moment the UVC camera starts (as
+    a module streams both sensors when its camera starts). Returns the command's exit code; the pty and the
+    writer are closed whatever happens."""
+    from drivers.uvc import UvcCamera
+    from tools.cli import main
+
+    master, slave = os.openpty()
+    stop, go = threading.Event(), threading.Event()
+    start = UvcCamera.start
+
+    def start_and_go(self):
+        out = start(self)
+        go.set()
+        return out
+
+    monkeypatch.setattr(UvcCamera, "start", start_and_go)
+    writer = imu_writer(rec, master, go, stop)
+    try:
+        return main(argv + ["--camera", str(video), "--imu-port", os.ttyname(slave),
+                            "--imu-protocol", "text"])
+    finally:
+        stop.set()
+        writer.join(2)
+        os.close(master)
+        os.close(slave)

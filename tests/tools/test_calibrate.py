@@ -271,12 +271,8 @@ def test_calibrate_reads_a_live_uvc_module_and_judges_its_motion(small_sim_folde
     the input cameras), so the hand-eye bring-up cannot complete: the run must refuse with the reason and a
     report whose rotation excitation is the one of the IMU rows fed through the serial port."""
     import importlib.util
-    import os
-    import threading
 
-    from live_sources import imu_writer, video_from_recording
-
-    from drivers.uvc import UvcCamera
+    from live_sources import run_live_uvc, video_from_recording
 
     spec = importlib.util.spec_from_file_location(
         "da3_contract_graph", Path(__file__).resolve().parents[1] / "models" / "da3_contract_graph.py")
@@ -284,27 +280,10 @@ def test_calibrate_reads_a_live_uvc_module_and_judges_its_motion(small_sim_folde
     spec.loader.exec_module(graphs)
     graph = graphs.build_da3_contract_graph(tmp_path / "contract.onnx", 28, 42)
     video = video_from_recording(small_sim_folder, tmp_path / "cam.avi")
-    master, slave = os.openpty()
-    stop, go = threading.Event(), threading.Event()
-    start = UvcCamera.start
-
-    def start_and_go(self):
-        out = start(self)
-        go.set()
-        return out
-
-    monkeypatch.setattr(UvcCamera, "start", start_and_go)
-    writer = imu_writer(small_sim_folder, master, go, stop)
     out = tmp_path / "rig.yaml"
-    try:
-        code = main(["calibrate", "uvc", "--camera", str(video), "--imu-port", os.ttyname(slave),
-                     "--imu-protocol", "text", "--rig", str(small_sim_folder), "--model", str(graph),
-                     "--seconds", "5", "--no-plots", "--out", str(out)])
-    finally:
-        stop.set()
-        writer.join(2)
-        os.close(master)
-        os.close(slave)
+    code = run_live_uvc(small_sim_folder, video,
+                        ["calibrate", "uvc", "--rig", str(small_sim_folder), "--model", str(graph),
+                         "--seconds", "5", "--no-plots", "--out", str(out)], monkeypatch)
     err = capsys.readouterr().err
     assert code == 3, err
     assert "refused" in err and not out.exists()

@@ -4,13 +4,11 @@ publishes metric poses and writes a complete run folder. Missing devices are one
 from __future__ import annotations
 
 import json
-import os
-import threading
 import time
 from pathlib import Path
 
 import pytest
-from live_sources import imu_writer, video_from_recording
+from live_sources import run_live_uvc, video_from_recording
 
 from tools.cli import main
 from tools.run_folder import run_status
@@ -20,29 +18,10 @@ from tools.run_folder import run_status
 def test_live_uvc_with_a_serial_imu_publishes_and_writes_a_complete_run(small_sim_folder: Path,
                                                                        tmp_path: Path, capsys,
                                                                        monkeypatch) -> None:
-    from drivers.uvc import UvcCamera
-
     video = video_from_recording(small_sim_folder, tmp_path / "cam.avi")
-    master, slave = os.openpty()
-    stop, go = threading.Event(), threading.Event()
-    start = UvcCamera.start
-
-    def start_and_go(self):   # the "module" starts streaming both sensors when the camera starts
-        out = start(self)
-        go.set()
-        return out
-
-    monkeypatch.setattr(UvcCamera, "start", start_and_go)
-    writer = imu_writer(small_sim_folder, master, go, stop)
-    try:
-        code = main(["live", "uvc", "--camera", str(video), "--imu-port", os.ttyname(slave),
-                     "--imu-protocol", "text", "--rig", str(small_sim_folder), "--native-only",
-                     "--seconds", "5", "--out", str(tmp_path / "run")])
-    finally:
-        stop.set()
-        writer.join(2)
-        os.close(master)
-        os.close(slave)
+    code = run_live_uvc(small_sim_folder, video,
+                        ["live", "uvc", "--rig", str(small_sim_folder), "--native-only", "--seconds", "5",
+                         "--out", str(tmp_path / "run")], monkeypatch)
     err = capsys.readouterr().err
     assert code == 0, err
     out = tmp_path / "run"
