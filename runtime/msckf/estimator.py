@@ -351,7 +351,7 @@ class MsckfEstimator:
         t = int(sample.t_ns)
         w = np.asarray(sample.gyro, dtype=float).reshape(-1)
         a = np.asarray(sample.accel, dtype=float).reshape(-1)
-        if w.size != 3 or a.size != 3 or not (np.all(np.isfinite(w)) and np.all(np.isfinite(a))):
+        if w.size != 3 or a.size != 3 or not (np.isfinite(w).all() and np.isfinite(a).all()):
             c.imu_nonfinite += 1
             return []
         if self._imu_t and t <= self._imu_t[-1]:
@@ -487,8 +487,8 @@ class MsckfEstimator:
         PI = Phi @ P[:15, :]
         P[:15, :] = PI
         P[:, :15] = PI.T
-        P[:15, :15] = Phi @ PI[:, :15].T + Qd
-        st.P = 0.5 * (P + P.T)
+        B = Phi @ PI[:, :15].T + Qd
+        P[:15, :15] = 0.5 * (B + B.T)      # the rest of P stays exactly symmetric
         st.R, st.p, st.v = R1, p1, v1
         st.R_fej, st.p_fej, st.v_fej = R1.copy(), p1.copy(), v1.copy()
         st.t_ns = target_ns

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
-@dataclass
+@dataclass(slots=True)
 class Track:
     """Observations of one feature: camera times (ns), distorted pixels and normalised coordinates."""
 
@@ -27,17 +27,16 @@ class FeatureDatabase:
 
     def add(self, t_ns: int, ids: np.ndarray, uv: np.ndarray, xn: np.ndarray) -> None:
         """Add the observations of one frame."""
-        for k in range(ids.shape[0]):
-            fid = int(ids[k])
-            tr = self.tracks.get(fid)
+        tracks = self.tracks
+        for fid, u, x in zip(ids.tolist(), uv, xn, strict=True):
+            tr = tracks.get(fid)
             if tr is None:
-                tr = Track(fid)
-                self.tracks[fid] = tr
-            if tr.t_ns and tr.t_ns[-1] == t_ns:
+                tr = tracks[fid] = Track(fid)
+            elif tr.t_ns and tr.t_ns[-1] == t_ns:
                 continue
             tr.t_ns.append(t_ns)
-            tr.uv.append(uv[k])
-            tr.xn.append(xn[k])
+            tr.uv.append(u)
+            tr.xn.append(x)
 
     def remove(self, fid: int) -> None:
         self.tracks.pop(fid, None)

@@ -115,10 +115,12 @@ def marginalize(state: State, clone_times: list[int], landmark_ids: list[int]) -
 
 def initialize_landmark(state: State, fid: int, p_O: np.ndarray, cols: np.ndarray, Hx: np.ndarray,
                         Hf: np.ndarray, r: np.ndarray, sigma: float, chi2_multiplier: float,
-                        deferred: list | None = None, p_fej: np.ndarray | None = None) -> bool:
+                        deferred: list | None = None, p_fej: np.ndarray | None = None,
+                        Pcc: np.ndarray | None = None) -> bool:
     """Delayed initialisation of a landmark from m >= 2 observations (OpenVINS StateHelper::initialize).
 
-    p_fej: the landmark's first estimate (the point Hf was evaluated at); None: its initial value.
+    p_fej: the landmark's first estimate (the point Hf was evaluated at); None: its initial value. Pcc: the
+    covariance of `cols` when the caller has it (None: taken from the state).
 
     The rows are split by Givens rotations of Hf into an invertible part (3 rows) that defines the landmark
     and the rest, which is chi-square tested and then used in an ordinary update (or, with `deferred`,
@@ -131,7 +133,9 @@ def initialize_landmark(state: State, fid: int, p_O: np.ndarray, cols: np.ndarra
     """
     Hx2, r2, Hf1, Hx1, r1 = givens_left_nullspace(Hf.copy(), Hx.copy(), r.copy())
     if Hx2.shape[0] > 0:
-        if not chi2_accepts(mahalanobis(state, cols, Hx2, r2, sigma), r.shape[0], chi2_multiplier):
+        d2 = (mahalanobis(state, cols, Hx2, r2, sigma) if Pcc is None
+              else innovation_mahalanobis(Pcc, Hx2, r2, sigma))
+        if not chi2_accepts(d2, r.shape[0], chi2_multiplier):
             return False
     try:
         Hf1_inv = np.linalg.inv(Hf1)

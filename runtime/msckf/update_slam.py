@@ -239,6 +239,9 @@ def delayed_init(state: State, tracks: list[Track], cfg: MsckfConfig, cam: Camer
     if not tracks:
         return added
     cols, offset = window_columns(state)
+    # the window's covariance block: new landmarks append rows and columns, and the deferred rows are applied
+    # after the loop, so it holds for every track
+    Pcc = state.P[np.ix_(cols, cols)]
     deferred: list = []
     anchored = cfg.slam_representation == "anchored_inverse_depth"
     anchor = state.clones[state.clone_times()[-1]] if anchored else None
@@ -261,7 +264,7 @@ def delayed_init(state: State, tracks: list[Track], cfg: MsckfConfig, cam: Camer
             Hx[:, o:o + 6] += Hf @ J_anc
             H_lm = Hf @ J_lam
         if initialize_landmark(state, tr.fid, value, cols, Hx, H_lm, r, cfg.sigma_pix, cfg.chi2_multiplier,
-                               deferred, fej):
+                               deferred, fej, Pcc):
             if anchor is not None:
                 state.slam[tr.fid].anchor_t = anchor.t_cam_ns
             stats.initialized += 1
