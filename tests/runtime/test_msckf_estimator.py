@@ -656,10 +656,10 @@ def test_images_that_contradict_the_state_reset_the_filter() -> None:
     _init(off, np.zeros(3))
     _run(off, imu, shuffled)
     assert off.report()["divergence_resets"] == 0 and off.report()["chi2_rejection_fraction_max"] > 0.75
-    default = MsckfEstimator(_rig(), replace(cfg, slam_max_chi2_failures=1))
-    _init(default, np.zeros(3))
-    _run(default, imu, shuffled)
-    assert default.report()["divergence_resets"] >= 1
+    openvins_rule = MsckfEstimator(_rig(), replace(cfg, slam_max_chi2_failures=1))
+    _init(openvins_rule, np.zeros(3))
+    _run(openvins_rule, imu, shuffled)
+    assert openvins_rule.report()["divergence_resets"] >= 1
 
 
 def test_a_filter_that_only_dead_reckons_is_reset() -> None:
