@@ -1,11 +1,14 @@
 """Divergence detection: non-finite state, covariance blow-up, velocity/bias bounds, starvation, and
-sustained chi-square rejection of the visual measurements."""
+sustained chi-square rejection of the visual measurements; the tracks' parallax that tells a blind filter
+from one whose scene lacks parallax."""
 from __future__ import annotations
 
 import numpy as np
 
+from runtime.msckf.camera_kernels import CameraParams
 from runtime.msckf.config import MsckfConfig
 from runtime.msckf.state import State
+from runtime.msckf.track_linearization import WindowArrays, pack_tracks
 
 
 def divergence_reason(state: State, cfg: MsckfConfig, seconds_without_update: float,
@@ -45,3 +48,26 @@ def divergence_reason(state: State, cfg: MsckfConfig, seconds_without_update: fl
         return (f"chi-square rejected {chi2_rejected} of {chi2_tested} visual measurements over "
                 f"{cfg.chi2_health_window_s:g} s (> {cfg.max_chi2_rejection_fraction:.0%})")
     return None
+
+
+def median_parallax_deg(state: State, tracks: list, cam: CameraParams) -> float | None:
+    """Median over `tracks` of the angle (deg) between the rays of each track's first and last observation at
+    the state's clones, both rotated into the odometry frame (the rotation of the camera is removed, so the
+    angle is parallax from translation; it needs only the clones' rotations, which the gyro keeps right even
+    when the translation is wrong). None without a track observed at two clones."""
+    if not tracks or not state.clones:
+        return None
+    win = WindowArrays(state)
+    ptr, slots, _, xn = pack_tracks(state, win, tracks, cam)
+    first, last = ptr[:-1], ptr[1:] - 1
+    two = last > first
+    if not np.any(two):
+        return None
+
+    def rays(k: np.ndarray) -> np.ndarray:
+        f = np.c_[xn[k], np.ones(k.size)] @ state.R_IC.T
+        b = np.einsum("nij,nj->ni", win.R[slots[k]], f)
+        return b / np.linalg.norm(b, axis=1, keepdims=True)
+
+    cos = np.einsum("ni,ni->n", rays(first[two]), rays(last[two]))
+    return float(np.degrees(np.median(np.arccos(np.clip(cos, -1.0, 1.0)))))
