@@ -120,7 +120,7 @@ def slam_rows(P: np.ndarray, cidx: int, eidx: int, lidx: np.ndarray, aidx: np.nd
         S[0, 0] += sigma * sigma
         S[1, 1] += sigma * sigma
         det = S[0, 0] * S[1, 1] - S[0, 1] * S[1, 0]
-        if det <= 0:
+        if det <= 0 or S[0, 0] <= 0:     # a 2x2 S is positive definite iff both hold
             continue
         q = S[1, 1] * rr[0] * rr[0] - (S[0, 1] + S[1, 0]) * rr[0] * rr[1] + S[0, 0] * rr[1] * rr[1]
         d2[i] = q / det
@@ -294,6 +294,8 @@ def change_anchor(state: State, lm: Landmark, new_t: int) -> None:
     lam_new, _, _, _ = global_to_anchored(p_O, new.R, new.p, R_IC, p_IC)
     # Jacobians at the current point through the anchors' first estimates (OpenVINS perform_anchor_change)
     lam_old_fej, _, _, _ = global_to_anchored(p_O, old.R_fej, old.p_fej, R_IC, p_IC)
+    if not (lam_old_fej[2] > 0 and np.all(np.isfinite(lam_old_fej))):   # behind the first-estimate anchor
+        lam_old_fej = lm.p_fej
     p_Of, Jl_o, Ja_o, Je_o = anchored_to_global(lam_old_fej, old.R_fej, old.p_fej, R_IC, p_IC)
     lam_new_fej, Jp_n, Ja_n, Je_n = global_to_anchored(p_Of, new.R_fej, new.p_fej, R_IC, p_IC)
     blocks = [(lm.idx, Jp_n @ Jl_o), (old.idx, Jp_n @ Ja_o), (new.idx, Ja_n)]
