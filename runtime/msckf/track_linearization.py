@@ -207,7 +207,12 @@ def msckf_rows_packed(Rw: np.ndarray, pw: np.ndarray, Rfw: np.ndarray, pfw: np.n
         for i in range(k):
             S[i, i] += s2
         d2 = spd_mahalanobis(S, r2)
-        limit = chi2_multiplier * chi2_table[k - 1] if k <= chi2_table.shape[0] else np.inf
+        if k <= chi2_table.shape[0]:
+            q95 = chi2_table[k - 1]
+        else:   # Wilson-Hilferty (relative error below 1e-4 beyond the table's 2000 degrees of freedom)
+            c = 2.0 / (9.0 * k)
+            q95 = k * (1.0 - c + 1.6448536269514722 * np.sqrt(c)) ** 3
+        limit = chi2_multiplier * q95
         if not d2 < limit:
             status[t] = CHI2_REJECTED
             continue

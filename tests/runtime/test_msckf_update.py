@@ -148,3 +148,33 @@ def test_an_update_the_filter_cannot_apply_uses_nothing(monkeypatch) -> None:
     monkeypatch.setattr(update_msckf_module, "ekf_update", lambda *args: False)
     stats = msckf_update(st2, tracks2, MsckfConfig(chi2_multiplier=1e12), CAM)
     assert stats.update_failed == 1 and stats.used == 0 and stats.rows == 0
+
+
+def test_the_gate_holds_beyond_the_quantile_table() -> None:
+    """Past the table of 95 % quantiles the kernel uses the Wilson-Hilferty approximation: an outlier is
+    still refused (the gate is never switched off), a good track still passes."""
+    from runtime.msckf.state_helper import _CHI2_95
+    from runtime.msckf.track_linearization import (
+        CHI2_REJECTED,
+        OK,
+        WindowArrays,
+        msckf_rows_packed,
+        pack_tracks,
+        tri_params,
+        window_columns,
+    )
+
+    rng = np.random.default_rng(5)
+    st, truth, tracks = _window(rng, perturb=False)
+    bad = Track(500, list(tracks[1].t_ns), [u.copy() for u in tracks[1].uv], list(tracks[1].xn))
+    bad.uv[2] = bad.uv[2] + 40.0
+    cfg = MsckfConfig()
+    cols, _ = window_columns(st)
+    win = WindowArrays(st)
+    ptr, slots, uv, xn = pack_tracks(st, win, [tracks[0], bad], CAM)
+    for table in (_CHI2_95, _CHI2_95[:2]):      # 4 observations: 5 rows, beyond a 2-entry table
+        status, _, _ = msckf_rows_packed(
+            win.R, win.p, win.R_fej, win.p_fej, ptr, slots, uv, xn, st.R_IC, st.p_IC, CAM.code, CAM.params,
+            tri_params(cfg), cfg.tri_gn_iterations, False, False, False, st.P[np.ix_(cols, cols)],
+            cfg.sigma_pix, cfg.chi2_multiplier, table)
+        assert status.tolist() == [OK, CHI2_REJECTED]
