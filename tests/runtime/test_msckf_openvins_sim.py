@@ -119,29 +119,31 @@ def test_perturbed_init_draws_from_the_initial_covariance() -> None:
     assert np.allclose(log3(R0.T @ a[1]), first, atol=1e-12)
 
 
-@pytest.mark.slow
-@pytest.mark.shared_data
-def test_bench_perturb_init_reports_mean_nees(capsys) -> None:
+def _bench_json(capsys, *options: str) -> dict:
+    """`davio bench openvins-sim udel_gore_mono --json OPTIONS` run in-process; its JSON result."""
     import argparse
     import json
 
     from tools.benchmarks import openvins_sim
 
-    folder = shared_path("openvins_sim", "udel_gore_mono")
     p = argparse.ArgumentParser()
     openvins_sim.add_arguments(p)
-    args = p.parse_args([str(folder), "--max-seconds", "2", "--seeds", "2", "--json", "--perturb-init"])
+    args = p.parse_args([str(shared_path("openvins_sim", "udel_gore_mono")), "--json", *options])
     assert openvins_sim.run(args) == 0
-    res = json.loads(capsys.readouterr().out)
+    return json.loads(capsys.readouterr().out)
+
+
+@pytest.mark.slow
+@pytest.mark.shared_data
+def test_bench_perturb_init_reports_mean_nees(capsys) -> None:
+    res = _bench_json(capsys, "--max-seconds", "2", "--seeds", "2", "--perturb-init")
     assert res["perturb_init"] is True
     runs = res["seeds"]
     assert [r["init_perturbation_seed"] for r in runs] == [0, 1]
     for key in ("nees_pos", "nees_ori"):
         assert res[key + "_mean"] == pytest.approx(np.mean([r[key] for r in runs]))
     # started off the truth: the first evaluated frames carry the drawn error, unlike the exact start
-    args0 = p.parse_args([str(folder), "--max-seconds", "2", "--json"])
-    assert openvins_sim.run(args0) == 0
-    exact = json.loads(capsys.readouterr().out)
+    exact = _bench_json(capsys, "--max-seconds", "2")
     assert exact["perturb_init"] is False and exact["init_perturbation_seed"] is None
     assert runs[0]["rmse_pos_m"] > exact["rmse_pos_m"]
 
@@ -153,17 +155,7 @@ def test_monte_carlo_nees_catches_a_filter_twice_over_or_under_confident(capsys)
     which a consistent filter's mean NEES is 3, the state dimension). Measured: 3.13 (position), 4.05
     (orientation). The bounds exclude a filter whose covariance were half the present one (NEES x2: 6.3,
     8.1) or twice it (x0.5: 1.6, 2.0)."""
-    import argparse
-    import json
-
-    from tools.benchmarks import openvins_sim
-
-    folder = shared_path("openvins_sim", "udel_gore_mono")
-    p = argparse.ArgumentParser()
-    openvins_sim.add_arguments(p)
-    args = p.parse_args([str(folder), "--max-seconds", "10", "--seeds", "8", "--json", "--perturb-init"])
-    assert openvins_sim.run(args) == 0
-    res = json.loads(capsys.readouterr().out)
+    res = _bench_json(capsys, "--max-seconds", "10", "--seeds", "8", "--perturb-init")
     assert all(r["divergence_resets"] == 0 for r in res["seeds"])
     lo, hi = 2.1, 6.0
     for key in ("nees_pos_mean", "nees_ori_mean"):
