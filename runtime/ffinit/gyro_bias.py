@@ -2,7 +2,8 @@
 
 DA3 predicts R_C0Ci; through the extrinsics this is an IMU rotation R_I0Ii^DA3 = R_IC R_C0Ci R_CI.
 The preintegrated rotation at bias bg + dbg is R_I0Ii Exp(J_R_bg,i dbg) (first order), so dbg
-minimises sum_i |Log((R_I0Ii Exp(J_i dbg))^T R_I0Ii^DA3)|^2 (Gauss–Newton).
+minimises sum_i rho(|Log((R_I0Ii Exp(J_i dbg))^T R_I0Ii^DA3)|) (Gauss–Newton, iteratively reweighted;
+rho is quadratic, or Huber on the per-image residual norm when a threshold is given).
 """
 from __future__ import annotations
 
@@ -23,16 +24,22 @@ def rotation_residuals(window: InitWindow, dbg: np.ndarray) -> np.ndarray:
     return np.asarray(out).reshape(-1, 3)
 
 
-def align_gyro_bias(window: InitWindow, iterations: int = 3) -> np.ndarray:
-    """The gyro-bias change dbg (rad/s) that best aligns preintegrated and DA3 rotations."""
+def align_gyro_bias(window: InitWindow, iterations: int = 3, huber_rad: float | None = None) -> np.ndarray:
+    """The gyro-bias change dbg (rad/s) that best aligns preintegrated and DA3 rotations.
+
+    huber_rad: Huber threshold on each image's residual norm (rad); None = least squares. With a
+    threshold, up to 3 further reweighting iterations are run.
+    """
     dbg = np.zeros(3)
-    for _ in range(iterations):
+    for _ in range(iterations + (3 if huber_rad else 0)):
         r = rotation_residuals(window, dbg)
         rows, rhs = [], []
         for k, i in enumerate(range(1, window.num_images)):
-            # Log(Exp(-J d) Exp(r)) ~= r - Jl^-1(r) J d
-            rows.append(so3_left_jacobian_inv(r[k]) @ window.J_R_bg[i])
-            rhs.append(r[k])
+            # Log(Exp(-J d) Exp(r)) ~= r - Jl^-1(r) J d; Huber weight sqrt(min(1, delta / |r|))
+            norm = float(np.linalg.norm(r[k]))
+            w = np.sqrt(min(1.0, huber_rad / norm)) if huber_rad and norm > 0 else 1.0
+            rows.append(w * so3_left_jacobian_inv(r[k]) @ window.J_R_bg[i])
+            rhs.append(w * r[k])
         A = np.concatenate(rows)
         b = np.concatenate(rhs)
         if np.linalg.matrix_rank(A) < 3:

@@ -16,10 +16,11 @@ from runtime.errors import DataError, EstimatorError
 from runtime.events import Frame
 from runtime.ffinit.config import FFInitConfig
 from runtime.ffinit.gyro_bias import align_gyro_bias, rotation_residuals
-from runtime.ffinit.refine import refine
+from runtime.ffinit.linear import scale_bias_sensitivity
+from runtime.ffinit.refine import Refined, refine
 from runtime.ffinit.robust import RobustResult, robust_solve
 from runtime.ffinit.sampling import observations_from_prediction
-from runtime.ffinit.state import state_at_last_image
+from runtime.ffinit.state import scale_relative_std, state_at_last_image
 from runtime.ffinit.window import ImageObservations, InitWindow, Rejection
 from runtime.imu import Preintegrator
 from runtime.msckf.init_common import InitResult
@@ -52,12 +53,16 @@ def build_window(t_cam_ns: Sequence[int], observations: list[ImageObservations],
 
 
 def solve_window(window: InitWindow, cfg: FFInitConfig, rebuild=None) -> InitResult | Rejection:
-    """Gyro-bias alignment, robust solve, refinement and the state at the last image.
+    """Gyro-bias alignment, robust solve, refinement, the scale gates and the state at the last image.
 
     rebuild(bg) -> InitWindow re-preintegrates at a new gyro bias (None: keep first order).
     """
-    dbg = align_gyro_bias(window)
+    dbg = align_gyro_bias(window, huber_rad=np.radians(cfg.rotation_huber_deg))
     dbg_total = dbg.copy()
+    if not np.linalg.norm(dbg) <= cfg.max_gyro_bias_change:
+        return Rejection("gyro_bias_step",
+                         f"DA3-gyro alignment asks for a gyro-bias step of {np.linalg.norm(dbg):.3f} rad/s "
+                         f"(> {cfg.max_gyro_bias_change})")
     if rebuild is not None and np.linalg.norm(dbg) > 0:
         window = rebuild(window.bg + dbg)
         dbg = np.zeros(3)
@@ -82,11 +87,38 @@ def solve_window(window: InitWindow, cfg: FFInitConfig, rebuild=None) -> InitRes
         return Rejection("refinement_failed", "non-finite refined state")
     if np.linalg.norm(ref.v0) > cfg.max_velocity:
         return Rejection("implausible_velocity", f"refined |v0| = {np.linalg.norm(ref.v0):.2f} m/s")
+    gate = scale_gates(window, robust, ref, cfg)
+    if isinstance(gate, Rejection):
+        return gate
     result = state_at_last_image(window, ref, int(window.t_ns[-1]))
-    result.info.update({"linear_scale": robust.solution.scale, "inlier_fraction": robust.inlier_fraction,
+    result.info.update({**gate, "linear_scale": robust.solution.scale,
+                        "inlier_fraction": robust.inlier_fraction,
                         "median_residual": robust.median_residual, "gyro_bias_change": dbg_total.tolist(),
                         "rotation_residual_rms_deg": rot_rms_deg})
     return result
+
+
+def scale_gates(window: InitWindow, robust: RobustResult, ref: Refined,
+                cfg: FFInitConfig) -> dict | Rejection:
+    """Refuse a scale the window cannot determine or no camera sees (added to the paper, issue 15).
+
+    Returns the measured values (for the result's info) or the Rejection.
+    """
+    sens = scale_bias_sensitivity(robust.system.subset(robust.inliers), robust.solution)
+    rel_std = scale_relative_std(ref)
+    uncertainty = float(np.hypot(rel_std, cfg.accel_bias_sigma * sens))
+    if not uncertainty <= cfg.max_scale_uncertainty:
+        return Rejection("scale_unobservable",
+                         f"scale uncertainty {uncertainty:.3f} > {cfg.max_scale_uncertainty} (sigma_s/s "
+                         f"{rel_std:.3f}, a {cfg.accel_bias_sigma} m/s^2 accelerometer bias moves s by "
+                         f"{cfg.accel_bias_sigma * sens:.3f}): too little acceleration in the window")
+    depths = np.concatenate([o.depth for o in window.images if len(o.depth)])
+    median_depth = float(ref.scale * np.median(depths)) if depths.size else 0.0
+    if not cfg.min_median_depth_m <= median_depth <= cfg.max_median_depth_m:
+        return Rejection("implausible_depth",
+                         f"median metric depth {median_depth:.3g} m outside "
+                         f"[{cfg.min_median_depth_m}, {cfg.max_median_depth_m}]")
+    return {"scale_bias_sensitivity": sens, "scale_uncertainty": uncertainty, "median_depth_m": median_depth}
 
 
 class FeedForwardInitializer:

@@ -25,18 +25,21 @@ class PointSystem:
         b: (K, 2) right-hand sides, divided by depth.
         w: (K,) sqrt(confidence) weights.
         image: (K,) image index of each point.
+        b_ba: (K, 2, 3) d b / d ba: how the right-hand sides move with the accelerometer bias (in I_i,
+            through the preintegration's J_p_ba), divided by depth.
     """
 
     A: np.ndarray
     b: np.ndarray
     w: np.ndarray
     image: np.ndarray
+    b_ba: np.ndarray
 
     def __len__(self) -> int:
         return int(self.A.shape[0])
 
     def subset(self, mask: np.ndarray) -> PointSystem:
-        return PointSystem(self.A[mask], self.b[mask], self.w[mask], self.image[mask])
+        return PointSystem(self.A[mask], self.b[mask], self.w[mask], self.image[mask], self.b_ba[mask])
 
     def residuals(self, x: np.ndarray) -> np.ndarray:
         """(K,) algebraic residual norms |A_k x - b_k| (approx. s * reprojection error)."""
@@ -75,7 +78,7 @@ def _apply_H(v: np.ndarray, zx: np.ndarray, zy: np.ndarray) -> np.ndarray:
 def build_system(window: InitWindow) -> PointSystem:
     """Stack the depth-divided row pairs of every non-reference image."""
     R_CI = window.R_IC.T
-    blocks_A, blocks_b, blocks_w, blocks_i = [], [], [], []
+    blocks_A, blocks_b, blocks_w, blocks_i, blocks_ba = [], [], [], [], []
     for i in range(1, window.num_images):
         obs = window.images[i]
         if len(obs.z) == 0:
@@ -96,10 +99,12 @@ def build_system(window: InitWindow) -> PointSystem:
         blocks_b.append(b * inv_d[:, None])
         blocks_w.append(np.sqrt(np.maximum(obs.conf, 0.0)))
         blocks_i.append(np.full(len(zx), i))
+        blocks_ba.append((HB @ window.J_p_ba[i]) * inv_d[:, None, None])
     if not blocks_A:
-        return PointSystem(np.zeros((0, 2, 7)), np.zeros((0, 2)), np.zeros(0), np.zeros(0, int))
+        return PointSystem(np.zeros((0, 2, 7)), np.zeros((0, 2)), np.zeros(0), np.zeros(0, int),
+                           np.zeros((0, 2, 3)))
     return PointSystem(np.concatenate(blocks_A), np.concatenate(blocks_b), np.concatenate(blocks_w),
-                       np.concatenate(blocks_i))
+                       np.concatenate(blocks_i), np.concatenate(blocks_ba))
 
 
 def _tangent_basis(g_dir: np.ndarray) -> np.ndarray:
@@ -146,6 +151,34 @@ def weighted_solve(system: PointSystem, g0: float, refinements: int,
         g = g / np.linalg.norm(g) * g0
         x = np.concatenate([y[:4], g])
     return LinearSolution(np.asarray(x, dtype=float))
+
+
+def scale_bias_sensitivity(system: PointSystem, solution: LinearSolution) -> float:
+    """How far an accelerometer bias moves the solved scale: |d s / d ba| / s, per m/s^2.
+
+    The system is taken as the gravity-magnitude-constrained solve sees it (unknowns s, v0 and the
+    two tangent directions of g at the solution): a bias along gravity cannot be absorbed by g and
+    must be explained by s and v0; without acceleration beyond gravity (constant velocity, pure
+    rotation, hover) it moves s without bound. The worst bias direction is taken (largest singular
+    value of the 1 x 3 sensitivity row, i.e. its norm). Infinite when the reduced system is singular.
+    """
+    if len(system) == 0 or not solution.scale > 0:
+        return float("inf")
+    W = system.w[:, None]
+    A = (system.A * W[:, :, None]).reshape(-1, 7)
+    B = (system.b_ba * W[:, :, None]).reshape(-1, 3)
+    g = solution.g
+    N = _tangent_basis(g / np.linalg.norm(g))
+    A_r = np.concatenate([A[:, :4], A[:, 4:7] @ N], axis=1)
+    norms = np.linalg.norm(A_r, axis=0)
+    if np.any(norms < 1e-12):
+        return float("inf")
+    U, sv, Vt = np.linalg.svd(A_r / norms, full_matrices=False)
+    if not sv[-1] > sv[0] * 1e-12:
+        return float("inf")
+    dy = (Vt.T / sv) @ (U.T @ B)  # (6, 3): d y_equilibrated / d ba
+    ds_dba = dy[0] / norms[0]
+    return float(np.linalg.norm(ds_dba) / solution.scale)
 
 
 def singular_value_ratio(system: PointSystem) -> float:

@@ -96,11 +96,23 @@ def make_window(kind: str = "general", n_images: int = 5, spacing: float = 0.2, 
         images.append(ImageObservations(z=z, depth=d_obs / scale, conf=rng.uniform(1.0, 3.0, points),
                                         R_C0Ci=_orthonormalize(R_C0Ci), p_C0Ci=p_C0Ci / scale))
     Z = np.zeros((n_images, 3, 3))
+    J_v_ba, J_p_ba = accel_bias_jacobians(R, ts)
     window = InitWindow(
         t_ns=(ts * 1e9).astype(np.int64), images=images, dt=ts, R_I0Ii=np.stack(R_I0Ii),
-        dp=np.stack(dp), dv=np.stack(dv), J_R_bg=Z.copy(), J_p_bg=Z.copy(), J_p_ba=Z.copy(),
-        J_v_bg=Z.copy(), J_v_ba=Z.copy(), R_IC=R_IC_EUROC, p_IC=P_IC_EUROC)
+        dp=np.stack(dp), dv=np.stack(dv), J_R_bg=Z.copy(), J_p_bg=Z.copy(), J_p_ba=J_p_ba,
+        J_v_bg=Z.copy(), J_v_ba=J_v_ba, R_IC=R_IC_EUROC, p_IC=P_IC_EUROC)
     return window, Truth(scale, v0, g_I0, R_WI, p_WI, v_W)
+
+
+def accel_bias_jacobians(R, ts: np.ndarray, h: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
+    """d dv_i / d ba = -int_0^t R_I0I ds and d dp_i / d ba = -int_0^t int_0^s R_I0I (trapezoid, step h)."""
+    t = np.arange(0.0, ts[-1] + h / 2, h)
+    R0T = R(0.0).T
+    Rt = np.stack([R0T @ R(tk) for tk in t])
+    Jv = -np.concatenate([np.zeros((1, 3, 3)), np.cumsum(0.5 * h * (Rt[1:] + Rt[:-1]), axis=0)])
+    Jp = np.concatenate([np.zeros((1, 3, 3)), np.cumsum(0.5 * h * (Jv[1:] + Jv[:-1]), axis=0)])
+    idx = np.rint(ts / h).astype(int)
+    return Jv[idx], Jp[idx]
 
 
 def imu_samples(kind: str, t_end: float, rate_hz: float = 1000.0, bg: np.ndarray | None = None,

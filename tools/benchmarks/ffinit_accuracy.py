@@ -42,6 +42,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="comma-separated pose-error knobs that k scales (default: all of POSE_ERROR_FIELDS;"
                         " the others are set to 0) -- to see which knob drives the errors")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--max-scale-uncertainty", type=float, default=None, metavar="U",
+                   help="the scale-observability gate's bound (default: FFInitConfig's; inf = gate off)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", metavar="FILE", help="also write the JSON (with per-window rows) here")
 
@@ -91,11 +93,12 @@ def _recordings(args: argparse.Namespace) -> list[tuple[str, Any]]:
 
 
 def measure_recording(rec: Any, ks: list[float], reference: str, every_s: float, seed: int,
-                      max_windows: int | None = None,
-                      fields: list[str] | None = None) -> dict[float, list[dict]]:
+                      max_windows: int | None = None, fields: list[str] | None = None,
+                      ff_config: Any = None) -> dict[float, list[dict]]:
     """Per k, one row per window of `rec` (accepted or the rejection reason, and the errors).
 
     fields: the pose-error knobs k scales (None: all); the other knobs are set to zero.
+    ff_config: the FFInitConfig of the initializer (None: defaults).
     """
     from dataclasses import replace
 
@@ -132,7 +135,8 @@ def measure_recording(rec: Any, ks: list[float], reference: str, every_s: float,
                                        int(stamps[idx[-1]]) + off_ns)
         model = EmulatedDA3(rec.gt_source, cam.K, cam.width, cam.height, preset=reference,
                             seed=seed * 1000 + w)
-        init = FeedForwardInitializer(model, T_IC[:3, :3], T_IC[:3, 3], rec.rig.time_offset_s or 0.0)
+        init = FeedForwardInitializer(model, T_IC[:3, :3], T_IC[:3, 3], rec.rig.time_offset_s or 0.0,
+                                      cfg=ff_config)
         for k in ks:
             model.params, model.calls = params[k], 0  # the same draws for every k
             res = init.solve(frames, imu.t_ns, imu.gyro, imu.accel)
@@ -153,6 +157,9 @@ def measure_recording(rec: Any, ks: list[float], reference: str, every_s: float,
                 row["scale_rel_std"] = float(res.info["scale_rel_std"])
                 row["rotation_residual_rms_deg"] = float(res.info["rotation_residual_rms_deg"])
                 row["gyro_bias_change"] = float(np.linalg.norm(res.info["gyro_bias_change"]))
+                row["scale_bias_sensitivity"] = float(res.info["scale_bias_sensitivity"])
+                row["scale_uncertainty"] = float(res.info["scale_uncertainty"])
+                row["median_depth_m"] = float(res.info["median_depth_m"])
             else:
                 row["reason"] = res.reason
             rows[k].append(row)
@@ -177,8 +184,15 @@ def run(args: argparse.Namespace) -> int:
     result: dict = {"reference": args.reference, "k": ks, "fields": fields or list(POSE_ERROR_FIELDS),
                     "recordings": {}}
     per_window: dict = {}
+    from runtime.ffinit import FFInitConfig
+
+    ff_config = FFInitConfig()
+    if args.max_scale_uncertainty is not None:
+        ff_config.max_scale_uncertainty = args.max_scale_uncertainty
+    result["max_scale_uncertainty"] = ff_config.max_scale_uncertainty
     for name, make in _recordings(args):
-        rows = measure_recording(make(), ks, args.reference, args.every, args.seed, args.max_windows, fields)
+        rows = measure_recording(make(), ks, args.reference, args.every, args.seed, args.max_windows, fields,
+                                 ff_config)
         result["recordings"][name] = {str(k): summarise(r) for k, r in rows.items()}
         per_window[name] = {str(k): r for k, r in rows.items()}
         if not args.json:
