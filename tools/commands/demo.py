@@ -10,16 +10,17 @@ NAME = "demo"
 HELP = "simulate a short recording and run DAVIO end to end on it (emulated DA3; no download)"
 DESCRIPTION = (
     "Simulates a camera-IMU recording in memory (procedural room, EuRoC camera and IMU) that starts in "
-    "motion (preset 'slow': hand-held-like motion from the first frame; '--preset euroc' starts from a "
-    "standstill) and runs the whole pipeline on it: KLT + MSCKF with the native initializer armed, and the "
-    "feed-forward start-up through the buffered-replay handoff using the EMULATED DA3 (simulator ground "
-    "truth plus DA3's error modes -- not a real network). Prints which initializer published first and "
-    "when, beside the native initializer alone on the same recording, the trajectory error, and writes the "
-    "run folder (odometry.tum, report.json, config.toml, plots, groundtruth.tum) with the dense map the "
-    "emulated DA3 conditioned on the filter's poses gives (map/ archive, map.ply; --no-map turns it off)."
+    "motion (preset 'handheld': a camera carried at walking pace from the first frame; '--preset euroc' "
+    "starts from a standstill) and runs the whole pipeline on it: KLT + MSCKF with the native "
+    "initializer armed, and the feed-forward start-up through the buffered-replay handoff using the "
+    "EMULATED DA3 (simulator ground truth plus DA3's error modes -- not a real network). Prints which "
+    "initializer published first and when, beside the native initializer alone on the same recording, "
+    "the trajectory error, and writes the run folder (odometry.tum, report.json, config.toml, plots, "
+    "groundtruth.tum) with the dense map the emulated DA3 conditioned on the filter's poses gives (map/ "
+    "archive, map.ply; --no-map turns it off)."
 )
 
-DEFAULT_PRESET = "slow"
+DEFAULT_PRESET = "handheld"
 """The demo starts in motion: the feed-forward start-up's case (the paper's headline)."""
 
 
@@ -31,7 +32,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="output folder (new, empty, or a previous DAVIO run, which is replaced)")
     p.add_argument("--seconds", type=float, default=12.0, help="length of the simulated recording")
     p.add_argument("--preset", default=DEFAULT_PRESET, choices=sorted(PRESETS),
-                   help="motion preset (slow: in motion from the start; euroc: 2 s standstill first)")
+                   help="motion preset (handheld: in motion from the start; euroc: 2 s standstill first; "
+                        "constant-velocity, rotation: degenerate starts)")
     p.add_argument("--seed", type=int, default=0, help="seed of scene, motion and noise")
     p.add_argument("--da3", default="base", choices=sorted(DA3_PRESETS),
                    help="emulated DA3 preset (models/emulated_da3/PRESETS.md)")
