@@ -22,10 +22,13 @@ def test_startup_bench_json_contract(capsys, tmp_path):
         assert set(s) >= {"successes", "published_wrong", "successes_reset_aware", "T_f_median", "T_q_median",
                           "gravity_err_deg_median", "velocity_err_median", "ate_median", "sources"}
         assert s["successes"] + s["published_wrong"] <= s["windows"]
-        assert 0.0 < s["T_q_median"] <= 5.0
+        # a failed window is charged T_q = the window length (5 s): T_q <= 5 alone would pass on a failure
+        assert (s["successes"], s["published_wrong"]) == (1, 0), (arm, s)
+        assert 0.0 < s["T_q_median"] < 5.0 and s["T_q_median"] == s["T_f_median"]
         assert sum(s["sources"].values()) == 1
     assert out["emulated_da3_overrides"] == {"rotation_error_median_deg": 0.1}
     rows = json.loads(out_file.read_text())["per_window"]
+    assert all(rows[arm][0]["success"] and rows[arm][0]["ate"] < 0.5 for arm in out["arms"])
     # who published: the native arm never the feed-forward initializer, the FF-only arm only it,
     # and DAVIO whichever filter was ready first (both are armed)
     assert rows["native"][0]["source"].startswith("native:")
