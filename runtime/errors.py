@@ -63,3 +63,20 @@ class ModelError(DavioError):
 
 class EstimatorError(DavioError):
     """The estimator was used incorrectly (not for divergence, which is reported, not raised)."""
+
+
+def caused_by_interrupt(exc: BaseException) -> bool:
+    """True when `exc` is, or was raised while handling, a KeyboardInterrupt (Ctrl-C or SIGTERM).
+
+    A Ctrl-C that lands inside a C extension (e.g. numba loading its kernel cache) surfaces as that
+    extension's error (SystemError: "returned a result with an exception set") with the
+    KeyboardInterrupt as its context; it is still an interruption.
+    """
+    seen: set[int] = set()
+    e: BaseException | None = exc
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return False

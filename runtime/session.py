@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from runtime.config import DavioConfig
-from runtime.errors import ConfigError, DataError, DavioError
+from runtime.errors import ConfigError, DataError, DavioError, caused_by_interrupt
 from runtime.events import Frame, ImuSample
 from runtime.pipeline import VioPipeline
 from runtime.scheduler import FastClock, LiveClock, PacedClock, Scheduler, SchedulerReport
@@ -159,6 +159,11 @@ class Session:
             if not keep_partial:
                 raise
             rep, status, reason = self._scheduler.report, "failed", str(exc)
+        except Exception as exc:  # a Ctrl-C that surfaced through a C extension's error
+            if not (keep_partial and caused_by_interrupt(exc)):
+                raise
+            rep, status = self._scheduler.report, "interrupted"
+            reason = f"interrupted after {rep.sensor_s:.1f} s of data"
         self.result = SessionResult(self.pipeline, rep, status, reason)
         return self.result
 

@@ -83,6 +83,13 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"davio {args.command}: interrupted", file=sys.stderr)
         return 130
+    except Exception as exc:
+        from runtime.errors import caused_by_interrupt
+
+        if not caused_by_interrupt(exc):   # a Ctrl-C that surfaced through a C extension's error
+            raise
+        print(f"davio {args.command}: interrupted ({type(exc).__name__})", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -72,3 +72,54 @@ def test_bad_pushes_are_clear_errors(recording) -> None:
     assert s.close().status == "complete"
     with pytest.raises(ConfigError, match="camera intrinsics"):
         Session(rec.rig.replace(camera=None))
+
+
+
+def _frames_then_ctrl_c_inside_an_extension(session: Session, after: int) -> None:
+    """The pipeline's frame handler raises, after `after` frames, what a Ctrl-C landing inside a C
+    extension (numba loading its kernel cache) raises: a SystemError with the KeyboardInterrupt as context."""
+    on_frame = session.pipeline.on_frame
+    count = [0]
+
+    def wrapped(ev):
+        count[0] += 1
+        if count[0] > after:
+            try:
+                raise KeyboardInterrupt
+            except KeyboardInterrupt:
+                raise SystemError("<built-in function> returned a result with an exception set")  # noqa: B904
+        return on_frame(ev)
+
+    session.pipeline.on_frame = wrapped
+
+
+def test_a_ctrl_c_inside_an_extension_ends_a_replay_as_interrupted(recording) -> None:
+    rec, events = recording
+    s = Session(rec.rig)
+    _frames_then_ctrl_c_inside_an_extension(s, 10)
+    res = s.replay(iter(events), keep_partial=True)
+    assert res.status == "interrupted" and res.reason.startswith("interrupted after")
+    assert 0.4 < res.scheduler.sensor_s < 1.0   # stopped at the 11th frame (20 Hz)
+    s = Session(rec.rig)
+    _frames_then_ctrl_c_inside_an_extension(s, 10)
+    with pytest.raises(SystemError):   # without keep_partial it propagates
+        s.replay(iter(events))
+
+
+def test_other_extension_errors_are_not_taken_for_an_interrupt(recording) -> None:
+    from runtime.errors import caused_by_interrupt
+
+    rec, events = recording
+    s = Session(rec.rig)
+
+    def broken(ev):
+        raise SystemError("a real fault")
+
+    s.pipeline.on_frame = broken
+    with pytest.raises(SystemError):
+        s.replay(iter(events), keep_partial=True)
+    try:
+        raise KeyboardInterrupt
+    except KeyboardInterrupt as ki:
+        assert caused_by_interrupt(ki)
+    assert not caused_by_interrupt(ValueError("x"))
