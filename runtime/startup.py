@@ -6,8 +6,10 @@ model worker for a window that is already in the past) is written once into a *f
 through its initialization entry point; that candidate replays the buffered measurements after the
 state's time faster than real time, then follows the live stream. It is selected once it produced
 five consecutive states within 0.15 s of the live stream, abandoned if not selected within 3 s of
-sensor time, and at most five candidates are tried. Whichever filter is ready first publishes.
-No measurement is dropped: a candidate whose replay start left the buffer is refused and counted.
+sensor time, and at most five candidates are tried. Whichever filter is ready first publishes; on the
+same measurement the native filter wins (it is fed first), and the candidates still replaying are
+dropped (counted as `candidates_outrun`). No measurement is dropped: a candidate whose replay start
+left the buffer is refused and counted.
 """
 from __future__ import annotations
 
@@ -139,7 +141,7 @@ class Candidate:
         self.created_ns = created_ns
         self.cursor = start_seq
         self.consecutive = 0
-        self.status = "replaying"  # replaying | selected | abandoned | diverged
+        self.status = "replaying"  # replaying | selected | abandoned | diverged | outrun
         self.states_out = 0
 
     def step(self, buffer: MeasurementBuffer, limit: int | None) -> list:
@@ -171,6 +173,8 @@ class StartupReport:
     candidates_abandoned: int = 0
     candidates_refused_buffer: int = 0
     candidates_diverged: int = 0
+    candidates_outrun: int = 0
+    """Candidates still replaying when another filter was selected (they are dropped)."""
     ff_windows_imu_lost: int = 0
     """Feed-forward windows not solved: the live driver lost IMU samples inside them."""
     published_by: str | None = None
@@ -349,6 +353,10 @@ class StartupManager:
         self.publisher_source = source
         self.publisher_id = fid
         self.report.published_by = source
+        for c in self.candidates:
+            if c.filter is not filt and c.status == "replaying":
+                c.status = "outrun"
+                self.report.candidates_outrun += 1
         self.candidates.clear()
         self.buffer.entries.clear()
         self._frames.clear()

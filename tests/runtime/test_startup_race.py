@@ -69,6 +69,7 @@ def test_native_ready_while_a_candidate_replays_publishes_and_drops_the_candidat
     pub = _feed(m, _stream(4.0), offers=[(2000 * MS, 200 * MS)])
     assert m.report.candidates_started == 1 and m.report.candidates_selected == 0
     assert m.report.candidates_abandoned == 0 and m.report.candidates_diverged == 0
+    assert m.report.candidates_outrun == 1  # every started candidate ends in exactly one counter
     assert m.report.published_by == "native:static" and m.candidates == []
     assert pub and all(p.source == "native:static" and p.filter_id == 0 for p in pub)
     assert pub[0].t_cam_ns == 2550 * MS  # the first frame after the native initialisation
@@ -84,6 +85,7 @@ def test_candidate_ready_before_the_native_filter_publishes_and_the_native_filte
     m = StartupManager(_factory(native, cand))
     pub = _feed(m, _stream(4.0), offers=[(2000 * MS, 1500 * MS)])
     assert m.report.published_by == "feedforward" and m.report.candidates_selected == 1
+    assert m.report.candidates_outrun == 0
     assert pub[0].t_cam_ns == 2050 * MS
     assert {p.source for p in pub} == {"feedforward"} and {p.filter_id for p in pub} == {1}
     assert pub[-1].t_cam_ns == 4000 * MS  # the selected candidate follows the live stream
