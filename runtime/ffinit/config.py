@@ -78,6 +78,10 @@ class FFInitConfig:
     """Huber threshold of the gyro-bias alignment's per-image rotation residuals, deg: one image with a
     wrong DA3 rotation does not drag the bias (the consistency gate then sees it)."""
 
+    point_rotations: str = "da3"
+    """Which rotation carries image i's DA3 points into C0 (eq. 1): 'da3' (paper) or 'gyro' (the
+    preintegrated rotation after the bias alignment; DA3's camera centres and depths are kept)."""
+
     # scale observability and plausibility (added, issue 15)
     accel_bias_sigma: float = 0.05
     """Accelerometer turn-on bias (per axis, m/s^2) the solved scale must tolerate. Within a 0.8 s

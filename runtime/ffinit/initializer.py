@@ -12,7 +12,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from models.depth_model import DepthModel
-from runtime.errors import DataError, EstimatorError
+from runtime.errors import ConfigError, DataError, EstimatorError
 from runtime.events import Frame
 from runtime.ffinit.config import FFInitConfig
 from runtime.ffinit.gyro_bias import align_gyro_bias, rotation_residuals
@@ -72,6 +72,10 @@ def solve_window(window: InitWindow, cfg: FFInitConfig, rebuild=None) -> InitRes
         return Rejection("rotation_inconsistent",
                          f"DA3 and gyro rotations differ by {rot_rms_deg:.3f} deg RMS after the bias "
                          f"alignment (> {cfg.max_rotation_residual_deg})")
+    if cfg.point_rotations == "gyro":
+        window = with_gyro_rotations(window, dbg)
+    elif cfg.point_rotations != "da3":
+        raise ConfigError(f"ffinit.point_rotations must be 'da3' or 'gyro', got {cfg.point_rotations!r}")
     robust = robust_solve(window, cfg)
     if isinstance(robust, Rejection):
         return robust
@@ -96,6 +100,19 @@ def solve_window(window: InitWindow, cfg: FFInitConfig, rebuild=None) -> InitRes
                         "median_residual": robust.median_residual, "gyro_bias_change": dbg_total.tolist(),
                         "rotation_residual_rms_deg": rot_rms_deg})
     return result
+
+
+def with_gyro_rotations(window: InitWindow, dbg: np.ndarray) -> InitWindow:
+    """The window with each image's R_C0Ci replaced by the preintegrated R_CI R_I0Ii Exp(J dbg) R_IC."""
+    from dataclasses import replace
+
+    from runtime.geometry import so3_exp
+
+    R_CI = window.R_IC.T
+    images = [window.images[0]] + [
+        replace(o, R_C0Ci=R_CI @ window.R_I0Ii[i] @ so3_exp(window.J_R_bg[i] @ dbg) @ window.R_IC)
+        for i, o in enumerate(window.images) if i > 0]
+    return replace(window, images=images)
 
 
 def scale_gates(window: InitWindow, robust: RobustResult, ref: Refined,

@@ -137,3 +137,18 @@ def test_huber_alignment_keeps_the_bias_when_one_da3_rotation_is_wrong():
     err_huber = np.linalg.norm(align_gyro_bias(window, huber_rad=np.radians(0.1)) - bg)
     assert err_ls > 0.005  # least squares spreads the wrong rotation into the bias
     assert err_huber < 0.2 * err_ls
+
+
+def test_gyro_point_rotations_remove_the_da3_rotation_error_from_the_scale():
+    """ffinit.point_rotations = 'gyro' carries DA3's points with the preintegrated rotations: a 0.3 deg
+    DA3 rotation error moves the paper's ('da3') scale by more than 10 % and the gyro variant's not at all."""
+    from runtime.errors import ConfigError
+
+    window, truth = make_window("general", rot_noise_deg=0.3, depth_noise=0.02, seed=2)
+    loose = dict(max_rotation_residual_deg=10.0, max_scale_uncertainty=np.inf)
+    da3 = solve_window(window, FFInitConfig(**loose))
+    gyro = solve_window(window, FFInitConfig(point_rotations="gyro", **loose))
+    assert abs(np.log(da3.info["scale"] / truth.scale)) > 0.1
+    assert gyro.info["scale"] == pytest.approx(truth.scale, rel=1e-3)
+    with pytest.raises(ConfigError, match="point_rotations"):
+        solve_window(window, FFInitConfig(point_rotations="imu", **loose))

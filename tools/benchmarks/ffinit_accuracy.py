@@ -42,6 +42,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="comma-separated pose-error knobs that k scales (default: all of POSE_ERROR_FIELDS;"
                         " the others are set to 0) -- to see which knob drives the errors")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--config", metavar="TOML", help="a run configuration whose [ffinit] table is used")
     p.add_argument("--max-scale-uncertainty", type=float, default=None, metavar="U",
                    help="the scale-observability gate's bound (default: FFInitConfig's; inf = gate off)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
@@ -187,6 +188,11 @@ def run(args: argparse.Namespace) -> int:
     from runtime.ffinit import FFInitConfig
 
     ff_config = FFInitConfig()
+    if args.config:
+        from runtime.config import DavioConfig
+        from runtime.config_io import load_toml
+
+        ff_config = load_toml(DavioConfig, args.config).ffinit
     if args.max_scale_uncertainty is not None:
         ff_config.max_scale_uncertainty = args.max_scale_uncertainty
     result["max_scale_uncertainty"] = ff_config.max_scale_uncertainty
