@@ -40,3 +40,22 @@ def test_sweep_on_a_short_preset(capsys, tmp_path):
 def test_bad_fields_are_a_clear_error(capsys):
     assert main(["bench", "ffinit-accuracy", "--fields", "focal_log_sigma"]) == 1
     assert "pose-error knob" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_without_accelerometer_bias_and_da3_pose_errors_the_scale_is_right(capsys, tmp_path):
+    """The wrong scales at the calibrated DA3 errors come from the accelerometer bias (BENCHMARKS.md
+    "Gates that refuse a wrong scale"): with neither, every accepted window's scale is within 5 %."""
+    out_file = tmp_path / "acc.json"
+    assert main(["bench", "ffinit-accuracy", "--preset", "handheld", "--seconds", "8", "--every", "2",
+                 "--k", "0", "--sim-accel-bias-sigma", "0", "--max-scale-uncertainty", "inf",
+                 "--json", "--out", str(out_file)]) == 0
+    rows = json.loads(out_file.read_text())["per_window"]["preset handheld"]["0.0"]
+    acc = [r for r in rows if r["accepted"]]
+    assert len(acc) >= 2
+    assert max(r["abs_log_scale_err"] for r in acc) < 0.05
+
+
+def test_sim_bias_option_is_refused_for_a_real_imu(capsys):
+    assert main(["bench", "ffinit-accuracy", "--sequence", "x", "--sim-accel-bias-sigma", "0"]) == 1
+    assert "real IMU" in capsys.readouterr().err

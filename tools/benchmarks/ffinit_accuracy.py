@@ -42,6 +42,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="comma-separated pose-error knobs that k scales (default: all of POSE_ERROR_FIELDS;"
                         " the others are set to 0) -- to see which knob drives the errors")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--sim-accel-bias-sigma", type=float, default=None, metavar="S",
+                   help="presets: the simulated IMU's initial accelerometer-bias sigma, m/s^2 (default 0.05;"
+                        " 0 shows what the bias alone does to the scale)")
     p.add_argument("--config", metavar="TOML", help="a run configuration whose [ffinit] table is used")
     p.add_argument("--max-scale-uncertainty", type=float, default=None, metavar="U",
                    help="the scale-observability gate's bound (default: FFInitConfig's; inf = gate off)")
@@ -85,12 +88,22 @@ def summarise(rows: list[dict]) -> dict:
 
 def _recordings(args: argparse.Namespace) -> list[tuple[str, Any]]:
     from drivers.sim import SimConfig, SimRecording
+    from runtime.errors import ConfigError
 
     if args.sequence:
+        if args.sim_accel_bias_sigma is not None:
+            raise ConfigError("--sim-accel-bias-sigma applies to presets (a sequence replays its real IMU)")
         cfg = SimConfig(seconds=None, seed=args.seed)
         return [(Path(s).name, lambda s=s: SimRecording.from_euroc_imu_gt(s, cfg)) for s in args.sequence]
+    imu_errors = None
+    if args.sim_accel_bias_sigma is not None:
+        from dataclasses import replace
+
+        from drivers.sim.imu_synth import ImuErrorModel
+
+        imu_errors = replace(ImuErrorModel(), initial_ba_sigma=args.sim_accel_bias_sigma)
     return [(f"preset {args.preset}", lambda: SimRecording.from_preset(
-        SimConfig(preset=args.preset, seconds=args.seconds, seed=args.seed)))]
+        SimConfig(preset=args.preset, seconds=args.seconds, seed=args.seed, imu_errors=imu_errors)))]
 
 
 def measure_recording(rec: Any, ks: list[float], reference: str, every_s: float, seed: int,
