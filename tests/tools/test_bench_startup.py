@@ -120,3 +120,42 @@ def test_error_scales_set_the_emulator_knobs():
     # K = 0.05 is what the presets use
     k05 = _error_scales(SimpleNamespace(da3="base", pose_error_scale=0.05, depth_error_scale=None))
     assert make_params("base", **k05) == make_params("base")
+
+
+def test_a_start_on_a_static_or_straight_truth_is_scored_not_failed():
+    """Pure rotation (the truth does not move) and constant velocity (a straight line) leave SE(3)
+    alignment undetermined; the score then fits position + yaw, or, for a static truth, takes the spread
+    of the estimate (any rotation maps it onto the point equally well)."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from runtime.geometry.trajectory import PoseTrajectory
+    from runtime.startup import Published
+    from tools.benchmarks.startup import _score
+
+    t = np.arange(0, 200) * 50_000_000
+    yaw = 0.5 * t * 1e-9
+    Rz = np.array([[[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]] for a in yaw])
+    report = SimpleNamespace(published_by="native:dynamic", candidates_diverged=0)
+    startup = SimpleNamespace(report=report, publisher=None)
+
+    def published(p):   # published in a frame turned by 40 deg of yaw and shifted, as an odometry frame is
+        c, s = np.cos(0.7), np.sin(0.7)
+        R0 = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+        return [Published(int(t[k]), int(t[k]), R0 @ Rz[k], R0 @ p[k] + [3.0, -1.0, 0.2], np.zeros(3),
+                          "native:dynamic", 0, segment=0) for k in range(40, 200)]
+
+    static = PoseTrajectory(t, np.zeros((t.size, 3)), Rz)
+    still = _score(SimpleNamespace(published=published(np.zeros((t.size, 3))), startup=startup), static,
+                   0, 10.0, 0.5)
+    assert still["success"] and still["ate"] < 1e-9
+    drift = np.c_[0.02 * (t * 1e-9) ** 2, np.zeros(t.size), np.zeros(t.size)]   # 2 m off at 10 s
+    moved = _score(SimpleNamespace(published=published(drift), startup=startup), static, 0, 10.0, 0.5)
+    assert moved["published_wrong"]
+    expected = np.sqrt(np.mean(np.sum((drift[40:] - drift[40:].mean(0)) ** 2, axis=1)))
+    assert moved["ate"] == pytest.approx(expected, rel=1e-9)
+    line = np.c_[0.6 * t * 1e-9, np.zeros(t.size), np.zeros(t.size)]   # constant velocity
+    straight = PoseTrajectory(t, line, Rz)
+    ok = _score(SimpleNamespace(published=published(line), startup=startup), straight, 0, 10.0, 0.5)
+    assert ok["success"] and ok["ate"] < 1e-9
