@@ -7,8 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from ffinit_synth import P_IC_EUROC, R_IC_EUROC, imu_samples, make_window
-from test_ffinit_linear import with_off_ray_points
+from ffinit_synth import P_IC_EUROC, R_IC_EUROC, imu_samples, make_window, with_off_ray_points
 
 from runtime.ffinit import FFInitConfig, Rejection, robust_solve
 from runtime.ffinit.initializer import build_window, solve_window

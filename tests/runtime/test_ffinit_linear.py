@@ -2,51 +2,12 @@
 robustness to outlier points (paper Sec. IV-A/B)."""
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import pytest
-from ffinit_synth import G0, make_window
+from ffinit_synth import G0, make_window, with_off_ray_points
 
-from runtime.ffinit import FFInitConfig, ImageObservations, InitWindow, Rejection, robust_solve, solve_linear
+from runtime.ffinit import FFInitConfig, Rejection, robust_solve, solve_linear
 from runtime.ffinit.linear import build_system, weighted_solve
-
-
-@dataclass
-class OffRayObservations(ImageObservations):
-    """Observations some of whose DA3 points lie off their pixel's ray: the point is placed along
-    z + ray_offset (a point-map error), not along the ray of its normalized coordinate z.
-
-    A wrong depth along the pixel's own ray is no outlier for the point system: the row still vanishes
-    at the true state (see test_wrong_depths_along_the_ray_only_reweight_the_rows).
-    """
-
-    ray_offset: np.ndarray
-    """(M, 2) normalized-coordinate offset of each point's ray; zero for a good point."""
-
-    @property
-    def points_C0(self) -> np.ndarray:
-        zt = np.column_stack([self.z + self.ray_offset, np.ones(len(self.z))])
-        return (self.depth[:, None] * zt) @ self.R_C0Ci.T + self.p_C0Ci
-
-
-def with_off_ray_points(window: InitWindow, fraction: float, seed: int,
-                        offset: tuple[float, float] = (0.02, 0.05)) -> tuple[InitWindow, np.ndarray]:
-    """The window with `fraction` of the points of images 1.. moved off their rays by |offset| in
-    [offset[0], offset[1]] (normalized coordinates, 1.1-2.9 deg by default) in a random direction.
-    Returns the window (images replaced) and the (K,) outlier mask in build_system's point order."""
-    rng = np.random.default_rng(1000 + seed)
-    images, masks = [window.images[0]], []
-    for obs in window.images[1:]:
-        m = len(obs.z)
-        bad = rng.random(m) < fraction
-        ang = rng.uniform(0.0, 2 * np.pi, m)
-        mag = np.where(bad, rng.uniform(*offset, m), 0.0)
-        images.append(OffRayObservations(obs.z, obs.depth, obs.conf, obs.R_C0Ci, obs.p_C0Ci,
-                                         np.column_stack([np.cos(ang), np.sin(ang)]) * mag[:, None]))
-        masks.append(bad)
-    window.images = images
-    return window, np.concatenate(masks)
 
 
 def test_noise_free_window_recovers_scale_velocity_gravity_exactly():

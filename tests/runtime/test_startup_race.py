@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_startup_handoff import RecordingFilter, _stream
+from startup_fakes import RecordingFilter
+from startup_fakes import stream as _stream
 
 from runtime.events import Frame, ImuSample
 from runtime.msckf.init_common import InitResult
