@@ -110,3 +110,16 @@ class FFInitConfig:
     softplus_eps: float = 1e-5
     huber_threshold: float = 1.0
     refine_max_iterations: int = 50
+
+    def __post_init__(self) -> None:
+        from runtime.errors import ConfigError
+
+        if self.point_rotations not in ("da3", "gyro"):
+            raise ConfigError(f"ffinit.point_rotations must be 'da3' or 'gyro', got {self.point_rotations!r}")
+        for name in ("accel_bias_sigma", "max_scale_uncertainty", "max_gyro_bias_change",
+                     "rotation_huber_deg", "min_median_depth_m"):
+            if not getattr(self, name) >= 0:
+                raise ConfigError(f"ffinit.{name} must be >= 0, got {getattr(self, name)}")
+        if not self.max_median_depth_m > self.min_median_depth_m:
+            raise ConfigError(f"ffinit.max_median_depth_m ({self.max_median_depth_m}) must exceed "
+                              f"min_median_depth_m ({self.min_median_depth_m})")

@@ -12,7 +12,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from models.depth_model import DepthModel
-from runtime.errors import ConfigError, DataError, EstimatorError
+from runtime.errors import DataError, EstimatorError
 from runtime.events import Frame
 from runtime.ffinit.config import FFInitConfig
 from runtime.ffinit.gyro_bias import align_gyro_bias, rotation_residuals
@@ -74,8 +74,6 @@ def solve_window(window: InitWindow, cfg: FFInitConfig, rebuild=None) -> InitRes
                          f"alignment (> {cfg.max_rotation_residual_deg})")
     if cfg.point_rotations == "gyro":
         window = with_gyro_rotations(window, dbg)
-    elif cfg.point_rotations != "da3":
-        raise ConfigError(f"ffinit.point_rotations must be 'da3' or 'gyro', got {cfg.point_rotations!r}")
     robust = robust_solve(window, cfg)
     if isinstance(robust, Rejection):
         return robust

@@ -151,4 +151,8 @@ def test_gyro_point_rotations_remove_the_da3_rotation_error_from_the_scale():
     assert abs(np.log(da3.info["scale"] / truth.scale)) > 0.1
     assert gyro.info["scale"] == pytest.approx(truth.scale, rel=1e-3)
     with pytest.raises(ConfigError, match="point_rotations"):
-        solve_window(window, FFInitConfig(point_rotations="imu", **loose))
+        FFInitConfig(point_rotations="imu")
+    with pytest.raises(ConfigError, match="max_scale_uncertainty"):
+        FFInitConfig(max_scale_uncertainty=-1.0)
+    with pytest.raises(ConfigError, match="max_median_depth_m"):
+        FFInitConfig(min_median_depth_m=5.0, max_median_depth_m=1.0)
