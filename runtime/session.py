@@ -150,16 +150,11 @@ class Session:
         status, reason = "complete", None
         try:
             rep = self._scheduler.run(events, self.pipeline)
-        except KeyboardInterrupt:
-            if not keep_partial:
-                raise
-            rep, status = self._scheduler.report, "interrupted"
-            reason = f"interrupted after {rep.sensor_s:.1f} s of data"
         except DavioError as exc:
             if not keep_partial:
                 raise
             rep, status, reason = self._scheduler.report, "failed", str(exc)
-        except Exception as exc:  # a Ctrl-C that surfaced through a C extension's error
+        except (KeyboardInterrupt, Exception) as exc:   # Ctrl-C, also one surfacing through a C extension
             if not (keep_partial and caused_by_interrupt(exc)):
                 raise
             rep, status = self._scheduler.report, "interrupted"

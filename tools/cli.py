@@ -80,17 +80,14 @@ def main(argv: list[str] | None = None) -> int:
     except DavioError as exc:
         print(f"davio {args.command}: error: {exc}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print(f"davio {args.command}: interrupted", file=sys.stderr)
-        return 130
-    except Exception as exc:
+    except (KeyboardInterrupt, Exception) as exc:   # Ctrl-C, also one surfacing through a C extension
         from runtime.errors import caused_by_interrupt
 
-        if not caused_by_interrupt(exc):   # a Ctrl-C that surfaced through a C extension's error
+        if not caused_by_interrupt(exc):
             raise
-        print(f"davio {args.command}: interrupted ({type(exc).__name__})", file=sys.stderr)
+        how = "" if isinstance(exc, KeyboardInterrupt) else f" ({type(exc).__name__})"
+        print(f"davio {args.command}: interrupted{how}", file=sys.stderr)
         return 130
-
 
 if __name__ == "__main__":
     sys.exit(main())
