@@ -206,8 +206,10 @@ def run(args: argparse.Namespace) -> int:
         from runtime.config_io import load_toml
 
         ff_config = load_toml(DavioConfig, args.config).ffinit
-    if args.max_scale_uncertainty is not None:
-        ff_config.max_scale_uncertainty = args.max_scale_uncertainty
+    if args.max_scale_uncertainty is not None:   # through replace: the configuration's checks apply
+        from dataclasses import replace
+
+        ff_config = replace(ff_config, max_scale_uncertainty=args.max_scale_uncertainty)
     result["max_scale_uncertainty"] = ff_config.max_scale_uncertainty
     for name, make in _recordings(args):
         rows = measure_recording(make(), ks, args.reference, args.every, args.seed, args.max_windows, fields,
