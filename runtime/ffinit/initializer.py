@@ -133,7 +133,8 @@ def scale_gates(window: InitWindow, robust: RobustResult, ref: Refined,
         return Rejection("implausible_depth",
                          f"median metric depth {median_depth:.3g} m outside "
                          f"[{cfg.min_median_depth_m}, {cfg.max_median_depth_m}]")
-    return {"scale_bias_sensitivity": sens, "scale_uncertainty": uncertainty, "median_depth_m": median_depth}
+    return {"scale_bias_sensitivity": sens, "scale_uncertainty": uncertainty, "median_depth_m": median_depth,
+            "scale_observed_rel_std": scale_relative_std(ref, observed=True)}
 
 
 class FeedForwardInitializer:

@@ -34,6 +34,10 @@ class Refined:
     cost: float
     success: bool
     N: np.ndarray
+    cov_observed: np.ndarray | None = None
+    """Covariance (12 x 12) from what the window measures: the image rows (with their Huber weights),
+    the gyro-bias prior and an accelerometer-bias prior of FFInitConfig.accel_bias_sigma; without the
+    log(s / s_lin) pseudo-prior, which only regularises towards the linear stage."""
 
 
 def _softplus(x: float) -> float:
@@ -107,4 +111,19 @@ def refine(window: InitWindow, lin: LinearSolution, inliers_per_image: list[np.n
         cov = np.linalg.inv(J.T @ J)
     except np.linalg.LinAlgError:
         cov = np.full((12, 12), np.nan)
-    return Refined(s, v0, g, dbg, ba, cov, float(res.cost), bool(res.success), prob.N)
+    return Refined(s, v0, g, dbg, ba, cov, float(res.cost), bool(res.success), prob.N,
+                   observed_covariance(J[:-7], cfg))
+
+
+def observed_covariance(J_images: np.ndarray, cfg: FFInitConfig) -> np.ndarray:
+    """(J^T J + priors)^-1 of the image rows with the gyro-bias prior (sigma_bg) and an accelerometer-bias
+    prior of accel_bias_sigma; NaN when singular (no scale prior: the window alone must fix s)."""
+    H = J_images.T @ J_images
+    H[6:9, 6:9] += np.eye(3) / cfg.sigma_bg ** 2
+    if cfg.accel_bias_sigma > 0:
+        H[9:12, 9:12] += np.eye(3) / cfg.accel_bias_sigma ** 2
+    try:
+        cov = np.linalg.inv(H)
+    except np.linalg.LinAlgError:
+        return np.full((12, 12), np.nan)
+    return cov if np.all(np.isfinite(cov)) and cov[0, 0] >= 0 else np.full((12, 12), np.nan)

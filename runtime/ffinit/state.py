@@ -51,10 +51,12 @@ def state_at_last_image(window: InitWindow, ref: Refined, t_imu_ns: int) -> Init
               "scale_rel_std": scale_relative_std(ref)})
 
 
-def scale_relative_std(ref: Refined) -> float:
+def scale_relative_std(ref: Refined, observed: bool = False) -> float:
     """sigma(s) / s of the refined metric scale from the refinement's covariance (theta[0] is the
-    softplus pre-image of s, so ds/dtheta0 = sigmoid(theta0) = 1 - exp(-s)); inf when not finite."""
-    var = float(ref.cov_theta[0, 0]) if ref.cov_theta.size else float("nan")
+    softplus pre-image of s, so ds/dtheta0 = sigmoid(theta0) = 1 - exp(-s)); inf when not finite.
+    observed: from Refined.cov_observed (the window's own information) instead of cov_theta."""
+    cov = ref.cov_observed if observed else ref.cov_theta
+    var = float(cov[0, 0]) if cov is not None and cov.size else float("nan")
     if not (np.isfinite(var) and var >= 0 and ref.scale > 0):
         return float("inf")
     return float(np.sqrt(var) * -np.expm1(-ref.scale) / ref.scale)

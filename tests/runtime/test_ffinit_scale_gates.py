@@ -156,3 +156,33 @@ def test_gyro_point_rotations_remove_the_da3_rotation_error_from_the_scale():
         FFInitConfig(max_scale_uncertainty=-1.0)
     with pytest.raises(ConfigError, match="max_median_depth_m"):
         FFInitConfig(min_median_depth_m=5.0, max_median_depth_m=1.0)
+
+
+def _refined_with_bias_prior(window, sigma_ba: float):
+    from runtime.ffinit.refine import refine
+
+    robust = robust_solve(window, FFInitConfig())
+    assert isinstance(robust, RobustResult), robust
+    sizes = np.cumsum([len(o.z) for o in window.images[1:]])[:-1]
+    inliers = [np.zeros(len(window.images[0].z), bool), *np.split(robust.inliers, sizes)]
+    ref = refine(window, robust.solution, inliers, FFInitConfig(accel_bias_sigma=sigma_ba))
+    return ref, scale_bias_sensitivity(robust.system.subset(robust.inliers), robust.solution)
+
+
+def test_observed_scale_std_adds_the_bias_as_the_linear_sensitivity_predicts():
+    """The window's own scale information (no scale pseudo-prior): freeing the accelerometer bias with
+    a prior sigma adds sigma x |ds/dba| / s in quadrature when the images say little about the bias
+    (small sigma), and not more (the images' information only tightens it; 5 % for the two linearisation
+    points, linear and refined)."""
+    from runtime.ffinit.state import scale_relative_std
+
+    window, _ = make_window("general", points=40, rot_noise_deg=0.03, depth_noise=0.02, seed=1)
+    fixed, sens = _refined_with_bias_prior(window, 1e-6)
+    base = scale_relative_std(fixed, observed=True)
+    assert 0 < base < 0.5
+    for sigma, low in ((0.02, 0.85), (0.05, 0.7)):
+        ref, _ = _refined_with_bias_prior(window, sigma)
+        bias_part = np.sqrt(scale_relative_std(ref, observed=True) ** 2 - base ** 2)
+        assert low * sigma * sens <= bias_part <= 1.05 * sigma * sens, (sigma, bias_part, sigma * sens)
+    # the pseudo-prior log(s / s_lin) ~ N(0, 0.5^2) is left out: cov_theta includes it
+    assert scale_relative_std(fixed, observed=True) >= scale_relative_std(fixed) - 1e-12

@@ -173,6 +173,7 @@ def measure_recording(rec: Any, ks: list[float], reference: str, every_s: float,
                 row["gyro_bias_change"] = float(np.linalg.norm(res.info["gyro_bias_change"]))
                 row["scale_bias_sensitivity"] = float(res.info["scale_bias_sensitivity"])
                 row["scale_uncertainty"] = float(res.info["scale_uncertainty"])
+                row["scale_observed_rel_std"] = float(res.info["scale_observed_rel_std"])
                 row["median_depth_m"] = float(res.info["median_depth_m"])
             else:
                 row["reason"] = res.reason
