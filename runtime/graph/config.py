@@ -25,7 +25,8 @@ class GraphConfig:
     point_sigma_min_m: float = 0.10
     """Floor of both point sigmas (m)."""
     scale_prior_sigma: float = 0.10
-    """Prior |lambda_j - lambda_0| / this on every non-gauge node (log-scale units)."""
+    """Prior |lambda_j - lambda_0| / this on every non-gauge node (log-scale units; lambda_0: the first
+    node's, also after evictions)."""
     huber_threshold: float = 2.0
     """Huber threshold on each whitened residual block norm: rho(r) = r^2/2 (r <= k), k r - k^2/2 beyond.
     `math.inf` gives the plain quadratic loss."""

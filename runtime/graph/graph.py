@@ -2,7 +2,8 @@
 
 Node j holds Q_j = T_MS_j (the map pose of the centre camera S_j, (4,4)) and lambda_j (residual
 log-depth scale). The first node fixes the gauge (pose and lambda); after `evict` the first retained
-node becomes the gauge, fixed at its current state. Every other node optimises translation (3, map
+node becomes the gauge, fixed at its current state; the scale priors stay centred on the first node's
+lambda_0 (not the new gauge's). Every other node optimises translation (3, map
 frame), yaw about the map z axis (1, R <- Rz(dyaw) R, so roll and pitch stay exactly as the filter
 observed them) and lambda (1). See `problem.py` for the residuals and `robust.py` for the loss.
 
@@ -109,6 +110,10 @@ class SubmapGraph:
         self._T: dict[int, np.ndarray] = {}
         self._lam: dict[int, float] = {}
         self._anchors: set[int] = set()
+        self.lam_ref: float | None = None
+        """lambda_0 of the first node ever added: the centre of every scale prior, also after evictions
+        (lambda is a residual log-depth scale against the filter's metric scale, so its reference does
+        not move with the pose gauge)."""
         self.odometry: list[OdometryFactor] = []
         self.point_groups: list[PointGroup] = []
         self.scale_links: list[ScaleFactor] = []
@@ -151,6 +156,8 @@ class SubmapGraph:
             raise GraphError(f"node {j}: lambda must be finite, got {lam}")
         self._T[j] = check_pose(T_MS, f"T_MS of node {j}")
         self._lam[j] = float(lam)
+        if self.lam_ref is None:
+            self.lam_ref = float(lam)
         self._ids.append(j)
 
     def add_anchor(self, j: int, T_MS: np.ndarray, lam: float) -> None:
@@ -240,8 +247,8 @@ class SubmapGraph:
         odo = remap(self.odometry, lambda f, a, b: OdometryFactor(a, b, f.Z_ab))
         pts = remap(self.point_groups, lambda f, a, b: PointGroup(a, b, f.p_a, f.p_b, f.adjacent))
         scl = remap(self.scale_links, lambda f, a, b: ScaleFactor(a, b, f.kappa, f.sigma, f.kind))
-        gauge_lam = float(lam[0]) if len(lam) else 0.0
-        return GraphProblem(T[:, :3, :3].copy(), T[:, :3, 3].copy(), lam, free, gauge_lam, odo, pts, scl,
+        lam_ref = self.lam_ref if self.lam_ref is not None else 0.0
+        return GraphProblem(T[:, :3, :3].copy(), T[:, :3, 3].copy(), lam, free, lam_ref, odo, pts, scl,
                             self.cfg)
 
     def objective(self) -> float:

@@ -75,11 +75,11 @@ class GraphProblem:
 
     Args:
         R0: (N,3,3) rotations R_MS of the nodes at the start; t0: (N,3) translations (m); lam0: (N,).
-        free: (N,) bool, False for fixed nodes; gauge_lam: lambda of the gauge node (scale prior centre).
+        free: (N,) bool, False for fixed nodes; lam_ref: the scale priors' centre (the first node's lambda_0).
         odometry, points, scales: factors whose a, b are node positions 0..N-1 (not node ids).
     """
 
-    def __init__(self, R0: np.ndarray, t0: np.ndarray, lam0: np.ndarray, free: np.ndarray, gauge_lam: float,
+    def __init__(self, R0: np.ndarray, t0: np.ndarray, lam0: np.ndarray, free: np.ndarray, lam_ref: float,
                  odometry: list[OdometryFactor], points: list[PointGroup], scales: list[ScaleFactor],
                  cfg: GraphConfig) -> None:
         self.R0, self.t0, self.lam0 = R0, t0, lam0
@@ -106,9 +106,9 @@ class GraphProblem:
         Pb = np.exp(lam0[self.p_ib])[:, None] * self.p_b
         self.p_W = (point_whitening(R0[self.p_ia], Pa, R0[self.p_ib], Pb, cfg) if len(Pa)
                     else np.zeros((0, 3, 3)))
-        # scale prior on every free node, relative to the gauge's lambda
+        # scale prior on every free node, centred on lambda_0 of the first node (the metric scale)
         self.prior_sigma = float(cfg.scale_prior_sigma)
-        self.gauge_lam = float(gauge_lam)
+        self.lam_ref = float(lam_ref)
         # scale links
         self.s_a = np.array([f.a for f in scales], int)
         self.s_b = np.array([f.b for f in scales], int)
@@ -229,7 +229,7 @@ class GraphProblem:
         fp = self.free_pos
         if len(fp):
             rows = self.row_prior + np.arange(len(fp))
-            f[rows] = (lam[fp] - self.gauge_lam) / self.prior_sigma
+            f[rows] = (lam[fp] - self.lam_ref) / self.prior_sigma
             J.append((rows, self.col[fp] + 4, np.full(len(fp), 1.0 / self.prior_sigma)))
         if len(self.s_a):
             rows = self.row_s + np.arange(len(self.s_a))
