@@ -168,6 +168,7 @@ def run_sequence(src: Source, args: argparse.Namespace, log: Any = None) -> dict
     from models.matcher import Matcher
     from runtime.mapping.config import MappingConfig
     from tools.benchmarks.mapping_inputs import CachedTruth, SharedMatcher, track
+    from tools.benchmarks.mapping_scale import lambda_errors
     from tools.benchmarks.mapping_variants import VARIANTS, run_variant
 
     t0 = time.perf_counter()
@@ -190,10 +191,15 @@ def run_sequence(src: Source, args: argparse.Namespace, log: Any = None) -> dict
         row = {"label": v.label, **evaluate(pts, ref),
                "raw_points": int(len(r.points)), "windows_offered": r.offered, "windows_accepted": r.accepted,
                "rejected": r.rejected, "mapping_s": r.seconds, "emulator_overrides": r.overrides}
+        if r.submaps:
+            row["lambda"] = lambda_errors(r.submaps, truth, cam.width, cam.height)
         rows[v.key] = row
         if log:
+            lam = row.get("lambda", {})
+            scales = (f"  lambda - lambda* RMS {lam['rms_error']:.3f} "
+                      f"(lambda = 0: {lam['rms_error_lambda_zero']:.3f})" if lam.get("submaps") else "")
             log(f"  ({v.key}) {v.label:32s} mean {row['mean_m']:.3f} m  F@10 {row['f10']:.3f}  "
-                f"windows {r.accepted}/{r.offered}  {r.seconds:.1f} s")
+                f"windows {r.accepted}/{r.offered}  {r.seconds:.1f} s{scales}")
     return {"name": src.name, "source": rec.info, "frames": inputs.frames, "published": inputs.published,
             "segments": inputs.segments, "windows": len(inputs.windows), "vio_ate_m": inputs.vio_ate_m,
             "keyframes": int(len(inputs.keyframe_t_ns)), "reference": ref_info, "rows": rows,

@@ -103,6 +103,8 @@ class VariantRun:
     rejected: dict = field(default_factory=dict)
     seconds: float = 0.0
     overrides: dict = field(default_factory=dict)
+    submaps: list = field(default_factory=list)
+    """DAVIO's committed submaps at their final graph states (empty for ScaRF)."""
 
 
 def relative_truth_windows(inputs: Any) -> list:
@@ -182,4 +184,5 @@ def run_variant(variant: Variant, inputs: Any, truth: Any, camera: Any, mapping:
             keep_submaps(out, by_index)
     points = export_points(list(by_index.values()), mapping.voxel_m)
     return VariantRun(points, m.stats.windows_offered, m.stats.windows_accepted,
-                      dict(m.stats.windows_rejected), time.perf_counter() - t0, overrides)
+                      dict(m.stats.windows_rejected), time.perf_counter() - t0, overrides,
+                      [by_index[k] for k in sorted(by_index)])
