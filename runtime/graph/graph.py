@@ -310,6 +310,7 @@ class SubmapGraph:
         return {
             "config": asdict(self.cfg),
             "gauge": self.gauge,
+            "lambda_ref": self.lam_ref,
             "nodes": [{"id": j, "T_MS": self._T[j].tolist(), "lam": self._lam[j], "fixed": self.is_fixed(j),
                        "anchor": j in self._anchors} for j in self.anchor_ids + self._ids],
             "odometry": [f.as_dict() for f in self.odometry],

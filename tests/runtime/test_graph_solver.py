@@ -181,7 +181,7 @@ def test_eviction_refixes_the_gauge_at_the_current_state():
     now = p.node_state(2)
     assert np.array_equal(now.T_MS, s2.T_MS) and now.lam == s2.lam
     assert p.node_state(6).lam == pytest.approx(lams[0], abs=1e-5)
-    assert p.as_dict()["gauge"] == 2
+    assert p.as_dict()["gauge"] == 2 and p.as_dict()["lambda_ref"] == lams[0]
 
 
 def test_evict_excess_keeps_the_newest_nodes():
