@@ -35,8 +35,9 @@ class Refined:
     success: bool
     N: np.ndarray
     cov_observed: np.ndarray | None = None
-    """Covariance (12 x 12) from what the window measures: the image rows (with their Huber weights),
-    the gyro-bias prior and an accelerometer-bias prior of FFInitConfig.accel_bias_sigma; without the
+    """Covariance (12 x 12) from what the window measures: the image rows of the robust cost's
+    Gauss-Newton Jacobian (scipy's: rows on Huber's linear branch drop out), the gyro-bias prior and an
+    accelerometer-bias prior of FFInitConfig.accel_bias_sigma (0: the bias held fixed); without the
     log(s / s_lin) pseudo-prior, which only regularises towards the linear stage."""
 
 
@@ -117,13 +118,18 @@ def refine(window: InitWindow, lin: LinearSolution, inliers_per_image: list[np.n
 
 def observed_covariance(J_images: np.ndarray, cfg: FFInitConfig) -> np.ndarray:
     """(J^T J + priors)^-1 of the image rows with the gyro-bias prior (sigma_bg) and an accelerometer-bias
-    prior of accel_bias_sigma; NaN when singular (no scale prior: the window alone must fix s)."""
+    prior of accel_bias_sigma (0: the bias is held fixed, its rows and columns are zero); NaN when
+    singular (no scale prior: the window alone must fix s)."""
     H = J_images.T @ J_images
     H[6:9, 6:9] += np.eye(3) / cfg.sigma_bg ** 2
+    n = 12
     if cfg.accel_bias_sigma > 0:
         H[9:12, 9:12] += np.eye(3) / cfg.accel_bias_sigma ** 2
+    else:
+        n = 9
+    cov = np.zeros((12, 12))
     try:
-        cov = np.linalg.inv(H)
+        cov[:n, :n] = np.linalg.inv(H[:n, :n])
     except np.linalg.LinAlgError:
         return np.full((12, 12), np.nan)
     return cov if np.all(np.isfinite(cov)) and cov[0, 0] >= 0 else np.full((12, 12), np.nan)

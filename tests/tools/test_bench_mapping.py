@@ -166,23 +166,25 @@ def test_relative_truth_windows_keep_the_vio_centre_and_the_true_relative_poses(
     assert w.window_id == 0 and w.segment == 0
 
 
-class _PlaneTruth:
-    """Every view sees a fronto-parallel wall at depth_m (z-depth image), except a hole of no surface."""
-
-    def __init__(self, depth_m: float) -> None:
-        self.depth_m = depth_m
+class _SlantedTruth:
+    """z-depth 4 + 0.05 u (varies along u only, so a swapped u/v or a pixel off shows), with no surface
+    left of u = 40 (most of the submap's points: they must not vote)."""
 
     def render_view(self, t_ns: int, K: np.ndarray, width: int, height: int) -> SimpleNamespace:
-        d = np.full((height, width), self.depth_m)
-        d[:, :8] = np.inf
+        d = np.repeat((4.0 + 0.05 * np.arange(width))[None], height, axis=0)
+        d[:, :40] = np.inf
         return SimpleNamespace(depth=d)
 
 
-def _submap_at(depth_m: float, lam: float, index: int = 0):
+def _submap_at(lam_true: float, lam: float, index: int = 0):
+    """Two images of points on the slanted truth, each at exp(-lam_true) of its true depth, plus one point
+    behind the camera."""
     from runtime.mapping.submap import Submap
 
-    u, v = np.meshgrid(np.arange(0, 64, 4.0), np.arange(0, 48, 4.0))
-    x = np.c_[u.ravel(), v.ravel(), np.ones(u.size)] @ np.linalg.inv(K).T * depth_m
+    u, v = np.meshgrid(np.arange(0, 64, 2.0), np.arange(1, 47, 3.0))
+    z = (4.0 + 0.05 * u.ravel()) * np.exp(-lam_true)
+    x = np.c_[u.ravel(), v.ravel(), np.ones(u.size)] @ np.linalg.inv(K).T * z[:, None]
+    x = np.vstack([x, [[-0.4, 0.0, -2.0]]])           # projects to u = 51.5 through z < 0
     n = len(x)
     T = np.repeat(np.eye(4)[None], 2, axis=0)
     return Submap(index, np.array([1, 2], np.int64), 0, np.eye(4), T, K, 1.0, np.ones(2),
@@ -191,18 +193,17 @@ def _submap_at(depth_m: float, lam: float, index: int = 0):
 
 
 def test_lambda_against_the_true_log_depth_scale():
-    """lambda* is the log ratio of the true to the submap's depth (points off any surface do not vote);
-    the summary scores lambda against it and lambda = 0 against it."""
+    """lambda* is the log ratio of the true to the submap's depth at the point's own pixel (points off any
+    surface or behind the camera do not vote); the summary scores lambda against it and lambda = 0."""
     from tools.benchmarks.mapping_scale import lambda_errors, true_log_scale
 
-    truth = _PlaneTruth(5.0)
-    short = _submap_at(5.0 * np.exp(-0.1), lam=0.0)
-    assert true_log_scale(short, truth, 64, 48) == pytest.approx(0.1, abs=1e-6)
-    subs = [_submap_at(5.0 * np.exp(-0.1), lam=0.08, index=0),
-            _submap_at(5.0 * np.exp(0.05), lam=-0.05, index=1), _submap_at(5.0, lam=0.03, index=2)]
+    truth = _SlantedTruth()
+    assert true_log_scale(_submap_at(0.1, lam=0.0), truth, 64, 48) == pytest.approx(0.1, abs=1e-5)
+    subs = [_submap_at(0.1, lam=0.08, index=0), _submap_at(-0.05, lam=-0.05, index=1),
+            _submap_at(0.0, lam=0.03, index=2)]
     out = lambda_errors(subs, truth, 64, 48)
     assert out["submaps"] == 3
-    assert out["true_mean"] == pytest.approx((0.1 - 0.05 + 0.0) / 3, abs=1e-6)
-    assert out["rms_error"] == pytest.approx(np.sqrt((0.02 ** 2 + 0.0 + 0.03 ** 2) / 3), abs=1e-6)
-    assert out["rms_error_lambda_zero"] == pytest.approx(np.sqrt((0.1 ** 2 + 0.05 ** 2) / 3), abs=1e-6)
+    assert out["true_mean"] == pytest.approx((0.1 - 0.05 + 0.0) / 3, abs=1e-5)
+    assert out["rms_error"] == pytest.approx(np.sqrt((0.02 ** 2 + 0.0 + 0.03 ** 2) / 3), abs=1e-5)
+    assert out["rms_error_lambda_zero"] == pytest.approx(np.sqrt((0.1 ** 2 + 0.05 ** 2) / 3), abs=1e-5)
     assert out["correlation"] > 0.9
