@@ -27,6 +27,12 @@ class GraphConfig:
     scale_prior_sigma: float = 0.10
     """Prior |lambda_j - lambda_0| / this on every non-gauge node (log-scale units; lambda_0: the first
     node's, also after evictions)."""
+    gauge_lambda_free: bool = False
+    """False (the paper): the gauge node fixes its pose and its lambda (lambda_0 = 0). True: the gauge fixes
+    only its pose; its lambda is estimated with the same prior as every other node, so a wrong depth scale
+    of the first submap (or of the gauge after evictions) is not imposed on its neighbours. Measured, not
+    adopted (BENCHMARKS.md "the gauge's own lambda"): V1_02 F@10 0.838 -> 0.909, but MH_03 0.688 -> 0.638
+    and the hall preset 0.698 -> 0.682 over 20 s."""
     huber_threshold: float = 2.0
     """Huber threshold on each whitened residual block norm: rho(r) = r^2/2 (r <= k), k r - k^2/2 beyond.
     `math.inf` gives the plain quadratic loss."""

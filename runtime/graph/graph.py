@@ -248,8 +248,9 @@ class SubmapGraph:
         pts = remap(self.point_groups, lambda f, a, b: PointGroup(a, b, f.p_a, f.p_b, f.adjacent))
         scl = remap(self.scale_links, lambda f, a, b: ScaleFactor(a, b, f.kappa, f.sigma, f.kind))
         lam_ref = self.lam_ref if self.lam_ref is not None else 0.0
+        lam_only = 0 if self.cfg.gauge_lambda_free and len(self._ids) > 1 else None
         return GraphProblem(T[:, :3, :3].copy(), T[:, :3, 3].copy(), lam, free, lam_ref, odo, pts, scl,
-                            self.cfg)
+                            self.cfg, lam_only)
 
     def objective(self) -> float:
         """E (eq. objective) at the current states, with the point whitening of the current states."""
@@ -278,7 +279,9 @@ class SubmapGraph:
             return SolveReport(cost0, cost0, 0, 0, time.perf_counter() - t0, 0, "nothing to solve",
                                prob.n_params, prob.n_residuals)
         loss = "linear" if math.isinf(self.cfg.huber_threshold) else prob.loss
-        x_scale = np.tile(_X_SCALE, prob.n_params // NODE_PARAMS)
+        x_scale = np.tile(_X_SCALE, len(prob.free_pos))
+        if prob.lam_only is not None:
+            x_scale = np.append(x_scale, _X_SCALE[4])
         with _blas_threads(self.cfg.blas_threads):
             res = least_squares(prob.residual, x0, jac=prob.jacobian, method="trf", tr_solver="lsmr",
                                 loss=loss, x_scale=x_scale, max_nfev=iters + 1)
@@ -291,8 +294,12 @@ class SubmapGraph:
 
     def _apply(self, prob: GraphProblem, x: np.ndarray) -> dict[int, NodeChange]:
         R, t, lam = prob.states(x)
-        X = x.reshape(-1, NODE_PARAMS)
+        X = x[:NODE_PARAMS * len(prob.free_pos)].reshape(-1, NODE_PARAMS)
         changes = {}
+        if prob.lam_only is not None and x[-1] != 0.0:
+            j = self._ids[prob.lam_only]
+            self._lam[j] = float(lam[prob.lam_only])
+            changes[j] = NodeChange(j, np.zeros(3), 0.0, float(x[-1]))
         for row, pos in enumerate(prob.free_pos):
             j = self._ids[pos]
             T = self._T[j].copy()

@@ -81,7 +81,7 @@ class GraphProblem:
 
     def __init__(self, R0: np.ndarray, t0: np.ndarray, lam0: np.ndarray, free: np.ndarray, lam_ref: float,
                  odometry: list[OdometryFactor], points: list[PointGroup], scales: list[ScaleFactor],
-                 cfg: GraphConfig) -> None:
+                 cfg: GraphConfig, lam_only: int | None = None) -> None:
         self.R0, self.t0, self.lam0 = R0, t0, lam0
         self.k = float(cfg.huber_threshold)
         free = np.asarray(free, bool)
@@ -89,6 +89,18 @@ class GraphProblem:
         self.col = np.full(len(free), -1)
         self.col[self.free_pos] = NODE_PARAMS * np.arange(len(self.free_pos))
         self.n_params = NODE_PARAMS * len(self.free_pos)
+        # colmap[i, k]: the column of node i's parameter k (-1: not estimated); lam_only: a fixed-pose node
+        # whose lambda is estimated (the gauge with GraphConfig.gauge_lambda_free), one column at the end
+        self.colmap = np.full((len(free), NODE_PARAMS), -1)
+        self.colmap[self.free_pos] = self.col[self.free_pos, None] + np.arange(NODE_PARAMS)
+        self.lam_only = lam_only
+        if lam_only is not None:
+            if free[lam_only]:
+                raise ValueError(f"node position {lam_only} is free: lam_only is for a fixed-pose node")
+            self.colmap[lam_only, 4] = self.n_params
+            self.n_params += 1
+        self.lam_pos = np.flatnonzero(self.colmap[:, 4] >= 0)
+        """Positions of the nodes whose lambda is estimated (each gets the scale prior)."""
         # odometry
         self.o_a = np.array([f.a for f in odometry], int)
         self.o_b = np.array([f.b for f in odometry], int)
@@ -114,7 +126,7 @@ class GraphProblem:
         self.s_b = np.array([f.b for f in scales], int)
         self.s_kappa = np.array([f.kappa for f in scales], float)
         self.s_sigma = np.array([f.sigma for f in scales], float)
-        n_o, n_p, n_f, n_s = len(self.o_a), len(self.p_a), len(self.free_pos), len(self.s_a)
+        n_o, n_p, n_f, n_s = len(self.o_a), len(self.p_a), len(self.lam_pos), len(self.s_a)
         self.row_o = 0
         self.row_p = 6 * n_o
         self.row_prior = self.row_p + 3 * n_p
@@ -133,12 +145,15 @@ class GraphProblem:
     def states(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(R (N,3,3), t (N,3), lam (N,)) of all nodes at parameters x."""
         R, t, lam = self.R0.copy(), self.t0.copy(), self.lam0.copy()
+        x = np.asarray(x, np.float64)
         if len(self.free_pos):
-            X = np.asarray(x, np.float64).reshape(-1, NODE_PARAMS)
+            X = x[:NODE_PARAMS * len(self.free_pos)].reshape(-1, NODE_PARAMS)
             fp = self.free_pos
             R[fp] = rot_z(X[:, 3]) @ self.R0[fp]
             t[fp] = self.t0[fp] + X[:, :3]
             lam[fp] = self.lam0[fp] + X[:, 4]
+        if self.lam_only is not None:
+            lam[self.lam_only] = self.lam0[self.lam_only] + x[-1]
         return R, t, lam
 
     # --- evaluation ----------------------------------------------------------------------------
@@ -174,14 +189,11 @@ class GraphProblem:
 
     def _put(self, J: list, rows: np.ndarray, node: np.ndarray, blocks: np.ndarray, cols: slice) -> None:
         """Add blocks (B, d, c) at rows (B, d) and the columns `cols` of each block's node."""
-        c = self.col[node]
-        ok = c >= 0
+        idx = np.broadcast_to(self.colmap[node][:, cols][:, None, :], blocks.shape)
+        ok = idx >= 0
         if not np.any(ok):
             return
-        idx = c[ok][:, None] + np.arange(NODE_PARAMS)[cols][None, :]
-        b = blocks[ok]
-        J.append((np.broadcast_to(rows[ok][:, :, None], b.shape),
-                  np.broadcast_to(idx[:, None, :], b.shape), b))
+        J.append((np.broadcast_to(rows[:, :, None], blocks.shape)[ok], idx[ok], blocks[ok]))
 
     def _odometry(self, R: np.ndarray, t: np.ndarray, f: np.ndarray, J: list) -> None:
         n = len(self.o_a)
@@ -226,16 +238,16 @@ class GraphProblem:
             self._put(J, rows, node, sign * (M @ G), slice(0, NODE_PARAMS))
 
     def _scalars(self, lam: np.ndarray, f: np.ndarray, J: list) -> None:
-        fp = self.free_pos
-        if len(fp):
-            rows = self.row_prior + np.arange(len(fp))
-            f[rows] = (lam[fp] - self.lam_ref) / self.prior_sigma
-            J.append((rows, self.col[fp] + 4, np.full(len(fp), 1.0 / self.prior_sigma)))
+        lp = self.lam_pos
+        if len(lp):
+            rows = self.row_prior + np.arange(len(lp))
+            f[rows] = (lam[lp] - self.lam_ref) / self.prior_sigma
+            J.append((rows, self.colmap[lp, 4], np.full(len(lp), 1.0 / self.prior_sigma)))
         if len(self.s_a):
             rows = self.row_s + np.arange(len(self.s_a))
             f[rows] = (lam[self.s_b] - lam[self.s_a] - self.s_kappa) / self.s_sigma
             d = 1.0 / self.s_sigma
             for node, sign in ((self.s_b, 1.0), (self.s_a, -1.0)):
-                c = self.col[node]
+                c = self.colmap[node, 4]
                 ok = c >= 0
-                J.append((rows[ok], c[ok] + 4, sign * d[ok]))
+                J.append((rows[ok], c[ok], sign * d[ok]))

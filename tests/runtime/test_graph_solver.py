@@ -14,6 +14,8 @@ from runtime.geometry import make_pose, se3_exp, se3_inverse, so3_exp
 from runtime.graph import GraphConfig, GraphError, SubmapGraph, huber_rho, huber_weight
 
 EZ = np.array([0.0, 0.0, 1.0])
+PAPER = GraphConfig(gauge_lambda_free=False)
+"""The paper's gauge: the first node fixes its pose and lambda_0 (the solver tests below)."""
 
 
 def yaw_of(R: np.ndarray) -> float:
@@ -84,7 +86,7 @@ def errors(g: SubmapGraph, Ts: np.ndarray, lams: np.ndarray) -> tuple[float, flo
 
 
 def test_recovers_a_perturbed_synthetic_graph():
-    g, Ts, lams, rng = build(8, seed=1, odo_noise=0.002, point_noise=0.002, scale_noise=0.005)
+    g, Ts, lams, rng = build(8, seed=1, odo_noise=0.002, point_noise=0.002, scale_noise=0.005, cfg=PAPER)
     p = perturb(g, rng)
     before = errors(p, Ts, lams)
     assert before[0] > 0.2 and before[1] > math.radians(2) and before[2] > 0.03
@@ -96,7 +98,7 @@ def test_recovers_a_perturbed_synthetic_graph():
 
 
 def test_gauge_and_gravity_directions_stay_fixed():
-    g, Ts, lams, rng = build(8, seed=2, odo_noise=0.002)
+    g, Ts, lams, rng = build(8, seed=2, odo_noise=0.002, cfg=PAPER)
     p = perturb(g, rng)
     before = {j: p.node_state(j) for j in p.node_ids}
     p.solve()
@@ -162,7 +164,7 @@ def test_outlier_point_group_moves_huber_less_than_quadratic():
 
 
 def test_eviction_refixes_the_gauge_at_the_current_state():
-    g, Ts, lams, rng = build(6, seed=5, odo_noise=0.002)
+    g, Ts, lams, rng = build(6, seed=5, odo_noise=0.002, cfg=PAPER)
     p = perturb(g, rng)
     p.solve()
     s2 = p.node_state(2)
@@ -194,7 +196,7 @@ def test_scale_link_chain_recovers_lambda_differences_with_a_weak_prior():
     kappas = [0.2, -0.1, 0.3, 0.25, -0.05]
     truth = np.concatenate([[0.0], np.cumsum(kappas)])
     for sigma_prior, close in ((1e3, True), (0.10, False)):
-        g = SubmapGraph(GraphConfig(scale_prior_sigma=sigma_prior))
+        g = SubmapGraph(GraphConfig(scale_prior_sigma=sigma_prior, gauge_lambda_free=False))
         Ts, _ = truth_poses(6, np.random.default_rng(7))
         for j in range(6):
             g.add_node(j, Ts[j], 0.0)
@@ -322,3 +324,41 @@ def test_scale_reference_does_not_walk_with_the_gauge_over_evictions():
     lam = np.array(list(final.values()))
     assert len(lam) == 190
     assert np.sqrt(np.mean(lam ** 2)) < 0.035
+
+
+def test_a_free_gauge_lambda_does_not_impose_the_first_submaps_depth_error():
+    """The first submap's depths 12 % short (lambda*_0 = 0.12, as measured on V1_02's first window), the
+    others right; scale links from the truth. With the paper's gauge (lambda_0 fixed at 0) the links carry
+    the error to every neighbour; with the gauge's lambda free under the same prior the level is the
+    priors' consensus. Both equal the closed-form least squares of the priors and links."""
+    n = 10
+    truth = np.zeros(n)
+    truth[0] = 0.12
+    Ts, _ = truth_poses(n, np.random.default_rng(3))
+    out = {}
+    for free in (False, True):
+        g = SubmapGraph(GraphConfig(gauge_lambda_free=free))
+        for j in range(n):
+            g.add_node(j, Ts[j], 0.0)
+        for a in range(n - 1):
+            g.add_odometry(a, a + 1, se3_inverse(Ts[a]) @ Ts[a + 1])
+            g.add_scale_link(a, a + 1, truth[a + 1] - truth[a], 0.03)
+        rep = g.solve(max_iterations=20)
+        out[free] = np.array([g.node_state(j).lam for j in range(n)])
+        assert np.array_equal(g.node_state(0).T_MS, Ts[0]) and g.node_state(0).fixed   # the pose gauge
+        assert (0 in rep.changes) == free
+    for free in (False, True):     # the lambdas' own least-squares problem (priors and links), closed form
+        A = [np.eye(n)[j] / 0.10 for j in range(0 if free else 1, n)]
+        b = [0.0] * len(A)
+        for a in range(n - 1):
+            A.append((np.eye(n)[a + 1] - np.eye(n)[a]) / 0.03)
+            b.append((truth[a + 1] - truth[a]) / 0.03)
+        if not free:
+            A.append(np.eye(n)[0] * 1e6)
+            b.append(0.0)
+        np.testing.assert_allclose(out[free], np.linalg.lstsq(np.array(A), np.array(b), rcond=None)[0],
+                                   atol=5e-5)
+    err = {free: np.abs(out[free] - truth) for free in (False, True)}
+    assert err[True].max() < 0.04
+    assert out[False][0] == 0.0 and err[False][1] > 0.08                 # the first neighbour inherits it
+    assert err[False].mean() > 1.5 * err[True].mean()
