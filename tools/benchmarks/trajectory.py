@@ -17,7 +17,8 @@ real IMU, whole length by default; motion presets with a synthetic IMU, which re
      False)`), graph poses fixed (`graph=False`), without revisits (`RevisitConfig(enabled=False)`), without
      the drift gate (`RevisitConfig(drift_gate=False)`): F@10 as `davio bench mapping` scores it (visible
      reference, 4 cm voxels, 10 cm; the map is in the map frame M and moved by the variant's final
-     trajectory's SE(3) alignment), final and causal ATE, and the graph's counters;
+     trajectory's SE(3) alignment), final and causal ATE, the graph's counters and its lambdas against
+     the true log-depth scale (mapping_scale.py);
   4. the odometry's drift per distance travelled next to OpenVINS figures taken from the shared data.
 Goals: final ATE <= 0.7 x odometry on every sequence, causal ATE no worse than the odometry.
 Everything is simulated: the depth model is the emulated DA3 (models/emulated_da3), not DA3; the start-up
@@ -182,6 +183,7 @@ def run_ablation(ab: Ablation, run: Any, ctx: dict) -> tuple[dict, Any]:
     from models.emulated_da3 import EmulatedDA3
     from runtime.mapping.mapper import Mapper
     from tools.benchmarks.mapping import evaluate
+    from tools.benchmarks.mapping_scale import lambda_errors
     from tools.benchmarks.mapping_variants import export_points
     from tools.benchmarks.trajectory_replay import replay, trajectory
 
@@ -204,6 +206,8 @@ def run_ablation(ab: Ablation, run: Any, ctx: dict) -> tuple[dict, Any]:
         pts = export_points(subs, cfg.mapping.voxel_m)
         al = final_r.alignment
         row["surface"] = evaluate(pts @ al.R.T + al.t, ref)
+    if subs and ab.graph:
+        row["lambda"] = lambda_errors(subs, truth, cam.width, cam.height)
     return row, rep
 
 
@@ -261,7 +265,8 @@ def run_sequence(src: Source, args: argparse.Namespace, log: Any = None) -> dict
             f10 = row.get("surface", {}).get("f10", float("nan"))
             log(f"  {ab.label:24s} final ATE {row['final_ate_m']:.3f} m  causal {row['causal_ate_m']:.3f} m  "
                 f"F@10 {f10:.3f}  windows {row['windows_accepted']}/{row['windows_offered']}  "
-                f"{row['mapping_s']:.0f} s")
+                f"{row['mapping_s']:.0f} s" + (f"  lambda - lambda* RMS {row['lambda']['rms_error']:.3f}"
+                                                if row.get("lambda", {}).get("submaps") else ""))
     davio = rows["davio"]
     out["trajectory"] = {
         "odometry": {"ate_m": odo_m, "ratio": 1.0},
