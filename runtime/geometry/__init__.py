@@ -14,6 +14,7 @@ from runtime.geometry.quaternion import (
 from runtime.geometry.se3 import make_pose, se3_exp, se3_inverse, se3_log
 from runtime.geometry.so3 import (
     normalize_rotation,
+    rot_z,
     skew,
     so3_exp,
     so3_interpolate,
@@ -36,7 +37,7 @@ def kernels_status() -> str:
 
 __all__ = [
     "GeometryError", "PoseTrajectory", "bracket", "interpolate_poses", "jpl_xyzw_to_rot", "kernels_status",
-    "make_pose", "normalize_rotation", "quat_wxyz_to_rot", "quat_xyzw_to_rot", "rot_to_jpl_xyzw",
+    "make_pose", "normalize_rotation", "quat_wxyz_to_rot", "quat_xyzw_to_rot", "rot_to_jpl_xyzw", "rot_z",
     "rot_to_quat_wxyz", "rot_to_quat_xyzw", "se3_exp", "se3_inverse", "se3_log", "skew", "so3_exp",
     "so3_interpolate", "so3_left_jacobian", "so3_left_jacobian_inv", "so3_log", "so3_right_jacobian",
     "so3_right_jacobian_inv", "vee",

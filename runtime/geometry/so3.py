@@ -163,3 +163,16 @@ def so3_interpolate(R0: np.ndarray, R1: np.ndarray, alpha: np.ndarray | float) -
     alpha = np.asarray(alpha, dtype=np.float64)
     delta = so3_log(np.swapaxes(R0, -1, -2) @ R1)
     return R0 @ so3_exp(alpha[..., None] * delta)
+
+
+def rot_z(yaw: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) rotations about z by yaw (rad); the third row and column are exactly (0, 0, 1)."""
+    yaw = np.asarray(yaw, np.float64)
+    c, s = np.cos(yaw), np.sin(yaw)
+    out = np.zeros(yaw.shape + (3, 3))
+    out[..., 0, 0] = c
+    out[..., 0, 1] = -s
+    out[..., 1, 0] = s
+    out[..., 1, 1] = c
+    out[..., 2, 2] = 1.0
+    return out

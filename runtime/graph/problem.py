@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.sparse import csr_matrix
 
-from runtime.geometry import make_pose, se3_inverse, se3_log, skew
+from runtime.geometry import make_pose, rot_z, se3_inverse, se3_log, skew
 from runtime.graph.config import GraphConfig
 from runtime.graph.factors import OdometryFactor, PointGroup, ScaleFactor
 from runtime.graph.robust import BlockHuber
@@ -31,19 +31,6 @@ from runtime.graph.whitening import odometry_weights, point_whitening
 
 NODE_PARAMS = 5
 _EZ = np.array([0.0, 0.0, 1.0])
-
-
-def rot_z(yaw: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) rotations about z by yaw (rad); the third row and column are exactly (0, 0, 1)."""
-    yaw = np.asarray(yaw, np.float64)
-    c, s = np.cos(yaw), np.sin(yaw)
-    out = np.zeros(yaw.shape + (3, 3))
-    out[..., 0, 0] = c
-    out[..., 0, 1] = -s
-    out[..., 1, 0] = s
-    out[..., 1, 1] = c
-    out[..., 2, 2] = 1.0
-    return out
 
 
 def _adjoint(T: np.ndarray) -> np.ndarray:
@@ -86,13 +73,11 @@ class GraphProblem:
         self.k = float(cfg.huber_threshold)
         free = np.asarray(free, bool)
         self.free_pos = np.flatnonzero(free)
-        self.col = np.full(len(free), -1)
-        self.col[self.free_pos] = NODE_PARAMS * np.arange(len(self.free_pos))
         self.n_params = NODE_PARAMS * len(self.free_pos)
         # colmap[i, k]: the column of node i's parameter k (-1: not estimated); lam_only: a fixed-pose node
         # whose lambda is estimated (the gauge with GraphConfig.gauge_lambda_free), one column at the end
         self.colmap = np.full((len(free), NODE_PARAMS), -1)
-        self.colmap[self.free_pos] = self.col[self.free_pos, None] + np.arange(NODE_PARAMS)
+        self.colmap[self.free_pos] = np.arange(self.n_params).reshape(-1, NODE_PARAMS)
         self.lam_only = lam_only
         if lam_only is not None:
             if free[lam_only]:

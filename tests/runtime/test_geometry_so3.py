@@ -179,3 +179,14 @@ def test_property_exp_is_orthonormal_and_log_recovers_rotation(v):
     out = so3_log(R)
     assert np.linalg.norm(out) <= np.pi + 1e-12
     np.testing.assert_allclose(so3_exp(out), R, atol=1e-12)
+
+
+def test_rot_z_is_the_exponential_about_z_batched_and_keeps_gravity_exact():
+    from runtime.geometry import rot_z
+
+    yaws = np.array([[-3.0, 0.0], [0.4, 2.5]])
+    R = rot_z(yaws)
+    assert R.shape == (2, 2, 3, 3)
+    for yaw, Ry in zip(yaws.ravel(), R.reshape(-1, 3, 3), strict=True):
+        np.testing.assert_allclose(Ry, so3_exp(np.array([0.0, 0.0, yaw])), atol=1e-12)
+        assert np.array_equal(Ry[2], [0.0, 0.0, 1.0]) and np.array_equal(Ry[:, 2], [0.0, 0.0, 1.0])

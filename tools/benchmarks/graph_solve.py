@@ -30,18 +30,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def synthetic_graph(n: int, seed: int = 0):
     """(graph with perturbed free nodes, true T_MS (n,4,4), true lambdas (n,)) as the module docstring."""
-    from runtime.geometry import make_pose, se3_exp, se3_inverse
+    from runtime.geometry import make_pose, rot_z, se3_exp, se3_inverse
     from runtime.graph import GraphConfig, SubmapGraph
 
     rng = np.random.default_rng(seed)
     r = 1.5 * n / (2 * math.pi)
     R_bc = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])   # camera in a z-up body
 
-    def rz(a: float) -> np.ndarray:
-        return np.array([[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0], [0.0, 0.0, 1.0]])
-
     angles = 2 * math.pi * np.arange(n) / n
-    Ts = np.array([make_pose(rz(a) @ R_bc, np.array([r * math.cos(a), r * math.sin(a), 1.0]))
+    Ts = np.array([make_pose(rot_z(a) @ R_bc, np.array([r * math.cos(a), r * math.sin(a), 1.0]))
                    for a in angles])
     lams = np.concatenate([[0.0], rng.normal(0.0, 0.05, n - 1)])
 
@@ -58,7 +55,7 @@ def synthetic_graph(n: int, seed: int = 0):
         T = Ts[j].copy()
         lam = lams[j]
         if j:
-            T[:3, :3] = rz(rng.normal(0, math.radians(3))) @ T[:3, :3]
+            T[:3, :3] = rot_z(rng.normal(0, math.radians(3))) @ T[:3, :3]
             T[:3, 3] += rng.normal(0, 0.2, 3)
             lam += rng.normal(0, 0.05)
         g.add_node(j, T, lam)

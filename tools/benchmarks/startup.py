@@ -139,7 +139,7 @@ def _ate_degenerate_truth(est: Any, gt: Any) -> Any:
     from types import SimpleNamespace
 
     from runtime.errors import DataError
-    from runtime.geometry import interpolate_poses
+    from runtime.geometry import interpolate_poses, rot_z
     from tools.evaluation import ate
 
     try:
@@ -152,9 +152,7 @@ def _ate_degenerate_truth(est: Any, gt: Any) -> Any:
     p = est.p[inside]
     rmse = float(np.sqrt(np.mean(np.sum((p - p.mean(axis=0)) ** 2, axis=1))))
     R_off = interpolate_poses(gt, est.t_ns[inside][:1]).R[0] @ est.R[inside][0].T
-    yaw = float(np.arctan2(R_off[1, 0], R_off[0, 0]))
-    c, s = np.cos(yaw), np.sin(yaw)
-    R_yaw = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    R_yaw = rot_z(np.arctan2(R_off[1, 0], R_off[0, 0]))
     return SimpleNamespace(trans={"rmse": rmse}, alignment=SimpleNamespace(R=R_yaw, s=1.0))
 
 

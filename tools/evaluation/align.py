@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from runtime.errors import TrajectoryError
+from runtime.geometry.so3 import rot_z
 from runtime.geometry.trajectory import PoseTrajectory
 
 METHODS: tuple[str, ...] = ("se3", "sim3", "posyaw", "none")
@@ -108,9 +109,7 @@ def posyaw(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     b = float(np.sum(xs[:, 0] * xd[:, 1] - xs[:, 1] * xd[:, 0]))
     if np.hypot(a, b) < 1e-12 * max(1.0, float(np.sum(xs[:, :2] ** 2))):
         raise TrajectoryError("no horizontal motion: yaw alignment is unobservable")
-    yaw = np.arctan2(b, a)
-    c, s = np.cos(yaw), np.sin(yaw)
-    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    R = rot_z(np.arctan2(b, a))
     return R, mu_d - R @ mu_s
 
 
