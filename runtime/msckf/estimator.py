@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from runtime.errors import EstimatorError
+from runtime.imu.buffer import ImuBuffer
 from runtime.msckf.blas_threads import limit_blas_threads
 from runtime.msckf.camera_kernels import CameraParams, undistort_points
 from runtime.msckf.config import MsckfConfig
@@ -66,9 +67,7 @@ class MsckfEstimator:
         self.initializers = list(initializers or [])
         self.g = np.array([0.0, 0.0, -self.config.gravity_mag])
         self.counters = FilterCounters()
-        self._imu_t: list[int] = []
-        self._imu_w: list[np.ndarray] = []
-        self._imu_a: list[np.ndarray] = []
+        self._imu = ImuBuffer()
         self._pending: deque = deque()
         self._last_frame_ns: int | None = None
         self.db = FeatureDatabase()
@@ -248,24 +247,22 @@ class MsckfEstimator:
         if w.size != 3 or a.size != 3 or not (np.isfinite(w).all() and np.isfinite(a).all()):
             c.imu_nonfinite += 1
             return []
-        if self._imu_t and t <= self._imu_t[-1]:
+        last = self._imu.last_ns
+        if last is not None and t <= last:
             c.imu_out_of_order += 1
             return []
         lost = int(getattr(sample, "lost_before", 0) or 0)
         c.imu_lost += lost
-        if self._imu_t and (lost or (t - self._imu_t[-1]) * 1e-9 > self.config.max_imu_gap_s):
+        if last is not None and (lost or (t - last) * 1e-9 > self.config.max_imu_gap_s):
             c.imu_gaps += 1
         c.imu_samples += 1
-        self._imu_t.append(t)
-        self._imu_w.append(w)
-        self._imu_a.append(a)
+        self._imu.append(t, w, a)
         if not self.initialized:
             for ini in self.initializers:
                 ini.feed_imu(sample)
             keep_from = t - int(self.config.imu_buffer_s * 1e9)
-            if self._imu_t[0] < keep_from - 1_000_000_000:     # trim in 1 s chunks
-                j = int(np.searchsorted(np.asarray(self._imu_t, dtype=np.int64), keep_from))
-                del self._imu_t[:j], self._imu_w[:j], self._imu_a[:j]
+            if self._imu.first_ns < keep_from - 1_000_000_000:     # trim in 1 s chunks
+                self._imu.drop_before(keep_from)
         return self._process_pending()
 
     def feed_tracks(self, t_ns: int, ids: np.ndarray, uv: np.ndarray) -> list[FilterState]:
@@ -332,7 +329,7 @@ class MsckfEstimator:
         while self._pending and self.state_ is not None:
             t_cam, ids, uv = self._pending[0]
             target = t_cam + int(round(self.state_.t_d * 1e9))
-            newest = self._imu_t[-1] if self._imu_t else None
+            newest = self._imu.last_ns
             if newest is None or target > newest:
                 late = newest is not None and (target - newest) * 1e-9 <= self.config.max_imu_extrapolation_s
                 if not (force and late):
@@ -347,16 +344,13 @@ class MsckfEstimator:
         st = self.state_
         if target_ns <= st.t_ns:
             return target_ns == st.t_ns
-        t_arr = np.asarray(self._imu_t, dtype=np.int64)
-        if t_arr.size == 0 or t_arr[0] > st.t_ns:
+        imu = self._imu
+        first = imu.first_ns
+        if first is None or first > st.t_ns:
             return False
-        j0 = max(int(np.searchsorted(t_arr, st.t_ns, side="right")) - 1, 0)
-        if j0 > 0:  # drop samples no longer needed
-            del self._imu_t[:j0], self._imu_w[:j0], self._imu_a[:j0]
-            t_arr = t_arr[j0:]
-        w = np.asarray(self._imu_w)
-        a = np.asarray(self._imu_a)
-        t, ws, as_ = select_samples(t_arr, w, a, st.t_ns, target_ns)
+        j0 = max(int(np.searchsorted(imu.t_ns, st.t_ns, side="right")) - 1, 0)
+        imu.drop_first(j0)  # samples no longer needed
+        t, ws, as_ = select_samples(imu.t_ns, imu.gyro, imu.accel, st.t_ns, target_ns)
         cfg = self.config
         R1, p1, v1, Phi, Qd, w_last = propagate_interval(
             st.R,
@@ -457,8 +451,6 @@ class MsckfEstimator:
         msckf = [tr for tr in lost + marg + maxtracks if len(tr) >= 2]
         msckf.sort(key=len)
         msckf = msckf[max(len(msckf) - cfg.max_msckf_in_update, 0) :]
-        # before the update moves the clones
-        parallax = median_parallax_deg(st, msckf + new_slam, self.camera)
         ms = msckf_update(st, msckf, cfg, self.camera)
         c.msckf_features_used += ms.used
         c.msckf_triangulation_failed += ms.triangulation_failed
@@ -476,6 +468,10 @@ class MsckfEstimator:
             if fid in seen and tr is not None and tr.t_ns and tr.t_ns[-1] == t_cam:
                 obs.append((fid, tr.uv[-1]))
         slam_update(st, t_cam, obs, cfg, self.camera, sst)
+        # the tracks' parallax matters only to a frame without a visual update; then neither update moved
+        # the clones, and the tracks are still whole (the delayed initialisation shortens new landmarks')
+        parallax = (median_parallax_deg(st, msckf + new_slam, self.camera) if ms.used + sst.updated == 0
+                    else None)
         max_chi2 = cfg.slam_max_chi2_failures
         lost_lms = [fid for fid, lm in st.slam.items() if fid not in seen or lm.fail_count > 1
                     or (max_chi2 is not None and lm.chi2_failures > max_chi2)]

@@ -4,9 +4,9 @@ delayed landmark initialisation with a chi-square test (OpenVINS StateHelper str
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg as sla
 from numba import njit
 from scipy.linalg.blas import dsyrk
+from scipy.linalg.lapack import dpotrf, dtrtrs
 from scipy.stats import chi2 as _chi2
 
 from runtime.msckf.measurement import givens_left_nullspace
@@ -37,21 +37,31 @@ def innovation_mahalanobis(Pcc: np.ndarray, H: np.ndarray, r: np.ndarray, sigma:
 
 
 def compress(H: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """QR measurement compression: rows beyond the column count carry no information for isotropic noise."""
+    """QR measurement compression: rows beyond the column count carry no information for isotropic noise.
+
+    H = Q R, returned as (R, Q^T r): the triangular factor of the augmented [H | r] holds both (its last
+    column is Q^T r over the first n rows), so Q is never formed."""
     m, n = H.shape
     if m <= n:
         return H, r
-    Q, Rq = np.linalg.qr(H, mode="reduced")
-    return Rq, Q.T @ r
+    Ra = np.linalg.qr(np.column_stack((H, r)), mode="r")
+    return Ra[:n, :n], Ra[:n, n].copy()
+
+
+_MIRROR_TILE = 32
 
 
 @njit(cache=True, nogil=True)
 def _mirror_lower_to_upper(P: np.ndarray) -> None:
-    """P[i, j] = P[j, i] for j < i (in place)."""
+    """P[i, j] = P[j, i] for j < i (in place), in square tiles so that the strided reads stay in cache."""
     n = P.shape[0]
-    for i in range(n):
-        for j in range(i + 1, n):
-            P[i, j] = P[j, i]
+    for bi in range(0, n, _MIRROR_TILE):
+        ei = min(bi + _MIRROR_TILE, n)
+        for bj in range(bi, n, _MIRROR_TILE):
+            ej = min(bj + _MIRROR_TILE, n)
+            for i in range(bi, ei):
+                for j in range(max(bj, i + 1), ej):
+                    P[i, j] = P[j, i]
 
 
 def ekf_update(state: State, cols: np.ndarray, H: np.ndarray, r: np.ndarray, sigma: float) -> bool:
@@ -62,15 +72,21 @@ def ekf_update(state: State, cols: np.ndarray, H: np.ndarray, r: np.ndarray, sig
     if not state.P.flags.c_contiguous:
         state.P = np.ascontiguousarray(state.P)
     P = state.P
-    A = H @ P[cols]                        # m x n  (= H P[cols, :], P symmetric)
+    m = H.shape[0]
+    A = np.asfortranarray(H @ P[cols])     # m x n  (= H P[cols, :], P symmetric)
     S = A[:, cols] @ H.T
-    S[np.diag_indices_from(S)] += sigma * sigma
-    try:
-        L = np.linalg.cholesky(S)
-    except np.linalg.LinAlgError:
+    S.flat[::m + 1] += sigma * sigma
+    # LAPACK directly: the scipy.linalg wrappers' checks cost more than these small factorisations
+    L, info = dpotrf(S, lower=1, clean=0, overwrite_a=1)
+    if info != 0:
         return False
-    W = sla.solve_triangular(L, A, lower=True, check_finite=False)
-    dx = W.T @ sla.solve_triangular(L, r, lower=True, check_finite=False)
+    W, info = dtrtrs(L, A, lower=1, overwrite_b=1)
+    z, info_r = dtrtrs(L, np.asarray(r, np.float64), lower=1)
+    if info != 0 or info_r != 0:
+        return False
+    dx = W.T @ z
+    if not np.isfinite(dx).all():   # a NaN pivot passes OpenBLAS's potrf
+        return False
     # P.T is P's memory in Fortran order: syrk's upper triangle there is the lower triangle of P
     out = dsyrk(-1.0, W, beta=1.0, c=P.T, trans=1, lower=0, overwrite_c=1)
     if not np.shares_memory(out, P):

@@ -528,7 +528,7 @@ def test_imu_history_is_bounded_while_uninitialised_and_a_past_state_can_start()
     imu, frames = _stream(6.0)
     for s in imu:
         est.feed_imu(s)
-    assert len(est._imu_t) <= 3.0 * 200 + 1
+    assert len(est._imu) <= 3.0 * 200 + 1
     # a state 1.5 s in the past (within the buffer) propagates through the buffered samples
     t0 = imu[-1].t_ns - 1_500_000_000
     R, p, v, _ = _truth(t0 * 1e-9)
