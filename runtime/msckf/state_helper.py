@@ -29,7 +29,7 @@ def chi2_accepts(d2: float, dof: int, multiplier: float) -> bool:
 def innovation_mahalanobis(Pcc: np.ndarray, H: np.ndarray, r: np.ndarray, sigma: float) -> float:
     """r^T (H Pcc H^T + sigma^2 I)^-1 r for the covariance Pcc of H's columns (inf when singular)."""
     S = H @ Pcc @ H.T
-    S[np.diag_indices_from(S)] += sigma * sigma
+    S.flat[::S.shape[0] + 1] += sigma * sigma
     try:
         return float(r @ np.linalg.solve(S, r))
     except np.linalg.LinAlgError:
@@ -129,44 +129,71 @@ def marginalize(state: State, clone_times: list[int], landmark_ids: list[int]) -
     state.remove_variables(blocks)
 
 
+def split_landmark_rows(Pcc: np.ndarray, Hx: np.ndarray, Hf: np.ndarray, r: np.ndarray, sigma: float,
+                        chi2_multiplier: float) -> tuple | None:
+    """The gate of a landmark's delayed initialisation (OpenVINS StateHelper::initialize): Givens rotations of
+    Hf split its m >= 2 observations into an invertible part (3 rows) that defines the landmark and the rest.
+
+    Pcc: the covariance of Hx's columns. The Mahalanobis distance of the 2m-3 projected rows is compared with
+    the 95% chi-square quantile of all 2m rows, as OpenVINS does (a looser gate than the projected rows' own
+    quantile). Returns (Hf1_inv, Hx1, r1, Hx2, r2), or None when the gate refuses or Hf1 is singular."""
+    Hx2, r2, Hf1, Hx1, r1 = givens_left_nullspace(Hf.copy(), Hx.copy(), r.copy())
+    if Hx2.shape[0] > 0:
+        if not chi2_accepts(innovation_mahalanobis(Pcc, Hx2, r2, sigma), r.shape[0], chi2_multiplier):
+            return None
+    try:
+        Hf1_inv = np.linalg.inv(Hf1)
+    except np.linalg.LinAlgError:
+        return None
+    if not np.all(np.isfinite(Hf1_inv)):
+        return None
+    return Hf1_inv, Hx1, r1, Hx2, r2
+
+
+def add_landmarks(state: State, cols: np.ndarray, new: list[tuple], sigma: float) -> list[Landmark]:
+    """Append landmarks defined by the invertible parts of their rows, in one covariance copy.
+
+    new: [(fid, p_O, p_fej, Hf1_inv, Hx1, r1)] with p_fej None for the landmark's initial value. With
+    G_i = Hf1_i^-1 Hx1_i over `cols`: value p_O + Hf1_i^-1 r1_i, cross-covariance -G_i P[cols, :], covariance
+    G_i P_cc G_j^T between landmarks plus sigma^2 Hf1_i^-1 Hf1_i^-T on the diagonal blocks: the same joint
+    covariance as adding them one after another."""
+    if not new:
+        return []
+    G = np.vstack([F @ Hx1 for _, _, _, F, Hx1, _ in new])            # 3L x k
+    cross = -(G @ state.P[cols])                                     # 3L x n  (P symmetric)
+    cov = -(cross[:, cols] @ G.T)                                    # G P_cc G^T
+    s2 = sigma * sigma
+    for i, (_, _, _, F, _, _) in enumerate(new):
+        cov[3 * i:3 * i + 3, 3 * i:3 * i + 3] += s2 * (F @ F.T)
+    idx0 = state.add_variable(3 * len(new), 0.5 * (cov + cov.T), cross)
+    out = []
+    for i, (fid, p_O, p_fej, F, _, r1) in enumerate(new):
+        p_new = p_O + F @ r1
+        lm = Landmark(fid, p_new.copy(), (p_new if p_fej is None else p_fej).copy(), idx0 + 3 * i)
+        state.slam[fid] = lm
+        out.append(lm)
+    return out
+
+
 def initialize_landmark(state: State, fid: int, p_O: np.ndarray, cols: np.ndarray, Hx: np.ndarray,
                         Hf: np.ndarray, r: np.ndarray, sigma: float, chi2_multiplier: float,
                         deferred: list | None = None, p_fej: np.ndarray | None = None,
                         Pcc: np.ndarray | None = None) -> bool:
-    """Delayed initialisation of a landmark from m >= 2 observations (OpenVINS StateHelper::initialize).
+    """Delayed initialisation of one landmark from m >= 2 observations (OpenVINS StateHelper::initialize):
+    `split_landmark_rows`, then `add_landmarks`.
 
     p_fej: the landmark's first estimate (the point Hf was evaluated at); None: its initial value. Pcc: the
-    covariance of `cols` when the caller has it (None: taken from the state).
-
-    The rows are split by Givens rotations of Hf into an invertible part (3 rows) that defines the landmark
-    and the rest, which is chi-square tested and then used in an ordinary update (or, with `deferred`,
-    appended there as (Hx2, r2) over `cols` for one stacked update by the caller: for a fixed
-    linearisation the order of independent updates does not change the posterior).
-
-    The gate compares the Mahalanobis distance of the 2m-3 projected rows with the 95% chi-square
-    quantile of all 2m rows, as OpenVINS's StateHelper::initialize does (a looser gate than the projected
-    rows' own quantile).
-    """
-    Hx2, r2, Hf1, Hx1, r1 = givens_left_nullspace(Hf.copy(), Hx.copy(), r.copy())
-    if Hx2.shape[0] > 0:
-        d2 = (mahalanobis(state, cols, Hx2, r2, sigma) if Pcc is None
-              else innovation_mahalanobis(Pcc, Hx2, r2, sigma))
-        if not chi2_accepts(d2, r.shape[0], chi2_multiplier):
-            return False
-    try:
-        Hf1_inv = np.linalg.inv(Hf1)
-    except np.linalg.LinAlgError:
+    covariance of `cols` when the caller has it (None: taken from the state). The rows beyond the invertible
+    part are then used in an ordinary update, or, with `deferred`, appended there as (Hx2, r2) over `cols`
+    for one stacked update by the caller (for a fixed linearisation the order of independent updates does not
+    change the posterior)."""
+    if Pcc is None:
+        Pcc = state.P[np.ix_(cols, cols)]
+    split = split_landmark_rows(Pcc, Hx, Hf, r, sigma, chi2_multiplier)
+    if split is None:
         return False
-    if not np.all(np.isfinite(Hf1_inv)):
-        return False
-    P = state.P
-    PHt = P[:, cols] @ Hx1.T                          # n x 3
-    S1 = Hx1 @ PHt[cols] + sigma * sigma * np.eye(3)
-    cov = Hf1_inv @ S1 @ Hf1_inv.T
-    cross = -Hf1_inv @ PHt.T                          # 3 x n
-    idx = state.add_variable(3, 0.5 * (cov + cov.T), cross)
-    p_new = p_O + Hf1_inv @ r1
-    state.slam[fid] = Landmark(fid, p_new.copy(), (p_new if p_fej is None else p_fej).copy(), idx)
+    Hf1_inv, Hx1, r1, Hx2, r2 = split
+    add_landmarks(state, cols, [(fid, p_O, p_fej, Hf1_inv, Hx1, r1)], sigma)
     if Hx2.shape[0] > 0:
         if deferred is not None:
             deferred.append((Hx2, r2))

@@ -15,7 +15,7 @@ from runtime.msckf.feature_db import Track
 from runtime.msckf.landmark_repr import anchored_to_global, global_to_anchored
 from runtime.msckf.measurement import feature_intrinsics_jacobian, feature_jacobians
 from runtime.msckf.state import Landmark, State
-from runtime.msckf.state_helper import chi2_95, compress, ekf_update, initialize_landmark
+from runtime.msckf.state_helper import add_landmarks, chi2_95, compress, ekf_update, split_landmark_rows
 from runtime.msckf.track_linearization import linearize_tracks, window_columns
 
 
@@ -243,6 +243,7 @@ def delayed_init(state: State, tracks: list[Track], cfg: MsckfConfig, cam: Camer
     # after the loop, so it holds for every track
     Pcc = state.P[np.ix_(cols, cols)]
     deferred: list = []
+    accepted: list = []
     anchored = cfg.slam_representation == "anchored_inverse_depth"
     anchor = state.clones[state.clone_times()[-1]] if anchored else None
     for tr, lin in zip(tracks, linearize_tracks(state, tracks, cfg, cam), strict=True):
@@ -263,14 +264,20 @@ def delayed_init(state: State, tracks: list[Track], cfg: MsckfConfig, cam: Camer
             o = offset[anchor.t_cam_ns]
             Hx[:, o:o + 6] += Hf @ J_anc
             H_lm = Hf @ J_lam
-        if initialize_landmark(state, tr.fid, value, cols, Hx, H_lm, r, cfg.sigma_pix, cfg.chi2_multiplier,
-                               deferred, fej, Pcc):
-            if anchor is not None:
-                state.slam[tr.fid].anchor_t = anchor.t_cam_ns
-            stats.initialized += 1
-            added.append(tr.fid)
-        else:
+        split = split_landmark_rows(Pcc, Hx, H_lm, r, cfg.sigma_pix, cfg.chi2_multiplier)
+        if split is None:
             stats.init_failed += 1
+            continue
+        Hf1_inv, Hx1, r1, Hx2, r2 = split
+        accepted.append((tr.fid, value, fej, Hf1_inv, Hx1, r1))
+        if Hx2.shape[0] > 0:
+            deferred.append((Hx2, r2))
+    # every gate above used the window's covariance before any landmark entered: one covariance copy for all
+    for lm in add_landmarks(state, cols, accepted, cfg.sigma_pix):
+        if anchor is not None:
+            lm.anchor_t = anchor.t_cam_ns
+        stats.initialized += 1
+        added.append(lm.fid)
     if deferred:
         H, r = compress(np.vstack([h for h, _ in deferred]), np.concatenate([x for _, x in deferred]))
         if not ekf_update(state, cols, H, r, cfg.sigma_pix):

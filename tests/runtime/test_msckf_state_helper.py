@@ -6,11 +6,13 @@ import numpy as np
 
 from runtime.msckf.state import State
 from runtime.msckf.state_helper import (
+    add_landmarks,
     augment_clone,
     compress,
     ekf_update,
     initialize_landmark,
     marginalize,
+    split_landmark_rows,
 )
 
 
@@ -112,6 +114,47 @@ def test_landmark_initialisation_matches_joint_linear_solution() -> None:
     mean = Pj @ (Hfull.T @ r / sigma**2)
     assert np.allclose(st.P, Pj, atol=1e-8)
     assert np.allclose(st.slam[42].p, f0 + mean[n:], atol=1e-8)
+    assert np.allclose(st.p - x0_p, mean[3:6], atol=1e-8)
+
+
+def test_batched_landmark_initialisation_matches_the_joint_linear_solution() -> None:
+    # three landmarks observed over the same window columns, added in one covariance copy, their remaining
+    # rows applied in one stacked update afterwards (as delayed_init does): the joint posterior of state and
+    # all landmarks must equal information-form elimination with a flat prior on every landmark
+    rng = np.random.default_rng(11)
+    st = _state(n_extra_clones=1)
+    n = st.size
+    cols = np.arange(15, 21)
+    sigma, M, L = 0.4, 8, 3
+    P0, x0_p = st.P.copy(), st.p.copy()
+    Pcc = st.P[np.ix_(cols, cols)]
+    rows, accepted, deferred = [], [], []
+    for i in range(L):
+        Hx, Hf = rng.standard_normal((M, cols.size)), rng.standard_normal((M, 3))
+        r = rng.standard_normal(M) * 0.1
+        rows.append((Hx, Hf, r))
+        split = split_landmark_rows(Pcc, Hx, Hf, r, sigma, chi2_multiplier=1e6)
+        assert split is not None
+        F, Hx1, r1, Hx2, r2 = split
+        accepted.append((10 + i, np.full(3, float(i)), None, F, Hx1, r1))
+        deferred.append((Hx2, r2))
+    lms = add_landmarks(st, cols, accepted, sigma)
+    assert [lm.idx for lm in lms] == [n, n + 3, n + 6]
+    H2, r2 = compress(np.vstack([h for h, _ in deferred]), np.concatenate([x for _, x in deferred]))
+    assert ekf_update(st, cols, H2, r2, sigma)
+    Hfull = np.zeros((M * L, n + 3 * L))
+    for i, (Hx, Hf, _) in enumerate(rows):
+        Hfull[M * i:M * (i + 1), cols] = Hx
+        Hfull[M * i:M * (i + 1), n + 3 * i:n + 3 * i + 3] = Hf
+    rall = np.concatenate([r for _, _, r in rows])
+    Lam = np.zeros((n + 3 * L, n + 3 * L))
+    Lam[:n, :n] = np.linalg.inv(P0)
+    Lam += Hfull.T @ Hfull / sigma**2
+    Pj = np.linalg.inv(Lam)
+    mean = Pj @ (Hfull.T @ rall / sigma**2)
+    assert np.allclose(st.P, Pj, atol=1e-8)
+    for i in range(L):
+        assert np.allclose(st.slam[10 + i].p, float(i) + mean[n + 3 * i:n + 3 * i + 3], atol=1e-8)
     assert np.allclose(st.p - x0_p, mean[3:6], atol=1e-8)
 
 
