@@ -498,8 +498,7 @@ class MsckfEstimator:
                 change_anchor(st, lm, times[-1])
                 c.slam_anchor_changes += 1
         marginalize(st, old_clones, lost_lms)
-        for fid in st.slam:
-            self.db.keep_only_last(fid)
+        self.db.keep_only_last_of(st.slam)
         self.db.drop_older_than(st.clone_times()[0])
         if thin_t is not None:
             self.db.drop_time(thin_t)

@@ -8,7 +8,8 @@ import numpy as np
 
 @dataclass(slots=True)
 class Track:
-    """Observations of one feature: camera times (ns), distorted pixels and normalised coordinates."""
+    """Observations of one feature: camera times (ns), distorted pixels and normalised coordinates (each a
+    2-sequence: a list from the database, an array where a caller builds tracks itself)."""
 
     fid: int
     t_ns: list[int] = field(default_factory=list)
@@ -28,7 +29,8 @@ class FeatureDatabase:
     def add(self, t_ns: int, ids: np.ndarray, uv: np.ndarray, xn: np.ndarray) -> None:
         """Add the observations of one frame."""
         tracks = self.tracks
-        for fid, u, x in zip(ids.tolist(), uv, xn, strict=True):
+        # plain lists: cheaper to iterate and to pack into arrays again than rows of the frame's arrays
+        for fid, u, x in zip(ids.tolist(), np.asarray(uv).tolist(), np.asarray(xn).tolist(), strict=True):
             tr = tracks.get(fid)
             if tr is None:
                 tr = tracks[fid] = Track(fid)
@@ -43,10 +45,20 @@ class FeatureDatabase:
 
     def keep_only_last(self, fid: int) -> None:
         tr = self.tracks.get(fid)
-        if tr is not None and len(tr) > 1:
+        if tr is not None and len(tr.t_ns) > 1:
             tr.t_ns = tr.t_ns[-1:]
             tr.uv = tr.uv[-1:]
             tr.xn = tr.xn[-1:]
+
+    def keep_only_last_of(self, fids: object) -> None:
+        """keep_only_last for every id of `fids`."""
+        tracks = self.tracks
+        for fid in fids:
+            tr = tracks.get(fid)
+            if tr is not None and len(tr.t_ns) > 1:
+                tr.t_ns = tr.t_ns[-1:]
+                tr.uv = tr.uv[-1:]
+                tr.xn = tr.xn[-1:]
 
     def drop_older_than(self, t_ns: int) -> None:
         """Remove observations older than t_ns; empty tracks are deleted."""

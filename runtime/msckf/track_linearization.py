@@ -67,12 +67,17 @@ def pack_tracks(state: State, win: WindowArrays, tracks: list[Track], cam: Camer
     uv: list[np.ndarray] = []
     xn: list[np.ndarray] = []
     for i, tr in enumerate(tracks):
-        for k, t in enumerate(tr.t_ns):
-            j = slot.get(t)
-            if j is not None:
-                slots.append(j)
-                uv.append(tr.uv[k])
-                xn.append(tr.xn[k])
+        js = [slot.get(t) for t in tr.t_ns]
+        if None not in js:                      # the usual case: every observation is at a clone
+            slots.extend(js)
+            uv.extend(tr.uv)
+            xn.extend(tr.xn)
+        else:
+            for k, j in enumerate(js):
+                if j is not None:
+                    slots.append(j)
+                    uv.append(tr.uv[k])
+                    xn.append(tr.xn[k])
         ptr[i + 1] = len(slots)
     n = len(slots)
     uv_a = np.array(uv, dtype=float).reshape(n, 2)
