@@ -12,7 +12,18 @@ import numpy as np
 from numba import njit
 
 from runtime.msckf.camera_kernels import distort_jacobian_params, distort_point
-from runtime.msckf.so3_kernels import skew3
+
+
+@njit(cache=True, nogil=True)
+def _to_camera(R: np.ndarray, p: np.ndarray, p_O: np.ndarray, R_IC: np.ndarray, p_IC: np.ndarray,
+               pI: np.ndarray, pC: np.ndarray) -> None:
+    """pI = R^T (p_O - p), pC = R_IC^T (pI - p_IC), written into pI and pC (scalar loops)."""
+    d0, d1, d2 = p_O[0] - p[0], p_O[1] - p[1], p_O[2] - p[2]
+    for k in range(3):
+        pI[k] = R[0, k] * d0 + R[1, k] * d1 + R[2, k] * d2
+    e0, e1, e2 = pI[0] - p_IC[0], pI[1] - p_IC[1], pI[2] - p_IC[2]
+    for k in range(3):
+        pC[k] = R_IC[0, k] * e0 + R_IC[1, k] * e1 + R_IC[2, k] * e2
 
 
 @njit(cache=True, nogil=True)
@@ -30,30 +41,46 @@ def feature_jacobians(Rc: np.ndarray, pc: np.ndarray, Rf: np.ndarray, pf: np.nda
     Hc = np.zeros((2 * m, 6))
     He = np.zeros((2 * m, 6))
     Hf = np.zeros((2 * m, 3))
-    RCI = R_IC.T
+    # scalar 3-vector and 2x3 products: numba sends every small `@` to BLAS, which dominated this kernel
+    pI = np.empty(3)
+    pC = np.empty(3)
+    Jz = np.empty((2, 3))
+    A = np.empty((2, 3))
     for i in range(m):
-        pI = Rc[i].T @ (p_O - pc[i])
-        pC = RCI @ (pI - p_IC)
+        _to_camera(Rc[i], pc[i], p_O, R_IC, p_IC, pI, pC)
         if pC[2] <= 1e-6:
             return False, r, Hc, He, Hf
         u, v, _ = distort_point(code, prm, pC[0] / pC[2], pC[1] / pC[2])
         r[2 * i] = uv[i, 0] - u
         r[2 * i + 1] = uv[i, 1] - v
-        pIf = Rf[i].T @ (p_O_fej - pf[i])
-        pCf = RCI @ (pIf - p_IC)
-        if pCf[2] <= 1e-6:
+        _to_camera(Rf[i], pf[i], p_O_fej, R_IC, p_IC, pI, pC)
+        if pC[2] <= 1e-6:
             return False, r, Hc, He, Hf
-        x = pCf[0] / pCf[2]
-        y = pCf[1] / pCf[2]
+        iz = 1.0 / pC[2]
+        x = pC[0] * iz
+        y = pC[1] * iz
         _, _, Jd = distort_point(code, prm, x, y)
-        Jp = np.array([[1.0 / pCf[2], 0.0, -x / pCf[2]], [0.0, 1.0 / pCf[2], -y / pCf[2]]])
-        Jz = Jd @ Jp  # d z / d p_C
-        A = Jz @ RCI
-        Hc[2 * i:2 * i + 2, 0:3] = A @ skew3(pIf)
-        Hc[2 * i:2 * i + 2, 3:6] = -A @ Rf[i].T
-        He[2 * i:2 * i + 2, 0:3] = Jz @ skew3(pCf)
-        He[2 * i:2 * i + 2, 3:6] = -A
-        Hf[2 * i:2 * i + 2, :] = A @ Rf[i].T
+        R = Rf[i]
+        for a in range(2):
+            # Jz = Jd [[1/z, 0, -x/z], [0, 1/z, -y/z]] (d z / d p_C); A = Jz R_IC^T
+            Jz[a, 0] = Jd[a, 0] * iz
+            Jz[a, 1] = Jd[a, 1] * iz
+            Jz[a, 2] = -(Jd[a, 0] * x + Jd[a, 1] * y) * iz
+            for k in range(3):
+                A[a, k] = Jz[a, 0] * R_IC[k, 0] + Jz[a, 1] * R_IC[k, 1] + Jz[a, 2] * R_IC[k, 2]
+            row = 2 * i + a
+            # A [pI]x and Jz [pC]x (columns of M [v]x: M1 v2 - M2 v1, M2 v0 - M0 v2, M0 v1 - M1 v0)
+            Hc[row, 0] = A[a, 1] * pI[2] - A[a, 2] * pI[1]
+            Hc[row, 1] = A[a, 2] * pI[0] - A[a, 0] * pI[2]
+            Hc[row, 2] = A[a, 0] * pI[1] - A[a, 1] * pI[0]
+            He[row, 0] = Jz[a, 1] * pC[2] - Jz[a, 2] * pC[1]
+            He[row, 1] = Jz[a, 2] * pC[0] - Jz[a, 0] * pC[2]
+            He[row, 2] = Jz[a, 0] * pC[1] - Jz[a, 1] * pC[0]
+            for k in range(3):
+                b = A[a, 0] * R[k, 0] + A[a, 1] * R[k, 1] + A[a, 2] * R[k, 2]     # (A R_f^T)[a, k]
+                Hc[row, 3 + k] = -b
+                Hf[row, k] = b
+                He[row, 3 + k] = -A[a, k]
     return True, r, Hc, He, Hf
 
 

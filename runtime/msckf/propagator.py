@@ -11,49 +11,159 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from runtime.msckf.so3_kernels import jl3, jr3, quat_to_rot, rot_to_quat, skew3
+from runtime.geometry.kernels import nb_right_jacobian_into
+from runtime.msckf.so3_kernels import quat_to_rot, rot_to_quat, skew3
 
 
 @njit(cache=True, nogil=True)
-def _qmul_omega(q: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """0.5 * q (x) [0, w] for a Hamilton quaternion q (w, x, y, z)."""
-    out = np.empty(4)
-    out[0] = 0.5 * (-q[1] * w[0] - q[2] * w[1] - q[3] * w[2])
-    out[1] = 0.5 * (q[0] * w[0] + q[2] * w[2] - q[3] * w[1])
-    out[2] = 0.5 * (q[0] * w[1] + q[3] * w[0] - q[1] * w[2])
-    out[3] = 0.5 * (q[0] * w[2] + q[1] * w[1] - q[2] * w[0])
-    return out
+def _mm3_into(A: np.ndarray, B: np.ndarray, out: np.ndarray) -> None:
+    """out = A B (3x3)."""
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = A[i, 0] * B[0, j] + A[i, 1] * B[1, j] + A[i, 2] * B[2, j]
+
+
+@njit(cache=True, nogil=True)
+def _mtm3_into(A: np.ndarray, B: np.ndarray, out: np.ndarray) -> None:
+    """out = A^T B (3x3)."""
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = A[0, i] * B[0, j] + A[1, i] * B[1, j] + A[2, i] * B[2, j]
+
+
+@njit(cache=True, nogil=True)
+def _skew_mm3_into(x: np.ndarray, B: np.ndarray, out: np.ndarray) -> None:
+    """out = [x]x B (3x3)."""
+    for j in range(3):
+        out[0, j] = -x[2] * B[1, j] + x[1] * B[2, j]
+        out[1, j] = x[2] * B[0, j] - x[0] * B[2, j]
+        out[2, j] = -x[1] * B[0, j] + x[0] * B[1, j]
+
+
+@njit(cache=True, nogil=True)
+def _mm3_skew_into(A: np.ndarray, x: np.ndarray, out: np.ndarray) -> None:
+    """out = A [x]x (3x3)."""
+    for i in range(3):
+        out[i, 0] = A[i, 1] * x[2] - A[i, 2] * x[1]
+        out[i, 1] = A[i, 2] * x[0] - A[i, 0] * x[2]
+        out[i, 2] = A[i, 0] * x[1] - A[i, 1] * x[0]
+
+
+@njit(cache=True, nogil=True)
+def _set_block(X: np.ndarray, r: int, c: int, B: np.ndarray, scale: float) -> None:
+    """X[r:r+3, c:c+3] = scale B."""
+    for i in range(3):
+        for j in range(3):
+            X[r + i, c + j] = scale * B[i, j]
+
+
+@njit(cache=True, nogil=True)
+def _sparse_left_mul(F: np.ndarray, X: np.ndarray, out: np.ndarray) -> None:
+    """out = F X, skipping F's zeros."""
+    n, m = F.shape[0], X.shape[1]
+    out[:, :] = 0.0
+    for i in range(n):
+        for k in range(F.shape[1]):
+            f = F[i, k]
+            if f != 0.0:
+                for j in range(m):
+                    out[i, j] += f * X[k, j]
+
+
+@njit(cache=True, nogil=True)
+def _sparse_right_mul_t(X: np.ndarray, F: np.ndarray, out: np.ndarray) -> None:
+    """out = X F^T, skipping F's zeros."""
+    n = X.shape[0]
+    out[:, :] = 0.0
+    for j in range(F.shape[0]):
+        for k in range(F.shape[1]):
+            f = F[j, k]
+            if f != 0.0:
+                for i in range(n):
+                    out[i, j] += X[i, k] * f
+
+
+@njit(cache=True, nogil=True)
+def _add_g_qc_gt(G: np.ndarray, qc: np.ndarray, out: np.ndarray) -> None:
+    """out += G diag(qc) G^T, skipping G's zeros."""
+    n = G.shape[0]
+    for c in range(G.shape[1]):
+        for i in range(n):
+            gi = G[i, c]
+            if gi != 0.0:
+                s = gi * qc[c]
+                for j in range(n):
+                    gj = G[j, c]
+                    if gj != 0.0:
+                        out[i, j] += s * gj
+
+
+@njit(cache=True, nogil=True)
+def _qrot(q0: float, q1: float, q2: float, q3: float, x: np.ndarray) -> tuple:
+    """R(q) x for a Hamilton quaternion (w, x, y, z), normalised inside (quat_to_rot's formula, scalars)."""
+    n = np.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3)
+    w, a, b, c = q0 / n, q1 / n, q2 / n, q3 / n
+    r00 = 1 - 2 * (b * b + c * c)
+    r01 = 2 * (a * b - w * c)
+    r02 = 2 * (a * c + w * b)
+    r10 = 2 * (a * b + w * c)
+    r11 = 1 - 2 * (a * a + c * c)
+    r12 = 2 * (b * c - w * a)
+    r20 = 2 * (a * c - w * b)
+    r21 = 2 * (b * c + w * a)
+    r22 = 1 - 2 * (a * a + b * b)
+    return (r00 * x[0] + r01 * x[1] + r02 * x[2], r10 * x[0] + r11 * x[1] + r12 * x[2],
+            r20 * x[0] + r21 * x[1] + r22 * x[2])
+
+
+@njit(cache=True, nogil=True)
+def _qdot(q0: float, q1: float, q2: float, q3: float, w: np.ndarray) -> tuple:
+    """0.5 * q (x) [0, w] for a Hamilton quaternion q (w, x, y, z), in scalars."""
+    return (0.5 * (-q1 * w[0] - q2 * w[1] - q3 * w[2]), 0.5 * (q0 * w[0] + q2 * w[2] - q3 * w[1]),
+            0.5 * (q0 * w[1] + q3 * w[0] - q1 * w[2]), 0.5 * (q0 * w[2] + q1 * w[1] - q2 * w[0]))
 
 
 @njit(cache=True, nogil=True)
 def rk4_step(R: np.ndarray, p: np.ndarray, v: np.ndarray, w0: np.ndarray, w1: np.ndarray,
              a0: np.ndarray, a1: np.ndarray, g: np.ndarray, dt: float) -> tuple:
-    """One RK4 step of (R_OI, p, v) with bias-corrected body rates/specific forces linear in time."""
+    """One RK4 step of (R_OI, p, v) with bias-corrected body rates/specific forces linear in time (the
+    quaternion and the 3-vectors in scalars: small numpy temporaries dominated this kernel)."""
     q = rot_to_quat(R)
     wm = 0.5 * (w0 + w1)
     am = 0.5 * (a0 + a1)
-    k1q = _qmul_omega(q, w0)
-    k1v = quat_to_rot(q) @ a0 + g
-    k1p = v.copy()
-    q2 = q + 0.5 * dt * k1q
-    v2 = v + 0.5 * dt * k1v
-    k2q = _qmul_omega(q2, wm)
-    k2v = quat_to_rot(q2) @ am + g
-    k2p = v2
-    q3 = q + 0.5 * dt * k2q
-    v3 = v + 0.5 * dt * k2v
-    k3q = _qmul_omega(q3, wm)
-    k3v = quat_to_rot(q3) @ am + g
-    k3p = v3
-    q4 = q + dt * k3q
-    v4 = v + dt * k3v
-    k4q = _qmul_omega(q4, w1)
-    k4v = quat_to_rot(q4) @ a1 + g
-    k4p = v4
-    qn = q + dt / 6.0 * (k1q + 2 * k2q + 2 * k3q + k4q)
-    qn = qn / np.sqrt(qn @ qn)
-    vn = v + dt / 6.0 * (k1v + 2 * k2v + 2 * k3v + k4v)
-    pn = p + dt / 6.0 * (k1p + 2 * k2p + 2 * k3p + k4p)
+    h = 0.5 * dt
+    # k1 at q, v
+    k1q = _qdot(q[0], q[1], q[2], q[3], w0)
+    k1v = _qrot(q[0], q[1], q[2], q[3], a0)
+    k1v = (k1v[0] + g[0], k1v[1] + g[1], k1v[2] + g[2])
+    # k2 at the midpoint predicted by k1
+    q2 = (q[0] + h * k1q[0], q[1] + h * k1q[1], q[2] + h * k1q[2], q[3] + h * k1q[3])
+    v2 = (v[0] + h * k1v[0], v[1] + h * k1v[1], v[2] + h * k1v[2])
+    k2q = _qdot(q2[0], q2[1], q2[2], q2[3], wm)
+    k2v = _qrot(q2[0], q2[1], q2[2], q2[3], am)
+    k2v = (k2v[0] + g[0], k2v[1] + g[1], k2v[2] + g[2])
+    # k3 at the midpoint predicted by k2
+    q3 = (q[0] + h * k2q[0], q[1] + h * k2q[1], q[2] + h * k2q[2], q[3] + h * k2q[3])
+    v3 = (v[0] + h * k2v[0], v[1] + h * k2v[1], v[2] + h * k2v[2])
+    k3q = _qdot(q3[0], q3[1], q3[2], q3[3], wm)
+    k3v = _qrot(q3[0], q3[1], q3[2], q3[3], am)
+    k3v = (k3v[0] + g[0], k3v[1] + g[1], k3v[2] + g[2])
+    # k4 at the end predicted by k3
+    q4 = (q[0] + dt * k3q[0], q[1] + dt * k3q[1], q[2] + dt * k3q[2], q[3] + dt * k3q[3])
+    v4 = (v[0] + dt * k3v[0], v[1] + dt * k3v[1], v[2] + dt * k3v[2])
+    k4q = _qdot(q4[0], q4[1], q4[2], q4[3], w1)
+    k4v = _qrot(q4[0], q4[1], q4[2], q4[3], a1)
+    k4v = (k4v[0] + g[0], k4v[1] + g[1], k4v[2] + g[2])
+    c = dt / 6.0
+    qn = np.empty(4)
+    for i in range(4):
+        qn[i] = q[i] + c * (k1q[i] + 2 * k2q[i] + 2 * k3q[i] + k4q[i])
+    qn = qn / np.sqrt(qn[0] * qn[0] + qn[1] * qn[1] + qn[2] * qn[2] + qn[3] * qn[3])
+    vn = np.empty(3)
+    pn = np.empty(3)
+    for i in range(3):
+        vn[i] = v[i] + c * (k1v[i] + 2 * k2v[i] + 2 * k3v[i] + k4v[i])
+        pn[i] = p[i] + c * (v[i] + 2 * v2[i] + 2 * v3[i] + v4[i])
     return quat_to_rot(qn), pn, vn
 
 
@@ -68,6 +178,16 @@ def propagate_interval(R: np.ndarray, p: np.ndarray, v: np.ndarray, bg: np.ndarr
     """
     Phi = np.eye(15)
     Q = np.zeros((15, 15))
+    # per-sample buffers; F and G are sparse (identity plus a few 3x3 blocks): the products below skip their
+    # zeros, and the 3x3 blocks are scalar loops (numba sends every small `@` to BLAS)
+    F = np.eye(15)
+    G = np.zeros((15, 12))
+    FX = np.empty((15, 15))
+    B = np.empty((3, 3))
+    M = np.empty((3, 3))
+    Jr = np.empty((3, 3))
+    Jl = np.empty((3, 3))
+    qc = np.empty(12)
     Rk = R.copy()
     pk = p.copy()
     vk = v.copy()
@@ -85,35 +205,43 @@ def propagate_interval(R: np.ndarray, p: np.ndarray, v: np.ndarray, bg: np.ndarr
         R1, p1, v1 = rk4_step(Rk, pk, vk, w0, w1, a0, a1, g, dt)
         wm = 0.5 * (w0 + w1)
         am = 0.5 * (a0 + a1)
-        phi = wm * dt
-        Jr = jr3(phi)
-        Jl = jl3(phi)
-        Ak = skew3(am)
-        F = np.eye(15)
-        F[0:3, 0:3] = R1.T @ Rk
-        F[0:3, 9:12] = -Jr * dt
-        F[3:6, 0:3] = -skew3(p1 - pk - vk * dt - 0.5 * g * dt * dt) @ Rk
-        F[3:6, 6:9] = np.eye(3) * dt
-        F[3:6, 9:12] = Rk @ Ak * (dt * dt * dt / 6.0)
-        F[3:6, 12:15] = -0.5 * Rk * dt * dt
-        F[6:9, 0:3] = -skew3(v1 - vk - g * dt) @ Rk
-        F[6:9, 9:12] = Rk @ Ak * (0.5 * dt * dt)
-        F[6:9, 12:15] = -Rk @ Jl * dt
-        G = np.zeros((15, 12))
-        G[0:3, 0:3] = -Jr * dt
-        G[3:6, 3:6] = -0.5 * Rk * dt * dt
-        G[6:9, 0:3] = Rk @ Ak * (0.5 * dt * dt)
-        G[6:9, 3:6] = -Rk @ Jl * dt
-        G[9:12, 6:9] = np.eye(3) * dt
-        G[12:15, 9:12] = np.eye(3) * dt
-        qc = np.empty(12)
+        nb_right_jacobian_into(wm[0] * dt, wm[1] * dt, wm[2] * dt, Jr)
+        nb_right_jacobian_into(-wm[0] * dt, -wm[1] * dt, -wm[2] * dt, Jl)       # Jl(phi) = Jr(-phi)
+        dt2 = dt * dt
+        # F (identity outside the blocks written here)
+        _mtm3_into(R1, Rk, B)                                                   # R1^T Rk
+        _set_block(F, 0, 0, B, 1.0)
+        _set_block(F, 0, 9, Jr, -dt)
+        _skew_mm3_into(p1 - pk - vk * dt - 0.5 * g * dt2, Rk, B)               # [.]x Rk
+        _set_block(F, 3, 0, B, -1.0)
+        for i in range(3):
+            F[3 + i, 6 + i] = dt
+        _mm3_skew_into(Rk, am, M)                                               # Rk [am]x
+        _set_block(F, 3, 9, M, dt2 * dt / 6.0)
+        _set_block(F, 3, 12, Rk, -0.5 * dt2)
+        _skew_mm3_into(v1 - vk - g * dt, Rk, B)
+        _set_block(F, 6, 0, B, -1.0)
+        _set_block(F, 6, 9, M, 0.5 * dt2)
+        _mm3_into(Rk, Jl, B)                                                    # Rk Jl
+        _set_block(F, 6, 12, B, -dt)
+        # G (the same zero pattern at every sample)
+        _set_block(G, 0, 0, Jr, -dt)
+        _set_block(G, 3, 3, Rk, -0.5 * dt2)
+        _set_block(G, 6, 0, M, 0.5 * dt2)
+        _set_block(G, 6, 3, B, -dt)
+        for i in range(3):
+            G[9 + i, 6 + i] = dt
+            G[12 + i, 9 + i] = dt
         qc[0:3] = sig_g * sig_g / dt
         qc[3:6] = sig_a * sig_a / dt
         qc[6:9] = sig_wg * sig_wg / dt
         qc[9:12] = sig_wa * sig_wa / dt
-        Gq = G * qc
-        Q = F @ Q @ F.T + Gq @ G.T
-        Phi = F @ Phi
+        # Q <- F Q F^T + G diag(qc) G^T, Phi <- F Phi
+        _sparse_left_mul(F, Q, FX)
+        _sparse_right_mul_t(FX, F, Q)
+        _add_g_qc_gt(G, qc, Q)
+        _sparse_left_mul(F, Phi, FX)
+        Phi[:, :] = FX
         Rk, pk, vk = R1, p1, v1
     if use_fej:
         Phi[0:3, 0:3] = Rk.T @ R_fej

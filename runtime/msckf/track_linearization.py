@@ -89,6 +89,16 @@ def pack_tracks(state: State, win: WindowArrays, tracks: list[Track], cam: Camer
 
 
 @njit(cache=True, nogil=True)
+def _camera_pose(R: np.ndarray, p: np.ndarray, R_IC: np.ndarray, p_IC: np.ndarray, R_out: np.ndarray,
+                 p_out: np.ndarray) -> None:
+    """R_out = R R_IC, p_out = p + R p_IC (the camera pose of the clone (R, p); scalar loops)."""
+    for j in range(3):
+        for k in range(3):
+            R_out[j, k] = R[j, 0] * R_IC[0, k] + R[j, 1] * R_IC[1, k] + R[j, 2] * R_IC[2, k]
+        p_out[j] = p[j] + R[j, 0] * p_IC[0] + R[j, 1] * p_IC[1] + R[j, 2] * p_IC[2]
+
+
+@njit(cache=True, nogil=True)
 def linearize_packed(Rw: np.ndarray, pw: np.ndarray, Rfw: np.ndarray, pfw: np.ndarray, slots: np.ndarray,
                      uv: np.ndarray, xn: np.ndarray, R_IC: np.ndarray, p_IC: np.ndarray, code: int,
                      prm: np.ndarray, tri: np.ndarray, tri_iterations: int, fej_triangulation: bool,
@@ -112,8 +122,7 @@ def linearize_packed(Rw: np.ndarray, pw: np.ndarray, Rfw: np.ndarray, pfw: np.nd
         pc[i] = pw[j]
         Rf[i] = Rfw[j]
         pf[i] = pfw[j]
-        R_OC[i] = Rc[i] @ R_IC
-        p_OC[i] = pc[i] + Rc[i] @ p_IC
+        _camera_pose(Rc[i], pc[i], R_IC, p_IC, R_OC[i], p_OC[i])
     p_lin = np.zeros(3)
     empty = (False, p_lin, p_lin, np.zeros(0), np.zeros((0, ncol)), np.zeros((0, 3)))
     if m < 2:
@@ -124,8 +133,7 @@ def linearize_packed(Rw: np.ndarray, pw: np.ndarray, Rfw: np.ndarray, pfw: np.nd
     p_lin = p_O
     if fej_triangulation:
         for i in range(m):
-            R_OC[i] = Rf[i] @ R_IC
-            p_OC[i] = pf[i] + Rf[i] @ p_IC
+            _camera_pose(Rf[i], pf[i], R_IC, p_IC, R_OC[i], p_OC[i])
         ok_f, p_f = triangulate(R_OC, p_OC, xn, tri[0], tri[1], tri[2], tri[3], tri_iterations)
         if ok_f:
             p_lin = p_f
