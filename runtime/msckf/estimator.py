@@ -534,15 +534,14 @@ class MsckfEstimator:
         self._accepted_needed_s = needed_s
 
     def _earliest_created(self, tracks: list, n: int) -> list:
-        """The n tracks of `tracks` that entered the database first (its dict keeps creation order).
+        """The n tracks of `tracks` that entered the database first (`Track.created`).
 
         New SLAM landmarks are the longest-held of the full-window tracks. OpenVINS promotes from the end
         of its hash-map listing, which tends to end with the earliest-created features (libstdc++ order,
         interleaved by rehashes and bucket collisions); we take them strictly. Such tracks stay landmarks
         longer than a random pick: on openvins_sim/udel_gore over seeds the median heading error went
         0.26 -> 0.16 deg (OpenVINS 0.153)."""
-        created = {fid: i for i, fid in enumerate(self.db.tracks)}
-        return sorted(tracks, key=lambda tr: created[tr.fid])[:n]
+        return sorted(tracks, key=lambda tr: tr.created)[:n]
 
     def _candidate_order(self) -> list:
         """The database's tracks in the order they compete at equal length (see feature_order_seed)."""

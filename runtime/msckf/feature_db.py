@@ -15,6 +15,7 @@ class Track:
     t_ns: list[int] = field(default_factory=list)
     uv: list[np.ndarray] = field(default_factory=list)
     xn: list[np.ndarray] = field(default_factory=list)
+    created: int = 0     #: the database's running count when the track entered it (0 outside a database)
 
     def __len__(self) -> int:
         return len(self.t_ns)
@@ -25,6 +26,7 @@ class FeatureDatabase:
 
     def __init__(self) -> None:
         self.tracks: dict[int, Track] = {}
+        self._created = 0
 
     def add(self, t_ns: int, ids: np.ndarray, uv: np.ndarray, xn: np.ndarray) -> None:
         """Add the observations of one frame."""
@@ -33,7 +35,8 @@ class FeatureDatabase:
         for fid, u, x in zip(ids.tolist(), np.asarray(uv).tolist(), np.asarray(xn).tolist(), strict=True):
             tr = tracks.get(fid)
             if tr is None:
-                tr = tracks[fid] = Track(fid)
+                self._created += 1
+                tr = tracks[fid] = Track(fid, created=self._created)
             elif tr.t_ns and tr.t_ns[-1] == t_ns:
                 continue
             tr.t_ns.append(t_ns)

@@ -111,8 +111,7 @@ class State:
         mask = np.ones(self.size, dtype=bool)
         for idx, size in blocks:
             mask[idx:idx + size] = False
-        keep = np.flatnonzero(mask)
-        self.P = self.P[np.ix_(keep, keep)]
+        self.P = _submatrix(self.P, mask)
         shift = np.cumsum(~mask)            # removed entries at or before each index
 
         def moved(i: int) -> int:
@@ -154,3 +153,20 @@ class State:
     def clone_times(self) -> list[int]:
         """Camera times of the clones, oldest first."""
         return sorted(self.clones)
+
+
+def _submatrix(P: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """P[keep][:, keep] for a boolean mask, copied block by block over the mask's contiguous runs (a few
+    removed blocks leave a few runs: slice copies instead of a gather of every entry)."""
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], keep.astype(np.int8), [0]))))
+    runs = list(zip(edges[::2].tolist(), edges[1::2].tolist(), strict=True))
+    m = int(keep.sum())
+    out = np.empty((m, m))
+    oi = 0
+    for a, b in runs:
+        oj = 0
+        for c, d in runs:
+            out[oi:oi + b - a, oj:oj + d - c] = P[a:b, c:d]
+            oj += d - c
+        oi += b - a
+    return out

@@ -191,14 +191,21 @@ def slam_update(state: State, t_cam_ns: int, obs: list[tuple[int, np.ndarray]], 
     for b0 in range(0, len(obs), batch):
         chunk = obs[b0:b0 + batch]
         lms = [state.slam[fid] for fid, _ in chunk]
-        anchors = [state.clones[lm.anchor_t] if lm.anchor_t is not None else None for lm in lms]
         lidx = np.array([lm.idx for lm in lms], dtype=np.int64)
-        aidx = np.array([a.idx if a is not None else -1 for a in anchors], dtype=np.int64)
-        eye = np.eye(3)
-        RA = np.array([a.R if a is not None else eye for a in anchors])
-        pA = np.array([a.p if a is not None else np.zeros(3) for a in anchors])
-        RAf = np.array([a.R_fej if a is not None else eye for a in anchors]) if fej else RA
-        pAf = np.array([a.p_fej if a is not None else np.zeros(3) for a in anchors]) if fej else pA
+        if all(lm.anchor_t is None for lm in lms):      # global 3D: no anchor (the kernel ignores these)
+            k = len(lms)
+            aidx = np.full(k, -1, dtype=np.int64)
+            RA = np.tile(np.eye(3), (k, 1, 1))
+            pA = np.zeros((k, 3))
+            RAf, pAf = RA, pA
+        else:
+            anchors = [state.clones[lm.anchor_t] if lm.anchor_t is not None else None for lm in lms]
+            aidx = np.array([a.idx if a is not None else -1 for a in anchors], dtype=np.int64)
+            eye = np.eye(3)
+            RA = np.array([a.R if a is not None else eye for a in anchors])
+            pA = np.array([a.p if a is not None else np.zeros(3) for a in anchors])
+            RAf = np.array([a.R_fej if a is not None else eye for a in anchors]) if fej else RA
+            pAf = np.array([a.p_fej if a is not None else np.zeros(3) for a in anchors]) if fej else pA
         uv = np.array([u for _, u in chunk])
         lp = np.array([lm.p for lm in lms])
         lf = np.array([lm.p_fej for lm in lms]) if fej else lp

@@ -182,3 +182,17 @@ def test_landmark_initialisation_gate_uses_the_full_residual_size() -> None:
         ok = initialize_landmark(st, 1, np.zeros(3), cols, Hx, Hf, r, sigma, chi2_multiplier=1.0)
         assert ok is accepted, (target, lo, hi)
         assert (1 in st.slam) is accepted
+
+
+def test_submatrix_by_runs_equals_the_gathered_submatrix() -> None:
+    # the block-run copy that removes variables from P against numpy's gather, over random masks
+    from runtime.msckf.state import _submatrix
+
+    rng = np.random.default_rng(4)
+    for _ in range(200):
+        n = int(rng.integers(1, 40))
+        P = rng.random((n, n))
+        keep = rng.random(n) < 0.7
+        k = np.flatnonzero(keep)
+        assert np.array_equal(_submatrix(P, keep), P[np.ix_(k, k)])
+
