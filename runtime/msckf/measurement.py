@@ -135,3 +135,40 @@ def givens_left_nullspace(Hf: np.ndarray, Hx: np.ndarray, r: np.ndarray) -> tupl
             r[i - 1] = c * t0 + s * t1
             r[i] = -s * t0 + c * t1
     return Hx[k:].copy(), r[k:].copy(), Hf[:k].copy(), Hx[:k].copy(), r[:k].copy()
+
+
+@njit(cache=True, nogil=True)
+def spd_mahalanobis(S: np.ndarray, r: np.ndarray) -> float:
+    """r^T S^-1 r by a Cholesky factorisation of the symmetric S (inf when S is not positive definite)."""
+    n = S.shape[0]
+    L = np.zeros((n, n))
+    for j in range(n):
+        d = S[j, j]
+        for k in range(j):
+            d -= L[j, k] * L[j, k]
+        if not d > 0.0:
+            return np.inf
+        L[j, j] = np.sqrt(d)
+        for i in range(j + 1, n):
+            s = S[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            L[i, j] = s / L[j, j]
+    y = np.empty(n)
+    q = 0.0
+    for i in range(n):
+        s = r[i]
+        for k in range(i):
+            s -= L[i, k] * y[k]
+        y[i] = s / L[i, i]
+        q += y[i] * y[i]
+    return q
+
+
+@njit(cache=True, nogil=True)
+def projected_mahalanobis(Pcc: np.ndarray, H: np.ndarray, r: np.ndarray, sigma: float) -> float:
+    """r^T (H Pcc H^T + sigma^2 I)^-1 r (inf when that is not positive definite)."""
+    S = H @ Pcc @ H.T
+    for i in range(S.shape[0]):
+        S[i, i] += sigma * sigma
+    return spd_mahalanobis(S, r)

@@ -9,7 +9,7 @@ from scipy.linalg.blas import dsyrk
 from scipy.linalg.lapack import dpotrf, dtrtrs
 from scipy.stats import chi2 as _chi2
 
-from runtime.msckf.measurement import givens_left_nullspace
+from runtime.msckf.measurement import givens_left_nullspace, projected_mahalanobis
 from runtime.msckf.state import Clone, Landmark, State
 
 _CHI2_95 = _chi2.ppf(0.95, np.arange(1, 2001))
@@ -139,7 +139,8 @@ def split_landmark_rows(Pcc: np.ndarray, Hx: np.ndarray, Hf: np.ndarray, r: np.n
     quantile). Returns (Hf1_inv, Hx1, r1, Hx2, r2), or None when the gate refuses or Hf1 is singular."""
     Hx2, r2, Hf1, Hx1, r1 = givens_left_nullspace(Hf.copy(), Hx.copy(), r.copy())
     if Hx2.shape[0] > 0:
-        if not chi2_accepts(innovation_mahalanobis(Pcc, Hx2, r2, sigma), r.shape[0], chi2_multiplier):
+        Pc = Pcc if Pcc.flags.c_contiguous else np.ascontiguousarray(Pcc)
+        if not chi2_accepts(projected_mahalanobis(Pc, Hx2, r2, sigma), r.shape[0], chi2_multiplier):
             return None
     try:
         Hf1_inv = np.linalg.inv(Hf1)

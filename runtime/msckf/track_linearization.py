@@ -16,7 +16,12 @@ from numba import njit
 from runtime.msckf.camera_kernels import CameraParams, undistort_points
 from runtime.msckf.config import MsckfConfig
 from runtime.msckf.feature_db import Track
-from runtime.msckf.measurement import feature_intrinsics_jacobian, feature_jacobians, givens_left_nullspace
+from runtime.msckf.measurement import (
+    feature_intrinsics_jacobian,
+    feature_jacobians,
+    givens_left_nullspace,
+    spd_mahalanobis,
+)
 from runtime.msckf.state import State
 from runtime.msckf.state_helper import _CHI2_95
 from runtime.msckf.triangulation import triangulate
@@ -152,34 +157,6 @@ def linearize_packed(Rw: np.ndarray, pw: np.ndarray, Rfw: np.ndarray, pfw: np.nd
         c = o + 6 * slots[i]
         Hx[2 * i:2 * i + 2, c:c + 6] = Hc[2 * i:2 * i + 2]
     return True, p_O, p_lin, r, Hx, Hf
-
-
-@njit(cache=True, nogil=True)
-def spd_mahalanobis(S: np.ndarray, r: np.ndarray) -> float:
-    """r^T S^-1 r by a Cholesky factorisation of the symmetric S (inf when S is not positive definite)."""
-    n = S.shape[0]
-    L = np.zeros((n, n))
-    for j in range(n):
-        d = S[j, j]
-        for k in range(j):
-            d -= L[j, k] * L[j, k]
-        if not d > 0.0:
-            return np.inf
-        L[j, j] = np.sqrt(d)
-        for i in range(j + 1, n):
-            s = S[i, j]
-            for k in range(j):
-                s -= L[i, k] * L[j, k]
-            L[i, j] = s / L[j, j]
-    y = np.empty(n)
-    q = 0.0
-    for i in range(n):
-        s = r[i]
-        for k in range(i):
-            s -= L[i, k] * y[k]
-        y[i] = s / L[i, i]
-        q += y[i] * y[i]
-    return q
 
 
 @njit(cache=True, nogil=True)
