@@ -134,6 +134,9 @@ class MsckfConfig:
     imu_buffer_s: float = 10.0           #: IMU history kept while uninitialised (for a state in the past), s
     # compute
     blas_threads: int | None = 1  #: BLAS threads for the process (None: leave as is); see blas_threads.py
+    #: load the per-frame numba kernels when the estimator is built (a synthetic window, once per process),
+    #: not in the first frames after initialisation; see warmup.py
+    warm_kernels: bool = True
     # health
     max_velocity: float = 30.0  #: m/s, a faster estimate is a divergence
     max_gyro_bias: float = 0.5  #: rad/s

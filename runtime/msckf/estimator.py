@@ -29,6 +29,7 @@ from runtime.msckf.state_helper import augment_clone, marginalize
 from runtime.msckf.update_msckf import msckf_update
 from runtime.msckf.update_slam import SlamUpdateStats, change_anchor, delayed_init, slam_update
 from runtime.msckf.update_zupt import disparity_says_static, zupt_update
+from runtime.msckf.warmup import warm_kernels
 
 WINDOW_SLACK_NS = 1_000_000
 """Health windows (seconds of camera time) are compared with 1 ms of slack, so that frame-time rounding and
@@ -63,6 +64,8 @@ class MsckfEstimator:
         self._p_IC0 = T_IC[:3, 3].copy()
         td = getattr(rig, "time_offset_s", None)
         self._t_d0 = float(td) if td is not None else 0.0
+        self.warmup_s = (warm_kernels(self.config, self.camera, self._R_IC0, self._p_IC0)
+                         if self.config.warm_kernels else 0.0)   #: seconds spent loading kernels here
         self.tracker = tracker
         self.initializers = list(initializers or [])
         self.g = np.array([0.0, 0.0, -self.config.gravity_mag])

@@ -140,7 +140,7 @@ def split_landmark_rows(Pcc: np.ndarray, Hx: np.ndarray, Hf: np.ndarray, r: np.n
     Hx2, r2, Hf1, Hx1, r1 = givens_left_nullspace(Hf.copy(), Hx.copy(), r.copy())
     if Hx2.shape[0] > 0:
         Pc = Pcc if Pcc.flags.c_contiguous else np.ascontiguousarray(Pcc)
-        if not chi2_accepts(projected_mahalanobis(Pc, Hx2, r2, sigma), r.shape[0], chi2_multiplier):
+        if not chi2_accepts(projected_mahalanobis(Pc, Hx2, r2, float(sigma)), r.shape[0], chi2_multiplier):
             return None
     try:
         Hf1_inv = np.linalg.inv(Hf1)

@@ -256,9 +256,9 @@ def msckf_rows(state: State, tracks: list[Track], cfg: MsckfConfig, cam: CameraP
     ptr, slots, uv, xn = pack_tracks(state, win, tracks, cam)
     return msckf_rows_packed(
         win.R, win.p, win.R_fej, win.p_fej, ptr, slots, uv, xn, state.R_IC, state.p_IC, cam.code,
-        state.camera_params(cam.params), tri_params(cfg), cfg.tri_gn_iterations,
-        cfg.use_fej and cfg.fej_triangulation, state.idx_ext >= 0, state.idx_intr >= 0, Pcc, cfg.sigma_pix,
-        cfg.chi2_multiplier, _CHI2_95,
+        state.camera_params(cam.params), tri_params(cfg), int(cfg.tri_gn_iterations),
+        cfg.use_fej and cfg.fej_triangulation, state.idx_ext >= 0, state.idx_intr >= 0, Pcc,
+        float(cfg.sigma_pix), float(cfg.chi2_multiplier), _CHI2_95,
     )
 
 
@@ -270,7 +270,7 @@ def linearize_tracks(state: State, tracks: list[Track], cfg: MsckfConfig, cam: C
     ncol = 6 * len(win.slot) + (6 if state.idx_ext >= 0 else 0) + (8 if state.idx_intr >= 0 else 0)
     ok, p_O, p_lin, r, Hx, Hf = linearize_all_packed(
         win.R, win.p, win.R_fej, win.p_fej, ptr, slots, uv, xn, state.R_IC, state.p_IC, cam.code,
-        state.camera_params(cam.params), tri_params(cfg), cfg.tri_gn_iterations,
+        state.camera_params(cam.params), tri_params(cfg), int(cfg.tri_gn_iterations),
         cfg.use_fej and cfg.fej_triangulation, state.idx_ext >= 0, state.idx_intr >= 0, ncol,
     )
     out: list = []

@@ -213,7 +213,7 @@ def slam_update(state: State, t_cam_ns: int, obs: list[tuple[int, np.ndarray]], 
             state.P, c.idx, state.idx_ext, lidx, aidx, c.R[None], c.p[None],
             c.R_fej[None] if fej else c.R[None], c.p_fej[None] if fej else c.p[None], uv, lp, lf,
             RA, pA, RAf, pAf, state.R_IC, state.p_IC, cam.code, state.camera_params(cam.params),
-            cfg.sigma_pix, state.idx_intr)
+            float(cfg.sigma_pix), state.idx_intr)
         good = ok & (d2 < gate)
         # a landmark that cannot be projected (behind the camera) is counted toward removal; a chi-square
         # rejection drops this observation and counts toward it unless cfg.slam_max_chi2_failures is None
