@@ -207,3 +207,16 @@ def test_lambda_against_the_true_log_depth_scale():
     assert out["rms_error"] == pytest.approx(np.sqrt((0.02 ** 2 + 0.0 + 0.03 ** 2) / 3), abs=1e-5)
     assert out["rms_error_lambda_zero"] == pytest.approx(np.sqrt((0.1 ** 2 + 0.05 ** 2) / 3), abs=1e-5)
     assert out["correlation"] > 0.9
+
+
+def test_gauge_lambda_free_option_reaches_the_graph_config():
+    import argparse
+
+    from runtime.graph.config import GraphConfig
+    from tools.benchmarks import mapping as bm
+
+    p = argparse.ArgumentParser()
+    bm.add_arguments(p)
+    assert bm.graph_config(p.parse_args([])) is None
+    cfg = bm.graph_config(p.parse_args(["--gauge-lambda-free"]))
+    assert isinstance(cfg, GraphConfig) and cfg.gauge_lambda_free and not GraphConfig().gauge_lambda_free

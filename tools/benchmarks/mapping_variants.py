@@ -145,7 +145,7 @@ def export_points(submaps: list, voxel_m: float) -> np.ndarray:
 
 
 def run_variant(variant: Variant, inputs: Any, truth: Any, camera: Any, mapping: MappingConfig,
-                preset: str, seed: int, matcher: Any) -> VariantRun:
+                preset: str, seed: int, matcher: Any, graph: Any = None) -> VariantRun:
     """Map the sequence's windows with one variant (a fresh emulated DA3 seeded with `seed`).
 
     Args:
@@ -153,6 +153,7 @@ def run_variant(variant: Variant, inputs: Any, truth: Any, camera: Any, mapping:
         truth: the ground-truth source for the emulated DA3 (e.g. a CachedTruth).
         camera: the rig's camera model (width, height, K: the rectified view of the emulator).
         matcher: the matcher for DAVIO's per-frame scales (shared by the variants).
+        graph: the submap graph's GraphConfig for the variants that use the graph (None: the default).
     """
     from models.emulated_da3 import EmulatedDA3
     from runtime.mapping.mapper import MapCommit, Mapper
@@ -175,7 +176,7 @@ def run_variant(variant: Variant, inputs: Any, truth: Any, camera: Any, mapping:
         return VariantRun(points, len(windows), sm.stats.windows_accepted, rejected,
                           time.perf_counter() - t0, overrides)
     m = Mapper(model, camera, mapping, matcher=matcher, conditioned=variant.conditioned,
-               graph=None if variant.graph else False)
+               graph=graph if variant.graph else False)
     by_index: dict[int, Any] = {}
     for w in windows:
         m.stats.windows_offered += 1
