@@ -47,11 +47,7 @@ class FeatureDatabase:
         self.tracks.pop(fid, None)
 
     def keep_only_last(self, fid: int) -> None:
-        tr = self.tracks.get(fid)
-        if tr is not None and len(tr.t_ns) > 1:
-            tr.t_ns = tr.t_ns[-1:]
-            tr.uv = tr.uv[-1:]
-            tr.xn = tr.xn[-1:]
+        self.keep_only_last_of((fid,))
 
     def keep_only_last_of(self, fids: object) -> None:
         """keep_only_last for every id of `fids`."""

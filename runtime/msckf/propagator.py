@@ -124,6 +124,25 @@ def _qdot(q0: float, q1: float, q2: float, q3: float, w: np.ndarray) -> tuple:
 
 
 @njit(cache=True, nogil=True)
+def _rk4_slope(q0: float, q1: float, q2: float, q3: float, w: np.ndarray, a: np.ndarray, g: np.ndarray
+               ) -> tuple:
+    """(dq/dt, dv/dt) at the quaternion q for body rate w and specific force a."""
+    f = _qrot(q0, q1, q2, q3, a)
+    return _qdot(q0, q1, q2, q3, w), (f[0] + g[0], f[1] + g[1], f[2] + g[2])
+
+
+@njit(cache=True, nogil=True)
+def _rk4_stage(q: np.ndarray, v: np.ndarray, kq: tuple, kv: tuple, step: float, w: np.ndarray,
+               a: np.ndarray, g: np.ndarray) -> tuple:
+    """The slopes at (q, v) + step * (kq, kv), and that velocity (the position's slope)."""
+    qs0, qs1 = q[0] + step * kq[0], q[1] + step * kq[1]
+    qs2, qs3 = q[2] + step * kq[2], q[3] + step * kq[3]
+    vs = (v[0] + step * kv[0], v[1] + step * kv[1], v[2] + step * kv[2])
+    dq, dv = _rk4_slope(qs0, qs1, qs2, qs3, w, a, g)
+    return dq, dv, vs
+
+
+@njit(cache=True, nogil=True)
 def rk4_step(R: np.ndarray, p: np.ndarray, v: np.ndarray, w0: np.ndarray, w1: np.ndarray,
              a0: np.ndarray, a1: np.ndarray, g: np.ndarray, dt: float) -> tuple:
     """One RK4 step of (R_OI, p, v) with bias-corrected body rates/specific forces linear in time (the
@@ -132,28 +151,10 @@ def rk4_step(R: np.ndarray, p: np.ndarray, v: np.ndarray, w0: np.ndarray, w1: np
     wm = 0.5 * (w0 + w1)
     am = 0.5 * (a0 + a1)
     h = 0.5 * dt
-    # k1 at q, v
-    k1q = _qdot(q[0], q[1], q[2], q[3], w0)
-    k1v = _qrot(q[0], q[1], q[2], q[3], a0)
-    k1v = (k1v[0] + g[0], k1v[1] + g[1], k1v[2] + g[2])
-    # k2 at the midpoint predicted by k1
-    q2 = (q[0] + h * k1q[0], q[1] + h * k1q[1], q[2] + h * k1q[2], q[3] + h * k1q[3])
-    v2 = (v[0] + h * k1v[0], v[1] + h * k1v[1], v[2] + h * k1v[2])
-    k2q = _qdot(q2[0], q2[1], q2[2], q2[3], wm)
-    k2v = _qrot(q2[0], q2[1], q2[2], q2[3], am)
-    k2v = (k2v[0] + g[0], k2v[1] + g[1], k2v[2] + g[2])
-    # k3 at the midpoint predicted by k2
-    q3 = (q[0] + h * k2q[0], q[1] + h * k2q[1], q[2] + h * k2q[2], q[3] + h * k2q[3])
-    v3 = (v[0] + h * k2v[0], v[1] + h * k2v[1], v[2] + h * k2v[2])
-    k3q = _qdot(q3[0], q3[1], q3[2], q3[3], wm)
-    k3v = _qrot(q3[0], q3[1], q3[2], q3[3], am)
-    k3v = (k3v[0] + g[0], k3v[1] + g[1], k3v[2] + g[2])
-    # k4 at the end predicted by k3
-    q4 = (q[0] + dt * k3q[0], q[1] + dt * k3q[1], q[2] + dt * k3q[2], q[3] + dt * k3q[3])
-    v4 = (v[0] + dt * k3v[0], v[1] + dt * k3v[1], v[2] + dt * k3v[2])
-    k4q = _qdot(q4[0], q4[1], q4[2], q4[3], w1)
-    k4v = _qrot(q4[0], q4[1], q4[2], q4[3], a1)
-    k4v = (k4v[0] + g[0], k4v[1] + g[1], k4v[2] + g[2])
+    k1q, k1v = _rk4_slope(q[0], q[1], q[2], q[3], w0, a0, g)
+    k2q, k2v, v2 = _rk4_stage(q, v, k1q, k1v, h, wm, am, g)        # midpoint predicted by k1
+    k3q, k3v, v3 = _rk4_stage(q, v, k2q, k2v, h, wm, am, g)        # midpoint predicted by k2
+    k4q, k4v, v4 = _rk4_stage(q, v, k3q, k3v, dt, w1, a1, g)       # end predicted by k3
     c = dt / 6.0
     qn = np.empty(4)
     for i in range(4):

@@ -26,16 +26,6 @@ def chi2_accepts(d2: float, dof: int, multiplier: float) -> bool:
     return bool(d2 < multiplier * chi2_95(dof))
 
 
-def innovation_mahalanobis(Pcc: np.ndarray, H: np.ndarray, r: np.ndarray, sigma: float) -> float:
-    """r^T (H Pcc H^T + sigma^2 I)^-1 r for the covariance Pcc of H's columns (inf when singular)."""
-    S = H @ Pcc @ H.T
-    S.flat[::S.shape[0] + 1] += sigma * sigma
-    try:
-        return float(r @ np.linalg.solve(S, r))
-    except np.linalg.LinAlgError:
-        return float("inf")
-
-
 def compress(H: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """QR measurement compression: rows beyond the column count carry no information for isotropic noise.
 
@@ -94,11 +84,6 @@ def ekf_update(state: State, cols: np.ndarray, H: np.ndarray, r: np.ndarray, sig
     _mirror_lower_to_upper(P)
     state.apply_correction(dx)
     return True
-
-
-def mahalanobis(state: State, cols: np.ndarray, H: np.ndarray, r: np.ndarray, sigma: float) -> float:
-    """r^T (H P H^T + sigma^2 I)^-1 r over the state columns cols."""
-    return innovation_mahalanobis(state.P[np.ix_(cols, cols)], H, r, sigma)
 
 
 def augment_clone(state: State, t_cam_ns: int, w_body: np.ndarray) -> Clone:

@@ -17,9 +17,10 @@ import numpy as np
 
 from runtime.msckf.config import MsckfConfig
 from runtime.msckf.feature_db import FeatureDatabase
+from runtime.msckf.measurement import projected_mahalanobis
 from runtime.msckf.so3_kernels import skew3
 from runtime.msckf.state import State
-from runtime.msckf.state_helper import chi2_accepts, compress, ekf_update, innovation_mahalanobis
+from runtime.msckf.state_helper import chi2_accepts, compress, ekf_update
 
 MIN_DISPARITY_FEATURES = 20
 """The disparity test needs more features than this (OpenVINS: 20)."""
@@ -91,7 +92,8 @@ def zupt_update(st: State, cfg: MsckfConfig, db: FeatureDatabase, samples: tuple
     rw = r / sig
     cols = np.arange(15)
     if not still:
-        d2 = innovation_mahalanobis(st.P[:15, :15], Hw[: 6 * n], rw[: 6 * n], 1.0)
+        d2 = projected_mahalanobis(np.ascontiguousarray(st.P[:15, :15]), np.ascontiguousarray(Hw[: 6 * n]),
+                                   np.ascontiguousarray(rw[: 6 * n]), 1.0)
         if not chi2_accepts(d2, 6 * n, cfg.zupt_chi2_multiplier):
             return False
     Hc, rc = compress(Hw, rw)
