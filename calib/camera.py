@@ -329,6 +329,14 @@ class PinholeRadtan(CameraModel):
         yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
         return np.stack([xd, yd], axis=-1)
 
+    def _undistort_normalized(self, xy_d: np.ndarray) -> np.ndarray:
+        """Newton's method per point in a numba kernel (the tracker's hot path)."""
+        from calib.radtan_kernel import undistort_radtan
+
+        k1, k2, p1, p2, k3 = self._coefficients()
+        return undistort_radtan(np.ascontiguousarray(xy_d, dtype=np.float64), k1, k2, p1, p2, k3,
+                                UNDISTORT_MAX_ITERATIONS, UNDISTORT_TOLERANCE, UNDISTORT_ACCEPT)
+
     def _distort_normalized_jacobian(self, xy: np.ndarray) -> np.ndarray:
         k1, k2, p1, p2, k3 = self._coefficients()
         x, y = xy[:, 0], xy[:, 1]

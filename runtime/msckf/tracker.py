@@ -1,9 +1,10 @@
 """KLT feature tracker for the MSCKF front-end (OpenVINS ``TrackKLT`` style).
 
 Per frame: histogram equalisation, pyramidal Lucas-Kanade from the previous frame with a
-forward-backward consistency check, fundamental-matrix RANSAC on undistorted normalized
-coordinates between consecutive frames, then FAST corners on a grid to top the tracks up to
-``num_pts`` while keeping ``min_px_dist`` from existing tracks.
+forward-backward consistency check (ours; OpenVINS has none), fundamental-matrix RANSAC on
+undistorted normalized coordinates between consecutive frames (FM_RANSAC at 2 px, as OpenVINS),
+then, once enough tracks are missing, FAST corners in the grid cells below their share to top the
+tracks up to ``num_pts`` while keeping ``min_px_dist`` from existing tracks (OpenVINS' rule).
 
 Pixels are distorted image pixels (u, v), (0, 0) at the centre of the top-left pixel (OpenCV);
 ``xy`` are undistorted normalized coordinates (X/Z, Y/Z) through the rig's camera model.
@@ -20,12 +21,14 @@ import cv2
 import numpy as np
 
 from runtime.errors import ConfigError, DataError
+from runtime.msckf.corner_grid import block_neighbourhoods, choose_corners
 
 if TYPE_CHECKING:
     from calib import CameraModel
     from runtime.events import Frame
 
 _EQUALIZATIONS = ("histogram", "clahe", "none")
+_RANSAC_METHODS = {"magsac": cv2.USAC_MAGSAC, "ransac": cv2.FM_RANSAC}
 
 
 @dataclass
@@ -44,6 +47,9 @@ class TrackerConfig:
     """FAST intensity threshold (OpenVINS EuRoC fast_threshold)."""
     fast_threshold_min: int = 5
     """Lower FAST threshold retried in grid cells where fast_threshold finds nothing."""
+    min_new_features: int = 20
+    """Corners are detected only once at least min(this, num_pts / 2) tracks are missing (OpenVINS
+    TrackKLT: 20); 1 tops up every frame."""
     pyramid_levels: int = 5
     """Pyramid levels above the base image for LK (OpenVINS TrackKLT pyr_levels = 5)."""
     window_px: int = 15
@@ -56,8 +62,11 @@ class TrackerConfig:
     """Forward-backward check: reject a track whose round trip misses its start by more, px (<= 0: off)."""
     ransac: bool = True
     """Reject outliers with a fundamental-matrix RANSAC between consecutive frames."""
-    ransac_threshold_px: float = 1.0
-    """RANSAC epipolar threshold in pixels (divided by the focal length on normalized points)."""
+    ransac_method: str = "ransac"
+    """'ransac' (OpenCV FM_RANSAC, as OpenVINS) or 'magsac' (USAC_MAGSAC: about 14x the time per frame,
+    accuracy within the seed spread, BENCHMARKS.md "Tracking pipeline cost")."""
+    ransac_threshold_px: float = 2.0
+    """RANSAC epipolar threshold in pixels, divided by the focal length on normalized points (OpenVINS: 2)."""
     ransac_confidence: float = 0.999
     """RANSAC confidence."""
     ransac_min_points: int = 10
@@ -84,11 +93,16 @@ class TrackerConfig:
             raise ConfigError(f"tracker.window_px must be an odd number >= 3, got {self.window_px}")
         if self.pyramid_levels < 0:
             raise ConfigError(f"tracker.pyramid_levels must be >= 0, got {self.pyramid_levels}")
+        if self.min_new_features < 1:
+            raise ConfigError(f"tracker.min_new_features must be >= 1, got {self.min_new_features}")
         if self.min_px_dist < 0:
             raise ConfigError(f"tracker.min_px_dist must be >= 0, got {self.min_px_dist}")
         if self.equalization not in _EQUALIZATIONS:
             raise ConfigError(
                 f"tracker.equalization must be one of {_EQUALIZATIONS}, got {self.equalization!r}")
+        if self.ransac_method not in _RANSAC_METHODS:
+            raise ConfigError(
+                f"tracker.ransac_method must be one of {tuple(_RANSAC_METHODS)}, got {self.ransac_method!r}")
         if self.ransac_threshold_px <= 0:
             raise ConfigError(f"tracker.ransac_threshold_px must be > 0, got {self.ransac_threshold_px}")
         if self.ransac_min_points < 8:
@@ -147,6 +161,7 @@ class KltTracker:
         self._prev_xy = np.zeros((0, 2), dtype=np.float64)
         self._prev_t_ns: int | None = None
         self._next_id = 0
+        self._warm_kernels()
         self.counters = {
             "frames": 0, "dark_frames": 0, "frozen_frames": 0, "non_monotonic_frames": 0,
             "lk_failed": 0, "fb_rejected": 0, "border_rejected": 0, "ransac_rejected": 0,
@@ -194,12 +209,12 @@ class KltTracker:
             return self._empty(t_ns, stats)
 
         img = self._equalize(image)
-        ids, uv = self._track_from_previous(img, stats)
+        rows, uv = self._track_from_previous(img, stats)
         xy = self.camera.undistort_points(uv) if uv.shape[0] else np.zeros((0, 2))
         ok = np.all(np.isfinite(xy), axis=1)
         stats["n_undistort_failed"] = int((~ok).sum())
-        ids, uv, xy = ids[ok], uv[ok], xy[ok]
-        prev_xy = self._prev_xy_for(ids)
+        rows, uv, xy = rows[ok], uv[ok], xy[ok]
+        ids, prev_xy = self._prev_ids[rows], self._prev_xy[rows]
         if cfg.ransac and uv.shape[0] > 0:
             keep = self._ransac(prev_xy, xy, stats)
             ids, uv, xy = ids[keep], uv[keep], xy[keep]
@@ -228,6 +243,14 @@ class KltTracker:
         return TrackResult(t_ns, ids.copy(), uv.copy(), xy.copy(), stats)
 
     # ------------------------------------------------------------------ steps
+    def _warm_kernels(self) -> None:
+        """Load the detection and undistortion kernels (numba) now rather than in the first frame."""
+        occupied = np.zeros((3, 3), dtype=bool)
+        uv = np.ones((1, 2))
+        block_neighbourhoods(occupied, uv, 1.0)
+        choose_corners(uv, occupied, np.zeros((1, 1), dtype=np.int64), 1, 1, 1.0, 3, 3)
+        self.camera.undistort_points(np.array([[self.camera.cx, self.camera.cy]], dtype=np.float64))
+
     def _check_image(self, frame: Frame) -> np.ndarray:
         image = np.asarray(frame.image)
         if image.ndim != 2 or image.dtype != np.uint8:
@@ -246,6 +269,7 @@ class KltTracker:
         return image
 
     def _track_from_previous(self, img: np.ndarray, stats: dict) -> tuple[np.ndarray, np.ndarray]:
+        """Rows of the previous frame's tracks that were followed into ``img``, and their pixels there."""
         cfg = self.config
         if self._prev_img is None or self._prev_uv.shape[0] == 0:
             return np.zeros(0, np.int64), np.zeros((0, 2))
@@ -273,12 +297,7 @@ class KltTracker:
         inside = (uv[:, 0] >= b) & (uv[:, 0] <= w - 1 - b) & (uv[:, 1] >= b) & (uv[:, 1] <= h - 1 - b)
         stats["n_border_rejected"] = int((ok & ~inside).sum())
         keep = ok & inside
-        return self._prev_ids[keep], uv[keep]
-
-    def _prev_xy_for(self, ids: np.ndarray) -> np.ndarray:
-        index = {int(i): k for k, i in enumerate(self._prev_ids)}
-        rows = np.fromiter((index[int(i)] for i in ids), dtype=np.int64, count=ids.shape[0])
-        return self._prev_xy[rows] if rows.size else np.zeros((0, 2))
+        return np.flatnonzero(keep), uv[keep]
 
     def _ransac(self, xy0: np.ndarray, xy1: np.ndarray, stats: dict) -> np.ndarray:
         cfg = self.config
@@ -288,7 +307,8 @@ class KltTracker:
             stats["ransac_skipped"] = True
             return keep
         f = 0.5 * (self.camera.fx + self.camera.fy)
-        _, mask = cv2.findFundamentalMat(xy0.astype(np.float64), xy1.astype(np.float64), cv2.USAC_MAGSAC,
+        _, mask = cv2.findFundamentalMat(xy0.astype(np.float64), xy1.astype(np.float64),
+                                         _RANSAC_METHODS[cfg.ransac_method],
                                          cfg.ransac_threshold_px / f, cfg.ransac_confidence, 1000)
         if mask is None or mask.shape[0] != n:
             # degenerate configuration (no F could be fit): keep everything, say so
@@ -299,9 +319,13 @@ class KltTracker:
         return keep
 
     def _detect(self, img: np.ndarray, existing_uv: np.ndarray, n_wanted: int) -> np.ndarray:
-        """New corners (K, 2) on a grid, at least min_px_dist from existing and other new ones."""
+        """New corners (K, 2) on a grid, at least min_px_dist from existing and other new ones.
+
+        As OpenVINS' TrackKLT: nothing is detected while fewer than min(min_new_features, num_pts / 2)
+        tracks are missing, and FAST runs only in the grid cells that hold fewer tracks than their quota.
+        """
         cfg = self.config
-        if n_wanted <= 0:
+        if n_wanted <= 0 or n_wanted < min(cfg.min_new_features, cfg.num_pts // 2):
             return np.zeros((0, 2))
         h, w = img.shape
         b = cfg.border_px
@@ -309,36 +333,29 @@ class KltTracker:
         occ_w, occ_h = int(np.ceil(w / cell)) + 1, int(np.ceil(h / cell)) + 1
         occupied = np.zeros((occ_h, occ_w), dtype=bool)
         # existing features block their min_px_dist neighbourhood (occupancy cells of that size)
-        if existing_uv.shape[0]:
-            cx = np.clip((existing_uv[:, 0] / cell).astype(int), 0, occ_w - 1)
-            cy = np.clip((existing_uv[:, 1] / cell).astype(int), 0, occ_h - 1)
-            for dy in (-1, 0, 1):
-                for dx in (-1, 0, 1):
-                    occupied[np.clip(cy + dy, 0, occ_h - 1), np.clip(cx + dx, 0, occ_w - 1)] = True
+        block_neighbourhoods(occupied, np.ascontiguousarray(existing_uv, dtype=np.float64), float(cell))
         # per-grid-cell quota so corners spread over the image
         gx = np.clip((existing_uv[:, 0] * cfg.grid_x / w).astype(int), 0, cfg.grid_x - 1)
         gy = np.clip((existing_uv[:, 1] * cfg.grid_y / h).astype(int), 0, cfg.grid_y - 1)
         count = np.zeros((cfg.grid_y, cfg.grid_x), dtype=int)
         np.add.at(count, (gy, gx), 1)
         quota_per_cell = int(np.ceil(cfg.num_pts / (cfg.grid_x * cfg.grid_y)))
-        mask = np.zeros_like(img)
-        mask[b:h - b, b:w - b] = 255
-        kps = self._fast.detect(img, mask)
-        pts = self._keypoint_array(kps)
-        # cells where the normal threshold finds nothing get a second chance at the lower threshold
-        cells_found = np.zeros((cfg.grid_y, cfg.grid_x), dtype=bool)
-        if pts.shape[0]:
-            cells_found[np.clip((pts[:, 1] * cfg.grid_y / h).astype(int), 0, cfg.grid_y - 1),
-                        np.clip((pts[:, 0] * cfg.grid_x / w).astype(int), 0, cfg.grid_x - 1)] = True
-        empty_cells = np.argwhere(~cells_found & (count < quota_per_cell))
-        if empty_cells.size and cfg.fast_threshold_min < cfg.fast_threshold:
-            low_mask = np.zeros_like(mask)
-            for r, c in empty_cells:
-                low_mask[int(r * h / cfg.grid_y):int((r + 1) * h / cfg.grid_y),
-                         int(c * w / cfg.grid_x):int((c + 1) * w / cfg.grid_x)] = 255
-            low_mask &= mask
-            low = self._keypoint_array(self._fast_low.detect(img, low_mask))
-            pts = np.concatenate([pts, low]) if low.size else pts
+        found = []
+        for r, c in np.argwhere(count < quota_per_cell):
+            # the cell inside the border; FAST on that view only
+            y0, y1 = max(int(r * h / cfg.grid_y), b), min(int((r + 1) * h / cfg.grid_y), h - b)
+            x0, x1 = max(int(c * w / cfg.grid_x), b), min(int((c + 1) * w / cfg.grid_x), w - b)
+            if y1 - y0 < 1 or x1 - x0 < 1:
+                continue
+            # FAST needs 3 px around a corner: the view reaches that far into the neighbours
+            ry0, ry1, rx0, rx1 = max(y0 - 3, 0), min(y1 + 3, h), max(x0 - 3, 0), min(x1 + 3, w)
+            roi = img[ry0:ry1, rx0:rx1]
+            pts_cell = self._keypoint_array(self._fast.detect(roi, None), rx0, ry0, x0, x1, y0, y1)
+            if pts_cell.shape[0] == 0 and cfg.fast_threshold_min < cfg.fast_threshold:
+                # a cell where the normal threshold finds nothing gets a second chance at the lower one
+                pts_cell = self._keypoint_array(self._fast_low.detect(roi, None), rx0, ry0, x0, x1, y0, y1)
+            found.append(pts_cell)
+        pts = np.concatenate(found) if found else np.zeros((0, 3))
         if pts.shape[0] == 0:
             return np.zeros((0, 2))
         # drop corners next to existing tracks at once, keep the strongest few per wanted corner
@@ -346,36 +363,25 @@ class KltTracker:
         pts = pts[free]
         order = np.argsort(-pts[:, 2], kind="stable")[: max(64, 30 * n_wanted)]
         pts = pts[order]
-        chosen: list[tuple[float, float]] = []
-        # first pass honours the per-cell quota; the second fills what is still missing anywhere
-        for use_quota in (True, False):
-            for u, v, _ in pts:
-                if len(chosen) >= n_wanted:
-                    break
-                ox, oy = int(u / cell), int(v / cell)
-                if occupied[oy, ox]:
-                    continue
-                cgx = min(int(u * cfg.grid_x / w), cfg.grid_x - 1)
-                cgy = min(int(v * cfg.grid_y / h), cfg.grid_y - 1)
-                if use_quota and count[cgy, cgx] >= quota_per_cell:
-                    continue
-                count[cgy, cgx] += 1
-                occupied[max(oy - 1, 0):oy + 2, max(ox - 1, 0):ox + 2] = True
-                chosen.append((float(u), float(v)))
-        if not chosen:
+        rows = choose_corners(np.ascontiguousarray(pts[:, :2]), occupied, count, quota_per_cell,
+                              int(n_wanted), float(cell), w, h)
+        if rows.shape[0] == 0:
             return np.zeros((0, 2))
-        uv = np.asarray(chosen, dtype=np.float32).reshape(-1, 1, 2)
+        uv = pts[rows, :2].astype(np.float32).reshape(-1, 1, 2)
         crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 0.01)
         cv2.cornerSubPix(img, uv, (3, 3), (-1, -1), crit)
         return uv.reshape(-1, 2).astype(np.float64)
 
     @staticmethod
-    def _keypoint_array(kps: tuple) -> np.ndarray:
+    def _keypoint_array(kps: tuple, dx: int, dy: int, x0: int, x1: int, y0: int, y1: int) -> np.ndarray:
+        """(K, 3) pixel u, v and FAST response of keypoints found in a view offset by (dx, dy), those
+        inside the cell [x0, x1) x [y0, y1) only."""
         if not kps:
             return np.zeros((0, 3))
-        uv = cv2.KeyPoint_convert(kps).astype(np.float64).reshape(-1, 2)
+        uv = cv2.KeyPoint_convert(kps).astype(np.float64).reshape(-1, 2) + (dx, dy)
         response = np.fromiter((k.response for k in kps), dtype=np.float64, count=len(kps))
-        return np.column_stack([uv, response])
+        inside = (uv[:, 0] >= x0) & (uv[:, 0] < x1) & (uv[:, 1] >= y0) & (uv[:, 1] < y1)
+        return np.column_stack([uv, response])[inside]
 
     def _set_prev(self, ids: np.ndarray, uv: np.ndarray, xy: np.ndarray) -> None:
         self._prev_ids, self._prev_uv, self._prev_xy = ids, uv, xy

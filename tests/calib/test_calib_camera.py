@@ -110,6 +110,21 @@ def test_undistort_points_matches_cv2(cam: CameraModel, max_angle: float) -> Non
     np.testing.assert_allclose(xy, p[:, :2] / p[:, 2:], atol=1e-11)
 
 
+@pytest.mark.parametrize("cam", [EUROC, RADTAN5])
+def test_radtan_kernel_agrees_with_the_generic_newton(cam: PinholeRadtan) -> None:
+    """The numba per-point Newton against the base class's vectorised one, far outside the image too;
+    a NaN pixel stays NaN."""
+    rng = np.random.default_rng(3)
+    xy_d = np.concatenate([rng.uniform(-0.9, 0.9, (400, 2)), rng.uniform(-4.0, 4.0, (100, 2)),
+                           [[np.nan, 0.1]]])
+    kernel = cam._undistort_normalized(xy_d)
+    generic = CameraModel._undistort_normalized(cam, xy_d)
+    np.testing.assert_array_equal(np.isnan(kernel), np.isnan(generic))
+    assert np.all(np.isnan(kernel[-1]))
+    finite = np.isfinite(generic[:, 0])
+    np.testing.assert_allclose(kernel[finite], generic[finite], atol=1e-12)
+
+
 def test_fisheye_undistort_points_matches_cv2() -> None:
     p = _points_in_fov(FISHEYE, 500, 6, 85.0)
     uv = FISHEYE.project(p)
