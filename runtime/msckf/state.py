@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from runtime.msckf.so3_kernels import exp3, normalize_rot
 
@@ -144,15 +145,42 @@ class State:
         if self.idx_intr >= 0:
             i = self.idx_intr
             self.cam_params[:8] = self.cam_params[:8] + dx[i:i + 8]
-        for c in self.clones.values():
-            c.R = c.R @ exp3(dx[c.idx:c.idx + 3])     # short-lived: exp3 keeps it orthonormal to ~1e-15
-            c.p = c.p + dx[c.idx + 3:c.idx + 6]
-        for lm in self.slam.values():
-            lm.p = lm.p + dx[lm.idx:lm.idx + 3]
+        # all clones in one kernel call, all landmarks in one array sum (each keeps a row of the result)
+        clones = list(self.clones.values())
+        if clones:
+            idx = np.fromiter((c.idx for c in clones), dtype=np.int64, count=len(clones))
+            Rs = np.array([c.R for c in clones])
+            ps = np.array([c.p for c in clones])
+            _correct_clones(Rs, ps, idx, dx)
+            for k, c in enumerate(clones):
+                c.R, c.p = Rs[k], ps[k]
+        lms = list(self.slam.values())
+        if lms:
+            idx = np.fromiter((lm.idx for lm in lms), dtype=np.int64, count=len(lms))
+            new_p = np.array([lm.p for lm in lms]) + dx[idx[:, None] + _XYZ]
+            for k, lm in enumerate(lms):
+                lm.p = new_p[k]
 
     def clone_times(self) -> list[int]:
         """Camera times of the clones, oldest first."""
         return sorted(self.clones)
+
+
+_XYZ = np.arange(3)
+
+
+@njit(cache=True, nogil=True)
+def _correct_clones(Rs: np.ndarray, ps: np.ndarray, idx: np.ndarray, dx: np.ndarray) -> None:
+    """Clone k's pose R_k <- R_k Exp(dx[i:i+3]), p_k <- p_k + dx[i+3:i+6], i = idx[k] (in place). The clones
+    are short-lived: Exp keeps R orthonormal to ~1e-15 without renormalising."""
+    for k in range(idx.shape[0]):
+        i = idx[k]
+        E = exp3(dx[i:i + 3])
+        R = Rs[k].copy()
+        for a in range(3):
+            for b in range(3):
+                Rs[k, a, b] = R[a, 0] * E[0, b] + R[a, 1] * E[1, b] + R[a, 2] * E[2, b]
+            ps[k, a] += dx[i + 3 + a]
 
 
 def _submatrix(P: np.ndarray, keep: np.ndarray) -> np.ndarray:

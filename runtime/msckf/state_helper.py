@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 from scipy.linalg.blas import dsyrk
-from scipy.linalg.lapack import dpotrf, dtrtrs
+from scipy.linalg.lapack import dgeqrf, dpotrf, dtrtrs
 from scipy.stats import chi2 as _chi2
 
 from runtime.msckf.measurement import givens_left_nullspace, projected_mahalanobis
@@ -34,8 +34,13 @@ def compress(H: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     m, n = H.shape
     if m <= n:
         return H, r
-    Ra = np.linalg.qr(np.column_stack((H, r)), mode="r")
-    return Ra[:n, :n], Ra[:n, n].copy()
+    Hr = np.empty((m, n + 1), order="F")    # LAPACK's layout: geqrf factors it in place
+    Hr[:, :n] = H
+    Hr[:, n] = r
+    qr, _, _, info = dgeqrf(Hr, overwrite_a=1)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"QR compression failed (dgeqrf info {info})")
+    return np.triu(qr[:n, :n]), qr[:n, n].copy()
 
 
 _MIRROR_TILE = 32

@@ -13,6 +13,8 @@ and being held at zero velocity.
 """
 from __future__ import annotations
 
+from bisect import bisect_right
+
 import numpy as np
 
 from runtime.msckf.config import MsckfConfig
@@ -31,17 +33,21 @@ def mean_disparity(db: FeatureDatabase, t_cam_ns: int, ids: np.ndarray, uv: np.n
     """Mean pixel distance between this frame's features (camera time t_cam_ns) and, per feature, its
     newest stored observation at least span_ns older; and the number of features averaged (inf, 0 when
     none has such an observation)."""
-    d = []
-    for k in range(ids.shape[0]):
-        tr = db.tracks.get(int(ids[k]))
+    tracks = db.tracks
+    t_max = t_cam_ns - span_ns
+    rows, past = [], []
+    for k, fid in enumerate(ids.tolist()):
+        tr = tracks.get(fid)
         if tr is None:
             continue
-        j = len(tr.t_ns) - 1
-        while j >= 0 and t_cam_ns - tr.t_ns[j] < span_ns:
-            j -= 1
+        j = bisect_right(tr.t_ns, t_max) - 1     # the track's times increase
         if j >= 0:
-            d.append(float(np.linalg.norm(uv[k] - tr.uv[j])))
-    return (float(np.mean(d)) if d else float("inf")), len(d)
+            rows.append(k)
+            past.append(tr.uv[j])
+    if not rows:
+        return float("inf"), 0
+    d = np.linalg.norm(np.asarray(uv, dtype=np.float64)[rows] - np.asarray(past, dtype=np.float64), axis=1)
+    return float(d.mean()), len(rows)
 
 
 def disparity_says_static(cfg: MsckfConfig, db: FeatureDatabase, t_cam_ns: int, ids: np.ndarray,
