@@ -12,8 +12,8 @@ import numpy as np
 
 @numba.njit(cache=True, nogil=True)
 def block_neighbourhoods(occupied: np.ndarray, uv: np.ndarray, cell: float) -> None:
-    """Mark the 3x3 occupancy neighbourhood of each pixel of ``uv`` (K, 2) as taken (in place); pixels
-    beyond the grid count in its border cells."""
+    """Mark the 3x3 occupancy neighbourhood of each pixel of ``uv`` (K, 2) as taken (in place); occupancy
+    cells are ``cell`` px square; pixels beyond the grid count in its border cells."""
     occ_h, occ_w = occupied.shape
     for k in range(uv.shape[0]):
         ox = min(max(int(uv[k, 0] / cell), 0), occ_w - 1)
@@ -26,8 +26,10 @@ def block_neighbourhoods(occupied: np.ndarray, uv: np.ndarray, cell: float) -> N
 @numba.njit(cache=True, nogil=True)
 def choose_corners(uv: np.ndarray, occupied: np.ndarray, count: np.ndarray, quota: int, n_wanted: int,
                    cell: float, width: int, height: int) -> np.ndarray:
-    """Rows of ``uv`` (K, 2) pixels, strongest first, chosen in order; ``occupied`` (occupancy rows, cols)
-    bool and ``count`` (grid_y, grid_x) int64 are updated in place."""
+    """Rows of ``uv`` (K, 2) pixels, strongest first, chosen in order (at most n_wanted); ``occupied``
+    (occupancy rows, cols; cells of ``cell`` px) bool and ``count`` (grid_y, grid_x) int64, the tracks per
+    detection-grid cell of a ``width`` x ``height`` px image, are updated in place; ``quota``: tracks per
+    grid cell the first pass allows."""
     grid_y, grid_x = count.shape
     occ_h, occ_w = occupied.shape
     taken = np.zeros(uv.shape[0], dtype=np.bool_)

@@ -3,8 +3,9 @@
 Per frame: histogram equalisation, pyramidal Lucas-Kanade from the previous frame with a
 forward-backward consistency check (ours; OpenVINS has none), fundamental-matrix RANSAC on
 undistorted normalized coordinates between consecutive frames (FM_RANSAC at 2 px, as OpenVINS),
-then, once enough tracks are missing, FAST corners in the grid cells below their share to top the
-tracks up to ``num_pts`` while keeping ``min_px_dist`` from existing tracks (OpenVINS' rule).
+then, once enough tracks are missing (OpenVINS' rule), FAST corners in the grid cells holding fewer
+tracks than their share (OpenVINS: half of it, ``detect_cell_fraction``) to top the tracks up to
+``num_pts`` while keeping ``min_px_dist`` from existing tracks.
 
 Pixels are distorted image pixels (u, v), (0, 0) at the centre of the top-left pixel (OpenCV);
 ``xy`` are undistorted normalized coordinates (X/Z, Y/Z) through the rig's camera model.
@@ -29,6 +30,8 @@ if TYPE_CHECKING:
 
 _EQUALIZATIONS = ("histogram", "clahe", "none")
 _RANSAC_METHODS = {"magsac": cv2.USAC_MAGSAC, "ransac": cv2.FM_RANSAC}
+_FAST_MARGIN_PX = 4
+"""FAST's 3 px scoring circle plus the 1 px of its non-maximum suppression."""
 
 
 @dataclass
@@ -50,6 +53,9 @@ class TrackerConfig:
     min_new_features: int = 20
     """Corners are detected only once at least min(this, num_pts / 2) tracks are missing (OpenVINS
     TrackKLT: 20); 1 tops up every frame."""
+    detect_cell_fraction: float = 1.0
+    """FAST runs only in grid cells holding fewer tracks than max(1, int(this x share)), share =
+    ceil(num_pts / cells) (OpenVINS TrackKLT: 0.5; 1.0: every cell below its share)."""
     pyramid_levels: int = 5
     """Pyramid levels above the base image for LK (OpenVINS TrackKLT pyr_levels = 5)."""
     window_px: int = 15
@@ -64,7 +70,7 @@ class TrackerConfig:
     """Reject outliers with a fundamental-matrix RANSAC between consecutive frames."""
     ransac_method: str = "ransac"
     """'ransac' (OpenCV FM_RANSAC, as OpenVINS) or 'magsac' (USAC_MAGSAC: about 14x the time per frame,
-    accuracy within the seed spread, BENCHMARKS.md "Tracking pipeline cost")."""
+    accuracy within the seed spread, BENCHMARKS.md "Tracking pipeline and filter cost")."""
     ransac_threshold_px: float = 2.0
     """RANSAC epipolar threshold in pixels, divided by the focal length on normalized points (OpenVINS: 2)."""
     ransac_confidence: float = 0.999
@@ -93,6 +99,9 @@ class TrackerConfig:
             raise ConfigError(f"tracker.window_px must be an odd number >= 3, got {self.window_px}")
         if self.pyramid_levels < 0:
             raise ConfigError(f"tracker.pyramid_levels must be >= 0, got {self.pyramid_levels}")
+        if not 0.0 < self.detect_cell_fraction <= 1.0:
+            raise ConfigError(
+                f"tracker.detect_cell_fraction must be in (0, 1], got {self.detect_cell_fraction}")
         if self.min_new_features < 1:
             raise ConfigError(f"tracker.min_new_features must be >= 1, got {self.min_new_features}")
         if self.min_px_dist < 0:
@@ -322,7 +331,8 @@ class KltTracker:
         """New corners (K, 2) on a grid, at least min_px_dist from existing and other new ones.
 
         As OpenVINS' TrackKLT: nothing is detected while fewer than min(min_new_features, num_pts / 2)
-        tracks are missing, and FAST runs only in the grid cells that hold fewer tracks than their quota.
+        tracks are missing, and FAST runs only in the grid cells that hold fewer tracks than
+        detect_cell_fraction of their quota (OpenVINS: 0.5, ours 1.0).
         """
         cfg = self.config
         if n_wanted <= 0 or n_wanted < min(cfg.min_new_features, cfg.num_pts // 2):
@@ -341,19 +351,17 @@ class KltTracker:
         np.add.at(count, (gy, gx), 1)
         quota_per_cell = int(np.ceil(cfg.num_pts / (cfg.grid_x * cfg.grid_y)))
         found = []
-        for r, c in np.argwhere(count < quota_per_cell):
-            # the cell inside the border; FAST on that view only
+        detect_below = max(1, int(cfg.detect_cell_fraction * quota_per_cell))
+        for r, c in np.argwhere(count < detect_below):
+            # the cell inside the border
             y0, y1 = max(int(r * h / cfg.grid_y), b), min(int((r + 1) * h / cfg.grid_y), h - b)
             x0, x1 = max(int(c * w / cfg.grid_x), b), min(int((c + 1) * w / cfg.grid_x), w - b)
             if y1 - y0 < 1 or x1 - x0 < 1:
                 continue
-            # FAST needs 3 px around a corner: the view reaches that far into the neighbours
-            ry0, ry1, rx0, rx1 = max(y0 - 3, 0), min(y1 + 3, h), max(x0 - 3, 0), min(x1 + 3, w)
-            roi = img[ry0:ry1, rx0:rx1]
-            pts_cell = self._keypoint_array(self._fast.detect(roi, None), rx0, ry0, x0, x1, y0, y1)
+            pts_cell = self._fast_in(img, self._fast, x0, x1, y0, y1)
             if pts_cell.shape[0] == 0 and cfg.fast_threshold_min < cfg.fast_threshold:
                 # a cell where the normal threshold finds nothing gets a second chance at the lower one
-                pts_cell = self._keypoint_array(self._fast_low.detect(roi, None), rx0, ry0, x0, x1, y0, y1)
+                pts_cell = self._fast_in(img, self._fast_low, x0, x1, y0, y1)
             found.append(pts_cell)
         pts = np.concatenate(found) if found else np.zeros((0, 3))
         if pts.shape[0] == 0:
@@ -373,12 +381,20 @@ class KltTracker:
         return uv.reshape(-1, 2).astype(np.float64)
 
     @staticmethod
-    def _keypoint_array(kps: tuple, dx: int, dy: int, x0: int, x1: int, y0: int, y1: int) -> np.ndarray:
-        """(K, 3) pixel u, v and FAST response of keypoints found in a view offset by (dx, dy), those
-        inside the cell [x0, x1) x [y0, y1) only."""
+    def _fast_in(img: np.ndarray, detector: cv2.FastFeatureDetector, x0: int, x1: int, y0: int,
+                 y1: int) -> np.ndarray:
+        """(K, 3) pixel u, v and FAST response of the corners `detector` finds in the image whose pixels lie
+        in [x0, x1) x [y0, y1): the corners FAST finds on the whole image there.
+
+        FAST scores a pixel from the 3 px circle around it and non-maximum suppression compares it with its
+        8 neighbours, so the view it runs on reaches 4 px beyond the cell (where the image has them)."""
+        h, w = img.shape
+        rx0, ry0 = max(x0 - _FAST_MARGIN_PX, 0), max(y0 - _FAST_MARGIN_PX, 0)
+        view = img[ry0:min(y1 + _FAST_MARGIN_PX, h), rx0:min(x1 + _FAST_MARGIN_PX, w)]
+        kps = detector.detect(view, None)
         if not kps:
             return np.zeros((0, 3))
-        uv = cv2.KeyPoint_convert(kps).astype(np.float64).reshape(-1, 2) + (dx, dy)
+        uv = cv2.KeyPoint_convert(kps).astype(np.float64).reshape(-1, 2) + (rx0, ry0)
         response = np.fromiter((k.response for k in kps), dtype=np.float64, count=len(kps))
         inside = (uv[:, 0] >= x0) & (uv[:, 0] < x1) & (uv[:, 1] >= y0) & (uv[:, 1] < y1)
         return np.column_stack([uv, response])[inside]

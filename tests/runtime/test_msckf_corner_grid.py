@@ -57,9 +57,11 @@ def test_existing_tracks_block_their_neighbourhood() -> None:
     cell, shape = 10.0, (49, 77)
     uv = np.column_stack([rng.uniform(0, 770, 60), rng.uniform(0, 490, 60)])
     uv[:2] = [[0.5, 0.5], [769.0, 489.0]]                   # corners of the grid
+    uv[2:4] = [[-25.0, 100.0], [900.0, 600.0]]               # beyond it: its border cells
     expected = np.zeros(shape, dtype=bool)
     for u, v in uv:
-        ox, oy = int(u // cell), int(v // cell)
+        ox = min(max(int(u // cell), 0), shape[1] - 1)
+        oy = min(max(int(v // cell), 0), shape[0] - 1)
         expected[max(oy - 1, 0):oy + 2, max(ox - 1, 0):ox + 2] = True
     got = np.zeros(shape, dtype=bool)
     block_neighbourhoods(got, uv, cell)

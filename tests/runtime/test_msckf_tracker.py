@@ -289,3 +289,21 @@ def test_kernels_are_loaded_when_the_tracker_is_built() -> None:
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip() == "[True, True, True]"
+
+
+@pytest.mark.parametrize("threshold", [20, 5])
+def test_fast_in_a_cell_finds_what_fast_finds_on_the_whole_image(threshold: int) -> None:
+    """Detection runs FAST on one grid cell's view at a time: the corners, positions and responses equal
+    those OpenCV's FAST finds on the whole image inside that cell, at the image's edges too."""
+    img = textured_image(7)
+    fast = cv2.FastFeatureDetector_create(threshold=threshold, nonmaxSuppression=True)
+    whole = fast.detect(img, None)
+    ref_uv = cv2.KeyPoint_convert(whole).astype(np.float64)
+    ref = np.column_stack([ref_uv, [k.response for k in whole]])
+    for x0, x1, y0, y1 in [(0, 128, 0, 96), (128, 256, 96, 192), (512, 640, 384, 480), (300, 301, 10, 470)]:
+        got = KltTracker._fast_in(img, fast, x0, x1, y0, y1)
+        inside = ((ref[:, 0] >= x0) & (ref[:, 0] < x1) & (ref[:, 1] >= y0) & (ref[:, 1] < y1))
+        assert inside.sum() > 0 or (x1 - x0) == 1
+        order = np.lexsort((got[:, 0], got[:, 1]))
+        expected = ref[inside][np.lexsort((ref[inside][:, 0], ref[inside][:, 1]))]
+        np.testing.assert_array_equal(got[order], expected)
