@@ -331,7 +331,7 @@ class PinholeRadtan(CameraModel):
 
     def _undistort_normalized(self, xy_d: np.ndarray) -> np.ndarray:
         """Newton's method per point in a numba kernel (the tracker's hot path)."""
-        from calib.radtan_kernel import undistort_radtan
+        from calib.radtan_kernel import undistort_radtan  # numba only when undistorting: calib stays light
 
         k1, k2, p1, p2, k3 = self._coefficients()
         return undistort_radtan(np.ascontiguousarray(xy_d, dtype=np.float64), k1, k2, p1, p2, k3,

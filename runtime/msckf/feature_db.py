@@ -26,7 +26,9 @@ class FeatureDatabase:
     """Tracks keyed by feature id.
 
     The ids added at each frame time are kept beside the tracks, so that dropping a time visits the tracks
-    observed then instead of every track (an entry may name a track that lost that observation since)."""
+    observed then instead of every track (an entry may name a track that lost that observation since).
+    Frames are added in increasing time (the estimator processes them in order), so each track's times
+    increase and are searched by bisection."""
 
     def __init__(self) -> None:
         self.tracks: dict[int, Track] = {}

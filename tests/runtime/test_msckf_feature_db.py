@@ -60,10 +60,14 @@ def test_random_operations_agree_with_a_list_model() -> None:
     assert created == sorted(created) and len(set(created)) == len(created)
 
 
-def test_clear_forgets_the_time_index() -> None:
+def test_the_time_index_holds_only_times_still_in_the_window() -> None:
+    """Dropping and clearing also empty the per-time index (its memory stays bounded by the window)."""
     db = FeatureDatabase()
-    db.add(10, np.array([1, 2]), np.zeros((2, 2)), np.zeros((2, 2)))
+    for k in range(50):
+        db.add(10 * k, np.array([k, k + 1]), np.zeros((2, 2)), np.zeros((2, 2)))
+        db.drop_older_than(10 * (k - 4))
+    assert sorted(db._ids_at) == [450, 460, 470, 480, 490]
+    db.drop_time(470)
+    assert sorted(db._ids_at) == [450, 460, 480, 490]
     db.clear()
-    db.add(20, np.array([1]), np.ones((1, 2)), np.ones((1, 2)))
-    db.drop_older_than(15)
-    assert list(db.tracks) == [1] and db.tracks[1].t_ns == [20]
+    assert db._ids_at == {} and db.tracks == {}
