@@ -145,3 +145,20 @@ def test_live_queue_keeps_newest_frames_and_every_imu_sample():
     imu = [e.t_ns for e in out if isinstance(e, ImuSample)]
     assert frames == [4, 5] and q.frames_dropped == 4
     assert imu == list(range(6)) and q.imu_overflow > 0
+
+
+def test_per_frame_time_counts_the_imu_work_since_the_previous_frame():
+    """The filter runs a frame's updates from on_imu: a frame's time holds that work, not only on_frame's."""
+
+    class SlowImuPipeline(TracePipeline):
+        def on_imu(self, s):
+            t_end = time.perf_counter() + 0.0015      # 1.5 ms of work per sample
+            while time.perf_counter() < t_end:
+                pass
+            return super().on_imu(s)
+
+    rep = Scheduler(FastClock(model_latency_s=0.25), queue_size=16).run(
+        _events(n_imu=60, frame_every=10), SlowImuPipeline(lambda: 0.0))
+    assert rep.frames == 6 and len(rep.per_frame_ms) == 6
+    # every frame after the first follows 10 samples of 1.5 ms each
+    assert min(rep.per_frame_ms[1:]) >= 10 * 1.5
