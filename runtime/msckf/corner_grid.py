@@ -11,6 +11,15 @@ import numpy as np
 
 
 @numba.njit(cache=True, nogil=True)
+def _block_cell(occupied: np.ndarray, ox: int, oy: int) -> None:
+    """Mark occupancy cell (oy, ox) and its 8 neighbours (those inside the grid) as taken."""
+    occ_h, occ_w = occupied.shape
+    for y in range(max(oy - 1, 0), min(oy + 2, occ_h)):
+        for x in range(max(ox - 1, 0), min(ox + 2, occ_w)):
+            occupied[y, x] = True
+
+
+@numba.njit(cache=True, nogil=True)
 def block_neighbourhoods(occupied: np.ndarray, uv: np.ndarray, cell: float) -> None:
     """Mark the 3x3 occupancy neighbourhood of each pixel of ``uv`` (K, 2) as taken (in place); occupancy
     cells are ``cell`` px square; pixels beyond the grid count in its border cells."""
@@ -18,9 +27,7 @@ def block_neighbourhoods(occupied: np.ndarray, uv: np.ndarray, cell: float) -> N
     for k in range(uv.shape[0]):
         ox = min(max(int(uv[k, 0] / cell), 0), occ_w - 1)
         oy = min(max(int(uv[k, 1] / cell), 0), occ_h - 1)
-        for y in range(max(oy - 1, 0), min(oy + 2, occ_h)):
-            for x in range(max(ox - 1, 0), min(ox + 2, occ_w)):
-                occupied[y, x] = True
+        _block_cell(occupied, ox, oy)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -31,16 +38,12 @@ def choose_corners(uv: np.ndarray, occupied: np.ndarray, count: np.ndarray, quot
     detection-grid cell of a ``width`` x ``height`` px image, are updated in place; ``quota``: tracks per
     grid cell the first pass allows."""
     grid_y, grid_x = count.shape
-    occ_h, occ_w = occupied.shape
-    taken = np.zeros(uv.shape[0], dtype=np.bool_)
     chosen = np.empty(min(n_wanted, uv.shape[0]), dtype=np.int64)
     n = 0
     for use_quota in (True, False):
         for k in range(uv.shape[0]):
             if n >= n_wanted:
                 break
-            if taken[k]:
-                continue
             u, v = uv[k, 0], uv[k, 1]
             ox, oy = int(u / cell), int(v / cell)
             if occupied[oy, ox]:
@@ -50,10 +53,7 @@ def choose_corners(uv: np.ndarray, occupied: np.ndarray, count: np.ndarray, quot
             if use_quota and count[cgy, cgx] >= quota:
                 continue
             count[cgy, cgx] += 1
-            for y in range(max(oy - 1, 0), min(oy + 2, occ_h)):
-                for x in range(max(ox - 1, 0), min(ox + 2, occ_w)):
-                    occupied[y, x] = True
-            taken[k] = True
+            _block_cell(occupied, ox, oy)  # also keeps the second pass off corners already chosen
             chosen[n] = k
             n += 1
     return chosen[:n]
