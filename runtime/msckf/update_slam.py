@@ -33,6 +33,36 @@ class SlamUpdateStats:
 
 
 @njit(cache=True, nogil=True)
+def _mul23(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """A B for a 2x3 A and a 3xk B (scalar loops: numba sends every small `@` to BLAS)."""
+    out = np.empty((2, B.shape[1]))
+    for i in range(2):
+        for j in range(B.shape[1]):
+            out[i, j] = A[i, 0] * B[0, j] + A[i, 1] * B[1, j] + A[i, 2] * B[2, j]
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _project_cov2(P: np.ndarray, cols: np.ndarray, H: np.ndarray) -> np.ndarray:
+    """H P[cols][:, cols] H^T (2x2) for a 2 x len(cols) H, without gathering the block."""
+    nc = cols.shape[0]
+    S = np.zeros((2, 2))
+    for a in range(nc):
+        row = cols[a]
+        t0 = 0.0
+        t1 = 0.0
+        for b in range(nc):
+            pab = P[row, cols[b]]
+            t0 += pab * H[0, b]
+            t1 += pab * H[1, b]
+        S[0, 0] += H[0, a] * t0
+        S[0, 1] += H[0, a] * t1
+        S[1, 0] += H[1, a] * t0
+        S[1, 1] += H[1, a] * t1
+    return S
+
+
+@njit(cache=True, nogil=True)
 def slam_rows(P: np.ndarray, cidx: int, eidx: int, lidx: np.ndarray, aidx: np.ndarray, Rc: np.ndarray,
               pc: np.ndarray, Rf: np.ndarray, pf: np.ndarray, uv: np.ndarray, lp: np.ndarray,
               lfej: np.ndarray,
@@ -80,9 +110,9 @@ def slam_rows(P: np.ndarray, cidx: int, eidx: int, lidx: np.ndarray, aidx: np.nd
         ha = np.zeros((2, 6))
         sep = False
         if anchored:
-            hl = hf @ J_lam
-            ha = hf @ J_anc
-            he = he + hf @ J_ext
+            hl = _mul23(hf, J_lam)
+            ha = _mul23(hf, J_anc)
+            he = he + _mul23(hf, J_ext)
             if aidx[i] == cidx:
                 hc = hc + ha
                 ha = np.zeros((2, 6))
@@ -112,11 +142,7 @@ def slam_rows(P: np.ndarray, cidx: int, eidx: int, lidx: np.ndarray, aidx: np.nd
         for j in range(3):
             cols[6 + ne + nk + na + j] = lidx[i] + j
         H[:, 6 + ne + nk + na:] = hl
-        Pl = np.empty((nc, nc))
-        for a in range(nc):
-            for b in range(nc):
-                Pl[a, b] = P[cols[a], cols[b]]
-        S = H @ Pl @ H.T
+        S = _project_cov2(P, cols, H)
         S[0, 0] += sigma * sigma
         S[1, 1] += sigma * sigma
         det = S[0, 0] * S[1, 1] - S[0, 1] * S[1, 0]
@@ -297,33 +323,82 @@ def change_anchor(state: State, lm: Landmark, new_t: int) -> None:
 
     Before its anchor clone is marginalised (OpenVINS UpdaterSLAM::change_anchors). The new parameters are a
     function of (old lam, old anchor, new anchor, extrinsics); the covariance rows of lam are replaced by the
-    linearisation of that function at the current point, the anchors held at their first estimates.
+    linearisation of that function at the current point, the anchors held at their first estimates
+    (`anchor_change_kernel`).
     """
     old = state.clones[lm.anchor_t]
     new = state.clones[new_t]
     if new is old:
         return
-    R_IC, p_IC = state.R_IC, state.p_IC
-    p_O, _, _, _ = anchored_to_global(lm.p, old.R, old.p, R_IC, p_IC)
-    lam_new, _, _, _ = global_to_anchored(p_O, new.R, new.p, R_IC, p_IC)
-    # Jacobians at the current point through the anchors' first estimates (OpenVINS perform_anchor_change)
-    lam_old_fej, _, _, _ = global_to_anchored(p_O, old.R_fej, old.p_fej, R_IC, p_IC)
-    if not (lam_old_fej[2] > 0 and np.all(np.isfinite(lam_old_fej))):   # behind the first-estimate anchor
-        lam_old_fej = lm.p_fej
-    p_Of, Jl_o, Ja_o, Je_o = anchored_to_global(lam_old_fej, old.R_fej, old.p_fej, R_IC, p_IC)
-    lam_new_fej, Jp_n, Ja_n, Je_n = global_to_anchored(p_Of, new.R_fej, new.p_fej, R_IC, p_IC)
-    blocks = [(lm.idx, Jp_n @ Jl_o), (old.idx, Jp_n @ Ja_o), (new.idx, Ja_n)]
-    if state.idx_ext >= 0:
-        blocks.append((state.idx_ext, Jp_n @ Je_o + Je_n))
-    cols = np.concatenate([np.arange(i, i + J.shape[1]) for i, J in blocks])
-    J = np.hstack([J for _, J in blocks])
-    P = state.P
-    row = J @ P[cols, :]                      # 3 x n
-    corner = row[:, cols] @ J.T
-    li = np.arange(lm.idx, lm.idx + 3)
-    P[li, :] = row
-    P[:, li] = row.T
-    P[np.ix_(li, li)] = 0.5 * (corner + corner.T)
+    if not state.P.flags.c_contiguous:
+        state.P = np.ascontiguousarray(state.P)
+    lam_new, lam_new_fej = anchor_change_kernel(
+        state.P, lm.p, lm.p_fej, old.R, old.p, old.R_fej, old.p_fej, old.idx, new.R, new.p, new.R_fej,
+        new.p_fej, new.idx, state.R_IC, state.p_IC, lm.idx, state.idx_ext)
     lm.p = lam_new
     lm.p_fej = lam_new_fej
     lm.anchor_t = new_t
+
+
+@njit(cache=True, nogil=True)
+def anchor_change_kernel(P: np.ndarray, lam: np.ndarray, lam_fej: np.ndarray, R_o: np.ndarray,
+                         p_o: np.ndarray, Rf_o: np.ndarray, pf_o: np.ndarray, oidx: int, R_n: np.ndarray,
+                         p_n: np.ndarray, Rf_n: np.ndarray, pf_n: np.ndarray, nidx: int, R_IC: np.ndarray,
+                         p_IC: np.ndarray, lidx: int, eidx: int) -> tuple[np.ndarray, np.ndarray]:
+    """`change_anchor`'s numbers: the landmark lam (its FEJ lam_fej) anchored in the old clone (pose R_o,
+    p_o, first estimate Rf_o, pf_o, covariance column oidx) re-expressed in the new clone (nidx); the
+    covariance rows and columns of the landmark (lidx) are replaced in P (in place) by J P[cols] with J the
+    Jacobian of the new lam w.r.t. (lam, old anchor, new anchor, extrinsics at eidx >= 0), evaluated at the
+    current point through the anchors' first estimates (OpenVINS perform_anchor_change).
+    Returns (lam in the new anchor, its first estimate)."""
+    p_O = anchored_to_global(lam, R_o, p_o, R_IC, p_IC)[0]
+    lam_new = global_to_anchored(p_O, R_n, p_n, R_IC, p_IC)[0]
+    lam_old_fej = global_to_anchored(p_O, Rf_o, pf_o, R_IC, p_IC)[0]
+    if not (lam_old_fej[2] > 0 and np.isfinite(lam_old_fej[0]) and np.isfinite(lam_old_fej[1])
+            and np.isfinite(lam_old_fej[2])):   # behind the first-estimate anchor
+        lam_old_fej = lam_fej.copy()
+    p_Of, Jl_o, Ja_o, Je_o = anchored_to_global(lam_old_fej, Rf_o, pf_o, R_IC, p_IC)
+    lam_new_fej, Jp_n, Ja_n, Je_n = global_to_anchored(p_Of, Rf_n, pf_n, R_IC, p_IC)
+    # J over [lam (3), old anchor (6), new anchor (6), extrinsics (6, when estimated)]
+    nj = 15 if eidx < 0 else 21
+    J = np.zeros((3, nj))
+    cols = np.empty(nj, dtype=np.int64)
+    for a in range(3):
+        for k in range(3):
+            J[a, k] = Jp_n[a, 0] * Jl_o[0, k] + Jp_n[a, 1] * Jl_o[1, k] + Jp_n[a, 2] * Jl_o[2, k]
+        for k in range(6):
+            J[a, 3 + k] = Jp_n[a, 0] * Ja_o[0, k] + Jp_n[a, 1] * Ja_o[1, k] + Jp_n[a, 2] * Ja_o[2, k]
+            J[a, 9 + k] = Ja_n[a, k]
+            if eidx >= 0:
+                J[a, 15 + k] = (Jp_n[a, 0] * Je_o[0, k] + Jp_n[a, 1] * Je_o[1, k] + Jp_n[a, 2] * Je_o[2, k]
+                                + Je_n[a, k])
+    for k in range(3):
+        cols[k] = lidx + k
+    for k in range(6):
+        cols[3 + k] = oidx + k
+        cols[9 + k] = nidx + k
+        if eidx >= 0:
+            cols[15 + k] = eidx + k
+    n = P.shape[0]
+    row = np.zeros((3, n))          # J P[cols, :]
+    for k in range(nj):
+        c = cols[k]
+        for a in range(3):
+            jak = J[a, k]
+            for j in range(n):
+                row[a, j] += jak * P[c, j]
+    corner = np.zeros((3, 3))       # J P[cols][:, cols] J^T
+    for a in range(3):
+        for b in range(3):
+            acc = 0.0
+            for k in range(nj):
+                acc += row[a, cols[k]] * J[b, k]
+            corner[a, b] = acc
+    for a in range(3):
+        for j in range(n):
+            P[lidx + a, j] = row[a, j]
+            P[j, lidx + a] = row[a, j]
+    for a in range(3):
+        for b in range(3):
+            P[lidx + a, lidx + b] = 0.5 * (corner[a, b] + corner[b, a])
+    return lam_new, lam_new_fej

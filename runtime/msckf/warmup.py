@@ -20,15 +20,16 @@ from runtime.msckf.propagator import propagate_interval, select_samples
 from runtime.msckf.state import State
 from runtime.msckf.state_helper import augment_clone, marginalize
 from runtime.msckf.update_msckf import msckf_update
-from runtime.msckf.update_slam import SlamUpdateStats, delayed_init, slam_update
+from runtime.msckf.update_slam import SlamUpdateStats, change_anchor, delayed_init, slam_update
 
 _WARMED: set[tuple] = set()
 
 
 def warm_kernels(cfg: MsckfConfig, camera: CameraParams, R_IC: np.ndarray, p_IC: np.ndarray) -> float:
-    """Run propagation, clone augmentation, the MSCKF update, delayed landmark initialisation, the SLAM update
-    and marginalisation once on a synthetic window shaped like the estimator's state (calibration blocks as
-    `cfg` asks). Returns the seconds it took (0 when this process already did it for this shape)."""
+    """Run propagation, clone augmentation, the MSCKF update, delayed landmark initialisation, the SLAM
+    update, an anchor change and marginalisation once on a synthetic window shaped like the estimator's
+    state (calibration blocks as `cfg` asks). Returns the seconds it took (0 when this process already did
+    it for this shape)."""
     key = (cfg.calib_time_offset, cfg.calib_extrinsics, cfg.calib_intrinsics, cfg.slam_representation,
            cfg.use_fej, camera.model)
     if key in _WARMED:
@@ -68,6 +69,9 @@ def warm_kernels(cfg: MsckfConfig, camera: CameraParams, R_IC: np.ndarray, p_IC:
     added = delayed_init(st, tracks[12:], loose, camera, stats)
     obs = [(tr.fid, np.asarray(tr.uv[-1])) for tr in tracks[12:] if tr.fid in added]
     slam_update(st, times[-1], obs, loose, camera, stats)
+    for fid in added[1:2]:     # an anchored landmark moves to another clone (before its anchor leaves)
+        if st.slam[fid].anchor_t is not None:
+            change_anchor(st, st.slam[fid], times[-2])
     marginalize(st, [times[0]], added[:1])
     # propagation over a few IMU samples (sample selection included)
     t_imu = np.arange(6, dtype=np.int64) * 2_500_000 + times[-1]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from runtime.msckf.landmark_repr import anchored_to_global, global_to_anchored
 from runtime.msckf.so3_kernels import exp3
@@ -163,3 +164,29 @@ def test_slam_rows_anchored_jacobians_match_finite_differences() -> None:
     )
     assert np.allclose(num(lambda d: rows(R_c, p_c, R_a, p_a, lam, R_IC, p_IC + d)), He[0][:, 3:], atol=1e-3)
     assert np.allclose(num(lambda d: rows(R_c, p_c, R_a, p_a, lam + d, R_IC, p_IC)), Hl[0], atol=1e-3)
+
+
+def test_slam_rows_mahalanobis_distance_against_numpy() -> None:
+    """d2 = r^T (H P H^T + sigma^2 I)^-1 r over the touched columns (clone, extrinsics, anchor, landmark),
+    with a generic correlated covariance: the kernel's block-free projection against numpy's."""
+    from runtime.msckf.update_slam import slam_rows
+
+    prm = np.array([458.654, 457.296, 367.215, 248.375, -0.28340811, 0.07395907, 0.00019359, 1.76187114e-05,
+                    0.0])
+    rng = np.random.default_rng(3)
+    B = rng.standard_normal((40, 40))
+    P = B @ B.T * 1e-4 + np.eye(40) * 1e-5
+    R_c, p_c = exp3(np.array([0.05, 0.1, -0.05])), np.array([0.3, 0.1, 0.0])
+    lam = np.array([[0.05, -0.04, 0.25], [-0.1, 0.08, 0.4]])
+    uv = np.array([[300.0, 200.0], [420.0, 260.0]])
+    eye = np.tile(np.eye(3), (2, 1, 1))
+    out = slam_rows(P, 0, 12, np.array([30, 33]), np.array([6, 6]), R_c[None], p_c[None], R_c[None],
+                    p_c[None], uv, lam, lam, eye, np.zeros((2, 3)), eye, np.zeros((2, 3)), R_IC, p_IC, 1,
+                    prm, 1.5)
+    ok, d2, r, Hc, Ha, He, Hl = out[:7]
+    assert ok.all()
+    for i, li in enumerate((30, 33)):
+        cols = np.r_[0:6, 12:18, 6:12, li:li + 3]
+        H = np.hstack([Hc[i], He[i], Ha[i], Hl[i]])
+        S = H @ P[np.ix_(cols, cols)] @ H.T + 1.5 ** 2 * np.eye(2)
+        assert d2[i] == pytest.approx(float(r[i] @ np.linalg.solve(S, r[i])), rel=1e-9)

@@ -24,7 +24,8 @@ from test_msckf_estimator import _init, _rig, _run, _stream
 import numpy as np
 
 KERNELS = [track_linearization.msckf_rows_packed, track_linearization.linearize_all_packed,
-           update_slam.slam_rows, update_slam.assemble_slam_rows, propagator.propagate_interval,
+           update_slam.slam_rows, update_slam.assemble_slam_rows, update_slam.anchor_change_kernel,
+           propagator.propagate_interval,
            measurement.projected_mahalanobis, measurement.givens_left_nullspace,
            measurement.feature_jacobians,
            triangulation.triangulate, state_helper._mirror_lower_to_upper]
