@@ -146,6 +146,7 @@ def _rebuild_simulation(info: dict, manifest: Path, groundtruth: PoseTrajectory 
     from dataclasses import replace
 
     from drivers.sim import SimConfig, SimRecording
+    from drivers.sim.imu_consistent import DEFAULT_SMOOTHING_S
 
     try:
         cfg = info["config"]
@@ -153,7 +154,10 @@ def _rebuild_simulation(info: dict, manifest: Path, groundtruth: PoseTrajectory 
         mode = sim.get("mode", "preset")
         base = SimConfig(preset=cfg["preset"], seconds=cfg["seconds"], seed=cfg["seed"], style=cfg["style"],
                          imu_rate_hz=cfg["imu_rate_hz"], time_offset_s=cfg.get("time_offset_s") or 0.0,
-                         camera_rate_hz=cfg.get("camera_rate_hz"), start_s=cfg.get("start_s") or 0.0)
+                         camera_rate_hz=cfg.get("camera_rate_hz"), start_s=cfg.get("start_s") or 0.0,
+                         # recordings from before the key were rendered from the ground truth's attitude
+                         groundtruth_mode=cfg.get("groundtruth_mode", "as-recorded"),
+                         attitude_smoothing_s=cfg.get("attitude_smoothing_s", DEFAULT_SMOOTHING_S))
     except (KeyError, TypeError, AttributeError) as exc:
         raise DataError(f"manifest.json lacks {exc}", manifest) from exc
     if mode == "preset":

@@ -24,6 +24,7 @@ import numpy as np
 from drivers.base import Driver, IntakeReport
 from drivers.euroc import read_camera_timestamps, read_euroc_imu_csv
 from drivers.sim.groundtruth import GroundTruthSource
+from drivers.sim.imu_consistent import DEFAULT_SMOOTHING_S, imu_consistent_groundtruth
 from drivers.sim.imu_synth import ImuErrorModel, ImuStream, imu_stamps, synthesize_imu
 from drivers.sim.motion import DEFAULT_PRESET, preset_spline
 from drivers.sim.render import ImageOptions, Renderer, View
@@ -58,6 +59,12 @@ class SimConfig:
         imu_errors: synthetic IMU noise and biases (None = from the rig's noise densities).
         image: image-formation options.
         start_s: when replaying a trajectory, seconds skipped at its start.
+        groundtruth_mode: when replaying a real IMU, what the images are rendered from: "imu-consistent"
+            (the ground truth without its position jumps, its attitude from the bias-corrected gyro held to
+            the ground truth's over attitude_smoothing_s: images and IMU agree as on a real rig) or
+            "as-recorded" (the ground truth as is, whose jumps and attitude spells move the images where the
+            IMU does not; the behaviour before 2026-11-26). drivers.sim.imu_consistent.
+        attitude_smoothing_s: see groundtruth_mode, s.
     """
 
     preset: str = DEFAULT_PRESET
@@ -70,6 +77,11 @@ class SimConfig:
     imu_errors: ImuErrorModel | None = None
     image: ImageOptions = field(default_factory=ImageOptions)
     start_s: float = 0.0
+    groundtruth_mode: str = "imu-consistent"
+    attitude_smoothing_s: float = DEFAULT_SMOOTHING_S
+
+
+GROUNDTRUTH_MODES = ("imu-consistent", "as-recorded")
 
 
 def _frame_times(t0_ns: int, t_end_ns: int, rate_hz: float, margin_ns: int) -> np.ndarray:
@@ -232,6 +244,13 @@ class SimRecording(Driver):
         if keep.sum() < 2:
             raise DataError("the IMU stream does not overlap the trajectory", imu_path)
         imu = ImuStream(t_all[keep], gyro[keep], accel[keep])
+        if config.groundtruth_mode == "imu-consistent":
+            # images move as the IMU measured (and as the ground truth over seconds): the recording's truth
+            traj = imu_consistent_groundtruth(traj, imu.t_ns, imu.gyro, config.attitude_smoothing_s)
+            t0, t_end = int(traj.t_ns[0]), int(traj.t_ns[-1])
+        elif config.groundtruth_mode != "as-recorded":
+            raise ConfigError(f"SimConfig.groundtruth_mode must be one of {GROUNDTRUTH_MODES}, "
+                              f"got {config.groundtruth_mode!r}")
         motion = SampledMotion(traj)
         offset_ns = int(round(config.time_offset_s * 1e9))
         margin = int(config.image.exposure_time_s * 0.5e9) + abs(offset_ns)
@@ -252,7 +271,11 @@ class SimRecording(Driver):
             "seed": config.seed,
             "style": config.style,
             "seconds": (t_end - t0) * 1e-9,
+            "groundtruth_mode": config.groundtruth_mode,
         }
+        if "position_jumps_removed" in traj.meta:
+            info["position_jumps_removed"] = traj.meta["position_jumps_removed"]
+            info["position_jumps_m"] = traj.meta["position_jumps_m"]
         if sequence:
             info["sequence"] = sequence
         gt = PoseTrajectory(

@@ -220,6 +220,8 @@ def write_euroc(
             else recording.config.imu_errors.__dict__,
             "start_s": recording.config.start_s,
             "camera_rate_hz": recording.config.camera_rate_hz,
+            "groundtruth_mode": recording.config.groundtruth_mode,
+            "attitude_smoothing_s": recording.config.attitude_smoothing_s,
         },
         "inputs": _input_files(recording.info),
         "rig": {

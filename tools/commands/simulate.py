@@ -52,6 +52,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="camera stamps (ns per line) for --imu mode (default: cam0_timestamps.txt beside --imu)",
     )
     p.add_argument(
+        "--groundtruth",
+        dest="groundtruth_mode",
+        default="imu-consistent",
+        choices=["imu-consistent", "as-recorded"],
+        help="EuRoC-trajectory mode: render from the ground truth without its position jumps and with the "
+             "bias-corrected gyro's attitude held to it over 1 s (default; images and IMU agree as on a real "
+             "rig), or from the ground truth as recorded (its jumps and attitude spells move the images "
+             "where the IMU does not)",
+    )
+    p.add_argument(
         "--time-offset",
         type=float,
         default=0.0,
@@ -108,6 +118,7 @@ def run(args: argparse.Namespace) -> int:
         time_offset_s=args.time_offset,
         image=image,
         start_s=args.start,
+        groundtruth_mode=args.groundtruth_mode,
         imu_errors=ImuErrorModel.noise_free() if args.exact else None,
     )
     if args.imu and not args.trajectory:
