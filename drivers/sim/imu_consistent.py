@@ -55,9 +55,11 @@ def imu_consistent_groundtruth(traj: PoseTrajectory, t_imu_ns: np.ndarray, gyro:
 
 def remove_position_jumps(traj: PoseTrajectory, max_step_speed_mps: float = DEFAULT_MAX_STEP_SPEED_MPS
                           ) -> tuple[PoseTrajectory, list[np.ndarray]]:
-    """`traj` with each sample interval whose velocity is more than ``max_step_speed_mps`` from the median
-    of the surrounding intervals' given that median velocity instead (every later position moves by the
-    difference), and the removed steps (3,), m. Rotations, velocities and biases are kept."""
+    """`traj` without its position jumps, and the removed steps ((3,) each, m).
+
+    A sample interval whose velocity (position difference over time) is more than ``max_step_speed_mps``
+    from the median velocity of the `_STEP_WINDOW` intervals around it is a jump: it moves by that median
+    velocity instead, and every later position moves with it. Rotations, velocities and biases are kept."""
     if not (np.isfinite(max_step_speed_mps) and max_step_speed_mps > 0):
         raise ConfigError(f"max_step_speed_mps must be a positive number, got {max_step_speed_mps!r}")
     if len(traj) < _STEP_WINDOW + 2:
