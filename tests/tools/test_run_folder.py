@@ -98,13 +98,15 @@ def test_a_kill_at_a_random_moment_never_leaves_a_folder_that_reads_as_complete(
 def test_sigint_keeps_the_outputs_and_marks_them_interrupted(small_sim_folder: Path, tmp_path: Path) -> None:
     out = tmp_path / "interrupted"
     env = {**os.environ, "PYTHONPATH": str(REPO)}
-    proc = subprocess.Popen(_run_cmd(small_sim_folder, out) + ["--paced"], cwd=REPO, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # paced at half speed: the 6 s recording takes 12 s, so the signal lands well inside it even when the
+    # machine is slow (at full speed a late start left 2 s between the signal and the recording's end)
+    proc = subprocess.Popen(_run_cmd(small_sim_folder, out) + ["--paced", "--speed", "0.5"], cwd=REPO,
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     partial = out.with_name(out.name + ".partial")
     deadline = time.monotonic() + 120
     while not partial.exists() and time.monotonic() < deadline:
         time.sleep(0.2)
-    time.sleep(4.0)   # paced: about 4 s of sensor data, past the 2 s static start
+    time.sleep(6.0)   # about 3 s of sensor data, past the 2 s static start, 6 s before the end
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err
