@@ -92,7 +92,8 @@ def open_recording(path: str | Path, rebuild: bool = True, policy: str = "drop",
 _TRAJECTORY_MODES = ("trajectory-spline", "euroc-trajectory")
 MANIFEST_MAX_BYTES = 1 << 20
 _MANIFEST_RANGES = {"seconds": (0.0, 4 * 3600.0), "imu_rate_hz": (10.0, 10_000.0),
-                    "camera_rate_hz": (0.2, 1000.0), "time_offset_s": (-1.0, 1.0), "start_s": (0.0, 1e6)}
+                    "camera_rate_hz": (0.2, 1000.0), "time_offset_s": (-1.0, 1.0), "start_s": (0.0, 1e6),
+                    "attitude_smoothing_s": (0.01, 60.0)}
 """Plausible values of a `davio simulate` manifest's config (a simulation longer than 4 h would take
 days to rebuild)."""
 
@@ -123,6 +124,10 @@ def read_manifest(manifest: Path) -> dict:
         if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or not lo <= v <= hi:
             raise DataError(f"config.{key} = {v!r} is implausible (expected {lo:g} to {hi:g}); the manifest "
                             "is damaged or was not written by `davio simulate`", manifest)
+    mode = cfg.get("groundtruth_mode") if isinstance(cfg, dict) else None
+    if mode is not None and mode not in ("imu-consistent", "as-recorded"):
+        raise DataError(f"config.groundtruth_mode = {mode!r} is not 'imu-consistent' or 'as-recorded'; the "
+                        "manifest is damaged or was written by a newer `davio simulate`", manifest)
     return info
 
 

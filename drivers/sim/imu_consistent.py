@@ -4,7 +4,7 @@ EuRoC-trajectory mode renders images along a real ground truth and replays the r
 itself an estimate (motion capture or a laser tracker, fused) with short disagreements with the IMU that no
 physical camera and IMU pair has, and images rendered from it move where the IMU does not:
 - position jumps: MH_03_medium's ground truth (laser tracker) jumps 25 times by 5 mm to 8 cm within one 5 ms
-  sample (8.1 cm at 35.395 s, a 17 m/s step the accelerometer never measured; the filter's landmarks then
+  sample (and 20 times by 2-5 mm, below a pixel, which stay) (8.1 cm at 35.395 s, a 17 m/s step the accelerometer never measured; the filter's landmarks then
   all miss by about 5 px at once, BENCHMARKS.md "Trajectory");
 - attitude spells: V1_02_medium's angular rate leaves the bias-corrected gyro by more than 2 deg/s on 2.6 %
   of its samples (up to 11 deg/s).
@@ -34,8 +34,14 @@ DEFAULT_SMOOTHING_S = 1.0
 """Standard deviation of the Gaussian that holds the gyro's attitude to the ground truth, s."""
 
 DEFAULT_MAX_STEP_SPEED_MPS = 1.0
-"""A sample's velocity farther than this from its neighbourhood's median is a position jump, m/s (a MAV's
-10 m/s^2 changes its velocity by 0.05 m/s in a 5 ms sample; a jump of 5 mm in 5 ms is 1 m/s)."""
+"""A sample's velocity farther than this from the median of the 21 around it (+-50 ms) is a position jump,
+m/s: a jump of 5 mm within a 5 ms sample is 1 m/s. Smooth motion stays well below: the median follows a
+monotonic velocity exactly, and at a velocity extremum a MAV's 10 m/s^2 leaves it about 0.5 m/s off; EuRoC
+V1_02's largest deviation is 0.055 m/s. MH_03's 20 smaller steps of 2-5 mm (0.4-1 m/s) stay."""
+
+MAX_DRIFT_DEG = 20.0
+"""Largest disagreement between the integrated gyro and the ground truth's attitude accepted, deg (EuRoC
+V1_02 and MH_03: 0.7-0.8 deg over the whole sequence)."""
 
 _STEP_WINDOW = 21
 """Samples in the median that a sample's velocity is compared with."""
@@ -114,6 +120,11 @@ def gyro_consistent_attitude(traj: PoseTrajectory, t_imu_ns: np.ndarray, gyro: n
         R_int[k + 1] = R_int[k] @ steps[k]
     # the correction in the world frame: the body rate then stays the gyro's plus R_int^T d delta_s / dt
     delta = Rotation.from_matrix(R_gt @ np.transpose(R_int, (0, 2, 1))).as_rotvec()
+    worst = float(np.degrees(np.linalg.norm(delta, axis=1).max()))
+    if worst > MAX_DRIFT_DEG:   # also keeps the rotation vectors far from their wrap at 180 deg
+        raise DataError(f"the bias-corrected gyro drifts {worst:.0f} deg from the ground truth's attitude "
+                        f"(at most {MAX_DRIFT_DEG:g} expected): is the IMU file the ground truth's, on the "
+                        "same clock and body frame?")
     rate_hz = 1.0 / float(np.median(dt))
     delta_s = _smooth(delta, smoothing_s * rate_hz)
     R = Rotation.from_matrix(Rotation.from_rotvec(delta_s).as_matrix() @ R_int).as_matrix()  # orthonormal

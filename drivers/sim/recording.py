@@ -80,6 +80,15 @@ class SimConfig:
     groundtruth_mode: str = "imu-consistent"
     attitude_smoothing_s: float = DEFAULT_SMOOTHING_S
 
+    def __post_init__(self) -> None:
+        if self.groundtruth_mode not in GROUNDTRUTH_MODES:
+            raise ConfigError(f"SimConfig.groundtruth_mode must be one of {GROUNDTRUTH_MODES}, "
+                              f"got {self.groundtruth_mode!r}")
+        s = self.attitude_smoothing_s
+        if isinstance(s, bool) or not isinstance(s, int | float) or not 0.0 < s < float("inf"):
+            raise ConfigError(f"SimConfig.attitude_smoothing_s must be a positive number of seconds, "
+                              f"got {s!r}")
+
 
 GROUNDTRUTH_MODES = ("imu-consistent", "as-recorded")
 
@@ -248,9 +257,6 @@ class SimRecording(Driver):
             # images move as the IMU measured (and as the ground truth over seconds): the recording's truth
             traj = imu_consistent_groundtruth(traj, imu.t_ns, imu.gyro, config.attitude_smoothing_s)
             t0, t_end = int(traj.t_ns[0]), int(traj.t_ns[-1])
-        elif config.groundtruth_mode != "as-recorded":
-            raise ConfigError(f"SimConfig.groundtruth_mode must be one of {GROUNDTRUTH_MODES}, "
-                              f"got {config.groundtruth_mode!r}")
         motion = SampledMotion(traj)
         offset_ns = int(round(config.time_offset_s * 1e9))
         margin = int(config.image.exposure_time_s * 0.5e9) + abs(offset_ns)

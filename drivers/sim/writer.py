@@ -220,8 +220,6 @@ def write_euroc(
             else recording.config.imu_errors.__dict__,
             "start_s": recording.config.start_s,
             "camera_rate_hz": recording.config.camera_rate_hz,
-            "groundtruth_mode": recording.config.groundtruth_mode,
-            "attitude_smoothing_s": recording.config.attitude_smoothing_s,
         },
         "inputs": _input_files(recording.info),
         "rig": {
@@ -252,6 +250,9 @@ def write_euroc(
         "notes": notes,
         "versions": _versions(),
     }
+    if recording.info.get("mode") == "euroc-trajectory":   # a real IMU replayed: what the images follow
+        manifest["config"]["groundtruth_mode"] = recording.config.groundtruth_mode
+        manifest["config"]["attitude_smoothing_s"] = recording.config.attitude_smoothing_s
     from runtime.json_out import strict_dumps
 
     (out / "manifest.json").write_text(strict_dumps(manifest, indent=2))

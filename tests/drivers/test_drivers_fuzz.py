@@ -86,7 +86,9 @@ def test_mutated_manifest_reads_or_raises_data_error(tmp_path_factory, data: st.
 
 
 @pytest.mark.parametrize("key, value", [("seconds", 1e7), ("seconds", -1), ("imu_rate_hz", 0),
-                                        ("time_offset_s", 5.0), ("seconds", "4")])
+                                        ("time_offset_s", 5.0), ("seconds", "4"),
+                                        ("attitude_smoothing_s", 1e6), ("attitude_smoothing_s", "1"),
+                                        ("groundtruth_mode", "gyro"), ("groundtruth_mode", 3)])
 def test_implausible_manifest_values_are_refused(tmp_path: Path, key: str, value: object) -> None:
     info = json.loads(MANIFEST)
     info["config"][key] = value

@@ -60,6 +60,11 @@ def test_simulate_rejects_imu_without_trajectory(tmp_path, capsys) -> None:
     assert "--imu needs --trajectory" in capsys.readouterr().err
 
 
+def test_simulate_refuses_groundtruth_mode_without_a_real_imu(tmp_path, capsys) -> None:
+    assert main(["simulate", "--groundtruth", "as-recorded", "--out", str(tmp_path / "o")]) == 1
+    assert "--groundtruth applies to EuRoC-trajectory mode" in capsys.readouterr().err
+
+
 @pytest.mark.slow
 def test_simulate_euroc_trajectory_mode_from_a_folder(tmp_path) -> None:
     folder = shared_path("euroc_imu_gt", "MH_03_medium")
@@ -72,6 +77,7 @@ def test_simulate_euroc_trajectory_mode_from_a_folder(tmp_path) -> None:
     )
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["simulation"]["mode"] == "euroc-trajectory"
+    assert manifest["config"]["groundtruth_mode"] == "imu-consistent"
     assert any("biases unknown" in note for note in manifest["notes"])  # TUM ground truth has no biases
     with EurocDriver(out) as drv:
         gt = drv.groundtruth()

@@ -96,6 +96,20 @@ def test_without_ground_truth_biases_a_constant_gyro_bias_is_taken_out() -> None
     assert out.bg is None
 
 
+def test_a_gyro_that_does_not_belong_to_the_ground_truth_is_refused() -> None:
+    t_ns, R_true, w = _true_motion(20.0)
+    n = t_ns.size
+    zeros = np.zeros((n, 3))
+    traj = PoseTrajectory(t_ns, zeros, R_true, zeros, zeros, zeros)   # biases given: zero
+    wrong = w + np.array([0.0, 0.05, 0.0])                           # 57 deg of drift over 20 s
+    with pytest.raises(DataError, match="drifts"):
+        gyro_consistent_attitude(traj, t_ns, wrong)
+    with pytest.raises(ConfigError, match="groundtruth_mode"):
+        SimConfig(groundtruth_mode="gyro")
+    with pytest.raises(ConfigError, match="attitude_smoothing_s"):
+        SimConfig(attitude_smoothing_s=float("nan"))
+
+
 def test_stamps_outside_the_ground_truth_are_left_out_and_bad_input_is_refused() -> None:
     t_ns, R_true, w = _true_motion(2.0)
     traj = PoseTrajectory(t_ns[10:-10], np.zeros((t_ns.size - 20, 3)), R_true[10:-10])

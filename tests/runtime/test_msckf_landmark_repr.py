@@ -190,3 +190,64 @@ def test_slam_rows_mahalanobis_distance_against_numpy() -> None:
         H = np.hstack([Hc[i], He[i], Ha[i], Hl[i]])
         S = H @ P[np.ix_(cols, cols)] @ H.T + 1.5 ** 2 * np.eye(2)
         assert d2[i] == pytest.approx(float(r[i] @ np.linalg.solve(S, r[i])), rel=1e-9)
+
+
+@pytest.mark.parametrize(("with_extrinsics", "behind_fej_anchor"),
+                         [(True, False), (False, False), (False, True)])
+def test_anchor_change_kernel_against_finite_differences(with_extrinsics: bool,
+                                                         behind_fej_anchor: bool) -> None:
+    """The kernel's new lam, its FEJ, and the landmark's covariance rows J P[cols], J the finite-difference
+    Jacobian of lam_new = g2a(a2g(lam, old anchor), new anchor) at the current point expressed through the
+    anchors' first estimates (perturbed away from their current values); extrinsics estimated or not; the
+    fallback to the stored FEJ when the point lies behind the first-estimate anchor."""
+    from runtime.msckf.update_slam import anchor_change_kernel
+
+    rng = np.random.default_rng(5)
+    n, oidx, nidx, lidx, eidx = 45, 18, 24, 36, (12 if with_extrinsics else -1)
+    B = rng.standard_normal((n, n))
+    P = B @ B.T * 1e-3 + np.eye(n) * 1e-4
+    R_o, p_o = exp3(np.array([0.1, -0.2, 0.3])), np.array([0.5, -0.2, 1.0])
+    R_n, p_n = exp3(np.array([0.3, 0.1, -0.2])), np.array([0.9, 0.1, 1.2])
+    Rf_o, pf_o = R_o @ exp3(np.array([0.01, -0.02, 0.015])), p_o + np.array([0.01, 0.02, -0.01])
+    Rf_n, pf_n = R_n @ exp3(np.array([-0.02, 0.01, 0.01])), p_n + np.array([-0.01, 0.01, 0.02])
+    if behind_fej_anchor:   # the first-estimate anchor looks the other way: the stored FEJ is used
+        Rf_o = Rf_o @ R_IC @ exp3(np.array([np.pi, 0.0, 0.0])) @ R_IC.T
+    lam, lam_fej = np.array([0.1, -0.08, 0.25]), np.array([0.11, -0.07, 0.24])
+
+    def f(lm, Ro, po, Rn, pn, Ric, pic):
+        return global_to_anchored(anchored_to_global(lm, Ro, po, Ric, pic)[0], Rn, pn, Ric, pic)[0]
+
+    p_O = anchored_to_global(lam, R_o, p_o, R_IC, p_IC)[0]
+    lam_o_fej = global_to_anchored(p_O, Rf_o, pf_o, R_IC, p_IC)[0]
+    assert (lam_o_fej[2] < 0) == behind_fej_anchor
+    if behind_fej_anchor:
+        lam_o_fej = lam_fej
+    x0 = (lam_o_fej, Rf_o, pf_o, Rf_n, pf_n, R_IC, p_IC)
+    eps, cols, J = 1e-6, [], []
+    for arg, col0, kind in ((0, lidx, "add"), (1, oidx, "rot"), (2, oidx + 3, "add"), (3, nidx, "rot"),
+                            (4, nidx + 3, "add"), (5, eidx, "rot"), (6, eidx + 3, "add")):
+        if col0 < 0 or (arg >= 5 and not with_extrinsics):
+            continue
+        for j in range(3):
+            d = np.zeros(3)
+            d[j] = eps
+            plus, minus = list(x0), list(x0)
+            plus[arg] = x0[arg] @ exp3(d) if kind == "rot" else x0[arg] + d
+            minus[arg] = x0[arg] @ exp3(-d) if kind == "rot" else x0[arg] - d
+            J.append((f(*plus) - f(*minus)) / (2 * eps))
+            cols.append(col0 + j)
+    J = np.array(J).T
+    cols = np.array(cols)
+    expected_row = J @ P[cols, :]
+    expected_corner = J @ P[np.ix_(cols, cols)] @ J.T
+    P_new = P.copy()
+    lam_new, lam_new_fej = anchor_change_kernel(P_new, lam, lam_fej, R_o, p_o, Rf_o, pf_o, oidx, R_n, p_n,
+                                                Rf_n, pf_n, nidx, R_IC, p_IC, lidx, eidx)
+    np.testing.assert_allclose(lam_new, f(lam, R_o, p_o, R_n, p_n, R_IC, p_IC), atol=1e-12)
+    np.testing.assert_allclose(lam_new_fej, f(*x0), atol=1e-12)
+    li = np.arange(lidx, lidx + 3)
+    others = np.setdiff1d(np.arange(n), li)
+    np.testing.assert_allclose(P_new[np.ix_(li, others)], expected_row[:, others], rtol=1e-5, atol=1e-9)
+    np.testing.assert_allclose(P_new[np.ix_(others, li)], expected_row[:, others].T, rtol=1e-5, atol=1e-9)
+    np.testing.assert_allclose(P_new[np.ix_(li, li)], expected_corner, rtol=1e-5, atol=1e-9)
+    np.testing.assert_array_equal(P_new[np.ix_(others, others)], P[np.ix_(others, others)])

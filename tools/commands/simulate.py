@@ -54,9 +54,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--groundtruth",
         dest="groundtruth_mode",
-        default="imu-consistent",
+        default=None,
         choices=["imu-consistent", "as-recorded"],
-        help="EuRoC-trajectory mode: render from the ground truth without its position jumps and with the "
+        help="EuRoC-trajectory mode (a real IMU replayed): render from the ground truth without its position "
+             "jumps and with the "
              "bias-corrected gyro's attitude held to it over 1 s (default; images and IMU agree as on a real "
              "rig), or from the ground truth as recorded (its jumps and attitude spells move the images "
              "where the IMU does not)",
@@ -118,11 +119,14 @@ def run(args: argparse.Namespace) -> int:
         time_offset_s=args.time_offset,
         image=image,
         start_s=args.start,
-        groundtruth_mode=args.groundtruth_mode,
+        groundtruth_mode=args.groundtruth_mode or "imu-consistent",
         imu_errors=ImuErrorModel.noise_free() if args.exact else None,
     )
     if args.imu and not args.trajectory:
         raise ConfigError("--imu needs --trajectory (the ground truth the IMU belongs to)")
+    if args.groundtruth_mode and not (args.imu or (args.trajectory and Path(args.trajectory).is_dir())):
+        raise ConfigError("--groundtruth applies to EuRoC-trajectory mode only (a real IMU replayed: "
+                          "--trajectory FOLDER, or --trajectory FILE --imu FILE)")
     con.print("[bold]davio simulate[/]: building scene and motion ...")
     if args.trajectory is None:
         rec = SimRecording.from_preset(replace(cfg, seconds=args.seconds or 20.0))
