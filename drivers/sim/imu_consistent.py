@@ -4,8 +4,9 @@ EuRoC-trajectory mode renders images along a real ground truth and replays the r
 itself an estimate (motion capture or a laser tracker, fused) with short disagreements with the IMU that no
 physical camera and IMU pair has, and images rendered from it move where the IMU does not:
 - position jumps: MH_03_medium's ground truth (laser tracker) jumps 25 times by 5 mm to 8 cm within one 5 ms
-  sample (and 20 times by 2-5 mm, below a pixel, which stay) (8.1 cm at 35.395 s, a 17 m/s step the accelerometer never measured; the filter's landmarks then
-  all miss by about 5 px at once, BENCHMARKS.md "Trajectory");
+  sample (8.1 cm at 35.395 s, a 17 m/s step the accelerometer never measured; the filter's landmarks then
+  all miss by about 5 px at once, BENCHMARKS.md "Trajectory"), and 20 times by 2-5 mm (below a pixel; these
+  stay);
 - attitude spells: V1_02_medium's angular rate leaves the bias-corrected gyro by more than 2 deg/s on 2.6 %
   of its samples (up to 11 deg/s).
 
