@@ -141,16 +141,21 @@ def test_a_position_jump_is_taken_out_and_the_shape_kept() -> None:
         remove_position_jumps(PoseTrajectory(t_ns, p_true, R_true), max_step_speed_mps=0.0)
 
 
-def test_mh03_renders_no_jump_the_imu_did_not_measure() -> None:
-    """MH_03_medium's ground truth jumps 8.5 cm within one sample at 35.395 s (BENCHMARKS.md,
-    "Trajectory"); the default mode renders a continuous motion, "as-recorded" keeps the old behaviour."""
-    folder = shared_path("euroc_imu_gt", "MH_03_medium")
+def _replayed(sequence: str, start_s: float, mode: str) -> SimRecording:
+    """3 s of a shared EuRoC-trajectory sequence from start_s, rendered in `mode` on a quarter-size camera."""
     rig = euroc_default_rig()
     rig = rig.replace(camera=rig.camera.scaled(0.25, 0.25))
+    return SimRecording.from_euroc_imu_gt(
+        shared_path("euroc_imu_gt", sequence),
+        SimConfig(seconds=3.0, start_s=start_s, seed=0, groundtruth_mode=mode), rig=rig)
+
+
+def test_mh03_renders_no_jump_the_imu_did_not_measure() -> None:
+    """MH_03_medium's ground truth jumps 8.1 cm within one sample at 35.395 s (BENCHMARKS.md,
+    "Trajectory"); the default mode renders a continuous motion, "as-recorded" keeps the old behaviour."""
     speed = {}
     for mode in ("imu-consistent", "as-recorded"):
-        rec = SimRecording.from_euroc_imu_gt(
-            folder, SimConfig(seconds=3.0, start_s=34.0, seed=0, groundtruth_mode=mode), rig=rig)
+        rec = _replayed("MH_03_medium", 34.0, mode)
         t = rec.imu.t_ns
         p = rec.motion.pose(t)[1]
         speed[mode] = float((np.linalg.norm(np.diff(p, axis=0), axis=1) / (np.diff(t) * 1e-9)).max())
@@ -163,13 +168,9 @@ def test_mh03_renders_no_jump_the_imu_did_not_measure() -> None:
 def test_v102_renders_no_turn_the_gyro_did_not_measure() -> None:
     """V1_02_medium, 3-6 s: the ground truth's angular rate leaves the gyro by several deg/s in short spells;
     the default mode's rendered motion turns as the gyro (less its bias) says."""
-    folder = shared_path("euroc_imu_gt", "V1_02_medium")
-    rig = euroc_default_rig()
-    rig = rig.replace(camera=rig.camera.scaled(0.25, 0.25))
     worst = {}
     for mode in ("imu-consistent", "as-recorded"):
-        rec = SimRecording.from_euroc_imu_gt(
-            folder, SimConfig(seconds=3.0, start_s=3.0, seed=0, groundtruth_mode=mode), rig=rig)
+        rec = _replayed("V1_02_medium", 3.0, mode)
         t = rec.imu.t_ns
         gap = _body_rates(t, rec.motion.pose(t)[0]) - 0.5 * (rec.imu.gyro[:-1] + rec.imu.gyro[1:])
         worst[mode] = float(np.degrees(np.linalg.norm(gap - np.median(gap, axis=0), axis=1)).max())
