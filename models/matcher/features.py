@@ -16,12 +16,17 @@ class Features:
         scores: (N,) float32 detection scores (higher is better).
         desc: (N, D) descriptors: float32 L2-normalised (XFeat) or uint8 packed bits (ORB).
         image_size: (width, height) of the image they come from, pixels.
+        level: (N,) int8 image-pyramid level each keypoint was detected at (0 = full resolution;
+            `XFeatDetector.detect_pyramid`), or None for single-scale features. Keypoints of every
+            level are in full-resolution pixels; descriptors of different levels are matched level
+            pair by level pair (`match_levels`).
     """
 
     kpts: np.ndarray
     scores: np.ndarray
     desc: np.ndarray
     image_size: tuple[int, int] = (0, 0)
+    level: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.kpts.shape[0])
@@ -92,3 +97,58 @@ def mutual_nearest_neighbours(
         d2 = np.sqrt(np.maximum(2.0 - 2.0 * second, 0.0))
         keep &= d1 < ratio * d2
     return idx_a[keep].astype(np.int64), idx_b[keep].astype(np.int64), sim[keep].astype(np.float32)
+
+
+def _levels(f: Features) -> np.ndarray:
+    return np.zeros(len(f), np.int64) if f.level is None else np.asarray(f.level, np.int64)
+
+
+def match_levels(
+    fa: Features, fb: Features, min_cossim: float = -1.0, ratio: float = 1.0, dedupe_px: float = 3.0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mutual nearest neighbours of multi-level (pyramid) features, level pair by level pair.
+
+    Each pair of pyramid levels (one of a, one of b) is matched on its own with
+    `mutual_nearest_neighbours` (so a keypoint's second-best neighbour, for the ratio test, is never
+    the same point seen at another level); the union is then made one-to-one, best cosine first:
+    each keypoint is used once, and a pair whose positions lie within `dedupe_px` of an already kept
+    pair's in both images (the same point found at two levels) is dropped.
+
+    Returns:
+        (idx_a, idx_b, cosine similarity) into fa's and fb's keypoints, best first.
+    """
+    la, lb = _levels(fa), _levels(fb)
+    ia_all, ib_all, s_all = [], [], []
+    for va in np.unique(la):
+        sel_a = np.flatnonzero(la == va)
+        for vb in np.unique(lb):
+            sel_b = np.flatnonzero(lb == vb)
+            ia, ib, s = mutual_nearest_neighbours(fa.desc[sel_a], fb.desc[sel_b], min_cossim, ratio)
+            ia_all.append(sel_a[ia])
+            ib_all.append(sel_b[ib])
+            s_all.append(s)
+    if not ia_all:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.float32)
+    ia, ib, s = np.concatenate(ia_all), np.concatenate(ib_all), np.concatenate(s_all)
+    order = np.argsort(-s, kind="stable")
+    ia, ib, s = ia[order], ib[order], s[order]
+    pa = np.asarray(fa.kpts, np.float64)[ia].tolist()
+    pb = np.asarray(fb.kpts, np.float64)[ib].tolist()
+    used_a: set[int] = set()
+    used_b: set[int] = set()
+    cells: dict[tuple[int, int], list[int]] = {}      # kept pairs by their a-position on a dedupe_px grid
+    keep = np.zeros(len(ia), bool)
+    for k, (i, j) in enumerate(zip(ia.tolist(), ib.tolist(), strict=True)):
+        if i in used_a or j in used_b:
+            continue
+        (ua, va), (ub, vb) = pa[k], pb[k]
+        cx, cy = int(ua // dedupe_px), int(va // dedupe_px)
+        if any(abs(pa[q][0] - ua) < dedupe_px and abs(pa[q][1] - va) < dedupe_px
+               and abs(pb[q][0] - ub) < dedupe_px and abs(pb[q][1] - vb) < dedupe_px
+               for dx in (-1, 0, 1) for dy in (-1, 0, 1) for q in cells.get((cx + dx, cy + dy), ())):
+            continue
+        keep[k] = True
+        used_a.add(i)
+        used_b.add(j)
+        cells.setdefault((cx, cy), []).append(k)
+    return ia[keep], ib[keep], s[keep].astype(np.float32)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from models.matcher.features import Features, Matches, mutual_nearest_neighbours
+from models.matcher.features import Features, Matches, match_levels, mutual_nearest_neighbours
 from models.matcher.lighterglue import LighterGlue
 from models.matcher.orb import OrbDetector, match_hamming
 from models.matcher.refine import refine_matches_lk
@@ -76,10 +76,21 @@ class Matcher:
         """Keypoints, scores and descriptors of one grey uint8 image (cache them per keyframe)."""
         return self.detector.detect(image)
 
+    def detect_pyramid(self, image: np.ndarray, scales: Sequence[float] = (1.0, 0.7, 0.5)) -> Features:
+        """Multi-level features for matching across a change of scale (`XFeatDetector.detect_pyramid`;
+        `match_features` matches them level pair by level pair). ORB builds its own 8-level pyramid,
+        so its features are returned as by `detect`; a single scale (1.0,) is `detect`."""
+        if self.backend == "orb" or tuple(float(x) for x in scales) == (1.0,):
+            return self.detect(image)
+        return self.detector.detect_pyramid(image, scales)
+
     def match_features(self, fa: Features, fb: Features) -> Matches:
-        """Match two precomputed feature sets."""
+        """Match two precomputed feature sets (pyramid features: `features.match_levels`)."""
+        multi_level = fa.level is not None or fb.level is not None
         if self.backend == "orb":
             ia, ib, s = match_hamming(fa.desc, fb.desc)
+        elif multi_level:
+            ia, ib, s = match_levels(fa, fb, self.min_cossim, self.ratio)
         elif self.glue is not None:
             ia, ib, s = self.glue.match(fa, fb, fa.image_size, fb.image_size)
         else:

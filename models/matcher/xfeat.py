@@ -130,6 +130,9 @@ class XFeatDetector:
 
     def detect(self, image: np.ndarray) -> Features:
         """Keypoints (u, v) in image pixels, scores and L2-normalised 64-D descriptors (top-k)."""
+        return self._detect(image, self.top_k)
+
+    def _detect(self, image: np.ndarray, top_k: int) -> Features:
         feats, logits, rel, sx, sy = self.backbone(image)
         size = (int(np.asarray(image).shape[1]), int(np.asarray(image).shape[0]))
         heat = logits_to_heatmap(logits)
@@ -140,9 +143,45 @@ class XFeatDetector:
         # grid_sample(align_corners=False) convention of upstream: pixel x -> map x * w / (W - 1) - 0.5
         u, v = xs * (w / (W - 1)) - 0.5, ys * (h / (H - 1)) - 0.5
         scores = heat[ys, xs] * sample_bilinear(rel, u, v)[:, 0]
-        order = np.argsort(-scores, kind="stable")[: self.top_k]
+        order = np.argsort(-scores, kind="stable")[:top_k]
         xs, ys, u, v, scores = xs[order], ys[order], u[order], v[order], scores[order]
         desc = sample_bicubic(feats, u, v)
         desc /= np.maximum(np.linalg.norm(desc, axis=1, keepdims=True), 1e-12)
         kpts = np.stack([xs * sx, ys * sy], axis=1).astype(np.float32)
         return Features(kpts, scores.astype(np.float32), desc, size)
+
+    def detect_pyramid(self, image: np.ndarray, scales: Sequence[float] = (1.0, 0.7, 0.5)) -> Features:
+        """Keypoints of an image pyramid, for matching across a change of scale (a revisit seen from
+        nearer or farther away: XFeat's descriptors are not scale-invariant beyond about 1.4x).
+
+        Level k is the image resized by scales[k] (area interpolation) and keeps
+        round(top_k * scales[k]^2) keypoints (the same density per pixel); its keypoints are mapped back
+        to full-resolution pixels and tagged with `Features.level` = k. Levels smaller than 32 px are
+        left out; the full-resolution level is never left out (a too small image is a DataError).
+        """
+        img = np.asarray(image)
+        if img.ndim == 3 and img.shape[2] == 3:
+            img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+        sc = [float(x) for x in scales]
+        if not sc or sc[0] != 1.0 or sc[-1] <= 0.0 or any(a <= b for a, b in zip(sc, sc[1:], strict=False)):
+            raise ModelError(f"pyramid scales must start at 1.0 and decrease within (0, 1], got {scales!r}")
+        H, W = img.shape[:2]
+        parts: list[Features] = []
+        for k, s in enumerate(sc):
+            w, h = round(W * s), round(H * s)
+            if k > 0 and min(w, h) < 32:
+                break
+            level_img = img if k == 0 else cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+            f = self._detect(level_img, max(1, round(self.top_k * s * s)))
+            # pixel centres: (u' + 0.5) * W / w - 0.5 (Features' (0, 0) = centre of the top-left pixel)
+            f.kpts = ((f.kpts + 0.5) * np.array([W / w, H / h], np.float32) - 0.5).astype(np.float32)
+            f.level = np.full(len(f), k, np.int8)
+            parts.append(f)
+        return Features(
+            np.concatenate([f.kpts for f in parts]).reshape(-1, 2),
+            np.concatenate([f.scores for f in parts]),
+            np.concatenate([f.desc for f in parts]),
+            (int(W), int(H)),
+            np.concatenate([f.level for f in parts]),
+        )
+

@@ -214,7 +214,7 @@ class Mapper:
         depths_by_t = {int(t): depth[i] for i, t in enumerate(window.t_ns)}
         link = self._link(sub, depths_by_t, T_OC)
         t_graph = time.perf_counter()
-        changed = self._graph_update(sub, depths_by_t, link)
+        changed = self._graph_update(sub, depths_by_t, link, grey[c])
         self._time("graph", t_graph)
         t3 = time.perf_counter()
         for other in changed:
@@ -242,8 +242,8 @@ class Mapper:
         return commit
 
     # ------------------------------------------------------------------ the submap graph
-    def _graph_update(self, sub: Submap, depths_by_t: dict[int, np.ndarray], link: ScaleLink | None
-                      ) -> list[Submap]:
+    def _graph_update(self, sub: Submap, depths_by_t: dict[int, np.ndarray], link: ScaleLink | None,
+                      centre_image: np.ndarray) -> list[Submap]:
         """Add the submap to the graph, solve, and copy the new states to the resident submaps;
         returns the submaps (other than `sub`) whose state changed: resident ones (Submap) and ones that
         left memory while their node stays in the graph (SubmapState)."""
@@ -253,7 +253,7 @@ class Mapper:
         points = self._adjacent_points(prev, sub, depths_by_t) if prev is not None else None
         self.backend.add_submap(sub.index, sub.T_OS, sub.segment, None if prev is None else prev.index,
                                 link, points, t_ns=int(sub.frame_t_ns[sub.centre]))
-        view = self._centre_view(sub, depths_by_t)
+        view = self._centre_view(sub, depths_by_t, centre_image)
         if view is not None:
             self.backend.add_view(sub.index, *view)
             self.backend.try_revisits(sub.index, self.matcher)
@@ -278,14 +278,19 @@ class Mapper:
                 changed.append(self._states[k])
         return changed
 
-    def _centre_view(self, sub: Submap, depths_by_t: dict[int, np.ndarray]) -> tuple | None:
-        """(Features, RevisitView) of a submap's centre image, kept by the graph for revisits."""
-        if self.matcher is None:
+    def _centre_view(self, sub: Submap, depths_by_t: dict[int, np.ndarray], image: np.ndarray
+                     ) -> tuple | None:
+        """(Features, RevisitView) of a submap's centre image (rectified grey), kept by the graph for
+        revisits: pyramid features at `RevisitConfig.view_scales` when the matcher has them."""
+        if self.matcher is None or self.backend is None:
             return None
         t = int(sub.frame_t_ns[sub.centre])
         f, d = self._features.get(t), depths_by_t.get(t)
         if f is None or d is None:
             return None
+        scales = self.backend.revisit_cfg.view_scales
+        if len(scales) > 1 and self.backend.revisit_cfg.enabled and hasattr(self.matcher, "detect_pyramid"):
+            f = self.matcher.detect_pyramid(image, scales)
         h, w = d.shape
         return f, RevisitView(self.K, np.asarray(f.kpts, np.float64), sample_at(d, f.kpts), (w, h))
 

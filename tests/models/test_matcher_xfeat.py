@@ -10,7 +10,8 @@ import pytest
 from da3_contract_graph import build_da3_contract_graph
 
 from models.inspect_model import inspect_model
-from models.matcher import DEFAULT_XFEAT_PATH, Matcher, XFeatDetector, mutual_nearest_neighbours
+from models.matcher import DEFAULT_XFEAT_PATH, Features, Matcher, XFeatDetector, mutual_nearest_neighbours
+from models.matcher.features import match_levels
 from models.matcher.xfeat import logits_to_heatmap, sample_bicubic, sample_bilinear
 from runtime.errors import DataError, ModelError
 from tools.benchmarks.matcher import (
@@ -109,6 +110,82 @@ def test_precision_on_synthetic_homography_pair(backend):
     m = Matcher(DEFAULT_XFEAT_PATH if backend == "xfeat" else None, top_k=2048, threads=2)
     r = match_precision(m.match(img, b), HomographyTruth(H, img.shape))
     assert r["matches"] >= 200 and r["precision"] >= 0.8, r
+
+
+def _zoom(z: float, shape: tuple[int, int]) -> np.ndarray:
+    """Homography of a zoom by z about the image centre (pixel centres at integers)."""
+    h, w = shape
+    return np.array([[z, 0, (1 - z) * (w - 1) / 2], [0, z, (1 - z) * (h - 1) / 2], [0, 0, 1.0]])
+
+
+def test_pyramid_features_match_across_a_zoom_that_defeats_single_scale():
+    rng = np.random.default_rng(3)
+    img = synthetic_scene(rng)
+    H = _zoom(1.8, img.shape)                         # the place seen again from 1.8x nearer
+    b = cv2.warpPerspective(img, H, (img.shape[1], img.shape[0]), flags=cv2.INTER_LINEAR)
+    m = Matcher(DEFAULT_XFEAT_PATH, top_k=1024, threads=2)
+    truth = HomographyTruth(H, img.shape)
+    single = match_precision(m.match_features(m.detect(img), m.detect(b)), truth)
+    fa, fb = m.detect_pyramid(img, (1.0, 0.7, 0.5)), m.detect_pyramid(b, (1.0, 0.7, 0.5))
+    pyramid = match_precision(m.match_features(fa, fb), truth)
+    assert single["correct"] < 20, single
+    assert pyramid["correct"] >= 80 and pyramid["precision"] >= 0.5, pyramid
+    # per-level budgets keep the keypoint density: 1024, 1024 * 0.49, 1024 * 0.25
+    assert np.bincount(fa.level).tolist() == [1024, 502, 256]
+    assert fa.desc.shape == (len(fa), 64) and fa.kpts.shape == (len(fa), 2) and fa.image_size == (640, 480)
+    assert (fa.kpts >= -0.5).all() and (fa.kpts[:, 0] <= 639.5).all() and (fa.kpts[:, 1] <= 479.5).all()
+
+
+def test_pyramid_keypoints_are_in_full_resolution_pixels():
+    """Level 1 (scale 0.5) of an image enlarged 2x by OpenCV is, nearly, the original image: its
+    keypoints must land where the original's keypoints map under OpenCV's pixel-centre convention
+    u_big = 2 (u + 0.5) - 0.5."""
+    img = synthetic_scene(np.random.default_rng(4), 240, 320)
+    big = cv2.resize(img, (640, 480), interpolation=cv2.INTER_LINEAR)
+    det = XFeatDetector(top_k=1600, threads=1)
+    f = det.detect_pyramid(big, (1.0, 0.5))
+    lvl1 = f.kpts[f.level == 1]
+    ref = 2.0 * (det.detect(img).kpts[:400] + 0.5) - 0.5
+    d = np.linalg.norm(lvl1[:, None, :] - ref[None, :, :], axis=2).min(axis=0)
+    assert len(lvl1) == 400 and np.median(d) < 0.5, (len(lvl1), np.median(d))
+    with pytest.raises(ModelError, match="start at 1.0"):
+        det.detect_pyramid(img, (0.7, 0.5))
+    with pytest.raises(ModelError):
+        det.detect_pyramid(img, (1.0, 0.5, 0.5))
+    tiny = det.detect_pyramid(img[:40, :600], (1.0, 0.5))      # level 1 would be 20 px high: left out
+    assert set(np.unique(tiny.level).tolist()) == {0}
+
+
+def test_match_levels_is_one_to_one_and_drops_a_point_found_at_two_levels():
+    rng = np.random.default_rng(7)
+    n = 30
+    d = rng.standard_normal((n, 64)).astype(np.float32)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    kp = rng.uniform(0, 600, (n, 2)).astype(np.float32)
+    noisy = d + 0.05 * rng.standard_normal(d.shape).astype(np.float32)
+    noisy /= np.linalg.norm(noisy, axis=1, keepdims=True)
+    single_a = Features(kp, np.ones(n, np.float32), d, (640, 480))
+    single_b = Features(kp + 1.0, np.ones(n, np.float32), noisy, (640, 480))
+    # single-level inputs: the same pairs as mutual nearest neighbours (best first)
+    ia, ib, s = match_levels(single_a, single_b, ratio=0.8)
+    ja, jb, _ = mutual_nearest_neighbours(d, noisy, ratio=0.8)
+    pairs = sorted(zip(ia.tolist(), ib.tolist(), strict=True))
+    assert pairs == sorted(zip(ja.tolist(), jb.tolist(), strict=True))
+    assert (np.diff(s) <= 0).all()
+    # each point also found at level 1 of both images (0.5 px away, a slightly different descriptor)
+    d2 = d + 0.02 * rng.standard_normal(d.shape).astype(np.float32)
+    d2 /= np.linalg.norm(d2, axis=1, keepdims=True)
+    lv = np.repeat(np.int8([0, 1]), n)
+    fa = Features(np.vstack([kp, kp + 0.5]), np.ones(2 * n, np.float32), np.vstack([d, d2]), (640, 480), lv)
+    fb = Features(np.vstack([kp + 1.0, kp + 1.5]), np.ones(2 * n, np.float32), np.vstack([noisy, d2]),
+                  (640, 480), lv)
+    ia, ib, _ = match_levels(fa, fb, ratio=0.8)
+    assert len(set(ia.tolist())) == len(ia) and len(set(ib.tolist())) == len(ib)
+    assert sorted(set((ia % n).tolist())) == list(range(n))      # every point once ...
+    assert len(ia) == n                                          # ... and only once
+    assert (ia % n == ib % n).all()                              # and matched to itself
+    m = Matcher(DEFAULT_XFEAT_PATH, threads=1).match_features(fa, fb)
+    assert len(m) == n
 
 
 @pytest.mark.slow

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from runtime.config_io import config_from_dict, config_to_dict
+from runtime.errors import ConfigError
 from runtime.geometry import make_pose, so3_exp
 from runtime.geometry.se3 import se3_inverse
 from runtime.graph import GraphConfig, GraphError
@@ -107,6 +108,14 @@ def test_config_holds_the_paper_numbers_and_round_trips():
     d["pnp"]["min_inliers"] = 40
     c2 = config_from_dict(RevisitConfig, d)
     assert c2.pnp.min_inliers == 40 and c2.min_coverage_cells == c.min_coverage_cells
+    assert c2.view_scales == c.view_scales == (1.0, 0.7, 0.5)
+
+
+@pytest.mark.parametrize("scales", [[0.7, 0.5], [1.0, 0.5, 0.7], [1.0, 0.5, 0.5], [1.0, 0.0], []])
+def test_view_scales_must_be_a_decreasing_pyramid_from_full_resolution(scales):
+    with pytest.raises(ConfigError, match="view_scales"):
+        config_from_dict(RevisitConfig, {"view_scales": scales})
+    assert config_from_dict(RevisitConfig, {"view_scales": [1.0]}).view_scales == (1.0,)
 
 
 def test_candidates_respect_radius_time_gap_order_and_limit():

@@ -25,7 +25,8 @@ def grid_view(depth: float = 4.0, n: int = 20) -> RevisitView:
 def features(rng: np.random.Generator, n: int = 50) -> Features:
     d = rng.standard_normal((n, 64)).astype(np.float32)
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    return Features(rng.uniform(0, 600, (n, 2)).astype(np.float32), np.ones(n, np.float32), d, (W, H))
+    level = rng.integers(0, 3, n).astype(np.int8)           # pyramid features (RevisitConfig.view_scales)
+    return Features(rng.uniform(0, 600, (n, 2)).astype(np.float32), np.ones(n, np.float32), d, (W, H), level)
 
 
 def pose_at(x: float, yaw_deg: float = 0.0) -> np.ndarray:
@@ -94,6 +95,7 @@ def test_archive_keeps_the_older_view_of_a_place_and_compacts_descriptors():
     f, _ = store.get(0)
     assert f.desc.dtype == np.float32 and np.abs(f.desc - f0.desc).max() < 1e-3
     assert store._views[0].features.desc.dtype == np.float16
+    assert np.array_equal(f.level, f0.level)                  # pyramid levels survive the archive
 
 
 def test_archive_respects_the_cap_and_clear_forgets_everything():

@@ -102,3 +102,27 @@ def test_graph_moves_of_submaps_that_left_memory_are_reported_as_states():
     T_MS, lam = mapper.backend.state(1)
     assert s1.lam == lam != before and np.array_equal(s1.T_MS, T_MS)
     assert s1.version == commit.version and s1.n_points > 0 and s1.segment == 0
+
+
+def test_centre_views_hold_pyramid_features_for_revisits():
+    """The graph keeps each submap's centre view with features at RevisitConfig.view_scales (levels
+    0, 1, 2 by default), or the single-scale features of the frame-scale step with (1.0,)."""
+    from models.matcher import Matcher
+    from runtime.graph.revisits import RevisitConfig
+
+    rng = np.random.default_rng(0)
+    texture = (rng.random((H_TEST // 4, W_TEST // 4)) * 255).astype(np.uint8)
+    image = np.kron(texture, np.ones((4, 4), np.uint8))               # 4 px squares: corners everywhere
+    cam = Pinhole(W_TEST, H_TEST, K_TEST[0, 0], K_TEST[1, 1], K_TEST[0, 2], K_TEST[1, 2])
+    levels = {}
+    for scales in ((1.0, 0.7, 0.5), (1.0,)):
+        mapper = Mapper(_ExactModel(), cam, MappingConfig(pixel_stride=2, conf_percentile=0.0),
+                        matcher=Matcher.default(top_k=256, threads=1),
+                        revisits=RevisitConfig(view_scales=scales))
+        w = _window(0)
+        w = MappingWindow(0, [Frame(f.t_ns, image) for f in w.frames], w.T_OC, 0)
+        mapper.process(w)
+        f, view = mapper.backend.views.get(0)
+        assert len(view.kpts) == len(f) > 0
+        levels[scales] = None if f.level is None else sorted(set(f.level.tolist()))
+    assert levels == {(1.0, 0.7, 0.5): [0, 1, 2], (1.0,): None}      # the committed XFeat graph

@@ -159,14 +159,27 @@ class SharedMatcher:
         self._features: dict[bytes, Any] = {}
         self._matches: dict[tuple[int, int], Any] = {}
 
-    def detect(self, image: np.ndarray) -> Any:
+    @staticmethod
+    def _key(img: np.ndarray, extra: str = "") -> bytes:
         import hashlib
 
+        digest = hashlib.blake2b(img.tobytes(), digest_size=16).digest()
+        return digest + bytes(str(img.shape) + extra, "ascii")
+
+    def detect(self, image: np.ndarray) -> Any:
         img = np.ascontiguousarray(image)
-        key = hashlib.blake2b(img.tobytes(), digest_size=16).digest() + bytes(str(img.shape), "ascii")
+        key = self._key(img)
         f = self._features.get(key)
         if f is None:
             f = self._features[key] = self.matcher.detect(img)
+        return f
+
+    def detect_pyramid(self, image: np.ndarray, scales: Any) -> Any:
+        img = np.ascontiguousarray(image)
+        key = self._key(img, repr(tuple(scales)))
+        f = self._features.get(key)
+        if f is None:
+            f = self._features[key] = self.matcher.detect_pyramid(img, scales)
         return f
 
     def match_features(self, fa: Any, fb: Any) -> Any:
