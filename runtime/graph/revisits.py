@@ -64,8 +64,8 @@ class RevisitConfig:
     inlier counts 38 times in 60 against 17 single-scale (BENCHMARKS.md)."""
     max_views: int = 600
     """Centre views archived for revisits once their node is evicted (`views.ViewStore`); beyond this,
-    evicted views are dropped (counted). About 250 kB each with the pyramid's 1782 XFeat keypoints
-    (140 kB single-scale)."""
+    evicted views are dropped (counted). About 290 kB each with the pyramid's 1782 XFeat keypoints
+    (170 kB single-scale; 600 views: 176 MB)."""
     view_thin_radius_m: float = 1.0
     """An evicted view is not archived when an archived view's centre lies within this distance (m) ..."""
     view_thin_angle_deg: float = 30.0

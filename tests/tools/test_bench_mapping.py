@@ -209,7 +209,7 @@ def test_lambda_against_the_true_log_depth_scale():
     assert out["correlation"] > 0.9
 
 
-def test_gauge_lambda_free_option_reaches_the_graph_config():
+def test_paper_gauge_option_reaches_the_graph_config():
     import argparse
 
     from runtime.graph.config import GraphConfig
@@ -218,5 +218,5 @@ def test_gauge_lambda_free_option_reaches_the_graph_config():
     p = argparse.ArgumentParser()
     bm.add_arguments(p)
     assert bm.graph_config(p.parse_args([])) is None
-    cfg = bm.graph_config(p.parse_args(["--gauge-lambda-free"]))
-    assert isinstance(cfg, GraphConfig) and cfg.gauge_lambda_free and not GraphConfig().gauge_lambda_free
+    cfg = bm.graph_config(p.parse_args(["--paper-gauge"]))
+    assert isinstance(cfg, GraphConfig) and not cfg.gauge_lambda_free and GraphConfig().gauge_lambda_free
