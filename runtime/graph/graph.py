@@ -31,6 +31,13 @@ _X_SCALE = np.array([1.0, 1.0, 1.0, 0.1, 0.1])
 1 in these units over all free nodes together (scipy's default for a start at x = 0)."""
 
 
+def solver_x_scale(prob: GraphProblem) -> np.ndarray:
+    """Characteristic step sizes of the solver's parameters (m, m, m, rad, log-scale): each free node's
+    five, then the fixed-pose gauge's lambda when it is estimated (`GraphConfig.gauge_lambda_free`)."""
+    x_scale = np.tile(_X_SCALE, len(prob.free_pos))
+    return np.append(x_scale, _X_SCALE[4]) if prob.lam_only is not None else x_scale
+
+
 @dataclass(frozen=True)
 class NodeState:
     """The state of node `id`: T_MS (4,4) map pose of S_j, lam (lambda_j), fixed (the gauge)."""
@@ -279,12 +286,9 @@ class SubmapGraph:
             return SolveReport(cost0, cost0, 0, 0, time.perf_counter() - t0, 0, "nothing to solve",
                                prob.n_params, prob.n_residuals)
         loss = "linear" if math.isinf(self.cfg.huber_threshold) else prob.loss
-        x_scale = np.tile(_X_SCALE, len(prob.free_pos))
-        if prob.lam_only is not None:
-            x_scale = np.append(x_scale, _X_SCALE[4])
         with _blas_threads(self.cfg.blas_threads):
             res = least_squares(prob.residual, x0, jac=prob.jacobian, method="trf", tr_solver="lsmr",
-                                loss=loss, x_scale=x_scale, max_nfev=iters + 1)
+                                loss=loss, x_scale=solver_x_scale(prob), max_nfev=iters + 1)
         cost1 = prob.cost(res.x)
         x = res.x if cost1 <= cost0 else x0
         changes = self._apply(prob, x)

@@ -75,8 +75,7 @@ def _dense_solve_s(g) -> tuple[float, float]:
     """(seconds, final cost) of the same problem with scipy's exact (dense SVD) trust-region step."""
     from scipy.optimize import least_squares
 
-    from runtime.graph.graph import _X_SCALE, _blas_threads
-    from runtime.graph.problem import NODE_PARAMS
+    from runtime.graph.graph import _blas_threads, solver_x_scale
 
     t0 = time.perf_counter()
     prob = g.problem()
@@ -84,7 +83,7 @@ def _dense_solve_s(g) -> tuple[float, float]:
     with _blas_threads(g.cfg.blas_threads):
         res = least_squares(prob.residual, x0, jac=lambda x: prob.jacobian(x).toarray(), method="trf",
                             tr_solver="exact", loss=prob.loss,
-                            x_scale=np.tile(_X_SCALE, prob.n_params // NODE_PARAMS),
+                            x_scale=solver_x_scale(prob),
                             max_nfev=g.cfg.max_iterations + 1)
     return time.perf_counter() - t0, prob.cost(res.x)
 

@@ -66,7 +66,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--variants", default="abcdefghi", help="rows to run (letters a-i, module docstring)")
     p.add_argument("--paper-gauge", action="store_true",
                    help="the graph fixes the first submap's lambda at 0, as the paper (GraphConfig."
-                        "gauge_lambda_free = false; default: estimated under the scale prior as every node's)")
+                        "gauge_lambda_free = false; default: estimated under the scale prior as every "
+                        "node's)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", metavar="FILE.json", help="also write the JSON here")
 
