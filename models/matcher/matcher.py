@@ -76,13 +76,16 @@ class Matcher:
         """Keypoints, scores and descriptors of one grey uint8 image (cache them per keyframe)."""
         return self.detector.detect(image)
 
-    def detect_pyramid(self, image: np.ndarray, scales: Sequence[float] = (1.0, 0.7, 0.5)) -> Features:
+    def detect_pyramid(self, image: np.ndarray, scales: Sequence[float] = (1.0, 0.7, 0.5),
+                       base: Features | None = None) -> Features:
         """Multi-level features for matching across a change of scale (`XFeatDetector.detect_pyramid`;
-        `match_features` matches them level pair by level pair). ORB builds its own 8-level pyramid,
-        so its features are returned as by `detect`; a single scale (1.0,) is `detect`."""
+        `match_features` matches them level pair by level pair, with mutual nearest neighbours even
+        when LighterGlue is configured). ORB builds its own 8-level pyramid, so its features are
+        returned as by `detect`; a single scale (1.0,) is `detect`. `base`: the image's `detect`
+        features, reused (as level 0, or as the result) instead of detecting again."""
         if self.backend == "orb" or tuple(float(x) for x in scales) == (1.0,):
-            return self.detect(image)
-        return self.detector.detect_pyramid(image, scales)
+            return base if base is not None else self.detect(image)
+        return self.detector.detect_pyramid(image, scales, base)
 
     def match_features(self, fa: Features, fb: Features) -> Matches:
         """Match two precomputed feature sets (pyramid features: `features.match_levels`)."""

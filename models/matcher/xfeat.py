@@ -10,6 +10,7 @@ and keypoints mapped back.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -150,7 +151,8 @@ class XFeatDetector:
         kpts = np.stack([xs * sx, ys * sy], axis=1).astype(np.float32)
         return Features(kpts, scores.astype(np.float32), desc, size)
 
-    def detect_pyramid(self, image: np.ndarray, scales: Sequence[float] = (1.0, 0.7, 0.5)) -> Features:
+    def detect_pyramid(self, image: np.ndarray, scales: Sequence[float] = (1.0, 0.7, 0.5),
+                       base: Features | None = None) -> Features:
         """Keypoints of an image pyramid, for matching across a change of scale (a revisit seen from
         nearer or farther away: XFeat's descriptors are not scale-invariant beyond about 1.4x).
 
@@ -158,12 +160,14 @@ class XFeatDetector:
         round(top_k * scales[k]^2) keypoints (the same density per pixel); its keypoints are mapped back
         to full-resolution pixels and tagged with `Features.level` = k. Levels smaller than 32 px are
         left out; the full-resolution level is never left out (a too small image is a DataError).
+        `base`: this image's single-scale features (`detect`), reused as level 0 instead of detecting again.
         """
         img = np.asarray(image)
         if img.ndim == 3 and img.shape[2] == 3:
             img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
         sc = [float(x) for x in scales]
-        if not sc or sc[0] != 1.0 or sc[-1] <= 0.0 or any(a <= b for a, b in zip(sc, sc[1:], strict=False)):
+        if (not sc or sc[0] != 1.0 or not all(np.isfinite(sc)) or sc[-1] <= 0.0
+                or any(a <= b for a, b in zip(sc, sc[1:], strict=False))):
             raise ModelError(f"pyramid scales must start at 1.0 and decrease within (0, 1], got {scales!r}")
         H, W = img.shape[:2]
         parts: list[Features] = []
@@ -171,6 +175,12 @@ class XFeatDetector:
             w, h = round(W * s), round(H * s)
             if k > 0 and min(w, h) < 32:
                 break
+            if k == 0 and base is not None:
+                if tuple(base.image_size) != (W, H) or base.level is not None:
+                    raise ModelError(f"base features of a {base.image_size} image (level {base.level is not None})"
+                                     f" do not fit a single-scale level 0 of this {W}x{H} image")
+                parts.append(replace(base, level=np.zeros(len(base), np.int8)))
+                continue
             level_img = img if k == 0 else cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
             f = self._detect(level_img, max(1, round(self.top_k * s * s)))
             # pixel centres: (u' + 0.5) * W / w - 0.5 (Features' (0, 0) = centre of the top-left pixel)

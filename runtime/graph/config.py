@@ -25,8 +25,9 @@ class GraphConfig:
     point_sigma_min_m: float = 0.10
     """Floor of both point sigmas (m)."""
     scale_prior_sigma: float = 0.10
-    """Prior |lambda_j - lambda_0| / this on every non-gauge node (log-scale units; lambda_0: the first
-    node's, also after evictions)."""
+    """Prior |lambda_j - lambda_0| / this on every estimated lambda (every non-gauge node's, and the gauge's
+    with `gauge_lambda_free`; log-scale units; lambda_0 = 0: the first node's initial lambda, the
+    filter's metric scale, also after evictions)."""
     gauge_lambda_free: bool = True
     """True (default): the gauge node fixes only its pose; its lambda is estimated with the same prior as
     every other node's, so a wrong depth scale of the first submap (or of the gauge after evictions) is

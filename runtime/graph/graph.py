@@ -1,9 +1,11 @@
 """The gravity-preserving submap graph (paper Sec. V.C): nodes, factors and the robust LM solve.
 
 Node j holds Q_j = T_MS_j (the map pose of the centre camera S_j, (4,4)) and lambda_j (residual
-log-depth scale). The first node fixes the gauge (pose and lambda); after `evict` the first retained
-node becomes the gauge, fixed at its current state; the scale priors stay centred on the first node's
-lambda_0 (not the new gauge's). Every other node optimises translation (3, map
+log-depth scale). The first node fixes the gauge: its pose, and its lambda too with the paper's gauge
+(`GraphConfig.gauge_lambda_free = False`; by default the gauge's lambda is estimated under the same
+scale prior as every node's); after `evict` the first retained node becomes the gauge, its pose fixed at
+its current state; the scale priors stay centred on the first node's initial lambda_0 = 0, the filter's
+metric scale (not the new gauge's). Every other node optimises translation (3, map
 frame), yaw about the map z axis (1, R <- Rz(dyaw) R, so roll and pitch stay exactly as the filter
 observed them) and lambda (1). See `problem.py` for the residuals and `robust.py` for the loss.
 
@@ -40,7 +42,8 @@ def solver_x_scale(prob: GraphProblem) -> np.ndarray:
 
 @dataclass(frozen=True)
 class NodeState:
-    """The state of node `id`: T_MS (4,4) map pose of S_j, lam (lambda_j), fixed (the gauge)."""
+    """The state of node `id`: T_MS (4,4) map pose of S_j, lam (lambda_j), fixed (the gauge or an anchor:
+    its pose is not optimised; the gauge's lambda is, with `GraphConfig.gauge_lambda_free`)."""
 
     id: int
     T_MS: np.ndarray
@@ -149,7 +152,8 @@ class SubmapGraph:
         return j in self._T
 
     def is_fixed(self, j: int) -> bool:
-        """The gauge and the anchors are fixed; every other node is optimised."""
+        """The gauge's and the anchors' poses are fixed (the gauge's lambda is estimated with
+        `GraphConfig.gauge_lambda_free`); every other node is optimised."""
         self._need(j)
         return j == self.gauge or j in self._anchors
 

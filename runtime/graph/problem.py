@@ -103,7 +103,7 @@ class GraphProblem:
         Pb = np.exp(lam0[self.p_ib])[:, None] * self.p_b
         self.p_W = (point_whitening(R0[self.p_ia], Pa, R0[self.p_ib], Pb, cfg) if len(Pa)
                     else np.zeros((0, 3, 3)))
-        # scale prior on every free node, centred on lambda_0 of the first node (the metric scale)
+        # scale prior on every estimated lambda (free nodes, and the gauge's when free), centred on lam_ref
         self.prior_sigma = float(cfg.scale_prior_sigma)
         self.lam_ref = float(lam_ref)
         # scale links

@@ -21,6 +21,7 @@ residual r_o = Log(Z_ab^-1 Q_a^-1 Q_b).
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -96,7 +97,8 @@ class RevisitConfig:
 
     def __post_init__(self) -> None:
         sc = tuple(float(x) for x in self.view_scales)
-        if not sc or sc[0] != 1.0 or sc[-1] <= 0.0 or any(a <= b for a, b in zip(sc, sc[1:], strict=False)):
+        if (not sc or sc[0] != 1.0 or not all(math.isfinite(x) for x in sc) or sc[-1] <= 0.0
+                or any(a <= b for a, b in zip(sc, sc[1:], strict=False))):
             raise ValueError(f"view_scales must start at 1.0 and decrease strictly within (0, 1], got "
                              f"{list(self.view_scales)}")
         self.view_scales = sc

@@ -290,7 +290,7 @@ class Mapper:
             return None
         scales = self.backend.revisit_cfg.view_scales
         if len(scales) > 1 and self.backend.revisit_cfg.enabled and hasattr(self.matcher, "detect_pyramid"):
-            f = self.matcher.detect_pyramid(image, scales)
+            f = self.matcher.detect_pyramid(image, scales, base=f)
         h, w = d.shape
         return f, RevisitView(self.K, np.asarray(f.kpts, np.float64), sample_at(d, f.kpts), (w, h))
 

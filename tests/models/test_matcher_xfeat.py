@@ -132,6 +132,12 @@ def test_pyramid_features_match_across_a_zoom_that_defeats_single_scale():
     assert pyramid["correct"] >= 80 and pyramid["precision"] >= 0.5, pyramid
     # per-level budgets keep the keypoint density: 1024, 1024 * 0.49, 1024 * 0.25
     assert np.bincount(fa.level).tolist() == [1024, 502, 256]
+    single_a = m.detect(img)                          # reused as level 0: the same features
+    again = m.detect_pyramid(img, (1.0, 0.7, 0.5), base=single_a)
+    assert np.array_equal(again.kpts, fa.kpts) and np.array_equal(again.desc, fa.desc)
+    assert np.array_equal(again.level, fa.level)
+    with pytest.raises(ModelError, match="do not fit"):
+        m.detect_pyramid(img[:240], (1.0, 0.7, 0.5), base=single_a)
     assert fa.desc.shape == (len(fa), 64) and fa.kpts.shape == (len(fa), 2) and fa.image_size == (640, 480)
     assert (fa.kpts >= -0.5).all() and (fa.kpts[:, 0] <= 639.5).all() and (fa.kpts[:, 1] <= 479.5).all()
 
@@ -152,6 +158,8 @@ def test_pyramid_keypoints_are_in_full_resolution_pixels():
         det.detect_pyramid(img, (0.7, 0.5))
     with pytest.raises(ModelError):
         det.detect_pyramid(img, (1.0, 0.5, 0.5))
+    with pytest.raises(ModelError):
+        det.detect_pyramid(img, (1.0, float("nan")))
     tiny = det.detect_pyramid(img[:40, :600], (1.0, 0.5))      # level 1 would be 20 px high: left out
     assert set(np.unique(tiny.level).tolist()) == {0}
 

@@ -111,7 +111,8 @@ def test_config_holds_the_paper_numbers_and_round_trips():
     assert c2.view_scales == c.view_scales == (1.0, 0.7, 0.5)
 
 
-@pytest.mark.parametrize("scales", [[0.7, 0.5], [1.0, 0.5, 0.7], [1.0, 0.5, 0.5], [1.0, 0.0], []])
+@pytest.mark.parametrize("scales", [[0.7, 0.5], [1.0, 0.5, 0.7], [1.0, 0.5, 0.5], [1.0, 0.0], [],
+                                    [1.0, float("nan")]])
 def test_view_scales_must_be_a_decreasing_pyramid_from_full_resolution(scales):
     with pytest.raises(ConfigError, match="view_scales"):
         config_from_dict(RevisitConfig, {"view_scales": scales})

@@ -157,7 +157,7 @@ class SharedMatcher:
         self.matcher = matcher
         self.backend = getattr(matcher, "backend", "")
         self._features: dict[bytes, Any] = {}
-        self._matches: dict[tuple[int, int], Any] = {}
+        self._matches: dict[tuple[bytes, bytes], Any] = {}
 
     @staticmethod
     def _key(img: np.ndarray, extra: str = "") -> bytes:
@@ -174,16 +174,30 @@ class SharedMatcher:
             f = self._features[key] = self.matcher.detect(img)
         return f
 
-    def detect_pyramid(self, image: np.ndarray, scales: Any) -> Any:
+    def detect_pyramid(self, image: np.ndarray, scales: Any, base: Any = None) -> Any:
         img = np.ascontiguousarray(image)
         key = self._key(img, repr(tuple(scales)))
         f = self._features.get(key)
         if f is None:
-            f = self._features[key] = self.matcher.detect_pyramid(img, scales)
+            f = self._features[key] = self.matcher.detect_pyramid(img, scales, base)
         return f
 
+    @staticmethod
+    def _feature_key(f: Any) -> bytes:
+        """Content key of a feature set: archived views come back as a new object on every
+        `ViewStore.get`, so an id() may be reused by another view's features."""
+        import hashlib
+
+        h = hashlib.blake2b(digest_size=16)
+        for a in (f.kpts, f.desc, getattr(f, "level", None)):
+            if a is not None:
+                arr = np.ascontiguousarray(a)
+                h.update(arr.tobytes())
+                h.update(str((arr.dtype, arr.shape)).encode())
+        return h.digest()
+
     def match_features(self, fa: Any, fb: Any) -> Any:
-        key = (id(fa), id(fb))
+        key = (self._feature_key(fa), self._feature_key(fb))
         m = self._matches.get(key)
         if m is None:
             m = self._matches[key] = self.matcher.match_features(fa, fb)
