@@ -177,8 +177,8 @@ class XFeatDetector:
                 break
             if k == 0 and base is not None:
                 if tuple(base.image_size) != (W, H) or base.level is not None:
-                    raise ModelError(f"base features of a {base.image_size} image (level {base.level is not None})"
-                                     f" do not fit a single-scale level 0 of this {W}x{H} image")
+                    raise ModelError(f"base features of a {base.image_size} image (multi-level: "
+                                     f"{base.level is not None}) do not fit level 0 of this {W}x{H} image")
                 parts.append(replace(base, level=np.zeros(len(base), np.int8)))
                 continue
             level_img = img if k == 0 else cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
