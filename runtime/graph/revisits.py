@@ -59,8 +59,8 @@ class RevisitConfig:
     view_scales: tuple[float, ...] = (1.0, 0.7, 0.5)
     """Image-pyramid scales of the centre views' features (`Matcher.detect_pyramid`; 1024 + 502 + 256
     XFeat keypoints at the mapper's top_k of 1024), matched level pair by level pair, so a place seen
-    again from 1.4-2x nearer or farther still matches (XFeat's descriptors are single-scale; ORB keeps
-    its own pyramid). (1.0,) = the single-scale features of the frame-scale step. Not in the paper:
+    again from 1.4x nearer or farther or more still matches (XFeat's descriptors are single-scale; ORB
+    keeps its own pyramid); the candidate search admits up to `overlap_max_scale_change`. (1.0,) = the single-scale features of the frame-scale step. Not in the paper:
     on the V1_02 simulation, pairs 5 s apart with at least 30 % true overlap pass the match and
     inlier counts 38 times in 60 against 17 single-scale (BENCHMARKS.md)."""
     max_views: int = 600
