@@ -60,9 +60,10 @@ class RevisitConfig:
     """Image-pyramid scales of the centre views' features (`Matcher.detect_pyramid`; 1024 + 502 + 256
     XFeat keypoints at the mapper's top_k of 1024), matched level pair by level pair, so a place seen
     again from 1.4x nearer or farther or more still matches (XFeat's descriptors are single-scale; ORB
-    keeps its own pyramid); the candidate search admits up to `overlap_max_scale_change`. (1.0,) = the single-scale features of the frame-scale step. Not in the paper:
-    on the V1_02 simulation, pairs 5 s apart with at least 30 % true overlap pass the match and
-    inlier counts 38 times in 60 against 17 single-scale (BENCHMARKS.md)."""
+    keeps its own pyramid); the candidate search admits up to `overlap_max_scale_change`. (1.0,) = the
+    single-scale features of the frame-scale step. Not in the paper: on the V1_02 simulation, pairs 5 s
+    apart with at least 30 % true overlap pass the match and inlier counts 38 times in 60 against 17
+    single-scale (BENCHMARKS.md)."""
     max_views: int = 600
     """Centre views archived for revisits once their node is evicted (`views.ViewStore`); beyond this,
     evicted views are dropped (counted). About 290 kB each with the pyramid's 1782 XFeat keypoints
