@@ -99,6 +99,17 @@ def mutual_nearest_neighbours(
     return idx_a[keep].astype(np.int64), idx_b[keep].astype(np.int64), sim[keep].astype(np.float32)
 
 
+def pyramid_scales(scales) -> tuple[float, ...]:
+    """`scales` as a tuple of floats after checking it is an image pyramid: 1.0 first, then strictly
+    decreasing finite scales above 0. Raises ValueError naming what is wrong."""
+    sc = tuple(float(x) for x in scales)
+    if (not sc or sc[0] != 1.0 or not all(np.isfinite(sc)) or sc[-1] <= 0.0
+            or any(a <= b for a, b in zip(sc, sc[1:], strict=False))):
+        raise ValueError(f"pyramid scales must start at 1.0 and decrease strictly within (0, 1], got "
+                         f"{list(sc)}")
+    return sc
+
+
 def _levels(f: Features) -> np.ndarray:
     return np.zeros(len(f), np.int64) if f.level is None else np.asarray(f.level, np.int64)
 

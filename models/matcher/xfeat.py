@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from models.matcher.contract import CELL, check_xfeat_signature
-from models.matcher.features import Features
+from models.matcher.features import Features, pyramid_scales
 from models.providers import create_session
 from runtime.errors import DataError, ModelError
 
@@ -165,10 +165,10 @@ class XFeatDetector:
         img = np.asarray(image)
         if img.ndim == 3 and img.shape[2] == 3:
             img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
-        sc = [float(x) for x in scales]
-        if (not sc or sc[0] != 1.0 or not all(np.isfinite(sc)) or sc[-1] <= 0.0
-                or any(a <= b for a, b in zip(sc, sc[1:], strict=False))):
-            raise ModelError(f"pyramid scales must start at 1.0 and decrease within (0, 1], got {scales!r}")
+        try:
+            sc = pyramid_scales(scales)
+        except ValueError as exc:
+            raise ModelError(str(exc)) from None
         H, W = img.shape[:2]
         parts: list[Features] = []
         for k, s in enumerate(sc):
@@ -194,4 +194,3 @@ class XFeatDetector:
             (int(W), int(H)),
             np.concatenate([f.level for f in parts]),
         )
-

@@ -21,12 +21,12 @@ residual r_o = Log(Z_ab^-1 Q_a^-1 Q_b).
 """
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from models.matcher.features import pyramid_scales
 from models.matcher.pnp import PnPGates, verify_pnp
 from runtime.geometry.se3 import se3_inverse, se3_log
 from runtime.geometry.so3 import skew
@@ -97,12 +97,10 @@ class RevisitConfig:
     """Admit a verified revisit's point group only past the drift gate (off: always; an ablation)."""
 
     def __post_init__(self) -> None:
-        sc = tuple(float(x) for x in self.view_scales)
-        if (not sc or sc[0] != 1.0 or not all(math.isfinite(x) for x in sc) or sc[-1] <= 0.0
-                or any(a <= b for a, b in zip(sc, sc[1:], strict=False))):
-            raise ValueError(f"view_scales must start at 1.0 and decrease strictly within (0, 1], got "
-                             f"{list(self.view_scales)}")
-        self.view_scales = sc
+        try:
+            self.view_scales = pyramid_scales(self.view_scales)
+        except ValueError as exc:
+            raise ValueError(f"view_scales: {exc}") from None
 
 
 @dataclass
