@@ -38,7 +38,12 @@ class MappingConfig:
     frame_scale_pair_offsets: tuple[int, ...] = (1, 2)
     """Images this many positions apart are matched for the per-frame scales."""
     multiview_rel_depth: float = 0.10
-    """A depth is kept only if another frame of the window re-observes it within this relative depth."""
+    """A depth is kept only if another frame of the window re-observes it within this relative depth..."""
+    multiview_keep_unseen: bool = True
+    """... or if no other frame of the window sees it at all (outside their images or on pixels without a
+    valid depth), so it can be neither confirmed nor contradicted (counted as `points_unverified`).
+    Not in the paper: its rule (false here) drops every surface only one image of a window sees, which
+    cost 5-9 points of recall for 0.1-0.6 of precision in `davio bench mapping` (BENCHMARKS.md)."""
     conf_percentile: float = 25.0
     """DA3 confidence filter: pixels below this percentile of the window's confidence are dropped."""
     pixel_stride: int = 4

@@ -3,7 +3,9 @@
 Per window (run by the model worker, never by the tracking thread):
   1. the conditioned DA3 call and its gates (conditioned.py);
   2. per-frame scales from in-window matches (frame_scales.py);
-  3. depth samples on a pixel grid, the confidence filter and multi-view rejection (multiview.py);
+  3. depth samples on a pixel grid, the confidence filter and multi-view rejection (multiview.py; a
+     depth another image contradicts goes, one no other image sees is kept unless
+     `multiview_keep_unseen` is off);
   4. the submap (frame S_j = the centre image's camera, points kept in their image's camera frame);
   5. the relative-scale link to the previous submap (shared_scale.py);
   6. fusion into voxels over the resident submaps (fusion.py): at most `max_resident_submaps` stay in
@@ -34,7 +36,7 @@ from runtime.mapping.conditioned import WindowFit, depth_call
 from runtime.mapping.config import MappingConfig
 from runtime.mapping.frame_scales import FrameScaleResult, PairMatches, solve_frame_scales
 from runtime.mapping.fusion import VoxelGrid
-from runtime.mapping.multiview import confidence_mask, reobserved, sample_grid
+from runtime.mapping.multiview import confidence_mask, multiview_test, sample_grid
 from runtime.mapping.placement import backproject, place_points
 from runtime.mapping.shared_scale import ScaleLink, overlap_link, shared_link
 from runtime.mapping.submap import Submap, SubmapState
@@ -57,6 +59,8 @@ class MappingStats:
     rejected_invalid_depth: int = 0
     rejected_confidence: int = 0
     rejected_multiview: int = 0
+    points_unverified: int = 0
+    """Retained points that no other image of their window sees (MappingConfig.multiview_keep_unseen)."""
     points_retained: int = 0
     frame_scale_solves: int = 0
     frame_scale_unconstrained: int = 0
@@ -416,8 +420,10 @@ class Mapper:
         R, t = T_SC[img_idx, :3, :3], T_SC[img_idx, :3, 3]
         pts_S = np.einsum("pij,pj->pi", R, pts_C) + t
         dmaps = np.where(np.isfinite(depth) & (depth > 0), depth, np.nan)
-        keep = reobserved(pts_S, img_idx, T_SC, dmaps, self.K, cfg.multiview_rel_depth)
+        agree, seen = multiview_test(pts_S, img_idx, T_SC, dmaps, self.K, cfg.multiview_rel_depth)
+        keep = agree | ~seen if cfg.multiview_keep_unseen else agree
         st.rejected_multiview += int((~keep).sum())
+        st.points_unverified += int((keep & ~seen).sum())
         st.points_retained += int(keep.sum())
         img_idx, g_idx = img_idx[keep], g_idx[keep]
         grey_vals = np.stack([g[v, u] for g in grey])[img_idx, g_idx].astype(np.uint8)

@@ -1,9 +1,14 @@
 """Multi-view rejection of a window's depths (paper Sec. V.D) and the confidence filter.
 
-A depth sample of image i is kept only if another image j of the same window re-observes it: the
+A depth sample of image i is re-observed when another image j of the same window confirms it: the
 point, moved into C_j with the metric VIO poses, projects inside image j in front of the camera and
 its z agrees with image j's depth there within `rel_depth` (10 %). Flying pixels at depth
 discontinuities and inconsistent depths fail this test; true surfaces seen twice pass.
+
+A sample that no other image sees at all (outside their images, behind them, or on pixels without a
+valid depth) is neither confirmed nor contradicted: `multiview_test` reports it as unseen, and the
+mapper keeps it or not by `MappingConfig.multiview_keep_unseen`. The paper's rule ("retained only if
+another frame re-observes it") drops it.
 """
 from __future__ import annotations
 
@@ -17,10 +22,9 @@ def sample_grid(height: int, width: int, stride: int) -> tuple[np.ndarray, np.nd
     return u.ravel(), v.ravel()
 
 
-def reobserved(points_S: np.ndarray, source: np.ndarray, T_SC: np.ndarray, depths: np.ndarray,
-               K: np.ndarray, rel_depth: float = 0.10) -> np.ndarray:
-    """(P,) bool: each point (in the submap frame S, from image `source[p]`) agrees with the depth
-    of at least one OTHER image of the window within `rel_depth`.
+def multiview_test(points_S: np.ndarray, source: np.ndarray, T_SC: np.ndarray, depths: np.ndarray,
+                   K: np.ndarray, rel_depth: float = 0.10) -> tuple[np.ndarray, np.ndarray]:
+    """Each point (in the submap frame S, from image `source[p]`) against the OTHER images of the window.
 
     Args:
         points_S: (P,3) points in S (metres).
@@ -28,13 +32,22 @@ def reobserved(points_S: np.ndarray, source: np.ndarray, T_SC: np.ndarray, depth
         T_SC: (N,4,4) poses of the images in S.
         depths: (N,H,W) corrected depth maps of the images (non-finite or <= 0: invalid).
         K: (3,3) pinhole intrinsics of the depth maps.
+        rel_depth: agreement tolerance, relative to the other image's depth.
+
+    Returns:
+        (agree, seen), (P,) bool each: `agree` when at least one other image's depth at the point's
+        pixel matches its z within `rel_depth`; `seen` when at least one other image holds a valid
+        depth where the point projects (inside the image, in front of the camera). A point seen but
+        never agreed with is contradicted; one never seen is unverifiable within the window.
+        (`seen` is only computed for points that do not agree: it is True wherever `agree` is.)
     """
     n, h, w = depths.shape
-    keep = np.zeros(len(points_S), bool)
+    agree = np.zeros(len(points_S), bool)
+    seen = np.zeros(len(points_S), bool)
     pts = np.asarray(points_S, np.float64)
     for j in range(n):
         T_CS = np.linalg.inv(T_SC[j])
-        cand = np.flatnonzero((source != j) & ~keep)
+        cand = np.flatnonzero((source != j) & ~agree)
         if cand.size == 0:
             continue
         p = pts[cand] @ T_CS[:3, :3].T + T_CS[:3, 3]
@@ -46,10 +59,18 @@ def reobserved(points_S: np.ndarray, source: np.ndarray, T_SC: np.ndarray, depth
         idx = cand[ok]
         d = depths[j][v[ok], u[ok]]
         good = np.isfinite(d) & (d > 0)
-        agree = np.zeros(ok.sum(), bool)
-        agree[good] = np.abs(z[ok][good] - d[good]) <= rel_depth * d[good]
-        keep[idx[agree]] = True
-    return keep
+        seen[idx[good]] = True
+        match = np.zeros(ok.sum(), bool)
+        match[good] = np.abs(z[ok][good] - d[good]) <= rel_depth * d[good]
+        agree[idx[match]] = True
+    return agree, seen | agree
+
+
+def reobserved(points_S: np.ndarray, source: np.ndarray, T_SC: np.ndarray, depths: np.ndarray,
+               K: np.ndarray, rel_depth: float = 0.10) -> np.ndarray:
+    """(P,) bool: the paper's rule, each point agrees with the depth of at least one OTHER image of the
+    window within `rel_depth` (arguments as `multiview_test`)."""
+    return multiview_test(points_S, source, T_SC, depths, K, rel_depth)[0]
 
 
 def confidence_mask(conf: np.ndarray, percentile: float) -> np.ndarray:

@@ -69,6 +69,27 @@ def test_retained_points_lie_on_the_surfaces_and_flying_pixels_go():
     assert np.allclose(sm.T_OS, _window(0).T_OC[2]) and np.allclose(sm.T_SC[2], np.eye(4))
 
 
+def test_a_surface_only_one_image_sees_is_kept_unverified_or_dropped_by_the_paper_rule():
+    """Image 0 looks at the side wall that no other image of the window sees: its depths are unseen.
+    The default keeps them (counted as unverified); the paper's strict rule drops them."""
+    w = _window(0)
+    poses = np.array(w.T_OC)
+    poses[0] = look_at(np.array([0.0, 0.0, 1.0]), np.array([-4.0, 0.3, 1.2]))
+    w = MappingWindow(0, w.frames, poses, 0)
+    n_grid = (H_TEST // 2) * (W_TEST // 2)
+    subs, stats = [], []
+    for keep_unseen in (True, False):
+        mapper = _mapper(_ExactModel(), multiview_keep_unseen=keep_unseen)
+        subs.append(mapper.process(w).submap)
+        stats.append(mapper.stats)
+    kept, strict = subs
+    from_0 = [int((s.image == 0).sum()) for s in subs]
+    assert from_0[0] > 0.95 * n_grid and from_0[1] < 0.02 * n_grid
+    assert stats[0].points_unverified >= from_0[0] and stats[1].points_unverified == 0
+    assert stats[1].rejected_multiview - stats[0].rejected_multiview == stats[0].points_unverified
+    assert np.max(_distance_to_room(kept.points_M())) < 1e-3     # exact depth: the kept ones are right
+
+
 def test_evicted_submaps_leave_the_live_grid():
     mapper = _mapper(_ExactModel(), max_resident_submaps=2)
     subs = [mapper.process(_window(k, start=0.45 * k)).submap for k in range(4)]

@@ -2,9 +2,9 @@
 from __future__ import annotations
 
 import numpy as np
-from mapping_synth import H_TEST, K_TEST, W_TEST, render_room_depth, window_poses
+from mapping_synth import H_TEST, K_TEST, W_TEST, look_at, render_room_depth, window_poses
 
-from runtime.mapping.multiview import confidence_mask, reobserved, sample_grid
+from runtime.mapping.multiview import confidence_mask, multiview_test, reobserved, sample_grid
 from runtime.mapping.placement import backproject
 
 
@@ -39,6 +39,27 @@ def test_a_point_seen_by_one_image_only_is_rejected():
     depths[1] = np.nan                              # the other image has no valid depth
     p = backproject(np.array([depths[0, 60, 80]]), K_TEST, np.array([80]), np.array([60]))
     assert not reobserved(p, np.array([0]), T_SC, depths, K_TEST)[0]
+    agree, seen = multiview_test(p, np.array([0]), T_SC, depths, K_TEST)
+    assert not agree[0] and not seen[0]             # neither confirmed nor contradicted: unseen
+
+
+def test_seen_separates_contradicted_from_unverifiable_points():
+    """A point is `seen` when another image holds a valid depth where it projects: a flying pixel in
+    view of the others is seen and contradicted; a point outside every other image, or behind every
+    other camera, is unseen; a true point in view is seen and confirmed."""
+    T_WC = window_poses(3)
+    T_WC[2] = look_at(np.array([0.3, 0.0, 1.0]), np.array([0.3, -4.0, 1.2]))  # image 2 looks backwards
+    T_SC = np.linalg.inv(T_WC[0]) @ T_WC
+    depths = np.stack([render_room_depth(T) for T in T_WC])
+    px = np.array([[80, 60], [80, 60], [2, 60]])         # centre, centre (flying), left border
+    z = depths[0, px[:, 1], px[:, 0]] * np.array([1.0, 0.6, 1.0])
+    p = backproject(z, K_TEST, px[:, 0], px[:, 1])
+    # the left-border pixel of image 0 lies outside image 1 (shifted right) and behind image 2
+    p_C1 = (np.linalg.inv(T_SC[1]) @ np.r_[p[2], 1.0])[:3]
+    assert K_TEST[0, 0] * p_C1[0] / p_C1[2] + K_TEST[0, 2] < -0.5
+    agree, seen = multiview_test(p, np.zeros(3, int), T_SC, depths, K_TEST)
+    np.testing.assert_array_equal(agree, [True, False, False])
+    np.testing.assert_array_equal(seen, [True, True, False])
 
 
 def test_confidence_mask_keeps_the_upper_percentiles():

@@ -137,7 +137,7 @@ def test_bench_mapping_short_run(capsys):
     assert main(["bench", "mapping", "--preset", "euroc", "--seconds", "6", "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     seq = out["sequences"]["preset euroc (room)"]
-    assert sorted(seq["rows"]) == list("abcdefghi")
+    assert sorted(seq["rows"]) == list("abcdefghij")
     assert seq["windows"] >= 1 and seq["reference"]["reference_voxels"] > 1000
     for row in seq["rows"].values():
         assert row["windows_offered"] == seq["windows"]

@@ -7,7 +7,8 @@ EuRoC trajectories with the real IMU), cut to `--seconds`:
   2. each variant (mapping_variants.py: a DAVIO, b unconditioned reference, c ScaRF-style,
      d DAVIO on true poses, e DAVIO without the conditioning benefit, f DAVIO with depth errors x2,
      g DAVIO with the submap graph off, h the unconditioned reference with upper-bound pose errors,
-     i DAVIO with true poses within each window: a diagnosis)
+     i DAVIO with true poses within each window: a diagnosis, j DAVIO with the paper's strict
+     multi-view rule)
      maps them with a fresh emulated DA3 of the same seed;
   3. evaluation as the paper: VIO-pose maps (in the odometry frame: the mapper's submap poses are
      the filter's) are moved by the rigid (SE(3), no scale, no ICP) alignment of the VIO trajectory
@@ -31,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from runtime.json_out import strict_dumps
+from tools.benchmarks.mapping_variants import VARIANT_KEYS
 
 NAME = "mapping"
 HELP = ("dense mapping on simulated sequences: DAVIO vs unconditioned, ScaRF-style, true poses and "
@@ -63,7 +65,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seconds", type=float, default=20.0, help="length of each sequence, s")
     p.add_argument("--seed", type=int, default=0, help="simulation and emulated-DA3 seed")
     p.add_argument("--da3", default="base", help="emulated DA3 preset (small, base, large)")
-    p.add_argument("--variants", default="abcdefghi", help="rows to run (letters a-i, module docstring)")
+    p.add_argument("--variants", default=VARIANT_KEYS, help="rows to run (letters a-j, module docstring)")
     p.add_argument("--paper-gauge", action="store_true",
                    help="the graph fixes the first submap's lambda at 0, as the paper (GraphConfig."
                         "gauge_lambda_free = false; default: estimated under the scale prior as every "
@@ -222,9 +224,9 @@ def run_sequence(src: Source, args: argparse.Namespace, log: Any = None) -> dict
 def run(args: argparse.Namespace) -> int:
     from runtime.errors import ConfigError
 
-    bad = set(args.variants) - set("abcdefghi")
+    bad = set(args.variants) - set(VARIANT_KEYS)
     if bad or not args.variants:
-        raise ConfigError(f"--variants takes letters from a-i, got {args.variants!r}")
+        raise ConfigError(f"--variants takes letters from {VARIANT_KEYS}, got {args.variants!r}")
     from models.emulated_da3 import make_params
 
     make_params(args.da3)  # an unknown preset fails before the slow part

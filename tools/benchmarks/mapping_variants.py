@@ -21,7 +21,7 @@ Every variant gets a fresh emulated DA3 with the same seed and the same windows 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -46,6 +46,7 @@ class Variant:
         errors: "default", "no_cond_benefit", "depth_x2" (emulated-DA3 overrides) or "upper_pose"
             (the `<size>_upper` preset).
         graph: DAVIO's submap graph on (off: T_MS = T_OS, lambda = 0).
+        keep_unseen: DAVIO keeps depths no other image of the window sees (off: the paper's rule).
     """
 
     key: str
@@ -55,6 +56,7 @@ class Variant:
     conditioned: bool = True
     errors: str = "default"
     graph: bool = True
+    keep_unseen: bool = True
 
 
 VARIANTS: tuple[Variant, ...] = (
@@ -67,7 +69,9 @@ VARIANTS: tuple[Variant, ...] = (
     Variant("g", "DAVIO, graph off", graph=False),
     Variant("h", "unconditioned, upper-bound pose errors", conditioned=False, errors="upper_pose"),
     Variant("i", "DAVIO, true poses within windows", poses="vio_centre"),
+    Variant("j", "DAVIO, paper's strict multi-view rule", keep_unseen=False),
 )
+VARIANT_KEYS = "".join(v.key for v in VARIANTS)
 
 
 def emulator_overrides(errors: str, preset: str) -> dict[str, float]:
@@ -175,6 +179,8 @@ def run_variant(variant: Variant, inputs: Any, truth: Any, camera: Any, mapping:
         rejected = {"model_error": len(sm.stats.model_errors)} if sm.stats.model_errors else {}
         return VariantRun(points, len(windows), sm.stats.windows_accepted, rejected,
                           time.perf_counter() - t0, overrides)
+    if not variant.keep_unseen:
+        mapping = replace(mapping, multiview_keep_unseen=False)
     m = Mapper(model, camera, mapping, matcher=matcher, conditioned=variant.conditioned,
                graph=graph if variant.graph else False)
     by_index: dict[int, Any] = {}

@@ -214,7 +214,8 @@ def _mapping_line(mp: dict, summary: dict) -> str:
     return (f"map: {mp['windows_accepted']}/{mp['windows_offered']} windows mapped, "
             f"{mp['windows_dropped_queue']} dropped (queue full), rejected: {rej}; "
             f"{mp['points_retained']} points kept ({100 * mp['rejected_confidence'] / sampled:.0f} % low "
-            f"confidence, {100 * mp['rejected_multiview'] / sampled:.0f} % not re-observed); "
+            f"confidence, {100 * mp['rejected_multiview'] / sampled:.0f} % failed the multi-view test, "
+            f"{100 * mp.get('points_unverified', 0) / sampled:.0f} % kept seen by one image only); "
             f"{summary.get('voxels', 0)} voxels in map.ply" + _graph_text(mp.get("graph")))
 
 
