@@ -2,8 +2,12 @@
 OpenVINS EuRoC's) numbers, loadable from and saved to a single TOML file (runtime.config_io)."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import sys
+from collections.abc import Callable
+from dataclasses import MISSING, dataclass, field
+from pathlib import Path
 
+from runtime.config_io import config_to_dict, load_toml
 from runtime.ffinit.config import FFInitConfig
 from runtime.graph.config import GraphConfig
 from runtime.graph.revisits import RevisitConfig
@@ -42,3 +46,56 @@ class DavioConfig:
     """The submap graph (drift model, point covariance, scale prior, Huber, LM iterations)."""
     revisits: RevisitConfig = field(default_factory=RevisitConfig)
     """Revisit candidates and their verification gates."""
+
+
+NEWER_OPTIONS: dict[str, object] = {
+    "mapping.multiview_keep_unseen": False,
+    "graph.gauge_lambda_free": False,
+    "revisits.view_scales": [1.0],
+}
+"""Options whose default differs from what DAVIO did before the option existed, with that earlier
+behaviour's value: a run's saved config.toml written before one of them was added takes today's default
+when it is read back, and `load_davio_config` says so (with the line that reproduces the old run)."""
+
+
+def newer_option_notes(data: dict) -> list[str]:
+    """Notes for a configuration dict that is a run's saved, resolved config.toml (it holds every section
+    of DavioConfig) written before some of NEWER_OPTIONS existed: one line per missing option, with today's
+    default and the value that reproduces the earlier run. A partial, hand-written file gets none."""
+    from dataclasses import fields
+
+    sections = {f.name for f in fields(DavioConfig) if f.default_factory is not MISSING}
+    if not sections <= set(data):
+        return []
+    today = config_to_dict(DavioConfig())
+    notes = []
+    for key, before in NEWER_OPTIONS.items():
+        section, name = key.split(".")
+        if name in data.get(section, {}):
+            continue
+        notes.append(f"{key} is not in it: today's default {today[section][name]!r} applies "
+                     f"(runs before this option existed behaved as {name} = {before!r})")
+    return notes
+
+
+def load_davio_config(path: str | Path, warn: Callable[[str], None] | None = None) -> DavioConfig:
+    """Read a DAVIO configuration (TOML; e.g. a run's saved config.toml) into DavioConfig.
+
+    Args:
+        path: the TOML file.
+        warn: called with one message when the file is a resolved config.toml saved before some of
+            NEWER_OPTIONS existed (default: print it to stderr), so that a re-run that differs from the
+            old run is never silent.
+
+    Raises:
+        ConfigError: the file is missing, not TOML, or holds an unknown option or a bad value.
+    """
+    import tomllib
+
+    cfg = load_toml(DavioConfig, path)
+    notes = newer_option_notes(tomllib.loads(Path(path).read_text(encoding="utf-8", errors="replace")))
+    if notes:
+        msg = (f"note: {path} was saved by an earlier DAVIO; options added since take today's defaults:\n  "
+               + "\n  ".join(notes) + "\n  (set them in the file to reproduce the earlier run)")
+        (warn or (lambda m: print(m, file=sys.stderr)))(msg)
+    return cfg

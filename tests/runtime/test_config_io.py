@@ -128,3 +128,46 @@ def test_imu_noise_left_unset_is_not_written_and_a_set_value_round_trips(tmp_pat
     cfg = DavioConfig(msckf=MsckfConfig(gyro_noise_density=5e-4))
     path.write_text(dump_toml(cfg))
     assert load_toml(DavioConfig, path).msckf.gyro_noise_density == 5e-4
+
+
+def _saved_config_without(tmp_path, *keys: str):
+    """A run's resolved config.toml (every section) with the given options' lines removed."""
+    from runtime.config import DavioConfig
+
+    lines = dump_toml(DavioConfig()).splitlines()
+    path = tmp_path / "config.toml"
+    path.write_text("\n".join(ln for ln in lines if ln.split(" = ")[0] not in keys) + "\n")
+    return path
+
+
+def test_a_saved_config_older_than_an_option_is_read_with_todays_default_and_a_note(tmp_path):
+    from runtime.config import DavioConfig, load_davio_config
+
+    path = _saved_config_without(tmp_path, "multiview_keep_unseen", "view_scales")
+    notes: list[str] = []
+    cfg = load_davio_config(path, warn=notes.append)
+    assert cfg == DavioConfig()                               # today's defaults apply ...
+    assert len(notes) == 1                                    # ... and the user is told which, once
+    assert "mapping.multiview_keep_unseen" in notes[0] and "multiview_keep_unseen = False" in notes[0]
+    assert "revisits.view_scales" in notes[0] and "view_scales = [1.0]" in notes[0]
+    assert "gauge_lambda_free" not in notes[0]                # present in the file: reproduced as saved
+
+
+def test_a_complete_or_partial_config_gets_no_note(tmp_path):
+    from runtime.config import load_davio_config
+
+    notes: list[str] = []
+    load_davio_config(_saved_config_without(tmp_path), warn=notes.append)
+    partial = tmp_path / "partial.toml"
+    partial.write_text("[mapping]\nvoxel_m = 0.05\n")         # hand-written: omits options on purpose
+    assert load_davio_config(partial, warn=notes.append).mapping.voxel_m == 0.05
+    assert notes == []
+
+
+def test_every_newer_option_names_a_real_option_with_a_different_default():
+    from runtime.config import NEWER_OPTIONS, DavioConfig
+
+    today = config_to_dict(DavioConfig())
+    for key, before in NEWER_OPTIONS.items():
+        section, name = key.split(".")
+        assert name in today[section] and today[section][name] != before, key

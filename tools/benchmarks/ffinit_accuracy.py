@@ -203,10 +203,9 @@ def run(args: argparse.Namespace) -> int:
 
     ff_config = FFInitConfig()
     if args.config:
-        from runtime.config import DavioConfig
-        from runtime.config_io import load_toml
+        from runtime.config import load_davio_config
 
-        ff_config = load_toml(DavioConfig, args.config).ffinit
+        ff_config = load_davio_config(args.config).ffinit
     if args.max_scale_uncertainty is not None:   # through replace: the configuration's checks apply
         from dataclasses import replace
 

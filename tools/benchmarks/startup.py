@@ -309,12 +309,11 @@ def _short(source: str) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from models.emulated_da3 import EmulatedDA3, make_params
-    from runtime.config import DavioConfig
-    from runtime.config_io import load_toml
+    from runtime.config import DavioConfig, load_davio_config
     from tools.run_session import run_pipeline
 
     overrides = {**_error_scales(args), **_overrides(args.da3_param)}
-    arms = _arms(args.arms, load_toml(DavioConfig, args.config) if args.config else DavioConfig())
+    arms = _arms(args.arms, load_davio_config(args.config) if args.config else DavioConfig())
     make_params(args.da3, **overrides)  # an unknown preset or parameter fails before the slow part
     rec = _recording(args)
     gt = rec.groundtruth()

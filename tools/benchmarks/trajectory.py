@@ -214,8 +214,7 @@ def run_ablation(ab: Ablation, run: Any, ctx: dict) -> tuple[dict, Any]:
 def run_sequence(src: Source, args: argparse.Namespace, log: Any = None) -> dict:
     """Track once, replay every mapper configuration and score one sequence; returns its JSON object."""
     from models.matcher import Matcher
-    from runtime.config import DavioConfig
-    from runtime.config_io import load_toml
+    from runtime.config import DavioConfig, load_davio_config
     from tools.benchmarks.mapping import reference_cloud
     from tools.benchmarks.mapping_inputs import CachedTruth, SharedMatcher
     from tools.benchmarks.trajectory_inputs import record_tracking
@@ -226,7 +225,7 @@ def run_sequence(src: Source, args: argparse.Namespace, log: Any = None) -> dict
     seconds = args.seconds if args.seconds is not None else (PRESET_SECONDS if src.kind == "preset" else None)
     rec = src.make(seconds, args.seed)
     cam = rec.rig.camera
-    cfg = load_toml(DavioConfig, args.config) if args.config else DavioConfig()
+    cfg = load_davio_config(args.config) if args.config else DavioConfig()
     run = record_tracking(rec, cfg, args.model_latency)
     gt = rec.groundtruth()
     pub = run.published

@@ -264,14 +264,13 @@ def open_inputs(args: argparse.Namespace) -> tuple:
 
 
 def run(args: argparse.Namespace) -> int:
-    from runtime.config import DavioConfig
-    from runtime.config_io import load_toml
+    from runtime.config import DavioConfig, load_davio_config
     from tools.calibrate.checks import Thresholds
     from tools.calibrate.core import calibrate, stderr_progress
     from tools.run_outcome import interruptible
 
     check_args(args)
-    config = load_toml(DavioConfig, args.config) if args.config else DavioConfig()
+    config = load_davio_config(args.config) if args.config else DavioConfig()
     th = Thresholds(
         args.min_axis_rate_dps, args.max_rot_std_deg, args.max_lever_std_m, args.max_offset_std_ms
     )

@@ -58,8 +58,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from runtime.config import DavioConfig
-    from runtime.config_io import load_toml
+    from runtime.config import DavioConfig, load_davio_config
     from runtime.errors import ConfigError
     from tools.commands.run import check_run_args
     from tools.run_folder import RunFolder
@@ -67,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
 
     check_run_args(args)
     check_device_args(args, "davio live")
-    config = load_toml(DavioConfig, args.config) if args.config else DavioConfig()
+    config = load_davio_config(args.config) if args.config else DavioConfig()
     # host-stamped camera and IMU: the filter estimates the camera-IMU time offset online
     config = replace(config, msckf=replace(config.msckf, calib_time_offset=True))
     if args.no_map:

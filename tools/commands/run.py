@@ -83,13 +83,12 @@ def check_run_args(args: argparse.Namespace) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from runtime.config import DavioConfig
-    from runtime.config_io import load_toml
+    from runtime.config import DavioConfig, load_davio_config
     from tools.run_folder import RunFolder
     from tools.run_outcome import interruptible
 
     check_run_args(args)
-    config = load_toml(DavioConfig, args.config) if args.config else DavioConfig()
+    config = load_davio_config(args.config) if args.config else DavioConfig()
     folder = RunFolder.prepare(args.out, overwrite=args.overwrite)
     with interruptible():
         rec, rig, model, model_desc = _open_inputs(args, config)
