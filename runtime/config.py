@@ -9,8 +9,7 @@ from pathlib import Path
 
 from runtime.config_io import config_to_dict, load_toml
 from runtime.ffinit.config import FFInitConfig
-from runtime.graph.config import GraphConfig
-from runtime.graph.revisits import RevisitConfig
+from runtime.graph.config import GraphConfig, RevisitConfig
 from runtime.mapping.config import MappingConfig
 from runtime.msckf.config import MsckfConfig
 from runtime.msckf.init_dynamic import DynamicInitConfig

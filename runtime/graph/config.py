@@ -1,9 +1,13 @@
-"""Submap-graph configuration (paper Sec. V.C, eqs. graphres and objective).
+"""Submap-graph and revisit configuration (paper Sec. V.C, eqs. graphres and objective, "Submap graph and
+revisit admission").
 
 Defaults are the paper's numbers."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+
+from models.matcher.features import pyramid_scales
+from models.matcher.pnp import PnPGates
 
 
 @dataclass
@@ -52,3 +56,68 @@ class GraphConfig:
     blas_threads: int | None = 1
     """BLAS threads during a solve (threadpoolctl; None leaves the process setting). The solve's small
     dense products run fastest on one thread; threads on shared cores cost 10x more."""
+
+
+@dataclass
+class RevisitConfig:
+    """Revisit retrieval and admission (paper defaults)."""
+
+    candidate_radius_m: float = 8.0
+    """Candidates: centres of S_a and S_b within this distance in the map frame (m)."""
+    min_time_gap_s: float = 5.0
+    """Candidates: centre-image timestamps at least this far apart (s)."""
+    max_candidates: int = 3
+    """Candidates tried per new submap, largest view overlap first (not in the paper)."""
+    min_view_overlap: float = 0.25
+    """Candidates: at least this share of the new centre view's keypoints must land in the candidate's
+    image by the graph's current poses (`views.view_overlap`; not in the paper: centres within 8 m
+    that face away cannot match)."""
+    overlap_max_ray_angle_deg: float = 30.0
+    """View overlap: a point counts when the rays to it from the two centres are at most this far apart ..."""
+    overlap_max_scale_change: float = 1.5
+    """... and its ranges from the two centres within this factor (`views.view_overlap`)."""
+    view_scales: tuple[float, ...] = (1.0, 0.7, 0.5)
+    """Image-pyramid scales of the centre views' features (`Matcher.detect_pyramid`; 1024 + 502 + 256
+    XFeat keypoints at the mapper's top_k of 1024), matched level pair by level pair, so a place seen
+    again from 1.4x nearer or farther or more still matches (XFeat's descriptors are single-scale; ORB
+    keeps its own pyramid); the candidate search admits up to `overlap_max_scale_change`. (1.0,) = the
+    single-scale features of the frame-scale step. Not in the paper: on the V1_02 simulation, pairs 5 s
+    apart with at least 30 % true overlap pass the match and inlier counts 38 times in 60 against 17
+    single-scale (BENCHMARKS.md)."""
+    max_views: int = 600
+    """Centre views archived for revisits once their node is evicted (`views.ViewStore`); beyond this,
+    evicted views are dropped (counted). About 290 kB each with the pyramid's 1782 XFeat keypoints
+    (170 kB single-scale; 600 views: 176 MB)."""
+    view_thin_radius_m: float = 1.0
+    """An evicted view is not archived when an archived view's centre lies within this distance (m) ..."""
+    view_thin_angle_deg: float = 30.0
+    """... and its optical axis within this angle (deg): the older view of the place is kept."""
+    pnp: PnPGates = field(default_factory=PnPGates)
+    """PnP-RANSAC gates: >= 50 matches, >= 30 inliers, inlier fraction >= 0.25, 2 px."""
+    coverage_grid: int = 4
+    """Image coverage: b's image is cut into coverage_grid x coverage_grid cells (not in the paper)."""
+    min_coverage_cells: int = 6
+    """Image coverage: cells of b's image holding at least one verified inlier needed (6 of 16: a
+    verified region of about 3/8 of the image; not in the paper)."""
+    max_depth_rel_error: float = 0.2
+    """Depth agreement: median |z_pred - d_b| / d_b over the inliers must not exceed this."""
+    innovation_sigmas: float = 3.0
+    """Innovation test: every component of Log(T_pred^-1 T_pnp) within this many combined sigmas."""
+    innovation_scale_sigma: float = 0.10
+    """Innovation test: relative uncertainty of a's depth scale, which scales the PnP translation
+    (default = the graph's scale prior `GraphConfig.scale_prior_sigma`; not in the paper)."""
+    max_correspondences: int = 80
+    """Point group size: at most this many verified correspondences, spread over b's image."""
+    scale_sigma: float = 0.03
+    """sigma_ab of the revisit's median-depth-ratio scale link (log-scale units); mirrors
+    `GraphConfig.revisit_scale_sigma`, which `GraphBackend.add_revisit` uses."""
+    enabled: bool = True
+    """Look for revisits at all (off: the "without revisits" ablation)."""
+    drift_gate: bool = True
+    """Admit a verified revisit's point group only past the drift gate (off: always; an ablation)."""
+
+    def __post_init__(self) -> None:
+        try:
+            self.view_scales = pyramid_scales(self.view_scales)
+        except ValueError as exc:
+            raise ValueError(f"view_scales: {exc}") from None

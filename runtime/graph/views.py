@@ -22,7 +22,8 @@ from typing import Any
 
 import numpy as np
 
-from runtime.graph.revisits import RevisitConfig, RevisitView
+from runtime.graph.config import RevisitConfig
+from runtime.graph.revisits import RevisitView
 
 
 @dataclass

@@ -43,7 +43,7 @@ class MappingConfig:
     """... or if no other frame of the window sees it at all (outside their images or on pixels without a
     valid depth), so it can be neither confirmed nor contradicted (counted as `points_unverified`).
     Not in the paper: its rule (false here) drops every surface only one image of a window sees, which
-    cost 5-9 points of recall for 0.1-0.6 of precision in `davio bench mapping` (BENCHMARKS.md)."""
+    cost 1.3-7.2 points of recall, for precision within 0.007, in `davio bench mapping` (BENCHMARKS.md)."""
     conf_percentile: float = 25.0
     """DA3 confidence filter: pixels below this percentile of the window's confidence are dropped."""
     pixel_stride: int = 4

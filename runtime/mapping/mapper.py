@@ -30,8 +30,8 @@ import numpy as np
 from models.depth_model import DepthModel
 from runtime.errors import DavioError
 from runtime.graph.backend import GraphBackend
-from runtime.graph.config import GraphConfig
-from runtime.graph.revisits import RevisitConfig, RevisitView
+from runtime.graph.config import GraphConfig, RevisitConfig
+from runtime.graph.revisits import RevisitView
 from runtime.mapping.conditioned import WindowFit, depth_call
 from runtime.mapping.config import MappingConfig
 from runtime.mapping.frame_scales import FrameScaleResult, PairMatches, solve_frame_scales

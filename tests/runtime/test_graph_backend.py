@@ -11,7 +11,8 @@ from graph_synth import corresponding_points, loop_poses
 from runtime.geometry import make_pose, se3_inverse, so3_exp
 from runtime.graph import GraphConfig, GraphError
 from runtime.graph.backend import GraphBackend
-from runtime.graph.revisits import RevisitConfig, RevisitView
+from runtime.graph.config import RevisitConfig
+from runtime.graph.revisits import RevisitView
 
 N = 16
 K = np.array([[400.0, 0.0, 319.5], [0.0, 400.0, 239.5], [0.0, 0.0, 1.0]])

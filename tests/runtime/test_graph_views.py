@@ -8,7 +8,8 @@ import numpy as np
 
 from models.matcher.features import Features
 from runtime.geometry import make_pose, so3_exp
-from runtime.graph.revisits import RevisitConfig, RevisitView
+from runtime.graph.config import RevisitConfig
+from runtime.graph.revisits import RevisitView
 from runtime.graph.views import ViewStore, view_overlap
 
 W, H = 640, 480

@@ -129,7 +129,7 @@ def test_centre_views_hold_pyramid_features_for_revisits():
     """The graph keeps each submap's centre view with features at RevisitConfig.view_scales (levels
     0, 1, 2 by default), or the single-scale features of the frame-scale step with (1.0,)."""
     from models.matcher import Matcher
-    from runtime.graph.revisits import RevisitConfig
+    from runtime.graph.config import RevisitConfig
 
     rng = np.random.default_rng(0)
     texture = (rng.random((H_TEST // 4, W_TEST // 4)) * 255).astype(np.uint8)
