@@ -51,6 +51,6 @@ class MapOutput:
         summary = {"archive": str(self.out_dir / "map"), "submaps": n_sub,
                    "map_version": self.archive.map_version, "ply": None, "voxels": 0}
         if n_sub:
-            summary["voxels"] = export_map(self.out_dir / "map", self.out_dir / "map.ply", self.voxel_m)
+            summary["voxels"] = export_map(self.out_dir / "map", self.out_dir / "map.ply", self.voxel_m)[0]
             summary["ply"] = str(self.out_dir / "map.ply")
         return summary

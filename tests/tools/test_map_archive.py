@@ -231,6 +231,18 @@ def test_cli_info_export_view(tmp_path, capsys):
     expected_x = np.sort([v[0][0] for v in expected.values()])
     np.testing.assert_allclose(np.sort(exported[:, 0]), expected_x, atol=1e-5)
 
+    capsys.readouterr()
+    thin = tmp_path / "thin.ply"
+    assert main(["map", "export", str(run), "--voxel", str(VOXEL), "--min-points", "2",
+                 "--out", str(thin)]) == 0
+    supported = {k: v for k, v in expected.items() if v[2] >= 2}
+    assert 0 < len(supported) < len(expected)               # the fixture has both kinds of voxel
+    assert f"({len(expected) - len(supported)} of {len(expected)} with fewer" in capsys.readouterr().out
+    np.testing.assert_allclose(np.sort(read_ply_vertices(thin)[:, 0]),
+                               np.sort([v[0][0] for v in supported.values()]), atol=1e-5)
+    assert main(["map", "export", str(run), "--min-points", "0"]) == 1           # a ConfigError, named
+    assert "--min-points must be at least 1" in capsys.readouterr().err
+
     out = tmp_path / "pic.png"
     assert main(["map", "view", str(run), "--out", str(out)]) == 0
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -30,12 +30,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     pe.add_argument("--voxel", type=float, default=0.04, help="voxel edge length (m)")
     pe.add_argument("--out", type=Path, default=None,
                     help="PLY file, or a folder to write map.ply in (default: map.ply in the run folder)")
+    pe.add_argument("--min-points", type=int, default=1,
+                    help="write only voxels holding at least this many fused depth samples (2 or more drops "
+                         "isolated far-range samples: a cleaner but less complete map)")
     pv = sub.add_parser("view", help="a PNG with a top and an oblique view coloured by height",
                         formatter_class=fmt)
     pv.add_argument("folder", type=Path, help=folder_help)
     pv.add_argument("--voxel", type=float, default=0.04, help="voxel edge length (m) of the fused cloud")
     pv.add_argument("--out", type=Path, default=None,
                     help="PNG file, or a folder to write map.png in (default: map.png in the run folder)")
+    pv.add_argument("--min-points", type=int, default=1,
+                    help="show only voxels holding at least this many fused depth samples")
     pv.add_argument("--interactive", action="store_true", help="also open open3d's viewer (needs a display)")
 
 
@@ -68,9 +73,11 @@ def output_path(out: Path | None, run_folder: Path, name: str) -> Path:
     return out / name if out.is_dir() else out
 
 
-def _check_voxel(voxel: float) -> None:
+def _check_voxel(voxel: float, min_points: int = 1) -> None:
     if not voxel > 0:
         raise ConfigError(f"--voxel must be a positive edge length in metres, got {voxel}")
+    if min_points < 1:
+        raise ConfigError(f"--min-points must be at least 1, got {min_points}")
 
 
 def _print_info(info: dict) -> None:
@@ -116,20 +123,23 @@ def run(args: argparse.Namespace) -> int:
     if action == "export":
         from tools.map_archive.export import export_map
 
-        _check_voxel(args.voxel)
+        _check_voxel(args.voxel, args.min_points)
         out = output_path(args.out, run_folder, "map.ply")
         t0 = time.monotonic()
         try:
-            n = export_map(archive, out, args.voxel, _Progress("export"))
+            n, fused = export_map(archive, out, args.voxel, _Progress("export"), args.min_points)
         except OSError as exc:
             raise ConfigError(f"--out {out}: cannot write ({exc.strerror or exc})") from None
-        print(f"davio map export: {n} voxels ({args.voxel} m) -> {out} in {time.monotonic() - t0:.1f} s")
+        dropped = (f" ({fused - n} of {fused} with fewer than {args.min_points} samples left out)"
+                   if args.min_points > 1 else "")
+        print(f"davio map export: {n} voxels ({args.voxel} m){dropped} -> {out} in "
+              f"{time.monotonic() - t0:.1f} s")
         return 0
-    from tools.map_archive.export import fuse_archive
+    from tools.map_archive.export import fuse_archive, supported
     from tools.map_archive.view import interactive, render_views
 
-    _check_voxel(args.voxel)
-    points, grey, _ = fuse_archive(archive, args.voxel, _Progress("view"))
+    _check_voxel(args.voxel, args.min_points)
+    points, grey, _ = supported(fuse_archive(archive, args.voxel, _Progress("view")), args.min_points)
     out = output_path(args.out, run_folder, "map.png")
     try:
         render_views(points, grey, out)

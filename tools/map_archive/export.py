@@ -57,9 +57,26 @@ def write_ply(path: str | Path, points: np.ndarray, grey: np.ndarray) -> None:
     atomic_write_bytes(Path(path), header.encode("ascii") + rows.tobytes())
 
 
+def supported(fused: tuple[np.ndarray, np.ndarray, np.ndarray], min_points: int
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The voxels of `fuse_archive`'s result that hold at least `min_points` fused points.
+
+    A far surface's points are sparse, so a voxel there often holds one point of one image; keeping only
+    voxels with more support trades recall for precision (BENCHMARKS.md "Dense mapping": the trade
+    depends on the scene, so 1, keeping every voxel, is the default).
+    """
+    if min_points < 1:
+        raise ValueError(f"min_points must be >= 1, got {min_points}")
+    points, grey, counts = fused
+    keep = counts >= min_points
+    return points[keep], grey[keep], counts[keep]
+
+
 def export_map(folder: str | Path, out_ply: str | Path, voxel_m: float = 0.04,
-               progress: Callable[[int, int], None] | None = None) -> int:
-    """Fuse the archive in `folder` and write it to `out_ply`; returns the number of voxels written."""
-    points, grey, _ = fuse_archive(folder, voxel_m, progress)
+               progress: Callable[[int, int], None] | None = None, min_points: int = 1) -> tuple[int, int]:
+    """Fuse the archive in `folder` and write the voxels holding at least `min_points` points to
+    `out_ply`; returns (voxels written, voxels fused)."""
+    fused = fuse_archive(folder, voxel_m, progress)
+    points, grey, _ = supported(fused, min_points)
     write_ply(out_ply, points, grey)
-    return int(len(points))
+    return int(len(points)), int(len(fused[0]))
