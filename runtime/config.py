@@ -7,7 +7,7 @@ from collections.abc import Callable
 from dataclasses import MISSING, dataclass, field
 from pathlib import Path
 
-from runtime.config_io import config_to_dict, load_toml
+from runtime.config_io import config_to_dict, load_toml, toml_value
 from runtime.ffinit.config import FFInitConfig
 from runtime.graph.config import GraphConfig, RevisitConfig
 from runtime.mapping.config import MappingConfig
@@ -72,8 +72,8 @@ def newer_option_notes(data: dict) -> list[str]:
         section, name = key.split(".")
         if name in data.get(section, {}):
             continue
-        notes.append(f"{key} is not in it: today's default {today[section][name]!r} applies "
-                     f"(runs before this option existed behaved as {name} = {before!r})")
+        notes.append(f"{key} is not in it: today's default {toml_value(today[section][name])} applies "
+                     f"(runs before it existed behaved as [{section}] {name} = {toml_value(before)})")
     return notes
 
 

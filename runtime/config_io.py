@@ -179,19 +179,22 @@ def load_toml(cls: type[T], path: str | Path) -> T:
         raise ConfigError(f"{p}: {exc}") from exc
 
 
+def toml_value(v: Any) -> str:
+    """A scalar or list as TOML writes it (true, 0.5, "text", [1.0, 0.7])."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(toml_value(x) for x in v) + "]"
+    if isinstance(v, float):
+        return repr(v)
+    return str(v)
+
+
 def dump_toml(cfg: Any) -> str:
     """TOML text of a config dataclass (tables for nested dataclasses)."""
-
-    def fmt(v: Any) -> str:
-        if isinstance(v, bool):
-            return "true" if v else "false"
-        if isinstance(v, str):
-            return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
-        if isinstance(v, (list, tuple)):
-            return "[" + ", ".join(fmt(x) for x in v) + "]"
-        if isinstance(v, float):
-            return repr(v)
-        return str(v)
+    fmt = toml_value
 
     def emit(d: dict, path: list[str], lines: list[str]) -> None:
         scalars = {k: v for k, v in d.items() if not isinstance(v, dict)}

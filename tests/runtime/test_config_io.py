@@ -148,8 +148,9 @@ def test_a_saved_config_older_than_an_option_is_read_with_todays_default_and_a_n
     cfg = load_davio_config(path, warn=notes.append)
     assert cfg == DavioConfig()                               # today's defaults apply ...
     assert len(notes) == 1                                    # ... and the user is told which, once
-    assert "mapping.multiview_keep_unseen" in notes[0] and "multiview_keep_unseen = False" in notes[0]
-    assert "revisits.view_scales" in notes[0] and "view_scales = [1.0]" in notes[0]
+    assert "mapping.multiview_keep_unseen" in notes[0]
+    assert "[mapping] multiview_keep_unseen = false" in notes[0]
+    assert "revisits.view_scales" in notes[0] and "[revisits] view_scales = [1.0]" in notes[0]
     assert "gauge_lambda_free" not in notes[0]                # present in the file: reproduced as saved
 
 
