@@ -24,7 +24,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-import cv2
 import numpy as np
 
 from models.depth_model import DepthModel
@@ -38,6 +37,7 @@ from runtime.mapping.frame_scales import FrameScaleResult, PairMatches, solve_fr
 from runtime.mapping.fusion import VoxelGrid
 from runtime.mapping.multiview import confidence_mask, multiview_test, sample_grid
 from runtime.mapping.placement import backproject, place_points
+from runtime.mapping.rectify import Rectifier, sample_at
 from runtime.mapping.shared_scale import ScaleLink, overlap_link, shared_link
 from runtime.mapping.submap import Submap, SubmapState
 from runtime.mapping.windows import MappingWindow
@@ -99,35 +99,6 @@ class MapCommit:
     changed: list = field(default_factory=list)
     T_MO: np.ndarray = field(default_factory=lambda: np.eye(4))
     t_ns: int = 0
-
-
-def sample_at(image: np.ndarray, uv: np.ndarray, outside: Any = np.nan) -> np.ndarray:
-    """Values of `image` (H,W) at the nearest pixels of (K,2) positions uv; `outside` beyond the image."""
-    h, w = image.shape[:2]
-    ij = np.round(np.asarray(uv, np.float64)).astype(np.int64).reshape(-1, 2)
-    inside = (ij[:, 0] >= 0) & (ij[:, 0] < w) & (ij[:, 1] >= 0) & (ij[:, 1] < h)
-    out = np.full(len(ij), outside, dtype=np.result_type(image.dtype, np.asarray(outside).dtype))
-    out[inside] = image[ij[inside, 1], ij[inside, 0]]
-    return out
-
-
-class Rectifier:
-    """Undistorts camera images to the pinhole view K_rect at the camera resolution (OpenCV remap
-    maps built once per rig; pinhole, radial-tangential and equidistant models)."""
-
-    def __init__(self, camera: Any, K_rect: np.ndarray) -> None:
-        self.K = np.asarray(K_rect, np.float64)
-        self.size = (int(camera.width), int(camera.height))
-        self._maps = None if camera.is_pinhole_rectified and np.allclose(camera.K, self.K) \
-            else camera.undistortion_maps(self.K, self.size)
-
-    def __call__(self, image: np.ndarray) -> np.ndarray:
-        img = np.asarray(image)
-        if img.ndim == 3:
-            img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
-        if self._maps is None:
-            return img
-        return cv2.remap(img, self._maps[0], self._maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
 
 
 class Mapper:
