@@ -237,7 +237,10 @@ def test_chain_drift_matches_the_closed_form_of_a_straight_chain():
 def test_group_position_sigma_is_one_point_worth_of_the_pair_covariances():
     p = np.array([[0.0, 0.0, 5.0]] * 7)                 # C = diag(0.1^2, 0.1^2, 0.5^2) for both points
     expected = math.sqrt(2) * np.array([0.1, 0.1, 0.5])
-    np.testing.assert_allclose(group_position_sigma(p, p, np.eye(3)), expected)
+    paper = GraphConfig(point_sigma_min_m=0.10)                 # the paper's floor; the default is 5 cm
+    np.testing.assert_allclose(group_position_sigma(p, p, np.eye(3), paper), expected)
+    np.testing.assert_allclose(group_position_sigma(p, p, np.eye(3)),
+                               math.sqrt(2) * np.array([0.05, 0.05, 0.5]))
     rng = np.random.default_rng(7)
     T = T_SaSb_true()
     p_b = wall(rng, 60) @ np.diag([0.8, 0.8, 1.0])
@@ -245,7 +248,7 @@ def test_group_position_sigma_is_one_point_worth_of_the_pair_covariances():
     s = group_position_sigma(p_a, p_b, T[:3, :3])
     np.testing.assert_allclose(group_position_sigma(np.vstack([p_a] * 3), np.vstack([p_b] * 3), T[:3, :3]), s)
     S = pair_covariances(p_a, p_b, T[:3, :3])
-    assert np.all(s >= math.sqrt(2) * 0.1 - 1e-12)       # both points floored at 10 cm
+    assert np.all(s >= math.sqrt(2) * GraphConfig().point_sigma_min_m - 1e-12)   # both points floored
     assert np.all(s <= np.sqrt(S.diagonal(axis1=1, axis2=2).max(axis=0)))
 
 
