@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable
-from dataclasses import MISSING, dataclass, field
+from dataclasses import MISSING, dataclass, field, fields
 from pathlib import Path
 
-from runtime.config_io import config_to_dict, load_toml, toml_value
+from runtime.config_io import config_from_toml_dict, config_to_dict, read_toml, toml_value
 from runtime.ffinit.config import FFInitConfig
 from runtime.graph.config import GraphConfig, RevisitConfig
 from runtime.mapping.config import MappingConfig
@@ -61,8 +61,6 @@ def newer_option_notes(data: dict) -> list[str]:
     """Notes for a configuration dict that is a run's saved, resolved config.toml (it holds every section
     of DavioConfig) written before some of NEWER_OPTIONS existed: one line per missing option, with today's
     default and the value that reproduces the earlier run. A partial, hand-written file gets none."""
-    from dataclasses import fields
-
     sections = {f.name for f in fields(DavioConfig) if f.default_factory is not MISSING}
     if not sections <= set(data):
         return []
@@ -89,10 +87,9 @@ def load_davio_config(path: str | Path, warn: Callable[[str], None] | None = Non
     Raises:
         ConfigError: the file is missing, not TOML, or holds an unknown option or a bad value.
     """
-    import tomllib
-
-    cfg = load_toml(DavioConfig, path)
-    notes = newer_option_notes(tomllib.loads(Path(path).read_text(encoding="utf-8", errors="replace")))
+    data = read_toml(path)
+    cfg = config_from_toml_dict(DavioConfig, data, path)
+    notes = newer_option_notes(data)
     if notes:
         msg = (f"note: {path} was saved by an earlier DAVIO; options added since take today's defaults:\n  "
                + "\n  ".join(notes) + "\n  (set them in the file to reproduce the earlier run)")

@@ -152,8 +152,8 @@ def _holds_replacement(value: object) -> bool:
     return False
 
 
-def load_toml(cls: type[T], path: str | Path) -> T:
-    """Read a TOML file into config dataclass `cls` (ConfigError names the file and key).
+def read_toml(path: str | Path) -> dict:
+    """The parsed TOML file (ConfigError names the file).
 
     Folders, files above MAX_CONFIG_BYTES and binary files are refused with a ConfigError. The text
     must be UTF-8; bytes that are not (e.g. a Latin-1 comment) are tolerated only inside comments,
@@ -173,10 +173,21 @@ def load_toml(cls: type[T], path: str | Path) -> T:
         raise ConfigError(f"{p}: not valid TOML: arrays or tables nested too deeply") from None
     if bad is not None and _holds_replacement(data):
         raise ConfigError(f"{p}: {bad} and lies in a key or value; save the file as UTF-8")
+    return data
+
+
+def config_from_toml_dict(cls: type[T], data: dict, path: str | Path) -> T:
+    """`config_from_dict` of a TOML file's `read_toml` result, its ConfigError naming the file."""
     try:
         return config_from_dict(cls, data)
     except ConfigError as exc:
-        raise ConfigError(f"{p}: {exc}") from exc
+        raise ConfigError(f"{Path(path)}: {exc}") from exc
+
+
+def load_toml(cls: type[T], path: str | Path) -> T:
+    """Read a TOML file into config dataclass `cls` (ConfigError names the file and key; file checks
+    as `read_toml`)."""
+    return config_from_toml_dict(cls, read_toml(path), path)
 
 
 def toml_value(v: Any) -> str:
@@ -194,7 +205,6 @@ def toml_value(v: Any) -> str:
 
 def dump_toml(cfg: Any) -> str:
     """TOML text of a config dataclass (tables for nested dataclasses)."""
-    fmt = toml_value
 
     def emit(d: dict, path: list[str], lines: list[str]) -> None:
         scalars = {k: v for k, v in d.items() if not isinstance(v, dict)}
@@ -202,7 +212,7 @@ def dump_toml(cfg: Any) -> str:
         if path and scalars:
             lines.append(f"[{'.'.join(path)}]")
         for k, v in scalars.items():
-            lines.append(f"{k} = {fmt(v)}")
+            lines.append(f"{k} = {toml_value(v)}")
         if scalars:
             lines.append("")
         for k, v in tables.items():

@@ -39,7 +39,7 @@ def multiview_test(points_S: np.ndarray, source: np.ndarray, T_SC: np.ndarray, d
         pixel matches its z within `rel_depth`; `seen` when at least one other image holds a valid
         depth where the point projects (inside the image, in front of the camera). A point seen but
         never agreed with is contradicted; one never seen is unverifiable within the window.
-        (`seen` is only computed for points that do not agree: it is True wherever `agree` is.)
+        (`seen` is True wherever `agree` is: agreeing needs a valid depth there.)
     """
     n, h, w = depths.shape
     agree = np.zeros(len(points_S), bool)
@@ -63,14 +63,7 @@ def multiview_test(points_S: np.ndarray, source: np.ndarray, T_SC: np.ndarray, d
         match = np.zeros(ok.sum(), bool)
         match[good] = np.abs(z[ok][good] - d[good]) <= rel_depth * d[good]
         agree[idx[match]] = True
-    return agree, seen | agree
-
-
-def reobserved(points_S: np.ndarray, source: np.ndarray, T_SC: np.ndarray, depths: np.ndarray,
-               K: np.ndarray, rel_depth: float = 0.10) -> np.ndarray:
-    """(P,) bool: the paper's rule, each point agrees with the depth of at least one OTHER image of the
-    window within `rel_depth` (arguments as `multiview_test`)."""
-    return multiview_test(points_S, source, T_SC, depths, K, rel_depth)[0]
+    return agree, seen
 
 
 def confidence_mask(conf: np.ndarray, percentile: float) -> np.ndarray:

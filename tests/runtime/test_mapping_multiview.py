@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 from mapping_synth import H_TEST, K_TEST, W_TEST, look_at, render_room_depth, window_poses
 
-from runtime.mapping.multiview import confidence_mask, multiview_test, reobserved, sample_grid
+from runtime.mapping.multiview import confidence_mask, multiview_test, sample_grid
 from runtime.mapping.placement import backproject
 
 
@@ -27,7 +27,7 @@ def test_flying_pixels_are_rejected_and_true_surfaces_kept():
     uu, vv = np.tile(u, 5), np.tile(v, 5)
     p_C = backproject(d, K_TEST, uu, vv)
     p_S = np.einsum("pij,pj->pi", T_SC[src, :3, :3], p_C) + T_SC[src, :3, 3]
-    keep = reobserved(p_S, src, T_SC, noisy, K_TEST, 0.10)
+    keep = multiview_test(p_S, src, T_SC, noisy, K_TEST, 0.10)[0]       # the paper's rule: agree
     assert keep[fly].mean() < 0.02                 # flying pixels go
     assert keep[~fly].mean() > 0.97                # the true surface seen twice stays
 
@@ -38,7 +38,6 @@ def test_a_point_seen_by_one_image_only_is_rejected():
     depths = np.stack([render_room_depth(T) for T in T_WC])
     depths[1] = np.nan                              # the other image has no valid depth
     p = backproject(np.array([depths[0, 60, 80]]), K_TEST, np.array([80]), np.array([60]))
-    assert not reobserved(p, np.array([0]), T_SC, depths, K_TEST)[0]
     agree, seen = multiview_test(p, np.array([0]), T_SC, depths, K_TEST)
     assert not agree[0] and not seen[0]             # neither confirmed nor contradicted: unseen
 

@@ -73,7 +73,7 @@ def output_path(out: Path | None, run_folder: Path, name: str) -> Path:
     return out / name if out.is_dir() else out
 
 
-def _check_voxel(voxel: float, min_points: int = 1) -> None:
+def _check_fuse_args(voxel: float, min_points: int = 1) -> None:
     if not voxel > 0:
         raise ConfigError(f"--voxel must be a positive edge length in metres, got {voxel}")
     if min_points < 1:
@@ -123,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
     if action == "export":
         from tools.map_archive.export import export_map
 
-        _check_voxel(args.voxel, args.min_points)
+        _check_fuse_args(args.voxel, args.min_points)
         out = output_path(args.out, run_folder, "map.ply")
         t0 = time.monotonic()
         try:
@@ -138,7 +138,7 @@ def run(args: argparse.Namespace) -> int:
     from tools.map_archive.export import fuse_archive, supported
     from tools.map_archive.view import interactive, render_views
 
-    _check_voxel(args.voxel, args.min_points)
+    _check_fuse_args(args.voxel, args.min_points)
     points, grey, _ = supported(fuse_archive(archive, args.voxel, _Progress("view")), args.min_points)
     out = output_path(args.out, run_folder, "map.png")
     try:
