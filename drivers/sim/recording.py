@@ -25,7 +25,14 @@ from drivers.base import Driver, IntakeReport
 from drivers.euroc import read_camera_timestamps, read_euroc_imu_csv
 from drivers.sim.groundtruth import GroundTruthSource
 from drivers.sim.imu_consistent import DEFAULT_SMOOTHING_S, imu_consistent_groundtruth
-from drivers.sim.imu_synth import ImuErrorModel, ImuStream, imu_stamps, synthesize_imu
+from drivers.sim.imu_synth import (
+    IMU_PROFILES,
+    ImuErrorModel,
+    ImuStream,
+    imu_errors_for,
+    imu_stamps,
+    synthesize_imu,
+)
 from drivers.sim.motion import DEFAULT_PRESET, preset_spline
 from drivers.sim.render import ImageOptions, Renderer, View
 from drivers.sim.rig import euroc_default_rig
@@ -56,7 +63,11 @@ class SimConfig:
         imu_rate_hz: synthetic IMU rate, Hz.
         camera_rate_hz: camera rate, Hz (None = the rig's, 20 Hz for EuRoC).
         time_offset_s: camera-to-IMU clock offset applied to the frame stamps (t_imu = t_cam + offset).
-        imu_errors: synthetic IMU noise and biases (None = from the rig's noise densities).
+        imu_errors: synthetic IMU noise and biases (None = `imu_profile` for the rig's noise densities).
+        imu_profile: when imu_errors is None, the synthetic IMU's error model (drivers.sim.imu_synth.
+            IMU_PROFILES): "datasheet" (white noise and bias random walk at the rig's densities) or
+            "euroc-measured" (those plus the slowly varying errors measured on the real EuRoC IMU in
+            flight: ImuErrorModel.euroc_measured). Not used when a real IMU is replayed.
         image: image-formation options.
         start_s: when replaying a trajectory, seconds skipped at its start.
         groundtruth_mode: when replaying a real IMU, what the images are rendered from: "imu-consistent"
@@ -75,12 +86,16 @@ class SimConfig:
     camera_rate_hz: float | None = None
     time_offset_s: float = 0.0
     imu_errors: ImuErrorModel | None = None
+    imu_profile: str = "datasheet"
     image: ImageOptions = field(default_factory=ImageOptions)
     start_s: float = 0.0
     groundtruth_mode: str = "imu-consistent"
     attitude_smoothing_s: float = DEFAULT_SMOOTHING_S
 
     def __post_init__(self) -> None:
+        if self.imu_profile not in IMU_PROFILES:
+            raise ConfigError(f"SimConfig.imu_profile must be one of {IMU_PROFILES}, "
+                              f"got {self.imu_profile!r}")
         if self.groundtruth_mode not in GROUNDTRUTH_MODES:
             raise ConfigError(f"SimConfig.groundtruth_mode must be one of {GROUNDTRUTH_MODES}, "
                               f"got {self.groundtruth_mode!r}")
@@ -221,7 +236,7 @@ class SimRecording(Driver):
             else min(spline.t_end_ns, t0 + int(config.seconds * 1e9))
         )
         t_imu = imu_stamps(t0, t_end, config.imu_rate_hz)
-        errors = config.imu_errors or ImuErrorModel.from_rig_noise(rig.imu)
+        errors = config.imu_errors or imu_errors_for(config.imu_profile, rig.imu)
         imu = synthesize_imu(spline, t_imu, errors, seed=config.seed)
         s = spline.sample(t_imu)
         gt = PoseTrajectory(

@@ -218,6 +218,7 @@ def write_euroc(
             "imu_errors": None
             if recording.config.imu_errors is None
             else recording.config.imu_errors.__dict__,
+            "imu_profile": recording.config.imu_profile,
             "start_s": recording.config.start_s,
             "camera_rate_hz": recording.config.camera_rate_hz,
         },

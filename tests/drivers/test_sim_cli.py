@@ -55,6 +55,18 @@ def test_simulate_json_prints_only_the_manifest(tmp_path, capsys) -> None:
     assert printed == json.loads((out / "manifest.json").read_text())
 
 
+def test_simulate_records_the_imu_model_and_refuses_it_where_it_cannot_apply(tmp_path, capsys) -> None:
+    out = tmp_path / "sim"
+    assert main(["simulate", "--seconds", "0.3", "--no-depth", "--json", "--imu-model", "euroc-measured",
+                 "--out", str(out)]) == 0
+    assert json.loads(capsys.readouterr().out)["config"]["imu_profile"] == "euroc-measured"
+    assert main(["simulate", "--exact", "--imu-model", "euroc-measured", "--out", str(tmp_path / "a")]) == 1
+    assert "cannot be combined with --imu-model" in capsys.readouterr().err
+    assert main(["simulate", "--trajectory", str(tmp_path), "--imu-model", "euroc-measured",
+                 "--out", str(tmp_path / "b")]) == 1
+    assert "replays the real one" in capsys.readouterr().err
+
+
 def test_simulate_rejects_imu_without_trajectory(tmp_path, capsys) -> None:
     assert main(["simulate", "--imu", "x.csv", "--out", str(tmp_path / "o")]) == 1
     assert "--imu needs --trajectory" in capsys.readouterr().err

@@ -162,9 +162,26 @@ def test_cli_arguments_and_sources(tmp_path):
     srcs, skipped = bench.sources(args)
     assert [s.kind for s in srcs] == ["preset", "euroc-trajectory"] and not skipped
     assert srcs[0].style == "hall" and srcs[1].what == str(tmp_path / "X_01")
+    assert srcs[0].imu_profile == "euroc-measured"   # the presets' honest IMU by default
+    datasheet, _ = bench.sources(p.parse_args(["--preset", "euroc", "--preset-imu", "datasheet"]))
+    assert datasheet[0].imu_profile == "datasheet"
+    from drivers.sim.imu_synth import IMU_PROFILES
+
+    assert bench.PRESET_IMU_CHOICES == IMU_PROFILES
     assert [a.key for a in bench._ablations(args.ablations)] == ["davio", "graph_fixed"]
     with pytest.raises(Exception, match="unknown"):
         bench._ablations("davio,bogus")
+    # the emulator's sensitivity rows multiply every dense depth-error sigma
+    from models.emulated_da3 import make_params
+    from tools.benchmarks.mapping_variants import DENSE_ERROR_FIELDS, depth_error_overrides
+
+    rows = bench._ablations("depth_x5")
+    assert [a.key for a in rows] == ["davio", "depth_x5"] and rows[1].depth_error_scale == 5.0
+    base = make_params("base")
+    over = depth_error_overrides("base", 5.0)
+    assert set(over) == set(DENSE_ERROR_FIELDS)
+    assert all(over[k] == pytest.approx(5.0 * getattr(base, k)) for k in DENSE_ERROR_FIELDS)
+    assert depth_error_overrides("base", 1.0) == {}
 
 
 def test_missing_shared_sequences_are_skipped_with_a_message(monkeypatch, tmp_path):

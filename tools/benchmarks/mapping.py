@@ -92,13 +92,14 @@ class Source:
     what: str            # preset name or folder
     style: str
     start_s: float = 0.0
+    imu_profile: str = "datasheet"   # presets: the synthetic IMU's error model (SimConfig.imu_profile)
 
     def make(self, seconds: float, seed: int) -> Any:
         from drivers.sim import SimConfig, SimRecording
 
         if self.kind == "preset":
             return SimRecording.from_preset(SimConfig(preset=self.what, seconds=seconds, seed=seed,
-                                                      style=self.style))
+                                                      style=self.style, imu_profile=self.imu_profile))
         cfg = SimConfig(seconds=seconds, seed=seed, style=self.style, start_s=self.start_s)
         return SimRecording.from_euroc_imu_gt(self.what, cfg)
 

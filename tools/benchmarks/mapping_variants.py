@@ -74,6 +74,14 @@ VARIANTS: tuple[Variant, ...] = (
 VARIANT_KEYS = "".join(v.key for v in VARIANTS)
 
 
+def depth_error_overrides(preset: str, factor: float) -> dict[str, float]:
+    """The emulated-DA3 overrides multiplying every dense depth-error sigma of `preset` by `factor`."""
+    from models.emulated_da3 import make_params
+
+    p = make_params(preset)
+    return {} if factor == 1.0 else {name: factor * getattr(p, name) for name in DENSE_ERROR_FIELDS}
+
+
 def emulator_overrides(errors: str, preset: str) -> dict[str, float]:
     """The emulated-DA3 parameter overrides of an error setting on top of `preset`."""
     from models.emulated_da3 import make_params
@@ -84,7 +92,7 @@ def emulator_overrides(errors: str, preset: str) -> dict[str, float]:
     if errors == "no_cond_benefit":
         return {"image_log_scale_sigma_cond": p.image_log_scale_sigma, "field_sigma_cond": p.field_sigma}
     if errors == "depth_x2":
-        return {name: 2.0 * getattr(p, name) for name in DENSE_ERROR_FIELDS}
+        return depth_error_overrides(preset, 2.0)
     raise ValueError(f"unknown error setting {errors!r}")
 
 

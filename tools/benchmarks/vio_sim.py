@@ -29,6 +29,9 @@ RENDER_AHEAD_FRAMES = 200
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--preset", action="append", default=None,
                    help="motion preset (repeatable; default: euroc, slow, aggressive)")
+    p.add_argument("--preset-imu", default="datasheet", choices=["datasheet", "euroc-measured"],
+                   help="the presets' synthetic IMU errors: the rig's datasheet densities (default), or "
+                        "those plus the in-flight errors measured on the real EuRoC IMU")
     p.add_argument("--sequence", action="append", default=None, metavar="DIR",
                    help="euroc_imu_gt folder for EuRoC-trajectory mode (repeatable)")
     p.add_argument("--seconds", type=float, default=30.0, help="length of each sequence")
@@ -47,7 +50,7 @@ def _sources(args: argparse.Namespace) -> list[tuple[str, Any]]:
                                                                                     "aggressive"])
     for name in presets:
         out.append((f"preset {name}", lambda n=name: SimRecording.from_preset(
-            SimConfig(preset=n, seconds=args.seconds, seed=args.seed))))
+            SimConfig(preset=n, seconds=args.seconds, seed=args.seed, imu_profile=args.preset_imu))))
     for seq in args.sequence or []:
         out.append((f"euroc-trajectory {seq.rstrip('/').split('/')[-1]}",
                     lambda s=seq: SimRecording.from_euroc_imu_gt(s, SimConfig(seconds=args.seconds,

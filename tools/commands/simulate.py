@@ -73,6 +73,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--motion-blur", type=int, default=1, metavar="N", help="renders averaged per frame (1 = off)"
     )
     p.add_argument(
+        "--imu-model",
+        default="datasheet",
+        choices=["datasheet", "euroc-measured"],
+        help="synthetic IMU errors (presets and trajectory files without --imu): the rig's datasheet noise "
+             "densities and bias random walk (default), or those plus the slowly varying in-flight errors "
+             "measured on the real EuRoC IMU (its drift from the truth over 0.25-4 s, BENCHMARKS.md)",
+    )
+    p.add_argument(
         "--exact",
         action="store_true",
         help="noise-free images and IMU (no image noise, exposure changes, vignetting or IMU errors)",
@@ -121,12 +129,19 @@ def run(args: argparse.Namespace) -> int:
         start_s=args.start,
         groundtruth_mode=args.groundtruth_mode or "imu-consistent",
         imu_errors=ImuErrorModel.noise_free() if args.exact else None,
+        imu_profile=args.imu_model,
     )
+    if args.exact and args.imu_model != "datasheet":
+        raise ConfigError("--exact makes the IMU noise-free; it cannot be combined with --imu-model")
     if args.imu and not args.trajectory:
         raise ConfigError("--imu needs --trajectory (the ground truth the IMU belongs to)")
     if args.groundtruth_mode and not (args.imu or (args.trajectory and Path(args.trajectory).is_dir())):
         raise ConfigError("--groundtruth applies to EuRoC-trajectory mode only (a real IMU replayed: "
                           "--trajectory FOLDER, or --trajectory FILE --imu FILE)")
+    real_imu = bool(args.imu or (args.trajectory and Path(args.trajectory).is_dir()))
+    if real_imu and args.imu_model != "datasheet":
+        raise ConfigError("--imu-model applies to a synthetic IMU; EuRoC-trajectory mode replays the real "
+                          "one")
     con.print("[bold]davio simulate[/]: building scene and motion ...")
     if args.trajectory is None:
         rec = SimRecording.from_preset(replace(cfg, seconds=args.seconds or 20.0))
