@@ -220,3 +220,15 @@ def test_paper_gauge_option_reaches_the_graph_config():
     assert bm.graph_config(p.parse_args([])) is None
     cfg = bm.graph_config(p.parse_args(["--paper-gauge"]))
     assert isinstance(cfg, GraphConfig) and not cfg.gauge_lambda_free and GraphConfig().gauge_lambda_free
+
+
+def test_preset_imu_option_reaches_the_preset_sources():
+    import argparse
+
+    from tools.benchmarks import mapping as bm
+
+    p = argparse.ArgumentParser()
+    bm.add_arguments(p)
+    assert {s.imu_profile for s in bm.sources(p.parse_args([])) if s.kind == "preset"} == {"datasheet"}
+    measured = bm.sources(p.parse_args(["--preset", "euroc", "--preset-imu", "euroc-measured"]))
+    assert [s.imu_profile for s in measured] == ["euroc-measured"]

@@ -57,6 +57,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--preset", action="append", default=None, metavar="NAME[:STYLE]",
                    help="motion preset with a synthetic IMU, optionally with a scene style (room, hall); "
                         "repeatable (default: euroc and euroc:hall)")
+    p.add_argument("--preset-imu", default="datasheet", choices=["datasheet", "euroc-measured"],
+                   help="the presets' synthetic IMU errors: the rig's datasheet densities (default), or "
+                        "those plus the in-flight errors measured on the real EuRoC IMU")
     p.add_argument("--sequence", action="append", default=None, metavar="DIR[:STYLE]",
                    help="a euroc_imu_gt folder (EuRoC-trajectory mode; repeatable; default: V1_02_medium "
                         "and MH_03_medium from ../shared/data when present)")
@@ -115,7 +118,8 @@ def sources(args: argparse.Namespace) -> list[Source]:
     presets = args.preset if args.preset is not None else ([] if args.sequence else list(DEFAULT_PRESETS))
     for spec in presets:
         name, style = _split_style(spec)
-        out.append(Source(f"preset {name} ({style})", "preset", name, style))
+        out.append(Source(f"preset {name} ({style})", "preset", name, style,
+                          imu_profile=args.preset_imu))
     if args.sequence:
         for spec in args.sequence:
             folder, style = _split_style(spec)
