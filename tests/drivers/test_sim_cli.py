@@ -105,6 +105,21 @@ def test_imu_drift_benchmark_json(capsys) -> None:
     assert res["with_gt_bias"]["position_m"]["median"] < res["zero_bias"]["position_m"]["median"]
 
 
+def test_imu_drift_curve_beside_synthetic_imus(capsys) -> None:
+    shared_path("euroc_imu_gt", "V1_02_medium")
+    args = ["bench", "imu-drift", "--sequence", "V1_02_medium", "--step", "10", "--curve", "0.5,2",
+            "--synthetic", "datasheet,euroc-measured", "--json"]
+    assert main(args) == 0
+    curve = json.loads(capsys.readouterr().out)["V1_02_medium"]["curve"]
+    assert set(curve) == {"real", "datasheet", "euroc-measured"}
+    med = {k: [c["position_m"]["median"] for c in v.values()] for k, v in curve.items()}
+    assert all(m[1] > m[0] for m in med.values())   # drift grows with the window
+    # the datasheet densities drift far less than the real IMU; the measured model about as much
+    assert med["datasheet"][1] < 0.6 * med["real"][1] < med["euroc-measured"][1] < 1.6 * med["real"][1]
+    assert main(["bench", "imu-drift", "--synthetic", "datasheet"]) == 1
+    assert "--synthetic needs --curve" in capsys.readouterr().err
+
+
 @pytest.mark.slow
 def test_renderer_benchmark_json(capsys) -> None:
     assert main(["bench", "renderer", "--frames", "3", "--json"]) == 0

@@ -3,6 +3,11 @@
 From the ground-truth state (pose, velocity, and the ground-truth biases when groundtruth.csv has
 them) at each window start, the real IMU is integrated (drivers.sim.dead_reckoning) for
 `window` seconds and compared with the ground-truth pose at the window end.
+
+`--curve` adds the drift over several window lengths (constant biases fitted over the sequence) for the real
+IMU and, with `--synthetic`, for synthetic IMUs of the named error models (drivers.sim.imu_synth.
+IMU_PROFILES) along the same trajectory (a spline fitted to the ground truth), by the same protocol: how
+ImuErrorModel.euroc_measured was fitted and is checked.
 """
 
 from __future__ import annotations
@@ -12,7 +17,8 @@ import argparse
 import numpy as np
 
 NAME = "imu-drift"
-HELP = "real EuRoC IMU integrated from ground truth over 1 s windows: position/orientation drift"
+HELP = ("real EuRoC IMU integrated from ground truth over 1 s windows (--curve: several lengths, beside "
+        "synthetic IMUs): position/orientation drift")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -27,6 +33,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--window", type=float, default=1.0, help="integration window, s")
     p.add_argument("--step", type=float, default=0.5, help="spacing of window starts, s")
+    p.add_argument("--curve", default=None, metavar="S,S,...",
+                   help="also the drift over these window lengths, s (e.g. 0.25,0.5,1,2,4)")
+    p.add_argument("--synthetic", default=None, metavar="PROFILE,...",
+                   help="with --curve: synthetic IMUs of these error models along the same trajectory "
+                        "(datasheet, euroc-measured)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -126,12 +137,44 @@ def drift_windows(
     }
 
 
+def drift_curve(t_imu: np.ndarray, gyro: np.ndarray, accel: np.ndarray, gt, windows: list[float],
+                step_s: float) -> dict:
+    """{window s: drift_windows(...)} with constant biases fitted over the sequence."""
+    bias = fit_constant_biases(t_imu, gyro, accel, gt)
+    return {f"{w:g}": drift_windows(t_imu, gyro, accel, gt, w, step_s, constant_bias=bias) for w in windows}
+
+
+def synthetic_curve(gt, profile: str, windows: list[float], step_s: float, seed: int = 0) -> dict:
+    """drift_curve of a synthetic IMU (error model `profile`) along a spline fitted to gt (0.1 s knots)."""
+    from drivers.sim.imu_synth import imu_errors_for, imu_stamps, synthesize_imu
+    from drivers.sim.spline import fit_pose_spline
+    from runtime.geometry.trajectory import PoseTrajectory
+
+    spline = fit_pose_spline(gt.t_ns, gt.p, gt.R, dt_s=0.1)
+    t = imu_stamps(spline.t0_ns, spline.t_end_ns, 200.0)
+    truth = spline.sample(t)
+    imu = synthesize_imu(spline, t, imu_errors_for(profile), seed=seed)
+    return drift_curve(t, imu.gyro, imu.accel, PoseTrajectory(t, truth.p, truth.R, truth.v), windows, step_s)
+
+
+def _floats(spec: str, flag: str) -> list[float]:
+    from runtime.errors import ConfigError
+
+    try:
+        out = [float(x) for x in spec.split(",") if x.strip()]
+    except ValueError:
+        raise ConfigError(f"{flag} takes comma-separated seconds, got {spec!r}") from None
+    if not out or not all(np.isfinite(x) and x > 0 for x in out):
+        raise ConfigError(f"{flag} takes positive seconds, got {spec!r}")
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from drivers.euroc import read_euroc_imu_csv
     from drivers.trajectory_files import read_trajectory
-    from runtime.errors import DataError
+    from runtime.errors import ConfigError, DataError
     from runtime.json_out import strict_dumps
 
     root = (
@@ -139,6 +182,15 @@ def run(args: argparse.Namespace) -> int:
         if args.data
         else Path(__file__).resolve().parents[2].parent / "shared" / "data" / "euroc_imu_gt"
     )
+    from drivers.sim.imu_synth import IMU_PROFILES
+
+    windows = _floats(args.curve, "--curve") if args.curve else None
+    profiles = [x.strip() for x in (args.synthetic or "").split(",") if x.strip()]
+    if profiles and windows is None:
+        raise ConfigError("--synthetic needs --curve (the window lengths to compare over)")
+    bad = [x for x in profiles if x not in IMU_PROFILES]
+    if bad:
+        raise ConfigError(f"--synthetic: unknown {', '.join(bad)}; choose from {', '.join(IMU_PROFILES)}")
     results = {}
     for seq in args.sequence or ["V1_02_medium", "MH_03_medium"]:
         folder = root / seq
@@ -157,6 +209,11 @@ def run(args: argparse.Namespace) -> int:
         results[seq]["fitted_bias"] = drift_windows(t, g, a, gt, args.window, args.step, constant_bias=bias)
         results[seq]["fitted_bias"]["bg"] = bias[0].tolist()
         results[seq]["fitted_bias"]["ba"] = bias[1].tolist()
+        if windows is not None:
+            curves = {"real": drift_curve(t, g, a, gt, windows, args.step)}
+            for prof in profiles:
+                curves[prof] = synthetic_curve(gt, prof, windows, args.step)
+            results[seq]["curve"] = curves
     if args.json:
         print(strict_dumps(results))
         return 0
@@ -191,4 +248,16 @@ def run(args: argparse.Namespace) -> int:
                 f"{r['orientation_deg']['p95']:.3f}",
             )
     Console().print(tab)
+    for seq, res in results.items():
+        if "curve" not in res:
+            continue
+        ct = Table(title=f"{seq}: drift over window lengths (constant biases fitted over the sequence), "
+                         "position median mm / orientation median deg")
+        ct.add_column("IMU")
+        for w in windows:
+            ct.add_column(f"{w:g} s")
+        for name, curve in res["curve"].items():
+            ct.add_row(name, *(f"{1e3 * c['position_m']['median']:.1f} / {c['orientation_deg']['median']:.3f}"
+                               for c in curve.values()))
+        Console().print(ct)
     return 0
