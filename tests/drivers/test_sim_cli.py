@@ -111,7 +111,7 @@ def test_imu_drift_curve_beside_synthetic_imus(capsys) -> None:
             "--synthetic", "datasheet,euroc-measured", "--json"]
     assert main(args) == 0
     curve = json.loads(capsys.readouterr().out)["V1_02_medium"]["curve"]
-    assert set(curve) == {"real", "datasheet", "euroc-measured"}
+    assert set(curve) == {"real", "real, imu-consistent truth", "datasheet", "euroc-measured"}
     med = {k: [c["position_m"]["median"] for c in v.values()] for k, v in curve.items()}
     assert all(m[1] > m[0] for m in med.values())   # drift grows with the window
     # the datasheet densities drift far less than the real IMU; the measured model about as much
