@@ -267,5 +267,5 @@ def run(args: argparse.Namespace) -> int:
         for name, curve in res["curve"].items():
             ct.add_row(name, *(f"{1e3 * c['position_m']['median']:.1f} / {c['orientation_deg']['median']:.3f}"
                                for c in curve.values()))
-        Console().print(ct)
+        Console(width=max(Console().width, 140)).print(ct)
     return 0
