@@ -49,6 +49,7 @@ class DavioConfig:
 
 NEWER_OPTIONS: dict[str, object] = {
     "mapping.multiview_keep_unseen": False,
+    "mapping.max_multiview_failed_fraction": 1.0,
     "graph.gauge_lambda_free": False,
     "revisits.view_scales": [1.0],
 }

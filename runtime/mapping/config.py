@@ -44,6 +44,13 @@ class MappingConfig:
     valid depth), so it can be neither confirmed nor contradicted (counted as `points_unverified`).
     Not in the paper: its rule (false here) drops every surface only one image of a window sees, which
     cost 1.3-7.2 points of recall, for precision within 0.007, in `davio bench mapping` (BENCHMARKS.md)."""
+    max_multiview_failed_fraction: float = 0.5
+    """A window is refused as a whole (reason "multiview") when more than this fraction of its depths that
+    another image sees fail the multi-view test: the model's depths then disagree between the images of one
+    window far beyond the published DA3 errors, and a submap built from them would pull the submap graph
+    (every adjacent point group is kept) and spoil the map. Not in the paper; 1.0 turns it off. Measured on
+    the MH_03 simulation (BENCHMARKS.md "Trajectory"): at most 12 % per window with the emulated DA3-Base,
+    at least 63 % with its depth errors x20."""
     conf_percentile: float = 25.0
     """DA3 confidence filter: pixels below this percentile of the window's confidence are dropped."""
     pixel_stride: int = 4

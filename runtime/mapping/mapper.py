@@ -5,7 +5,8 @@ Per window (run by the model worker, never by the tracking thread):
   2. per-frame scales from in-window matches (frame_scales.py);
   3. depth samples on a pixel grid, the confidence filter and multi-view rejection (multiview.py; a
      depth another image contradicts goes, one no other image sees is kept unless
-     `multiview_keep_unseen` is off);
+     `multiview_keep_unseen` is off); a window where more than `max_multiview_failed_fraction` of the
+     depths another image sees are contradicted is refused as a whole (not in the paper);
   4. the submap (frame S_j = the centre image's camera, points kept in their image's camera frame);
   5. the relative-scale link to the previous submap (shared_scale.py);
   6. fusion into voxels over the resident submaps (fusion.py): at most `max_resident_submaps` stay in
@@ -173,8 +174,13 @@ class Mapper:
         self._time("frame_scales", t1)
         depth *= scales.scales[:, None, None]
         t2 = time.perf_counter()
-        points_C, image, pconf, pgrey = self._retained_points(depth, conf, grey, T_SC)
+        points_C, image, pconf, pgrey, failed, judged = self._retained_points(depth, conf, grey, T_SC)
         self._time("rejection", t2)
+        if judged and failed > self.cfg.max_multiview_failed_fraction * judged:
+            st.reject("multiview")
+            return replace(fit, accepted=False, reason="multiview")
+        st.points_unverified += len(points_C) - (judged - failed)    # kept although no other image sees them
+        st.points_retained += len(points_C)
         self.submap_count += 1
         st.map_version += 1
         sub = Submap(index=self.submap_count - 1, frame_t_ns=window.t_ns, centre=c, T_OS=T_OS, T_SC=T_SC,
@@ -374,8 +380,11 @@ class Mapper:
         return res
 
     def _retained_points(self, depth: np.ndarray, conf: np.ndarray, grey: list[np.ndarray],
-                         T_SC: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Grid samples that pass the range, confidence and multi-view tests (counted)."""
+                         T_SC: np.ndarray
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, int]:
+        """Grid samples that pass the range, confidence and multi-view tests (counted): camera points,
+        image index, confidence, grey, and how many depths another image sees (judged) and of those fail
+        the test (failed)."""
         cfg, st = self.cfg, self.stats
         n, h, w = depth.shape
         u, v = sample_grid(h, w, cfg.pixel_stride)
@@ -394,11 +403,10 @@ class Mapper:
         agree, seen = multiview_test(pts_S, img_idx, T_SC, dmaps, self.K, cfg.multiview_rel_depth)
         keep = agree | ~seen if cfg.multiview_keep_unseen else agree
         st.rejected_multiview += int((~keep).sum())
-        st.points_unverified += int((keep & ~seen).sum())
-        st.points_retained += int(keep.sum())
         img_idx, g_idx = img_idx[keep], g_idx[keep]
         grey_vals = np.stack([g[v, u] for g in grey])[img_idx, g_idx].astype(np.uint8)
-        return pts_C[keep], img_idx, c[img_idx, g_idx], grey_vals
+        failed, judged = int((seen & ~agree).sum()), int(seen.sum())
+        return pts_C[keep], img_idx, c[img_idx, g_idx], grey_vals, failed, judged
 
     def _link(self, sub: Submap, depths_by_t: dict[int, np.ndarray], T_OC: np.ndarray) -> ScaleLink | None:
         """kappa_ab to the previous submap of the same segment (shared images, else projected overlap)."""

@@ -90,6 +90,35 @@ def test_a_surface_only_one_image_sees_is_kept_unverified_or_dropped_by_the_pape
     assert np.max(_distance_to_room(kept.points_M())) < 1e-3     # exact depth: the kept ones are right
 
 
+class _DisagreeingModel(_ExactModel):
+    """Exact depth with independent per-pixel log-normal errors (sigma 0.8): another image agrees
+    within 10 % with about one depth in five."""
+
+    def predict(self, frames, K=None, T_CW=None):
+        pred = super().predict(frames, K, T_CW)
+        rng = np.random.default_rng(3)
+        depth = pred.depth * np.exp(0.8 * rng.standard_normal(pred.depth.shape)).astype(np.float32)
+        return DepthPrediction(depth, pred.conf, pred.T_CW, pred.K, pred.scale, pred.fit_rmse_m)
+
+
+def test_a_window_whose_images_disagree_is_refused_as_a_whole():
+    from runtime.mapping.conditioned import WindowFit
+
+    mapper = _mapper(_DisagreeingModel())
+    out = mapper.process(_window(0))
+    st = mapper.stats
+    assert isinstance(out, WindowFit) and not out.accepted and out.reason == "multiview"
+    assert st.windows_rejected == {"multiview": 1} and st.windows_accepted == 0
+    assert st.points_retained == 0 and st.points_unverified == 0 and not mapper.resident
+    assert st.rejected_multiview > 0.5 * st.points_sampled          # most depths failed the test
+    # switched off (1.0, the paper's behaviour): the same window becomes a submap of the survivors
+    off = _mapper(_DisagreeingModel(), max_multiview_failed_fraction=1.0)
+    sub = off.process(_window(0)).submap
+    assert off.stats.windows_accepted == 1 and sub.n_points == off.stats.points_retained > 0
+    # the exact model's window, whose flying pixels fail in one image only, stays far below the bound
+    assert _mapper(_ExactModel(fly_image=1)).process(_window(0)).submap.n_points > 0
+
+
 def test_evicted_submaps_leave_the_live_grid():
     mapper = _mapper(_ExactModel(), max_resident_submaps=2)
     subs = [mapper.process(_window(k, start=0.45 * k)).submap for k in range(4)]
