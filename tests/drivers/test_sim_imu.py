@@ -129,11 +129,8 @@ def test_the_measured_profile_drifts_as_the_real_euroc_imu(profile: str, low: fl
 
     from drivers.euroc import read_euroc_imu_csv
     from drivers.sim.imu_consistent import DEFAULT_SMOOTHING_S, imu_consistent_groundtruth
-    from drivers.sim.imu_synth import imu_errors_for
-    from drivers.sim.spline import fit_pose_spline
     from drivers.trajectory_files import read_trajectory
-    from runtime.geometry.trajectory import PoseTrajectory
-    from tools.benchmarks.real_imu_drift import drift_windows, fit_constant_biases
+    from tools.benchmarks.real_imu_drift import drift_curve, synthetic_curve
 
     folder = shared_path("euroc_imu_gt", "V1_02_medium")
     gt = read_trajectory(folder / "groundtruth.csv", strictly_increasing=True)
@@ -141,14 +138,7 @@ def test_the_measured_profile_drifts_as_the_real_euroc_imu(profile: str, low: fl
     inside = (t_real >= gt.t_ns[0]) & (t_real <= gt.t_ns[-1])
     # the truth EuRoC-trajectory recordings render from: what the filter faces there
     rendered = imu_consistent_groundtruth(gt, t_real[inside], gyro[inside], DEFAULT_SMOOTHING_S)
-    real = drift_windows(t_real, gyro, accel, rendered, 1.0, 1.0,
-                         constant_bias=fit_constant_biases(t_real, gyro, accel, rendered))
-    spline = fit_pose_spline(gt.t_ns, gt.p, gt.R, dt_s=0.1)
-    t = imu_stamps(spline.t0_ns, spline.t_end_ns, 200.0)
-    truth = spline.sample(t)
-    ref = PoseTrajectory(t, truth.p, truth.R, truth.v)
-    imu = synthesize_imu(spline, t, imu_errors_for(profile), seed=0)
-    sim = drift_windows(t, imu.gyro, imu.accel, ref, 1.0, 1.0,
-                        constant_bias=fit_constant_biases(t, imu.gyro, imu.accel, ref))
+    real = drift_curve(t_real, gyro, accel, rendered, [1.0], 1.0)["1"]
+    sim = synthetic_curve(gt, profile, [1.0], 1.0)["1"]
     ratio = sim["position_m"]["median"] / real["position_m"]["median"]
     assert low < ratio < high, ratio

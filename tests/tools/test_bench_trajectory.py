@@ -167,7 +167,8 @@ def test_cli_arguments_and_sources(tmp_path):
     assert datasheet[0].imu_profile == "datasheet"
     from drivers.sim.imu_synth import IMU_PROFILES
 
-    assert bench.PRESET_IMU_CHOICES == IMU_PROFILES
+    choices = next(a.choices for a in p._actions if a.dest == "preset_imu")
+    assert tuple(choices) == IMU_PROFILES
     assert [a.key for a in bench._ablations(args.ablations)] == ["davio", "graph_fixed"]
     with pytest.raises(Exception, match="unknown"):
         bench._ablations("davio,bogus")

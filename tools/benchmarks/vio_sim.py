@@ -27,9 +27,11 @@ RENDER_AHEAD_FRAMES = 200
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from drivers.sim.imu_synth import IMU_PROFILES
+
     p.add_argument("--preset", action="append", default=None,
                    help="motion preset (repeatable; default: euroc, slow, aggressive)")
-    p.add_argument("--preset-imu", default="datasheet", choices=["datasheet", "euroc-measured"],
+    p.add_argument("--preset-imu", default="datasheet", choices=IMU_PROFILES,
                    help="the presets' synthetic IMU errors: the rig's datasheet densities (default), or "
                         "those plus the in-flight errors measured on the real EuRoC IMU")
     p.add_argument("--sequence", action="append", default=None, metavar="DIR",

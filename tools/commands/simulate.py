@@ -16,6 +16,7 @@ DESCRIPTION = (
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from drivers.sim.imu_synth import IMU_PROFILES
     from drivers.sim.motion import DEFAULT_PRESET, PRESETS
 
     p.add_argument(
@@ -75,7 +76,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--imu-model",
         default="datasheet",
-        choices=["datasheet", "euroc-measured"],
+        choices=IMU_PROFILES,
         help="synthetic IMU errors (presets and trajectory files without --imu): the rig's datasheet noise "
              "densities and bias random walk (default), or those plus the slowly varying in-flight errors "
              "measured on the real EuRoC IMU (its drift from the truth over 0.25-4 s, BENCHMARKS.md)",
