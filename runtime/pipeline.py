@@ -14,6 +14,7 @@ from runtime.bringup import HandEyeBringUp
 from runtime.config import DavioConfig
 from runtime.errors import ConfigError
 from runtime.events import Frame, ImuSample
+from runtime.ffinit.extension import TrackSet
 from runtime.ffinit.initializer import FeedForwardInitializer
 from runtime.graph.correction import CorrectionTimeline, final_corrections
 from runtime.mapping.mapper import MapCommit, Mapper, MappingStats
@@ -255,6 +256,10 @@ class VioPipeline:
             job = self.bringup.next_job()
             self._job_kind = "bringup" if job is not None else self._job_kind
             return job
+        job = self._extension_job()
+        if job is not None:
+            self._job_kind = "extension"
+            return job
         job = self._feedforward_job()
         if job is not None:
             self._job_kind = "feedforward"
@@ -265,9 +270,35 @@ class VioPipeline:
         self._job_kind = "mapping"
         return self._mapping_job(window)
 
-    def _feedforward_job(self) -> Callable[[], Any] | None:
-        """A feed-forward attempt on the newest start-up window, or None."""
+    def _extension_job(self) -> Callable[[], Any] | None:
+        """A re-solve of a refused start-up window over a longer span (no model call), or None."""
         if self.ffinit is None:
+            return None
+        due = self.startup.extension()
+        if due is None:
+            return None
+        seed, stamps = due
+        tracks = self.startup.tracks_at(stamps)
+        imu = self.startup.imu_between(stamps[0], stamps[-1])
+        if tracks is None or imu is None:
+            return None
+        self.startup.note_extension(stamps)
+        ffinit, camera = self.ffinit, self.rig.camera
+        t, w, a = imu
+        bg = self._bg_prior
+
+        def job() -> Any:
+            sets = [TrackSet(int(ts), np.asarray(ids), camera.undistort_points(np.asarray(uv, float)))
+                    for ts, ids, uv in tracks]
+            return ffinit.solve_extended(seed, sets, t, w, a, bg=bg)
+
+        job.model_call = False   # type: ignore[attr-defined]  (a solve: FastClock's solve latency)
+        return job
+
+    def _feedforward_job(self) -> Callable[[], Any] | None:
+        """A feed-forward attempt on the newest start-up window, or None (also while a refused window
+        still waits for a longer re-solve)."""
+        if self.ffinit is None or self.startup.extension_pending():
             return None
         frames = self.startup.window()
         if frames is None:
@@ -301,7 +332,7 @@ class VioPipeline:
             if self.bringup.on_result(result, self._last_t):
                 self._finish_bringup()
             return
-        self.startup.on_feedforward(result)
+        self.startup.on_feedforward(result, extension=self._job_kind == "extension")
 
     def report(self) -> dict:
         """Counters of the tracker, the start-up and the publishing filter."""

@@ -8,8 +8,9 @@ Threads:
 
 Clocks decide pacing and when model results are applied:
   * `PacedClock(speed)`: events are released at sensor rate (wall clock); results apply when ready.
-  * `FastClock(model_latency_s)`: as fast as possible; a result requested at sensor time t applies
-    at the first event with sensor time >= t + model_latency_s (tracking waits for the worker if
+  * `FastClock(model_latency_s, solve_latency_s)`: as fast as possible; a result requested at sensor
+    time t applies at the first event with sensor time >= t + model_latency_s (solve_latency_s for a
+    job that calls no model: its `model_call` attribute is False; tracking waits for the worker if
     needed) -- deterministic for tests and benchmarks whatever the machine's speed.
 The scheduler takes the driver and pipeline through their interfaces and imports neither package.
 """
@@ -59,7 +60,7 @@ class PacedClock:
         if delay > 0:
             time.sleep(delay)
 
-    def release_ns(self, t_request_ns: int) -> int | None:
+    def release_ns(self, t_request_ns: int, model_call: bool = True) -> int | None:
         return None
 
 
@@ -71,23 +72,26 @@ class LiveClock:
     def wait_until(self, t_ns: int) -> None:
         return None
 
-    def release_ns(self, t_request_ns: int) -> int | None:
+    def release_ns(self, t_request_ns: int, model_call: bool = True) -> int | None:
         return None
 
 
 class FastClock:
-    """As fast as possible; model results apply `model_latency_s` of sensor time after the request."""
+    """As fast as possible; model results apply `model_latency_s` of sensor time after the request, the
+    results of jobs that call no model (a start-up re-solve) `solve_latency_s` after it."""
 
     deterministic = True
 
-    def __init__(self, model_latency_s: float = 1.0) -> None:
+    def __init__(self, model_latency_s: float = 1.0, solve_latency_s: float = 0.1) -> None:
         self.model_latency_s = float(model_latency_s)
+        self.solve_latency_s = float(solve_latency_s)
 
     def wait_until(self, t_ns: int) -> None:
         return None
 
-    def release_ns(self, t_request_ns: int) -> int | None:
-        return t_request_ns + int(round(self.model_latency_s * 1e9))
+    def release_ns(self, t_request_ns: int, model_call: bool = True) -> int | None:
+        latency = self.model_latency_s if model_call else self.solve_latency_s
+        return t_request_ns + int(round(latency * 1e9))
 
 
 _END = object()
@@ -322,7 +326,7 @@ class Scheduler:
                         job_id += 1
                         rep.model_jobs += 1
                         worker.jobs.put((job_id, job))
-                        in_flight = (job_id, self.clock.release_ns(t))
+                        in_flight = (job_id, self.clock.release_ns(t, getattr(job, "model_call", True)))
                 rep.sensor_s = (t - t_first) * 1e-9
             if in_flight is not None:   # the recording ended with a job running: its result still counts
                 _, res = worker.results.get()

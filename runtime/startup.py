@@ -48,6 +48,10 @@ class StartupConfig:
     """Largest distance of a window image from its ideal time."""
     feedforward: bool = True
     """Use the feed-forward initializer."""
+    extend_refused_s: float = 1.0
+    """A window refused for too short a span (runtime.ffinit.extension.EXTENDABLE) is re-solved, without a
+    model call, with the frames tracked after it, one spacing at a time, until its newest frame is this
+    many seconds past the window's last image (0: off). Meanwhile no new model window is requested."""
     native: bool = True
     """Keep the filter's own (static/dynamic) initializers armed."""
 
@@ -175,6 +179,12 @@ class StartupReport:
     candidates_diverged: int = 0
     candidates_outrun: int = 0
     """Candidates still replaying when another filter was selected (they are dropped)."""
+    ff_extensions: int = 0
+    """Re-solves of refused windows over a longer span (no model call)."""
+    ff_extension_accepted: int = 0
+    ff_extension_rejections: dict = field(default_factory=dict)
+    ff_extension_expired: int = 0
+    """Refused windows whose extension reached extend_refused_s without an accepted state."""
     ff_windows_imu_lost: int = 0
     """Feed-forward windows not solved: the live driver lost IMU samples inside them."""
     published_by: str | None = None
@@ -212,6 +222,8 @@ class StartupManager:
         self._last_request_ns: int | None = None
         self._imu_loss_ns: deque[int] = deque(maxlen=256)
         self._refused_window_ns: int | None = None
+        self._seed: Any = None
+        self._seed_tried_ns = 0
 
     # ------------------------------------------------------------------ measurements
     @property
@@ -269,8 +281,12 @@ class StartupManager:
     def imu_for(self, frames: list[Frame]) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """IMU arrays covering the window on the IMU clock, or None if not yet covered or if IMU samples
         were lost inside it (counted once per window: preintegration across the loss would be wrong)."""
-        t0 = int(frames[0].t_ns) + self.offset_ns
-        t1 = int(frames[-1].t_ns) + self.offset_ns
+        return self.imu_between(int(frames[0].t_ns), int(frames[-1].t_ns))
+
+    def imu_between(self, t0_cam_ns: int, t1_cam_ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """imu_for between two camera stamps."""
+        t0 = int(t0_cam_ns) + self.offset_ns
+        t1 = int(t1_cam_ns) + self.offset_ns
         t, w, a = self.buffer.imu_arrays(t0 - 20_000_000, t1 + 20_000_000)
         if t.size < 2 or t[0] > t0 or t[-1] < t1:
             return None
@@ -281,17 +297,73 @@ class StartupManager:
             return None
         return t, w, a
 
+    def extension(self) -> tuple[Any, list[int]] | None:
+        """(seed, stamps) of a due re-solve of the refused window over a longer span, or None.
+
+        stamps: the window's images, then the frames after it spaced about one window spacing, ending at
+        the newest frame. Due when the newest frame is a spacing past the previous try; the seed expires
+        (counted) once the newest frame is extend_refused_s past the window."""
+        seed = self._seed
+        if seed is None or self.publisher is not None or self._tried >= self.cfg.max_candidates \
+                or not self._frames:
+            return None
+        newest = int(self._frames[-1].t_ns)
+        if newest - seed.last_ns > self.cfg.extend_refused_s * 1e9:
+            self._seed = None
+            self.report.ff_extension_expired += 1
+            return None
+        spacing_ns = self.cfg.window_spacing_s * 1e9
+        if newest - self._seed_tried_ns < 0.999 * spacing_ns:
+            return None
+        t = np.array([f.t_ns for f in self._frames], np.int64)
+        ideal = []
+        k = 0
+        while newest - k * spacing_ns > seed.last_ns + 0.5 * spacing_ns:
+            ideal.insert(0, int(newest - round(k * spacing_ns)))
+            k += 1
+        idx = nearest_stamps(t, ideal, self.cfg.window_tolerance_s)
+        if idx is None:
+            return None
+        return seed, [int(s) for s in seed.t_cam_ns] + [int(t[i]) for i in idx]
+
+    def extension_pending(self) -> bool:
+        """A refused window still waits for a longer re-solve (no new model window meanwhile)."""
+        return self._seed is not None and self.publisher is None and self._tried < self.cfg.max_candidates
+
+    def note_extension(self, stamps: list[int]) -> None:
+        """Count a re-solve over `stamps` (the next waits one spacing after its newest frame)."""
+        self.report.ff_extensions += 1
+        self._seed_tried_ns = int(stamps[-1])
+
+    def tracks_at(self, stamps: list[int]) -> list[tuple[int, np.ndarray, np.ndarray]] | None:
+        """The front-end's buffered (t_cam_ns, ids, uv) at each stamp, or None if one left the buffer."""
+        by_t = {e.t_ns: e.payload for e in self.buffer.entries if e.kind == "tracks"}
+        out = [by_t.get(int(t)) for t in stamps]
+        return None if any(o is None for o in out) else out
+
     def note_request(self, frames: list[Frame]) -> None:
         """Count a feed-forward request on `frames` (the next window waits one spacing after it)."""
         self.report.ff_requests += 1
         self._last_request_ns = int(frames[-1].t_ns)
 
-    def on_feedforward(self, result: Any) -> None:
-        """Apply a finished feed-forward attempt: an InitResult starts a candidate; else counted."""
+    def on_feedforward(self, result: Any, extension: bool = False) -> None:
+        """Apply a finished feed-forward attempt (extension: a re-solve over a longer span): an InitResult
+        starts a candidate; a rejection is counted, and keeps (or ends) the longer re-solves."""
         if not isinstance(result, InitResult):
             reason = getattr(result, "reason", type(result).__name__)
-            self.report.ff_rejections[reason] = self.report.ff_rejections.get(reason, 0) + 1
+            counts = self.report.ff_extension_rejections if extension else self.report.ff_rejections
+            counts[reason] = counts.get(reason, 0) + 1
+            seed = getattr(result, "seed", None)
+            if seed is not None and self.cfg.extend_refused_s > 0:
+                if not extension:
+                    self._seed_tried_ns = seed.last_ns
+                self._seed = seed
+            elif extension:
+                self._seed = None
             return
+        self._seed = None
+        if extension:
+            self.report.ff_extension_accepted += 1
         self.report.ff_accepted += 1
         if self.publisher is not None or self._tried >= self.cfg.max_candidates:
             return
@@ -360,6 +432,7 @@ class StartupManager:
         self.candidates.clear()
         self.buffer.entries.clear()
         self._frames.clear()
+        self._seed = None
 
     def _publish(self, states: list) -> list[Published]:
         out = []

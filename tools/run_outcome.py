@@ -52,6 +52,11 @@ def why_nothing_published(pipeline_report: dict, driver_report: dict | None, sch
         rej = ", ".join(f"{k} x{v}" for k, v in sorted((st.get("ff_rejections") or {}).items())) or "none"
         parts.append(f"feed-forward start-up: {st.get('ff_requests', 0)} windows tried, "
                      f"{st.get('ff_accepted', 0)} accepted (rejected: {rej})")
+    if st.get("ff_extensions"):
+        ext_rej = st.get("ff_extension_rejections") or {}
+        rej = ", ".join(f"{k} x{v}" for k, v in sorted(ext_rej.items())) or "none"
+        parts.append(f"{st['ff_extensions']} re-solves of refused windows over a longer span, "
+                     f"{st.get('ff_extension_accepted', 0)} accepted (rejected: {rej})")
     errors = tracking.get("ff_exceptions") or []
     if errors:
         parts.append(f"{len(errors)} model calls failed (first: {errors[0]})")

@@ -98,6 +98,20 @@ class FFInitConfig:
     """The window's median metric depth (s x DA3 depth) must lie in this range, m: a collapsed or
     exploded scale gives depths no camera on a robot sees."""
 
+    # longer re-solve of a refused window (added, issue 15; runtime.ffinit.extension)
+    extension_pnp_px: float = 3.0
+    """PnP RANSAC inlier threshold for a newer frame's pose from the tracked DA3 points, pixels."""
+    extension_min_inliers: int = 30
+    """A newer frame joins the window only with at least this many PnP inliers..."""
+    extension_min_inlier_fraction: float = 0.4
+    """...and this fraction of its tracked DA3 points."""
+    extension_edge_ratio: float = 0.1
+    """A track's DA3 depth is used only where the 3x3 depth neighbourhood's max/min is below 1 + this
+    (no depth edge through the pixel)."""
+    extension_point_spread: float = 0.1
+    """A track seen in several window images is dropped when one of its DA3 points lies further than this
+    fraction of its depth from their median."""
+
     # refinement (Sec. IV-C)
     sigma_u: float = 0.007
     """Normalized-coordinate reprojection sigma."""
@@ -117,9 +131,12 @@ class FFInitConfig:
         if self.point_rotations not in ("da3", "gyro"):
             raise ConfigError(f"ffinit.point_rotations must be 'da3' or 'gyro', got {self.point_rotations!r}")
         for name in ("accel_bias_sigma", "max_scale_uncertainty", "max_gyro_bias_change",
-                     "rotation_huber_deg", "min_median_depth_m"):
+                     "rotation_huber_deg", "min_median_depth_m", "extension_edge_ratio",
+                     "extension_point_spread", "extension_min_inlier_fraction"):
             if not getattr(self, name) >= 0:
                 raise ConfigError(f"ffinit.{name} must be >= 0, got {getattr(self, name)}")
+        if not self.extension_pnp_px > 0 or not self.extension_min_inliers >= 4:
+            raise ConfigError("ffinit.extension_pnp_px must be > 0 and ffinit.extension_min_inliers >= 4")
         if not self.max_median_depth_m > self.min_median_depth_m:
             raise ConfigError(f"ffinit.max_median_depth_m ({self.max_median_depth_m}) must exceed "
                               f"min_median_depth_m ({self.min_median_depth_m})")

@@ -15,6 +15,7 @@ from models.depth_model import DepthModel
 from runtime.errors import DataError, EstimatorError
 from runtime.events import Frame
 from runtime.ffinit.config import FFInitConfig
+from runtime.ffinit.extension import EXTENDABLE, ExtensionSeed, TrackSet, extended_observations
 from runtime.ffinit.gyro_bias import align_gyro_bias, rotation_residuals
 from runtime.ffinit.linear import scale_bias_sensitivity
 from runtime.ffinit.refine import Refined, refine
@@ -180,4 +181,36 @@ class FeedForwardInitializer:
         result = solve_window(window, self.cfg, rebuild)
         if isinstance(result, InitResult):
             result.info["da3"] = dict(pred.info)
+        elif result.reason in EXTENDABLE and K is not None:
+            result.seed = ExtensionSeed(np.array(t_cam, np.int64), obs, pred.depth, pred.conf,
+                                        np.asarray(K, float), result.reason)
+        return result
+
+    def solve_extended(self, seed: ExtensionSeed, tracks: Sequence[TrackSet], imu_t_ns: np.ndarray,
+                       gyro: np.ndarray, accel: np.ndarray, bg: np.ndarray | None = None,
+                       ba: np.ndarray | None = None) -> InitResult | Rejection:
+        """Re-solve a refused window over a longer span, without a model call
+        (runtime.ffinit.extension): tracks holds the front-end's tracks in the window's images, then in
+        the newer frames (increasing stamps). A rejection a still longer span could cure keeps the seed."""
+        ext = extended_observations(seed, tracks, self.cfg)
+        if isinstance(ext, Rejection):
+            return ext
+        t_cam = [int(t) for t in seed.t_cam_ns] + [t for t, _ in ext]
+        obs = list(seed.observations) + [o for _, o in ext]
+
+        def rebuild(bg_new: np.ndarray) -> InitWindow:
+            return build_window(t_cam, obs, imu_t_ns, gyro, accel, self.R_IC, self.p_IC,
+                                self.time_offset_s, bg_new, ba)
+
+        try:
+            window = rebuild(np.zeros(3) if bg is None else bg)
+        except DataError as exc:
+            return Rejection("imu_gap", str(exc))
+        result = solve_window(window, self.cfg, rebuild)
+        span_s = (t_cam[-1] - t_cam[0]) * 1e-9
+        if isinstance(result, InitResult):
+            result.info.update({"extended_from": seed.reason, "extended_frames": len(ext),
+                                "span_s": span_s})
+        elif result.reason in EXTENDABLE:
+            result.seed = seed
         return result

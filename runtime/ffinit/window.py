@@ -5,6 +5,7 @@ Frames: C_i = camera at image i, I_i = IMU at image i, i = 0 the reference image
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -82,6 +83,8 @@ class Rejection:
 
     reason: str
     detail: str = ""
+    seed: Any = field(default=None, repr=False, compare=False)
+    """An ExtensionSeed when a longer span could cure the rejection (runtime.ffinit.extension)."""
 
     def __str__(self) -> str:
         return f"{self.reason}: {self.detail}" if self.detail else self.reason

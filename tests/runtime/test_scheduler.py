@@ -74,6 +74,27 @@ def test_fast_clock_is_deterministic_and_lossless():
     assert sensor == sorted(sensor) and len(sensor) == 440
 
 
+class SolvePipeline(TracePipeline):
+    """Alternates model jobs and jobs that call no model (a start-up re-solve: job.model_call False)."""
+
+    def next_model_job(self):
+        job = super().next_model_job()
+        if job is not None and self.requests % 2 == 0:
+            job.model_call = False
+        return job
+
+
+def test_fast_clock_applies_a_job_without_a_model_call_after_the_solve_latency():
+    pipe = SolvePipeline(lambda: 0.0)
+    Scheduler(FastClock(model_latency_s=0.25, solve_latency_s=0.05), queue_size=16).run(_events(), pipe)
+    # applied before the first event at or after the release time (the trace holds the event before it)
+    latency = [t_applied - t_req for kind, t_req, t_applied in
+               (e for e in pipe.trace if e[0] == "model")]
+    assert len(latency) == 3
+    assert 245_000_000 <= latency[0] < 250_000_000 and 245_000_000 <= latency[2] < 250_000_000
+    assert 45_000_000 <= latency[1] < 50_000_000      # the second job called no model
+
+
 def test_paced_clock_waits_for_sensor_time():
     clock = PacedClock(speed=10.0)
     t0 = time.monotonic()

@@ -243,7 +243,9 @@ def _summary(rows: list[dict]) -> dict:
             "T_correct_after_reset_median": med("T_correct_after_reset", only_success=False),
             "gravity_err_deg_median": med("gravity_err_deg"), "velocity_err_median": med("velocity_err"),
             "ate_median": med("ate"), "sources": sources,
-            "ff_scale_err": _distribution(ff_scale)}
+            "ff_scale_err": _distribution(ff_scale),
+            "ff_extended_windows": int(sum(r.get("source") == "feedforward"
+                                           and r.get("ff_extension_accepted", 0) > 0 for r in rows))}
 
 
 def _distribution(vals: list[float]) -> dict | None:
@@ -338,13 +340,19 @@ def run(args: argparse.Namespace) -> int:
             res = run_pipeline(_WindowDriver(rec, t0, t1), model, cfg, model_latency_s=args.model_latency,
                                show_progress=False)
             row = _score(res.pipeline, gt, t0, args.window, args.ate_threshold, args.min_span)
-            row.update({"window": w, "start_s": (t0 - t_first) * 1e-9,
-                        "ff_rejections": res.pipeline.startup.report.ff_rejections})
+            srep = res.pipeline.startup.report
+            row.update({"window": w, "start_s": (t0 - t_first) * 1e-9, "ff_rejections": srep.ff_rejections,
+                        "ff_extensions": srep.ff_extensions,
+                        "ff_extension_accepted": srep.ff_extension_accepted,
+                        "ff_extension_rejections": srep.ff_extension_rejections})
             rows[arm].append(row)
             if not args.json:
                 print(f"  window {w:2d} ({row['start_s']:6.1f} s) {arm:16s} "
                       f"{'ok ' if row['success'] else 'FAIL'} T_f {row['T_f']:5.2f} s"
-                      f"  ATE {row.get('ate', float('nan')):.3f} m  by {row['source']}", flush=True)
+                      f"  ATE {row.get('ate', float('nan')):.3f} m  by {row['source']}"
+                      + (f" (re-solved {srep.ff_extensions}x over a longer span)"
+                         if srep.ff_extensions else ""),
+                      flush=True)
     result = {arm: _summary(r) for arm, r in rows.items()}
     result["source"] = rec.info
     result["arms"] = list(arms)

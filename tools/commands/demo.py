@@ -103,6 +103,9 @@ def run(args: argparse.Namespace) -> int:
     if st is not None and not args.json:
         print(f"  start-up: {st['ff_requests']} feed-forward windows, {st['ff_accepted']} accepted, "
               f"rejections {st['ff_rejections'] or '{}'}; candidates selected {st['candidates_selected']}")
+        if st.get("ff_extensions"):
+            print(f"  refused windows re-solved over a longer span (no model call): {st['ff_extensions']}, "
+                  f"{st['ff_extension_accepted']} accepted")
         print("  " + _race_line(report))
     return code
 

@@ -257,6 +257,12 @@ def _recovery_lines(report: dict) -> list[str]:
     if startup.get("ff_rejections"):
         reasons = ", ".join(f"{k} x{v}" for k, v in sorted(startup["ff_rejections"].items()))
         lines.append(f"feed-forward windows rejected: {reasons}")
+    if startup.get("ff_extensions"):
+        ext_rej = startup.get("ff_extension_rejections") or {}
+        reasons = ", ".join(f"{k} x{v}" for k, v in sorted(ext_rej.items()))
+        lines.append(f"refused windows re-solved over a longer span: {startup['ff_extensions']}, "
+                     f"{startup.get('ff_extension_accepted', 0)} accepted"
+                     + (f" (rejected: {reasons})" if reasons else ""))
     # every diverged filter sends start-up back to both initializers (the filter counters only know their own)
     resets = startup.get("restarts_after_divergence") or 0
     if resets:
