@@ -279,8 +279,11 @@ class VioPipeline:
             return None
         seed, stamps = due
         tracks = self.startup.tracks_at(stamps)
+        if tracks is None:     # a frame's tracks left the buffer: they will not come back
+            self.startup.end_extension("extension_tracks_lost")
+            return None
         imu = self.startup.imu_between(stamps[0], stamps[-1])
-        if tracks is None or imu is None:
+        if imu is None:        # not yet covered (or lost: the seed then expires after extend_refused_s)
             return None
         self.startup.note_extension(stamps)
         ffinit, camera = self.ffinit, self.rig.camera

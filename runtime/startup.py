@@ -330,6 +330,14 @@ class StartupManager:
         """A refused window still waits for a longer re-solve (no new model window meanwhile)."""
         return self._seed is not None and self.publisher is None and self._tried < self.cfg.max_candidates
 
+    def end_extension(self, reason: str) -> None:
+        """Give up the re-solves of the refused window (counted under `reason`), e.g. when its tracks
+        left the buffer; model windows are requested again."""
+        if self._seed is not None:
+            self._seed = None
+            counts = self.report.ff_extension_rejections
+            counts[reason] = counts.get(reason, 0) + 1
+
     def note_extension(self, stamps: list[int]) -> None:
         """Count a re-solve over `stamps` (the next waits one spacing after its newest frame)."""
         self.report.ff_extensions += 1

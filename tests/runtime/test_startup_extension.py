@@ -87,3 +87,6 @@ def test_re_solves_are_off_with_extend_refused_s_zero_and_a_missing_track_set_gi
     m2, ev2 = _manager(StartupConfig())
     _feed(m2, ev2, 1300 * MS)
     assert m2.tracks_at([1300 * MS, 1325 * MS]) is None             # no frame at 1.325 s
+    m2.on_feedforward(_refusal())
+    m2.end_extension("extension_tracks_lost")                       # what the pipeline does then
+    assert not m2.extension_pending() and m2.report.ff_extension_rejections == {"extension_tracks_lost": 1}
