@@ -169,16 +169,7 @@ class FeedForwardInitializer:
         pred = self.model.predict(list(frames))
         K = self.model.K_rect if self.use_rig_intrinsics else None
         obs = observations_from_prediction(pred, self.cfg, K=K, seed=self.cfg.seed)
-
-        def rebuild(bg_new: np.ndarray) -> InitWindow:
-            return build_window(t_cam, obs, imu_t_ns, gyro, accel, self.R_IC, self.p_IC,
-                                self.time_offset_s, bg_new, ba)
-
-        try:
-            window = rebuild(np.zeros(3) if bg is None else bg)
-        except DataError as exc:
-            return Rejection("imu_gap", str(exc))
-        result = solve_window(window, self.cfg, rebuild)
+        result = self._solve(t_cam, obs, imu_t_ns, gyro, accel, bg, ba)
         if isinstance(result, InitResult):
             result.info["da3"] = dict(pred.info)
         elif result.reason in EXTENDABLE and K is not None:
@@ -197,6 +188,18 @@ class FeedForwardInitializer:
             return ext
         t_cam = [int(t) for t in seed.t_cam_ns] + [t for t, _ in ext]
         obs = list(seed.observations) + [o for _, o in ext]
+        result = self._solve(t_cam, obs, imu_t_ns, gyro, accel, bg, ba)
+        span_s = (t_cam[-1] - t_cam[0]) * 1e-9
+        if isinstance(result, InitResult):
+            result.info.update({"extended_from": seed.reason, "extended_frames": len(ext),
+                                "span_s": span_s})
+        elif result.reason in EXTENDABLE:
+            result.seed = seed
+        return result
+
+    def _solve(self, t_cam: list[int], obs: list[ImageObservations], imu_t_ns: np.ndarray, gyro: np.ndarray,
+               accel: np.ndarray, bg: np.ndarray | None, ba: np.ndarray | None) -> InitResult | Rejection:
+        """Preintegrate to every image (again at each new gyro bias) and solve the window."""
 
         def rebuild(bg_new: np.ndarray) -> InitWindow:
             return build_window(t_cam, obs, imu_t_ns, gyro, accel, self.R_IC, self.p_IC,
@@ -206,11 +209,4 @@ class FeedForwardInitializer:
             window = rebuild(np.zeros(3) if bg is None else bg)
         except DataError as exc:
             return Rejection("imu_gap", str(exc))
-        result = solve_window(window, self.cfg, rebuild)
-        span_s = (t_cam[-1] - t_cam[0]) * 1e-9
-        if isinstance(result, InitResult):
-            result.info.update({"extended_from": seed.reason, "extended_frames": len(ext),
-                                "span_s": span_s})
-        elif result.reason in EXTENDABLE:
-            result.seed = seed
-        return result
+        return solve_window(window, self.cfg, rebuild)
