@@ -282,8 +282,8 @@ class VioPipeline:
         if tracks is None:     # a frame's tracks left the buffer: they will not come back
             self.startup.end_extension("extension_tracks_lost")
             return None
-        imu = self.startup.imu_between(stamps[0], stamps[-1])
-        if imu is None:        # not yet covered (or lost: the seed then expires after extend_refused_s)
+        imu = self.startup.extension_imu(stamps)
+        if imu is None:
             return None
         self.startup.note_extension(stamps)
         ffinit, camera = self.ffinit, self.rig.camera
@@ -329,6 +329,10 @@ class VioPipeline:
                 self._apply_commit(result)
             return
         if isinstance(result, Exception):
+            if self._job_kind == "extension":   # no model call failed: the re-solve did; give it up
+                self.stats.ff_exceptions.append(f"start-up re-solve: {type(result).__name__}: {result}")
+                self.startup.end_extension("exception")
+                return
             self.stats.ff_exceptions.append(f"{type(result).__name__}: {result}")
             return
         if self._job_kind == "bringup":

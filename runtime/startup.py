@@ -50,8 +50,10 @@ class StartupConfig:
     """Use the feed-forward initializer."""
     extend_refused_s: float = 1.0
     """A window refused for too short a span (runtime.ffinit.extension.EXTENDABLE) is re-solved, without a
-    model call, with the frames tracked after it, one spacing at a time, until its newest frame is this
-    many seconds past the window's last image (0: off). Meanwhile no new model window is requested."""
+    model call, with the frames tracked after it (spaced about window_spacing_s, ending at the newest
+    frame), again each spacing, while the newest frame is at most this many seconds past the window's last
+    image (0: off). Meanwhile no new model window is requested. Measured from the window, not from the
+    model's answer: a model slower than this never gets a re-solve."""
     native: bool = True
     """Keep the filter's own (static/dynamic) initializers armed."""
 
@@ -182,6 +184,7 @@ class StartupReport:
     ff_extensions: int = 0
     """Re-solves of refused windows over a longer span (no model call)."""
     ff_extension_accepted: int = 0
+    """Re-solves that gave a state (not in ff_accepted, which counts model windows)."""
     ff_extension_rejections: dict = field(default_factory=dict)
     ff_extension_expired: int = 0
     """Refused windows whose extension reached extend_refused_s without an accepted state."""
@@ -285,17 +288,32 @@ class StartupManager:
 
     def imu_between(self, t0_cam_ns: int, t1_cam_ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """imu_for between two camera stamps."""
+        imu, lost = self._imu_span(t0_cam_ns, t1_cam_ns)
+        t1 = int(t1_cam_ns) + self.offset_ns
+        if lost and self._refused_window_ns != t1:
+            self._refused_window_ns = t1
+            self.report.ff_windows_imu_lost += 1
+        return imu
+
+    def _imu_span(self, t0_cam_ns: int, t1_cam_ns: int) -> tuple[tuple | None, bool]:
+        """(IMU arrays covering the span, or None; whether samples were lost inside it)."""
         t0 = int(t0_cam_ns) + self.offset_ns
         t1 = int(t1_cam_ns) + self.offset_ns
         t, w, a = self.buffer.imu_arrays(t0 - 20_000_000, t1 + 20_000_000)
         if t.size < 2 or t[0] > t0 or t[-1] < t1:
-            return None
+            return None, False
         if any(t[0] < lost <= t[-1] for lost in self._imu_loss_ns):
-            if self._refused_window_ns != t1:
-                self._refused_window_ns = t1
-                self.report.ff_windows_imu_lost += 1
-            return None
-        return t, w, a
+            return None, True
+        return (t, w, a), False
+
+    def extension_imu(self, stamps: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """IMU arrays for a re-solve over `stamps`, or None: not yet covered (the IMU lags the newest
+        frame), or lost inside the span, which never heals: the re-solves are then given up (counted
+        as extension_imu_lost, not as a lost model window)."""
+        imu, lost = self._imu_span(stamps[0], stamps[-1])
+        if lost:
+            self.end_extension("extension_imu_lost")
+        return imu
 
     def extension(self) -> tuple[Any, list[int]] | None:
         """(seed, stamps) of a due re-solve of the refused window over a longer span, or None.
@@ -362,7 +380,9 @@ class StartupManager:
             counts = self.report.ff_extension_rejections if extension else self.report.ff_rejections
             counts[reason] = counts.get(reason, 0) + 1
             seed = getattr(result, "seed", None)
-            if seed is not None and self.cfg.extend_refused_s > 0:
+            if self.publisher is not None:   # another filter publishes already: nothing to re-solve
+                self._seed = None
+            elif seed is not None and self.cfg.extend_refused_s > 0:
                 if not extension:
                     self._seed_tried_ns = seed.last_ns
                 self._seed = seed
@@ -370,9 +390,10 @@ class StartupManager:
                 self._seed = None
             return
         self._seed = None
-        if extension:
+        if extension:   # the window's own refusal is in ff_rejections: count the re-solve apart
             self.report.ff_extension_accepted += 1
-        self.report.ff_accepted += 1
+        else:
+            self.report.ff_accepted += 1
         if self.publisher is not None or self._tried >= self.cfg.max_candidates:
             return
         start = None

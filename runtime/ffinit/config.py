@@ -100,7 +100,8 @@ class FFInitConfig:
 
     # longer re-solve of a refused window (added, issue 15; runtime.ffinit.extension)
     extension_pnp_px: float = 3.0
-    """PnP RANSAC inlier threshold for a newer frame's pose from the tracked DA3 points, pixels."""
+    """PnP RANSAC inlier threshold for a newer frame's pose from the tracked DA3 points, pixels (of the
+    rectified view, through its fx)."""
     extension_min_inliers: int = 30
     """A newer frame joins the window only with at least this many PnP inliers..."""
     extension_min_inlier_fraction: float = 0.4
@@ -110,7 +111,7 @@ class FFInitConfig:
     (no depth edge through the pixel)."""
     extension_point_spread: float = 0.1
     """A track seen in several window images is dropped when one of its DA3 points lies further than this
-    fraction of its depth from their median."""
+    fraction of its median depth (in the images that see it) from their median."""
 
     # refinement (Sec. IV-C)
     sigma_u: float = 0.007

@@ -62,8 +62,10 @@ def _sample_map(m: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     neighbourhood of the nearest pixel (inf outside the image or where a neighbour is not a positive
     finite value)."""
     h, w = m.shape
-    iu, iv = np.rint(uv[:, 0]).astype(int), np.rint(uv[:, 1]).astype(int)
-    inside = (iu >= 1) & (iu < w - 1) & (iv >= 1) & (iv < h - 1)
+    finite = np.all(np.isfinite(uv), axis=1)
+    iu = np.where(finite, np.rint(np.where(finite, uv[:, 0], -1.0)), -1).astype(int)
+    iv = np.where(finite, np.rint(np.where(finite, uv[:, 1], -1.0)), -1).astype(int)
+    inside = finite & (iu >= 1) & (iu < w - 1) & (iv >= 1) & (iv < h - 1)
     val = np.full(len(uv), np.nan)
     ratio = np.full(len(uv), np.inf)
     if not np.any(inside):
@@ -90,7 +92,7 @@ def track_points_C0(seed: ExtensionSeed, tracks: Sequence[TrackSet],
     1 + extension_edge_ratio: KLT corners sit on occlusion boundaries, where a pixel's depth may be
     either surface's); depth and confidence are interpolated bilinearly. A track seen in several images
     takes the median of its points, and is dropped when one of them lies further than
-    extension_point_spread x its median depth from that median.
+    extension_point_spread x the median of its depths (in the cameras that see it) from that median.
     """
     by_id: dict[int, list[tuple[np.ndarray, float, float]]] = {}
     K = seed.K
@@ -101,8 +103,9 @@ def track_points_C0(seed: ExtensionSeed, tracks: Sequence[TrackSet],
         uv = ts.z * np.array([K[0, 0], K[1, 1]]) + K[:2, 2]
         d, ratio = _sample_map(seed.depth[i], uv)
         c, _ = _sample_map(seed.conf[i], uv)
-        finite_conf = seed.conf[i][np.isfinite(seed.conf[i])]
-        thr = np.percentile(finite_conf, cfg.conf_percentile) if finite_conf.size else np.inf
+        dm, cm = seed.depth[i], seed.conf[i]
+        valid = np.isfinite(dm) & (dm > 0) & np.isfinite(cm)   # as runtime.ffinit.sampling
+        thr = np.percentile(cm[valid], cfg.conf_percentile) if np.any(valid) else np.inf
         good = np.isfinite(d) & (d > 0) & np.isfinite(c) & (c > thr) & \
             (ratio < 1.0 + cfg.extension_edge_ratio) & np.all(np.isfinite(ts.z), axis=1)
         zt = np.column_stack([ts.z[good], np.ones(int(good.sum()))])
@@ -125,7 +128,8 @@ def pnp_observations(points: dict[int, tuple[np.ndarray, float]], ts: TrackSet, 
                      guess: tuple[np.ndarray, np.ndarray] | None = None) -> ImageObservations | Rejection:
     """A newer frame's observations of the DA3 points: its pose in C0 at DA3's scale by PnP RANSAC
     (OpenCV, then Levenberg-Marquardt on the inliers), at most max_points_per_image inliers with their
-    depth in C_j. guess: (rvec, tvec) of T_CjC0 from the previous frame."""
+    depth in C_j. focal_px: converts extension_pnp_px to normalized units (fx of the rectified view).
+    guess: (rvec, tvec) of T_CjC0 from the previous frame."""
     import cv2
 
     keep = [k for k, tid in enumerate(ts.ids) if int(tid) in points and np.all(np.isfinite(ts.z[k]))]
@@ -177,6 +181,12 @@ def extended_observations(seed: ExtensionSeed, tracks: Sequence[TrackSet],
     n = len(seed.t_cam_ns)
     if len(tracks) <= n:
         return Rejection("extension_no_frames", "no frame after the window's images")
+    h, w = seed.depth.shape[1:]
+    cx, cy = seed.K[0, 2], seed.K[1, 2]
+    if not (0.25 * w < cx < 0.75 * w and 0.25 * h < cy < 0.75 * h):
+        return Rejection("extension_depth_size",
+                         f"the depth maps ({w}x{h}) do not hold K's principal point ({cx:.0f}, {cy:.0f}) "
+                         "near their centre: they are not at the resolution K describes")
     points = track_points_C0(seed, tracks[:n], cfg)
     rng = np.random.default_rng(cfg.seed)
     out: list[tuple[int, ImageObservations]] = []

@@ -206,3 +206,29 @@ def test_too_few_tracks_or_wrong_tracks_refuse_the_extension_by_name():
     assert isinstance(rej, Rejection) and rej.reason == "extension_pnp_failed"
     rej = extended_observations(refused.seed, sets[:5], FFInitConfig())
     assert isinstance(rej, Rejection) and rej.reason == "extension_no_frames"
+
+
+def test_depth_maps_at_another_resolution_than_k_are_refused_by_name():
+    _, refused, _ = _refused_window(np.zeros(3))
+    seed = refused.seed
+    half = ExtensionSeed(seed.t_cam_ns, seed.observations, seed.depth[:, ::2, ::2], seed.conf[:, ::2, ::2],
+                         seed.K, seed.reason)
+    rej = extended_observations(half, _later_tracks(1.2, plane_points()), FFInitConfig())
+    assert isinstance(rej, Rejection) and rej.reason == "extension_depth_size"
+
+
+def test_tracks_the_camera_model_could_not_undistort_are_skipped_quietly():
+    """undistort_points returns NaN rows where it does not converge: no warning, no point from them."""
+    import warnings
+
+    _, refused, _ = _refused_window(np.zeros(3))
+    sets = _later_tracks(1.2, plane_points())
+    for ts in sets:
+        ts.z[::3] = np.nan
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        pts = track_points_C0(refused.seed, sets[:5], FFInitConfig())
+        ext = extended_observations(refused.seed, sets, FFInitConfig())
+    good_ids = {int(i) for ts in sets[:5] for k, i in enumerate(ts.ids) if k % 3}
+    assert pts and set(pts) <= good_ids           # a track seen only where NaN carries no point
+    assert isinstance(ext, list) and all(np.all(np.isfinite(o.z)) for _, o in ext)

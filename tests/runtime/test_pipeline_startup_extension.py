@@ -39,3 +39,44 @@ def test_a_refused_window_re_solved_over_a_longer_span_starts_before_the_native_
     # and the state it published is right: the first trajectory passes the paper's test, scale within 10 %
     assert on["success"] and not on["published_wrong"] and on["ate"] < 0.05
     assert on["scale_err"] < 0.1
+
+
+def test_a_failing_re_solve_is_reported_as_such_and_gives_the_re_solves_up():
+    """Through the pipeline's own job path: the re-solve job is issued when due, and its exception is
+    counted apart from failed model calls and ends the re-solves (model windows are requested again)."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from drivers.sim import SimConfig, SimRecording
+    from models.emulated_da3 import EmulatedDA3
+    from runtime.pipeline import VioPipeline
+
+    rec = SimRecording.from_preset(SimConfig(preset="handheld", seconds=1.6, seed=0))
+    cam = rec.rig.camera
+    model = EmulatedDA3(rec.gt_source, cam.K, cam.width, cam.height, preset="base", seed=0)
+    pipe = VioPipeline(rec.rig, model)
+    stamps = []
+    for ev in rec.events():   # frames to 1.3 s, the IMU a little past them (it must cover the newest frame)
+        if ev.t_ns - rec.frame_stamps_ns[0] > 1_320_000_000:
+            break
+        if hasattr(ev, "image"):
+            if ev.t_ns - rec.frame_stamps_ns[0] > 1_300_000_000:
+                continue
+            pipe.on_frame(ev)
+            stamps.append(int(ev.t_ns))
+        else:
+            pipe.on_imu(ev)
+    assert not pipe.startup.published
+    window = [t for t in stamps if (t - stamps[0]) % 200_000_000 == 0 and t - stamps[0] <= 800_000_000]
+    assert len(window) == 5
+    seed = SimpleNamespace(t_cam_ns=np.array(window), last_ns=window[-1])
+    pipe.startup.on_feedforward(SimpleNamespace(reason="scale_unobservable", seed=seed))
+    job = pipe.next_model_job()
+    assert job is not None and job.model_call is False          # the re-solve, not a model window
+    pipe.on_model_result(RuntimeError("boom"))
+    assert pipe.stats.ff_exceptions == ["start-up re-solve: RuntimeError: boom"]
+    assert pipe.startup.report.ff_extension_rejections == {"exception": 1}
+    assert not pipe.startup.extension_pending()
+    job = pipe.next_model_job()
+    assert job is not None and getattr(job, "model_call", True)  # a model window again

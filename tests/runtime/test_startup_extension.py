@@ -75,7 +75,7 @@ def test_an_accepted_re_solve_starts_a_candidate_and_a_final_refusal_ends_the_re
     state = InitResult(1300 * MS, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), None,
                        "feedforward")
     m.on_feedforward(state, extension=True)
-    assert m.report.ff_extension_accepted == 1 and m.report.ff_accepted == 1
+    assert m.report.ff_extension_accepted == 1 and m.report.ff_accepted == 0   # model windows only
     assert m.report.candidates_started == 1 and not m.extension_pending()
 
 
@@ -90,3 +90,31 @@ def test_re_solves_are_off_with_extend_refused_s_zero_and_a_missing_track_set_gi
     m2.on_feedforward(_refusal())
     m2.end_extension("extension_tracks_lost")                       # what the pipeline does then
     assert not m2.extension_pending() and m2.report.ff_extension_rejections == {"extension_tracks_lost": 1}
+
+
+def test_imu_lost_inside_the_span_ends_the_re_solves_once_without_counting_a_lost_model_window():
+    m, ev = _manager()
+    out = []
+    for kind, t in ev:
+        if t > 1300 * MS:
+            break
+        if kind == "imu":
+            lost = 3 if t == 1_005_000_000 else 0      # after the window, inside the re-solve's span
+            m.on_imu(ImuSample(t, np.zeros(3), np.array([0, 0, 9.81]), lost_before=lost))
+        else:
+            m.on_tracks(t, np.arange(3) + t, np.zeros((3, 2)), Frame(t, np.zeros((4, 4), np.uint8)))
+        out.append(t)
+    m.on_feedforward(_refusal())
+    _, stamps = m.extension()
+    assert m.extension_imu(WINDOW) is not None                      # the window itself is intact
+    assert m.extension_imu(stamps) is None and not m.extension_pending()
+    assert m.report.ff_extension_rejections == {"extension_imu_lost": 1}
+    assert m.report.ff_windows_imu_lost == 0
+
+
+def test_a_refusal_that_arrives_after_another_filter_published_keeps_no_seed():
+    m = StartupManager(lambda native: RecordingFilter(native_init_at_ns=1000 * MS), StartupConfig())
+    _feed(m, list(_stream(4.0)), 1300 * MS)
+    assert m.published
+    m.on_feedforward(_refusal(), extension=True)
+    assert not m.extension_pending() and m.extension() is None
