@@ -23,6 +23,8 @@ import numpy as np
 from runtime.events import Frame, ImuSample
 from runtime.geometry.se3 import make_pose
 from runtime.msckf.init_common import InitResult
+from runtime.startup_buffer import MeasurementBuffer, nearest_stamps
+from runtime.startup_resolves import ReSolves
 
 
 @dataclass
@@ -78,63 +80,6 @@ class Published:
     def T_OI(self) -> np.ndarray:
         """(4,4) the IMU pose in the odometry frame."""
         return make_pose(self.R_OI, self.p_OI)
-
-
-@dataclass
-class _Entry:
-    seq: int
-    kind: str  # "imu" | "tracks"
-    t_ns: int  # sensor time (IMU clock for imu, camera clock for tracks)
-    payload: Any
-
-
-class MeasurementBuffer:
-    """The last `buffer_s` seconds of measurements, with monotonically increasing sequence numbers."""
-
-    def __init__(self, buffer_s: float) -> None:
-        self.horizon_ns = int(buffer_s * 1e9)
-        self.entries: deque[_Entry] = deque()
-        self.next_seq = 0
-
-    def append(self, kind: str, t_ns: int, payload: Any) -> int:
-        e = _Entry(self.next_seq, kind, int(t_ns), payload)
-        self.entries.append(e)
-        self.next_seq += 1
-        return e.seq
-
-    @property
-    def first_seq(self) -> int:
-        return self.entries[0].seq if self.entries else self.next_seq
-
-    def trim(self, newest_ns: int, keep_from_seq: int | None = None) -> None:
-        """Drop entries older than the horizon, but never one at or after keep_from_seq."""
-        while self.entries and self.entries[0].t_ns < newest_ns - self.horizon_ns:
-            if keep_from_seq is not None and self.entries[0].seq >= keep_from_seq:
-                break
-            self.entries.popleft()
-
-    def get(self, seq: int) -> _Entry:
-        return self.entries[seq - self.first_seq]
-
-    def imu_arrays(self, t0_ns: int, t1_ns: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """IMU samples with t0 <= t <= t1 (IMU clock) as arrays (t_ns, gyro, accel)."""
-        s = [e.payload for e in self.entries if e.kind == "imu" and t0_ns <= e.t_ns <= t1_ns]
-        if not s:
-            return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3))
-        return (np.array([x.t_ns for x in s], np.int64), np.array([x.gyro for x in s], float),
-                np.array([x.accel for x in s], float))
-
-
-def nearest_stamps(stamps_ns: np.ndarray, ideal_ns: list[int], tol_s: float) -> list[int] | None:
-    """Index of the stamp nearest each ideal time (ns), or None when one is farther than tol_s or two
-    ideal times pick the same stamp."""
-    out = []
-    for ideal in ideal_ns:
-        i = int(np.argmin(np.abs(stamps_ns - ideal)))
-        if abs(int(stamps_ns[i]) - ideal) > tol_s * 1e9:
-            return None
-        out.append(i)
-    return out if len(set(out)) == len(out) else None
 
 
 class Candidate:
@@ -225,8 +170,7 @@ class StartupManager:
         self._last_request_ns: int | None = None
         self._imu_loss_ns: deque[int] = deque(maxlen=256)
         self._refused_window_ns: int | None = None
-        self._seed: Any = None
-        self._seed_tried_ns = 0
+        self._resolves = ReSolves(self.cfg.extend_refused_s, self.cfg.window_spacing_s, self.report)
 
     # ------------------------------------------------------------------ measurements
     @property
@@ -319,53 +263,34 @@ class StartupManager:
         """(seed, stamps) of a due re-solve of the refused window over a longer span, or None.
 
         stamps: the window's images, then the frames after it spaced about one window spacing, ending at
-        the newest frame. Due when the newest frame is a spacing past the previous try; the seed expires
-        (counted) once the newest frame is extend_refused_s past the window."""
-        seed = self._seed
-        if seed is None or self.publisher is not None or self._tried >= self.cfg.max_candidates \
-                or not self._frames:
-            return None
-        newest = int(self._frames[-1].t_ns)
-        if newest - seed.last_ns > self.cfg.extend_refused_s * 1e9:
-            self._seed = None
-            self.report.ff_extension_expired += 1
-            return None
-        spacing_ns = self.cfg.window_spacing_s * 1e9
-        if newest - self._seed_tried_ns < 0.999 * spacing_ns:
+        the newest frame (runtime.startup_resolves.ReSolves decides when one is due and when they end)."""
+        if not self.extension_pending() or not self._frames:
             return None
         t = np.array([f.t_ns for f in self._frames], np.int64)
-        ideal = []
-        k = 0
-        while newest - k * spacing_ns > seed.last_ns + 0.5 * spacing_ns:
-            ideal.insert(0, int(newest - round(k * spacing_ns)))
-            k += 1
-        idx = nearest_stamps(t, ideal, self.cfg.window_tolerance_s)
+        ideal = self._resolves.due_times(int(t[-1]))
+        idx = None if ideal is None else nearest_stamps(t, ideal, self.cfg.window_tolerance_s)
         if idx is None:
             return None
+        seed = self._resolves.seed
         return seed, [int(s) for s in seed.t_cam_ns] + [int(t[i]) for i in idx]
 
     def extension_pending(self) -> bool:
         """A refused window still waits for a longer re-solve (no new model window meanwhile)."""
-        return self._seed is not None and self.publisher is None and self._tried < self.cfg.max_candidates
+        return self._resolves.seed is not None and self.publisher is None \
+            and self._tried < self.cfg.max_candidates
 
     def end_extension(self, reason: str) -> None:
         """Give up the re-solves of the refused window (counted under `reason`), e.g. when its tracks
         left the buffer; model windows are requested again."""
-        if self._seed is not None:
-            self._seed = None
-            counts = self.report.ff_extension_rejections
-            counts[reason] = counts.get(reason, 0) + 1
+        self._resolves.end(reason)
 
     def note_extension(self, stamps: list[int]) -> None:
         """Count a re-solve over `stamps` (the next waits one spacing after its newest frame)."""
-        self.report.ff_extensions += 1
-        self._seed_tried_ns = int(stamps[-1])
+        self._resolves.note(stamps)
 
     def tracks_at(self, stamps: list[int]) -> list[tuple[int, np.ndarray, np.ndarray]] | None:
         """The front-end's buffered (t_cam_ns, ids, uv) at each stamp, or None if one left the buffer."""
-        by_t = {e.t_ns: e.payload for e in self.buffer.entries if e.kind == "tracks"}
-        out = [by_t.get(int(t)) for t in stamps]
-        return None if any(o is None for o in out) else out
+        return self.buffer.tracks_at(stamps)
 
     def note_request(self, frames: list[Frame]) -> None:
         """Count a feed-forward request on `frames` (the next window waits one spacing after it)."""
@@ -381,15 +306,13 @@ class StartupManager:
             counts[reason] = counts.get(reason, 0) + 1
             seed = getattr(result, "seed", None)
             if self.publisher is not None:   # another filter publishes already: nothing to re-solve
-                self._seed = None
-            elif seed is not None and self.cfg.extend_refused_s > 0:
-                if not extension:
-                    self._seed_tried_ns = seed.last_ns
-                self._seed = seed
+                self._resolves.drop()
+            elif seed is not None:
+                self._resolves.keep(seed, from_model_window=not extension)
             elif extension:
-                self._seed = None
+                self._resolves.drop()
             return
-        self._seed = None
+        self._resolves.drop()
         if extension:   # the window's own refusal is in ff_rejections: count the re-solve apart
             self.report.ff_extension_accepted += 1
         else:
@@ -461,7 +384,7 @@ class StartupManager:
         self.candidates.clear()
         self.buffer.entries.clear()
         self._frames.clear()
-        self._seed = None
+        self._resolves.drop()
 
     def _publish(self, states: list) -> list[Published]:
         out = []

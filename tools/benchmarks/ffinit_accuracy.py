@@ -55,7 +55,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def window_frame_indices(stamps_ns: np.ndarray, t0_ns: int, n: int = 5, spacing_s: float = 0.2,
                          tol_s: float = 0.03) -> list[int] | None:
     """Indices of the n frames nearest t0 + j * spacing (None if one is farther than tol)."""
-    from runtime.startup import nearest_stamps
+    from runtime.startup_buffer import nearest_stamps
 
     return nearest_stamps(stamps_ns, [t0_ns + int(round(j * spacing_s * 1e9)) for j in range(n)], tol_s)
 
