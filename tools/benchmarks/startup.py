@@ -130,37 +130,11 @@ def _overrides(items: list[str]) -> dict:
     return out
 
 
-def _ate_degenerate_truth(est: Any, gt: Any) -> Any:
-    """The SE(3) ATE where the truth's positions cannot fix a rotation (static or collinear): the
-    gravity-aligned frames differ by yaw and translation, so position + yaw alignment; where the truth does
-    not move horizontally either, any rotation maps the estimate onto it equally well and the best fit
-    leaves the estimate's spread about its mean (the yaw is then taken from the first orientations, for
-    the velocity error). None when the estimate does not overlap the truth."""
-    from types import SimpleNamespace
-
-    from runtime.errors import DataError
-    from runtime.geometry import interpolate_poses, rot_z
-    from tools.evaluation import ate
-
-    try:
-        return ate(est, gt, align_method="posyaw")
-    except DataError:
-        pass
-    inside = (est.t_ns >= gt.t_ns[0]) & (est.t_ns <= gt.t_ns[-1])
-    if np.count_nonzero(inside) < 3:
-        return None
-    p = est.p[inside]
-    rmse = float(np.sqrt(np.mean(np.sum((p - p.mean(axis=0)) ** 2, axis=1))))
-    R_off = interpolate_poses(gt, est.t_ns[inside][:1]).R[0] @ est.R[inside][0].T
-    R_yaw = rot_z(np.arctan2(R_off[1, 0], R_off[0, 0]))
-    return SimpleNamespace(trans={"rmse": rmse}, alignment=SimpleNamespace(R=R_yaw, s=1.0))
-
-
 def _judge(seg: list, gt: Any, ate_thr: float, min_span_s: float) -> tuple[bool, Any, float | None]:
     """(success, se3 ATE result or None, sim3 scale error |log s| or None) of one published trajectory:
     success = ATE < ate_thr over at least min_span_s of poses."""
     from runtime.errors import DataError
-    from tools.evaluation import ate
+    from tools.evaluation import ate, ate_degenerate_truth
     from tools.run_io import published_trajectory
 
     est = published_trajectory(seg)
@@ -169,7 +143,7 @@ def _judge(seg: list, gt: Any, ate_thr: float, min_span_s: float) -> tuple[bool,
         res = ate(est, gt, align_method="se3") if len(est) >= 3 else None
         sim = ate(est, gt, align_method="sim3") if len(est) >= 3 and span >= min_span_s else None
     except DataError:   # static or straight-line truth (pure rotation, constant velocity)
-        res, sim = _ate_degenerate_truth(est, gt), None
+        res, sim = ate_degenerate_truth(est, gt), None
     scale_err = None if sim is None else abs(float(np.log(sim.alignment.s)))
     ok = res is not None and res.trans["rmse"] < ate_thr and span >= min_span_s
     return ok, res, scale_err
