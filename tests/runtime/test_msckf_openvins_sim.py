@@ -26,6 +26,10 @@ def test_first_20s_of_udel_gore_against_openvins() -> None:
     ov_ori = float(np.sqrt(np.mean(ov[m, 33] ** 2)))
     ov_pos = float(np.sqrt(np.mean(ov[m, 34] ** 2)))
     run = load_sim_folder(folder, max_seconds=SECONDS)
+    # OpenVINS's triangulation gates (its folder config sets none), not ours
+    cfg = run.config
+    gates = (cfg.tri_max_cond, cfg.tri_min_dist, cfg.tri_max_dist, cfg.tri_max_baseline_ratio)
+    assert gates == (1e4, 0.1, 60.0, 40.0)
     snaps, report = run_filter(run)
     res = evaluate(run, snaps)
     assert report["divergence_resets"] == 0

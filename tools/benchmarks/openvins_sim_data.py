@@ -102,6 +102,15 @@ class SimRun:
     openvins: dict  # OpenVINS's own figures (may be empty)
 
 
+_OPENVINS_TRIANGULATION = {
+    "fi_max_cond_number": ("tri_max_cond", 10000.0),
+    "fi_min_dist": ("tri_min_dist", 0.10),
+    "fi_max_dist": ("tri_max_dist", 60.0),
+    "fi_max_baseline": ("tri_max_baseline_ratio", 40.0),
+}
+"""OpenVINS 2.7's triangulation options: config key -> (MsckfConfig field, OpenVINS's default)."""
+
+
 def load_sim_folder(folder: Path, max_seconds: float | None = None) -> SimRun:
     """Read an openvins_sim folder (plain or gzipped files)."""
     from calib import ImuNoise, PinholeRadtan, Rig
@@ -166,6 +175,10 @@ def load_sim_folder(folder: Path, max_seconds: float | None = None) -> SimRun:
         "zupt_max_disparity": "zupt_max_disparity",
     }
     kw = {ours: est[theirs] for theirs, ours in mapping.items() if theirs in est}
+    # triangulation gates: OpenVINS's own (FeatureInitializerOptions.h) unless the folder sets them, so that
+    # the comparison runs OpenVINS's configuration whatever our defaults are
+    for theirs, (ours, openvins_default) in _OPENVINS_TRIANGULATION.items():
+        kw[ours] = float(est.get(theirs, openvins_default))
     reps = {"GLOBAL_3D": "global_3d", "ANCHORED_MSCKF_INVERSE_DEPTH": "anchored_inverse_depth"}
     if "feat_rep_slam" in est:
         if str(est["feat_rep_slam"]) not in reps:
