@@ -71,7 +71,11 @@ class MsckfConfig:
     # measurement noise and gating
     sigma_pix: float = 1.0  #: pixel noise of MSCKF and SLAM measurements, px
     chi2_multiplier: float = 1.0  #: multiplier of the 95% chi-square threshold
-    # triangulation (OpenVINS FeatureInitializerOptions)
+    # triangulation (OpenVINS FeatureInitializerOptions; OpenVINS's defaults, which its EuRoC configuration
+    # keeps). Opened to 1e5 / 100 the filter keeps its visual updates while turning in place (the camera then
+    # moves only on its lever arm), but tracks at the new edge come with large depth errors that pulled a
+    # slow sideways body's velocity from 0.05 to 0.01 m/s and cost one measured-IMU map 0.2 F@10: measured,
+    # not adopted (BENCHMARKS "Triangulation gates for turning in place")
     tri_max_cond: float = 1e4  #: reject when cond(A) of the linear system exceeds this
     tri_min_dist: float = 0.10  #: m, minimum depth in the anchor camera
     tri_max_dist: float = 60.0  #: m, maximum depth in the anchor camera

@@ -121,3 +121,26 @@ def test_rpe_zero_for_rigidly_moved_estimate_and_scale_sensitive() -> None:
     assert rpe(scaled, ref, delta=3, align_method="sim3").rmse < 1e-9
     with pytest.raises(TrajectoryError, match="delta unit"):
         rpe(est, ref, delta=1, delta_unit="s")
+
+
+def test_a_truth_that_turns_in_place_is_scored_by_the_estimate_spread_or_position_and_yaw() -> None:
+    """A static truth fixes no rotation: se3 refuses it, and the ATE is the estimate's RMS spread about its
+    mean (closed form); a truth moving straight along x fixes yaw and translation (posyaw), so an estimate
+    yawed and shifted from it scores zero."""
+    from tools.evaluation import ate_degenerate_truth
+
+    n = 50
+    t_ns = 1_000_000_000 + np.arange(n, dtype=np.int64) * 50_000_000
+    yaw = np.linspace(0.0, 3.0, n)
+    R = Rotation.from_euler("z", yaw[:, None]).as_matrix()
+    static = PoseTrajectory(t_ns, np.zeros((n, 3)), R)
+    with pytest.raises(TrajectoryError):
+        ate(static, static, align_method="se3")
+    rng = np.random.default_rng(3)
+    drift = np.cumsum(rng.normal(scale=0.01, size=(n, 3)), axis=0) + np.array([5.0, -2.0, 1.0])
+    est = PoseTrajectory(t_ns, drift, R)
+    spread = np.sqrt(np.mean(np.sum((drift - drift.mean(axis=0)) ** 2, axis=1)))
+    assert ate_degenerate_truth(est, static).trans["rmse"] == pytest.approx(spread, rel=1e-9)
+    line = PoseTrajectory(t_ns, np.c_[np.linspace(0, 2, n), np.zeros(n), np.zeros(n)], R)
+    moved = transformed(line, rot_z(0.7), np.array([1.0, 2.0, 0.5]))
+    assert ate_degenerate_truth(moved, line).trans["rmse"] == pytest.approx(0.0, abs=1e-9)
