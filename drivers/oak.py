@@ -60,6 +60,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from drivers.kept_frames import KeptFrames
 from runtime.errors import CalibrationError, DavioError, DeviceError
 from runtime.events import Frame, ImuSample
 
@@ -437,7 +438,7 @@ class _Source:
             return buf.popleft()
 
 
-class OakCamera(_Source):
+class OakCamera(KeptFrames, _Source):
     """The camera source of an `OakDevice` (see the module docstring)."""
 
     def __init__(self, owner: OakDevice, keep_frames: int = 2, camera_id: int = 0) -> None:
@@ -471,11 +472,6 @@ class OakCamera(_Source):
             if self.error is not None or not self._running or self._stopping:
                 return NEVER
             return -NEVER if self._last_t is None else self._last_t + 1
-
-    def fps_measured(self) -> float | None:
-        if self._first_t is None or self._last_t is None or self.frames < 2 or self._last_t <= self._first_t:
-            return None
-        return (self.frames - 1) * 1e9 / (self._last_t - self._first_t)
 
     def report(self) -> dict[str, Any]:
         """Counters: frames (kept), emitted, dropped_old (buffer), seq_gaps (frames the device or its
@@ -512,15 +508,7 @@ class OakCamera(_Source):
         with self._cond:
             if self._stopping:
                 return
-            if len(self._buf) >= self.keep_frames:
-                self._buf.popleft()
-                self.dropped_old += 1
-            self._buf.append(frame)
-            self.frames += 1
-            if self._first_t is None:
-                self._first_t = t_ns
-            self._last_t = t_ns
-            self._cond.notify_all()
+            self._keep_newest(frame)
 
     def _to_grey(self, dai: Any, msg: Any) -> np.ndarray:
         kind = msg.getType()

@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from drivers.images import data_bit_depth, to_8bit
+from drivers.kept_frames import KeptFrames
 from runtime.errors import DavioError, DeviceError
 from runtime.events import Frame
 
@@ -47,7 +48,7 @@ _POLL_S = 0.05
 """How often a waiting `get` re-checks for a stall."""
 
 
-class UvcCamera:
+class UvcCamera(KeptFrames):
     """A UVC camera (device index, device path or stream URL) or a video file, read on a thread.
 
     Args:
@@ -218,12 +219,6 @@ class UvcCamera:
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
-
-    def fps_measured(self) -> float | None:
-        """Rate of the kept frames, from their first and last stamps."""
-        if self._first_t is None or self._last_t is None or self.frames < 2 or self._last_t <= self._first_t:
-            return None
-        return (self.frames - 1) * 1e9 / (self._last_t - self._first_t)
 
     def report(self) -> dict[str, Any]:
         """Counters: frames (kept after stamping), emitted (taken by `get`), dropped_old (pushed out
@@ -433,15 +428,7 @@ class UvcCamera:
             with self._cond:
                 if self._stop:
                     return
-                if len(self._buf) >= self.keep_frames:
-                    self._buf.popleft()
-                    self.dropped_old += 1
-                self._buf.append(frame)
-                self.frames += 1
-                if self._first_t is None:
-                    self._first_t = t_ns
-                self._last_t = t_ns
-                self._cond.notify_all()
+                self._keep_newest(frame)
             self._ready.set()
 
     def _pace(self, target_ns: int) -> None:
