@@ -141,6 +141,7 @@ def run_one(rec: Any, init_after_s: float = 1.0, render_ahead: int = RENDER_AHEA
     wall["filter"] += time.perf_counter() - w0
     cpu["filter"] += time.thread_time() - c0
     n = max(frames, 1)
+    report = est.report()
     out: dict = {"frames": frames, "states": len(states),
                  "ms_per_frame_wall": 1e3 * (wall["tracker"] + wall["filter"]) / n,
                  "ms_per_frame_cpu": 1e3 * (cpu["tracker"] + cpu["filter"]) / n,
@@ -149,11 +150,11 @@ def run_one(rec: Any, init_after_s: float = 1.0, render_ahead: int = RENDER_AHEA
                  # the estimator's own timer around its frame updates: contained in the filter's share
                  "filter_updates_ms_per_frame_wall": 1e3 * est.counters.time_frame_s / n,
                  # a reset re-initializes from the true state here: each is a divergence the ATE hides
-                 "resets": est.report()["divergence_resets"],
-                 "reset_reasons": list(est.report()["divergence_reasons"]),
+                 "resets": report["divergence_resets"],
+                 "reset_reasons": list(report["divergence_reasons"]),
                  # visual measurements the filter accepted: MSCKF features and SLAM landmark observations
-                 "msckf_features_used": est.report()["msckf_features_used"],
-                 "slam_updates": est.report()["slam_updates"]}
+                 "msckf_features_used": report["msckf_features_used"],
+                 "slam_updates": report["slam_updates"]}
     wall_total = wall["tracker"] + wall["filter"]
     sensor_s = (rec.frame_stamps_ns[-1] - rec.frame_stamps_ns[0]) * 1e-9
     out["realtime_factor"] = sensor_s / wall_total if wall_total > 0 else None
@@ -163,9 +164,10 @@ def run_one(rec: Any, init_after_s: float = 1.0, render_ahead: int = RENDER_AHEA
             r, out["alignment"] = ate(traj, gt, align_method="se3"), "se3"
         except DataError:   # the truth stands or turns in place (rotation, hover): no rotation to fit
             r, out["alignment"] = ate_degenerate_truth(traj, gt), "degenerate truth"
-        out["ate_se3_m"] = float(r.trans["rmse"])
-        rot = getattr(r, "rot", None)
-        out["ate_rot_deg"] = float(rot["rmse"]) if rot is not None else None
+        if r is not None:   # None: no estimate inside the truth's span
+            out["ate_se3_m"] = float(r.trans["rmse"])
+            rot = getattr(r, "rot", None)
+            out["ate_rot_deg"] = float(rot["rmse"]) if rot is not None else None
         out["path_m"] = float(gt.path_length())
     return out
 
