@@ -7,7 +7,16 @@ from scipy.spatial.transform import Rotation
 
 from runtime.errors import TrajectoryError
 from runtime.geometry.trajectory import PoseTrajectory
-from tools.evaluation import align, associate, ate, posyaw, rpe, umeyama
+from tools.evaluation import (
+    align,
+    associate,
+    ate,
+    ate_degenerate_truth,
+    posyaw,
+    rpe,
+    truth_is_degenerate,
+    umeyama,
+)
 
 
 def helix(n: int = 200, seed: int = 0) -> PoseTrajectory:
@@ -126,9 +135,8 @@ def test_rpe_zero_for_rigidly_moved_estimate_and_scale_sensitive() -> None:
 def test_a_truth_that_turns_in_place_is_scored_by_the_estimate_spread_or_position_and_yaw() -> None:
     """A static truth fixes no rotation: se3 refuses it, and the ATE is the estimate's RMS spread about its
     mean (closed form); a truth moving straight along x fixes yaw and translation (posyaw), so an estimate
-    yawed and shifted from it scores zero."""
-    from tools.evaluation import ate_degenerate_truth
-
+    yawed and shifted from it scores zero; a truth that moves only vertically is compared at the same
+    stamps after a translation."""
     n = 50
     t_ns = 1_000_000_000 + np.arange(n, dtype=np.int64) * 50_000_000
     yaw = np.linspace(0.0, 3.0, n)
@@ -144,3 +152,13 @@ def test_a_truth_that_turns_in_place_is_scored_by_the_estimate_spread_or_positio
     line = PoseTrajectory(t_ns, np.c_[np.linspace(0, 2, n), np.zeros(n), np.zeros(n)], R)
     moved = transformed(line, rot_z(0.7), np.array([1.0, 2.0, 0.5]))
     assert ate_degenerate_truth(moved, line).trans["rmse"] == pytest.approx(0.0, abs=1e-9)
+    # a truth that only climbs fixes no yaw either: a shifted exact estimate scores zero, a noisy one the
+    # RMS of its error about the mean error
+    climb = PoseTrajectory(t_ns, np.c_[np.zeros(n), np.zeros(n), np.linspace(0, 2, n)], R)
+    assert truth_is_degenerate(climb, climb) and truth_is_degenerate(est, static)
+    circle = PoseTrajectory(t_ns, np.c_[np.cos(yaw), np.sin(yaw), np.zeros(n)], R)
+    assert not truth_is_degenerate(line, circle) and not truth_is_degenerate(circle, circle)
+    shifted = PoseTrajectory(t_ns, climb.p + np.array([0.3, -0.2, 1.0]), R)
+    assert ate_degenerate_truth(shifted, climb).trans["rmse"] == pytest.approx(0.0, abs=1e-9)
+    noisy = PoseTrajectory(t_ns, climb.p + drift, R)
+    assert ate_degenerate_truth(noisy, climb).trans["rmse"] == pytest.approx(spread, rel=1e-9)

@@ -111,6 +111,14 @@ _OPENVINS_TRIANGULATION = {
 """OpenVINS 2.7's triangulation options: config key -> (MsckfConfig field, OpenVINS's default)."""
 
 
+def openvins_triangulation(est: dict) -> dict[str, float]:
+    """MsckfConfig triangulation fields from an OpenVINS estimator config, OpenVINS's own defaults
+    (FeatureInitializerOptions.h) where it sets none: the comparison then runs OpenVINS's gates whatever
+    ours are."""
+    return {ours: float(est.get(theirs, default))
+            for theirs, (ours, default) in _OPENVINS_TRIANGULATION.items()}
+
+
 def load_sim_folder(folder: Path, max_seconds: float | None = None) -> SimRun:
     """Read an openvins_sim folder (plain or gzipped files)."""
     from calib import ImuNoise, PinholeRadtan, Rig
@@ -175,10 +183,7 @@ def load_sim_folder(folder: Path, max_seconds: float | None = None) -> SimRun:
         "zupt_max_disparity": "zupt_max_disparity",
     }
     kw = {ours: est[theirs] for theirs, ours in mapping.items() if theirs in est}
-    # triangulation gates: OpenVINS's own (FeatureInitializerOptions.h) unless the folder sets them, so that
-    # the comparison runs OpenVINS's configuration whatever our defaults are
-    for theirs, (ours, openvins_default) in _OPENVINS_TRIANGULATION.items():
-        kw[ours] = float(est.get(theirs, openvins_default))
+    kw.update(openvins_triangulation(est))
     reps = {"GLOBAL_3D": "global_3d", "ANCHORED_MSCKF_INVERSE_DEPTH": "anchored_inverse_depth"}
     if "feat_rep_slam" in est:
         if str(est["feat_rep_slam"]) not in reps:
