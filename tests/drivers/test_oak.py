@@ -38,10 +38,9 @@ from drivers.oak import (  # noqa: E402
     ImuPairer,
     OakDevice,
     OakPipeline,
-    check_extrinsics_direction,
-    read_oak_rig,
     timedelta_ns,
 )
+from drivers.oak_calib import check_extrinsics_direction, read_oak_rig  # noqa: E402
 from runtime.errors import CalibrationError, DeviceError  # noqa: E402
 from runtime.events import Frame, ImuSample  # noqa: E402
 

@@ -1,0 +1,122 @@
+"""An OAK's factory calibration as a `calib.Rig`, and which direction of its camera-IMU extrinsics agrees
+with gravity (the conventions are in `drivers.oak`'s docstring, "Calibration")."""
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from runtime.errors import CalibrationError
+
+if TYPE_CHECKING:
+    from calib import Rig
+
+RATIONAL_TOLERANCE = 1e-6
+"""Perspective coefficients k4.. with |value| at most this count as zero (radtan is then exact)."""
+
+
+def _orthonormal(T: np.ndarray) -> np.ndarray:
+    """The nearest rigid transform (SVD of the rotation; depthai stores float32)."""
+    U, _, Vt = np.linalg.svd(T[:3, :3])
+    R = U @ Vt
+    if np.linalg.det(R) < 0:
+        U[:, -1] *= -1
+        R = U @ Vt
+    out = np.eye(4)
+    out[:3, :3] = R
+    out[:3, 3] = T[:3, 3]
+    return out
+
+
+def read_oak_rig(calib: Any, socket: str = "CAM_B", width: int = 640, height: int = 400, *,
+                 fps: float | None = None, time_offset_s: float | None = 0.0,
+                 require_extrinsics: bool = False) -> Rig:
+    """A `calib.Rig` from a `dai.CalibrationHandler` for one socket at one output size.
+
+    Camera: `getCameraIntrinsics(socket, width, height)` and the distortion mapped as in the module
+    docstring (CalibrationError naming the socket when the model is not representable). T_IC: the
+    inverse of `getImuToCameraExtrinsics(socket, False, METER)` (x_C = M x_I; see the module
+    docstring), in metres; None when the calibration holds no IMU extrinsics (CalibrationError with
+    `require_extrinsics`). time_offset_s: 0 by default (camera and IMU share the device clock and the
+    frames are stamped at mid-exposure). IMU noise: withheld (OAK calibrations do not carry it).
+    """
+    from calib import PinholeEquidistant, PinholeRadtan, Rig
+    from drivers.oak import SOCKETS, _import_depthai, _one_line
+
+    dai = _import_depthai()
+    from calib.rig import invert_rigid
+
+    if socket not in SOCKETS:
+        raise CalibrationError(f"socket must be one of {', '.join(SOCKETS)}, not {socket!r}", None, "socket")
+    sock = getattr(dai.CameraBoardSocket, socket)
+    where = f"OAK calibration {socket}"
+    try:
+        K = np.array(calib.getCameraIntrinsics(sock, int(width), int(height)), dtype=np.float64)
+        model = calib.getDistortionModel(sock)
+        coeffs = np.array(calib.getDistortionCoefficients(sock), dtype=np.float64)
+    except RuntimeError as exc:
+        raise CalibrationError(f"{where}: {_one_line(exc)}", None, "intrinsics") from None
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    if model == dai.CameraModel.Perspective:
+        c = np.zeros(14)
+        c[: min(14, coeffs.size)] = coeffs[:14]
+        rest = c[5:]
+        if np.any(np.abs(rest) > RATIONAL_TOLERANCE):
+            names = ("k4", "k5", "k6", "s1", "s2", "s3", "s4", "tx", "ty")
+            named = ", ".join(f"{n}={v:.4g}" for n, v in zip(names, rest, strict=True)
+                              if abs(v) > RATIONAL_TOLERANCE)
+            raise CalibrationError(
+                f"{where}: the lens uses OpenCV's rational/thin-prism model ({named}), which DAVIO's camera "
+                f"models (radtan, equidistant) cannot represent; calibrate the camera with Kalibr "
+                f"(pinhole-radtan or pinhole-equi) and pass that calibration instead", None, "distortion")
+        dist = c[:5] if abs(c[4]) > RATIONAL_TOLERANCE else c[:4]
+        camera = PinholeRadtan(int(width), int(height), fx, fy, cx, cy, dist)
+    elif model == dai.CameraModel.Fisheye:
+        if coeffs.size < 4:
+            raise CalibrationError(f"{where}: a fisheye calibration with {coeffs.size} coefficients", None,
+                                   "distortion")
+        camera = PinholeEquidistant(int(width), int(height), fx, fy, cx, cy, coeffs[:4])
+    else:
+        raise CalibrationError(f"{where}: distortion model {model.name} is not supported (Perspective "
+                               f"without rational terms, or Fisheye)", None, "distortion")
+    T_IC = None
+    try:
+        M = np.array(calib.getImuToCameraExtrinsics(sock, False, dai.LengthUnit.METER), dtype=np.float64)
+    except RuntimeError as exc:
+        if require_extrinsics:
+            raise CalibrationError(f"{where}: {_one_line(exc)}", None, "T_IC") from None
+    else:
+        T_IC = invert_rigid(_orthonormal(M))
+    return Rig(camera=camera, T_IC=T_IC, time_offset_s=time_offset_s, imu=None, camera_rate_hz=fps,
+               name=f"oak {socket} {int(width)}x{int(height)}")
+
+
+def check_extrinsics_direction(T_IC: np.ndarray, accel_at_rest_I: Sequence[float],
+                               up_C: Sequence[float] = (0.0, -1.0, 0.0),
+                               tol_deg: float = 10.0) -> dict[str, Any]:
+    """Which direction of T_IC agrees with gravity at rest.
+
+    At rest the accelerometer reads +g along "up": accel_I is parallel to R_IC @ up_C. `up_C` is "up"
+    in camera coordinates while the samples were taken (held level, image upright: (0, -1, 0)).
+    Returns the angles (degrees) between the measured accel and R_IC @ up_C ("as_given") and
+    R_IC^T @ up_C ("inverse"), and a verdict: "as_given", "inverse", "ambiguous" (both agree: the
+    rotation maps up_C to the same direction both ways, e.g. a 180 degree turn; only the translation
+    differs and cannot be told from gravity) or "neither" (the camera was not level or the axes are
+    wrong).
+    """
+    R = np.asarray(T_IC, dtype=np.float64)[:3, :3]
+    a = np.asarray(accel_at_rest_I, dtype=np.float64).reshape(3)
+    u = np.asarray(up_C, dtype=np.float64).reshape(3)
+    if not (np.linalg.norm(a) > 0 and np.linalg.norm(u) > 0):
+        raise ValueError("accel_at_rest_I and up_C must be non-zero vectors")
+    a, u = a / np.linalg.norm(a), u / np.linalg.norm(u)
+
+    def angle(v: np.ndarray) -> float:
+        return math.degrees(math.acos(float(np.clip(a @ (v / np.linalg.norm(v)), -1.0, 1.0))))
+
+    given, inverse = angle(R @ u), angle(R.T @ u)
+    ok_g, ok_i = given <= tol_deg, inverse <= tol_deg
+    verdict = ("ambiguous" if ok_g and ok_i else "as_given" if ok_g else "inverse" if ok_i else "neither")
+    return {"angle_as_given_deg": given, "angle_inverse_deg": inverse, "verdict": verdict, "tol_deg": tol_deg}
