@@ -457,13 +457,14 @@ def test_slow_motion_is_not_taken_for_standstill(speed: float) -> None:
 
 @pytest.mark.parametrize("rate_hz", [10, 20, 30])
 def test_the_clone_window_spans_the_same_time_at_any_frame_rate(rate_hz: int) -> None:
-    """0.2 m/s across a wall 6 m away. With every frame's clone kept (OpenVINS) the 11 clones span 1 s at
-    10 Hz (1.9 deg of parallax: the tracks triangulate) but 0.5 s at 20 Hz and 0.33 s at 30 Hz (0.95 / 0.6
-    deg: the depth/baseline gate rejects every track) and the filter only dead-reckons; it was then reset
-    after 44 frames at 20 Hz as a blind filter. With min_clone_spacing_s (0.075 s) a clone closer than that
-    to the previous one is dropped at the next frame, so the window spans about 1 s at every rate and the
-    tracks triangulate at 20 and 30 Hz as at 10 Hz."""
-    speed = 0.2
+    """0.1 m/s across a wall 6 m away. With every frame's clone kept (OpenVINS) the 11 clones span 1 s at
+    10 Hz (0.95 deg of parallax, depth/baseline 60: the tracks triangulate) but 0.5 s at 20 Hz and 0.33 s at
+    30 Hz (0.48 / 0.32 deg, depth/baseline 120 / 180: the gate of 70 rejects every track) and the filter
+    only dead-reckons; with OpenVINS's gate of 40 at 0.2 m/s it was then reset after 44 frames at 20 Hz as
+    a blind filter. With min_clone_spacing_s (0.075 s) a clone closer than that to the previous one is
+    dropped at the next frame, so the window spans about 1 s at every rate and the tracks triangulate at 20
+    and 30 Hz as at 10 Hz."""
+    speed = 0.1
     imu, frames = _sideways_stream(speed, rate_hz)
     zero = np.zeros(3)
     for spacing in (0.0, MsckfConfig().min_clone_spacing_s):
