@@ -95,6 +95,8 @@ class LiveView:
         self._guard(lambda: self._pose(np.asarray(pose.T_MI, np.float64)))
 
     def _pose(self, T_MI: np.ndarray) -> None:
+        if T_MI.shape != (4, 4) or not np.isfinite(T_MI).all():
+            raise ValueError(f"pose T_MI is not a finite 4x4 matrix (shape {T_MI.shape})")
         with self._lock:
             self.poses += 1
             self._trajectory.append(T_MI[:3, 3].copy())

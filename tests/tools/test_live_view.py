@@ -76,6 +76,8 @@ def test_the_page_is_served_and_a_broken_update_is_counted(view: LiveView) -> No
     html = urllib.request.urlopen(view.url, timeout=10).read()
     assert b"<html" in html[:200].lower()
     view.on_pose(SimpleNamespace(T_MI=np.full((4, 4), np.nan)))
+    assert view.errors == 1 and "not a finite" in view.last_error
+    assert view.poses == 0    # refused before it reaches the drawn trajectory
     view.on_map(SimpleNamespace(submap=None, changed=[]))
     assert view.errors >= 1 and view.last_error
 
