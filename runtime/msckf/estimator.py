@@ -513,11 +513,11 @@ class MsckfEstimator:
                         and float(np.linalg.norm(st.v)) >= cfg.zupt_max_velocity
                         and not disparity_says_static(cfg, self.db, t_cam, ids, uv))
         if low_parallax:
-            # the filter moves, but its tracks lack the parallax any filter needs to triangulate them (slow
-            # motion, distant scene, or a short window at a high frame rate): the frame says nothing about the
-            # filter, which dead-reckons as OpenVINS does; neither starvation nor the blind count holds it
-            # against the filter (the blind count restarts after it). Standing still (the filter's speed
-            # below zupt_max_velocity, or the disparity test) without a zero-velocity update stays blind
+            # the filter moves, but its tracks lack the parallax OpenVINS's gates need to triangulate them
+            # (slow motion, distant scene, or a short window at a high frame rate): the frame says little
+            # about the filter, which dead-reckons as OpenVINS does; neither starvation nor the blind count
+            # holds it against the filter (the blind count restarts after it). Standing still (the filter's
+            # speed below zupt_max_velocity, or the disparity test) without a zero-velocity update stays blind
             self._restart_visual_count(cfg.visual_health_window_s, t_cam)
             c.frames_low_parallax += 1
         else:
