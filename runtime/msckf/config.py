@@ -78,8 +78,9 @@ class MsckfConfig:
     # every K, and the measured-IMU room map's margin is met at 5 of 5 seeds. The cost is at the new edge:
     # slow motion in front of a distant scene takes tracks that look nearer than they are (2.3 cm after 6 s
     # at 0.08 m/s with a perfect IMU), the constant-velocity preset's drift grows, and OpenVINS's 10 Hz
-    # simulator loses 10 % in mean position error (nothing at 20 Hz). BENCHMARKS "Triangulation gates for
-    # turning in place"; `davio bench openvins-sim` runs OpenVINS's own gates
+    # simulator shows 10 % more mean position error (nothing at 20 Hz, nor with ratios 60, 80 or 100 at
+    # 10 Hz). BENCHMARKS "Triangulation gates for turning in place"; `davio bench openvins-sim` runs
+    # OpenVINS's own gates
     tri_max_cond: float = 1e5  #: reject when cond(A) of the linear system exceeds this
     tri_min_dist: float = 0.10  #: m, minimum depth in the anchor camera
     tri_max_dist: float = 60.0  #: m, maximum depth in the anchor camera
