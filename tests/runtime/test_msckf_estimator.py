@@ -46,6 +46,15 @@ def _landmarks(n: int = 400, seed: int = 0) -> np.ndarray:
     return np.c_[9.0 * np.cos(ang), 9.0 * np.sin(ang), rng.uniform(-2.5, 2.5, n)]
 
 
+def _observe(pC: np.ndarray, noise_px: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Ids and distorted pixels (plus noise) of the points pC (camera frame) in front of the camera and
+    inside the 752 x 480 image."""
+    vis = pC[:, 2] > 0.5
+    uv = distort_points(1, PRM, pC[vis, :2] / pC[vis, 2:3]) + noise_px * rng.standard_normal((vis.sum(), 2))
+    inside = (uv[:, 0] > 0) & (uv[:, 0] < 751) & (uv[:, 1] > 0) & (uv[:, 1] < 479)
+    return np.flatnonzero(vis)[inside], uv[inside]
+
+
 def _stream(duration: float, pix_noise: float = 1.0, seed: int = 0):
     """Noise-free IMU at 200 Hz and 10 Hz feature tracks (ids, distorted pixels + noise)."""
     rng = np.random.default_rng(seed)
@@ -60,12 +69,7 @@ def _stream(duration: float, pix_noise: float = 1.0, seed: int = 0):
         t = k / 10.0 + 0.0013  # camera times between IMU samples
         R, p, _, _ = _truth(t)
         pC = (R_IC.T @ (R.T @ (L - p).T - p_IC[:, None])).T
-        vis = pC[:, 2] > 0.5
-        uv = distort_points(1, PRM, pC[vis, :2] / pC[vis, 2:3]) + pix_noise * rng.standard_normal(
-            (vis.sum(), 2)
-        )
-        inside = (uv[:, 0] > 0) & (uv[:, 0] < 751) & (uv[:, 1] > 0) & (uv[:, 1] < 479)
-        frames.append((int(round(t * 1e9)), np.flatnonzero(vis)[inside], uv[inside]))
+        frames.append((int(round(t * 1e9)), *_observe(pC, pix_noise, rng)))
     return imu, frames
 
 
@@ -432,10 +436,7 @@ def _sideways_stream(speed: float, rate_hz: int, duration: float = 6.0):
     for k in range(1, int(duration * rate_hz) + 1):
         t = k / rate_hz + 0.0013
         pC = (R_IC.T @ ((L - np.array([0.0, speed * t, 0.0])).T - p_IC[:, None])).T
-        vis = pC[:, 2] > 0.5
-        uv = distort_points(1, PRM, pC[vis, :2] / pC[vis, 2:3]) + 0.2 * rng.standard_normal((vis.sum(), 2))
-        inside = (uv[:, 0] > 0) & (uv[:, 0] < 751) & (uv[:, 1] > 0) & (uv[:, 1] < 479)
-        frames.append((int(round(t * 1e9)), np.flatnonzero(vis)[inside], uv[inside]))
+        frames.append((int(round(t * 1e9)), *_observe(pC, 0.2, rng)))
     return imu, frames
 
 
@@ -470,10 +471,7 @@ def _turning_stream(duration: float, accel_bias: np.ndarray, rate_rps: float = 0
         c, s = np.cos(rate_rps * t), np.sin(rate_rps * t)
         R_OI = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
         pC = (L - R_OI @ p_IC) @ (R_OI @ R_IC)
-        vis = pC[:, 2] > 0.5
-        uv = distort_points(1, PRM, pC[vis, :2] / pC[vis, 2:3]) + 0.2 * rng.standard_normal((vis.sum(), 2))
-        inside = (uv[:, 0] > 0) & (uv[:, 0] < 751) & (uv[:, 1] > 0) & (uv[:, 1] < 479)
-        frames.append((int(round(t * 1e9)), np.flatnonzero(vis)[inside], uv[inside]))
+        frames.append((int(round(t * 1e9)), *_observe(pC, 0.2, rng)))
     return imu, frames
 
 
