@@ -62,9 +62,18 @@ def why_nothing_published(pipeline_report: dict, driver_report: dict | None, sch
         parts.append(f"{len(errors)} model calls failed (first: {errors[0]})")
     filt = pipeline_report.get("filter") or {}
     if filt and not filt.get("initialized"):
+        why = "; ".join(f"{name}: {_rejections(r)}" for name, r in (filt.get("initializers") or {}).items())
         parts.append(f"the native initializer found no start in {sched.sensor_s:.1f} s of data (it needs a "
-                     "standstill or enough motion with tracked features)")
+                     "standstill or enough motion with tracked features)" + (f"; {why}" if why else ""))
     return "; ".join(parts) or "no reason recorded"
+
+
+def _rejections(init_report: dict) -> str:
+    """'code xN, ... (last: the last reason)' of one native initializer's report."""
+    rej = init_report.get("rejections") or {}
+    if not rej:
+        return "never tried"
+    return ", ".join(f"{k} x{v}" for k, v in sorted(rej.items())) + f" (last: {init_report['last_reason']})"
 
 
 def judge(res: Any, driver_report: dict | None) -> None:

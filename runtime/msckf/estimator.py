@@ -238,6 +238,7 @@ class MsckfEstimator:
         d["ms_per_frame"] = 1e3 * c.time_frame_s / max(c.frames_processed, 1)          # wall clock
         d["cpu_ms_per_frame"] = 1e3 * c.cpu_frame_s / max(c.frames_processed, 1)      # this thread's CPU
         d["initialized"] = self.initialized
+        d["initializers"] = {ini.source: ini.report() for ini in self.initializers if hasattr(ini, "report")}
         return d
 
     # ------------------------------------------------------------------ inputs

@@ -100,6 +100,21 @@ def test_run_reports_input_repairs_on_the_console(tmp_path, capsys):
     assert imu["dropped_nonfinite"] == 3 and imu["dropped_duplicate"] == 1
 
 
+def test_a_run_without_a_start_names_each_native_initializers_reasons(tmp_path, capsys):
+    """1 s of a standstill is too short for both initializers: the console and report.json say why, per
+    initializer, with counts (the static one needs 2 s of IMU, the dynamic one 0.9 x its 2 s window)."""
+    out = tmp_path / "run"
+    assert main(["run", str(shared_path("euroc", "V1_01_easy_head")), "--native-only", "--seconds", "1",
+                 "--out", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert "static: " in err and "(last: short_window: 1.00 s of IMU < 2.0 s)" in err
+    assert "dynamic: " in err and "keyframes span 1.00 s < 0.9 x the 2.0 s window" in err
+    inits = json.loads((out / "report.json").read_text())["pipeline"]["filter"]["initializers"]
+    assert set(inits) == {"static", "dynamic"}
+    assert inits["static"]["rejections"]["short_window"] > 0
+    assert inits["dynamic"]["rejections"]["short_window"] > 0
+
+
 def test_run_with_an_onnx_model_warms_it_up_and_refuses_a_broken_one(tmp_path, capsys, monkeypatch):
     monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "models"))
     from da3_contract_graph import build_da3_contract_graph
