@@ -14,6 +14,7 @@ from runtime.mapping.config import MappingConfig
 from runtime.msckf.config import MsckfConfig
 from runtime.msckf.init_dynamic import DynamicInitConfig
 from runtime.msckf.init_static import StaticInitConfig
+from runtime.msckf.init_turning import TurningInitConfig
 from runtime.msckf.tracker import TrackerConfig
 from runtime.startup import StartupConfig
 
@@ -35,6 +36,9 @@ class DavioConfig:
     OpenVINS's EuRoC configuration leaves it off; without it a filter that starts, or is reset, while
     moving never re-initializes unless the feed-forward start-up succeeds, e.g. after a calibration-
     withheld bring-up on a moving rig."""
+    turning_init: TurningInitConfig = field(default_factory=TurningInitConfig)
+    """Native turning-in-place initializer (the static one's rule with the rotation removed; not in
+    OpenVINS): a body that turns on the spot at start-up starts at zero velocity."""
     startup: StartupConfig = field(default_factory=StartupConfig)
     """Buffered-replay handoff."""
     ffinit: FFInitConfig = field(default_factory=FFInitConfig)
@@ -52,10 +56,15 @@ NEWER_OPTIONS: dict[str, object] = {
     "mapping.max_multiview_failed_fraction": 1.0,
     "graph.gauge_lambda_free": False,
     "revisits.view_scales": [1.0],
+    "turning_init.enabled": False,
 }
 """Options whose default differs from what DAVIO did before the option existed, with that earlier
 behaviour's value: a run's saved config.toml written before one of them was added takes today's default
 when it is read back, and `load_davio_config` says so (with the line that reproduces the old run)."""
+
+
+NEWER_SECTIONS = {"turning_init"}
+"""Sections added after runs were first saved: a saved config.toml without them is still a whole one."""
 
 
 def newer_option_notes(data: dict) -> list[str]:
@@ -63,7 +72,7 @@ def newer_option_notes(data: dict) -> list[str]:
     of DavioConfig) written before some of NEWER_OPTIONS existed: one line per missing option, with today's
     default and the value that reproduces the earlier run. A partial, hand-written file gets none."""
     sections = {f.name for f in fields(DavioConfig) if f.default_factory is not MISSING}
-    if not sections <= set(data):
+    if not sections - NEWER_SECTIONS <= set(data):
         return []
     today = config_to_dict(DavioConfig())
     notes = []

@@ -22,6 +22,7 @@ from runtime.mapping.windows import MappingWindow, WindowBuilder, WindowQueue
 from runtime.msckf.estimator import MsckfEstimator
 from runtime.msckf.init_dynamic import DynamicInitializer
 from runtime.msckf.init_static import StaticInitializer
+from runtime.msckf.init_turning import TurningInitializer
 from runtime.msckf.tracker import KltTracker
 from runtime.startup import Published, StartupManager
 
@@ -102,6 +103,9 @@ class VioPipeline:
             inits: list = []
             if native:
                 inits.append(StaticInitializer(static_cfg, imu_noise))
+                if cfg.turning_init.enabled:
+                    inits.append(TurningInitializer(rig.camera, self.T_IC, cfg.turning_init, imu_noise,
+                                                    self.time_offset_s))
                 if cfg.use_dynamic_init:
                     inits.append(DynamicInitializer(rig.camera, self.T_IC, cfg.dynamic_init, imu_noise,
                                                     self.time_offset_s))

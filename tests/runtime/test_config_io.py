@@ -172,3 +172,18 @@ def test_every_newer_option_names_a_real_option_with_a_different_default():
     for key, before in NEWER_OPTIONS.items():
         section, name = key.split(".")
         assert name in today[section] and today[section][name] != before, key
+
+
+def test_a_saved_config_without_the_turning_initializer_section_is_whole_and_gets_a_note(tmp_path):
+    """Runs saved before the turning-in-place initializer have no [turning_init] section: the file is
+    still a whole saved configuration, and the note says how to run without it."""
+    from runtime.config import DavioConfig, load_davio_config
+
+    text = dump_toml(DavioConfig())
+    head, rest = text.split("[turning_init]\n", 1)
+    tail = rest[rest.index("\n["):] if "\n[" in rest else ""
+    path = tmp_path / "config.toml"
+    path.write_text(head + tail.lstrip("\n"))
+    notes: list[str] = []
+    assert load_davio_config(path, warn=notes.append) == DavioConfig()
+    assert len(notes) == 1 and "[turning_init] enabled = false" in notes[0]

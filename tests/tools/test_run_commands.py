@@ -110,7 +110,7 @@ def test_a_run_without_a_start_names_each_native_initializers_reasons(tmp_path, 
     assert "static: " in err and "(last: short_window: 1.00 s of IMU < 2.0 s)" in err
     assert "dynamic: " in err and "keyframes span 1.00 s < 0.9 x the 2.0 s window" in err
     inits = json.loads((out / "report.json").read_text())["pipeline"]["filter"]["initializers"]
-    assert set(inits) == {"static", "dynamic"}
+    assert set(inits) == {"static", "turning", "dynamic"}
     assert inits["static"]["rejections"]["short_window"] > 0
     assert inits["dynamic"]["rejections"]["short_window"] > 0
 
