@@ -231,3 +231,45 @@ class TrackWindow:
             return 0.0, 0
         d = [float(np.linalg.norm(last[i] - first[i])) for i in last]
         return float(np.mean(d)), len(d)
+
+
+class BufferedInitializer:
+    """What every native initializer shares: its IMU and track buffers over `keep_ns`, the rejection log
+    and the run-report counters. Given a camera, fed tracks are also undistorted to normalized xy."""
+
+    def _init_buffers(self, keep_ns: int, camera: object | None = None) -> None:
+        self.imu = ImuWindow(int(keep_ns))
+        self.tracks = TrackWindow(int(keep_ns))
+        self.log = RejectionLog()
+        self._undistort_camera = camera
+
+    @property
+    def last_reason(self) -> str:
+        """'code: message' of the last failed attempt ('' before any)."""
+        return self.log.last_reason
+
+    def feed_imu(self, sample: object) -> None:
+        """Add one runtime.events.ImuSample (t_ns IMU clock, gyro rad/s, accel m/s^2)."""
+        self.imu.add(sample.t_ns, sample.gyro, sample.accel)
+
+    def feed_tracks(self, t_ns: int, ids: np.ndarray, uv: np.ndarray) -> None:
+        """Add one frame's tracks: camera-clock time, ids (M,), distorted pixels (M, 2)."""
+        cam = self._undistort_camera
+        if cam is None:
+            self.tracks.add(t_ns, ids, uv)
+            return
+        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+        xy = cam.undistort_points(uv) if uv.shape[0] else np.zeros((0, 2))
+        self.tracks.add(t_ns, ids, uv, xy)
+
+    def reset(self) -> None:
+        """Forget buffered IMU samples and tracks (after a filter reset); rejection counts are kept."""
+        self.imu.clear()
+        self.tracks.frames.clear()
+
+    def report(self) -> dict:
+        """Counters for the run report."""
+        return {"rejections": dict(self.log.counts), "last_reason": self.last_reason,
+                "imu_dropped_nonfinite": self.imu.dropped_nonfinite,
+                "imu_dropped_out_of_order": self.imu.dropped_out_of_order,
+                "frames_dropped_out_of_order": self.tracks.dropped_out_of_order}

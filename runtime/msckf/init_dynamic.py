@@ -27,7 +27,7 @@ from functools import partial
 import numpy as np
 
 from runtime.errors import ConfigError, DataError
-from runtime.msckf.init_common import ImuWindow, InitResult, RejectionLog, TrackWindow
+from runtime.msckf.init_common import BufferedInitializer, InitResult
 from runtime.msckf.init_dynamic_config import DynamicInitConfig
 from runtime.msckf.init_dynamic_excitation import gyro_rotation_deg, median_parallax_deg
 from runtime.msckf.init_dynamic_gyro_bias import visual_gyro_bias
@@ -66,7 +66,7 @@ def _density(imu_noise: object, name: str, default: float) -> float:
     return v
 
 
-class DynamicInitializer:
+class DynamicInitializer(BufferedInitializer):
     """Initialize while moving from tracked features and IMU over a short window.
 
     Args:
@@ -97,42 +97,8 @@ class DynamicInitializer:
         self.gyro_density = _density(imu_noise, "gyro_noise_density", _DEFAULT_GYRO_DENSITY)
         self.accel_density = _density(imu_noise, "accel_noise_density", _DEFAULT_ACCEL_DENSITY)
         self.time_offset_ns = int(round(float(time_offset_s) * 1e9))
-        keep = self.config.window_ns + 500_000_000
-        self.imu = ImuWindow(keep)
-        self.tracks = TrackWindow(keep)
-        self.log = RejectionLog()
+        self._init_buffers(self.config.window_ns + 500_000_000, camera)
         self.focal = 0.5 * (float(camera.fx) + float(camera.fy))
-
-    # ------------------------------------------------------------------ feeding
-    @property
-    def last_reason(self) -> str:
-        """'code: message' of the last failed attempt ('' before any)."""
-        return self.log.last_reason
-
-    def feed_imu(self, sample: object) -> None:
-        """Add one runtime.events.ImuSample (t_ns IMU clock, gyro rad/s, accel m/s^2)."""
-        self.imu.add(sample.t_ns, sample.gyro, sample.accel)
-
-    def feed_tracks(self, t_ns: int, ids: np.ndarray, uv: np.ndarray) -> None:
-        """Add one frame's tracks: camera-clock time, ids (M,), distorted pixels (M, 2)."""
-        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
-        xy = self.camera.undistort_points(uv) if uv.shape[0] else np.zeros((0, 2))
-        self.tracks.add(t_ns, ids, uv, xy)
-
-    def reset(self) -> None:
-        """Forget buffered IMU samples and tracks (after a filter reset); rejection counts are kept."""
-        self.imu.clear()
-        self.tracks.frames.clear()
-
-    def report(self) -> dict:
-        """Counters for the run report."""
-        return {
-            "rejections": dict(self.log.counts),
-            "last_reason": self.last_reason,
-            "imu_dropped_nonfinite": self.imu.dropped_nonfinite,
-            "imu_dropped_out_of_order": self.imu.dropped_out_of_order,
-            "frames_dropped_out_of_order": self.tracks.dropped_out_of_order,
-        }
 
     # ------------------------------------------------------------------ main entry
     def try_initialize(self) -> InitResult | None:

@@ -22,14 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from runtime.errors import ConfigError
-from runtime.msckf.init_common import (
-    ImuWindow,
-    InitResult,
-    RejectionLog,
-    TrackWindow,
-    diagonal_cov,
-    rotation_from_up,
-)
+from runtime.msckf.init_common import BufferedInitializer, InitResult, diagonal_cov, rotation_from_up
 
 
 @dataclass
@@ -72,7 +65,7 @@ class StaticInitConfig:
             raise ConfigError(f"min_disparity_features must be >= 1, got {self.min_disparity_features}")
 
 
-class StaticInitializer:
+class StaticInitializer(BufferedInitializer):
     """Initialize the filter state from a stand-still period (then, by default, a jerk).
 
     Args:
@@ -89,34 +82,7 @@ class StaticInitializer:
         """The jerk rule in force (StaticInitConfig.wait_for_jerk, None read as True)."""
         self.imu_noise = imu_noise
         window_ns = int(round(self.config.init_window_time_s * 1e9))
-        self.imu = ImuWindow(window_ns + 200_000_000)
-        self.tracks = TrackWindow(window_ns + 200_000_000)
-        self.log = RejectionLog()
-
-    @property
-    def last_reason(self) -> str:
-        """'code: message' of the last failed attempt ('' before any)."""
-        return self.log.last_reason
-
-    def feed_imu(self, sample: object) -> None:
-        """Add one runtime.events.ImuSample (t_ns, gyro rad/s, accel m/s^2)."""
-        self.imu.add(sample.t_ns, sample.gyro, sample.accel)
-
-    def feed_tracks(self, t_ns: int, ids: np.ndarray, uv: np.ndarray) -> None:
-        """Add one frame's tracks (ids (M,), distorted pixels (M, 2)) for the disparity check."""
-        self.tracks.add(t_ns, ids, uv)
-
-    def reset(self) -> None:
-        """Forget buffered IMU samples and tracks (after a filter reset); rejection counts are kept."""
-        self.imu.clear()
-        self.tracks.frames.clear()
-
-    def report(self) -> dict:
-        """Counters for the run report."""
-        return {"rejections": dict(self.log.counts), "last_reason": self.last_reason,
-                "imu_dropped_nonfinite": self.imu.dropped_nonfinite,
-                "imu_dropped_out_of_order": self.imu.dropped_out_of_order,
-                "frames_dropped_out_of_order": self.tracks.dropped_out_of_order}
+        self._init_buffers(window_ns + 200_000_000)
 
     def try_initialize(self) -> InitResult | None:
         """An InitResult when the window passes the checks, else None (reason in last_reason)."""

@@ -33,14 +33,7 @@ import numpy as np
 
 from runtime.errors import ConfigError
 from runtime.geometry.so3 import so3_log
-from runtime.msckf.init_common import (
-    ImuWindow,
-    InitResult,
-    RejectionLog,
-    TrackWindow,
-    diagonal_cov,
-    rotation_from_up,
-)
+from runtime.msckf.init_common import BufferedInitializer, InitResult, diagonal_cov, rotation_from_up
 from runtime.msckf.init_dynamic_linear import min_quadratic_on_sphere
 from runtime.msckf.init_turning_gyro import gyro_orientations
 
@@ -139,7 +132,7 @@ def rotation_ransac(a: np.ndarray, b: np.ndarray, threshold_rad: float, rng: np.
     return R, np.einsum("ij,ij->i", a @ R.T, b) > cos_thr
 
 
-class TurningInitializer:
+class TurningInitializer(BufferedInitializer):
     """Initialize the filter at zero velocity while the body turns about its IMU (module docstring).
 
     Args:
@@ -161,40 +154,19 @@ class TurningInitializer:
         self.time_offset_ns = int(round(float(time_offset_s) * 1e9))
         self.imu_noise = imu_noise
         self.window_ns = int(round(self.config.window_time_s * 1e9))
-        self.imu = ImuWindow(self.window_ns + 400_000_000)
-        self.tracks = TrackWindow(self.window_ns + 400_000_000)
-        self.log = RejectionLog()
+        self._init_buffers(self.window_ns + 400_000_000, camera)
         self._pair_cache: dict[tuple[int, int], np.ndarray | None] = {}
         self.accepted: dict | None = None
         """The diagnostics of the last accepted window (rotation, bias, excitation, disparities)."""
 
-    @property
-    def last_reason(self) -> str:
-        """'code: message' of the last failed attempt ('' before any)."""
-        return self.log.last_reason
-
-    def feed_imu(self, sample: object) -> None:
-        """Add one runtime.events.ImuSample (t_ns, gyro rad/s, accel m/s^2)."""
-        self.imu.add(sample.t_ns, sample.gyro, sample.accel)
-
-    def feed_tracks(self, t_ns: int, ids: np.ndarray, uv: np.ndarray) -> None:
-        """Add one frame's tracks: camera-clock time, ids (M,), distorted pixels (M, 2)."""
-        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
-        xy = self.camera.undistort_points(uv) if uv.shape[0] else np.zeros((0, 2))
-        self.tracks.add(t_ns, ids, uv, xy)
-
     def reset(self) -> None:
-        """Forget buffered IMU samples and tracks (after a filter reset); rejection counts are kept."""
-        self.imu.clear()
-        self.tracks.frames.clear()
+        """Forget buffered IMU samples, tracks and pair rotations (after a filter reset); counts are kept."""
+        super().reset()
         self._pair_cache.clear()
 
     def report(self) -> dict:
-        """Counters for the run report."""
-        return {"rejections": dict(self.log.counts), "last_reason": self.last_reason,
-                "imu_dropped_nonfinite": self.imu.dropped_nonfinite,
-                "imu_dropped_out_of_order": self.imu.dropped_out_of_order,
-                "frames_dropped_out_of_order": self.tracks.dropped_out_of_order, "accepted": self.accepted}
+        """Counters for the run report, with the last accepted window's diagnostics."""
+        return {**super().report(), "accepted": self.accepted}
 
     # ------------------------------------------------------------------ decision
     def try_initialize(self) -> InitResult | None:
