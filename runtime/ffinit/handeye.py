@@ -16,6 +16,7 @@ import numpy as np
 
 from runtime.ffinit.window import Rejection
 from runtime.geometry import so3_exp, so3_left_jacobian_inv, so3_log, so3_right_jacobian_inv
+from runtime.geometry.so3 import kabsch_rotation
 
 
 @dataclass
@@ -57,14 +58,6 @@ def residuals(windows: list[RotationWindow], R_IC: np.ndarray, bg: np.ndarray) -
     return np.asarray(out).reshape(-1, 3)
 
 
-def _kabsch(a_C: np.ndarray, a_I: np.ndarray) -> np.ndarray:
-    """R minimising sum |a_I - R a_C|^2."""
-    H = a_C.T @ a_I
-    U, _, Vt = np.linalg.svd(H)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    return Vt.T @ D @ U.T
-
-
 def estimate_handeye(windows: list[RotationWindow], bg0: np.ndarray | None = None,
                      min_axis_spread: float = 0.05, iterations: int = 10,
                      huber_deg: float = 1.0) -> HandEyeResult | Rejection:
@@ -86,7 +79,7 @@ def estimate_handeye(windows: list[RotationWindow], bg0: np.ndarray | None = Non
         return Rejection("handeye_degenerate_rotation",
                          f"rotation about a single axis (2nd singular value {spread:.3f} rad "
                          f"< {min_axis_spread}); rotate the rig about two axes")
-    R_IC = _kabsch(a_C, a_I)
+    R_IC = kabsch_rotation(a_C, a_I)
     it = 0
     while it < iterations:
         it += 1

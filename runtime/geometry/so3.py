@@ -75,6 +75,14 @@ def so3_exp(phi: np.ndarray) -> np.ndarray:
     return np.eye(3) + a[..., None, None] * K + b[..., None, None] * (K @ K)
 
 
+def kabsch_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The rotation R (3, 3) minimising sum |b_i - R a_i|^2 over paired vectors a, b (n, 3) (Kabsch; a
+    proper rotation, det +1, also for coplanar or collinear points)."""
+    U, _, Vt = np.linalg.svd(np.asarray(a, dtype=np.float64).T @ np.asarray(b, dtype=np.float64))
+    d = 1.0 if np.linalg.det(Vt.T @ U.T) >= 0.0 else -1.0
+    return Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
+
+
 def so3_log(R: np.ndarray) -> np.ndarray:
     """Rotation vectors Log(R) (rad, norm in [0, pi]) of (..., 3, 3) rotations; (..., 3).
 

@@ -233,6 +233,12 @@ class TrackWindow:
         return float(np.mean(d)), len(d)
 
 
+def accel_excitation(accel: np.ndarray) -> float:
+    """sqrt(sum |a_i - mean|^2 / (n - 1)) over (n, 3) samples, m/s^2 (OpenVINS' accelerometer 'std')."""
+    d = accel - accel.mean(axis=0)
+    return float(np.sqrt(np.sum(d * d) / (accel.shape[0] - 1)))
+
+
 class BufferedInitializer:
     """What every native initializer shares: its IMU and track buffers over `keep_ns`, the rejection log
     and the run-report counters. Given a camera, fed tracks are also undistorted to normalized xy."""

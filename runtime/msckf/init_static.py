@@ -22,7 +22,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from runtime.errors import ConfigError
-from runtime.msckf.init_common import BufferedInitializer, InitResult, diagonal_cov, rotation_from_up
+from runtime.msckf.init_common import (
+    BufferedInitializer,
+    InitResult,
+    accel_excitation,
+    diagonal_cov,
+    rotation_from_up,
+)
 
 
 @dataclass
@@ -101,8 +107,8 @@ class StaticInitializer(BufferedInitializer):
         old_half = (t > newest - window_ns) & (t <= newest - half_ns)
         if new_half.sum() < 2 or old_half.sum() < 2:
             return rej(newest, "short_window", "fewer than 2 IMU samples in a half-window")
-        std_new = _excitation(a[new_half])
-        std_old = _excitation(a[old_half])
+        std_new = accel_excitation(a[new_half])
+        std_old = accel_excitation(a[old_half])
         thr = cfg.init_imu_thresh
         info = {"accel_excitation_old": std_old, "accel_excitation_new": std_new}
 
@@ -142,9 +148,3 @@ class StaticInitializer(BufferedInitializer):
         info["n_samples"] = int(old_half.sum())
         return InitResult(t_ns=int(t[old_half][-1]), R_OI=R_OI, p_OI=np.zeros(3), v_OI=np.zeros(3),
                           bg=bg, ba=ba, cov=cov, source=self.source, info=info)
-
-
-def _excitation(accel: np.ndarray) -> float:
-    """sqrt(sum |a_i - mean|^2 / (n - 1)) over (n, 3) samples, m/s^2 (OpenVINS' accelerometer 'std')."""
-    d = accel - accel.mean(axis=0)
-    return float(np.sqrt(np.sum(d * d) / (accel.shape[0] - 1)))

@@ -23,7 +23,7 @@ yaw, as the static initializer; the bias along the turn axis as OpenVINS's stati
 from the images, at the newest IMU sample no later than the newest frame of the window. What it cannot
 tell: a camera that translates in front of a distant, flat scene while turning looks as still as
 OpenVINS's static test lets a non-turning one look; the disparity threshold bounds the speed the same
-way (about 0.2 m/s in a room 2-7 m across, tests/runtime/test_msckf_init_turning.py).
+way (in the tests' room, 2-7 m across: 0.15 m/s passes at 7.4 px, 0.2 m/s is refused at 10.1 px).
 """
 from __future__ import annotations
 
@@ -33,9 +33,16 @@ import numpy as np
 
 from runtime.errors import ConfigError
 from runtime.geometry.so3 import so3_log
-from runtime.msckf.init_common import BufferedInitializer, InitResult, diagonal_cov, rotation_from_up
-from runtime.msckf.init_dynamic_linear import min_quadratic_on_sphere
-from runtime.msckf.init_turning_gyro import gyro_orientations
+from runtime.msckf.init_common import (
+    BufferedInitializer,
+    InitResult,
+    accel_excitation,
+    diagonal_cov,
+    rotation_from_up,
+)
+from runtime.msckf.init_dynamic_excitation import gyro_rotation_deg
+from runtime.msckf.init_turning_imu import gravity_and_accel_bias, gyro_orientations
+from runtime.msckf.init_turning_rotation import bearings, rotation_ransac
 
 
 @dataclass
@@ -72,7 +79,11 @@ class TurningInitConfig:
     ransac_threshold_px: float = 2.0
     """Inlier threshold of the rotation fit, px (angle x focal). The camera's lever arm moves near and far
     tracks apart by a pixel or so while turning; at 1 px the inlier set, and the bias with it, depended on
-    the RANSAC draws (by 2e-4 rad/s on the synthetic turn of the tests), at 2 px it does not."""
+    the RANSAC draws (by 2e-4 rad/s on the synthetic turn of the tests), at 2 px it does not. Chosen with
+    the rotation preset's seeds in view: at 1 px seed 1's window at 20 s published a wrong start (0.66 m),
+    at 2 px it drifts to 0.40 m (BENCHMARKS "Starting while turning in place")."""
+    max_imu_gap_s: float = 0.05
+    """A window with a longer gap between IMU samples is refused (its rotations would be guessed), s."""
     gravity_mag: float = 9.81
     """Gravity magnitude g0, m/s^2."""
     sigma_theta: float = 0.02
@@ -91,45 +102,13 @@ class TurningInitConfig:
         if not self.window_time_s > 0:
             raise ConfigError(f"turning_init.window_time_s must be > 0 s, got {self.window_time_s}")
         for name in ("init_imu_thresh", "max_disparity_px", "max_gyro_bias", "ransac_threshold_px",
-                     "gravity_mag"):
+                     "max_imu_gap_s", "gravity_mag"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"turning_init.{name} must be > 0, got {getattr(self, name)}")
         if not self.min_bias_turn_rad >= 0:
             raise ConfigError(f"turning_init.min_bias_turn_rad must be >= 0, got {self.min_bias_turn_rad}")
         if self.min_disparity_features < 1 or self.min_pair_inliers < 3:
             raise ConfigError("turning_init.min_disparity_features must be >= 1 and min_pair_inliers >= 3")
-
-
-def _bearings(xy: np.ndarray) -> np.ndarray:
-    b = np.column_stack([xy, np.ones(xy.shape[0])])
-    return b / np.linalg.norm(b, axis=1, keepdims=True)
-
-
-def _kabsch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """R minimising sum |b_i - R a_i|^2 over unit vectors (n, 3)."""
-    U, _, Vt = np.linalg.svd(a.T @ b)
-    d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
-    return Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
-
-
-def rotation_ransac(a: np.ndarray, b: np.ndarray, threshold_rad: float, rng: np.random.Generator,
-                    iterations: int = 64) -> tuple[np.ndarray, np.ndarray]:
-    """Rotation R with b ~ R a for bearings a, b (n, 3): 2-point RANSAC, Kabsch refit on the inliers.
-
-    Returns R and the inlier mask (angle between R a_i and b_i below threshold_rad)."""
-    n = a.shape[0]
-    best = np.zeros(n, dtype=bool)
-    cos_thr = np.cos(threshold_rad)
-    for _ in range(iterations):
-        i, j = rng.choice(n, 2, replace=False)
-        R = _kabsch(a[[i, j]], b[[i, j]])
-        inl = np.einsum("ij,ij->i", a @ R.T, b) > cos_thr
-        if inl.sum() > best.sum():
-            best = inl
-    if best.sum() < 3:
-        return np.eye(3), best
-    R = _kabsch(a[best], b[best])
-    return R, np.einsum("ij,ij->i", a @ R.T, b) > cos_thr
 
 
 class TurningInitializer(BufferedInitializer):
@@ -163,6 +142,7 @@ class TurningInitializer(BufferedInitializer):
         """Forget buffered IMU samples, tracks and pair rotations (after a filter reset); counts are kept."""
         super().reset()
         self._pair_cache.clear()
+        self.accepted = None
 
     def report(self) -> dict:
         """Counters for the run report, with the last accepted window's diagnostics."""
@@ -183,16 +163,21 @@ class TurningInitializer(BufferedInitializer):
         t_end = frames[-1][0] + off                         # IMU clock
         t_start = t_end - self.window_ns
         if int(t[0]) > t_start:
-            return rej(t_end, "short_window", f"{(t_end - t[0]) * 1e-9:.2f} s of IMU < {cfg.window_time_s} s")
+            span = max((t_end - int(t[0])) * 1e-9, 0.0)
+            return rej(t_end, "short_window",
+                       f"{span:.2f} s of IMU before the newest frame < {cfg.window_time_s} s")
         frames = [f for f in frames if f[0] + off >= t_start]
         keep = (t >= t_start) & (t <= t_end)
         t, w, a = t[keep], w[keep], a[keep]
         if t.size < 4 or len(frames) < 4:
             return rej(t_end, "short_window", "fewer than 4 IMU samples or frames in the window")
+        gap = float(np.max(np.diff(t))) * 1e-9
+        if gap > cfg.max_imu_gap_s:
+            return rej(t_end, "imu_gap",
+                       f"{gap:.3f} s without an IMU sample in the window > {cfg.max_imu_gap_s} s")
 
         zero = np.zeros(3)
-        R_raw = gyro_orientations(t, w, zero, np.array([t[-1]]))[0]
-        turned = float(np.degrees(np.linalg.norm(so3_log(R_raw))))
+        turned = gyro_rotation_deg(t, w, int(t[0]), int(t[-1]), zero)     # path length: no wrap at pi
         if turned < cfg.min_rotation_deg:
             return rej(t_end, "not_turning", f"gyro turned {turned:.2f} deg < {cfg.min_rotation_deg} deg")
 
@@ -221,7 +206,7 @@ class TurningInitializer(BufferedInitializer):
 
         R_0k = gyro_orientations(t, w, bg, t)               # R_{I0 Ik} at every sample
         f_end = np.einsum("ij,kjl,kl->ki", R_0k[-1].T, R_0k, a)   # specific force in I(t_end)
-        exc = [_excitation(f_end[m]) for m in (old, new)]
+        exc = [accel_excitation(f_end[m]) for m in (old, new)]
         info.update(accel_excitation_old=exc[0], accel_excitation_new=exc[1])
         if max(exc) > cfg.init_imu_thresh:
             return rej(t_end, "moving", f"rotation-compensated excitation {exc[0]:.3f}, {exc[1]:.3f} "
@@ -256,7 +241,7 @@ class TurningInitializer(BufferedInitializer):
             if ok.sum() >= self.config.min_pair_inliers:
                 thr = self.config.ransac_threshold_px / self.focal
                 rng = np.random.default_rng((fa[0] % 2**32, fb[0] % 2**32))   # the pair's own draws
-                R_ba, inl = rotation_ransac(_bearings(pa[ok]), _bearings(pb[ok]), thr, rng)
+                R_ba, inl = rotation_ransac(bearings(pa[ok]), bearings(pb[ok]), thr, rng)
                 if inl.sum() >= self.config.min_pair_inliers:
                     R = R_ba
         if len(self._pair_cache) > 4096:
@@ -311,43 +296,7 @@ class TurningInitializer(BufferedInitializer):
         # bearing of view a expressed in camera b: R_CbCa = R_CI R_0b^T R_0a R_IC
         R_ba = np.einsum("ij,kjl,klm,mn->kin", self.R_IC.T, np.transpose(R_0f[kk[b]], (0, 2, 1)),
                          R_0f[kk[a]], self.R_IC)
-        rot = np.einsum("kij,kj->ki", R_ba, _bearings(xy[a]))
-        bb = _bearings(xy[b])
+        rot = np.einsum("kij,kj->ki", R_ba, bearings(xy[a]))
+        bb = bearings(xy[b])
         ang = np.arctan2(np.linalg.norm(np.cross(rot, bb), axis=1), np.einsum("ij,ij->i", rot, bb))
         return float(self.focal * ang.mean()), int(a.size)
-
-
-def gravity_and_accel_bias(R_0k: np.ndarray, accel: np.ndarray,
-                           g0: float) -> tuple[np.ndarray, np.ndarray, float]:
-    """Gravity and accelerometer bias of a standing IMU whose orientation turned by R_{I0 Ik} (n, 3, 3).
-
-    Each sample reads f_k = R_ek^T up_e + ba, with up_e the specific force of gravity (|up_e| = g0) in
-    the newest sample's frame e and R_ek = R_0e^T R_0k. ba enters linearly: for a given up_e it is
-    mean_k R_ek^T (R_ek f_k - up_e) in closed form, leaving a quadratic in up_e minimised on the
-    sphere |up_e| = g0. The bias along the turn axis cannot be told from gravity's magnitude (that
-    direction of the design has no information); of the two sphere points there, the one on the mean
-    specific force's side is taken, which leaves that component as the static initializer sets it.
-
-    Returns up_e (3,) m/s^2 in I(e), ba (3,) m/s^2 in I, and the turn's spread: the RMS angle (rad)
-    by which the bias direction turns, sqrt(second-smallest eigenvalue of the design / n).
-    """
-    n = R_0k.shape[0]
-    R_ek = np.einsum("ji,kjl->kil", R_0k[-1], R_0k)
-    f = np.einsum("kij,kj->ki", R_ek, accel)              # specific force rotated into I(e)
-    R_bar = np.transpose(R_ek, (0, 2, 1)).mean(axis=0)    # mean_k R_ek^T
-    c = accel.mean(axis=0)                               # mean_k R_ek^T f_k = the raw mean
-    d = f - np.einsum("kij,j->ki", R_ek, c)
-    B = np.eye(3)[None] - np.einsum("kij,jl->kil", R_ek, R_bar)
-    M = np.einsum("kji,kjl->il", B, B)
-    up = min_quadratic_on_sphere(M, np.einsum("kji,kj->i", B, d), g0)
-    e, U = np.linalg.eigh(M)
-    if up @ f.mean(axis=0) < 0.0:                        # the other point along the unobservable axis
-        up = up - 2.0 * (up @ U[:, 0]) * U[:, 0]
-    ba = c - R_bar @ up
-    return up, ba, float(np.sqrt(max(e[1], 0.0) / n))
-
-
-def _excitation(f: np.ndarray) -> float:
-    """sqrt(sum |f_i - mean|^2 / (n - 1)) over (n, 3) samples, m/s^2 (OpenVINS' accelerometer 'std')."""
-    d = f - f.mean(axis=0)
-    return float(np.sqrt(np.sum(d * d) / (f.shape[0] - 1)))
