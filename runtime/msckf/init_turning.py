@@ -185,9 +185,11 @@ class TurningInitializer(BufferedInitializer):
         old, new = t <= half, t > half
         if old.sum() < 2 or new.sum() < 2:
             return rej(t_end, "short_window", "fewer than 2 IMU samples in a half-window")
+        # the frames' orientations from the gyro alone, shared by the disparity test and the bias fit
+        R_0f = gyro_orientations(t, w, zero, np.array([f[0] + off for f in frames], dtype=np.int64))
         disp = []
         for lo, hi in ((t_start, half), (half, t_end)):
-            d, n = self._derotated_disparity(frames, lo - off, hi - off, t, w, zero)
+            d, n = self._derotated_disparity(frames, lo - off, hi - off, R_0f)
             if n < cfg.min_disparity_features:
                 return rej(t_end, "few_features", f"{n} half-window tracks < {cfg.min_disparity_features}")
             disp.append(d)
@@ -196,7 +198,7 @@ class TurningInitializer(BufferedInitializer):
             return rej(t_end, "moving", f"rotation-compensated disparity {disp[0]:.2f}, {disp[1]:.2f} "
                        f"> {cfg.max_disparity_px} px (the IMU translates)")
 
-        bg, n_pairs = self._visual_gyro_bias(frames, t, w)
+        bg, n_pairs = self._visual_gyro_bias(frames, R_0f)
         if bg is None:
             return rej(t_end, "no_visual_rotation", f"{n_pairs} frame pairs with a rotation fit < 2")
         info.update(bg_visual=bg.copy(), visual_pairs=n_pairs)
@@ -249,12 +251,9 @@ class TurningInitializer(BufferedInitializer):
         self._pair_cache[key] = R
         return R
 
-    def _visual_gyro_bias(self, frames: list, t: np.ndarray, w: np.ndarray) -> tuple[np.ndarray | None, int]:
-        """Least-squares gyro bias making the gyro's rotation between neighbouring frames the images'."""
-        off = self.time_offset_ns
-        zero = np.zeros(3)
-        t_f = np.array([f[0] + off for f in frames], dtype=np.int64)
-        R_0f = gyro_orientations(t, w, zero, t_f)
+    def _visual_gyro_bias(self, frames: list, R_0f: np.ndarray) -> tuple[np.ndarray | None, int]:
+        """Least-squares gyro bias making the gyro's rotation between neighbouring frames (R_0f (k, 3, 3):
+        the frames' orientations from the gyro without bias) the images'."""
         num, den, n = np.zeros(3), 0.0, 0
         for k in range(len(frames) - 1):
             R_cam = self._pair_rotation(frames[k], frames[k + 1])
@@ -262,7 +261,7 @@ class TurningInitializer(BufferedInitializer):
                 continue
             R_vis = self.R_IC @ R_cam.T @ self.R_IC.T       # R_{Ik Ik+1} as the images see it
             R_gyr = R_0f[k].T @ R_0f[k + 1]
-            dt = (t_f[k + 1] - t_f[k]) * 1e-9
+            dt = (frames[k + 1][0] - frames[k][0]) * 1e-9
             # R_gyr(bg) ~ R_gyr(0) Exp(-bg dt) = R_vis  =>  bg dt = -Log(R_gyr^T R_vis)
             num += -so3_log(R_gyr.T @ R_vis) * dt
             den += dt * dt
@@ -271,10 +270,11 @@ class TurningInitializer(BufferedInitializer):
             return None, n
         return num / den, n
 
-    def _derotated_disparity(self, frames: list, t0_cam: int, t1_cam: int, t: np.ndarray, w: np.ndarray,
-                             bg: np.ndarray) -> tuple[float, int]:
-        """Mean angle (px) between each track's last bearing and its first one rotated by the gyro, over
-        the frames in [t0_cam, t1_cam] (camera clock); and the number of tracks."""
+    def _derotated_disparity(self, frames: list, t0_cam: int, t1_cam: int,
+                             R_0f: np.ndarray) -> tuple[float, int]:
+        """Mean angle (px) between each track's last bearing and its first one rotated by the gyro (R_0f
+        (k, 3, 3): the frames' orientations), over the frames in [t0_cam, t1_cam] (camera clock); and the
+        number of tracks."""
         sel = [k for k, f in enumerate(frames) if t0_cam <= f[0] <= t1_cam]
         if len(sel) < 2:
             return 0.0, 0
@@ -291,8 +291,6 @@ class TurningInitializer(BufferedInitializer):
             return 0.0, 0
         a = first[seen_twice]
         b = a + counts[seen_twice] - 1
-        t_f = np.array([f[0] + self.time_offset_ns for f in frames], dtype=np.int64)
-        R_0f = gyro_orientations(t, w, bg, t_f)
         # bearing of view a expressed in camera b: R_CbCa = R_CI R_0b^T R_0a R_IC
         R_ba = np.einsum("ij,kjl,klm,mn->kin", self.R_IC.T, np.transpose(R_0f[kk[b]], (0, 2, 1)),
                          R_0f[kk[a]], self.R_IC)
