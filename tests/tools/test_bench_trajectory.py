@@ -183,6 +183,13 @@ def test_cli_arguments_and_sources(tmp_path):
     assert set(over) == set(DENSE_ERROR_FIELDS)
     assert all(over[k] == pytest.approx(5.0 * getattr(base, k)) for k in DENSE_ERROR_FIELDS)
     assert depth_error_overrides("base", 1.0) == {}
+    # the odometry-error rows are parsed, and a bad value fails before anything is tracked
+    assert p.parse_args(["--error-scales", "0.5,2"]).error_scales == "0.5,2"
+    assert p.parse_args([]).error_scales == ""
+    from runtime.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="--error-scales"):
+        bench.run(p.parse_args(["--preset", "euroc", "--error-scales", "0.5,-2"]))
 
 
 def test_missing_shared_sequences_are_skipped_with_a_message(monkeypatch, tmp_path):

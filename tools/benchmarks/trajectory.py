@@ -21,7 +21,10 @@ default with the in-flight errors measured on the real EuRoC IMU added, `--prese
      trajectory's SE(3) alignment), final and causal ATE, the graph's counters and its lambdas against
      the true log-depth scale (mapping_scale.py); and the emulator's sensitivity rows: the complete system
      with every dense depth-error sigma of the emulated DA3 x2, x5 and x20 (the claims above rest on it);
-  4. the odometry's drift per distance travelled next to OpenVINS figures taken from the shared data.
+  4. the odometry's drift per distance travelled next to OpenVINS figures taken from the shared data;
+  5. with `--error-scales K,...`: the complete system replayed on the same run with the odometry's error
+     multiplied by each K, its structure kept (trajectory_error_scale.py): whether the graph's share of the
+     correction depends on how large the odometry's error is.
 Goals: final ATE <= 0.7 x odometry on every sequence, causal ATE no worse than the odometry.
 Everything is simulated: the depth model is the emulated DA3 (models/emulated_da3), not DA3; the start-up
 is the native initializer in every row (the feed-forward start-up would change the tracking run).
@@ -60,6 +63,8 @@ EASY_FRACTION = 0.5
 """A sequence is called easy when the odometry's ATE per path length is below this fraction of OpenVINS's on
 real EuRoC MH_03 (the paper's native ATE over the true MH_03 path, `trajectory_metrics.paper_mh03_anchor`):
 the simulated odometry then leaves much less error for the graph to remove than a real filter does."""
+MIN_RATIO_ODOMETRY_ATE_M = 1e-3
+"""`--error-scales`: below this odometry ATE (k = 0, the true poses) the ratios to it are not reported."""
 MIN_DRIFT_PATH_M = 10.0
 """A drift per distance is reported (and judged) only over at least this much true path."""
 
@@ -115,6 +120,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="configuration of the run (see config.toml of a run; default: DavioConfig())")
     p.add_argument("--ablations", default=",".join(a.key for a in ABLATIONS),
                    help="comma-separated ablation rows to run (davio always runs)")
+    p.add_argument("--error-scales", default="", metavar="K,...",
+                   help="also replay the complete system with the odometry's error (every published and "
+                        "window pose against the truth) multiplied by each K, e.g. 0.5,2,4 (default: none)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", metavar="FILE.json", help="also write the JSON here")
 
@@ -284,6 +292,10 @@ def run_sequence(src: Source, args: argparse.Namespace, log: Any = None) -> dict
                 f"F@10 {f10:.3f}  windows {row['windows_accepted']}/{row['windows_offered']}  "
                 f"{row['mapping_s']:.0f} s" + (f"  lambda - lambda* RMS {row['lambda']['rms_error']:.3f}"
                                                 if row.get("lambda", {}).get("submaps") else ""))
+    if getattr(args, "error_scales", ""):
+        from tools.benchmarks.trajectory_error_scale import parse_error_scales
+
+        out["error_scales"] = error_scale_rows(run, rec, ctx, parse_error_scales(args.error_scales), log)
     davio = rows["davio"]
     out["trajectory"] = {
         "odometry": {"ate_m": odo_m, "ratio": 1.0},
@@ -293,6 +305,35 @@ def run_sequence(src: Source, args: argparse.Namespace, log: Any = None) -> dict
     out["ablations"] = rows
     out["goals"] = goals(out["trajectory"])
     out["wall_s"] = time.perf_counter() - t0
+    return out
+
+
+def error_scale_rows(run: Any, rec: Any, ctx: dict, scales: list[float], log: Any = None) -> dict:
+    """The complete system on `run` with the odometry's error multiplied by each k (module docstring, 5)."""
+    from tools.benchmarks.trajectory_error_scale import error_scaled_run
+    from tools.benchmarks.trajectory_replay import odometry_poses, trajectory
+
+    out: dict = {}
+    for k in scales:
+        scaled = error_scaled_run(run, ctx["truth"].camera_pose, rec.rig.T_IC, k)
+        odo_m, _ = _ate(trajectory(scaled.published, odometry_poses(scaled.published), ctx["idx"]), ctx["gt"])
+        row, _ = run_ablation(ABLATIONS[0], scaled, ctx)
+        g = row["graph"]
+        defined = odo_m >= MIN_RATIO_ODOMETRY_ATE_M
+        out[f"{k:g}"] = {"k": k, "odometry_ate_m": odo_m, "final_ate_m": row["final_ate_m"],
+                         "causal_ate_m": row["causal_ate_m"],
+                         "final_ratio": row["final_ate_m"] / odo_m if defined else None,
+                         "causal_ratio": row["causal_ate_m"] / odo_m if defined else None,
+                         "revisits_accepted": g.get("revisits_accepted"),
+                         "revisits_attempted": g.get("revisits_attempted"),
+                         "revisit_point_groups": g.get("revisit_point_groups"),
+                         "f10": row.get("surface", {}).get("f10")}
+        if log:
+            r = out[f"{k:g}"]
+            ratios = (f" ({r['final_ratio']:.3f} and {r['causal_ratio']:.3f} of the odometry)"
+                      if defined else "")
+            log(f"  odometry error x{k:g}: odometry ATE {odo_m:.4f} m, final {r['final_ate_m']:.4f} m, "
+                f"causal {r['causal_ate_m']:.4f} m{ratios}")
     return out
 
 
@@ -332,8 +373,10 @@ def anchors() -> dict:
 
 def run(args: argparse.Namespace) -> int:
     from runtime.errors import ConfigError
+    from tools.benchmarks.trajectory_error_scale import parse_error_scales
 
     _ablations(args.ablations)
+    parse_error_scales(args.error_scales)
     from models.emulated_da3 import make_params
 
     make_params(args.da3)   # an unknown preset fails before the slow part

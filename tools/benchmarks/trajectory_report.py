@@ -86,6 +86,17 @@ def print_tables(result: dict) -> None:
                       f"{g['revisits_accepted']}/{g['revisits_attempted']}" if g else "-", rej,
                       f"{g['point_groups_adjacent']}/{g['point_groups_revisit']}" if g else "-")
         con.print(a)
+        if s.get("error_scales"):
+            e = Table(title=f"{name}: the complete system with the odometry's error x k (same run)")
+            for c in ("k", "odometry ATE", "final ATE", "final / odometry", "causal ATE", "causal / odometry",
+                      "revisits acc/att", "revisit point groups", "F@10"):
+                e.add_column(c)
+            for r in s["error_scales"].values():
+                e.add_row(f"{r['k']:g}", _f(r["odometry_ate_m"], ".4f"), _f(r["final_ate_m"], ".4f"),
+                          _f(r["final_ratio"]), _f(r["causal_ate_m"], ".4f"), _f(r["causal_ratio"]),
+                          f"{r['revisits_accepted']}/{r['revisits_attempted']}",
+                          str(r["revisit_point_groups"]), _f(r["f10"]))
+            con.print(e)
     an = result.get("anchors", {})
     if "paper_openvins_mh03" in an:
         p = an["paper_openvins_mh03"]
