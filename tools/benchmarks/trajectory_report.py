@@ -94,8 +94,8 @@ def print_tables(result: dict) -> None:
             for r in s["error_scales"].values():
                 e.add_row(f"{r['k']:g}", _f(r["odometry_ate_m"], ".4f"), _f(r["final_ate_m"], ".4f"),
                           _f(r["final_ratio"]), _f(r["causal_ate_m"], ".4f"), _f(r["causal_ratio"]),
-                          f"{r['revisits_accepted']}/{r['revisits_attempted']}",
-                          str(r["revisit_point_groups"]), _f(r["f10"]))
+                          f"{_f(r['revisits_accepted'], 'd')}/{_f(r['revisits_attempted'], 'd')}",
+                          _f(r["revisit_point_groups"], "d"), _f(r["f10"]))
             con.print(e)
     an = result.get("anchors", {})
     if "paper_openvins_mh03" in an:
