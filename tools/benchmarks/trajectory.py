@@ -293,7 +293,7 @@ def run_sequence(src: Source, args: argparse.Namespace, log: Any = None) -> dict
                 f"F@10 {f10:.3f}  windows {row['windows_accepted']}/{row['windows_offered']}  "
                 f"{row['mapping_s']:.0f} s" + (f"  lambda - lambda* RMS {row['lambda']['rms_error']:.3f}"
                                                 if row.get("lambda", {}).get("submaps") else ""))
-    if getattr(args, "error_scales", ""):
+    if args.error_scales:
         from tools.benchmarks.trajectory_error_scale import parse_error_scales
 
         out["error_scales"] = error_scale_rows(run, rec, ctx, parse_error_scales(args.error_scales), log)
@@ -377,7 +377,7 @@ def run(args: argparse.Namespace) -> int:
     from tools.benchmarks.trajectory_error_scale import parse_error_scales
 
     _ablations(args.ablations)
-    parse_error_scales(getattr(args, "error_scales", ""))
+    parse_error_scales(args.error_scales)
     from models.emulated_da3 import make_params
 
     make_params(args.da3)   # an unknown preset fails before the slow part

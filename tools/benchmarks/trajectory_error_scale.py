@@ -21,10 +21,9 @@ from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from runtime.errors import ConfigError, TrajectoryError
-from runtime.geometry.so3 import rot_z
+from runtime.geometry.so3 import rot_z, so3_exp, so3_log
 from tools.benchmarks.trajectory_inputs import TrackingRun
 from tools.benchmarks.trajectory_replay import odometry_poses
 from tools.evaluation.align import posyaw
@@ -59,8 +58,8 @@ def scale_pose_error(T_WX_est: np.ndarray, T_WX_true: np.ndarray, k: float) -> n
     (position error p_est - p_true in W, metres; rotation error Log(R_est R_true^T), rad)."""
     out = np.eye(4)
     out[:3, 3] = T_WX_true[:3, 3] + k * (T_WX_est[:3, 3] - T_WX_true[:3, 3])
-    dphi = Rotation.from_matrix(T_WX_est[:3, :3] @ T_WX_true[:3, :3].T).as_rotvec()
-    out[:3, :3] = Rotation.from_rotvec(k * dphi).as_matrix() @ T_WX_true[:3, :3]
+    dphi = so3_log(T_WX_est[:3, :3] @ T_WX_true[:3, :3].T)
+    out[:3, :3] = so3_exp(k * dphi) @ T_WX_true[:3, :3]
     return out
 
 
