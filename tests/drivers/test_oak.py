@@ -35,7 +35,6 @@ dai = pytest.importorskip("depthai")
 from drivers.live import LiveDriver  # noqa: E402
 from drivers.oak import (  # noqa: E402
     NEVER,
-    ImuPairer,
     OakDevice,
     OakPipeline,
     timedelta_ns,
@@ -251,30 +250,6 @@ def test_wrong_size_is_a_device_error() -> None:
 
 
 # -- IMU ----------------------------------------------------------------------------------------
-def test_pairer_equal_and_offset_stamps() -> None:
-    p = ImuPairer()
-    ms = 1_000_000
-    # equal stamps: exact pairs
-    for k in range(3):
-        p.add_accel(10 * ms + 5 * k * ms, (k, 0, 0))
-        p.add_gyro(10 * ms + 5 * k * ms, (0, k, 0))
-    out = p.pop()
-    assert [s.t_ns for s in out] == [10 * ms, 15 * ms, 20 * ms]
-    assert [s.accel[0] for s in out] == [0, 1, 2] and p.interpolated == 0
-    # gyro 2 ms after each accel: interpolated, the last waits for the next accel
-    q = ImuPairer()
-    q.add_gyro(1 * ms, (9, 9, 9))  # before any accel: dropped
-    for k in range(4):
-        q.add_accel(10 * ms + 5 * k * ms, (10.0 * k, 0, 0))
-        q.add_gyro(12 * ms + 5 * k * ms, (k, 0, 0))
-    out = q.pop()
-    assert [s.t_ns for s in out] == [12 * ms, 17 * ms, 22 * ms]
-    np.testing.assert_allclose([s.accel[0] for s in out], [4.0, 14.0, 24.0])
-    assert q.unpaired == 1 and q.interpolated == 3 and q.counts()["waiting"] == 1
-    q.add_accel(10 * ms, (0, 0, 0))  # repeated stamp
-    assert q.repeated == 1
-
-
 def test_imu_batches_paired_ordered_device_clock() -> None:
     dev, _, iq, _ = fake_device()
     ms = 1_000_000
