@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from models.depth_model import DepthModel
+from runtime.config_checks import at_least, non_negative, positive
 from runtime.events import Frame, ImuSample
 from runtime.ffinit.handeye import HandEyeResult, RotationWindow, estimate_handeye, validate_handeye
 from runtime.ffinit.window import Rejection
@@ -33,6 +34,13 @@ class BringUpConfig:
     """Windows rotating less than this (gyro, end to end) carry no hand-eye information: skipped."""
     max_attempts: int = 3
     """Estimate + validation attempts before giving up (each failure drops the oldest windows)."""
+
+    def __post_init__(self) -> None:
+        s = "bringup"
+        at_least(self, s, 1, "fit_windows", "max_attempts")
+        at_least(self, s, 3, "window_images")
+        positive(self, s, "window_spacing_s")
+        non_negative(self, s, "window_gap_s", "min_rotation_deg")
 
 
 @dataclass

@@ -20,6 +20,8 @@ from typing import Any
 
 import numpy as np
 
+from runtime.config_checks import at_least, non_negative, positive
+from runtime.errors import ConfigError
 from runtime.events import Frame, ImuSample
 from runtime.geometry.se3 import make_pose
 from runtime.msckf.init_common import InitResult
@@ -58,6 +60,17 @@ class StartupConfig:
     model's answer: a model slower than this never gets a re-solve."""
     native: bool = True
     """Keep the filter's own (static/dynamic) initializers armed."""
+
+    def __post_init__(self) -> None:
+        s = "startup"
+        positive(self, s, "buffer_s", "abandon_after_s", "window_spacing_s")
+        non_negative(self, s, "catch_up_s", "window_tolerance_s", "extend_refused_s")
+        at_least(self, s, 1, "consecutive_states", "max_candidates")
+        at_least(self, s, 0, "replay_batch")
+        at_least(self, s, 3, "window_images")
+        if self.window_tolerance_s >= self.window_spacing_s / 2:
+            raise ConfigError(f"startup.window_tolerance_s must be below half of startup.window_spacing_s "
+                              f"({self.window_spacing_s / 2:g} s), got {self.window_tolerance_s}")
 
 
 @dataclass

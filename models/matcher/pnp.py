@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from runtime.config_checks import at_least, in_range, positive
 from runtime.errors import DataError
 
 
@@ -28,6 +29,14 @@ class PnPGates:
     reprojection_px: float = 2.0
     iterations: int = 500
     confidence: float = 0.999
+
+    def __post_init__(self) -> None:
+        s = "revisits.pnp"
+        at_least(self, s, 4, "min_matches", "min_inliers")
+        at_least(self, s, 1, "iterations")
+        in_range(self, s, "min_inlier_fraction", 0.0, 1.0)
+        in_range(self, s, "confidence", 0.0, 1.0, lo_open=True, hi_open=True)
+        positive(self, s, "reprojection_px")
 
 
 @dataclass

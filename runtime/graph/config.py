@@ -4,10 +4,13 @@ revisit admission").
 Defaults are the paper's numbers."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 from models.matcher.features import pyramid_scales
 from models.matcher.pnp import PnPGates
+from runtime.config_checks import at_least, in_range, non_negative, positive
+from runtime.errors import ConfigError
 
 
 @dataclass
@@ -61,6 +64,18 @@ class GraphConfig:
     blas_threads: int | None = 1
     """BLAS threads during a solve (threadpoolctl; None leaves the process setting). The solve's small
     dense products run fastest on one thread; threads on shared cores cost 10x more."""
+
+    def __post_init__(self) -> None:
+        s = "graph"
+        positive(self, s, "drift_trans_sigma_min_m", "drift_rot_sigma_min_deg", "point_sigma_min_m",
+                 "scale_prior_sigma", "revisit_scale_sigma")
+        positive(self, s, "huber_threshold", finite=False)
+        non_negative(self, s, "drift_trans_sigma_per_m", "drift_rot_sigma_per_m_deg",
+                     "point_sigma_along_frac", "point_sigma_across_frac")
+        at_least(self, s, 1, "max_iterations")
+        at_least(self, s, 2, "max_resident_nodes")
+        if self.blas_threads is not None:
+            at_least(self, s, 1, "blas_threads")
 
 
 @dataclass
@@ -126,3 +141,15 @@ class RevisitConfig:
             self.view_scales = pyramid_scales(self.view_scales)
         except ValueError as exc:
             raise ValueError(f"view_scales: {exc}") from None
+        s = "revisits"
+        positive(self, s, "candidate_radius_m", "max_depth_rel_error", "innovation_sigmas", "scale_sigma")
+        non_negative(self, s, "min_time_gap_s", "view_thin_radius_m", "view_thin_angle_deg",
+                     "innovation_scale_sigma")
+        in_range(self, s, "min_view_overlap", 0.0, 1.0)
+        in_range(self, s, "overlap_max_ray_angle_deg", 0.0, 180.0, lo_open=True)
+        in_range(self, s, "overlap_max_scale_change", 1.0, math.inf, hi_open=True)
+        at_least(self, s, 1, "max_candidates", "coverage_grid", "max_correspondences")
+        at_least(self, s, 0, "max_views", "min_coverage_cells")
+        if self.min_coverage_cells > self.coverage_grid ** 2:
+            raise ConfigError(f"revisits.min_coverage_cells must be at most revisits.coverage_grid^2 "
+                              f"({self.coverage_grid ** 2}), got {self.min_coverage_cells}")

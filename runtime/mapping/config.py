@@ -4,6 +4,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from runtime.config_checks import at_least, each_at_least, in_range, non_negative, positive
+from runtime.errors import ConfigError
+
+MIN_VOXEL_M = 0.005
+"""Smallest fusion voxel (m): the grid spans +-2^20 voxels (+-5 km at 5 mm; runtime.mapping.fusion)."""
+MAX_VOXEL_M = 10.0
+"""Largest fusion voxel (m)."""
+
 
 @dataclass
 class MappingConfig:
@@ -72,3 +80,22 @@ class MappingConfig:
     refuse_tolerance_m: float = 0.005
     """A resident submap the graph moved by less than this (m, at its farthest point) is not re-fused into
     the live grid (a fraction of a voxel; its archived state and the final export are exact)."""
+
+    def __post_init__(self) -> None:
+        s = "mapping"
+        positive(self, s, "keyframe_spacing_s", "max_fit_rmse_m", "max_abs_log_scale",
+                 "frame_scale_prior_sigma", "frame_scale_huber", "multiview_rel_depth", "max_depth_m",
+                 "min_scale_sigma")
+        non_negative(self, s, "min_baseline_m", "refuse_tolerance_m")
+        in_range(self, s, "voxel_m", MIN_VOXEL_M, MAX_VOXEL_M)
+        in_range(self, s, "max_multiview_failed_fraction", 0.0, 1.0)
+        in_range(self, s, "conf_percentile", 0.0, 100.0, hi_open=True)
+        at_least(self, s, 1, "max_pending_windows", "frame_scale_rounds", "frame_scale_min_matches",
+                 "pixel_stride", "max_resident_submaps", "min_overlap_pixels", "graph_points",
+                 "graph_min_points")
+        at_least(self, s, 2, "window_images")
+        at_least(self, s, 0, "shared_images")
+        if self.shared_images >= self.window_images:
+            raise ConfigError(f"mapping.shared_images must be below mapping.window_images "
+                              f"({self.window_images}), got {self.shared_images}")
+        each_at_least(self.frame_scale_pair_offsets, s, "frame_scale_pair_offsets", 1)

@@ -1,0 +1,64 @@
+"""Out-of-range values in the mapping, startup, graph, revisits and bring-up sections are refused when
+the configuration is read, naming the key (they used to fail deep inside a run, or pass silently)."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+
+from models.matcher.pnp import PnPGates
+from runtime.bringup import BringUpConfig
+from runtime.config import DavioConfig, load_davio_config
+from runtime.config_io import dump_toml
+from runtime.errors import ConfigError
+from runtime.graph.config import GraphConfig, RevisitConfig
+from runtime.mapping.config import MappingConfig
+from runtime.startup import StartupConfig
+
+
+@pytest.mark.parametrize("toml,message", [
+    ("[mapping]\nvoxel_m = -0.04", "mapping.voxel_m must be in [0.005, 10], got -0.04"),
+    ("[mapping]\nvoxel_m = 0.001", "mapping.voxel_m must be in [0.005, 10]"),
+    ("[mapping]\nkeyframe_spacing_s = 0.0", "mapping.keyframe_spacing_s must be a finite number > 0"),
+    ("[mapping]\nshared_images = 5", "mapping.shared_images must be below mapping.window_images (5), got 5"),
+    ("[mapping]\nconf_percentile = 100.0", "mapping.conf_percentile must be in [0, 100)"),
+    ("[mapping]\nframe_scale_pair_offsets = [1, 0]", "mapping.frame_scale_pair_offsets must be a list"),
+    ("[startup]\nwindow_images = 0", "startup.window_images must be an integer >= 3, got 0"),
+    ("[startup]\nwindow_tolerance_s = 0.1", "startup.window_tolerance_s must be below half"),
+    ("[startup]\nbuffer_s = nan", "startup.buffer_s must be a number, got nan"),
+    ("[graph]\nhuber_threshold = 0.0", "graph.huber_threshold must be > 0"),
+    ("[graph]\nmax_resident_nodes = 1", "graph.max_resident_nodes must be an integer >= 2"),
+    ("[revisits]\nmin_view_overlap = 1.5", "revisits.min_view_overlap must be in [0, 1]"),
+    ("[revisits]\nmin_coverage_cells = 17", "revisits.min_coverage_cells must be at most"),
+    ("[revisits.pnp]\nconfidence = 1.0", "revisits.pnp.confidence must be in (0, 1)"),
+])
+def test_out_of_range_values_name_the_key(tmp_path: Path, toml: str, message: str) -> None:
+    path = tmp_path / "c.toml"
+    path.write_text(toml + "\n")
+    with pytest.raises(ConfigError) as err:
+        load_davio_config(path)
+    assert message in str(err.value)
+
+
+def test_defaults_and_the_boundaries_pass(tmp_path: Path) -> None:
+    (tmp_path / "full.toml").write_text(dump_toml(DavioConfig()))
+    assert load_davio_config(tmp_path / "full.toml") == DavioConfig()   # every default passes its checks
+    # boundary values that mean something: 0 = off, inf = plain quadratic loss, None = process setting
+    MappingConfig(voxel_m=0.005, shared_images=0, min_baseline_m=0.0, max_multiview_failed_fraction=1.0)
+    MappingConfig(voxel_m=10.0, window_images=2, shared_images=1, conf_percentile=0.0)
+    StartupConfig(extend_refused_s=0.0, replay_batch=0, catch_up_s=0.0, window_images=3)
+    GraphConfig(huber_threshold=math.inf, blas_threads=None, drift_trans_sigma_per_m=0.0)
+    RevisitConfig(min_coverage_cells=16, min_view_overlap=0.0, max_views=0)
+    PnPGates(min_inlier_fraction=1.0, confidence=0.5)
+    BringUpConfig(window_gap_s=0.0, min_rotation_deg=0.0)
+    for bad in (dict(voxel_m=0.0049), dict(voxel_m=math.inf), dict(window_images=1), dict(pixel_stride=0)):
+        with pytest.raises(ConfigError):
+            MappingConfig(**bad)
+    for bad in (dict(window_images=2), dict(max_candidates=0), dict(window_spacing_s=0.0)):
+        with pytest.raises(ConfigError):
+            StartupConfig(**bad)
+    with pytest.raises(ConfigError, match="bringup.window_images"):
+        BringUpConfig(window_images=2)
+    with pytest.raises(ConfigError, match="graph.blas_threads"):
+        GraphConfig(blas_threads=0)
