@@ -15,6 +15,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import shutil
 import time
 from collections.abc import Iterator
@@ -26,7 +27,46 @@ from runtime.errors import ConfigError
 STATUS_FILE = "run_status.json"
 STATUSES = ("complete", "interrupted", "failed")
 RUN_MARKERS = (STATUS_FILE, "report.json", "odometry.tum")
-"""Files whose presence says a folder holds a DAVIO run (and may be replaced with --overwrite)."""
+"""Files whose presence suggests a folder holds a DAVIO run (used for messages; replacing one needs more:
+`not_replaceable`)."""
+DERIVED_FILES = ("map.ply", "map.png")
+"""Files `davio map export|view` write into a run folder by default after the run ended."""
+_PARTIAL_NAMES = re.compile(r"^(odometry(_segment\d+)?\.tum|causal\.tum|final\.tum|groundtruth\.tum|"
+                            r"poses\.csv|report\.json|config\.toml|run_status\.json|map\.ply|trajectory\.png|"
+                            r"position_error\.png|\..+\.tmp|map/(manifest\.json|submap_\d+\.npz|\..+\.tmp))$")
+"""What a run writes into `<out>.partial/` (run_io.write_run, run_map, demo, atomic-write temporaries)."""
+
+
+def _files(folder: Path) -> list[str]:
+    return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*") if not p.is_dir())
+
+
+def _listing(names: list[str]) -> str:
+    return ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
+
+
+def not_replaceable(folder: Path) -> str | None:
+    """Why `folder` may not be replaced by a new run, or None when it holds a finished DAVIO run and
+    nothing else: a `run_status.json` with its status and file list, and only those files (plus
+    DERIVED_FILES). Anything the user added, or a folder some other program wrote, is never removed."""
+    try:
+        status = json.loads((folder / STATUS_FILE).read_text())
+    except (OSError, ValueError):
+        return f"it holds no readable {STATUS_FILE} (not a finished DAVIO run)"
+    if not isinstance(status, dict) or status.get("status") not in STATUSES \
+            or not isinstance(status.get("files"), list):
+        return f"its {STATUS_FILE} is not one a DAVIO run wrote"
+    allowed = {str(f) for f in status["files"]} | {STATUS_FILE, *DERIVED_FILES}
+    extra = [f for f in _files(folder) if f not in allowed]
+    if extra:
+        return f"it holds files the run did not write ({_listing(extra)})"
+    return None
+
+
+def _partial_not_removable(partial: Path) -> str | None:
+    """Why a leftover `<out>.partial/` may not be removed, or None when it holds only files a run writes."""
+    extra = [f for f in _files(partial) if not _PARTIAL_NAMES.match(f)]
+    return f"it holds files no DAVIO run writes ({_listing(extra)})" if extra else None
 
 
 def run_status(folder: str | Path) -> str:
@@ -72,7 +112,8 @@ class RunFolder:
         """Check `out` before any work (nothing is created until `create`).
 
         Raises ConfigError: `out` is a file or under a file, not writable, or a non-empty folder
-        without `overwrite`, or (with `overwrite`) a non-empty folder that holds no DAVIO run.
+        without `overwrite`, or (with `overwrite`) a non-empty folder that is not a previous DAVIO run
+        holding only what it wrote (`not_replaceable`), or a leftover partial folder holding other files.
         """
         out = Path(out)
         check_writable_target(out)
@@ -81,14 +122,19 @@ class RunFolder:
             if not overwrite:
                 raise ConfigError(f"--out {out} is not empty (a previous run?); pass --overwrite to replace "
                                   "it, or choose another folder")
-            if not any((out / m).exists() for m in RUN_MARKERS):
-                raise ConfigError(f"--out {out} holds files but no DAVIO run ({', '.join(RUN_MARKERS)}); "
-                                  "--overwrite only replaces run folders: choose another folder")
+            why = not_replaceable(out)
+            if why is not None:
+                raise ConfigError(f"--out {out} is not replaced: {why}; --overwrite only replaces a previous "
+                                  "DAVIO run folder as it wrote it: choose another folder")
             replace_existing = True
         partial = _partial_of(out)
-        if partial.exists() and not overwrite:
-            raise ConfigError(f"{partial} exists: an unfinished run (killed, or still running); remove "
-                              "it or pass --overwrite")
+        if partial.exists():
+            if not overwrite:
+                raise ConfigError(f"{partial} exists: an unfinished run (killed, or still running); remove "
+                                  "it or pass --overwrite")
+            why = _partial_not_removable(partial) if partial.is_dir() else "it is not a folder"
+            if why is not None:
+                raise ConfigError(f"{partial} is not removed: {why}; move it away or choose another --out")
         return cls(out, partial, replace_existing)
 
     def create(self) -> Path:

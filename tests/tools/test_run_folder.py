@@ -39,9 +39,16 @@ def test_non_empty_folders_need_overwrite_and_only_runs_are_replaced(tmp_path: P
     (other / "a.jpg").write_text("x")
     with pytest.raises(ConfigError, match="not empty"):
         RunFolder.prepare(other)
-    with pytest.raises(ConfigError, match="holds files but no DAVIO run"):
+    with pytest.raises(ConfigError, match="holds no readable run_status.json"):
         RunFolder.prepare(other, overwrite=True)
     assert (other / "a.jpg").exists()
+    (other / "report.json").write_text("{}")      # a generic name is no proof of a DAVIO run
+    (other / "odometry.tum").write_text("")
+    with pytest.raises(ConfigError, match="holds no readable run_status.json"):
+        RunFolder.prepare(other, overwrite=True)
+    (other / "run_status.json").write_text('{"status": "complete"}')   # not one a run wrote: no file list
+    with pytest.raises(ConfigError, match="is not one a DAVIO run wrote"):
+        RunFolder.prepare(other, overwrite=True)
 
     out = tmp_path / "run"
     first = RunFolder.prepare(out)
@@ -61,6 +68,30 @@ def test_non_empty_folders_need_overwrite_and_only_runs_are_replaced(tmp_path: P
     status = json.loads((out / "run_status.json").read_text())
     assert status["status"] == "interrupted" and status["files"] == ["odometry.tum"]
     assert not list(tmp_path.glob("run.*"))       # no partial or old folder left behind
+    # the run's own map exports may be there; a file the user put in the run folder may not
+    (out / "map.png").write_text("png")
+    assert RunFolder.prepare(out, overwrite=True).replace_existing
+    (out / "notes").mkdir()
+    (out / "notes" / "thesis.tex").write_text("mine")
+    with pytest.raises(ConfigError, match=r"holds files the run did not write \(notes/thesis.tex\)"):
+        RunFolder.prepare(out, overwrite=True)
+
+
+def test_a_leftover_partial_is_removed_only_when_a_run_wrote_it(tmp_path: Path) -> None:
+    out = tmp_path / "data"
+    partial = tmp_path / "data.partial"
+    (partial / "map").mkdir(parents=True)
+    for name in ("odometry.tum", "report.json", "map/manifest.json", "map/submap_000003.npz",
+                 "map/.submap_000004.npz.abc.tmp"):
+        (partial / name).write_text("x")
+    with pytest.raises(ConfigError, match="unfinished run"):
+        RunFolder.prepare(out)
+    RunFolder.prepare(out, overwrite=True).create()           # a killed run's leftovers go
+    assert partial.is_dir() and not any(partial.iterdir())
+    (partial / "experiment.csv").write_text("mine")           # someone else's folder of that name
+    with pytest.raises(ConfigError, match=r"holds files no DAVIO run writes \(experiment.csv\)"):
+        RunFolder.prepare(out, overwrite=True)
+    assert (partial / "experiment.csv").read_text() == "mine"
 
 
 def _run_cmd(rec: Path, out: Path) -> list[str]:
