@@ -44,13 +44,14 @@ class MapOutput:
         self.archive.commit([commit.submap, *commit.changed], self.pairs, commit.version, asdict(stats))
 
     def finish(self) -> dict:
-        """Export map.ply from the archive (every submap with its latest state); returns a summary."""
+        """Export map.ply from the archive (every submap with its latest state); returns a summary whose
+        paths are relative to the run folder (the run is written in `<out>.partial/` and renamed)."""
         from tools.map_archive import export_map
 
         n_sub = len(self.archive.entries)
-        summary = {"archive": str(self.out_dir / "map"), "submaps": n_sub,
+        summary = {"archive": "map", "submaps": n_sub,
                    "map_version": self.archive.map_version, "ply": None, "voxels": 0}
         if n_sub:
             summary["voxels"] = export_map(self.out_dir / "map", self.out_dir / "map.ply", self.voxel_m)[0]
-            summary["ply"] = str(self.out_dir / "map.ply")
+            summary["ply"] = "map.ply"
         return summary

@@ -3,6 +3,8 @@ paths that are folders, strict JSON."""
 from __future__ import annotations
 
 import json
+import os
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -52,8 +54,27 @@ def test_save_aligned_into_an_existing_folder(tum_pair, tmp_path: Path, capsys) 
     result = _strict(capsys.readouterr().out)
     assert result["aligned"] == str(out / "est_aligned.tum")
     assert len((out / "est_aligned.tum").read_text().splitlines()) == 41  # header + 40 poses
-    assert main(["eval", "ate", str(est), str(ref), "--save-aligned", str(out)]) == 0
+    assert main(["eval", "ate", str(est), str(ref), "--save-aligned", str(out)]) == 1   # exists now
+    assert capsys.readouterr().err == (f"davio eval: error: --save-aligned {out / 'est_aligned.tum'}: exists; "
+                                       "pass --overwrite to replace it, or choose another file\n")
+    assert main(["eval", "ate", str(est), str(ref), "--save-aligned", str(out), "--overwrite"]) == 0
     assert "aligned estimate" in capsys.readouterr().out  # the table row (rich may shorten the path)
+
+
+def test_save_aligned_never_replaces_an_input_or_a_device(tum_pair, tmp_path: Path, capsys) -> None:
+    est, _, ref = tum_pair
+    before = ref.read_bytes()
+    for target, why in [(ref, "is one of this command's inputs"),
+                        (tmp_path / "aligned", "expected a .tum or .txt file"),
+                        (tmp_path / "no" / "such" / "a.tum", "does not exist")]:
+        assert main(["eval", "ate", str(est), str(ref), "--save-aligned", str(target), "--overwrite"]) == 1
+        assert why in capsys.readouterr().err
+    assert ref.read_bytes() == before and not (tmp_path / "aligned").exists()
+    fifo = tmp_path / "pipe.tum"
+    os.mkfifo(fifo)
+    assert main(["eval", "ate", str(est), str(ref), "--save-aligned", str(fifo), "--overwrite"]) == 1
+    assert "is not a regular file" in capsys.readouterr().err
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode)
 
 
 @pytest.mark.parametrize("metric", ["ate", "rpe"])
@@ -101,8 +122,11 @@ def test_map_export_into_a_folder_and_bad_voxel(tmp_path: Path, capsys) -> None:
     assert (out / "map.ply").is_file()
     capsys.readouterr()
     assert main(["map", "export", str(tmp_path / "run"), "--voxel", "0"]) == 1
-    assert capsys.readouterr().err == ("davio map: error: --voxel must be a positive edge length in metres, "
+    assert capsys.readouterr().err == ("davio map: error: --voxel must be an edge length from 0.005 to 10.0 m, "
                                        "got 0.0\n")
+    for bad in ("inf", "1e-6", "nan"):
+        assert main(["map", "export", str(tmp_path / "run"), "--voxel", bad]) == 1
+        assert "--voxel must be an edge length" in capsys.readouterr().err
     assert main(["map", "info", str(tmp_path / "run"), "--json"]) == 0
     assert _strict(capsys.readouterr().out)["submaps"] == 3
 

@@ -43,7 +43,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help="fit the alignment on the first N associated poses only")
     p.add_argument("--save-aligned", metavar="FILE", default=None,
                    help="write the associated, aligned estimate as a TUM file (an existing folder: "
-                        "EST_aligned.tum inside it)")
+                        "EST_aligned.tum inside it; .tum or .txt)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --save-aligned file")
     p.set_defaults(_eval=_run_ate)
 
     p = sub.add_parser("rpe", help="relative pose error", formatter_class=fmt)
@@ -118,6 +119,13 @@ def _run_ate(args: argparse.Namespace) -> int:
     from tools.evaluation import ate, write_tum
 
     plot_dir = _plot_dir(args)
+    target = None
+    if args.save_aligned:
+        from tools.output_file import check_output_file
+
+        target = aligned_path(args.save_aligned, args.est)
+        check_output_file(target, "--save-aligned", (".tum", ".txt"), overwrite=args.overwrite,
+                          inputs=[Path(args.est), Path(args.ref)])
     est, ref = _read_pair(args)
     res = ate(est, ref, args.align, args.max_diff, args.offset, args.n_align, args.one_to_one)
     out = {**res.as_dict(), "est": str(args.est), "ref": str(args.ref)}
@@ -129,8 +137,7 @@ def _run_ate(args: argparse.Namespace) -> int:
                                               f"ATE, {args.align} alignment")),
                         str(plot_errors(d / "ate_errors.png", res.t_ns, res.trans_err_m, "m",
                                         f"ATE translation, rmse {res.rmse:.4f} m"))]
-    if args.save_aligned:
-        target = aligned_path(args.save_aligned, args.est)
+    if target is not None:
         try:
             write_tum(target, res.est_aligned)
         except OSError as exc:

@@ -24,6 +24,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         formatter_class=fmt)
     pi.add_argument("folder", type=Path, help=folder_help)
     pi.add_argument("--json", action="store_true", help="print the summary as JSON")
+    pi.add_argument("--voxel", type=float, default=None,
+                    help="also count the fused voxels of this edge length (m; slower)")
     pe = sub.add_parser("export", help="fuse every submap at its latest graph state and write a PLY",
                         formatter_class=fmt)
     pe.add_argument("folder", type=Path, help=folder_help)
@@ -33,6 +35,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     pe.add_argument("--min-points", type=int, default=1,
                     help="write only voxels holding at least this many fused depth samples (2 or more drops "
                          "isolated far-range samples: a cleaner but less complete map)")
+    pe.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    pe.add_argument("--skip-damaged", action="store_true",
+                    help="leave out submaps whose files fail the integrity check (default: refuse)")
     pv = sub.add_parser("view", help="a PNG with a top and an oblique view coloured by height",
                         formatter_class=fmt)
     pv.add_argument("folder", type=Path, help=folder_help)
@@ -42,13 +47,26 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     pv.add_argument("--min-points", type=int, default=1,
                     help="show only voxels holding at least this many fused depth samples")
     pv.add_argument("--interactive", action="store_true", help="also open open3d's viewer (needs a display)")
+    pv.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
+    pv.add_argument("--skip-damaged", action="store_true",
+                    help="leave out submaps whose files fail the integrity check (default: refuse)")
 
 
 def resolve(folder: Path) -> tuple[Path, Path]:
-    """(archive folder, run folder) of D: D/map when it is a folder, else D itself (run folder = parent)."""
+    """(archive folder, run folder) of D: D/map when it is a folder, else D itself (run folder = parent).
+
+    Raises DataError for a run folder (or a folder without an archive) that holds no map/."""
+    from runtime.errors import DataError
+    from tools.map_archive.format import MANIFEST_NAME
+    from tools.run_folder import RUN_MARKERS
+
     folder = Path(folder)
     if (folder / "map").is_dir():
         return folder / "map", folder
+    if folder.is_dir() and not (folder / MANIFEST_NAME).exists() and any((folder / m).exists()
+                                                                          for m in RUN_MARKERS):
+        raise DataError("run folder without a map/: the run was made without a depth model (--native-only) "
+                        "or with --no-map, or stopped before its first map commit", folder)
     return folder, folder.parent
 
 
@@ -73,11 +91,31 @@ def output_path(out: Path | None, run_folder: Path, name: str) -> Path:
     return out / name if out.is_dir() else out
 
 
+def checked_output(args: argparse.Namespace, archive: Path, run_folder: Path, name: str) -> tuple[Path, bool]:
+    """(the output file, whether it replaces an existing one) after `check_output_file`: the run's own
+    map.ply / map.png may be replaced by default, any other existing file only with --overwrite."""
+    from tools.output_file import check_output_file
+
+    out = output_path(args.out, run_folder, name)
+    own = args.out is None and archive == run_folder / "map"
+    replaced = check_output_file(out, "--out", (Path(name).suffix,), overwrite=args.overwrite,
+                                 replaceable=own, protected_dirs=[archive])
+    return out, replaced
+
+
 def _check_fuse_args(voxel: float, min_points: int = 1) -> None:
-    if not voxel > 0:
-        raise ConfigError(f"--voxel must be a positive edge length in metres, got {voxel}")
+    from runtime.mapping.config import MAX_VOXEL_M, MIN_VOXEL_M
+
+    if not MIN_VOXEL_M <= voxel <= MAX_VOXEL_M:
+        raise ConfigError(f"--voxel must be an edge length from {MIN_VOXEL_M} to {MAX_VOXEL_M} m, "
+                          f"got {voxel}")
     if min_points < 1:
         raise ConfigError(f"--min-points must be at least 1, got {min_points}")
+
+
+def _print_notes(what: str, notes: list[str]) -> None:
+    for line in notes:
+        print(f"davio map {what}: note: {line}", file=sys.stderr)
 
 
 def _print_info(info: dict) -> None:
@@ -94,6 +132,8 @@ def _print_info(info: dict) -> None:
         print("extent [m]   (no points)")
     vers = ", ".join(f"v{v}: {n}" for v, n in info["node_versions"].items()) or "-"
     print(f"node versions {vers}")
+    if info["voxels"] is not None:
+        print(f"voxels       {info['voxels']}")
     print(f"on disk      {info['bytes_on_disk'] / 1e6:.2f} MB")
     if info["problems"]:
         print(f"integrity    {len(info['problems'])} problem(s):")
@@ -114,7 +154,9 @@ def run(args: argparse.Namespace) -> int:
     if action == "info":
         from tools.map_archive.info import map_info
 
-        info = map_info(archive)
+        if args.voxel is not None:
+            _check_fuse_args(args.voxel)
+        info = map_info(archive, args.voxel)
         if args.json:
             print(strict_dumps(info, indent=2))
         else:
@@ -124,28 +166,34 @@ def run(args: argparse.Namespace) -> int:
         from tools.map_archive.export import export_map
 
         _check_fuse_args(args.voxel, args.min_points)
-        out = output_path(args.out, run_folder, "map.ply")
+        out, replaced = checked_output(args, archive, run_folder, "map.ply")
         t0 = time.monotonic()
+        notes: list[str] = []
         try:
-            n, fused = export_map(archive, out, args.voxel, _Progress("export"), args.min_points)
+            n, fused = export_map(archive, out, args.voxel, _Progress("export"), args.min_points,
+                                  args.skip_damaged, notes)
         except OSError as exc:
             raise ConfigError(f"--out {out}: cannot write ({exc.strerror or exc})") from None
+        _print_notes("export", notes)
         dropped = (f" ({fused - n} of {fused} with fewer than {args.min_points} samples left out)"
                    if args.min_points > 1 else "")
-        print(f"davio map export: {n} voxels ({args.voxel} m){dropped} -> {out} in "
-              f"{time.monotonic() - t0:.1f} s")
+        print(f"davio map export: {n} voxels ({args.voxel} m){dropped} -> {out}"
+              f"{' (replaced)' if replaced else ''} in {time.monotonic() - t0:.1f} s")
         return 0
     from tools.map_archive.export import fuse_archive, supported
     from tools.map_archive.view import interactive, render_views
 
     _check_fuse_args(args.voxel, args.min_points)
-    points, grey, _ = supported(fuse_archive(archive, args.voxel, _Progress("view")), args.min_points)
-    out = output_path(args.out, run_folder, "map.png")
+    out, replaced = checked_output(args, archive, run_folder, "map.png")
+    notes: list[str] = []
+    fused = fuse_archive(archive, args.voxel, _Progress("view"), args.skip_damaged, notes)
+    points, grey, _ = supported(fused, args.min_points)
+    _print_notes("view", notes)
     try:
         render_views(points, grey, out)
     except OSError as exc:
         raise ConfigError(f"--out {out}: cannot write ({exc.strerror or exc})") from None
-    print(f"davio map view: {len(points)} voxels -> {out}")
+    print(f"davio map view: {len(points)} voxels -> {out}{' (replaced)' if replaced else ''}")
     if args.interactive:
         why = interactive(points, grey)
         if why:

@@ -6,30 +6,52 @@ from pathlib import Path
 
 import numpy as np
 
+from runtime.errors import DataError
 from runtime.files import atomic_write_bytes
 from runtime.mapping.fusion import VoxelGrid
-from tools.map_archive.reader import iter_submaps, read_manifest
+from tools.map_archive.reader import integrity, iter_submaps, read_manifest, state_is_finite
 
 
-def fuse_archive(folder: str | Path, voxel_m: float = 0.04, progress: Callable[[int, int], None] | None = None
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def fuse_archive(folder: str | Path, voxel_m: float = 0.04,
+                 progress: Callable[[int, int], None] | None = None, skip_damaged: bool = False,
+                 notes: list[str] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fuse every submap of the archive at its manifest state (eq. placement) into voxels.
 
-    Each voxel holds the unweighted mean of the points that fall in it. Points that are not finite
-    (a submap whose state was written as null) are left out.
+    Each voxel holds the unweighted mean of the points that fall in it. Every file is first checked
+    against the manifest (size and sha256, as `davio map info`): a damaged or missing file is a DataError
+    naming it, unless `skip_damaged`, which leaves those submaps out. A submap whose graph state was
+    written as null (not finite) cannot be placed and is left out. Whatever is left out is said in `notes`.
 
     Args:
         folder: the archive folder.
         voxel_m: voxel edge length, metres.
         progress: called with (submaps done, submaps total) after each submap.
+        skip_damaged: leave out the submaps whose files fail the integrity check instead of refusing.
+        notes: when given, one line is appended per kind of submap left out.
 
     Returns:
         (points (V,3) float64 in M, grey (V,) uint8, counts (V,) int64 points per voxel).
     """
     info = read_manifest(folder)
-    total = len(info["submaps"])
+    problems, _ = integrity(folder, info)
+    damaged = {p.split(":", 1)[0] for p in problems}
+    if problems and not skip_damaged:
+        more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
+        raise DataError(f"damaged archive: {problems[0]}{more}; `davio map info` lists every problem, "
+                        "--skip-damaged leaves those submaps out", folder)
+    entries = [e for e in info["submaps"] if e["file"] not in damaged]
+    unplaced = [e for e in entries if not state_is_finite(e)]
+    entries = [e for e in entries if state_is_finite(e)]
+    if notes is not None:
+        if damaged:
+            notes.append(f"{len(damaged)} damaged submap file(s) left out: {', '.join(sorted(damaged))}")
+        if unplaced:
+            notes.append(f"{len(unplaced)} submap(s) with a non-finite graph state left out "
+                         f"({sum(int(e['n_points']) for e in unplaced)} points): "
+                         f"{', '.join(e['file'] for e in unplaced)}")
+    total = len(entries)
     grid = VoxelGrid(voxel_m)
-    for k, sm in enumerate(iter_submaps(folder, info), start=1):
+    for k, sm in enumerate(iter_submaps(folder, {**info, "submaps": entries}), start=1):
         pts = sm.points_M()
         ok = np.isfinite(pts).all(axis=1)
         grid.integrate(pts[ok], sm.grey[ok])
@@ -73,10 +95,11 @@ def supported(fused: tuple[np.ndarray, np.ndarray, np.ndarray], min_points: int
 
 
 def export_map(folder: str | Path, out_ply: str | Path, voxel_m: float = 0.04,
-               progress: Callable[[int, int], None] | None = None, min_points: int = 1) -> tuple[int, int]:
-    """Fuse the archive in `folder` and write the voxels holding at least `min_points` points to
-    `out_ply`; returns (voxels written, voxels fused)."""
-    fused = fuse_archive(folder, voxel_m, progress)
+               progress: Callable[[int, int], None] | None = None, min_points: int = 1,
+               skip_damaged: bool = False, notes: list[str] | None = None) -> tuple[int, int]:
+    """Fuse the archive in `folder` (`fuse_archive`) and write the voxels holding at least `min_points`
+    points to `out_ply`; returns (voxels written, voxels fused)."""
+    fused = fuse_archive(folder, voxel_m, progress, skip_damaged, notes)
     points, grey, _ = supported(fused, min_points)
     write_ply(out_ply, points, grey)
     return int(len(points)), int(len(fused[0]))

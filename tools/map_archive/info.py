@@ -8,7 +8,7 @@ import numpy as np
 
 from runtime.errors import DataError
 from runtime.mapping.fusion import VoxelGrid
-from tools.map_archive.reader import integrity, load_submap, read_manifest
+from tools.map_archive.reader import integrity, load_submap, read_manifest, state_is_finite
 
 
 def map_info(folder: str | Path, voxel_m: float | None = None) -> dict:
@@ -39,7 +39,11 @@ def map_info(folder: str | Path, voxel_m: float | None = None) -> dict:
         try:
             sm = load_submap(folder, e)
         except DataError as exc:
-            problems.append(f"{e['file']}: {exc}")
+            problems.append(str(exc))   # names the file
+            continue
+        if not state_is_finite(e):
+            problems.append(f"{e['file']}: its graph state in the manifest is not finite (T_MS or lam null): "
+                            f"its {e['n_points']} points cannot be placed")
             continue
         pts = sm.points_M()
         pts = pts[np.isfinite(pts).all(axis=1)]

@@ -22,6 +22,7 @@ from tools.map_archive.format import (
 
 _ENTRY_KEYS = ("index", "file", "sha256", "bytes", "n_points", "T_MS", "lam", "version")
 _INT_KEYS = ("index", "bytes", "n_points", "version")
+_SCALAR_ARRAYS = ("index", "centre", "s_hat")
 
 
 def read_manifest(folder: str | Path) -> dict:
@@ -44,6 +45,9 @@ def read_manifest(folder: str | Path) -> dict:
         raise DataError(f"manifest is not valid JSON: {exc}", path) from exc
     if not isinstance(info, dict) or info.get("format") != FORMAT:
         fmt = info.get("format") if isinstance(info, dict) else None
+        if fmt is None:
+            raise DataError(f"foreign archive: this manifest.json has no 'format' key (expected {FORMAT!r}): "
+                            "not a davio map archive", path)
         raise DataError(f"foreign archive: format is {fmt!r}, expected {FORMAT!r}", path)
     schema = info.get("schema_version")
     if not isinstance(schema, int) or isinstance(schema, bool):
@@ -68,7 +72,28 @@ def read_manifest(folder: str | Path) -> dict:
         if not isinstance(e["file"], str) or not SUBMAP_RE.match(e["file"]):
             raise DataError(f"submaps[{k}].file is {e['file']!r}, expected a name like submap_000000.npz "
                             "inside the archive folder", path)
+        segment = e.get("segment", 0)
+        if not isinstance(segment, int) or isinstance(segment, bool):
+            raise DataError(f"submaps[{k}].segment is {segment!r}, expected an integer", path)
+        lam = e["lam"]
+        if lam is not None and (not isinstance(lam, (int, float)) or isinstance(lam, bool)):
+            raise DataError(f"submaps[{k}].lam is {lam!r}, expected a number (or null)", path)
+        if e.get("fit") is not None and not isinstance(e["fit"], dict):
+            raise DataError(f"submaps[{k}].fit is {e['fit']!r}, expected an object (or null)", path)
+    if info.get("pairs") is not None and not isinstance(info["pairs"], list):
+        raise DataError(f"'pairs' is {info['pairs']!r}, expected a list", path)
     return info
+
+
+def state_is_finite(entry: dict) -> bool:
+    """Whether a manifest entry's graph state (T_MS, lam) is finite, i.e. its points can be placed
+    (a non-finite state is written as null)."""
+    if entry["lam"] is None:
+        return False
+    try:
+        return bool(np.isfinite(np.array(entry["T_MS"], dtype=np.float64)).all())
+    except (TypeError, ValueError):
+        return False
 
 
 def integrity(folder: str | Path, manifest: dict | None = None) -> tuple[list[str], list[str]]:
@@ -133,6 +158,9 @@ def load_submap(folder: str | Path, entry: dict) -> Submap:
         raise
     except Exception as exc:  # damaged zip/npy bytes surface as many types (BadZipFile, zlib, tokenize...)
         raise DataError(f"corrupt or truncated submap file: {type(exc).__name__}: {exc}", path) from exc
+    for name in _SCALAR_ARRAYS:
+        if arrays[name].size != 1:
+            raise DataError(f"array {name!r} holds {arrays[name].size} values, expected one", path)
     if int(arrays["index"]) != int(entry["index"]):
         raise DataError(f"file holds submap {int(arrays['index'])}, the manifest says {entry['index']}", path)
     manifest = Path(folder) / MANIFEST_NAME

@@ -1,0 +1,151 @@
+"""`davio map export|view|info` on what users do to files: outputs that must not be replaced, damaged
+archives (refused, or left out with --skip-damaged and said), manifest values of the wrong type, a run
+without a map. Expected values come from the archive written here (brute-force fusion of the submaps
+that are kept), not from the code under test.
+"""
+from __future__ import annotations
+
+import json
+import os
+import stat
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from runtime.errors import DataError
+from runtime.files import sha256_file
+from tests.tools.test_map_archive import VOXEL, assert_fusion_equals, brute_force_fusion, write_two_commits
+from tools.cli import main
+from tools.map_archive import fuse_archive, map_info, read_manifest
+
+
+@pytest.fixture
+def run(tmp_path: Path) -> tuple[Path, list]:
+    _, subs = write_two_commits(tmp_path / "run" / "map")
+    (tmp_path / "run" / "run_status.json").write_text('{"status": "complete"}')
+    return tmp_path / "run", subs
+
+
+def _edit_manifest(folder: Path, edit) -> None:
+    path = folder / "manifest.json"
+    info = json.loads(path.read_text())
+    edit(info)
+    path.write_text(json.dumps(info))
+
+
+def test_export_refuses_to_replace_what_is_not_its_own_output(run, tmp_path: Path, capsys) -> None:
+    folder, _ = run
+    manifest = (folder / "map" / "manifest.json").read_bytes()
+    (folder / "report.json").write_text("{}")
+    cases = [
+        (folder / "report.json", "expected a .ply file"),
+        (folder / "map" / "x.ply", "lies inside"),               # inside the archive it reads
+        (tmp_path / "newdir", "expected a .ply file"),           # `newdir/` with the slash stripped
+        (tmp_path / "missing" / "m.ply", "does not exist"),
+    ]
+    for target, why in cases:
+        assert main(["map", "export", str(folder), "--out", str(target), "--overwrite"]) == 1
+        assert why in capsys.readouterr().err, target
+    fifo = tmp_path / "pipe.ply"
+    os.mkfifo(fifo)
+    assert main(["map", "export", str(folder), "--out", str(fifo), "--overwrite"]) == 1
+    assert "is not a regular file" in capsys.readouterr().err and stat.S_ISFIFO(os.stat(fifo).st_mode)
+    mine = tmp_path / "mine.ply"
+    mine.write_text("keep me")
+    assert main(["map", "export", str(folder), "--out", str(mine)]) == 1
+    assert "exists; pass --overwrite" in capsys.readouterr().err and mine.read_text() == "keep me"
+    assert main(["map", "view", str(folder), "--out", str(tmp_path / "v.png")]) == 0
+    assert main(["map", "view", str(folder), "--out", str(tmp_path / "v.png")]) == 1
+    assert "exists; pass --overwrite" in capsys.readouterr().err
+    assert main(["map", "export", str(folder), "--out", str(mine), "--overwrite"]) == 0
+    assert mine.read_bytes().startswith(b"ply\n")
+    # the run's own map.ply is the default output: written, then replaced (and said)
+    assert main(["map", "export", str(folder)]) == 0
+    assert main(["map", "export", str(folder)]) == 0
+    assert "(replaced)" in capsys.readouterr().out
+    assert (folder / "map" / "manifest.json").read_bytes() == manifest
+    assert (folder / "report.json").read_text() == "{}"
+
+
+def test_damaged_file_is_refused_or_left_out_and_said(run, capsys) -> None:
+    folder, subs = run
+    npz = folder / "map" / "submap_000001.npz"
+    data = dict(np.load(npz))
+    data["points_C"] = data["points_C"] * 3   # a valid file with other content: only the checksum knows
+    with open(npz, "wb") as fh:
+        np.savez(fh, **data)
+    for action in ("export", "view"):
+        assert main(["map", action, str(folder)]) == 1
+        err = capsys.readouterr().err
+        assert "damaged archive: submap_000001.npz" in err and "--skip-damaged" in err
+    assert not (folder / "map.ply").exists()
+    assert main(["map", "export", str(folder), "--skip-damaged"]) == 0
+    assert "1 damaged submap file(s) left out: submap_000001.npz" in capsys.readouterr().err
+    notes: list[str] = []
+    kept = fuse_archive(folder / "map", VOXEL, skip_damaged=True, notes=notes)
+    assert_fusion_equals(kept, brute_force_fusion([subs[0], subs[2]], VOXEL), VOXEL)
+    assert len(notes) == 1
+
+
+def test_non_finite_state_is_a_problem_and_left_out_with_a_note(run, capsys) -> None:
+    folder, subs = run
+
+    def null_lam(info: dict) -> None:
+        info["submaps"][1]["lam"] = None
+
+    _edit_manifest(folder / "map", null_lam)
+    info = map_info(folder / "map")
+    assert len(info["problems"]) == 1 and "submap_000001.npz" in info["problems"][0]
+    assert info["points_placed"] == len(subs[0].points_C) + len(subs[2].points_C)
+    assert main(["map", "info", str(folder)]) == 1
+    notes: list[str] = []
+    fused = fuse_archive(folder / "map", VOXEL, notes=notes)
+    assert_fusion_equals(fused, brute_force_fusion([subs[0], subs[2]], VOXEL), VOXEL)
+    assert notes == [f"1 submap(s) with a non-finite graph state left out ({len(subs[1].points_C)} points): "
+                     "submap_000001.npz"]
+
+
+@pytest.mark.parametrize("edit,message", [
+    (lambda m: m["submaps"][0].__setitem__("segment", "a"), "submaps[0].segment is 'a', expected an integer"),
+    (lambda m: m.__setitem__("pairs", 5), "'pairs' is 5, expected a list"),
+    (lambda m: m["submaps"][1].__setitem__("lam", "x"), "submaps[1].lam is 'x', expected a number"),
+    (lambda m: m["submaps"][1].__setitem__("fit", [1, 2]), "submaps[1].fit is [1, 2], expected an object"),
+])
+def test_manifest_values_of_the_wrong_type_name_the_manifest(run, capsys, edit, message: str) -> None:
+    folder, _ = run
+    _edit_manifest(folder / "map", edit)
+    with pytest.raises(DataError, match="manifest.json: " + message.replace("[", r"\[").replace("]", r"\]")):
+        read_manifest(folder / "map")
+    assert main(["map", "info", str(folder)]) == 1
+    assert message in capsys.readouterr().err
+
+
+def test_a_scalar_array_of_the_wrong_shape_names_the_file(run, capsys) -> None:
+    folder, _ = run
+    npz = folder / "map" / "submap_000002.npz"
+    data = dict(np.load(npz))
+    data["index"] = np.array([2, 2])
+    with open(npz, "wb") as fh:
+        np.savez(fh, **data)
+    assert main(["map", "export", str(folder), "--skip-damaged"]) == 0   # the checksum catches it first
+    capsys.readouterr()
+    _edit_manifest(folder / "map", lambda m: m["submaps"][2].update(bytes=npz.stat().st_size,
+                                                                     sha256=sha256_file(npz)))
+    assert main(["map", "export", str(folder), "--overwrite"]) == 1
+    assert "submap_000002.npz: array 'index' holds 2 values, expected one" in capsys.readouterr().err
+
+
+def test_run_without_a_map_and_info_voxels(run, tmp_path: Path, capsys) -> None:
+    folder, _ = run
+    bare = tmp_path / "native_run"
+    bare.mkdir()
+    (bare / "run_status.json").write_text('{"status": "complete"}')
+    (bare / "odometry.tum").write_text("")
+    assert main(["map", "info", str(bare)]) == 1
+    assert "run folder without a map/: the run was made without a depth model" in capsys.readouterr().err
+    assert main(["map", "info", str(folder), "--json", "--voxel", str(VOXEL)]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["voxels"] == len(fuse_archive(folder / "map", VOXEL)[0])
+    assert main(["map", "info", str(folder), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["voxels"] is None

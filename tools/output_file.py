@@ -1,0 +1,68 @@
+"""Checks on a single output file a command is about to write (`map export --out`, `map view --out`,
+`eval ate --save-aligned`), before any work: the writes are atomic renames, which would replace a device,
+a FIFO or one of the command's own inputs as readily as a previous output.
+"""
+from __future__ import annotations
+
+import os
+import stat
+from collections.abc import Iterable
+from pathlib import Path
+
+from runtime.errors import ConfigError
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return a.resolve() == b.resolve() or (a.exists() and b.exists() and os.path.samefile(a, b))
+    except OSError:
+        return False
+
+
+def check_output_file(path: Path, option: str, suffixes: tuple[str, ...], *, overwrite: bool = False,
+                      replaceable: bool = False, inputs: Iterable[Path] = (),
+                      protected_dirs: Iterable[Path] = ()) -> bool:
+    """ConfigError unless `path` may be written; returns True when it replaces an existing file.
+
+    Args:
+        path: the file to write.
+        option: the option that named it, for the message (e.g. "--out").
+        suffixes: accepted file name suffixes, lower case with the dot (".ply").
+        overwrite: an existing regular file may be replaced (the user passed --overwrite).
+        replaceable: an existing regular file may be replaced without --overwrite (the command's own
+            default output, e.g. a run folder's map.ply).
+        inputs: files the command reads; none of them may be the output.
+        protected_dirs: folders the output must not be written into (e.g. the map archive itself).
+    """
+    path = Path(path)
+    if path.suffix.lower() not in suffixes:
+        raise ConfigError(f"{option} {path}: expected a {' or '.join(suffixes)} file, or an existing folder "
+                          "to write into")
+    for source in inputs:
+        if _same_file(path, Path(source)):
+            raise ConfigError(f"{option} {path}: is one of this command's inputs; choose another file")
+    for folder in protected_dirs:
+        if _same_file(path.parent, Path(folder)):
+            raise ConfigError(f"{option} {path}: lies inside {folder}, which this command reads; choose "
+                              "another folder")
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        st = None
+    except OSError as exc:
+        raise ConfigError(f"{option} {path}: cannot check it ({exc.strerror or exc})") from None
+    if st is None:
+        if path.is_symlink():
+            raise ConfigError(f"{option} {path}: is a broken symbolic link; remove it or choose another file")
+        parent = path.parent
+        if not parent.is_dir():
+            raise ConfigError(f"{option} {path}: folder {parent} does not exist")
+        if not os.access(parent, os.W_OK | os.X_OK):
+            raise ConfigError(f"{option} {path}: folder {parent} is not writable")
+        return False
+    if not stat.S_ISREG(st.st_mode):
+        raise ConfigError(f"{option} {path}: exists and is not a regular file (a device, FIFO or socket); "
+                          "choose another file")
+    if not (overwrite or replaceable):
+        raise ConfigError(f"{option} {path}: exists; pass --overwrite to replace it, or choose another file")
+    return True
