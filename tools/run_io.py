@@ -124,6 +124,13 @@ def read_manifest(manifest: Path) -> dict:
         if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or not lo <= v <= hi:
             raise DataError(f"config.{key} = {v!r} is implausible (expected {lo:g} to {hi:g}); the manifest "
                             "is damaged or was not written by `davio simulate`", manifest)
+    seed = cfg.get("seed") if isinstance(cfg, dict) else None
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2**32):
+        raise DataError(f"config.seed = {seed!r} is not an integer from 0 to {2**32 - 1}; the manifest is "
+                        "damaged or was not written by `davio simulate`", manifest)
+    if "simulation" in info and not isinstance(info["simulation"], dict):
+        raise DataError(f"'simulation' is {info['simulation']!r}, expected an object; the manifest is "
+                        "damaged or was not written by `davio simulate`", manifest)
     mode = cfg.get("groundtruth_mode") if isinstance(cfg, dict) else None
     if mode is not None and mode not in ("imu-consistent", "as-recorded"):
         raise DataError(f"config.groundtruth_mode = {mode!r} is not 'imu-consistent' or 'as-recorded'; the "

@@ -14,6 +14,7 @@ t_cam + time_offset (t_imu = t_cam + time_offset_s, Kalibr's timeshift_cam_imu).
 
 from __future__ import annotations
 
+import numbers
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -93,6 +94,9 @@ class SimConfig:
     attitude_smoothing_s: float = DEFAULT_SMOOTHING_S
 
     def __post_init__(self) -> None:
+        if isinstance(self.seed, bool) or not isinstance(self.seed, numbers.Integral) \
+                or not 0 <= self.seed < MAX_SEED:
+            raise ConfigError(f"seed must be an integer from 0 to {MAX_SEED - 1}, got {self.seed!r}")
         if self.imu_profile not in IMU_PROFILES:
             raise ConfigError(f"SimConfig.imu_profile must be one of {IMU_PROFILES}, "
                               f"got {self.imu_profile!r}")
@@ -106,6 +110,8 @@ class SimConfig:
 
 
 GROUNDTRUTH_MODES = ("imu-consistent", "as-recorded")
+MAX_SEED = 2**32
+"""Seeds are integers in [0, MAX_SEED) (numpy's generators refuse negative ones)."""
 
 
 def _frame_times(t0_ns: int, t_end_ns: int, rate_hz: float, margin_ns: int) -> np.ndarray:

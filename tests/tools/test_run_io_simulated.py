@@ -144,3 +144,32 @@ def _copy_with_manifest(src: Path, tmp_path: Path, source: str | None = None, mo
         info["config"]["start_s"] = start_s
     (dst / "manifest.json").write_text(json.dumps(info))
     return dst
+
+
+@pytest.mark.parametrize("edit,message", [
+    (lambda m: m["config"].__setitem__("seed", -1), "config.seed = -1 is not an integer from 0"),
+    (lambda m: m["config"].__setitem__("seed", 1.5), "config.seed = 1.5 is not an integer"),
+    (lambda m: m["config"].__setitem__("seed", "zero"), "config.seed = 'zero' is not an integer"),
+    (lambda m: m.__setitem__("simulation", "preset"), "'simulation' is 'preset', expected an object"),
+])
+def test_a_damaged_manifest_seed_or_simulation_names_the_manifest(tmp_path: Path, edit, message: str) -> None:
+    from tools.run_io import read_manifest
+
+    path = tmp_path / "manifest.json"
+    m = {"config": {"preset": "euroc", "seconds": 2.0, "seed": 0, "style": "room", "imu_rate_hz": 200.0},
+         "simulation": {"mode": "preset"}}
+    path.write_text(json.dumps(m))
+    assert read_manifest(path)["config"]["seed"] == 0
+    edit(m)
+    path.write_text(json.dumps(m))
+    with pytest.raises(DataError, match="manifest.json: " + message):
+        read_manifest(path)
+
+
+def test_sim_config_seed_range() -> None:
+    from runtime.errors import ConfigError
+
+    assert SimConfig(seed=np.int64(3)).seed == 3 and SimConfig(seed=2**32 - 1).seed == 2**32 - 1
+    for bad in (-1, 2**32, 1.0, True):
+        with pytest.raises(ConfigError, match="seed must be an integer from 0 to 4294967295"):
+            SimConfig(seed=bad)

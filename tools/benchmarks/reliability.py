@@ -110,14 +110,16 @@ def _yaml_edit(fn: Callable[[bytes], bytes]) -> Callable[[Path, Path], None]:
     return edit
 
 
-def _manifest(base: Path, work: Path) -> list[str]:
-    import json
+def _manifest_config(key: str, value: object) -> Callable[[Path, Path], list[str]]:
+    def build(base: Path, work: Path) -> list[str]:
+        import json
 
-    rec = _copy(base, work)
-    m = json.loads((rec / "manifest.json").read_text())
-    m["config"]["seconds"] = 1e7
-    (rec / "manifest.json").write_text(json.dumps(m))
-    return ["run", str(rec), "--out", str(work / "out")]
+        rec = _copy(base, work)
+        m = json.loads((rec / "manifest.json").read_text())
+        m["config"][key] = value
+        (rec / "manifest.json").write_text(json.dumps(m))
+        return ["run", str(rec), "--out", str(work / "out")]
+    return build
 
 
 def _out_file(base: Path, work: Path) -> list[str]:
@@ -129,6 +131,19 @@ def _out_non_run(base: Path, work: Path) -> list[str]:
     (work / "photos").mkdir()
     (work / "photos" / "a.jpg").write_text("x")
     return ["run", str(base), "--native-only", "--out", str(work / "photos"), "--overwrite"]
+
+
+def _out_generic_names(base: Path, work: Path) -> list[str]:
+    (work / "thesis" / "chapters").mkdir(parents=True)
+    (work / "thesis" / "report.json").write_text("{}")
+    (work / "thesis" / "chapters" / "one.tex").write_text("x")
+    return ["run", str(base), "--native-only", "--out", str(work / "thesis"), "--overwrite"]
+
+
+def _config_out_of_range(base: Path, work: Path) -> list[str]:
+    (work / "c.toml").write_text("[mapping]\nvoxel_m = -0.04\n")
+    return ["run", str(base), "--emulated", "base", "--config", str(work / "c.toml"),
+            "--out", str(work / "o")]
 
 
 def _config_binary(base: Path, work: Path) -> list[str]:
@@ -196,9 +211,13 @@ PROBES = [
           _camera(_yaml_edit(_principal_point))),
     Probe("recording too short to publish (1 s)", "error: no pose was published",
           lambda base, work: ["run", str(base), "--native-only", "--seconds", "1", "--out", str(work / "o")]),
-    Probe("manifest: seconds 1e7", "error: config.seconds", _manifest),
+    Probe("manifest: seconds 1e7", "error: config.seconds", _manifest_config("seconds", 1e7)),
+    Probe("manifest: seed -1", "error: config.seed = -1", _manifest_config("seed", -1)),
     Probe("--out under a file", "error: is a file", _out_file),
-    Probe("--overwrite on a folder without a run", "error: no DAVIO run", _out_non_run),
+    Probe("--overwrite on a folder without a run", "error: not a finished DAVIO run", _out_non_run),
+    Probe("--overwrite on a folder with a report.json of its own", "error: not a finished DAVIO run",
+          _out_generic_names),
+    Probe("--config: mapping.voxel_m = -0.04", "error: mapping.voxel_m must be", _config_out_of_range),
     Probe("--model-latency nan", "error: --model-latency must be",
           lambda base, work: ["run", str(base), "--model-latency", "nan", "--out", str(work / "o")]),
     Probe("--config binary file", "error: not a UTF-8 TOML", _config_binary),
