@@ -129,3 +129,35 @@ def test_cli_json_and_table(tmp_path: Path, capsys) -> None:
     assert out["accuracy_m"] == pytest.approx(0.03, abs=1e-7) and out["fscore"] == 1.0
     assert main(argv) == 0
     assert "F-score" in capsys.readouterr().out
+
+
+def test_align_with_moves_the_cloud_into_the_reference_frame(tmp_path: Path, capsys) -> None:
+    """A map in the run's frame M against a reference in the world frame W: the clouds differ by the same
+    rigid motion as the trajectories; --align-with recovers it from the trajectories (closed form)."""
+    from scipy.spatial.transform import Rotation
+
+    from runtime.geometry import PoseTrajectory
+    from tools.evaluation import write_tum
+
+    rng = np.random.default_rng(5)
+    R_WM = Rotation.from_euler("z", 37, degrees=True).as_matrix()
+    t_WM = np.array([2.0, -1.0, 0.3])
+    ref = rng.uniform(-3, 3, size=(3000, 3))                         # the scene, W
+    rec = (ref - t_WM) @ R_WM                                        # the same surface, M
+    n = 50
+    t_ns = 1_000_000_000 + np.arange(n, dtype=np.int64) * 100_000_000
+    p_W = np.c_[np.cos(np.arange(n) / 8), np.sin(np.arange(n) / 8), 0.1 * np.arange(n) / n] * 2
+    R_W = Rotation.from_euler("z", np.arange(n)[:, None] * 3.0, degrees=True).as_matrix()
+    write_tum(tmp_path / "gt.tum", PoseTrajectory(t_ns, p_W, R_W))
+    write_tum(tmp_path / "final.tum", PoseTrajectory(t_ns, (p_W - t_WM) @ R_WM, np.einsum("ji,njk->nik",
+                                                                                           R_WM, R_W)))
+    np.save(tmp_path / "map.npy", rec)
+    np.save(tmp_path / "scene.npy", ref)
+    args = ["eval", "surface", str(tmp_path / "map.npy"), str(tmp_path / "scene.npy"), "--json"]
+    assert main(args) == 0
+    assert json.loads(capsys.readouterr().out)["fscore"] < 0.5          # different frames: meaningless
+    assert main(args + ["--align-with", str(tmp_path / "final.tum"), str(tmp_path / "gt.tum")]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["fscore"] == 1.0 and out["accuracy_m"] < 1e-6
+    np.testing.assert_allclose(out["alignment"]["rotation"], R_WM, atol=1e-9)
+    np.testing.assert_allclose(out["alignment"]["translation_m"], t_WM, atol=1e-9)

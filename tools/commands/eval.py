@@ -61,6 +61,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--threshold", type=float, default=0.1, metavar="M", help="match distance, metres")
     p.add_argument("--voxel", type=float, default=None, metavar="M",
                    help="voxel-downsample both clouds first (side in metres)")
+    p.add_argument("--align-with", nargs=2, metavar=("EST", "REF"), default=None,
+                   help="move REC by the alignment of trajectory EST (in REC's frame, e.g. the run's "
+                        "final.tum) to trajectory REF (in the reference cloud's frame, e.g. groundtruth.tum) "
+                        "first; without it both clouds must already share a frame")
+    p.add_argument("--align", choices=METHODS, default="se3",
+                   help="with --align-with: the trajectory alignment (se3: rigid, as the paper; no ICP)")
+    p.add_argument("--max-diff", type=float, default=0.01, metavar="S",
+                   help="with --align-with: association window of the two trajectories (s)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     p.set_defaults(_eval=_run_surface)
 
@@ -192,8 +200,19 @@ def _run_surface(args: argparse.Namespace) -> int:
 
     from tools.evaluation import read_point_cloud, surface_metrics
 
-    res = surface_metrics(read_point_cloud(args.rec), read_point_cloud(args.ref), args.threshold, args.voxel)
-    out = {**res.as_dict(), "rec": str(args.rec), "ref": str(args.ref)}
+    rec = read_point_cloud(args.rec)
+    alignment = None
+    if args.align_with:
+        import numpy as np
+
+        from tools.evaluation import ate, read_trajectory
+
+        est_traj, ref_traj = (read_trajectory(f) for f in args.align_with)
+        alignment = ate(est_traj, ref_traj, args.align, args.max_diff).alignment
+        rec = alignment.s * np.asarray(rec, np.float64) @ alignment.R.T + alignment.t
+    res = surface_metrics(rec, read_point_cloud(args.ref), args.threshold, args.voxel)
+    out = {**res.as_dict(), "rec": str(args.rec), "ref": str(args.ref),
+           "alignment": None if alignment is None else alignment.as_dict()}
     if args.json:
         print(strict_dumps(out))
         return 0
@@ -205,6 +224,9 @@ def _run_surface(args: argparse.Namespace) -> int:
     t.add_row(f"precision / recall @ {res.threshold_m:g} m", f"{res.precision:.4f} / {res.recall:.4f}")
     t.add_row("F-score", f"{res.fscore:.4f}")
     t.add_row("points (rec / ref)", f"{res.n_rec} / {res.n_ref}")
+    if alignment is not None:
+        t.add_row("REC moved by", f"{alignment.method} alignment of {Path(args.align_with[0]).name} to "
+                                  f"{Path(args.align_with[1]).name}")
     _print(t)
     return 0
 
