@@ -16,8 +16,9 @@ alike (a pty ignores the baud rate). For an FTDI adapter, set its latency_timer 
 
 Errors are `runtime.errors.DeviceError` with one line naming the port, with `.port` and `.reason`
 attributes: `start()` raises "missing", "permission", "busy", "not_serial", "timeout" or "open";
-the reader records "unplugged" (read failed: SerialException/OSError), "stall" (no valid sample for
-`stall_timeout_s` after samples had been flowing), "no_valid_data" (bytes arriving for
+the reader records "unplugged" (read failed: SerialException/OSError), "silent" (not one byte within
+`first_byte_timeout_s` of the start: the device is off, not streaming, or on another port), "stall" (no
+valid sample for `stall_timeout_s` after samples had been flowing), "no_valid_data" (bytes arriving for
 `stall_timeout_s` but not one valid sample: wrong protocol, baud rate or output configuration) or
 "reader" (an unexpected failure) in `.error`, and `get()` raises it once the queue is drained.
 """
@@ -101,21 +102,24 @@ class SerialImu:
             `output_rate_hz`) and GoToMeasurement on start (Xsens only). Default: only listen.
         output_rate_hz: the rate requested when configuring.
         open_timeout_s: `start()` gives up opening the port after this long.
+        first_byte_timeout_s: not one byte within this long after the start is an error ("silent").
         clock: the DeviceClock to use (default: DeviceClock()).
     """
 
     def __init__(self, port: str, protocol: str = "xsens", baudrate: int = 460800,
                  stall_timeout_s: float = 1.0, queue_seconds: float = 5.0, *,
                  max_rate_hz: float = 1000.0, configure: bool = False, output_rate_hz: int = 400,
-                 open_timeout_s: float = 2.0, clock: DeviceClock | None = None) -> None:
+                 open_timeout_s: float = 2.0, first_byte_timeout_s: float = 3.0,
+                 clock: DeviceClock | None = None) -> None:
         if protocol not in PROTOCOLS:
             raise ConfigError(f"unknown serial IMU protocol {protocol!r}; expected one of "
                               f"{', '.join(PROTOCOLS)}")
         if not port:
             raise ConfigError("serial IMU port is empty (e.g. /dev/ttyUSB0)")
-        if baudrate <= 0 or stall_timeout_s <= 0 or queue_seconds <= 0 or max_rate_hz <= 0:
-            raise ConfigError("serial IMU: baudrate, stall_timeout_s, queue_seconds and max_rate_hz "
-                              "must be > 0")
+        if baudrate <= 0 or stall_timeout_s <= 0 or queue_seconds <= 0 or max_rate_hz <= 0 \
+                or not first_byte_timeout_s > 0:
+            raise ConfigError("serial IMU: baudrate, stall_timeout_s, queue_seconds, max_rate_hz and "
+                              "first_byte_timeout_s must be > 0")
         if configure and protocol != "xsens":
             raise ConfigError("serial IMU: configure=True is only supported for the xsens protocol")
         self.port = str(port)
@@ -127,6 +131,7 @@ class SerialImu:
         self.configure = bool(configure)
         self.output_rate_hz = int(output_rate_hz)
         self.open_timeout_s = float(open_timeout_s)
+        self.first_byte_timeout_s = float(first_byte_timeout_s)
         self.parser = make_parser(protocol)
         self.clock = clock if clock is not None else DeviceClock()
         self.error: DeviceError | None = None
@@ -147,6 +152,7 @@ class SerialImu:
         self.reads = 0
         self._first_byte_ns: int | None = None
         self._last_valid_ns: int | None = None
+        self._reading_since_ns = 0
 
     # --- lifecycle -----------------------------------------------------------------------------
     def start(self) -> SerialImu:
@@ -246,6 +252,7 @@ class SerialImu:
         import serial
 
         ser = self._ser
+        self._reading_since_ns = time.monotonic_ns()
         try:
             while not self._stop.is_set():
                 try:
@@ -305,7 +312,16 @@ class SerialImu:
                                     f"after {self.enqueued} samples: the device stopped sending or the link "
                                     f"is corrupt ({self._counter_text()})")
                 return True
-        elif self._first_byte_ns is not None and t_host - self._first_byte_ns > limit:
+        elif self._first_byte_ns is None:
+            if t_host - self._reading_since_ns > int(self.first_byte_timeout_s * 1e9):
+                how = ("its output configuration (configure=True)" if self.protocol == "xsens"
+                       else "its output")
+                self._fail("silent", f"serial IMU {self.port}: not one byte in "
+                                     f"{self.first_byte_timeout_s:g} s since the port opened: is the IMU "
+                                     f"powered, streaming and on this port? (baud rate {self.baudrate}; "
+                                     f"check {how})")
+                return True
+        elif t_host - self._first_byte_ns > limit:
             lacking = getattr(self.parser, "last_missing", None)
             hint = (f"packets lack {lacking}; configure the device's outputs (configure=True)" if lacking
                     else f"check the protocol ({self.protocol}) and the baud rate ({self.baudrate})")

@@ -136,6 +136,22 @@ def test_stall_after_flowing_is_a_device_error(pty_pair: Pty) -> None:
         assert err.reason == "stall" and waited < 1.0 and "0.3 s" in str(err)
 
 
+def test_a_port_that_never_sends_a_byte_is_a_device_error(pty_pair: Pty) -> None:
+    """Opened, never written to: a live run must not wait forever for its first sample."""
+    imu = SerialImu(pty_pair.path, protocol="text", baudrate=115200, first_byte_timeout_s=0.4)
+    with imu:
+        t0 = time.monotonic()
+        err, _ = wait_error(imu, 3.0)
+        assert err.reason == "silent" and "not one byte in 0.4 s" in str(err) and "115200" in str(err)
+        assert time.monotonic() - t0 < 2.0
+        with pytest.raises(DeviceError, match="not one byte"):
+            imu.get(0.1)
+    late = SerialImu(pty_pair.path, protocol="text", first_byte_timeout_s=0.4)
+    with late:   # a first byte within the limit: no error, whatever comes later is judged as before
+        pty_pair.write(b"".join(encode_line(k, 1000 + 2500 * k, *values(k)) for k in range(5)))
+        assert len(collect(late, 5, 3.0)) == 5 and late.error is None
+
+
 def test_bytes_without_valid_samples_name_protocol_and_baud(pty_pair: Pty) -> None:
     imu = SerialImu(pty_pair.path, protocol="xsens", baudrate=115200, stall_timeout_s=0.3)
     with imu:
