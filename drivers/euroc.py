@@ -133,6 +133,7 @@ class EurocDriver(Driver):
         self._report = IntakeReport("euroc", str(self.mav0), self.policy)
         self._rig: Rig | None = None
         self._rig_loaded = False
+        self._expected_shape: tuple[int, int] | None = None
         self._gt: PoseTrajectory | None = None
         self._gt_loaded = False
         self._closed = False
@@ -245,6 +246,12 @@ class EurocDriver(Driver):
             if outside:
                 self._report.note(f"{name}: {outside} frames lie outside the IMU time span")
 
+    def expect_image_size(self, width: int, height: int) -> None:
+        """The first camera's images must be width x height (the calibration the run uses): one of another
+        size is unreadable (counted; an error when strict) wherever it lies in the stream. Without it the
+        stream's first image sets the size."""
+        self._expected_shape = (int(height), int(width))
+
     def _image(self, cam: int, i: int) -> np.ndarray | None:
         """Decode one grey image; None (counted) or DataError (strict) when it cannot be read."""
         import cv2
@@ -260,6 +267,10 @@ class EurocDriver(Driver):
                 image = self._to_8bit(cam, image, path, i)
             if image.dtype != np.uint8 or image.ndim != 2:
                 reason = f"decodes to {image.dtype} {image.shape}, expected an 8- or 16-bit grey image"
+            elif cam == 0 and self._expected_shape is not None:
+                if image.shape != self._expected_shape:
+                    reason = (f"is {image.shape[1]}x{image.shape[0]}, the camera calibration "
+                              f"{self._expected_shape[1]}x{self._expected_shape[0]}")
             else:
                 first = self._first_shape.setdefault(cam, image.shape)
                 if image.shape != first:

@@ -221,6 +221,27 @@ def test_missing_and_corrupt_images(tmp_path: Path) -> None:
     assert_accounted(drv.report())
 
 
+def test_a_wrong_size_first_image_is_skipped_against_the_calibration(tmp_path: Path) -> None:
+    """With the calibrated size given, a wrong-size image is skipped and counted wherever it lies; without
+    it the stream's first image sets the size (and the right ones after it would all be skipped)."""
+    cams = cam_rows(5)
+    seq = write_asl(tmp_path, imu_rows(80), {"cam0": cams})
+    cv2.imwrite(str(seq / "mav0" / "cam0" / "data" / cams[0][1]), np.zeros((4, 8), np.uint8))
+    drv = EurocDriver(seq)
+    drv.expect_image_size(8, 6)
+    _, frames = split(list(drv.events()))
+    assert [f.t_ns for f in frames] == [t for t, _ in cams[1:]]
+    assert drv.report()["streams"]["cam0"]["unreadable_images"] == 1
+    assert_accounted(drv.report())
+    strict = EurocDriver(seq, policy="strict")
+    strict.expect_image_size(8, 6)
+    with pytest.raises(DataError, match=r"data.csv:2: image .* is 8x4, the camera calibration 8x6"):
+        list(strict.events())
+    alone = EurocDriver(seq)
+    _, frames = split(list(alone.events()))
+    assert [f.t_ns for f in frames] == [cams[0][0]]
+
+
 def test_header_variations(tmp_path: Path) -> None:
     """No '#' on the headers, CRLF line endings and spaces after commas still parse."""
     rows = [r.replace(",", ", ") for r in imu_rows(30)]

@@ -116,6 +116,8 @@ def _open_inputs(args: argparse.Namespace, config) -> tuple:
         where = "no CameraInfo in the bag" if rec.kind == "bag" else "no cam0/sensor.yaml"
         raise ConfigError(f"{args.path}: no camera calibration ({where}); DAVIO needs intrinsics: pass "
                           "--rig FILE (a Kalibr camchain, an EuRoC sensor.yaml or folder)")
+    if hasattr(rec.driver, "expect_image_size"):   # a wrong-size first image is then skipped, as any other
+        rec.driver.expect_image_size(rig.camera.width, rig.camera.height)
     if args.withhold_extrinsics:
         rig = rig.replace(T_IC=None, time_offset_s=None)
     model, model_desc = None, "none (native initializer only)"
