@@ -198,8 +198,7 @@ class Session:
     def add_imu(self, t_ns: int, gyro: Any, accel: Any) -> None:
         """One IMU sample: int64 ns stamp (the camera's clock domain, see rig.time_offset_s), gyro in
         rad/s and accel in m/s^2 in the IMU frame. Non-finite values are counted and dropped by the filter."""
-        g = np.asarray(gyro, np.float64).reshape(3)
-        a = np.asarray(accel, np.float64).reshape(3)
+        g, a = _vector3(gyro, "gyro", t_ns), _vector3(accel, "accel", t_ns)
         t = _stamp(t_ns)
         self._last_imu_ns = t
         self._push(ImuSample(t, g, a))
@@ -234,6 +233,17 @@ class Session:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _vector3(value: Any, what: str, t_ns: Any) -> np.ndarray:
+    """A (3,) float64 copy of an IMU vector, or a DataError naming the sample."""
+    try:
+        v = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise DataError(f"add_imu at {t_ns}: {what} is not numeric ({exc})") from None
+    if v.size != 3:
+        raise DataError(f"add_imu at {t_ns}: {what} needs 3 values (x, y, z), got shape {v.shape}")
+    return v.reshape(3)
 
 
 def _stamp(t_ns: Any) -> int:

@@ -69,6 +69,10 @@ def test_bad_pushes_are_clear_errors(recording) -> None:
         s.add_imu(1.5, [0, 0, 0], [0, 0, 9.81])
     with pytest.raises(DataError, match="integer number of nanoseconds"):
         s.add_imu(float("nan"), [0, 0, 0], [0, 0, 9.81])
+    with pytest.raises(DataError, match="add_imu at 7: gyro needs 3 values"):
+        s.add_imu(7, np.zeros(2), [0, 0, 9.81])
+    with pytest.raises(DataError, match="add_imu at 7: accel is not numeric"):
+        s.add_imu(7, [0, 0, 0], ["x", 0, 9.81])
     assert s.close().status == "complete"
     with pytest.raises(ConfigError, match="camera intrinsics"):
         Session(rec.rig.replace(camera=None))
