@@ -74,10 +74,31 @@ def read_kalibr(
     return kalibr_rig(Fields(camchain_yaml, read_yaml(camchain_yaml)), imu_yaml, camera)
 
 
+#: Keys of a camchain's camera block that DAVIO reads, and others Kalibr and OpenVINS write there.
+CAMERA_KEYS = ("camera_model", "intrinsics", "resolution", "distortion_model", "distortion_coeffs",
+               "T_cam_imu", "T_imu_cam", "timeshift_cam_imu", "rate_hz", "rig_name", "cam_overlaps",
+               "rostopic", "T_cn_cnm1")
+
+
+def _refuse_misspelt_keys(f: Fields) -> None:
+    """A key that is not one of CAMERA_KEYS but close to one (``T_cam_imuu``) is a CalibrationError:
+    otherwise a misspelt extrinsics or time-shift key would read as withheld calibration. Other extra
+    keys (another tool's) are left alone."""
+    import difflib
+
+    for key in f.data:
+        if isinstance(key, str) and key not in CAMERA_KEYS:
+            close = difflib.get_close_matches(key, CAMERA_KEYS, n=1, cutoff=0.8)
+            if close:
+                raise f.error(key, f"unknown key; did you mean {close[0]!r}? (a misspelt key would read as "
+                                   "withheld calibration)")
+
+
 def kalibr_rig(top: Fields, imu_yaml: str | os.PathLike | None = None, camera: str = "cam0") -> Rig:
     """Rig from an already parsed camchain ``top`` (see :func:`calib.io.load_rig`), as read_kalibr."""
     camchain_yaml = top.path
     f = top.sub(camera)
+    _refuse_misspelt_keys(f)
     cam = read_camera(f, "distortion_coeffs")
     T_IC = _read_T_IC(f)
     time_offset = f.number("timeshift_cam_imu", nullable=True, optional=True)
@@ -86,14 +107,15 @@ def kalibr_rig(top: Fields, imu_yaml: str | os.PathLike | None = None, camera: s
     if name is not None and not isinstance(name, str):
         raise f.error("rig_name", f"expected a string, got {name!r}")
     imu = None if imu_yaml is None else read_kalibr_imu(imu_yaml)
-    return Rig(
-        camera=cam,
-        T_IC=T_IC,
-        time_offset_s=time_offset,
-        imu=imu,
-        camera_rate_hz=rate_hz,
-        name=name if name is not None else Path(camchain_yaml).stem,
-    )
+    with rekeyed(f.path, {"time_offset_s": f.key("timeshift_cam_imu")}):
+        return Rig(
+            camera=cam,
+            T_IC=T_IC,
+            time_offset_s=time_offset,
+            imu=imu,
+            camera_rate_hz=rate_hz,
+            name=name if name is not None else Path(camchain_yaml).stem,
+        )
 
 
 class _FlowList(list):

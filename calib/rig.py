@@ -22,6 +22,9 @@ from runtime.errors import CalibrationError
 RIGID_TOLERANCE = 1e-5
 
 IMU_FIELDS = ("gyro_noise_density", "gyro_random_walk", "accel_noise_density", "accel_random_walk", "rate_hz")
+MAX_TIME_OFFSET_S = 1.0
+"""Largest camera-IMU time offset a rig may hold (s): Kalibr's are milliseconds; a larger one is a unit
+error or two unsynchronised clocks, which the filter's online time-offset estimate cannot absorb."""
 RIG_FIELDS = ("camera", "T_IC", "time_offset_s", "camera_rate_hz") + tuple(f"imu.{f}" for f in IMU_FIELDS)
 
 
@@ -139,6 +142,11 @@ class Rig:
         if self.T_IC is not None:
             object.__setattr__(self, "T_IC", rigid_transform(self.T_IC, "T_IC"))
         object.__setattr__(self, "time_offset_s", _optional_number(self.time_offset_s, "time_offset_s"))
+        if self.time_offset_s is not None and abs(self.time_offset_s) > MAX_TIME_OFFSET_S:
+            raise CalibrationError(
+                f"{self.time_offset_s:g} s is implausible for a camera-IMU time offset (more than "
+                f"{MAX_TIME_OFFSET_S:g} s; it is in seconds, not milliseconds); a larger offset between two "
+                "clocks must be removed from the stamps", None, "time_offset_s")
         object.__setattr__(
             self, "camera_rate_hz", _optional_number(self.camera_rate_hz, "camera_rate_hz", positive=True)
         )

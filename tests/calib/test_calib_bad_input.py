@@ -175,6 +175,26 @@ def test_inconsistent_extrinsics_keys(tmp_path: Path) -> None:
     _raises(lambda: read_kalibr(p), p, "cam0.T_imu_cam")
 
 
+@pytest.mark.parametrize("typo,meant", [("T_cam_imuu", "T_cam_imu"), ("T_imu_camera", "T_imu_cam"),
+                                        ("timeshift_cam_imuu", "timeshift_cam_imu")])
+def test_a_misspelt_key_is_not_withheld_calibration(tmp_path: Path, typo: str, meant: str) -> None:
+    data = _set(_set(CAMCHAIN, "cam0.T_imu_cam", KeyError), "cam0.timeshift_cam_imu", KeyError)
+    p = _write(tmp_path / "c.yaml", _set(data, f"cam0.{typo}", CAMCHAIN["cam0"]["T_imu_cam"]))
+    err = _raises(lambda: read_kalibr(p), p, f"cam0.{typo}")
+    assert f"did you mean '{meant}'" in str(err)
+    other = _write(tmp_path / "o.yaml", _set(data, "cam0.label", "left"))   # another tool's key: ignored
+    assert read_kalibr(other).T_IC is None
+
+
+@pytest.mark.parametrize("shift", [5.0, -1.5, 1e5])
+def test_an_implausible_time_offset_names_the_key(tmp_path: Path, shift: float) -> None:
+    p = _write(tmp_path / "c.yaml", _set(CAMCHAIN, "cam0.timeshift_cam_imu", shift))
+    err = _raises(lambda: read_kalibr(p), p, "cam0.timeshift_cam_imu")
+    assert "implausible for a camera-IMU time offset" in str(err)
+    assert read_kalibr(_write(tmp_path / "ok.yaml", _set(CAMCHAIN, "cam0.timeshift_cam_imu", -1.0))) \
+        .time_offset_s == -1.0
+
+
 def test_withheld_values_are_none_not_defaults(tmp_path: Path) -> None:
     data = _set(_set(CAMCHAIN, "cam0.T_imu_cam", KeyError), "cam0.timeshift_cam_imu", KeyError)
     imu = _set(IMU, "imu0.gyroscope_random_walk", None)
