@@ -252,6 +252,12 @@ class MsckfConfig:
                     raise ConfigError(f"{f} (prior std of the online intrinsics) must be finite and > 0, "
                                       f"got {v!r}")
 
+    def defaulted_imu_noise(self, imu: object | None) -> list[str]:
+        """The IMU noise densities `with_imu_noise` takes from DEFAULT_IMU_NOISE: set neither here nor by
+        the ImuNoise-like `imu` (withheld calibration), so a run can say so."""
+        return [n for n in DEFAULT_IMU_NOISE
+                if getattr(self, n) is None and (imu is None or getattr(imu, n, None) is None)]
+
     def with_imu_noise(self, imu: object | None) -> MsckfConfig:
         """A copy with every IMU noise density resolved: the value set in this configuration, else the
         ImuNoise-like `imu`'s (None, or a field None: withheld), else DEFAULT_IMU_NOISE."""

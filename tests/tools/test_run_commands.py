@@ -96,8 +96,29 @@ def test_run_reports_input_repairs_on_the_console(tmp_path, capsys):
     assert main(["run", str(dst.parent), "--out", str(out), "--native-only", "--seconds", "2.5"]) == 0
     text = capsys.readouterr().out
     assert "input imu0: non-finite samples dropped 3, duplicates dropped 1" in text
-    imu = json.loads((out / "report.json").read_text())["driver"]["streams"]["imu0"]
+    report = json.loads((out / "report.json").read_text())
+    imu = report["driver"]["streams"]["imu0"]
     assert imu["dropped_nonfinite"] == 3 and imu["dropped_duplicate"] == 1
+    assert report["imu_noise_defaulted"] == [] and "IMU noise withheld" not in text
+
+
+def test_withheld_imu_noise_is_said_not_silently_defaulted(tmp_path, capsys):
+    """Without imu0/sensor.yaml the filter runs on EuRoC's default densities, and the run says so."""
+    from runtime.msckf.config import DEFAULT_IMU_NOISE
+
+    src = shared_path("euroc", "V1_01_easy_head") / "mav0"
+    dst = tmp_path / "rec" / "mav0"
+    dst.mkdir(parents=True)
+    for name in ("body.yaml", "cam0", "state_groundtruth_estimate0"):
+        (dst / name).symlink_to(src / name)
+    (dst / "imu0").mkdir()
+    (dst / "imu0" / "data.csv").symlink_to(src / "imu0" / "data.csv")
+    out = tmp_path / "run"
+    assert main(["run", str(dst.parent), "--out", str(out), "--native-only", "--seconds", "2.5"]) == 0
+    text = capsys.readouterr().out
+    assert ("note: IMU noise withheld in the calibration: gyro_noise_density, gyro_random_walk, "
+            "accel_noise_density, accel_random_walk from the EuRoC (ADIS16448) defaults") in text
+    assert json.loads((out / "report.json").read_text())["imu_noise_defaulted"] == list(DEFAULT_IMU_NOISE)
 
 
 def test_a_run_without_a_start_names_each_native_initializers_reasons(tmp_path, capsys):

@@ -180,8 +180,12 @@ def _run(args, folder, driver, rig, model, model_desc: str, config) -> int:
 
     map_out = MapOutput.create(folder.path, rig, model_desc, model, config)
     where = describe_device(args)
-    print(f"davio live: {where}\n"
-          f"  model: {model_desc}\n  Ctrl-C to finish", file=sys.stderr)
+    defaulted = config.msckf.defaulted_imu_noise(rig.imu)
+    print(f"davio live: {where}\n  model: {model_desc}\n"
+          + (f"  note: IMU noise withheld in the calibration: {', '.join(defaulted)} from the EuRoC "
+             "(ADIS16448) defaults; give an imu.yaml beside the camchain or set them in [msckf]\n"
+             if defaulted else "")
+          + "  Ctrl-C to finish", file=sys.stderr)
     view = open_view(args.view)
     sink = None if map_out is None else map_out.sink
     session = Session(rig, model, config, map_sink=view.chain(sink) if view is not None else sink,
@@ -205,7 +209,7 @@ def _run(args, folder, driver, rig, model, model_desc: str, config) -> int:
     report = write_run(folder.path, res.pipeline, res.scheduler, None,
                        {"recording": f"live {where}", "model": model_desc, "status": res.status,
                         "status_reason": res.reason, "driver": driver.report(), "map": map_summary,
-                        "view": None if view is None else view.report()},
+                        "imu_noise_defaulted": defaulted, "view": None if view is None else view.report()},
                        config)
     return conclude(folder, res, report, as_json=args.json, summary=_summary)
 

@@ -154,8 +154,12 @@ def _run(args, folder, rec, rig, model, model_desc: str, config) -> int:
     map_out = MapOutput.create(folder.path, rig, model_desc, model, config)
     # with --json, stdout holds the JSON object only
     log = sys.stderr if args.json else sys.stdout
+    defaulted = config.msckf.defaulted_imu_noise(rig.imu)
     print(f"davio run: {rec.description}\n  model: {model_desc}"
-          + (f"\n  mapping: on (archive {folder.out / 'map'})" if map_out is not None else ""), file=log)
+          + (f"\n  mapping: on (archive {folder.out / 'map'})" if map_out is not None else "")
+          + (f"\n  note: IMU noise withheld in the calibration: {', '.join(defaulted)} from the EuRoC "
+             "(ADIS16448) defaults; give an IMU calibration (imu.yaml, imu0/sensor.yaml) or set them in "
+             "[msckf]" if defaulted else ""), file=log)
     view = open_view(args.view)
     sink = None if map_out is None else map_out.sink
     try:
@@ -172,6 +176,7 @@ def _run(args, folder, rec, rig, model, model_desc: str, config) -> int:
     report = write_run(folder.path, res.pipeline, res.scheduler, gt,
                        {"recording": rec.description, "model": model_desc, "status": res.status,
                         "status_reason": res.reason, "driver": rec.driver.report(), "map": map_summary,
+                        "imu_noise_defaulted": defaulted,
                         "view": None if view is None else view.report()},
                        config)
     return conclude(folder, res, report, as_json=args.json, summary=_summary)
