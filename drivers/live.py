@@ -49,6 +49,20 @@ _PERIODS_KEPT = 512
 """Intervals kept per stream for the median period of the report."""
 
 
+SOURCE_LOSSES = {
+    "nonfinite": "samples with NaN or Inf values dropped",
+    "checksum_errors": "packets failing their checksum dropped",
+    "malformed_packets": "malformed packets dropped",
+    "missing_fields": "packets lacking a field dropped",
+    "partial_packets": "partial packets dropped",
+    "seq_gaps": "gaps in the device's sequence counter",
+    "missing_estimated": "samples missing in those gaps (estimated)",
+    "bytes_skipped": "bytes skipped to resynchronise",
+}
+"""Counters in a source's own report (serial IMU parser, OAK camera) of data lost before the merge; each
+non-zero one becomes a note, so it reaches the console with the other input repairs."""
+
+
 class LiveDriver(Driver):
     """A `Driver` over a live camera and a live IMU (e.g. `UvcCamera` and `SerialImu`).
 
@@ -195,6 +209,10 @@ class LiveDriver(Driver):
         if cam.converted and cam_rep.get("conversion"):
             rep.note(f"cam0: images converted ({cam_rep['conversion']})")
         for name, sub in (("cam0", cam_rep), ("imu0", imu_rep)):
+            losses = [f"{int(sub[key])} {text}" for key, text in SOURCE_LOSSES.items()
+                      if isinstance(sub.get(key), int | float) and sub[key]]
+            if losses:
+                rep.note(f"{name}: lost in the driver: " + ", ".join(losses))
             for text in sub.get("notes") or []:
                 rep.note(f"{name}: {text}")
             if sub.get("error"):

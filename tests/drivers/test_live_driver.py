@@ -342,3 +342,21 @@ def test_imu_overflow_is_flagged_on_the_next_sample_delivered(video: Path) -> No
     assert rep["live"]["imu_lost_flagged"] == imu.lost
     assert any(f"{imu.lost} samples lost" in n and f"{imu.lost} flagged to the filter" in n
                for n in rep["notes"])
+
+
+class LossyImu(FakeImu):
+    """A FakeImu whose own report counts what a serial parser drops before the merge."""
+
+    def report(self) -> dict:
+        return {"samples": self.produced, "nonfinite": 13, "seq_gaps": 13, "checksum_errors": 0,
+                "bytes_skipped": 2, "notes": []}
+
+
+def test_losses_inside_a_source_reach_the_notes(video: Path) -> None:
+    drv = LiveDriver(camera(video), LossyImu(), rig=None)
+    with drv:
+        list(drv.events())
+    notes = drv.report()["notes"]
+    assert ("imu0: lost in the driver: 13 samples with NaN or Inf values dropped, 13 gaps in the device's "
+            "sequence counter, 2 bytes skipped to resynchronise") in notes
+    assert not any(n.startswith("cam0: lost") for n in notes)
