@@ -38,7 +38,28 @@ _BaseLoader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
 class _Loader(_BaseLoader):  # type: ignore[misc, valid-type]
-    """Safe loader that also reads OpenCV's ``!!opencv-matrix`` tag as a plain mapping."""
+    """Safe loader that also reads OpenCV's ``!!opencv-matrix`` tag as a plain mapping, YAML 1.2 numbers
+    without a decimal point (``2e-5``, which YAML 1.1 reads as a string) as floats, and refuses a key
+    given twice in one mapping (YAML 1.1 silently keeps the last)."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
+        seen: dict = {}
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=True)
+            try:
+                if key in seen:
+                    raise yaml.constructor.ConstructorError(
+                        None, None, f"key {key!r} given twice (first at line {seen[key] + 1})",
+                        key_node.start_mark)
+                seen[key] = key_node.start_mark.line
+            except TypeError:   # an unhashable key: the base constructor reports it
+                pass
+        return super().construct_mapping(node, deep=deep)
+
+
+_Loader.add_implicit_resolver("tag:yaml.org,2002:float",
+                              re.compile(r"^[-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)[eE][-+]?[0-9]+$"),
+                              list("-+0123456789."))
 
 
 def _opencv_matrix(loader: yaml.SafeLoader, node: yaml.MappingNode) -> dict:

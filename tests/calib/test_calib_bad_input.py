@@ -11,6 +11,7 @@ import pytest
 import yaml
 
 from calib import PinholeRadtan, Rig, load_rig, read_euroc_rig, read_kalibr, write_kalibr
+from calib.kalibr import read_kalibr_imu
 from runtime.errors import CalibrationError
 
 T_IMU_CAM = [
@@ -272,3 +273,17 @@ def test_writer_refuses_what_kalibr_cannot_hold(tmp_path: Path) -> None:
     write_kalibr(Rig(zero_k3), target)
     back = read_kalibr(target).camera
     assert back is not None and back.distortion.tolist() == [0.1, 0.01, 0.0, 0.0]
+
+
+def test_yaml_12_numbers_without_a_point_and_duplicate_keys(tmp_path: Path) -> None:
+    """`2e-5` is a number in YAML 1.2 (PyYAML's 1.1 reads it as text); a key given twice is refused."""
+    imu = tmp_path / "imu.yaml"
+    imu.write_text("imu0:\n  accelerometer_noise_density: 2e-3\n  accelerometer_random_walk: 3.0e-3\n"
+                   "  gyroscope_noise_density: 1.6968e-04\n  gyroscope_random_walk: 2e-5\n"
+                   "  update_rate: 2e2\n")
+    noise = read_kalibr_imu(imu)
+    assert noise.gyro_random_walk == 2e-5 and noise.accel_noise_density == 2e-3 and noise.rate_hz == 200.0
+    cam = tmp_path / "c.yaml"
+    cam.write_text(yaml.safe_dump(CAMCHAIN, sort_keys=False) + "  timeshift_cam_imu: 0.002\n")
+    err = _raises(lambda: read_kalibr(cam), cam, None)
+    assert "key 'timeshift_cam_imu' given twice" in str(err)
