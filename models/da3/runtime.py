@@ -201,8 +201,11 @@ class OnnxDA3:
                   for i in range(views)]
         t0 = time.perf_counter()
         self._check_frames(frames)
-        self._run(self._images(frames), np.tile(np.eye(3), (views, 1, 1)), np.tile(np.eye(4), (views, 1, 1)),
-                  False)
+        outs = self._run(self._images(frames), np.tile(np.eye(3), (views, 1, 1)),
+                         np.tile(np.eye(4), (views, 1, 1)), False)
+        if not np.any(outs[0] > 0):
+            raise ModelError(f"{self.path}: output depth is not positive at any of its {outs[0].size} pixels "
+                             "on the warm-up call: not a DA3 depth graph, or a broken export")
         return time.perf_counter() - t0
 
     def _to_camera(self, maps: np.ndarray) -> np.ndarray:

@@ -5,7 +5,7 @@
     pred_extrinsics = extrinsics[:, :, :3, :] with the translation column times `t_gain`
     pred_intrinsics = use_pose ? intrinsics : [[f, 0, W/2], [0, f, H/2], [0, 0, 1]]
 Variants break one clause of the contract to exercise the loader's errors ("fixed_n" is valid: N = 4);
-"nan_depth" declares a valid signature but computes NaN depth.
+"nan_depth" declares a valid signature but computes NaN depth, "negative_depth" negative depth.
 """
 
 from __future__ import annotations
@@ -79,6 +79,10 @@ def build_da3_contract_graph(
         nodes[3] = helper.make_node("Add", ["red_half", "two"], ["depth_ok"])
         inits.append(numpy_helper.from_array(np.array(np.nan, np.float32), "nan"))
         nodes.append(helper.make_node("Mul", ["depth_ok", "nan"], ["depth"]))
+    if variant == "negative_depth":   # a valid, finite signature whose depth is never positive
+        nodes[3] = helper.make_node("Add", ["red_half", "two"], ["depth_ok"])
+        inits.append(numpy_helper.from_array(np.array(-1.0, np.float32), "minus"))
+        nodes.append(helper.make_node("Mul", ["depth_ok", "minus"], ["depth"]))
     if variant == "missing_output":
         nodes = [n for n in nodes if n.output[0] != "pred_intrinsics"]
     graph = helper.make_graph(nodes, "da3_contract", inputs, outputs, inits)

@@ -155,6 +155,12 @@ def test_fixed_view_graph_warms_up_at_its_view_count(tmp_path):
     assert model.warm_up() > 0.0
 
 
+def test_graph_whose_depth_is_never_positive_fails_the_warm_up(tmp_path):
+    model = OnnxDA3(build_da3_contract_graph(tmp_path / "neg.onnx", variant="negative_depth"), CAM, threads=1)
+    with pytest.raises(ModelError, match="neg.onnx: output depth is not positive at any of its 5880 pixels"):
+        model.warm_up()
+
+
 def test_graph_computing_nan_fails_the_warm_up_and_every_call(tmp_path):
     model = OnnxDA3(build_da3_contract_graph(tmp_path / "nan.onnx", variant="nan_depth"), CAM, threads=1)
     with pytest.raises(ModelError, match="output depth has 5880 non-finite values out of 5880"):
