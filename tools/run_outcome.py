@@ -65,6 +65,12 @@ def why_nothing_published(pipeline_report: dict, driver_report: dict | None, sch
         why = "; ".join(f"{name}: {_rejections(r)}" for name, r in (filt.get("initializers") or {}).items())
         parts.append(f"the native initializer found no start in {sched.sensor_s:.1f} s of data (it needs a "
                      "standstill or enough motion with tracked features)" + (f"; {why}" if why else ""))
+    if filt and filt.get("initialized") and not filt.get("frames_processed"):
+        no_imu = int(filt.get("frames_no_imu") or 0)
+        parts.append(f"the filter started but processed no frame ({no_imu} frames had no IMU data up to "
+                     "their stamp): the camera and IMU stamps do not overlap once the rig's camera-IMU time "
+                     "offset is applied (check time_offset_s / timeshift_cam_imu and the clocks)" if no_imu
+                     else "the filter started but processed no frame")
     return "; ".join(parts) or "no reason recorded"
 
 

@@ -1,0 +1,22 @@
+"""`why_nothing_published`: the reason a run that published nothing gives, from its counters."""
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+from tools.run_outcome import why_nothing_published
+
+SCHED = SimpleNamespace(imu_samples=800, frames=40, sensor_s=4.0)
+
+
+def test_a_started_filter_without_imu_around_its_frames_names_the_time_offset() -> None:
+    report = {"tracking": {}, "filter": {"initialized": True, "frames_processed": 0, "frames_no_imu": 20}}
+    why = why_nothing_published(report, {"streams": {}}, SCHED)
+    assert why.startswith("the filter started but processed no frame (20 frames had no IMU data")
+    assert "time_offset_s / timeshift_cam_imu" in why
+
+
+def test_a_filter_that_processed_frames_adds_nothing_and_an_empty_report_says_so() -> None:
+    report = {"tracking": {}, "filter": {"initialized": True, "frames_processed": 12, "frames_no_imu": 3}}
+    assert why_nothing_published(report, {"streams": {}}, SCHED) == "no reason recorded"
+    started = {"tracking": {}, "filter": {"initialized": True, "frames_processed": 0, "frames_no_imu": 0}}
+    assert why_nothing_published(started, None, SCHED) == "the filter started but processed no frame"
