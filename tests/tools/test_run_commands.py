@@ -226,3 +226,21 @@ def test_a_recording_that_cannot_publish_says_why_and_exits_non_zero(tmp_path, c
     assert main(["run", str(dst.parent), "--out", str(tmp_path / "o"), "--native-only"]) == 1
     err = capsys.readouterr().err
     assert "none of the 95 images it lists exists" in err and not (tmp_path / "o.partial").exists()
+
+
+def test_ground_truth_on_another_clock_gives_the_reason_not_nan(tmp_path, capsys):
+    src = shared_path("euroc", "V1_01_easy_head") / "mav0"
+    dst = tmp_path / "rec" / "mav0"
+    dst.mkdir(parents=True)
+    for name in ("body.yaml", "cam0", "imu0"):
+        (dst / name).symlink_to(src / name)
+    (dst / "state_groundtruth_estimate0").mkdir()
+    rows = (src / "state_groundtruth_estimate0" / "data.csv").read_text().splitlines()
+    shifted = [rows[0]] + [f"{int(r.split(',', 1)[0]) + 10**12},{r.split(',', 1)[1]}" for r in rows[1:]]
+    (dst / "state_groundtruth_estimate0" / "data.csv").write_text("\n".join(shifted) + "\n")
+    out = tmp_path / "run"
+    assert main(["run", str(dst.parent), "--out", str(out), "--native-only", "--seconds", "2.5"]) == 0
+    text = capsys.readouterr().out
+    assert "ATE: not computed: " in text and "nan" not in text.split("ATE:")[1].splitlines()[0]
+    metrics = json.loads((out / "report.json").read_text())["metrics"]
+    assert "ate_se3_m" not in metrics and metrics["ate_se3_error"] in text

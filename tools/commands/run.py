@@ -187,7 +187,9 @@ def _summary(report: dict, out: Path) -> None:
     tf = report.get("T_f_s")
     print(f"  first published state: {'none' if tf is None else f'{tf:.2f} s'}"
           f" by {report.get('published_by') or '-'}; {report['published_poses']} poses")
-    if m:
+    if m and "ate_se3_m" not in m and m.get("ate_se3_error"):
+        print(f"  ATE: not computed: {m['ate_se3_error']}")
+    elif m:
         nan = float("nan")
         print(f"  ATE: {m.get('ate_se3_m', nan):.3f} m (se3), {m.get('ate_posyaw_m', nan):.3f} m (posyaw)")
         mc, mf = report.get("metrics_causal") or {}, report.get("metrics_final") or {}
