@@ -90,7 +90,10 @@ def read_stamped_csv(path: str | Path, n_values: int, counts: StreamCounts, poli
 
     for lineno, line in enumerate(content.splitlines(), start=1):
         stripped = line.strip()
-        if not stripped or stripped.startswith("#"):
+        if not stripped:
+            continue
+        if stripped.startswith("#"):
+            seen_data = True   # a '#' header (or comment) came first: no later line is taken for a header
             continue
         fields = [f.strip() for f in stripped.split(",")]
         if not seen_data and _parse_stamp(fields[0]) is None and not fields[0][:1].isdigit():

@@ -255,6 +255,19 @@ def test_header_variations(tmp_path: Path) -> None:
     assert drv.report()["totals"]["malformed_lines"] == 0
 
 
+def test_a_corrupt_first_row_after_a_hash_header_is_counted_not_taken_for_a_header(tmp_path: Path) -> None:
+    rows = imu_rows(30)
+    rows[0] = "nan" + rows[0][rows[0].index(","):]
+    seq = write_asl(tmp_path, rows, {"cam0": cam_rows(4)})
+    drv = EurocDriver(seq)
+    imu, _ = split(list(drv.events()))
+    s = drv.report()["streams"]["imu0"]
+    assert len(imu) == 29 and s["lines"] == 30 and s["dropped_nonmonotonic"] + s["malformed_lines"] == 1
+    assert not any("header without '#'" in n for n in drv.report()["notes"])
+    with pytest.raises(DataError, match=r"data.csv:2"):
+        EurocDriver(seq, policy="strict")
+
+
 def test_frame_gaps_and_unequal_camera_rates(tmp_path: Path) -> None:
     cam0 = cam_rows(10)
     del cam0[4:6]                                       # two frames lost upstream in one gap

@@ -45,7 +45,7 @@ def test_simulate_refuses_a_non_empty_out_before_building_the_scene(tmp_path, ca
     assert main(["simulate", "--out", str(tmp_path / "o")]) == 1
     assert "is not empty" in capsys.readouterr().err
     assert main(["simulate", "--seconds", "0", "--out", str(tmp_path / "p")]) == 1
-    assert "--seconds must be > 0" in capsys.readouterr().err
+    assert "--seconds must be a finite number > 0" in capsys.readouterr().err
 
 
 def test_simulate_json_prints_only_the_manifest(tmp_path, capsys) -> None:

@@ -203,7 +203,7 @@ def test_covariance_std_takes_the_worst_direction():
 @pytest.mark.parametrize(
     "extra, words",
     [
-        (["--seconds", "0"], "--seconds must be > 0"),
+        (["--seconds", "0"], "--seconds must be a finite number > 0"),
         (["--max-rot-std-deg", "-1"], "--max-rot-std-deg must be a finite number > 0"),
         (["--min-axis-rate-dps", "nan"], "--min-axis-rate-dps must be"),
         (["--model-latency", "-2"], "--model-latency must be"),

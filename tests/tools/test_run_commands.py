@@ -203,7 +203,7 @@ def test_recovery_lines_name_every_counted_recovery():
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--seconds", "0"], "--seconds must be > 0"), (["--seconds", "nan"], "--seconds must be > 0"),
+    (["--seconds", "0"], "--seconds must be a finite number > 0"), (["--seconds", "nan"], "--seconds must be a finite number > 0"),
     (["--model-latency", "-1"], "--model-latency must be a finite number"),
     (["--model-latency", "inf"], "--model-latency must be a finite number"),
     (["--paced", "--speed", "0"], "--speed must be > 0"),

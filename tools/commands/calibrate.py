@@ -131,7 +131,7 @@ def check_args(args: argparse.Namespace) -> None:
 
     sec = args.seconds
     if sec is not None and not (math.isfinite(sec) and sec > 0):
-        raise ConfigError(f"--seconds must be > 0 (got {sec!r})")
+        raise ConfigError(f"--seconds must be a finite number > 0 (got {sec!r})")
     if not (math.isfinite(args.model_latency) and args.model_latency >= 0):
         raise ConfigError(
             f"--model-latency must be a finite number of seconds >= 0 (got {args.model_latency!r})"

@@ -76,7 +76,7 @@ def check_run_args(args: argparse.Namespace) -> None:
         raise ConfigError(f"--model-latency must be a finite number of seconds >= 0 (got {lat!r})")
     sec = getattr(args, "seconds", None)
     if sec is not None and not (math.isfinite(sec) and sec > 0):
-        raise ConfigError(f"--seconds must be > 0 (got {sec!r})")
+        raise ConfigError(f"--seconds must be a finite number > 0 (got {sec!r})")
     speed = getattr(args, "speed", None)
     if speed is not None and not (math.isfinite(speed) and speed > 0):
         raise ConfigError(f"--speed must be > 0 (got {speed!r})")

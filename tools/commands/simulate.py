@@ -115,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
     if out.is_dir() and any(out.iterdir()):
         raise ConfigError(f"--out {out} is not empty; choose a new or empty folder")
     if args.seconds is not None and not (math.isfinite(args.seconds) and args.seconds > 0):
-        raise ConfigError(f"--seconds must be > 0 (got {args.seconds!r})")
+        raise ConfigError(f"--seconds must be a finite number > 0 (got {args.seconds!r})")
     prefer_workqueue_layer()  # idle OpenMP threads spin: costly on a shared 2-core machine
     con = Console(stderr=True)
     image = ImageOptions.exact() if args.exact else ImageOptions()
