@@ -34,7 +34,16 @@ class TrackingStats:
     frames: int = 0
     tracks_total: int = 0
     frames_without_tracks: int = 0
+    imu_out_of_range: int = 0
+    """IMU samples beyond any MEMS IMU's range (MAX_GYRO_RAD_S, MAX_ACCEL_M_S2): dropped before the
+    initializers and filters (a corrupt value, or a gyroscope in deg/s)."""
     ff_exceptions: list = field(default_factory=list)
+
+
+MAX_GYRO_RAD_S = 100.0
+"""Largest angular rate accepted per axis (rad/s; MEMS gyroscopes end at 35-70 rad/s, 2000-4000 deg/s)."""
+MAX_ACCEL_M_S2 = 1000.0
+"""Largest specific force accepted per axis (m/s^2; about 100 g, beyond any VIO-grade accelerometer)."""
 
 
 class VioPipeline:
@@ -134,6 +143,9 @@ class VioPipeline:
 
     def on_imu(self, sample: ImuSample) -> list[Published]:
         self._last_t = int(sample.t_ns)
+        if np.any(np.abs(sample.gyro) > MAX_GYRO_RAD_S) or np.any(np.abs(sample.accel) > MAX_ACCEL_M_S2):
+            self.stats.imu_out_of_range += 1    # NaN compares False: the filter counts those itself
+            return []
         if self.startup is None:
             self.bringup.on_imu(sample)
             return []

@@ -244,3 +244,25 @@ def test_ground_truth_on_another_clock_gives_the_reason_not_nan(tmp_path, capsys
     assert "ATE: not computed: " in text and "nan" not in text.split("ATE:")[1].splitlines()[0]
     metrics = json.loads((out / "report.json").read_text())["metrics"]
     assert "ate_se3_m" not in metrics and metrics["ate_se3_error"] in text
+
+
+def test_imu_values_beyond_any_imu_are_dropped_and_said(tmp_path, capsys):
+    """One accelerometer value of 1e6 m/s^2 (a corrupt row) never reaches an initializer or the filter."""
+    src = shared_path("euroc", "V1_01_easy_head") / "mav0"
+    dst = tmp_path / "rec" / "mav0"
+    dst.mkdir(parents=True)
+    for name in ("body.yaml", "cam0", "state_groundtruth_estimate0"):
+        (dst / name).symlink_to(src / name)
+    (dst / "imu0").mkdir()
+    (dst / "imu0" / "sensor.yaml").symlink_to(src / "imu0" / "sensor.yaml")
+    lines = (src / "imu0" / "data.csv").read_text().splitlines()
+    cols = lines[150].split(",")
+    cols[5] = "1e6"
+    lines[150] = ",".join(cols)
+    (dst / "imu0" / "data.csv").write_text("\n".join(lines) + "\n")
+    out = tmp_path / "run"
+    assert main(["run", str(dst.parent), "--out", str(out), "--native-only", "--seconds", "2.5"]) == 0
+    text = capsys.readouterr().out
+    assert "IMU samples beyond any IMU's range dropped: 1" in text
+    report = json.loads((out / "report.json").read_text())
+    assert report["pipeline"]["tracking"]["imu_out_of_range"] == 1 and report["published_poses"] > 0

@@ -256,6 +256,10 @@ def _recovery_lines(report: dict) -> list[str]:
         if parts:
             lines.append(f"input {name}: " + ", ".join(parts))
     lines.extend(f"input note: {n}" for n in (report.get("driver") or {}).get("notes") or [])
+    out_of_range = (report["pipeline"].get("tracking") or {}).get("imu_out_of_range") or 0
+    if out_of_range:
+        lines.append(f"IMU samples beyond any IMU's range dropped: {out_of_range} (|gyro| > 100 rad/s or "
+                     "|accel| > 1000 m/s^2 on an axis: corrupt values, or a gyroscope in deg/s?)")
     errors = (report["pipeline"].get("tracking") or {}).get("ff_exceptions") or []
     if errors:
         lines.append(f"feed-forward model calls failed: {len(errors)} (first: {errors[0]})")
