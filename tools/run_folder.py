@@ -32,8 +32,8 @@ RUN_MARKERS = (STATUS_FILE, "report.json", "odometry.tum")
 DERIVED_FILES = ("map.ply", "map.png")
 """Files `davio map export|view` write into a run folder by default after the run ended."""
 _PARTIAL_NAMES = re.compile(r"^(odometry(_segment\d+)?\.tum|causal\.tum|final\.tum|groundtruth\.tum|"
-                            r"poses\.csv|report\.json|config\.toml|run_status\.json|map\.ply|trajectory\.png|"
-                            r"position_error\.png|\..+\.tmp|map/(manifest\.json|submap_\d+\.npz|\..+\.tmp))$")
+                            r"causal\.journal\.tum|poses\.csv|report\.json|config\.toml|run_status\.json|"
+                            r"map\.ply|trajectory\.png|position_error\.png|\..+\.tmp|map/(manifest\.json|submap_\d+\.npz|\..+\.tmp))$")
 """What a run writes into `<out>.partial/` (run_io.write_run, run_map, demo, atomic-write temporaries)."""
 
 

@@ -173,6 +173,7 @@ def _run(args, folder, driver, rig, model, model_desc: str, config) -> int:
     from runtime.session import Session
     from tools.commands.run import _summary
     from tools.live_view import open_view
+    from tools.pose_journal import PoseJournal, chain_poses
     from tools.run_io import write_run
     from tools.run_map import MapOutput
     from tools.run_outcome import conclude, judge
@@ -188,8 +189,9 @@ def _run(args, folder, driver, rig, model, model_desc: str, config) -> int:
           + "  Ctrl-C to finish", file=sys.stderr)
     view = open_view(args.view)
     sink = None if map_out is None else map_out.sink
+    journal = PoseJournal(folder.path)
     session = Session(rig, model, config, map_sink=view.chain(sink) if view is not None else sink,
-                      on_pose=None if view is None else view.on_pose)
+                      on_pose=journal if view is None else chain_poses(journal, view.on_pose))
     events = driver.events()
     if args.seconds is not None:
         events = _first_seconds(events, args.seconds)
@@ -201,6 +203,7 @@ def _run(args, folder, driver, rig, model, model_desc: str, config) -> int:
         if res.status == "complete":
             session.pipeline.finish_mapping()
     finally:
+        journal.close()
         driver.stop()
         if view is not None:
             view.close()
@@ -211,6 +214,7 @@ def _run(args, folder, driver, rig, model, model_desc: str, config) -> int:
                         "status_reason": res.reason, "driver": driver.report(), "map": map_summary,
                         "imu_noise_defaulted": defaulted, "view": None if view is None else view.report()},
                        config)
+    journal.close(remove=True)   # the run's own trajectories are written whole
     return conclude(folder, res, report, as_json=args.json, summary=_summary)
 
 

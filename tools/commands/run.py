@@ -146,6 +146,7 @@ def _run(args, folder, rec, rig, model, model_desc: str, config) -> int:
     import sys
 
     from tools.live_view import open_view
+    from tools.pose_journal import PoseJournal, chain_poses
     from tools.run_io import write_run
     from tools.run_map import MapOutput
     from tools.run_outcome import conclude, judge
@@ -162,12 +163,14 @@ def _run(args, folder, rec, rig, model, model_desc: str, config) -> int:
              "[msckf]" if defaulted else ""), file=log)
     view = open_view(args.view)
     sink = None if map_out is None else map_out.sink
+    journal = PoseJournal(folder.path)
     try:
         res = run_pipeline(rec.driver, model, config, paced=args.paced, speed=args.speed,
                            model_latency_s=args.model_latency, seconds=args.seconds, rig=rig,
                            map_sink=view.chain(sink) if view is not None else sink, keep_partial=True,
-                           on_pose=None if view is None else view.on_pose)
+                           on_pose=journal if view is None else chain_poses(journal, view.on_pose))
     finally:
+        journal.close()
         if view is not None:
             view.close()
     judge(res, rec.driver.report())
@@ -179,6 +182,7 @@ def _run(args, folder, rec, rig, model, model_desc: str, config) -> int:
                         "imu_noise_defaulted": defaulted,
                         "view": None if view is None else view.report()},
                        config)
+    journal.close(remove=True)   # the run's own trajectories are written whole
     return conclude(folder, res, report, as_json=args.json, summary=_summary)
 
 

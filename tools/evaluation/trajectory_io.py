@@ -29,13 +29,18 @@ def _num(x: float) -> str:
     return repr(float(x))
 
 
+TUM_HEADER = "# t[s] x y z qx qy qz qw"
+
+
+def tum_line(t_ns: int, p: np.ndarray, q_xyzw: np.ndarray) -> str:
+    """One TUM line: the stamp in seconds with 9 decimals (exact), position and quaternion (x y z w)."""
+    return " ".join([ns_to_seconds_text(int(t_ns))] + [_num(x) for x in p] + [_num(x) for x in q_xyzw])
+
+
 def write_tum(path: str | Path, traj: PoseTrajectory) -> None:
     """Write poses T_WB as TUM lines (stamps with 9 decimals, exact; floats round-trip exactly)."""
     q = rot_to_quat_xyzw(traj.R) if len(traj) else np.zeros((0, 4))
-    rows = ["# t[s] x y z qx qy qz qw"]
-    for k in range(len(traj)):
-        rows.append(" ".join([ns_to_seconds_text(int(traj.t_ns[k]))] + [_num(x) for x in traj.p[k]]
-                             + [_num(x) for x in q[k]]))
+    rows = [TUM_HEADER] + [tum_line(int(traj.t_ns[k]), traj.p[k], q[k]) for k in range(len(traj))]
     atomic_write_text(Path(path), "\n".join(rows) + "\n")
 
 
