@@ -88,7 +88,10 @@ def read_stamped_csv(path: str | Path, n_values: int, counts: StreamCounts, poli
         if policy == "strict":
             raise DataError(why, path, lineno)
 
-    for lineno, line in enumerate(content.splitlines(), start=1):
+    all_lines = content.splitlines()
+    # a file cut off while written ends inside its last row, where a number may still parse (-3.20 -> -3)
+    unterminated = len(all_lines) if content and not content.endswith(("\n", "\r")) else 0
+    for lineno, line in enumerate(all_lines, start=1):
         stripped = line.strip()
         if not stripped:
             continue
@@ -103,6 +106,11 @@ def read_stamped_csv(path: str | Path, n_values: int, counts: StreamCounts, poli
             continue
         seen_data = True
         counts.lines += 1
+        if lineno == unterminated:
+            if report is not None:
+                report.note(f"{path.name}: the last line has no line end (the file was cut off?): dropped")
+            reject("truncated_lines", lineno, "the last line has no line end (the file was cut off?)")
+            continue
         if len(fields) < n_values + 1:
             reject("truncated_lines", lineno, f"truncated row: {len(fields)} fields, expected {n_values + 1}")
             continue

@@ -206,6 +206,20 @@ def test_truncated_last_line(tmp_path: Path) -> None:
     assert_accounted(drv.report(), replayed=False)
 
 
+def test_a_last_line_cut_inside_its_last_number_is_dropped(tmp_path: Path) -> None:
+    """'-3.2035' cut to '-3' still parses: a last line without a line end is dropped as cut off."""
+    rows = imu_rows(10)
+    rows[-1] = rows[-1][:-2]
+    seq = write_asl(tmp_path, rows, {"cam0": cam_rows(2)}, trailing_newline=False)
+    drv = EurocDriver(seq)
+    assert drv.report()["streams"]["imu0"]["truncated_lines"] == 1 and drv.n_imu == 9
+    assert any("the last line has no line end" in n for n in drv.report()["notes"])
+    with pytest.raises(DataError, match=r"data.csv:11: the last line has no line end"):
+        EurocDriver(seq, policy="strict")
+    whole = write_asl(tmp_path / "whole", imu_rows(10), {"cam0": cam_rows(2)})
+    assert EurocDriver(whole).n_imu == 10
+
+
 def test_missing_and_corrupt_images(tmp_path: Path) -> None:
     cams = cam_rows(6)
     seq = write_asl(tmp_path, imu_rows(80), {"cam0": cams})
