@@ -157,6 +157,13 @@ def read_stamped_csv(path: str | Path, n_values: int, counts: StreamCounts, poli
     line_arr = np.array(lines, dtype=np.int64)
     if monotonic and np.any(np.diff(t_arr) <= 0):
         order, kept, dup, isolated = time_order_repair(t_arr)
+        if kept.sum() >= 2 and block_apart(t_arr, kept):
+            step = np.diff(t_arr)
+            at = int(np.argmin(step)) + 1          # the largest jump back, in file order
+            raise DataError(f"stamps jump back by {-int(step[at - 1]) * 1e-9:.3f} s here and "
+                            f"{int(kept.sum())} rows lie apart from all the others (a clock reset, or two "
+                            "files spliced?): they cannot be sorted into one time order; split the file or "
+                            "correct the stamps", path, int(line_arr[at]))
         counts.dropped_duplicate += int(dup.sum())
         counts.dropped_nonmonotonic += int(isolated.sum())
         counts.reordered += int(kept.sum())
@@ -206,6 +213,20 @@ def time_order_repair(t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndar
         right = np.where(k + 1 < uniq.shape[0], uniq[np.minimum(k + 1, uniq.shape[0] - 1)] - t_ns, np.inf)
         isolated = moved & (np.minimum(left, right) > limit)
     return order, moved & ~isolated, duplicate, isolated
+
+
+def block_apart(t_ns: np.ndarray, moved: np.ndarray) -> bool:
+    """Whether the `moved` rows' stamps all lie farther than the isolation limit (ISOLATED_GAP_S and 100
+    median periods) from every other row's: a block on another clock, not rows out of order."""
+    rest = np.sort(t_ns[~moved])
+    if rest.shape[0] < 2:
+        return False
+    period = float(np.median(np.diff(np.unique(t_ns))))
+    limit = max(ISOLATED_GAP_S * 1e9, 100.0 * period)
+    k = np.searchsorted(rest, t_ns[moved])
+    left = np.where(k > 0, t_ns[moved] - rest[np.maximum(k - 1, 0)], np.inf)
+    right = np.where(k < rest.shape[0], rest[np.minimum(k, rest.shape[0] - 1)] - t_ns[moved], np.inf)
+    return bool(np.all(np.minimum(np.abs(left), np.abs(right)) > limit))
 
 
 def monotonic_keep_mask(t_ns: np.ndarray) -> np.ndarray:

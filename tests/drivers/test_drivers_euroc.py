@@ -172,6 +172,18 @@ def test_out_of_order_imu_rows_sorted_and_duplicates_dropped(tmp_path: Path) -> 
     assert_accounted(rep)
 
 
+def test_a_block_on_another_clock_is_refused_not_sorted_in(tmp_path: Path) -> None:
+    """Rows 30.. shifted 1000 s back (a clock reset): sorting them in would put the two halves in the
+    wrong order; the error names the line where the stamps jump back."""
+    rows = imu_rows(60)
+    for i in range(30, 60):
+        t, rest = rows[i].split(",", 1)
+        rows[i] = f"{int(t) - 1000 * 10**9},{rest}"
+    seq = write_asl(tmp_path, rows, {"cam0": cam_rows(2)})
+    with pytest.raises(DataError, match=r"data.csv:32: stamps jump back by 999.995 s here and 30 rows"):
+        EurocDriver(seq)
+
+
 def test_stamp_jumping_ahead_costs_one_row(tmp_path: Path) -> None:
     """A single far-future stamp is dropped instead of every row after it."""
     rows = imu_rows(30)
