@@ -55,7 +55,8 @@ def test_save_aligned_into_an_existing_folder(tum_pair, tmp_path: Path, capsys) 
     assert result["aligned"] == str(out / "est_aligned.tum")
     assert len((out / "est_aligned.tum").read_text().splitlines()) == 41  # header + 40 poses
     assert main(["eval", "ate", str(est), str(ref), "--save-aligned", str(out)]) == 1   # exists now
-    assert capsys.readouterr().err == (f"davio eval: error: --save-aligned {out / 'est_aligned.tum'}: exists; "
+    target = out / "est_aligned.tum"
+    assert capsys.readouterr().err == (f"davio eval: error: --save-aligned {target}: exists; "
                                        "pass --overwrite to replace it, or choose another file\n")
     assert main(["eval", "ate", str(est), str(ref), "--save-aligned", str(out), "--overwrite"]) == 0
     assert "aligned estimate" in capsys.readouterr().out  # the table row (rich may shorten the path)
@@ -122,8 +123,8 @@ def test_map_export_into_a_folder_and_bad_voxel(tmp_path: Path, capsys) -> None:
     assert (out / "map.ply").is_file()
     capsys.readouterr()
     assert main(["map", "export", str(tmp_path / "run"), "--voxel", "0"]) == 1
-    assert capsys.readouterr().err == ("davio map: error: --voxel must be an edge length from 0.005 to 10.0 m, "
-                                       "got 0.0\n")
+    assert capsys.readouterr().err == ("davio map: error: --voxel must be an edge length from 0.005 to "
+                                       "10.0 m, got 0.0\n")
     for bad in ("inf", "1e-6", "nan"):
         assert main(["map", "export", str(tmp_path / "run"), "--voxel", bad]) == 1
         assert "--voxel must be an edge length" in capsys.readouterr().err

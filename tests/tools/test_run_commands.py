@@ -76,24 +76,44 @@ def test_run_on_real_euroc_head_writes_outputs(tmp_path, capsys):
     assert len(rows) == report["published_poses"]
 
 
-def test_run_reports_input_repairs_on_the_console(tmp_path, capsys):
-    """Corrupted IMU rows are dropped, counted in report.json and named on the console."""
+def _euroc_copy(tmp_path: Path, imu_lines=None, gt_text: str | None = None, imu_yaml: bool = True) -> Path:
+    """The real V1_01 head as a folder of symlinks, with the IMU rows (or the ground truth) replaced by
+    the given text and imu0/sensor.yaml left out on request; returns the recording folder."""
     src = shared_path("euroc", "V1_01_easy_head") / "mav0"
     dst = tmp_path / "rec" / "mav0"
     dst.mkdir(parents=True)
-    for name in ("body.yaml", "cam0", "state_groundtruth_estimate0"):
+    for name in ("body.yaml", "cam0"):
         (dst / name).symlink_to(src / name)
     (dst / "imu0").mkdir()
-    (dst / "imu0" / "sensor.yaml").symlink_to(src / "imu0" / "sensor.yaml")
-    lines = (src / "imu0" / "data.csv").read_text().splitlines()
+    if imu_yaml:
+        (dst / "imu0" / "sensor.yaml").symlink_to(src / "imu0" / "sensor.yaml")
+    if imu_lines is None:
+        (dst / "imu0" / "data.csv").symlink_to(src / "imu0" / "data.csv")
+    else:
+        (dst / "imu0" / "data.csv").write_text("\n".join(imu_lines) + "\n")
+    if gt_text is None:
+        (dst / "state_groundtruth_estimate0").symlink_to(src / "state_groundtruth_estimate0")
+    else:
+        (dst / "state_groundtruth_estimate0").mkdir()
+        (dst / "state_groundtruth_estimate0" / "data.csv").write_text(gt_text)
+    return dst.parent
+
+
+def _euroc_rows(name: str) -> list[str]:
+    return (shared_path("euroc", "V1_01_easy_head") / "mav0" / name / "data.csv").read_text().splitlines()
+
+
+def test_run_reports_input_repairs_on_the_console(tmp_path, capsys):
+    """Corrupted IMU rows are dropped, counted in report.json and named on the console."""
+    lines = _euroc_rows("imu0")
     for i in (100, 101, 102):  # three NaN accelerometer rows
         cols = lines[i].split(",")
         cols[4] = "nan"
         lines[i] = ",".join(cols)
     lines.insert(200, lines[199])  # one duplicated timestamp
-    (dst / "imu0" / "data.csv").write_text("\n".join(lines) + "\n")
     out = tmp_path / "run"
-    assert main(["run", str(dst.parent), "--out", str(out), "--native-only", "--seconds", "2.5"]) == 0
+    rec = _euroc_copy(tmp_path, imu_lines=lines)
+    assert main(["run", str(rec), "--out", str(out), "--native-only", "--seconds", "2.5"]) == 0
     text = capsys.readouterr().out
     assert "input imu0: non-finite samples dropped 3, duplicates dropped 1" in text
     report = json.loads((out / "report.json").read_text())
@@ -106,15 +126,9 @@ def test_withheld_imu_noise_is_said_not_silently_defaulted(tmp_path, capsys):
     """Without imu0/sensor.yaml the filter runs on EuRoC's default densities, and the run says so."""
     from runtime.msckf.config import DEFAULT_IMU_NOISE
 
-    src = shared_path("euroc", "V1_01_easy_head") / "mav0"
-    dst = tmp_path / "rec" / "mav0"
-    dst.mkdir(parents=True)
-    for name in ("body.yaml", "cam0", "state_groundtruth_estimate0"):
-        (dst / name).symlink_to(src / name)
-    (dst / "imu0").mkdir()
-    (dst / "imu0" / "data.csv").symlink_to(src / "imu0" / "data.csv")
     out = tmp_path / "run"
-    assert main(["run", str(dst.parent), "--out", str(out), "--native-only", "--seconds", "2.5"]) == 0
+    rec = _euroc_copy(tmp_path, imu_yaml=False)
+    assert main(["run", str(rec), "--out", str(out), "--native-only", "--seconds", "2.5"]) == 0
     text = capsys.readouterr().out
     assert ("note: IMU noise withheld in the calibration: gyro_noise_density, gyro_random_walk, "
             "accel_noise_density, accel_random_walk from the EuRoC (ADIS16448) defaults") in text
@@ -203,7 +217,9 @@ def test_recovery_lines_name_every_counted_recovery():
 
 
 @pytest.mark.parametrize("args, message", [
-    (["--seconds", "0"], "--seconds must be a finite number > 0"), (["--seconds", "nan"], "--seconds must be a finite number > 0"),
+    (["--seconds", "0"], "--seconds must be a finite number > 0"),
+    (["--seconds", "nan"], "--seconds must be a finite number > 0"),
+    (["--seconds", "inf"], "--seconds must be a finite number > 0"),
     (["--model-latency", "-1"], "--model-latency must be a finite number"),
     (["--model-latency", "inf"], "--model-latency must be a finite number"),
     (["--paced", "--speed", "0"], "--speed must be > 0"),
@@ -229,17 +245,11 @@ def test_a_recording_that_cannot_publish_says_why_and_exits_non_zero(tmp_path, c
 
 
 def test_ground_truth_on_another_clock_gives_the_reason_not_nan(tmp_path, capsys):
-    src = shared_path("euroc", "V1_01_easy_head") / "mav0"
-    dst = tmp_path / "rec" / "mav0"
-    dst.mkdir(parents=True)
-    for name in ("body.yaml", "cam0", "imu0"):
-        (dst / name).symlink_to(src / name)
-    (dst / "state_groundtruth_estimate0").mkdir()
-    rows = (src / "state_groundtruth_estimate0" / "data.csv").read_text().splitlines()
+    rows = _euroc_rows("state_groundtruth_estimate0")
     shifted = [rows[0]] + [f"{int(r.split(',', 1)[0]) + 10**12},{r.split(',', 1)[1]}" for r in rows[1:]]
-    (dst / "state_groundtruth_estimate0" / "data.csv").write_text("\n".join(shifted) + "\n")
     out = tmp_path / "run"
-    assert main(["run", str(dst.parent), "--out", str(out), "--native-only", "--seconds", "2.5"]) == 0
+    rec = _euroc_copy(tmp_path, gt_text="\n".join(shifted) + "\n")
+    assert main(["run", str(rec), "--out", str(out), "--native-only", "--seconds", "2.5"]) == 0
     text = capsys.readouterr().out
     assert "ATE: not computed: " in text and "nan" not in text.split("ATE:")[1].splitlines()[0]
     metrics = json.loads((out / "report.json").read_text())["metrics"]
@@ -248,20 +258,13 @@ def test_ground_truth_on_another_clock_gives_the_reason_not_nan(tmp_path, capsys
 
 def test_imu_values_beyond_any_imu_are_dropped_and_said(tmp_path, capsys):
     """One accelerometer value of 1e6 m/s^2 (a corrupt row) never reaches an initializer or the filter."""
-    src = shared_path("euroc", "V1_01_easy_head") / "mav0"
-    dst = tmp_path / "rec" / "mav0"
-    dst.mkdir(parents=True)
-    for name in ("body.yaml", "cam0", "state_groundtruth_estimate0"):
-        (dst / name).symlink_to(src / name)
-    (dst / "imu0").mkdir()
-    (dst / "imu0" / "sensor.yaml").symlink_to(src / "imu0" / "sensor.yaml")
-    lines = (src / "imu0" / "data.csv").read_text().splitlines()
+    lines = _euroc_rows("imu0")
     cols = lines[150].split(",")
     cols[5] = "1e6"
     lines[150] = ",".join(cols)
-    (dst / "imu0" / "data.csv").write_text("\n".join(lines) + "\n")
     out = tmp_path / "run"
-    assert main(["run", str(dst.parent), "--out", str(out), "--native-only", "--seconds", "2.5"]) == 0
+    rec = _euroc_copy(tmp_path, imu_lines=lines)
+    assert main(["run", str(rec), "--out", str(out), "--native-only", "--seconds", "2.5"]) == 0
     text = capsys.readouterr().out
     assert "IMU samples beyond any IMU's range dropped: 1" in text
     report = json.loads((out / "report.json").read_text())
