@@ -7,6 +7,7 @@ as float). Bad rows are either dropped and counted in a `StreamCounts` ("drop" p
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,6 +42,25 @@ def _parse_stamp(field: str) -> int | None:
     return int(field)
 
 
+def _cut_short(last: str, before: list[str]) -> bool:
+    """Whether a last field is visibly cut short: under half the median length of the same field in the
+    rows before it (signs ignored). '-3.2035056666666666' cut to '-3' is; a row written without a final
+    newline is not."""
+    if len(before) < 10:
+        return False
+    lengths = sorted(len(f.lstrip("+-")) for f in before)
+    return len(last.lstrip("+-")) < 0.5 * lengths[len(lengths) // 2]
+
+
+def _is_float(text: str) -> bool:
+    """Whether `text` reads as a number (nan, inf and 1e3 included): a corrupt stamp, not a header word."""
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 def read_stamped_csv(path: str | Path, n_values: int, counts: StreamCounts, policy: Policy = "drop",
                      *, text: bool = False, report: IntakeReport | None = None,
                      monotonic: bool = True,
@@ -49,7 +69,8 @@ def read_stamped_csv(path: str | Path, n_values: int, counts: StreamCounts, poli
 
     Args:
         path: the CSV file. Lines starting with '#' are comments; a first non-comment line whose
-            first field is not an integer is taken as a text header (noted in `report`).
+            first field is not a number is taken as a text header (noted in `report`). A last line
+            without a line end is kept unless its last field is visibly cut short (`_cut_short`).
         n_values: number of columns after the stamp.
         counts: counters of this stream, updated in place.
         policy: "drop" (count and skip bad rows) or "strict" (raise DataError with file and line).
@@ -89,6 +110,7 @@ def read_stamped_csv(path: str | Path, n_values: int, counts: StreamCounts, poli
             raise DataError(why, path, lineno)
 
     all_lines = content.splitlines()
+    recent: deque[list[str]] = deque(maxlen=200)   # the last rows' fields, for the cut-off test
     # a file cut off while written ends inside its last row, where a number may still parse (-3.20 -> -3)
     unterminated = len(all_lines) if content and not content.endswith(("\n", "\r")) else 0
     for lineno, line in enumerate(all_lines, start=1):
@@ -96,21 +118,22 @@ def read_stamped_csv(path: str | Path, n_values: int, counts: StreamCounts, poli
         if not stripped:
             continue
         if stripped.startswith("#"):
-            seen_data = True   # a '#' header (or comment) came first: no later line is taken for a header
             continue
         fields = [f.strip() for f in stripped.split(",")]
-        if not seen_data and _parse_stamp(fields[0]) is None and not fields[0][:1].isdigit():
+        if not seen_data and _parse_stamp(fields[0]) is None and not _is_float(fields[0]):
             if report is not None:
                 report.note(f"{path.name}: line {lineno} read as a header without '#': {stripped[:60]!r}")
             seen_data = True
             continue
         seen_data = True
         counts.lines += 1
-        if lineno == unterminated:
+        if lineno == unterminated and _cut_short(fields[-1], [t[-1] for t in recent]):
             if report is not None:
-                report.note(f"{path.name}: the last line has no line end (the file was cut off?): dropped")
-            reject("truncated_lines", lineno, "the last line has no line end (the file was cut off?)")
+                report.note(f"{path.name}: the last line has no line end and its last value is much shorter "
+                            "than the rows' before it (the file was cut off while written?): dropped")
+            reject("truncated_lines", lineno, "the last line has no line end and its last value is cut short")
             continue
+        recent.append(fields)
         if len(fields) < n_values + 1:
             reject("truncated_lines", lineno, f"truncated row: {len(fields)} fields, expected {n_values + 1}")
             continue

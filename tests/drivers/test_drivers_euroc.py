@@ -219,17 +219,26 @@ def test_truncated_last_line(tmp_path: Path) -> None:
 
 
 def test_a_last_line_cut_inside_its_last_number_is_dropped(tmp_path: Path) -> None:
-    """'-3.2035' cut to '-3' still parses: a last line without a line end is dropped as cut off."""
-    rows = imu_rows(10)
+    """'-0.2' cut to '-0' still parses: a last line without a line end whose last value is much shorter
+    than in the rows before is dropped as cut off; a whole row merely lacking the newline is kept."""
+    rows = imu_rows(30)
+    whole = write_asl(tmp_path / "whole", rows, {"cam0": cam_rows(2)}, trailing_newline=False)
+    assert EurocDriver(whole).n_imu == 30 and EurocDriver(whole, policy="strict").n_imu == 30
     rows[-1] = rows[-1][:-2]
     seq = write_asl(tmp_path, rows, {"cam0": cam_rows(2)}, trailing_newline=False)
     drv = EurocDriver(seq)
-    assert drv.report()["streams"]["imu0"]["truncated_lines"] == 1 and drv.n_imu == 9
+    assert drv.report()["streams"]["imu0"]["truncated_lines"] == 1 and drv.n_imu == 29
     assert any("the last line has no line end" in n for n in drv.report()["notes"])
-    with pytest.raises(DataError, match=r"data.csv:11: the last line has no line end"):
+    with pytest.raises(DataError, match=r"data.csv:31: the last line has no line end"):
         EurocDriver(seq, policy="strict")
-    whole = write_asl(tmp_path / "whole", imu_rows(10), {"cam0": cam_rows(2)})
-    assert EurocDriver(whole).n_imu == 10
+
+
+def test_a_comment_line_before_a_text_header(tmp_path: Path) -> None:
+    """'# recorded by ...' then a header without '#': still a header, not a bad data row."""
+    seq = write_asl(tmp_path, imu_rows(20), {"cam0": cam_rows(2)},
+                    imu_header="# recorded by my_logger v2\ntimestamp,wx,wy,wz,ax,ay,az")
+    drv = EurocDriver(seq, policy="strict")
+    assert drv.n_imu == 20 and drv.report()["totals"]["malformed_lines"] == 0
 
 
 def test_missing_and_corrupt_images(tmp_path: Path) -> None:
