@@ -111,6 +111,11 @@ def _declared_rate_hz(sensor_yaml: Path) -> float | None:
     return float(rate) if isinstance(rate, int | float) and not isinstance(rate, bool) else None
 
 
+SIZE_MISMATCHES_FATAL = 5
+"""With the calibrated size given, this many images of another size before any of the right size stop
+the replay: the calibration belongs to another camera or resolution (a few odd images are skipped)."""
+
+
 class EurocDriver(Driver):
     """Replay an EuRoC/ASL folder as merged, time-ordered `ImuSample` and `Frame` events.
 
@@ -134,6 +139,7 @@ class EurocDriver(Driver):
         self._rig: Rig | None = None
         self._rig_loaded = False
         self._expected_shape: tuple[int, int] | None = None
+        self._size_mismatches = self._size_matches = 0
         self._gt: PoseTrajectory | None = None
         self._gt_loaded = False
         self._closed = False
@@ -271,6 +277,18 @@ class EurocDriver(Driver):
                 if image.shape != self._expected_shape:
                     reason = (f"is {image.shape[1]}x{image.shape[0]}, the camera calibration "
                               f"{self._expected_shape[1]}x{self._expected_shape[0]}")
+                    self._size_mismatches += 1
+                    if self._size_mismatches == 1:
+                        self._report.note(f"{name}: image {path.name} {reason}: skipped (so is every image "
+                                          "of another size)")
+                    if self._size_mismatches == SIZE_MISMATCHES_FATAL and not self._size_matches:
+                        raise DataError(f"the first {SIZE_MISMATCHES_FATAL} images are "
+                                        f"{image.shape[1]}x{image.shape[0]} but the camera calibration is "
+                                        f"{self._expected_shape[1]}x{self._expected_shape[0]}: is --rig the "
+                                        "calibration of this camera, at this resolution?",
+                                        self.mav0 / name / "data.csv")
+                else:
+                    self._size_matches += 1
             else:
                 first = self._first_shape.setdefault(cam, image.shape)
                 if image.shape != first:
@@ -335,6 +353,7 @@ class EurocDriver(Driver):
         if self._closed:
             raise DataError("driver is closed", self.mav0)
         self._first_shape: dict[int, tuple[int, ...]] = {}
+        self._size_mismatches = self._size_matches = 0
         self._bit_depth: dict[int, int] = {}
         for name in self.cameras:
             self._report.stream(name).converted = 0

@@ -275,6 +275,11 @@ def test_a_wrong_size_first_image_is_skipped_against_the_calibration(tmp_path: P
     alone = EurocDriver(seq)
     _, frames = split(list(alone.events()))
     assert [f.t_ns for f in frames] == [cams[0][0]]
+    assert any("is 8x4, the camera calibration 8x6: skipped" in n for n in drv.report()["notes"])
+    other_camera = EurocDriver(seq)
+    other_camera.expect_image_size(640, 480)     # a calibration of another camera: stop early, say why
+    with pytest.raises(DataError, match=r"the first 5 images are 8x6 but the camera calibration is 640x480"):
+        list(other_camera.events())
 
 
 def test_header_variations(tmp_path: Path) -> None:
