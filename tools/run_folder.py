@@ -37,8 +37,15 @@ _PARTIAL_NAMES = re.compile(r"^(odometry(_segment\d+)?\.tum|causal\.tum|final\.t
 """What a run writes into `<out>.partial/` (run_io.write_run, run_map, demo, atomic-write temporaries)."""
 
 
+OS_METADATA = re.compile(r"(^|/)(\.DS_Store|\._[^/]*|Thumbs\.db|desktop\.ini)$")
+"""Files file browsers and some file systems add to any folder (macOS Finder, exFAT/SMB volumes,
+Windows Explorer): never a reason to keep or refuse a run folder."""
+
+
 def _files(folder: Path) -> list[str]:
-    return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*") if not p.is_dir())
+    """Every file under `folder` (relative, '/'-separated), OS metadata files left out."""
+    return sorted(rel for p in folder.rglob("*") if not p.is_dir()
+                  and not OS_METADATA.search(rel := p.relative_to(folder).as_posix()))
 
 
 def _listing(names: list[str]) -> str:
@@ -166,7 +173,7 @@ class RunFolder:
         from runtime.files import atomic_write_text
         from tools.run_io import versions
 
-        files = sorted(str(p.relative_to(self.path)) for p in self.path.rglob("*") if p.is_file())
+        files = _files(self.path)
         atomic_write_text(self.path / STATUS_FILE, json.dumps({
             "status": status, "reason": reason, "started_unix_s": self.started_unix_s,
             "ended_unix_s": time.time(), "davio": versions().get("davio"), "files": files}, indent=1) + "\n")

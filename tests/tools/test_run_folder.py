@@ -70,6 +70,8 @@ def test_non_empty_folders_need_overwrite_and_only_runs_are_replaced(tmp_path: P
     assert not list(tmp_path.glob("run.*"))       # no partial or old folder left behind
     # the run's own map exports may be there; a file the user put in the run folder may not
     (out / "map.png").write_text("png")
+    (out / ".DS_Store").write_text("finder")      # what file browsers add is no user data
+    (out / "._odometry.tum").write_text("exfat")
     assert RunFolder.prepare(out, overwrite=True).replace_existing
     (out / "notes").mkdir()
     (out / "notes" / "thesis.tex").write_text("mine")
@@ -86,6 +88,7 @@ def test_a_leftover_partial_is_removed_only_when_a_run_wrote_it(tmp_path: Path) 
         (partial / name).write_text("x")
     with pytest.raises(ConfigError, match="unfinished run"):
         RunFolder.prepare(out)
+    (partial / "map" / ".DS_Store").write_text("finder")
     RunFolder.prepare(out, overwrite=True).create()           # a killed run's leftovers go
     assert partial.is_dir() and not any(partial.iterdir())
     (partial / "experiment.csv").write_text("mine")           # someone else's folder of that name
