@@ -1,18 +1,21 @@
-"""The published poses of a run journalled to disk as they are published, so that a run killed at any
-moment (power loss, SIGKILL, a crash) keeps its trajectory up to about a second before, beside the map
-archive, which is checkpointed at every commit.
+"""The published poses of a run journalled to disk as they are published, so that a run that is killed
+(SIGKILL, a crash, power loss) keeps its trajectory beside the map archive, which is checkpointed at every
+commit.
 
 `PoseJournal` is an `on_pose` callback: each published pose's T_MI (map frame, with the correction in
 effect when it was published: the causal trajectory) is appended to `<run>.partial/causal.journal.tum`, a
-TUM file evo reads; the file is flushed at most every `flush_s` seconds (wall clock). When the run ends
+TUM file evo reads. The caller's thread only formats and buffers the line; a background thread flushes
+the buffer and fsyncs the file every `sync_s` seconds, so a kill loses at most the poses of the last
+`sync_s` (power loss included) and no disk wait ever lands on the tracking thread. When the run ends
 normally its outputs are written whole and `close(remove=True)` deletes the journal.
 """
 from __future__ import annotations
 
-import time
+import os
+import threading
 from collections.abc import Callable
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 from runtime.geometry.quaternion import rot_to_quat_xyzw
 from tools.evaluation.trajectory_io import TUM_HEADER, tum_line
@@ -23,34 +26,64 @@ JOURNAL_NAME = "causal.journal.tum"
 class PoseJournal:
     """Appends every published pose to `folder / JOURNAL_NAME` (see the module docstring)."""
 
-    def __init__(self, folder: str | Path, flush_s: float = 1.0) -> None:
+    def __init__(self, folder: str | Path, sync_s: float = 1.0) -> None:
         self.path = Path(folder) / JOURNAL_NAME
-        self.flush_s = float(flush_s)
-        self._fh: IO[str] | None = open(self.path, "w", encoding="utf-8")   # noqa: SIM115 - held open
-        self._fh.write(TUM_HEADER + "\n")
-        self._fh.flush()
-        self._last_flush = time.monotonic()
+        self.sync_s = float(sync_s)
         self.poses = 0
+        self._lock = threading.Lock()
+        self._fh = open(self.path, "w", encoding="utf-8")   # noqa: SIM115 - held open for the run
+        self._fh.write(TUM_HEADER + "\n")
+        self._stop = threading.Event()
+        self._syncer = threading.Thread(target=self._sync_loop, name="pose-journal", daemon=True)
+        self._syncer.start()
 
     def __call__(self, pose: Any) -> None:
         """Journal one runtime.session.Pose (its t_ns and T_MI)."""
-        if self._fh is None:
-            return
         T = pose.T_MI
-        self._fh.write(tum_line(pose.t_ns, T[:3, 3], rot_to_quat_xyzw(T[:3, :3])) + "\n")
-        self.poses += 1
-        now = time.monotonic()
-        if now - self._last_flush >= self.flush_s:
+        line = tum_line(pose.t_ns, T[:3, 3], rot_to_quat_xyzw(T[:3, :3])) + "\n"
+        with self._lock:
+            if self._fh.closed:
+                return
+            self._fh.write(line)
+            self.poses += 1
+
+    def sync(self) -> None:
+        """Flush the buffered lines and fsync the file (what the background thread does every sync_s).
+        The fsync runs outside the lock, so the thread that publishes poses never waits for the disk."""
+        with self._lock:
+            if self._fh.closed:
+                return
             self._fh.flush()
-            self._last_flush = now
+            fd = self._fh.fileno()
+        os.fsync(fd)
+
+    def _sync_loop(self) -> None:
+        while not self._stop.wait(self.sync_s):
+            try:
+                self.sync()
+            except OSError:   # a full or failing disk must not stop the run; the final outputs say more
+                pass
 
     def close(self, remove: bool = False) -> None:
-        """Flush and close the journal; with `remove`, delete it (the run's own outputs replace it)."""
-        if self._fh is not None:
-            self._fh.close()
-            self._fh = None
+        """Stop the background thread, flush and close the journal; with `remove`, delete it (the run's
+        own outputs replace it). Idempotent."""
+        self._stop.set()
+        if self._syncer.is_alive() and self._syncer is not threading.current_thread():
+            self._syncer.join()
+        with self._lock:
+            if not self._fh.closed:
+                self._fh.close()
         if remove:
             self.path.unlink(missing_ok=True)
+
+
+def journal_has_poses(folder: str | Path) -> bool:
+    """Whether `folder` holds a pose journal with at least one pose (a killed run worth keeping)."""
+    path = Path(folder) / JOURNAL_NAME
+    try:
+        return path.stat().st_size > len(TUM_HEADER) + 1
+    except OSError:
+        return False
 
 
 def chain_poses(*callbacks: Callable[[Any], None]) -> Callable[[Any], None]:

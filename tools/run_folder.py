@@ -157,11 +157,16 @@ class RunFolder:
     @contextlib.contextmanager
     def discard_on_error(self) -> Iterator[None]:
         """Remove the partial folder when the block fails before any run output was written (a bad
-        recording or model: nothing to keep); a failure after that leaves it, as an unfinished run."""
+        recording or model: nothing to keep); a failure after that (trajectories, a map commit or
+        journalled poses on disk) leaves it, as an unfinished run."""
+        from tools.pose_journal import journal_has_poses
+
         try:
             yield
         except BaseException:
-            if self.path.is_dir() and not (self.path / "odometry.tum").exists():
+            kept = ((self.path / "odometry.tum").exists() or (self.path / "map" / "manifest.json").exists()
+                    or journal_has_poses(self.path))
+            if self.path.is_dir() and not kept:
                 shutil.rmtree(self.path, ignore_errors=True)
             raise
 

@@ -14,7 +14,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from tools.evaluation import ate, read_trajectory
-from tools.pose_journal import JOURNAL_NAME, PoseJournal, chain_poses
+from tools.pose_journal import JOURNAL_NAME, PoseJournal, chain_poses, journal_has_poses
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -33,11 +33,15 @@ def _poses(n: int) -> list[SimpleNamespace]:
 def test_journal_round_trips_and_is_readable_while_open(tmp_path: Path) -> None:
     poses = _poses(20)
     seen = []
-    journal = PoseJournal(tmp_path, flush_s=0.0)
+    journal = PoseJournal(tmp_path, sync_s=0.05)
     on_pose = chain_poses(journal, seen.append)
     for p in poses[:12]:
         on_pose(p)
-    mid = read_trajectory(tmp_path / JOURNAL_NAME)   # flushed: a kill now keeps these 12
+    deadline = time.monotonic() + 5.0
+    while time.monotonic() < deadline and not journal_has_poses(tmp_path):
+        time.sleep(0.02)                               # the background thread syncs every 0.05 s
+    time.sleep(0.2)
+    mid = read_trajectory(tmp_path / JOURNAL_NAME)   # on disk: a kill now keeps these 12
     assert len(mid) == 12 and len(seen) == 12
     for p in poses[12:]:
         on_pose(p)
@@ -48,7 +52,30 @@ def test_journal_round_trips_and_is_readable_while_open(tmp_path: Path) -> None:
     np.testing.assert_allclose(traj.R, [p.T_MI[:3, :3] for p in poses], rtol=0, atol=1e-12)
     journal(poses[0])                                  # closed: ignored
     journal.close(remove=True)
-    assert not (tmp_path / JOURNAL_NAME).exists()
+    assert not (tmp_path / JOURNAL_NAME).exists() and not journal_has_poses(tmp_path)
+    empty = PoseJournal(tmp_path / "", sync_s=10.0)
+    empty.close()                                      # a header only: nothing worth keeping
+    assert (tmp_path / JOURNAL_NAME).exists() and not journal_has_poses(tmp_path)
+
+
+def test_a_failure_mid_run_keeps_the_partial_folder_when_poses_were_journalled(tmp_path: Path) -> None:
+    from tools.run_folder import RunFolder
+
+    folder = RunFolder.prepare(tmp_path / "run")
+    folder.create()
+    journal = PoseJournal(folder.path)
+    with pytest.raises(RuntimeError), folder.discard_on_error():
+        for p in _poses(3):
+            journal(p)
+        journal.close()
+        raise RuntimeError("an unexpected failure mid-run")
+    assert len(read_trajectory(folder.path / JOURNAL_NAME)) == 3
+    bare = RunFolder.prepare(tmp_path / "bare")
+    bare.create()
+    with pytest.raises(RuntimeError), bare.discard_on_error():
+        PoseJournal(bare.path).close()
+        raise RuntimeError("a bad recording, before any pose")
+    assert not bare.path.exists()
 
 
 @pytest.mark.slow

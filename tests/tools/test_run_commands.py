@@ -74,6 +74,9 @@ def test_run_on_real_euroc_head_writes_outputs(tmp_path, capsys):
     assert (out / "report.json").exists()
     rows = [ln for ln in (out / "odometry.tum").read_text().splitlines() if ln and not ln.startswith("#")]
     assert len(rows) == report["published_poses"]
+    # the pose journal a killed run would leave is gone once the run's own trajectories are written
+    assert not (out / "causal.journal.tum").exists()
+    assert "causal.journal.tum" not in json.loads((out / "run_status.json").read_text())["files"]
 
 
 def _euroc_copy(tmp_path: Path, imu_lines=None, gt_text: str | None = None, imu_yaml: bool = True) -> Path:

@@ -190,13 +190,13 @@ def _run(args, folder, driver, rig, model, model_desc: str, config) -> int:
     view = open_view(args.view)
     sink = None if map_out is None else map_out.sink
     journal = PoseJournal(folder.path)
-    session = Session(rig, model, config, map_sink=view.chain(sink) if view is not None else sink,
-                      on_pose=journal if view is None else chain_poses(journal, view.on_pose))
-    events = driver.events()
-    if args.seconds is not None:
-        events = _first_seconds(events, args.seconds)
-    status = _StatusLine(session, driver)
     try:
+        session = Session(rig, model, config, map_sink=view.chain(sink) if view is not None else sink,
+                          on_pose=journal if view is None else chain_poses(journal, view.on_pose))
+        events = driver.events()
+        if args.seconds is not None:
+            events = _first_seconds(events, args.seconds)
+        status = _StatusLine(session, driver)
         res = session.run_live(events, progress=status, keep_partial=True)
         status.done()
         driver.stop()
