@@ -103,13 +103,15 @@ class SerialImu:
         output_rate_hz: the rate requested when configuring.
         open_timeout_s: `start()` gives up opening the port after this long.
         first_byte_timeout_s: not one byte within this long after the start is an error ("silent").
+            10 s: microcontroller IMUs reset when the port opens (a bootloader for 1-2 s) and often
+            calibrate their gyroscope at rest before they stream.
         clock: the DeviceClock to use (default: DeviceClock()).
     """
 
     def __init__(self, port: str, protocol: str = "xsens", baudrate: int = 460800,
                  stall_timeout_s: float = 1.0, queue_seconds: float = 5.0, *,
                  max_rate_hz: float = 1000.0, configure: bool = False, output_rate_hz: int = 400,
-                 open_timeout_s: float = 2.0, first_byte_timeout_s: float = 3.0,
+                 open_timeout_s: float = 2.0, first_byte_timeout_s: float = 10.0,
                  clock: DeviceClock | None = None) -> None:
         if protocol not in PROTOCOLS:
             raise ConfigError(f"unknown serial IMU protocol {protocol!r}; expected one of "
