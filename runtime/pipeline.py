@@ -86,6 +86,7 @@ class VioPipeline:
         self.bringup: HandEyeBringUp | None = None
         self._job_kind = ""
         self._last_t = 0
+        self._lost_carried = 0   # lost_before of IMU samples dropped as out of range, for the next one
         if rig.T_IC is None:
             if model is None:
                 raise ConfigError("the camera-IMU extrinsics are withheld: calibration-withheld bring-up "
@@ -143,9 +144,15 @@ class VioPipeline:
 
     def on_imu(self, sample: ImuSample) -> list[Published]:
         self._last_t = int(sample.t_ns)
-        if np.any(np.abs(sample.gyro) > MAX_GYRO_RAD_S) or np.any(np.abs(sample.accel) > MAX_ACCEL_M_S2):
-            self.stats.imu_out_of_range += 1    # NaN compares False: the filter counts those itself
+        g, a = sample.gyro, sample.accel   # NaN compares False: the filter counts those itself
+        if (abs(g[0]) > MAX_GYRO_RAD_S or abs(g[1]) > MAX_GYRO_RAD_S or abs(g[2]) > MAX_GYRO_RAD_S
+                or abs(a[0]) > MAX_ACCEL_M_S2 or abs(a[1]) > MAX_ACCEL_M_S2 or abs(a[2]) > MAX_ACCEL_M_S2):
+            self.stats.imu_out_of_range += 1
+            self._lost_carried += int(getattr(sample, "lost_before", 0) or 0)   # a driver's gap flag stays
             return []
+        if self._lost_carried:
+            sample = replace(sample, lost_before=int(sample.lost_before) + self._lost_carried)
+            self._lost_carried = 0
         if self.startup is None:
             self.bringup.on_imu(sample)
             return []
