@@ -74,24 +74,26 @@ def read_kalibr(
     return kalibr_rig(Fields(camchain_yaml, read_yaml(camchain_yaml)), imu_yaml, camera)
 
 
-#: Keys of a camchain's camera block that DAVIO reads, and others Kalibr and OpenVINS write there.
+#: Keys of a camchain's camera block that DAVIO reads.
 CAMERA_KEYS = ("camera_model", "intrinsics", "resolution", "distortion_model", "distortion_coeffs",
-               "T_cam_imu", "T_imu_cam", "timeshift_cam_imu", "rate_hz", "rig_name", "cam_overlaps",
-               "rostopic", "T_cn_cnm1")
+               "T_cam_imu", "T_imu_cam", "timeshift_cam_imu", "rate_hz", "rig_name")
 
 
 def _refuse_misspelt_keys(f: Fields) -> None:
-    """A key that is not one of CAMERA_KEYS but close to one (``T_cam_imuu``) is a CalibrationError:
-    otherwise a misspelt extrinsics or time-shift key would read as withheld calibration. Other extra
-    keys (another tool's) are left alone."""
+    """A key close to one DAVIO reads (``T_cam_imuu``) but not one of them is a CalibrationError: a
+    misspelt extrinsics or time-shift key would otherwise read as withheld calibration. Other keys are
+    left alone: those Kalibr and OpenVINS write that DAVIO does not read (``rostopic``, ``cam_overlaps``,
+    ``T_cn_cnm1``) and extensions of a known key (``T_cam_imu_gt``, ``intrinsics_cov``)."""
     import difflib
 
     for key in f.data:
-        if isinstance(key, str) and key not in CAMERA_KEYS:
-            close = difflib.get_close_matches(key, CAMERA_KEYS, n=1, cutoff=0.8)
-            if close:
-                raise f.error(key, f"unknown key; did you mean {close[0]!r}? (a misspelt key would read as "
-                                   "withheld calibration)")
+        if not isinstance(key, str) or key in CAMERA_KEYS or key in ("rostopic", "cam_overlaps") \
+                or key.startswith("T_cn_cnm") or any(key.startswith(k + "_") for k in CAMERA_KEYS):
+            continue
+        close = difflib.get_close_matches(key, CAMERA_KEYS, n=1, cutoff=0.8)
+        if close:
+            raise f.error(key, f"unknown key; did you mean {close[0]!r}? (a misspelt key would read as "
+                               "withheld calibration)")
 
 
 def kalibr_rig(top: Fields, imu_yaml: str | os.PathLike | None = None, camera: str = "cam0") -> Rig:

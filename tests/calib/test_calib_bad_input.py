@@ -183,8 +183,9 @@ def test_a_misspelt_key_is_not_withheld_calibration(tmp_path: Path, typo: str, m
     p = _write(tmp_path / "c.yaml", _set(data, f"cam0.{typo}", CAMCHAIN["cam0"]["T_imu_cam"]))
     err = _raises(lambda: read_kalibr(p), p, f"cam0.{typo}")
     assert f"did you mean '{meant}'" in str(err)
-    other = _write(tmp_path / "o.yaml", _set(data, "cam0.label", "left"))   # another tool's key: ignored
-    assert read_kalibr(other).T_IC is None
+    for foreign in ("label", "ros_topic", "cam_overlap", "T_cn_cnm2", "T_cam_imu_gt", "intrinsics_cov"):
+        other = _write(tmp_path / f"{foreign}.yaml", _set(data, f"cam0.{foreign}", "x"))   # ignored
+        assert read_kalibr(other).T_IC is None
 
 
 @pytest.mark.parametrize("shift", [5.0, -1.5, 1e5])
