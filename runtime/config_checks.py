@@ -7,6 +7,7 @@ deep inside a run.
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Iterable
 
 from runtime.errors import ConfigError
@@ -18,7 +19,7 @@ def _fail(section: str, name: str, value: object, must: str) -> None:
 
 def _number(obj: object, section: str, name: str) -> float:
     value = getattr(obj, name)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or math.isnan(value):
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or math.isnan(value):
         _fail(section, name, value, "a number")
     return float(value)
 
@@ -53,12 +54,12 @@ def at_least(obj: object, section: str, minimum: int, *names: str) -> None:
     """Each named field is an integer >= minimum."""
     for name in names:
         value = getattr(obj, name)
-        if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum:
             _fail(section, name, value, f"an integer >= {minimum}")
 
 
 def each_at_least(values: Iterable[int], section: str, name: str, minimum: int) -> None:
     """Every item of a list field is an integer >= minimum."""
     values = list(values)
-    if any(isinstance(v, bool) or not isinstance(v, int) or v < minimum for v in values):
+    if any(isinstance(v, bool) or not isinstance(v, numbers.Integral) or v < minimum for v in values):
         _fail(section, name, values, f"a list of integers >= {minimum}")

@@ -65,8 +65,7 @@ class StartupConfig:
         s = "startup"
         positive(self, s, "buffer_s", "abandon_after_s", "window_spacing_s")
         non_negative(self, s, "catch_up_s", "window_tolerance_s", "extend_refused_s")
-        at_least(self, s, 1, "consecutive_states", "max_candidates")
-        at_least(self, s, 0, "replay_batch")
+        at_least(self, s, 1, "consecutive_states", "max_candidates", "replay_batch")
         at_least(self, s, 3, "window_images")
         if self.window_tolerance_s >= self.window_spacing_s / 2:
             raise ConfigError(f"startup.window_tolerance_s must be below half of startup.window_spacing_s "

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 
-from runtime.config_checks import at_least, in_range, positive
-from runtime.errors import DataError
+from runtime.errors import ConfigError, DataError
 
 
 @dataclass(frozen=True)
@@ -31,12 +31,15 @@ class PnPGates:
     confidence: float = 0.999
 
     def __post_init__(self) -> None:
-        s = "revisits.pnp"
-        at_least(self, s, 4, "min_matches", "min_inliers")
-        at_least(self, s, 1, "iterations")
-        in_range(self, s, "min_inlier_fraction", 0.0, 1.0)
-        in_range(self, s, "confidence", 0.0, 1.0, lo_open=True, hi_open=True)
-        positive(self, s, "reprojection_px")
+        checks = [("min_matches", self.min_matches >= 4, "an integer >= 4"),
+                  ("min_inliers", self.min_inliers >= 4, "an integer >= 4"),
+                  ("iterations", self.iterations >= 1, "an integer >= 1"),
+                  ("min_inlier_fraction", 0.0 <= self.min_inlier_fraction <= 1.0, "in [0, 1]"),
+                  ("confidence", 0.0 < self.confidence < 1.0, "in (0, 1)"),
+                  ("reprojection_px", 0.0 < self.reprojection_px < math.inf, "a finite number > 0")]
+        for name, ok, must in checks:   # NaN fails every comparison
+            if not ok:
+                raise ConfigError(f"revisits.pnp.{name} must be {must}, got {getattr(self, name)!r}")
 
 
 @dataclass

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from models.matcher.pnp import PnPGates
@@ -47,7 +48,7 @@ def test_defaults_and_the_boundaries_pass(tmp_path: Path) -> None:
     # boundary values that mean something: 0 = off, inf = plain quadratic loss, None = process setting
     MappingConfig(voxel_m=0.005, shared_images=0, min_baseline_m=0.0, max_multiview_failed_fraction=1.0)
     MappingConfig(voxel_m=10.0, window_images=2, shared_images=1, conf_percentile=0.0)
-    StartupConfig(extend_refused_s=0.0, replay_batch=0, catch_up_s=0.0, window_images=3)
+    StartupConfig(extend_refused_s=0.0, catch_up_s=0.0, window_images=3)
     GraphConfig(huber_threshold=math.inf, blas_threads=None, drift_trans_sigma_per_m=0.0)
     RevisitConfig(min_coverage_cells=16, min_view_overlap=0.0, max_views=0)
     PnPGates(min_inlier_fraction=1.0, confidence=0.5)
@@ -55,10 +56,15 @@ def test_defaults_and_the_boundaries_pass(tmp_path: Path) -> None:
     for bad in (dict(voxel_m=0.0049), dict(voxel_m=math.inf), dict(window_images=1), dict(pixel_stride=0)):
         with pytest.raises(ConfigError):
             MappingConfig(**bad)
-    for bad in (dict(window_images=2), dict(max_candidates=0), dict(window_spacing_s=0.0)):
+    for bad in (dict(window_images=2), dict(max_candidates=0), dict(window_spacing_s=0.0),
+                dict(replay_batch=0)):
         with pytest.raises(ConfigError):
             StartupConfig(**bad)
     with pytest.raises(ConfigError, match="bringup.window_images"):
         BringUpConfig(window_images=2)
     with pytest.raises(ConfigError, match="graph.blas_threads"):
         GraphConfig(blas_threads=0)
+    # numpy numbers are numbers (a configuration built in code from arrays)
+    MappingConfig(window_images=np.int64(5), voxel_m=np.float32(0.04))
+    with pytest.raises(ConfigError, match="mapping.window_images must be an integer >= 2, got np.int64"):
+        MappingConfig(window_images=np.int64(1))

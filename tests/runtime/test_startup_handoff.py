@@ -29,6 +29,14 @@ def _run(manager: StartupManager, events, ff_at_ns: int | None, ff_state_ns: int
     return published
 
 
+
+def _never_replaying() -> StartupConfig:
+    """A configuration whose candidates never replay (to watch the window and candidate bookkeeping alone):
+    replay_batch = 0 is refused as a setting, so it is set after the checks."""
+    cfg = StartupConfig()
+    cfg.replay_batch = 0
+    return cfg
+
 def test_candidate_replays_every_measurement_once_and_is_selected_after_five_live_states():
     filters = []
 
@@ -103,7 +111,7 @@ def test_state_older_than_the_buffer_is_refused():
 
 
 def test_at_most_five_candidates_and_window_selection():
-    m = StartupManager(lambda native: RecordingFilter(), StartupConfig(replay_batch=0))
+    m = StartupManager(lambda native: RecordingFilter(), _never_replaying())
     for kind, t in _stream(2.0):
         if kind == "imu":
             m.on_imu(ImuSample(t, np.zeros(3), np.zeros(3)))

@@ -61,6 +61,14 @@ def _feed(m: StartupManager, events, offers=(), until_ns: int | None = None) -> 
     return out
 
 
+
+def _never_replaying() -> StartupConfig:
+    """A configuration whose candidates never replay (to watch the window and candidate bookkeeping alone):
+    replay_batch = 0 is refused as a setting, so it is set after the checks."""
+    cfg = StartupConfig()
+    cfg.replay_batch = 0
+    return cfg
+
 def test_native_ready_while_a_candidate_replays_publishes_and_drops_the_candidate():
     """A candidate replaying slowly (one buffered measurement per live one) is still behind when the
     native filter initialises at 2.5 s: the native filter publishes, the candidate is dropped unselected
@@ -161,7 +169,7 @@ def test_abandonment_boundary(abandon_after_s):
 def test_windows_are_offered_until_the_fifth_candidate_has_started():
     """max_candidates = 5: window() offers a window after four started candidates, none after five."""
     assert StartupConfig().max_candidates == 5
-    m = StartupManager(_factory(*[RecordingFilter() for _ in range(6)]), StartupConfig(replay_batch=0))
+    m = StartupManager(_factory(*[RecordingFilter() for _ in range(6)]), _never_replaying())
     _feed(m, _stream(2.0))
     for _ in range(4):
         m.on_feedforward(_ff_state(1900 * MS))
