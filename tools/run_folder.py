@@ -31,10 +31,17 @@ RUN_MARKERS = (STATUS_FILE, "report.json", "odometry.tum")
 `not_replaceable`)."""
 DERIVED_FILES = ("map.ply", "map.png")
 """Files `davio map export|view` write into a run folder by default after the run ended."""
-_PARTIAL_NAMES = re.compile(r"^(odometry(_segment\d+)?\.tum|causal\.tum|final\.tum|groundtruth\.tum|"
-                            r"causal\.journal\.tum|poses\.csv|report\.json|config\.toml|run_status\.json|"
-                            r"map\.ply|trajectory\.png|position_error\.png|\..+\.tmp|map/(manifest\.json|submap_\d+\.npz|\..+\.tmp))$")
-"""What a run writes into `<out>.partial/` (run_io.write_run, run_map, demo, atomic-write temporaries)."""
+def _partial_names() -> re.Pattern:
+    """What a run writes into `<out>.partial/`: run_io's outputs, the pose journal, the map archive's files
+    (map_archive.format) and atomic-write temporaries."""
+    from tools.map_archive.format import MANIFEST_NAME, SUBMAP_RE, TEMP_RE
+    from tools.pose_journal import JOURNAL_NAME
+    from tools.run_io import RUN_OUTPUTS
+
+    top = "|".join([RUN_OUTPUTS.pattern.strip("^$"), re.escape(JOURNAL_NAME), re.escape(STATUS_FILE),
+                    r"map\.ply", r"\..+\.tmp"])
+    archive = "|".join([re.escape(MANIFEST_NAME), SUBMAP_RE.pattern.strip("^$"), TEMP_RE.pattern.strip("^$")])
+    return re.compile(f"^(({top})|map/({archive}))$")
 
 
 OS_METADATA = re.compile(r"(^|/)(\.DS_Store|\._[^/]*|Thumbs\.db|desktop\.ini)$")
@@ -72,7 +79,8 @@ def not_replaceable(folder: Path) -> str | None:
 
 def _partial_not_removable(partial: Path) -> str | None:
     """Why a leftover `<out>.partial/` may not be removed, or None when it holds only files a run writes."""
-    extra = [f for f in _files(partial) if not _PARTIAL_NAMES.match(f)]
+    names = _partial_names()
+    extra = [f for f in _files(partial) if not names.match(f)]
     return f"it holds files no DAVIO run writes ({_listing(extra)})" if extra else None
 
 

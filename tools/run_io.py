@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import platform
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -269,6 +270,11 @@ def evaluate(est: PoseTrajectory, gt: PoseTrajectory | None) -> dict:
         except DataError as exc:
             out[f"ate_{method}_error"] = str(exc)
     return out
+
+
+RUN_OUTPUTS = re.compile(r"^(odometry(_segment\d+)?\.tum|causal\.tum|final\.tum|groundtruth\.tum|poses\.csv|"
+                         r"config\.toml|report\.json|trajectory\.png|position_error\.png)$")
+"""Names of the files `write_run` (and `davio demo`'s groundtruth.tum) put in a run folder."""
 
 
 def write_run(out_dir: Path, pipeline: Any, sched_report: Any, gt: PoseTrajectory | None,

@@ -12,6 +12,7 @@ bound still tells the sign apart (a flipped sign would be 10 ms off, a withheld 
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -226,6 +227,13 @@ def test_bad_outputs_and_sources_are_clear_errors(tmp_path, capsys):
     assert "pass --overwrite" in capsys.readouterr().err
     assert main(["calibrate", str(tmp_path / "missing"), "--out", str(tmp_path / "x.yaml")]) == 1
     assert "not found" in capsys.readouterr().err
+    os.mkfifo(tmp_path / "pipe.yaml")
+    assert main(["calibrate", str(tmp_path), "--out", str(tmp_path / "pipe.yaml"), "--overwrite"]) == 1
+    assert "is not a regular file" in capsys.readouterr().err
+    (tmp_path / "mine.yaml").write_text("cam0: {}\n")
+    assert main(["calibrate", str(tmp_path), "--rig", str(tmp_path / "mine.yaml"),
+                 "--out", str(tmp_path / "mine.yaml"), "--overwrite"]) == 1
+    assert "is one of this command's inputs" in capsys.readouterr().err
 
 
 def test_a_euroc_folder_needs_a_model(euroc_head, tmp_path, capsys):

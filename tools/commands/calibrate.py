@@ -154,6 +154,11 @@ def check_args(args: argparse.Namespace) -> None:
         existing = [str(p) for p in paths_for(out).values() if p.exists()]
         if existing:
             raise ConfigError(f"--out {out}: {', '.join(existing)} exist(s); pass --overwrite to replace")
+    from tools.output_file import check_output_file
+
+    rig_file = [Path(args.rig)] if getattr(args, "rig", None) else []
+    for p in paths_for(out).values():   # never a device, a FIFO, or the --rig file it reads
+        check_output_file(p, "--out", (p.suffix.lower(),), overwrite=True, inputs=rig_file)
 
 
 LIVE_SOURCES = ("oak", "uvc")
