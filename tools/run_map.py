@@ -52,6 +52,7 @@ class MapOutput:
         summary = {"archive": "map", "submaps": n_sub,
                    "map_version": self.archive.map_version, "ply": None, "voxels": 0}
         if n_sub:
-            summary["voxels"] = export_map(self.out_dir / "map", self.out_dir / "map.ply", self.voxel_m)[0]
+            summary["voxels"] = export_map(self.out_dir / "map", self.out_dir / "map.ply", self.voxel_m,
+                                           verify=False)[0]   # the archive this run has just written
             summary["ply"] = "map.ply"
         return summary

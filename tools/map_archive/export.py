@@ -14,7 +14,8 @@ from tools.map_archive.reader import integrity, iter_submaps, read_manifest, sta
 
 def fuse_archive(folder: str | Path, voxel_m: float = 0.04,
                  progress: Callable[[int, int], None] | None = None, skip_damaged: bool = False,
-                 notes: list[str] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 notes: list[str] | None = None, verify: bool = True
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fuse every submap of the archive at its manifest state (eq. placement) into voxels.
 
     Each voxel holds the unweighted mean of the points that fall in it. Every file is first checked
@@ -28,12 +29,14 @@ def fuse_archive(folder: str | Path, voxel_m: float = 0.04,
         progress: called with (submaps done, submaps total) after each submap.
         skip_damaged: leave out the submaps whose files fail the integrity check instead of refusing.
         notes: when given, one line is appended per kind of submap left out.
+        verify: check every file's size and sha256 first (False: the run exporting the archive it has
+            just written skips that second read of every file).
 
     Returns:
         (points (V,3) float64 in M, grey (V,) uint8, counts (V,) int64 points per voxel).
     """
     info = read_manifest(folder)
-    problems, _ = integrity(folder, info)
+    problems = integrity(folder, info)[0] if verify else []
     damaged = {p.split(":", 1)[0] for p in problems}
     if problems and not skip_damaged:
         more = f" (and {len(problems) - 1} more)" if len(problems) > 1 else ""
@@ -96,10 +99,11 @@ def supported(fused: tuple[np.ndarray, np.ndarray, np.ndarray], min_points: int
 
 def export_map(folder: str | Path, out_ply: str | Path, voxel_m: float = 0.04,
                progress: Callable[[int, int], None] | None = None, min_points: int = 1,
-               skip_damaged: bool = False, notes: list[str] | None = None) -> tuple[int, int]:
+               skip_damaged: bool = False, notes: list[str] | None = None, verify: bool = True
+               ) -> tuple[int, int]:
     """Fuse the archive in `folder` (`fuse_archive`) and write the voxels holding at least `min_points`
     points to `out_ply`; returns (voxels written, voxels fused)."""
-    fused = fuse_archive(folder, voxel_m, progress, skip_damaged, notes)
+    fused = fuse_archive(folder, voxel_m, progress, skip_damaged, notes, verify)
     points, grey, _ = supported(fused, min_points)
     write_ply(out_ply, points, grey)
     return int(len(points)), int(len(fused[0]))
