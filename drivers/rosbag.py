@@ -207,16 +207,21 @@ class RosbagDriver(Driver):
         from calib.camera import camera_class
         from runtime.errors import CalibrationError
 
-        ns = self.image_topic.rsplit("/", 1)[0]
-        infos = [t for t, m in types.items() if m == CAMERA_INFO_TYPE and t.rsplit("/", 1)[0] == ns]
+        # beside the image topic, or one level up for image_transport's /cam/image_raw/compressed
+        spaces = [self.image_topic.rsplit("/", 1)[0]]
+        if self.image_topic.endswith(("/compressed", "/compressedDepth", "/theora")):
+            spaces.append(spaces[0].rsplit("/", 1)[0])
+        infos = [t for ns in spaces for t, m in sorted(types.items())
+                 if m == CAMERA_INFO_TYPE and t.rsplit("/", 1)[0] == ns]
         if not infos:
             self._report.note(f"no --rig and no CameraInfo beside {self.image_topic}: calibration unknown")
             return None
         conn = next(c for c in reader.connections if c.topic == infos[0])
         for _, _, raw in reader.messages(connections=[conn]):
             info = reader.deserialize(raw, conn.msgtype)
-            K = np.asarray(info.k, float).reshape(3, 3)
-            d = [float(x) for x in info.d]
+            # ROS 2 names the fields k, d (and r, p); ROS 1 K, D
+            K = np.asarray(getattr(info, "k", None) if hasattr(info, "k") else info.K, float).reshape(3, 3)
+            d = [float(x) for x in (info.d if hasattr(info, "d") else info.D)]
             model = info.distortion_model or "none"
             if model == "plumb_bob" and len(d) == 5 and d[4] == 0.0:
                 d = d[:4]

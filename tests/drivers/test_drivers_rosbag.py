@@ -11,7 +11,7 @@ from drivers import EurocDriver, Frame
 from drivers.rosbag import RosbagDriver, is_bag
 from runtime.errors import ConfigError, DataError
 from tests.conftest import shared_path
-from tests.drivers.bag_writer import bag_from_arrays, image_msg, imu_msg, typestore, write_bag
+from tests.drivers.bag_writer import bag_from_arrays, compressed_msg, image_msg, imu_msg, typestore, write_bag
 from tools.cli import main
 
 FORMATS = ["ros1", "mcap", "sqlite3"]
@@ -175,6 +175,34 @@ def test_camera_info_gives_intrinsics_and_a_size_mismatch_is_counted(tmp_path: P
     drv = RosbagDriver(bag, rig=wrong)
     assert _frames(drv) == [] and drv.report()["streams"]["cam0"]["unreadable_images"] == len(images)
     assert any("differs from the calibration's 64x48" in n for n in drv.report()["notes"])
+
+
+@pytest.mark.parametrize("fmt,image_topic", [("ros1", "/cam0/image_raw"),
+                                              ("mcap", "/cam0/image_raw/compressed")])
+def test_camera_info_of_ros1_and_beside_a_compressed_topic(tmp_path: Path, fmt: str, image_topic: str
+                                                           ) -> None:
+    """ROS 1 names the CameraInfo fields K and D (ROS 2: k, d); image_transport puts a compressed stream
+    one level below the camera's namespace (/cam0/image_raw/compressed beside /cam0/camera_info)."""
+    ros1 = fmt == "ros1"
+    ts = typestore(fmt)
+    imu_t, gyro, accel, cam_t, images = _synthetic()
+    msgs = [("/imu0", int(t), imu_msg(ts, ros1, int(t), k, gyro[k], accel[k])) for k, t in enumerate(imu_t)]
+    make = compressed_msg if image_topic.endswith("compressed") else image_msg
+    msgs += [(image_topic, int(t), make(ts, ros1, int(t), k, images[k])) for k, t in enumerate(cam_t)]
+    Info = ts.types["sensor_msgs/msg/CameraInfo"]
+    roi = ts.types["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0,
+                                                       do_rectify=False)
+    fields = dict(D=np.array([-0.28, 0.07, 0.0002, 0.00002, 0.0]),
+                  K=np.array([30.0, 0, 16, 0, 31.0, 12, 0, 0, 1]), R=np.eye(3).reshape(-1), P=np.zeros(12))
+    if not ros1:
+        fields = {k.lower(): v for k, v in fields.items()}
+    info = Info(header=msgs[-1][2].header, height=24, width=32, distortion_model="plumb_bob", binning_x=0,
+                binning_y=0, roi=roi, **fields)
+    msgs.append(("/cam0/camera_info", int(cam_t[0]), info))
+    bag = write_bag(_bag_path(tmp_path, fmt, "info"), fmt, sorted(msgs, key=lambda m: m[1]))
+    cam = RosbagDriver(bag).rig.camera
+    assert (cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy) == (32, 24, 30.0, 31.0, 16.0, 12.0)
+    assert cam.distortion_model == "radtan"
 
 
 def test_not_a_bag_and_a_corrupt_bag_are_clear_errors(tmp_path: Path) -> None:
