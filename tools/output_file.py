@@ -57,12 +57,25 @@ def check_output_file(path: Path, option: str, suffixes: tuple[str, ...], *, ove
         parent = path.parent
         if not parent.is_dir():
             raise ConfigError(f"{option} {path}: folder {parent} does not exist")
-        if not os.access(parent, os.W_OK | os.X_OK):
-            raise ConfigError(f"{option} {path}: folder {parent} is not writable")
+        _probe_writable(path, option)
         return False
     if not stat.S_ISREG(st.st_mode):
         raise ConfigError(f"{option} {path}: exists and is not a regular file (a device, FIFO or socket); "
                           "choose another file")
     if not (overwrite or replaceable):
         raise ConfigError(f"{option} {path}: exists; pass --overwrite to replace it, or choose another file")
+    _probe_writable(path, option)
     return True
+
+
+def _probe_writable(path: Path, option: str) -> None:
+    """ConfigError unless a file can be created beside `path` (the atomic write's temporary file): a
+    permission check that also holds for root and for read-only or pseudo file systems."""
+    import tempfile
+
+    try:
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".probe")
+    except OSError as exc:
+        raise ConfigError(f"{option} {path}: cannot write in {path.parent} ({exc.strerror or exc})") from None
+    os.close(fd)
+    os.unlink(tmp)

@@ -132,7 +132,12 @@ def test_pure_translation_is_refused_with_no_rig_file(translation_folder, tmp_pa
     assert not out.exists() and not (tmp_path / "imu.yaml").exists()
     report = json.loads((tmp_path / "rig.report.json").read_text())
     assert report["status"] == "refused" and report["refusal"] == "insufficient_rotation"
-    assert report["files"]["camchain"] is None
+    assert report["files"]["camchain"] is None and report["stale_rig_files_left"] == []
+    # an earlier calibration where this one would go is left, and the refusal says so
+    out.write_text("cam0: {}\n")
+    assert main(["calibrate", str(translation_folder), "--out", str(out), "--overwrite"]) == 3
+    assert f"warning: {out} not replaced: left from an earlier calibration" in capsys.readouterr().err
+    assert json.loads((tmp_path / "rig.report.json").read_text())["stale_rig_files_left"] == [str(out)]
     assert max(report["excitation"]["rms_rate_dps"]) < 1.0
 
 
@@ -234,6 +239,14 @@ def test_bad_outputs_and_sources_are_clear_errors(tmp_path, capsys):
     assert main(["calibrate", str(tmp_path), "--rig", str(tmp_path / "mine.yaml"),
                  "--out", str(tmp_path / "mine.yaml"), "--overwrite"]) == 1
     assert "is one of this command's inputs" in capsys.readouterr().err
+    assert main(["calibrate", str(tmp_path), "--out", str(tmp_path / "x" / "imu.yaml")]) == 1
+    assert "the IMU calibration is written as imu.yaml beside the camchain" in capsys.readouterr().err
+    (tmp_path / "rec" / "mav0").mkdir(parents=True)
+    assert main(["calibrate", str(tmp_path / "rec"), "--out", str(tmp_path / "rec" / "mav0" / "c.yaml")]) == 1
+    assert "lies inside the recording" in capsys.readouterr().err
+    if Path("/proc/self").is_dir():   # a folder nobody can write in, root included
+        assert main(["calibrate", str(tmp_path), "--out", "/proc/camchain.yaml"]) == 1
+        assert "cannot write in /proc" in capsys.readouterr().err
 
 
 def test_a_euroc_folder_needs_a_model(euroc_head, tmp_path, capsys):

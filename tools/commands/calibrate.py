@@ -145,8 +145,11 @@ def check_args(args: argparse.Namespace) -> None:
         raise ConfigError(
             f"--out {out} is a folder: name the camchain file to write (e.g. {out / 'camchain.yaml'})"
         )
-    if out.suffix not in (".yaml", ".yml"):
+    if out.suffix.lower() not in (".yaml", ".yml"):
         raise ConfigError(f"--out {out}: the camchain must be a .yaml file")
+    if paths_for(out)["imu"] == out:
+        raise ConfigError(f"--out {out}: the IMU calibration is written as {out.name} beside the camchain; "
+                          "name the camchain itself, e.g. camchain.yaml")
     parent = out.parent if str(out.parent) else Path(".")
     if not parent.is_dir():
         raise ConfigError(f"--out {out}: folder {parent} does not exist")
@@ -156,6 +159,10 @@ def check_args(args: argparse.Namespace) -> None:
             raise ConfigError(f"--out {out}: {', '.join(existing)} exist(s); pass --overwrite to replace")
     from tools.output_file import check_output_file
 
+    source = Path(str(args.source))
+    recording = source.is_dir() and ((source / "mav0").is_dir() or (source / "metadata.yaml").is_file())
+    if recording and source.resolve() in out.resolve().parents:
+        raise ConfigError(f"--out {out}: lies inside the recording {source}; write the calibration elsewhere")
     rig_file = [Path(args.rig)] if getattr(args, "rig", None) else []
     for p in paths_for(out).values():   # never a device, a FIFO, or the --rig file it reads
         check_output_file(p, "--out", (p.suffix.lower(),), overwrite=True, inputs=rig_file)
@@ -330,6 +337,12 @@ def finish(
     report = build_report(run_, verdict, th, model_desc, recording, reference, paths)
     if verdict.ok:
         write_outputs(run_, rig, paths, report)
+    else:   # a refused run writes no rig: say so when an earlier one is left where this one would go
+        stale = [str(paths[k]) for k in ("camchain", "imu") if paths[k].exists()]
+        report["stale_rig_files_left"] = stale
+        if stale:
+            print(f"davio calibrate: warning: {', '.join(stale)} not replaced: left from an earlier "
+                  "calibration, not this one", file=sys.stderr)
     if not args.no_plots and run_.samples:
         from tools.calibrate.output import plot_convergence
 
