@@ -101,14 +101,21 @@ def _from_dict(cls: type[T], data: dict, prefix: str) -> T:
     names = {f.name for f in dataclasses.fields(cls) if f.init}
     unknown = sorted(set(data) - names)
     if unknown:
+        import difflib
+
         where = f"{prefix}." if prefix else ""
-        raise ConfigError(f"unknown option(s) {', '.join(where + u for u in unknown)}; "
-                          f"valid: {', '.join(sorted(names))}")
+        named = [f"{where}{u} (did you mean {where}{close[0]}?)" if (close := difflib.get_close_matches(
+            u, sorted(names), n=1, cutoff=0.75)) else where + u for u in unknown]
+        raise ConfigError(f"unknown option(s) {', '.join(named)}; valid: {', '.join(sorted(names))}")
     kwargs = {k: _coerce(v, hints[k], f"{prefix}.{k}" if prefix else k) for k, v in data.items()}
     try:
         return cls(**kwargs)
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"{prefix or cls.__name__}: {exc}") from exc
+    except ConfigError as exc:   # a section's own check: make sure the message names the section
+        if prefix and not str(exc).startswith(prefix):
+            raise ConfigError(f"[{prefix}] {exc}") from exc
+        raise
 
 
 def config_from_dict(cls: type[T], data: dict) -> T:

@@ -33,6 +33,9 @@ from runtime.startup import StartupConfig
     ("[revisits]\nmin_view_overlap = 1.5", "revisits.min_view_overlap must be in [0, 1]"),
     ("[revisits]\nmin_coverage_cells = 17", "revisits.min_coverage_cells must be at most"),
     ("[revisits.pnp]\nconfidence = 1.0", "revisits.pnp.confidence must be in (0, 1)"),
+    ("[msckf]\nmax_clones = 1", "[msckf] max_clones must be >= 2, got 1"),   # the section is named
+    ("[tracker]\nnum_ptss = 150", "unknown option(s) tracker.num_ptss (did you mean tracker.num_pts?)"),
+    ("use_dynamic_int = true", "use_dynamic_int (did you mean use_dynamic_init?)"),
 ])
 def test_out_of_range_values_name_the_key(tmp_path: Path, toml: str, message: str) -> None:
     path = tmp_path / "c.toml"
