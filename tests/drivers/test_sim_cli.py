@@ -46,6 +46,24 @@ def test_simulate_refuses_a_non_empty_out_before_building_the_scene(tmp_path, ca
     assert "is not empty" in capsys.readouterr().err
     assert main(["simulate", "--seconds", "0", "--out", str(tmp_path / "p")]) == 1
     assert "--seconds must be a finite number > 0" in capsys.readouterr().err
+    for cmd in (["simulate", "--out", str(tmp_path / "q")], ["demo", "--out", str(tmp_path / "d")]):
+        assert main([*cmd, "--seconds", "1e9"]) == 1       # refused before anything is built
+        assert "at most 14400 (4 h)" in capsys.readouterr().err
+    assert main(["demo", "--seed", "-1", "--out", str(tmp_path / "d")]) == 1
+    captured = capsys.readouterr()
+    assert "seed must be an integer" in captured.err and "simulating" not in captured.out
+    assert not (tmp_path / "d").exists()
+
+
+def test_demo_reproduce_commands_keep_every_digit() -> None:
+    import argparse
+
+    from tools.commands.demo import _reproduce
+
+    args = argparse.Namespace(preset="euroc", seconds=3.0499999, seed=2, native_only=True, da3="base",
+                              model_latency=0.25, no_map=False)
+    sim, run = _reproduce(args)
+    assert "--seconds 3.0499999 " in sim and "--model-latency 0.25 " in run
 
 
 def test_simulate_json_prints_only_the_manifest(tmp_path, capsys) -> None:

@@ -53,7 +53,9 @@ def run(args: argparse.Namespace) -> int:
     from drivers.sim import SimConfig, SimRecording
     from models.emulated_da3 import EmulatedDA3
     from runtime.config import DavioConfig
+    from runtime.errors import ConfigError
     from tools.commands.run import _summary, check_run_args
+    from tools.commands.simulate import check_sim_seconds
     from tools.evaluation import write_tum
     from tools.run_folder import RunFolder
     from tools.run_io import write_run
@@ -62,12 +64,18 @@ def run(args: argparse.Namespace) -> int:
     from tools.run_session import run_pipeline
 
     check_run_args(args)
+    check_sim_seconds(args.seconds)
+    SimConfig(seed=args.seed)   # a bad seed is refused before the banner
     # the demo is a throwaway: a previous DAVIO run in its folder is replaced, anything else is refused
-    folder = RunFolder.prepare(args.out, overwrite=True)
+    try:
+        folder = RunFolder.prepare(args.out, overwrite=True)
+    except ConfigError as exc:
+        raise ConfigError(str(exc).replace("--overwrite only replaces", "the demo only replaces")) from None
     log = sys.stderr if args.json else sys.stdout
     print(f"davio demo: simulating {args.seconds:g} s ({args.preset} motion, seed {args.seed}) and running "
-          "DAVIO on it.\n  NOTE: the depth model is the EMULATED DA3 (simulator ground truth + DA3 error "
-          "modes), not a real network; see README 'Using a real DA3 model'."
+          "DAVIO on it."
+          + ("" if args.native_only else "\n  NOTE: the depth model is the EMULATED DA3 (simulator ground "
+             "truth + DA3 error modes), not a real network; see README 'Using a real DA3 model'.")
           + ("" if _kernels_cached() else "\n  The first run on this machine compiles the numba kernels "
              "once (about a minute on 2 cores); later runs reuse the cache."), file=log)
     folder.create()
@@ -147,7 +155,7 @@ def _kernels_cached() -> bool:
 def _reproduce(args: argparse.Namespace) -> list[str]:
     """Commands that write the demo's recording to disk and run it the same way."""
     mode = "--native-only" if args.native_only else f"--emulated {args.da3}"
-    return [f"davio simulate --preset {args.preset} --seconds {args.seconds:g} --seed {args.seed} "
+    return [f"davio simulate --preset {args.preset} --seconds {float(args.seconds)!r} --seed {args.seed} "
             "--out demo_recording",
-            f"davio run demo_recording {mode} --model-latency {args.model_latency:g}"
+            f"davio run demo_recording {mode} --model-latency {float(args.model_latency)!r}"
             + (" --no-map" if args.no_map else "") + " --out demo_rerun"]

@@ -93,8 +93,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print the manifest as one JSON object on stdout")
 
 
-def run(args: argparse.Namespace) -> int:
+MAX_SIM_SECONDS = 4 * 3600.0
+"""Longest simulated recording (s): the simulated-folder manifests' plausible range (tools.run_io)."""
+
+
+def check_sim_seconds(seconds: float) -> None:
+    """ConfigError unless `seconds` is a finite duration in (0, MAX_SIM_SECONDS]."""
     import math
+
+    from runtime.errors import ConfigError
+
+    if not (math.isfinite(seconds) and 0 < seconds <= MAX_SIM_SECONDS):
+        raise ConfigError(f"--seconds must be a finite number > 0 and at most {MAX_SIM_SECONDS:g} (4 h) "
+                          f"for a simulated recording (got {seconds!r})")
+
+
+def run(args: argparse.Namespace) -> int:
     from dataclasses import replace
     from pathlib import Path
 
@@ -114,8 +128,8 @@ def run(args: argparse.Namespace) -> int:
     check_writable_target(out)
     if out.is_dir() and any(out.iterdir()):
         raise ConfigError(f"--out {out} is not empty; choose a new or empty folder")
-    if args.seconds is not None and not (math.isfinite(args.seconds) and args.seconds > 0):
-        raise ConfigError(f"--seconds must be a finite number > 0 (got {args.seconds!r})")
+    if args.seconds is not None:
+        check_sim_seconds(args.seconds)
     prefer_workqueue_layer()  # idle OpenMP threads spin: costly on a shared 2-core machine
     con = Console(stderr=True)
     image = ImageOptions.exact() if args.exact else ImageOptions()
