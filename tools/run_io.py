@@ -272,6 +272,19 @@ def evaluate(est: PoseTrajectory, gt: PoseTrajectory | None) -> dict:
     return out
 
 
+def rig_summary(rig: Any, source: str) -> dict:
+    """The calibration a run used, for report.json: where it came from, the camera, T_IC and the time
+    offset (None where withheld)."""
+    cam = rig.camera
+    return {"source": source, "name": rig.name,
+            "camera": None if cam is None else {"model": repr(cam), "width": cam.width, "height": cam.height,
+                                                "K": cam.K.tolist()},
+            "T_IC": None if rig.T_IC is None else np.asarray(rig.T_IC).tolist(),
+            "time_offset_s": rig.time_offset_s,
+            "imu_noise": None if rig.imu is None else {f: getattr(rig.imu, f) for f in (
+                "gyro_noise_density", "gyro_random_walk", "accel_noise_density", "accel_random_walk")}}
+
+
 RUN_OUTPUTS = re.compile(r"^(odometry(_segment\d+)?\.tum|causal\.tum|final\.tum|groundtruth\.tum|poses\.csv|"
                          r"config\.toml|report\.json|trajectory\.png|position_error\.png)$")
 """Names of the files `write_run` (and `davio demo`'s groundtruth.tum) put in a run folder."""

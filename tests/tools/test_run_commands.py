@@ -74,6 +74,11 @@ def test_run_on_real_euroc_head_writes_outputs(tmp_path, capsys):
     assert (out / "report.json").exists()
     rows = [ln for ln in (out / "odometry.tum").read_text().splitlines() if ln and not ln.startswith("#")]
     assert len(rows) == report["published_poses"]
+    # the calibration the run used is recorded (here the folder's own sensor.yaml files)
+    rig = json.loads((out / "report.json").read_text())["rig"]
+    assert rig["source"] == "the recording (euroc)" and rig["camera"]["width"] == 752
+    assert rig["camera"]["K"][0][0] == pytest.approx(458.654) and len(rig["T_IC"]) == 4
+    assert rig["imu_noise"]["gyro_noise_density"] == pytest.approx(1.6968e-04)
     # the pose journal a killed run would leave is gone once the run's own trajectories are written
     assert not (out / "causal.journal.tum").exists()
     assert "causal.journal.tum" not in json.loads((out / "run_status.json").read_text())["files"]

@@ -174,7 +174,7 @@ def _run(args, folder, driver, rig, model, model_desc: str, config) -> int:
     from tools.commands.run import _summary
     from tools.live_view import open_view
     from tools.pose_journal import PoseJournal, chain_poses
-    from tools.run_io import write_run
+    from tools.run_io import rig_summary, write_run
     from tools.run_map import MapOutput
     from tools.run_outcome import conclude, judge
     from tools.run_session import _first_seconds
@@ -212,7 +212,9 @@ def _run(args, folder, driver, rig, model, model_desc: str, config) -> int:
     report = write_run(folder.path, res.pipeline, res.scheduler, None,
                        {"recording": f"live {where}", "model": model_desc, "status": res.status,
                         "status_reason": res.reason, "driver": driver.report(), "map": map_summary,
-                        "imu_noise_defaulted": defaulted, "view": None if view is None else view.report()},
+                        "imu_noise_defaulted": defaulted, "view": None if view is None else view.report(),
+                        "rig": rig_summary(rig, str(args.rig) if args.rig
+                                           else "the device's factory calibration")},
                        config)
     journal.close(remove=True)   # the run's own trajectories are written whole
     return conclude(folder, res, report, as_json=args.json, summary=_summary)

@@ -147,7 +147,7 @@ def _run(args, folder, rec, rig, model, model_desc: str, config) -> int:
 
     from tools.live_view import open_view
     from tools.pose_journal import PoseJournal, chain_poses
-    from tools.run_io import write_run
+    from tools.run_io import rig_summary, write_run
     from tools.run_map import MapOutput
     from tools.run_outcome import conclude, judge
     from tools.run_session import run_pipeline
@@ -180,6 +180,7 @@ def _run(args, folder, rec, rig, model, model_desc: str, config) -> int:
                        {"recording": rec.description, "model": model_desc, "status": res.status,
                         "status_reason": res.reason, "driver": rec.driver.report(), "map": map_summary,
                         "imu_noise_defaulted": defaulted,
+                        "rig": rig_summary(rig, str(args.rig) if args.rig else f"the recording ({rec.kind})"),
                         "view": None if view is None else view.report()},
                        config)
     journal.close(remove=True)   # the run's own trajectories are written whole
