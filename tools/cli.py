@@ -29,6 +29,17 @@ def _command_modules() -> list:
     return mods
 
 
+class _DefaultsFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Appends '(default: X)' only where the help does not already say what the default is, and never
+    '(default: None)' (an option that is off or chosen automatically says so in its help)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        help_text = action.help or ""
+        if "(default:" in help_text or action.default is None:
+            return help_text
+        return super()._get_help_string(action)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The full parser with every subcommand and its options."""
     parser = argparse.ArgumentParser(
@@ -41,7 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
     lines = []
     for mod in _command_modules():
         p = sub.add_parser(mod.NAME, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP),
-                           formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                           formatter_class=_DefaultsFormatter)
         mod.add_arguments(p)
         p.set_defaults(_run=mod.run)
         lines.append(_usage_lines(p))

@@ -52,6 +52,13 @@ def why_nothing_published(pipeline_report: dict, driver_report: dict | None, sch
         rej = ", ".join(f"{k} x{v}" for k, v in sorted((st.get("ff_rejections") or {}).items())) or "none"
         parts.append(f"feed-forward start-up: {st.get('ff_requests', 0)} windows tried, "
                      f"{st.get('ff_accepted', 0)} accepted (rejected: {rej})")
+    started, selected = st.get("candidates_started") or 0, st.get("candidates_selected") or 0
+    if started and not selected:
+        gone = {k: st.get(f"candidates_{k}") or 0 for k in ("abandoned", "diverged", "outrun")}
+        fates = ", ".join(f"{v} {k}" for k, v in gone.items() if v)
+        parts.append(f"{started} feed-forward candidate(s) started, none confirmed (it takes "
+                     "startup.consecutive_states live states) before the data ended"
+                     + (f" ({fates})" if fates else ""))
     if st.get("ff_extensions"):
         ext_rej = st.get("ff_extension_rejections") or {}
         rej = ", ".join(f"{k} x{v}" for k, v in sorted(ext_rej.items())) or "none"

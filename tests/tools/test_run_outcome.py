@@ -20,3 +20,12 @@ def test_a_filter_that_processed_frames_adds_nothing_and_an_empty_report_says_so
     assert why_nothing_published(report, {"streams": {}}, SCHED) == "no reason recorded"
     started = {"tracking": {}, "filter": {"initialized": True, "frames_processed": 0, "frames_no_imu": 0}}
     assert why_nothing_published(started, None, SCHED) == "the filter started but processed no frame"
+
+
+def test_a_started_but_unconfirmed_candidate_is_named() -> None:
+    report = {"tracking": {}, "startup": {"ff_requests": 1, "ff_accepted": 1, "candidates_started": 1,
+                                          "candidates_selected": 0, "candidates_abandoned": 0}}
+    why = why_nothing_published(report, None, SCHED)
+    assert "1 feed-forward candidate(s) started, none confirmed" in why and "abandoned" not in why
+    report["startup"]["candidates_diverged"] = 1
+    assert "(1 diverged)" in why_nothing_published(report, None, SCHED)
