@@ -52,7 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
     lines = []
     for mod in _command_modules():
         p = sub.add_parser(mod.NAME, help=mod.HELP, description=getattr(mod, "DESCRIPTION", mod.HELP),
-                           formatter_class=_DefaultsFormatter)
+                           formatter_class=_DefaultsFormatter, allow_abbrev=False)
         mod.add_arguments(p)
         p.set_defaults(_run=mod.run)
         lines.append(_usage_lines(p))

@@ -36,3 +36,18 @@ def test_console_script_entry_point_runs():
 def test_no_command_prints_help_and_fails(capsys):
     assert main([]) == 2
     assert "usage: davio" in capsys.readouterr().out
+
+
+def test_options_are_not_abbreviated_and_help_hides_none_defaults(capsys):
+    """`--nat` is not taken for `--native-only` (a later option could make it mean something else), and
+    no help line ends in '(default: None)'."""
+    try:
+        code = main(["run", "somewhere", "--nat"])
+    except SystemExit as exc:
+        code = exc.code
+    assert code == 2 and "unrecognized arguments: --nat" in capsys.readouterr().err
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command")
+    for sp in sub.choices.values():
+        assert "(default: None)" not in sp.format_help()
+    assert "(default: davio_run)" in " ".join(sub.choices["run"].format_help().split())
