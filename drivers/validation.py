@@ -7,6 +7,7 @@ as float). Bad rows are either dropped and counted in a `StreamCounts` ("drop" p
 from __future__ import annotations
 
 import math
+import re
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -42,14 +43,21 @@ def _parse_stamp(field: str) -> int | None:
     return int(field)
 
 
-def _cut_short(last: str, before: list[str]) -> bool:
-    """Whether a last field is visibly cut short: under half the median length of the same field in the
-    rows before it (signs ignored). '-3.2035056666666666' cut to '-3' is; a row written without a final
-    newline is not."""
+_EXPONENT = re.compile(r"^[-+]?(\d+\.?\d*|\.\d+)[eE]([-+]?)(\d*)$")
+
+
+def _exponent_cut(last: str, before: list[str]) -> bool:
+    """Whether a last value is certainly cut short: the rows before write it in exponent form (at least
+    90 % of them, e.g. numpy.savetxt's '%.18e'), and here the exponent is missing or has fewer digits than
+    they use ('1.249e-0' for '1.249e-01'). A value written in plain decimals cannot be told from a shorter
+    one ('-3' for '-3.2035'); such a line is kept with a note."""
     if len(before) < 10:
         return False
-    lengths = sorted(len(f.lstrip("+-")) for f in before)
-    return len(last.lstrip("+-")) < 0.5 * lengths[len(lengths) // 2]
+    digits = [len(m.group(3)) for f in before if (m := _EXPONENT.match(f))]
+    if len(digits) < 0.9 * len(before):
+        return False
+    m = _EXPONENT.match(last)
+    return m is None or len(m.group(3)) < min(digits)
 
 
 def _is_float(text: str) -> bool:
@@ -69,8 +77,9 @@ def read_stamped_csv(path: str | Path, n_values: int, counts: StreamCounts, poli
 
     Args:
         path: the CSV file. Lines starting with '#' are comments; a first non-comment line whose
-            first field is not a number is taken as a text header (noted in `report`). A last line
-            without a line end is kept unless its last field is visibly cut short (`_cut_short`).
+            fields are all words (none reads as a number) is taken as a text header (noted in `report`).
+            A last line without a line end is kept with a note unless its last value certainly lost
+            exponent digits (`_exponent_cut`), which counts it as truncated.
         n_values: number of columns after the stamp.
         counts: counters of this stream, updated in place.
         policy: "drop" (count and skip bad rows) or "strict" (raise DataError with file and line).
@@ -120,19 +129,24 @@ def read_stamped_csv(path: str | Path, n_values: int, counts: StreamCounts, poli
         if stripped.startswith("#"):
             continue
         fields = [f.strip() for f in stripped.split(",")]
-        if not seen_data and _parse_stamp(fields[0]) is None and not _is_float(fields[0]):
+        if not seen_data and not any(_is_float(f) for f in fields):
             if report is not None:
                 report.note(f"{path.name}: line {lineno} read as a header without '#': {stripped[:60]!r}")
             seen_data = True
             continue
         seen_data = True
         counts.lines += 1
-        if lineno == unterminated and _cut_short(fields[-1], [t[-1] for t in recent]):
+        if lineno == unterminated:
+            if _exponent_cut(fields[-1], [t[-1] for t in recent]):
+                if report is not None:
+                    report.note(f"{path.name}: the last line has no line end and its last value lost "
+                                "exponent digits (the file was cut off while written): dropped")
+                reject("truncated_lines", lineno, "the last line has no line end and its last value lost "
+                                                  "exponent digits (cut off while written)")
+                continue
             if report is not None:
-                report.note(f"{path.name}: the last line has no line end and its last value is much shorter "
-                            "than the rows' before it (the file was cut off while written?): dropped")
-            reject("truncated_lines", lineno, "the last line has no line end and its last value is cut short")
-            continue
+                report.note(f"{path.name}: the last line has no line end: kept; if the file was cut off "
+                            "while written, its last value may be short")
         recent.append(fields)
         if len(fields) < n_values + 1:
             reject("truncated_lines", lineno, f"truncated row: {len(fields)} fields, expected {n_values + 1}")
@@ -180,13 +194,12 @@ def read_stamped_csv(path: str | Path, n_values: int, counts: StreamCounts, poli
     line_arr = np.array(lines, dtype=np.int64)
     if monotonic and np.any(np.diff(t_arr) <= 0):
         order, kept, dup, isolated = time_order_repair(t_arr)
-        if kept.sum() >= 2 and block_apart(t_arr, kept):
-            step = np.diff(t_arr)
-            at = int(np.argmin(step)) + 1          # the largest jump back, in file order
-            raise DataError(f"stamps jump back by {-int(step[at - 1]) * 1e-9:.3f} s here and "
-                            f"{int(kept.sum())} rows lie apart from all the others (a clock reset, or two "
-                            "files spliced?): they cannot be sorted into one time order; split the file or "
-                            "correct the stamps", path, int(line_arr[at]))
+        at = clock_reset(t_arr)
+        if at is not None:
+            raise DataError(f"stamps jump back by {(int(t_arr[at - 1]) - int(t_arr[at])) * 1e-9:.3f} s here "
+                            "and run on from there (a clock reset, or two files spliced?): the rows cannot "
+                            "be sorted into one time order; split the file there or correct the stamps",
+                            path, int(line_arr[at]))
         counts.dropped_duplicate += int(dup.sum())
         counts.dropped_nonmonotonic += int(isolated.sum())
         counts.reordered += int(kept.sum())
@@ -238,18 +251,32 @@ def time_order_repair(t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndar
     return order, moved & ~isolated, duplicate, isolated
 
 
-def block_apart(t_ns: np.ndarray, moved: np.ndarray) -> bool:
-    """Whether the `moved` rows' stamps all lie farther than the isolation limit (ISOLATED_GAP_S and 100
-    median periods) from every other row's: a block on another clock, not rows out of order."""
-    rest = np.sort(t_ns[~moved])
-    if rest.shape[0] < 2:
-        return False
-    period = float(np.median(np.diff(np.unique(t_ns))))
-    limit = max(ISOLATED_GAP_S * 1e9, 100.0 * period)
-    k = np.searchsorted(rest, t_ns[moved])
-    left = np.where(k > 0, t_ns[moved] - rest[np.maximum(k - 1, 0)], np.inf)
-    right = np.where(k < rest.shape[0], rest[np.minimum(k, rest.shape[0] - 1)] - t_ns[moved], np.inf)
-    return bool(np.all(np.minimum(np.abs(left), np.abs(right)) > limit))
+RESET_RUN = 10
+"""Rows after a jump back that must follow on at the stream's rate for the jump to be a clock reset."""
+
+
+def clock_reset(t_ns: np.ndarray) -> int | None:
+    """Index of the first row after a clock reset, or None.
+
+    A reset is a step back by more than the isolation limit (ISOLATED_GAP_S and 100 median periods) from
+    a row that itself continues its predecessor at the stream's rate, after which at least RESET_RUN rows
+    follow on at that rate: two clocks, whether the second one's span lies apart from the first's or
+    inside it. A single corrupt stamp, far behind or far ahead, is not one (its neighbours do not follow
+    on from it); it is dropped as isolated (`time_order_repair`)."""
+    n = t_ns.shape[0]
+    if n < RESET_RUN + 2:
+        return None
+    step = np.diff(t_ns)
+    forward = step[step > 0]
+    if forward.size == 0:
+        return None
+    limit = max(ISOLATED_GAP_S * 1e9, 100.0 * float(np.median(forward)))
+    for i in np.nonzero(step < -limit)[0]:          # the step from row i to row i + 1
+        before_ok = i == 0 or 0 < step[i - 1] <= limit
+        run = step[i + 1:i + 1 + RESET_RUN]
+        if before_ok and run.shape[0] == RESET_RUN and np.all((run > 0) & (run <= limit)):
+            return int(i) + 1
+    return None
 
 
 def monotonic_keep_mask(t_ns: np.ndarray) -> np.ndarray:

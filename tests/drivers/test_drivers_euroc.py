@@ -180,7 +180,14 @@ def test_a_block_on_another_clock_is_refused_not_sorted_in(tmp_path: Path) -> No
         t, rest = rows[i].split(",", 1)
         rows[i] = f"{int(t) - 1000 * 10**9},{rest}"
     seq = write_asl(tmp_path, rows, {"cam0": cam_rows(2)})
-    with pytest.raises(DataError, match=r"data.csv:32: stamps jump back by 999.995 s here and 30 rows"):
+    with pytest.raises(DataError, match=r"data.csv:32: stamps jump back by 999.995 s here and run on"):
+        EurocDriver(seq)
+    rows = imu_rows(60)                           # a reset whose second span lies inside the first one's
+    for i in range(40, 60):
+        t, rest = rows[i].split(",", 1)
+        rows[i] = f"{int(t) - 150 * 5_000_000 - 10**9},{rest}"
+    seq = write_asl(tmp_path / "inside", rows, {"cam0": cam_rows(2)})
+    with pytest.raises(DataError, match=r"data.csv:42: stamps jump back by"):
         EurocDriver(seq)
 
 
@@ -218,18 +225,31 @@ def test_truncated_last_line(tmp_path: Path) -> None:
     assert_accounted(drv.report(), replayed=False)
 
 
-def test_a_last_line_cut_inside_its_last_number_is_dropped(tmp_path: Path) -> None:
-    """'-0.2' cut to '-0' still parses: a last line without a line end whose last value is much shorter
-    than in the rows before is dropped as cut off; a whole row merely lacking the newline is kept."""
+def test_a_last_line_without_a_line_end(tmp_path: Path) -> None:
+    """Kept with a note, even when its plain-decimal last value may be short ('-0.2' -> '-0' cannot be told
+    from a real '-0'); dropped as cut off only when the rows write exponents and this one lost digits."""
     rows = imu_rows(30)
-    whole = write_asl(tmp_path / "whole", rows, {"cam0": cam_rows(2)}, trailing_newline=False)
-    assert EurocDriver(whole).n_imu == 30 and EurocDriver(whole, policy="strict").n_imu == 30
     rows[-1] = rows[-1][:-2]
-    seq = write_asl(tmp_path, rows, {"cam0": cam_rows(2)}, trailing_newline=False)
+    seq = write_asl(tmp_path / "plain", rows, {"cam0": cam_rows(2)}, trailing_newline=False)
+    drv = EurocDriver(seq, policy="strict")
+    assert drv.n_imu == 30 and drv.report()["streams"]["imu0"]["truncated_lines"] == 0
+    assert any("the last line has no line end: kept" in n for n in drv.report()["notes"])
+    sci = [r.split(",")[0] + "," + ",".join(f"{float(v):.18e}" for v in r.split(",")[1:])
+           for r in imu_rows(30)]
+    sci[-1] = sci[-1][:-1]                       # '...e-01' -> '...e-0': a value ten times too large
+    seq = write_asl(tmp_path / "sci", sci, {"cam0": cam_rows(2)}, trailing_newline=False)
     drv = EurocDriver(seq)
     assert drv.report()["streams"]["imu0"]["truncated_lines"] == 1 and drv.n_imu == 29
-    assert any("the last line has no line end" in n for n in drv.report()["notes"])
-    with pytest.raises(DataError, match=r"data.csv:31: the last line has no line end"):
+    with pytest.raises(DataError, match=r"data.csv:31: the last line has no line end and its last value"):
+        EurocDriver(seq, policy="strict")
+
+
+def test_a_first_row_with_a_flipped_stamp_is_not_a_header(tmp_path: Path) -> None:
+    rows = imu_rows(20)
+    rows[0] = "q" + rows[0][1:]                  # one flipped bit in the first stamp
+    seq = write_asl(tmp_path, rows, {"cam0": cam_rows(2)})
+    assert EurocDriver(seq).report()["streams"]["imu0"]["malformed_lines"] == 1
+    with pytest.raises(DataError, match=r"data.csv:2: stamp 'q"):
         EurocDriver(seq, policy="strict")
 
 
