@@ -49,6 +49,11 @@ OS_METADATA = re.compile(r"(^|/)(\.DS_Store|\._[^/]*|Thumbs\.db|desktop\.ini)$")
 Windows Explorer): never a reason to keep or refuse a run folder."""
 
 
+def holds_files(folder: Path) -> bool:
+    """Whether `folder` holds anything but OS metadata files (a folder made in Finder holds .DS_Store)."""
+    return any(not OS_METADATA.search(p.name) for p in folder.iterdir())
+
+
 def _files(folder: Path) -> list[str]:
     """Every file under `folder` (relative, '/'-separated), OS metadata files left out."""
     return sorted(rel for p in folder.rglob("*") if not p.is_dir()
@@ -133,7 +138,7 @@ class RunFolder:
         out = Path(out)
         check_writable_target(out)
         replace_existing = False
-        if out.is_dir() and any(out.iterdir()):
+        if out.is_dir() and holds_files(out):
             if not overwrite:
                 raise ConfigError(f"--out {out} is not empty (a previous run?); pass --overwrite to replace "
                                   "it, or choose another folder")

@@ -79,6 +79,17 @@ def test_non_empty_folders_need_overwrite_and_only_runs_are_replaced(tmp_path: P
         RunFolder.prepare(out, overwrite=True)
 
 
+def test_a_folder_holding_only_os_metadata_counts_as_empty(tmp_path: Path) -> None:
+    out = tmp_path / "new_in_finder"
+    out.mkdir()
+    (out / ".DS_Store").write_text("finder")
+    folder = RunFolder.prepare(out)                            # no --overwrite needed
+    folder.create()
+    (folder.path / "odometry.tum").write_text("#\n")
+    assert folder.finish("complete") == out and sorted(p.name for p in out.iterdir()) == [
+        "odometry.tum", "run_status.json"]
+
+
 def test_a_leftover_partial_is_removed_only_when_a_run_wrote_it(tmp_path: Path) -> None:
     out = tmp_path / "data"
     partial = tmp_path / "data.partial"

@@ -122,11 +122,11 @@ def run(args: argparse.Namespace) -> int:
     from drivers.sim.writer import write_euroc
     from runtime.errors import ConfigError
     from runtime.json_out import strict_dumps
-    from tools.run_folder import check_writable_target
+    from tools.run_folder import check_writable_target, holds_files
 
     out = Path(args.out)
     check_writable_target(out)
-    if out.is_dir() and any(out.iterdir()):
+    if out.is_dir() and holds_files(out):
         raise ConfigError(f"--out {out} is not empty; choose a new or empty folder")
     if args.seconds is not None:
         check_sim_seconds(args.seconds)
