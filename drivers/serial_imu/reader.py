@@ -18,9 +18,10 @@ Errors are `runtime.errors.DeviceError` with one line naming the port, with `.po
 attributes: `start()` raises "missing", "permission", "busy", "not_serial", "timeout" or "open";
 the reader records "unplugged" (read failed: SerialException/OSError), "silent" (not one byte within
 `first_byte_timeout_s` of the start: the device is off, not streaming, or on another port), "stall" (no
-valid sample for `stall_timeout_s` after samples had been flowing), "no_valid_data" (bytes arriving for
-`stall_timeout_s` but not one valid sample: wrong protocol, baud rate or output configuration) or
-"reader" (an unexpected failure) in `.error`, and `get()` raises it once the queue is drained.
+valid sample for `stall_timeout_s` after samples had been flowing), "no_valid_data" (bytes arriving
+but not one valid sample within the longer of `stall_timeout_s` and `first_byte_timeout_s` of the
+start: wrong protocol, baud rate or output configuration) or "reader" (an unexpected failure) in
+`.error`, and `get()` raises it once the queue is drained.
 """
 from __future__ import annotations
 
@@ -323,13 +324,14 @@ class SerialImu:
                                      f"powered, streaming and on this port? (baud rate {self.baudrate}; "
                                      f"check {how})")
                 return True
-        elif t_host - self._first_byte_ns > limit:
+        elif t_host - self._reading_since_ns > (wait := max(limit, int(self.first_byte_timeout_s * 1e9))):
+            # bytes but no valid sample yet: a device may print a banner, then calibrate, before streaming
             lacking = getattr(self.parser, "last_missing", None)
             hint = (f"packets lack {lacking}; configure the device's outputs (configure=True)" if lacking
                     else f"check the protocol ({self.protocol}) and the baud rate ({self.baudrate})")
             self._fail("no_valid_data",
-                       f"serial IMU {self.port}: {self.bytes_read} bytes in {self.stall_timeout_s:g} s "
-                       f"but no valid {self.protocol} sample: {hint} ({self._counter_text()})")
+                       f"serial IMU {self.port}: {self.bytes_read} bytes in {wait * 1e-9:g} s since the port "
+                       f"opened but no valid {self.protocol} sample: {hint} ({self._counter_text()})")
             return True
         return False
 

@@ -152,8 +152,21 @@ def test_a_port_that_never_sends_a_byte_is_a_device_error(pty_pair: Pty) -> None
         assert len(collect(late, 5, 3.0)) == 5 and late.error is None
 
 
+def test_a_banner_then_samples_within_the_first_byte_allowance_is_no_error(pty_pair: Pty) -> None:
+    """A microcontroller IMU prints a banner, calibrates, then streams: bytes without a valid sample are
+    an error only after the longer of stall_timeout_s and first_byte_timeout_s from the start."""
+    imu = SerialImu(pty_pair.path, protocol="text", stall_timeout_s=0.2, first_byte_timeout_s=1.5)
+    with imu:
+        pty_pair.write(b"MPU6050 ready, calibrating gyro, keep still...\r\n")
+        time.sleep(0.8)                            # beyond stall_timeout_s, within the allowance
+        assert imu.error is None
+        pty_pair.write(b"".join(encode_line(k, 1000 + 2500 * k, *values(k)) for k in range(5)))
+        assert len(collect(imu, 5, 3.0)) == 5 and imu.error is None
+
+
 def test_bytes_without_valid_samples_name_protocol_and_baud(pty_pair: Pty) -> None:
-    imu = SerialImu(pty_pair.path, protocol="xsens", baudrate=115200, stall_timeout_s=0.3)
+    imu = SerialImu(pty_pair.path, protocol="xsens", baudrate=115200, stall_timeout_s=0.3,
+                    first_byte_timeout_s=0.3)
     with imu:
         t0 = time.monotonic()
         while imu.error is None and time.monotonic() - t0 < 3.0:
