@@ -30,6 +30,8 @@ class PoseJournal:
         self.path = Path(folder) / JOURNAL_NAME
         self.sync_s = float(sync_s)
         self.poses = 0
+        self.failed: str | None = None
+        """Why the journal stopped (a full or failing disk), or None: the run goes on without it."""
         self._lock = threading.Lock()
         self._fh = open(self.path, "w", encoding="utf-8")   # noqa: SIM115 - held open for the run
         self._fh.write(TUM_HEADER + "\n")
@@ -44,8 +46,20 @@ class PoseJournal:
         with self._lock:
             if self._fh.closed:
                 return
-            self._fh.write(line)
+            try:
+                self._fh.write(line)
+            except OSError as exc:
+                self._give_up(exc)
+                return
             self.poses += 1
+
+    def _give_up(self, exc: OSError) -> None:
+        """Stop journalling after a write error (the caller holds the lock); the run goes on."""
+        self.failed = f"{self.path}: {exc.strerror or exc}"
+        try:
+            self._fh.close()
+        except OSError:
+            pass
 
     def sync(self) -> None:
         """Flush the buffered lines and fsync the file (what the background thread does every sync_s).
@@ -53,28 +67,41 @@ class PoseJournal:
         with self._lock:
             if self._fh.closed:
                 return
-            self._fh.flush()
+            try:
+                self._fh.flush()
+            except OSError as exc:
+                self._give_up(exc)
+                return
             fd = self._fh.fileno()
-        os.fsync(fd)
+        try:
+            os.fsync(fd)
+        except OSError as exc:   # fsync after close (EBADF) or a failing disk
+            if self.failed is None and not self._fh.closed:
+                self.failed = f"{self.path}: {exc.strerror or exc}"
 
     def _sync_loop(self) -> None:
         while not self._stop.wait(self.sync_s):
-            try:
-                self.sync()
-            except OSError:   # a full or failing disk must not stop the run; the final outputs say more
-                pass
+            self.sync()
 
     def close(self, remove: bool = False) -> None:
         """Stop the background thread, flush and close the journal; with `remove`, delete it (the run's
-        own outputs replace it). Idempotent."""
+        own outputs replace it). Idempotent; never raises for a full or failing disk (`failed` says)."""
         self._stop.set()
-        if self._syncer.is_alive() and self._syncer is not threading.current_thread():
-            self._syncer.join()
-        with self._lock:
-            if not self._fh.closed:
-                self._fh.close()
-        if remove:
-            self.path.unlink(missing_ok=True)
+        try:
+            if self._syncer.is_alive() and self._syncer is not threading.current_thread():
+                self._syncer.join()
+        finally:
+            with self._lock:
+                if not self._fh.closed:
+                    try:
+                        self._fh.close()
+                    except OSError as exc:
+                        self.failed = f"{self.path}: {exc.strerror or exc}"
+            if remove:
+                try:
+                    self.path.unlink(missing_ok=True)
+                except OSError:
+                    pass
 
 
 def journal_has_poses(folder: str | Path) -> bool:

@@ -97,3 +97,15 @@ def test_a_killed_run_keeps_its_trajectory_in_the_journal(small_sim_folder: Path
     assert len(traj) >= 10 and np.all(np.diff(traj.t_ns) > 0)
     gt = read_trajectory(small_sim_folder / "mav0" / "state_groundtruth_estimate0" / "data.csv")
     assert ate(traj, gt, "posyaw").trans["rmse"] < 0.1   # the poses the robot had, against the truth
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full (Linux) to emulate a full disk")
+def test_a_full_disk_stops_the_journal_not_the_run(tmp_path: Path) -> None:
+    journal = PoseJournal(tmp_path, sync_s=0.01)
+    journal._fh.close()
+    journal._fh = open("/dev/full", "w", encoding="utf-8")   # every write that reaches the disk fails
+    for p in _poses(2000):                                      # more than the write buffer holds
+        journal(p)                                              # never raises on the tracking thread
+    journal.close()                                             # nor when it flushes the rest
+    assert journal.failed is not None and "No space left" in journal.failed
+    journal.close(remove=True)

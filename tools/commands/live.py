@@ -203,10 +203,13 @@ def _run(args, folder, driver, rig, model, model_desc: str, config) -> int:
         if res.status == "complete":
             session.pipeline.finish_mapping()
     finally:
-        journal.close()
         driver.stop()
         if view is not None:
             view.close()
+        journal.close()
+    if journal.failed:
+        print(f"davio live: warning: the pose journal stopped ({journal.failed}); the run went on",
+              file=sys.stderr)
     judge(res, driver.report())
     map_summary = map_out.finish() if map_out is not None else None
     report = write_run(folder.path, res.pipeline, res.scheduler, None,

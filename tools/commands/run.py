@@ -170,9 +170,12 @@ def _run(args, folder, rec, rig, model, model_desc: str, config) -> int:
                            map_sink=view.chain(sink) if view is not None else sink, keep_partial=True,
                            on_pose=journal if view is None else chain_poses(journal, view.on_pose))
     finally:
-        journal.close()
         if view is not None:
             view.close()
+        journal.close()
+    if journal.failed:
+        print(f"davio run: warning: the pose journal stopped ({journal.failed}); the run went on",
+              file=sys.stderr)
     judge(res, rec.driver.report())
     gt = rec.driver.groundtruth()
     map_summary = map_out.finish() if map_out is not None else None
