@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass, field
 
 import cv2
@@ -31,9 +32,12 @@ class PnPGates:
     confidence: float = 0.999
 
     def __post_init__(self) -> None:
-        checks = [("min_matches", self.min_matches >= 4, "an integer >= 4"),
-                  ("min_inliers", self.min_inliers >= 4, "an integer >= 4"),
-                  ("iterations", self.iterations >= 1, "an integer >= 1"),
+        def integer(v: object, least: int) -> bool:
+            return isinstance(v, numbers.Integral) and not isinstance(v, bool) and v >= least
+
+        checks = [("min_matches", integer(self.min_matches, 4), "an integer >= 4"),
+                  ("min_inliers", integer(self.min_inliers, 4), "an integer >= 4"),
+                  ("iterations", integer(self.iterations, 1), "an integer >= 1"),
                   ("min_inlier_fraction", 0.0 <= self.min_inlier_fraction <= 1.0, "in [0, 1]"),
                   ("confidence", 0.0 < self.confidence < 1.0, "in (0, 1)"),
                   ("reprojection_px", 0.0 < self.reprojection_px < math.inf, "a finite number > 0")]

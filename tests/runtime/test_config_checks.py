@@ -54,7 +54,10 @@ def test_defaults_and_the_boundaries_pass(tmp_path: Path) -> None:
     StartupConfig(extend_refused_s=0.0, catch_up_s=0.0, window_images=3)
     GraphConfig(huber_threshold=math.inf, blas_threads=None, drift_trans_sigma_per_m=0.0)
     RevisitConfig(min_coverage_cells=16, min_view_overlap=0.0, max_views=0)
-    PnPGates(min_inlier_fraction=1.0, confidence=0.5)
+    PnPGates(min_inlier_fraction=1.0, confidence=0.5, iterations=np.int64(100))
+    for bad in (dict(iterations=1.5), dict(min_inliers=4.5), dict(min_matches=True), dict(confidence=1.0)):
+        with pytest.raises(ConfigError, match="revisits.pnp"):
+            PnPGates(**bad)
     BringUpConfig(window_gap_s=0.0, min_rotation_deg=0.0)
     for bad in (dict(voxel_m=0.0049), dict(voxel_m=math.inf), dict(window_images=1), dict(pixel_stride=0)):
         with pytest.raises(ConfigError):

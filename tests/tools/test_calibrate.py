@@ -239,6 +239,12 @@ def test_bad_outputs_and_sources_are_clear_errors(tmp_path, capsys):
     assert main(["calibrate", str(tmp_path), "--rig", str(tmp_path / "mine.yaml"),
                  "--out", str(tmp_path / "mine.yaml"), "--overwrite"]) == 1
     assert "is one of this command's inputs" in capsys.readouterr().err
+    (tmp_path / "rig").mkdir()                   # the IMU file load_rig reads beside the --rig camchain
+    (tmp_path / "rig" / "camchain.yaml").write_text("cam0: {}\n")
+    (tmp_path / "rig" / "imu.yaml").write_text("imu0: {}\n")
+    assert main(["calibrate", str(tmp_path), "--rig", str(tmp_path / "rig" / "camchain.yaml"),
+                 "--out", str(tmp_path / "rig" / "other.yaml"), "--overwrite"]) == 1
+    assert f"{tmp_path / 'rig' / 'imu.yaml'}: is one of this command's inputs" in capsys.readouterr().err
     assert main(["calibrate", str(tmp_path), "--out", str(tmp_path / "x" / "imu.yaml")]) == 1
     assert "the IMU calibration is written as imu.yaml beside the camchain" in capsys.readouterr().err
     (tmp_path / "rec" / "mav0").mkdir(parents=True)

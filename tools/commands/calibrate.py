@@ -163,7 +163,11 @@ def check_args(args: argparse.Namespace) -> None:
     recording = source.is_dir() and ((source / "mav0").is_dir() or (source / "metadata.yaml").is_file())
     if recording and source.resolve() in out.resolve().parents:
         raise ConfigError(f"--out {out}: lies inside the recording {source}; write the calibration elsewhere")
-    rig_file = [Path(args.rig)] if getattr(args, "rig", None) else []
+    rig_file = []
+    if getattr(args, "rig", None):   # the --rig file and the IMU file load_rig reads beside it
+        from calib.io import find_imu_yaml
+
+        rig_file = [Path(args.rig)] + [p for p in [find_imu_yaml(args.rig)] if p is not None]
     for p in paths_for(out).values():   # never a device, a FIFO, or the --rig file it reads
         check_output_file(p, "--out", (p.suffix.lower(),), overwrite=True, inputs=rig_file)
 

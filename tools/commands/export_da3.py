@@ -66,7 +66,9 @@ def run(args: argparse.Namespace) -> int:
 
     if args.checkpoint and not Path(args.checkpoint).is_file():
         raise ConfigError(f"--checkpoint {args.checkpoint}: no such file")
-    require("the DA3 export", ("depth_anything_3", "depth-anything-3"))
+    require("the DA3 export", ("depth_anything_3", "depth-anything-3"), ("onnxscript", "onnxscript"),
+            ("einops", "einops"), ("omegaconf", "omegaconf"), ("addict", "addict"),
+            ("safetensors", "safetensors"))
     from tools.export.export_da3 import ExportRequest, export_in_subprocess
 
     h, w = args.res
