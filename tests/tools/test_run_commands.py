@@ -41,6 +41,10 @@ def test_demo_publishes_metric_trajectory_matching_ground_truth(tmp_path, capsys
     assert mapping["windows_accepted"] >= 2
     manifest = read_manifest(out / "map")
     assert len(manifest["submaps"]) == mapping["windows_accepted"] == report["map"]["submaps"]
+    # paths relative to the run folder (the run was written in OUT.partial/ and renamed)
+    assert report["map"]["archive"] == "map" and report["map"]["ply"] == "map.ply"
+    assert (out / report["map"]["archive"] / "manifest.json").is_file()
+    assert (out / report["map"]["ply"]).is_file()
     assert check_integrity(out / "map") == []
     assert len(read_ply_vertices(out / "map.ply")) == report["map"]["voxels"] > 10_000
     assert "map: " in text and "windows mapped" in text
