@@ -129,7 +129,7 @@ def read_stamped_csv(path: str | Path, n_values: int, counts: StreamCounts, poli
         if stripped.startswith("#"):
             continue
         fields = [f.strip() for f in stripped.split(",")]
-        if not seen_data and not any(_is_float(f) for f in fields):
+        if not seen_data and not any(_is_float(f) or _is_float(f.rsplit(".", 1)[0]) for f in fields):
             if report is not None:
                 report.note(f"{path.name}: line {lineno} read as a header without '#': {stripped[:60]!r}")
             seen_data = True
@@ -194,7 +194,7 @@ def read_stamped_csv(path: str | Path, n_values: int, counts: StreamCounts, poli
     line_arr = np.array(lines, dtype=np.int64)
     if monotonic and np.any(np.diff(t_arr) <= 0):
         order, kept, dup, isolated = time_order_repair(t_arr)
-        at = clock_reset(t_arr)
+        at = clock_reset(t_arr, v_arr)
         if at is not None:
             raise DataError(f"stamps jump back by {(int(t_arr[at - 1]) - int(t_arr[at])) * 1e-9:.3f} s here "
                             "and run on from there (a clock reset, or two files spliced?): the rows cannot "
@@ -251,18 +251,32 @@ def time_order_repair(t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndar
     return order, moved & ~isolated, duplicate, isolated
 
 
+def _repeated_block(t_ns: np.ndarray, values: np.ndarray | None, lo: int, hi: int) -> bool:
+    """Whether rows lo..hi-1 repeat earlier rows: the same stamps, and the same values when given."""
+    earlier_t = t_ns[:lo]
+    order = np.argsort(earlier_t, kind="stable")
+    k = np.searchsorted(earlier_t[order], t_ns[lo:hi])
+    if np.any(k >= order.shape[0]):
+        return False
+    match = order[k]
+    if not np.array_equal(earlier_t[match], t_ns[lo:hi]):
+        return False
+    return values is None or values.shape[1] == 0 or np.array_equal(values[match], values[lo:hi])
+
+
 RESET_RUN = 10
 """Rows after a jump back that must follow on at the stream's rate for the jump to be a clock reset."""
 
 
-def clock_reset(t_ns: np.ndarray) -> int | None:
+def clock_reset(t_ns: np.ndarray, values: np.ndarray | None = None) -> int | None:
     """Index of the first row after a clock reset, or None.
 
     A reset is a step back by more than the isolation limit (ISOLATED_GAP_S and 100 median periods) from
     a row that itself continues its predecessor at the stream's rate, after which at least RESET_RUN rows
     follow on at that rate: two clocks, whether the second one's span lies apart from the first's or
-    inside it. A single corrupt stamp, far behind or far ahead, is not one (its neighbours do not follow
-    on from it); it is dropped as isolated (`time_order_repair`)."""
+    inside it. Not one: a single corrupt stamp, far behind or far ahead (its neighbours do not follow on
+    from it; dropped as isolated by `time_order_repair`), a block written twice (its rows are duplicates)
+    and a chunk written late into the gap it belongs to (sorted into place)."""
     n = t_ns.shape[0]
     if n < RESET_RUN + 2:
         return None
@@ -271,11 +285,25 @@ def clock_reset(t_ns: np.ndarray) -> int | None:
     if forward.size == 0:
         return None
     limit = max(ISOLATED_GAP_S * 1e9, 100.0 * float(np.median(forward)))
+    on_rate = (step > 0) & (step <= limit)
     for i in np.nonzero(step < -limit)[0]:          # the step from row i to row i + 1
-        before_ok = i == 0 or 0 < step[i - 1] <= limit
-        run = step[i + 1:i + 1 + RESET_RUN]
-        if before_ok and run.shape[0] == RESET_RUN and np.all((run > 0) & (run <= limit)):
-            return int(i) + 1
+        before_ok = i == 0 or on_rate[i - 1]
+        if not (before_ok and i + 1 + RESET_RUN <= step.shape[0] and on_rate[i + 1:i + 1 + RESET_RUN].all()):
+            continue
+        # the rows after the jump that run on at the stream's rate behind the stamp before it: i+1 .. end
+        end = i + 1
+        while end < step.shape[0] and on_rate[end] and t_ns[end + 1] <= t_ns[i]:
+            end += 1
+        if end - i < RESET_RUN:
+            continue
+        run = t_ns[i + 1:end + 1]
+        rest = np.concatenate([t_ns[:i + 1], t_ns[end + 1:]])
+        if _repeated_block(t_ns, values, i + 1, end + 1):   # a block written twice: duplicates
+            continue
+        inside = (rest > run[0]) & (rest < run[-1])
+        if rest.min() < run[0] and run[-1] < rest.max() and not inside.any():
+            continue                                 # a chunk written late into its own gap: sortable
+        return int(i) + 1
     return None
 
 

@@ -423,3 +423,15 @@ def test_groundtruth_rows_validated(tmp_path: Path) -> None:
     with pytest.raises(DataError) as info:
         EurocDriver(seq, policy="strict").groundtruth()
     assert info.value.line == 4
+
+
+def test_a_first_camera_row_with_a_flipped_stamp_is_not_a_header(tmp_path: Path) -> None:
+    cams = cam_rows(4)
+    seq = write_asl(tmp_path, imu_rows(80), {"cam0": cams})
+    csv = seq / "mav0" / "cam0" / "data.csv"
+    lines = csv.read_text().splitlines()
+    lines[1] = "q" + lines[1][1:]                # the first data row's stamp, one bit flipped
+    csv.write_text("\n".join(lines) + "\n")
+    drv = EurocDriver(seq)
+    assert drv.report()["streams"]["cam0"]["malformed_lines"] == 1
+    assert not any("header without" in n for n in drv.report()["notes"])
