@@ -72,12 +72,14 @@ class PoseJournal:
             except OSError as exc:
                 self._give_up(exc)
                 return
-            fd = self._fh.fileno()
+            fd = os.dup(self._fh.fileno())   # our own descriptor: a close meanwhile cannot hand it on
         try:
             os.fsync(fd)
-        except OSError as exc:   # fsync after close (EBADF) or a failing disk
-            if self.failed is None and not self._fh.closed:
+        except OSError as exc:   # a failing disk
+            if self.failed is None:
                 self.failed = f"{self.path}: {exc.strerror or exc}"
+        finally:
+            os.close(fd)
 
     def _sync_loop(self) -> None:
         while not self._stop.wait(self.sync_s):
@@ -87,9 +89,9 @@ class PoseJournal:
         """Stop the background thread, flush and close the journal; with `remove`, delete it (the run's
         own outputs replace it). Idempotent; never raises for a full or failing disk (`failed` says)."""
         self._stop.set()
-        try:
+        try:   # an fsync hung on a failing disk must not hang the run: the thread is a daemon
             if self._syncer.is_alive() and self._syncer is not threading.current_thread():
-                self._syncer.join()
+                self._syncer.join(timeout=max(5.0, 5 * self.sync_s))
         finally:
             with self._lock:
                 if not self._fh.closed:

