@@ -31,6 +31,8 @@ RUN_MARKERS = (STATUS_FILE, "report.json", "odometry.tum")
 `not_replaceable`)."""
 DERIVED_FILES = ("map.ply", "map.png")
 """Files `davio map export|view` write into a run folder by default after the run ended."""
+
+
 def _partial_names() -> re.Pattern:
     """What a run writes into `<out>.partial/`: run_io's outputs, the pose journal, the map archive's files
     (map_archive.format) and atomic-write temporaries."""

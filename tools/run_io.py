@@ -272,6 +272,16 @@ def evaluate(est: PoseTrajectory, gt: PoseTrajectory | None) -> dict:
     return out
 
 
+def imu_noise_note(defaulted: list[str]) -> str | None:
+    """The console note for IMU noise densities the calibration withheld (`MsckfConfig.defaulted_imu_noise`),
+    or None when it gave them all."""
+    if not defaulted:
+        return None
+    return (f"note: IMU noise withheld in the calibration: {', '.join(defaulted)} from the EuRoC (ADIS16448) "
+            "defaults; give an IMU calibration (imu.yaml beside the camchain, imu0/sensor.yaml) or set them "
+            "in [msckf]")
+
+
 def rig_summary(rig: Any, source: str) -> dict:
     """The calibration a run used, for report.json: where it came from, the camera, T_IC and the time
     offset (None where withheld)."""

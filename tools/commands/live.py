@@ -174,7 +174,7 @@ def _run(args, folder, driver, rig, model, model_desc: str, config) -> int:
     from tools.commands.run import _summary
     from tools.live_view import open_view
     from tools.pose_journal import PoseJournal, chain_poses
-    from tools.run_io import rig_summary, write_run
+    from tools.run_io import imu_noise_note, rig_summary, write_run
     from tools.run_map import MapOutput
     from tools.run_outcome import conclude, judge
     from tools.run_session import _first_seconds
@@ -183,9 +183,7 @@ def _run(args, folder, driver, rig, model, model_desc: str, config) -> int:
     where = describe_device(args)
     defaulted = config.msckf.defaulted_imu_noise(rig.imu)
     print(f"davio live: {where}\n  model: {model_desc}\n"
-          + (f"  note: IMU noise withheld in the calibration: {', '.join(defaulted)} from the EuRoC "
-             "(ADIS16448) defaults; give an imu.yaml beside the camchain or set them in [msckf]\n"
-             if defaulted else "")
+          + (f"  {imu_noise_note(defaulted)}\n" if defaulted else "")
           + "  Ctrl-C to finish", file=sys.stderr)
     view = open_view(args.view)
     sink = None if map_out is None else map_out.sink

@@ -147,7 +147,7 @@ def _run(args, folder, rec, rig, model, model_desc: str, config) -> int:
 
     from tools.live_view import open_view
     from tools.pose_journal import PoseJournal, chain_poses
-    from tools.run_io import rig_summary, write_run
+    from tools.run_io import imu_noise_note, rig_summary, write_run
     from tools.run_map import MapOutput
     from tools.run_outcome import conclude, judge
     from tools.run_session import run_pipeline
@@ -158,9 +158,7 @@ def _run(args, folder, rec, rig, model, model_desc: str, config) -> int:
     defaulted = config.msckf.defaulted_imu_noise(rig.imu)
     print(f"davio run: {rec.description}\n  model: {model_desc}"
           + (f"\n  mapping: on (archive {folder.out / 'map'})" if map_out is not None else "")
-          + (f"\n  note: IMU noise withheld in the calibration: {', '.join(defaulted)} from the EuRoC "
-             "(ADIS16448) defaults; give an IMU calibration (imu.yaml, imu0/sensor.yaml) or set them in "
-             "[msckf]" if defaulted else ""), file=log)
+          + (f"\n  {imu_noise_note(defaulted)}" if defaulted else ""), file=log)
     view = open_view(args.view)
     sink = None if map_out is None else map_out.sink
     journal = PoseJournal(folder.path)
@@ -266,8 +264,11 @@ def _recovery_lines(report: dict) -> list[str]:
     lines.extend(f"input note: {n}" for n in (report.get("driver") or {}).get("notes") or [])
     out_of_range = (report["pipeline"].get("tracking") or {}).get("imu_out_of_range") or 0
     if out_of_range:
-        lines.append(f"IMU samples beyond any IMU's range dropped: {out_of_range} (|gyro| > 100 rad/s or "
-                     "|accel| > 1000 m/s^2 on an axis: corrupt values, or a gyroscope in deg/s?)")
+        from runtime.pipeline import MAX_ACCEL_M_S2, MAX_GYRO_RAD_S
+
+        lines.append(f"IMU samples beyond any IMU's range dropped: {out_of_range} (|gyro| > "
+                     f"{MAX_GYRO_RAD_S:g} rad/s or |accel| > {MAX_ACCEL_M_S2:g} m/s^2 on an axis: corrupt "
+                     "values, or a gyroscope in deg/s?)")
     errors = (report["pipeline"].get("tracking") or {}).get("ff_exceptions") or []
     if errors:
         lines.append(f"feed-forward model calls failed: {len(errors)} (first: {errors[0]})")
