@@ -16,6 +16,7 @@ from runtime.errors import ConfigError
 from runtime.events import Frame, ImuSample
 from runtime.ffinit.extension import TrackSet
 from runtime.ffinit.initializer import FeedForwardInitializer
+from runtime.geometry.se3 import make_pose
 from runtime.graph.correction import CorrectionTimeline, final_corrections
 from runtime.mapping.mapper import MapCommit, Mapper, MappingStats
 from runtime.mapping.windows import MappingWindow, WindowBuilder, WindowQueue
@@ -24,6 +25,7 @@ from runtime.msckf.init_dynamic import DynamicInitializer
 from runtime.msckf.init_static import StaticInitializer
 from runtime.msckf.init_turning import TurningInitializer
 from runtime.msckf.tracker import KltTracker
+from runtime.pose_history import CausalView, PoseHistory, PublishedView
 from runtime.startup import Published, StartupManager
 
 
@@ -76,12 +78,15 @@ class VioPipeline:
             self._frames_waiting: dict[int, Frame] = {}
         #: live odometry-to-map correction (eq. correction), one timeline per odometry segment
         self.corrections: dict[int, CorrectionTimeline] = {}
+        #: every published state and its map-frame pose as published, in compact columns (about 250 B a
+        #: pose); `published` and `causal` are read-only sequence views of it
+        self.history = PoseHistory()
         #: per published state: (T_MI (4,4) as published in the map frame, version, fraction)
-        self.causal: list[tuple[np.ndarray, int, float]] = []
+        self.causal: CausalView = self.history.causal
         #: final per-node corrections: submap index -> (segment, centre camera t_ns, T_MO (4,4))
         self.node_corrections: dict[int, tuple[int, int, np.ndarray]] = {}
         self.tracker = KltTracker(rig.camera, self.config.tracker)
-        self.published: list[Published] = []
+        self.published: PublishedView = self.history.published
         self.stats = TrackingStats()
         self.bringup: HandEyeBringUp | None = None
         self._job_kind = ""
@@ -184,15 +189,14 @@ class VioPipeline:
     # ------------------------------------------------------------------ live map-frame poses
     def _publish_causal(self, out: list[Published]) -> None:
         """Record the published states and their map-frame poses T_MO(t) T_OI(t) as published."""
-        self.published += out
         for p in out:
             T_OI = p.T_OI
             tl = self.corrections.get(p.segment)
             if tl is None:
-                self.causal.append((T_OI, 0, 1.0))
+                self.history.append(p, T_OI, 0, 1.0)
             else:
                 c = tl.apply(int(p.t_ns), T_OI)
-                self.causal.append((c.T_MI, c.version, c.fraction))
+                self.history.append(p, c.T_MI, c.version, c.fraction)
 
     def _apply_commit(self, commit: MapCommit) -> None:
         """A map commit defines a new correction from the sensor time it is applied at."""
@@ -211,18 +215,17 @@ class VioPipeline:
         """Every published pose re-exported with the completed corrections (T_MI per state): each
         state gets the final correction of its segment's submaps, interpolated between the submap
         centres around it (runtime.graph.correction.final_corrections)."""
-        out: list[np.ndarray] = [np.eye(4)] * len(self.published)
-        by_seg: dict[int, list[int]] = {}
-        for k, p in enumerate(self.published):
-            by_seg.setdefault(p.segment, []).append(k)
-        for seg, idx in by_seg.items():
+        rows = self.history.rows()
+        T_OI = make_pose(rows["R_OI"], rows["p_OI"]).reshape(-1, 4, 4)
+        out: list[np.ndarray] = [np.eye(4)] * len(rows)
+        for seg in np.unique(rows["segment"]):
+            idx = np.flatnonzero(rows["segment"] == seg)
             nodes = sorted((t, T) for s, t, T in self.node_corrections.values() if s == seg)
             t_nodes = np.array([t for t, _ in nodes], np.int64)
             T_nodes = np.array([T for _, T in nodes]).reshape(-1, 4, 4)
-            t_pose = np.array([self.published[k].t_ns for k in idx], np.int64)
-            corr = final_corrections(t_pose, t_nodes, T_nodes)
+            corr = final_corrections(rows["t_ns"][idx], t_nodes, T_nodes)
             for j, k in enumerate(idx):
-                out[k] = corr[j] @ self.published[k].T_OI
+                out[k] = corr[j] @ T_OI[k]
         return out
 
     # ------------------------------------------------------------------ mapping queue

@@ -15,7 +15,10 @@ Pushed samples go through a bounded live queue (every IMU sample kept, the oldes
 counted when tracking falls behind) into the same scheduler and pipeline as `davio run`. Poses arrive
 through `on_pose` (called on the session's thread) and through `poses()`; each carries the odometry-frame
 pose T_OI, the map-frame pose T_MI with the live map correction, and the 6x6 covariance of
-[rotation (body frame), position]. `davio run` replays recordings through `Session.replay`.
+[rotation (body frame), position]. `poses()` holds at most `max_unread_poses` poses not read yet: beyond
+that the oldest unread pose is dropped and counted (`unread_poses_dropped`), so a caller that uses only
+`on_pose`, or never reads, does not grow memory over a long run. `davio run` replays recordings through
+`Session.replay`.
 """
 from __future__ import annotations
 
@@ -85,19 +88,26 @@ class Session:
         on_pose: called with each published Pose (on the session's scheduler thread).
         map_sink: receives every map commit (`tools.run_map.MapOutput.sink`), optional.
         max_pending_frames: images waiting for the tracker before the oldest is dropped (live).
+        max_unread_poses: poses `poses()` keeps for the caller (default 12000, ten minutes at 20 Hz);
+            beyond that the oldest unread one is dropped and counted in `unread_poses_dropped`.
     """
 
     def __init__(self, rig: Any, model: Any = None, config: DavioConfig | None = None,
                  on_pose: Callable[[Pose], None] | None = None, map_sink: Any = None,
-                 max_pending_frames: int = 2) -> None:
+                 max_pending_frames: int = 2, max_unread_poses: int = 12_000) -> None:
         if rig is None or getattr(rig, "camera", None) is None:
             raise ConfigError("a session needs the camera intrinsics (rig.camera); see calib.load_rig")
+        whole = isinstance(max_unread_poses, (int, np.integer)) and not isinstance(max_unread_poses, bool)
+        if not whole or max_unread_poses < 1:
+            raise ConfigError(f"max_unread_poses must be a whole number >= 1, got {max_unread_poses!r}")
         self.rig = rig
         self.config = config or DavioConfig()
         self.pipeline = VioPipeline(rig, model, self.config, map_sink=map_sink)
         self.on_pose = on_pose
         self.max_pending_frames = max_pending_frames
-        self._poses: queue.Queue[Pose] = queue.Queue()
+        self._poses: queue.Queue[Pose] = queue.Queue(maxsize=int(max_unread_poses))
+        #: poses dropped from `poses()` because more than `max_unread_poses` were waiting unread
+        self.unread_poses_dropped = 0
         self._inbox: queue.Queue[Any] | None = None
         self._thread: threading.Thread | None = None
         self._scheduler: Scheduler | None = None
@@ -111,9 +121,22 @@ class Session:
         for p, (T_MI, version, _) in zip(published, causal, strict=True):
             pose = Pose(int(p.t_ns), int(p.t_cam_ns), p.T_OI, T_MI, np.asarray(p.v_OI), p.covariance,
                         p.source, p.segment, version)
-            self._poses.put(pose)
+            self._queue_pose(pose)
             if self.on_pose is not None:
                 self.on_pose(pose)
+
+    def _queue_pose(self, pose: Pose) -> None:
+        """Queue a pose for `poses()`; when the queue is full, the oldest unread pose makes room."""
+        while True:
+            try:
+                self._poses.put_nowait(pose)
+                return
+            except queue.Full:
+                try:
+                    self._poses.get_nowait()
+                    self.unread_poses_dropped += 1
+                except queue.Empty:
+                    pass
 
     def poses(self, timeout: float | None = 0.0) -> Iterator[Pose]:
         """The poses published since the last call (waits up to `timeout` s for the first one)."""

@@ -43,4 +43,4 @@ def test_real_euroc_head_standing_start(euroc_head: Path) -> None:
     assert (pub[0].t_ns - t_first_imu) * 1e-9 < 2.2
     P = np.array([s.p_OI for s in pub])
     assert np.abs(P - P[0]).max() < 0.03
-    assert published[False][0] == []
+    assert len(published[False][0]) == 0

@@ -78,6 +78,23 @@ def test_bad_pushes_are_clear_errors(recording) -> None:
         Session(rec.rig.replace(camera=None))
 
 
+def test_unread_poses_are_bounded_and_counted_while_the_callback_gets_every_pose(recording) -> None:
+    """A caller that reads only through on_pose (or never reads) must not grow memory over a long run:
+    poses() keeps the newest max_unread_poses, and the ones it dropped are counted."""
+    rec, events = recording
+    got: list[Pose] = []
+    s = Session(rec.rig, on_pose=got.append, max_unread_poses=5)
+    res = s.replay(iter(events))
+    n = len(res.pipeline.published)
+    assert n > 20 and len(got) == n
+    assert list(s.poses()) == got[-5:]                     # the newest five, the same objects
+    assert s.unread_poses_dropped == n - 5
+    for bad in (0, -3, 2.5, True, "10"):
+        with pytest.raises(ConfigError, match="max_unread_poses must be a whole number >= 1"):
+            Session(rec.rig, max_unread_poses=bad)
+    assert Session(rec.rig, max_unread_poses=np.int64(3))._poses.maxsize == 3
+
+
 
 def _frames_then_ctrl_c_inside_an_extension(session: Session, after: int) -> None:
     """The pipeline's frame handler raises, after `after` frames, what a Ctrl-C landing inside a C

@@ -90,7 +90,7 @@ def track(rec: Any, mapping: MappingConfig | None = None) -> MappingInputs:
     t0 = time.perf_counter()
     res = run_pipeline(keeper, None, config, show_progress=False)
     tracking_s = time.perf_counter() - t0
-    published = res.pipeline.published
+    published = list(res.pipeline.published)
     segments = published_segments(published)
     if not segments or max(len(s) for s in segments) < 3:
         raise DataError(f"the tracking run published {len(published)} poses: nothing to map",

@@ -170,7 +170,7 @@ def record_tracking(rec: Any, config: DavioConfig | None = None,
     last = pipe.last_event_ns if pipe.last_event_ns is not None else first
     st = pipe.startup.report if pipe.startup is not None else None
     mstats = pipe.report().get("mapping", {})
-    return TrackingRun(pipe.published, pipe.slots, int(mstats.get("windows_offered", 0)),
+    return TrackingRun(list(pipe.published), pipe.slots, int(mstats.get("windows_offered", 0)),
                        int(mstats.get("windows_dropped_queue", 0)), int(first), int(last),
                        None if st is None else st.first_publish_t_ns,
                        int(round(pipe.time_offset_s * 1e9)), rep.frames, tracking_s, pipe.report())

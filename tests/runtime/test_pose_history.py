@@ -1,0 +1,87 @@
+"""PoseHistory: the published states come back bit for bit across chunk boundaries, and a long run's
+history costs a small fraction of the Python objects it replaces (measured with tracemalloc)."""
+from __future__ import annotations
+
+import tracemalloc
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from runtime.pose_history import CHUNK_ROWS, PoseHistory
+from runtime.startup import Published
+
+
+def _state(rng: np.random.Generator, k: int) -> tuple[Published, np.ndarray, int, float]:
+    R = Rotation.random(random_state=int(rng.integers(1 << 30))).as_matrix()
+    src = ("native:static", "feedforward", "native:dynamic")[k % 3]
+    B = rng.normal(size=(6, 6))
+    p = Published(1_000_000_000 + 50_000_000 * k, 1_000_000_000 + 50_000_000 * k - 7, R, rng.normal(size=3),
+                  rng.normal(size=3), src, filter_id=k // 100, segment=k // 1000, covariance=B @ B.T)
+    T_MI = np.eye(4)
+    T_MI[:3, :3] = Rotation.random(random_state=k).as_matrix()
+    T_MI[:3, 3] = rng.normal(size=3) * 100
+    return p, T_MI, k // 7, float(rng.uniform())
+
+
+def test_states_and_causal_poses_come_back_bit_for_bit_across_chunks() -> None:
+    rng = np.random.default_rng(3)
+    n = CHUNK_ROWS + 37
+    given = [_state(rng, k) for k in range(n)]
+    h = PoseHistory()
+    for p, T, v, f in given:
+        h.append(p, T, v, f)
+    assert len(h) == len(h.published) == len(h.causal) == n
+    for k in (0, 1, CHUNK_ROWS - 1, CHUNK_ROWS, n - 1):
+        p, T, v, f = given[k]
+        got = h.published[k]
+        assert (got.t_ns, got.t_cam_ns, got.source, got.filter_id, got.segment) == \
+            (p.t_ns, p.t_cam_ns, p.source, p.filter_id, p.segment)
+        assert np.array_equal(got.R_OI, p.R_OI) and np.array_equal(got.p_OI, p.p_OI)
+        assert np.array_equal(got.v_OI, p.v_OI) and np.array_equal(got.T_OI, p.T_OI)
+        assert got.covariance is None                  # not kept: the live consumer had it
+        T_got, v_got, f_got = h.causal[k]
+        assert np.array_equal(T_got, T) and v_got == v and f_got == f
+    # negative indices, slices across the chunk boundary, iteration and the row block agree
+    assert h.published[-1].t_ns == given[-1][0].t_ns
+    sl = h.published[CHUNK_ROWS - 2:CHUNK_ROWS + 3]
+    assert [s.t_ns for s in sl] == [given[k][0].t_ns for k in range(CHUNK_ROWS - 2, CHUNK_ROWS + 3)]
+    assert [c[1] for c in h.causal[n - 5:]] == [given[k][2] for k in range(n - 5, n)]
+    assert [s.t_ns for s in h.published] == [g[0].t_ns for g in given]
+    rows = h.rows(CHUNK_ROWS - 3, CHUNK_ROWS + 2)
+    assert rows["t_ns"].tolist() == [given[k][0].t_ns for k in range(CHUNK_ROWS - 3, CHUNK_ROWS + 2)]
+    assert len(h.rows(5, 5)) == 0 and len(h.rows()) == n
+    with pytest.raises(IndexError):
+        h.published[n]
+    with pytest.raises(IndexError):
+        h.causal[-n - 1]
+
+
+def test_a_long_history_costs_a_fraction_of_the_objects_it_replaces() -> None:
+    """The bytes tracemalloc sees for 2 x CHUNK_ROWS poses kept as Published objects with the 4x4 pose tuple
+    (how the pipeline kept them before) against the history's columns."""
+    rng = np.random.default_rng(0)
+    states = [_state(rng, k) for k in range(2 * CHUNK_ROWS)]
+    tracemalloc.start()
+    try:
+        base = tracemalloc.get_traced_memory()[0]
+        as_objects = [(p, (T, v, f)) for p, T, v, f in _fresh(states)]
+        objects_b = tracemalloc.get_traced_memory()[0] - base
+        del as_objects
+        base = tracemalloc.get_traced_memory()[0]
+        h = PoseHistory()
+        for p, T, v, f in states:
+            h.append(p, T, v, f)
+        history_b = tracemalloc.get_traced_memory()[0] - base
+    finally:
+        tracemalloc.stop()
+    n = len(states)
+    assert history_b / n < 300                     # 254-byte rows in whole chunks, plus the view objects
+    assert objects_b / n > 1000
+    assert history_b < 0.25 * objects_b
+
+
+def _fresh(states: list) -> list:
+    """New objects (allocated while tracing) equal to `states`."""
+    return [(Published(p.t_ns, p.t_cam_ns, p.R_OI.copy(), p.p_OI.copy(), p.v_OI.copy(), p.source, p.filter_id,
+                       p.segment, p.covariance.copy()), T.copy(), v, f) for p, T, v, f in states]
