@@ -120,6 +120,39 @@ def test_round_trip_and_export_equals_brute_force(tmp_path):
     assert_fusion_equals(fuse_archive(folder, VOXEL), brute_force_fusion(subs, VOXEL), VOXEL)
 
 
+def test_manifest_text_equals_encoding_the_whole_manifest_after_every_commit(tmp_path):
+    """The writer re-encodes only the entries a commit changes and the pairs it adds; its file must still
+    be, commit after commit, what encoding the whole manifest at once gives (the writer before)."""
+    from tools.map_archive.format import FORMAT, SCHEMA_VERSION, davio_version, jsonable
+
+    folder = tmp_path / "map"
+    subs = [make_submap(k, seed=20 + k) for k in range(4)]
+    w = MapArchiveWriter(folder, HEADER)
+    rng = np.random.default_rng(5)
+    pairs: list[dict] = []
+    # (submaps committed: new ones, then ones whose state moved; pair records added)
+    plan = [([0, 1], 1), ([2, 0], 2), ([], 0), ([3, 1, 2], 1), ([0], 0)]
+    for version, (committed, n_pairs) in enumerate(plan, start=1):
+        for k in committed:
+            if k in w._entries:                        # already archived: its graph state moves
+                subs[k].T_MS, subs[k].lam = _pose(rng, 0.3), float(rng.normal(0, 0.05))
+                subs[k].version = version
+        for _ in range(n_pairs):
+            pairs.append({"a": len(pairs), "b": len(pairs) + 1, "kappa": float(rng.normal()),
+                          "m": [float(rng.normal()), float("nan")]})
+        if version == 4:
+            pairs[0] = {"a": 0, "b": 9, "method": "revisit"}     # a record replaced by another object
+        stats = {"windows": version, "rmse": float("inf") if version == 2 else 0.1}
+        w.commit([subs[k] for k in committed], pairs, version, stats)
+        expected = {"format": FORMAT, "schema_version": SCHEMA_VERSION, "created_by": davio_version(),
+                    **{k: jsonable(HEADER[k]) for k in ("rig", "model", "config")}, "map_version": version,
+                    "submaps": w.entries, "pairs": jsonable(list(pairs)), "stats": jsonable(stats)}
+        assert (folder / "manifest.json").read_text() == json.dumps(expected, allow_nan=False, indent=1)
+    assert [e["version"] for e in read_manifest(folder)["submaps"]] == [5, 4, 4, subs[3].version]
+    w.commit([], [], 6, {})                            # the pairs list may also shrink
+    assert read_manifest(folder)["pairs"] == [] and read_manifest(folder)["submaps"] == w.entries
+
+
 def test_crash_mid_commit_leaves_previous_archive(tmp_path, monkeypatch):
     folder = tmp_path / "map"
     subs = [make_submap(k, seed=10 + k) for k in range(3)]

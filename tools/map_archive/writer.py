@@ -42,6 +42,12 @@ class MapArchiveWriter:
     manifest is replaced after the npz files it references, each through a temporary file and a
     rename, so the folder reloads whenever the process dies.
 
+    A long run's manifest grows by about 2 kB a submap (4 MB after an hour), and it is rewritten at every
+    commit. Re-encoding all of it each time held the model worker (and, through the GIL, the tracking
+    thread) for 0.26 s per commit after an hour; the writer therefore keeps each submap entry's and pair
+    record's JSON text and re-encodes only the entries a commit changes and the pairs it adds. The text
+    is the same as `json.dumps(manifest, indent=1)`.
+
     Args:
         folder: the archive folder (created if needed).
         header: {"rig": dict, "model": dict, "config": dict} copied into every manifest.
@@ -63,6 +69,9 @@ class MapArchiveWriter:
                 if ours and p.is_file():
                     p.unlink()
         self._entries: dict[int, dict] = {}
+        self._entry_text: dict[int, str] = {}      # index -> the entry's JSON, indented as in the manifest
+        self._pair_text: list[str] = []
+        self._pair_objs: list[dict] = []            # the records _pair_text encodes (identity checked)
         self.map_version = 0
 
     @property
@@ -76,7 +85,8 @@ class MapArchiveWriter:
         Args:
             submaps: new submaps and submaps whose graph state changed (others keep their entries).
                 A submap's points must not change once written.
-            pairs: the graph's pair records (written as given, non-finite floats as null).
+            pairs: the graph's pair records (written as given, non-finite floats as null); a record
+                already written is not encoded again while the same object stays at its place.
             version: the map version of this commit.
             stats: counters and figures of the mapper (written as given).
         """
@@ -90,12 +100,30 @@ class MapArchiveWriter:
             entry.update(T_MS=jsonable(np.asarray(sm.T_MS, np.float64)), lam=jsonable(float(sm.lam)),
                          version=int(sm.version), segment=int(sm.segment), fit=jsonable(dict(sm.fit)))
             self._entries[sm.index] = entry
+            self._entry_text[sm.index] = _element_text(entry)
         self.map_version = int(version)
+        self._encode_pairs(list(pairs))
         manifest = {"format": FORMAT, "schema_version": SCHEMA_VERSION, "created_by": davio_version(),
-                    **self.header, "map_version": self.map_version, "submaps": self.entries,
-                    "pairs": jsonable(list(pairs)), "stats": jsonable(dict(stats))}
+                    **self.header, "map_version": self.map_version, "submaps": _SUBMAPS_SLOT,
+                    "pairs": _PAIRS_SLOT, "stats": jsonable(dict(stats))}
         text = json.dumps(manifest, allow_nan=False, indent=1)
+        text = text.replace(json.dumps(_SUBMAPS_SLOT), _list_text([self._entry_text[k]
+                                                                   for k in sorted(self._entry_text)]), 1)
+        text = text.replace(json.dumps(_PAIRS_SLOT), _list_text(self._pair_text), 1)
         atomic_write_bytes(self.folder / MANIFEST_NAME, text.encode())
+
+    def _encode_pairs(self, pairs: list) -> None:
+        """Bring the cached pair texts up to `pairs`: records already encoded (the same objects, in the same
+        places) keep their text; from the first that differs on, records are encoded."""
+        keep = 0
+        for old, new in zip(self._pair_objs, pairs, strict=False):
+            if old is not new:
+                break
+            keep += 1
+        del self._pair_objs[keep:], self._pair_text[keep:]
+        for rec in pairs[keep:]:
+            self._pair_objs.append(rec)
+            self._pair_text.append(_element_text(jsonable(rec)))
 
     def _write_points(self, sm: Submap) -> dict:
         arrays = submap_arrays(sm)
@@ -108,3 +136,18 @@ class MapArchiveWriter:
                 "bytes": len(data), "n_points": sm.n_points, "frame_t_ns": [int(t) for t in sm.frame_t_ns],
                 "centre": int(sm.centre), "T_MS": None, "T_OS": jsonable(arrays["T_OS"]), "lam": 0.0,
                 "scale_s_hat": jsonable(float(sm.s_hat)), "version": 0, "segment": 0, "fit": {}}
+
+
+_SUBMAPS_SLOT = "\x00davio:submaps\x00"
+_PAIRS_SLOT = "\x00davio:pairs\x00"
+"""Placeholders for the two long lists in the encoded manifest (a NUL never occurs in a manifest value)."""
+
+
+def _element_text(value: object) -> str:
+    """`value` encoded as an element of a list one level inside the manifest (json.dumps, indent=1)."""
+    return "\n".join("  " + line for line in json.dumps(value, allow_nan=False, indent=1).split("\n"))
+
+
+def _list_text(elements: list[str]) -> str:
+    """A top-level list value of the manifest from its encoded elements, as json.dumps(indent=1) writes it."""
+    return "[\n" + ",\n".join(elements) + "\n ]" if elements else "[]"

@@ -1,0 +1,36 @@
+"""`davio bench long-run`: the JSON it writes, the writer's manifest equal to the whole encoding, and the
+bytes per pose of the columns against the objects (tracemalloc), on a small run."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from tools.cli import main
+
+
+def test_long_run_bench_measures_both_costs(tmp_path, capsys) -> None:
+    out = tmp_path / "long.json"
+    assert main(["bench", "long-run", "--hours", "0.05,0.1", "--poses", "8192", "--repeats", "2",
+                 "--out", str(out)]) == 0
+    table = capsys.readouterr().out
+    assert "| 0.05 h | 120 |" in table and "| 0.1 h | 240 |" in table
+    res = json.loads(out.read_text())
+    rows = res["manifest"]
+    assert [r["submaps"] for r in rows] == [120, 240] and all(r["same_text"] for r in rows)
+    assert rows[1]["manifest_mb"] > rows[0]["manifest_mb"] > 0
+    p = res["poses"]
+    # 8192 poses fill two whole chunks of 254-byte rows; the objects were about 1.4 kB a pose
+    assert 254 <= p["columns_bytes_per_pose"] < 300 and p["objects_bytes_per_pose"] > 1000
+    assert p["columns_mb_per_hour"] == pytest.approx(p["columns_bytes_per_pose"] * 72000 / 1e6)
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--hours", "0"], "--hours must lie in (0, 24]"),
+    (["--hours", "a,b"], "--hours must be numbers"),
+    (["--camera-hz", "nan"], "--camera-hz must be positive"),
+    (["--poses", "5"], "--poses must be >= 100"),
+])
+def test_long_run_bench_refuses_bad_arguments(argv, message) -> None:
+    with pytest.raises(SystemExit, match=message.replace("(", r"\(").replace("]", r"\]")):
+        main(["bench", "long-run", *argv])

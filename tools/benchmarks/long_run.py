@@ -1,0 +1,213 @@
+"""`davio bench long-run`: what grows with a run's length, per hour of operation, measured in one process.
+
+Two costs grow with time however bounded the map and the graph are:
+  * the published states a run keeps for `odometry.tum`, `causal.tum` and the final re-export: bytes per
+    pose (tracemalloc) of the pipeline's columns (`runtime.pose_history.PoseHistory`) against the same
+    states kept as Python objects (a `Published` with its covariance and the (T_MI, version, fraction)
+    tuple, as the pipeline kept them before), and per hour at --camera-hz;
+  * the map archive's manifest, rewritten at every map commit: the time of one commit (one new submap,
+    three moved, one pair record) with N submaps already archived, by the writer
+    (`tools.map_archive.MapArchiveWriter`, which keeps each entry's text) against encoding the whole
+    manifest at once (what it did before), for N submaps = hours x 3600 / 1.5 (a submap every 1.5 s).
+Submaps carry 50 points here (the manifest does not hold points; a real submap's npz is about 1.3 MB).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import statistics
+import tempfile
+import time
+import tracemalloc
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+NAME = "long-run"
+HELP = "per-hour growth: bytes per published pose, and the map manifest's commit time by archive size"
+DESCRIPTION = __doc__
+SUBMAP_PERIOD_S = 1.5
+"""A submap every 1.5 s: 0.5 s keyframes, five-image windows sharing two images (paper Sec. III)."""
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--hours", default="0.25,1,2,4", help="comma-separated run lengths for the manifest rows")
+    p.add_argument("--camera-hz", type=float, default=20.0,
+                   help="published poses per second (a pose a frame)")
+    p.add_argument("--poses", type=int, default=20000, help="poses measured for the bytes per pose")
+    p.add_argument("--repeats", type=int, default=5, help="commits timed per size (median)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--out", metavar="FILE.json", help="also write the JSON here")
+
+
+def _hours(text: str) -> list[float]:
+    try:
+        hs = [float(h) for h in text.split(",") if h.strip()]
+    except ValueError as exc:
+        raise SystemExit(f"davio bench long-run: --hours must be numbers, got {text!r}") from exc
+    if not hs or not all(math.isfinite(h) and 0 < h <= 24 for h in hs):
+        raise SystemExit(f"davio bench long-run: --hours must lie in (0, 24], got {text!r}")
+    return hs
+
+
+def _states(n: int, rng: np.random.Generator) -> list:
+    from scipy.spatial.transform import Rotation
+
+    from runtime.startup import Published
+
+    R = Rotation.random(n, random_state=int(rng.integers(1 << 30))).as_matrix()
+    out = []
+    for k in range(n):
+        B = rng.normal(size=(6, 6))
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = R[k], rng.normal(size=3)
+        p = Published(10**18 + 50_000_000 * k, 10**18 + 50_000_000 * k, R[k], rng.normal(size=3),
+                      rng.normal(size=3), ("native:dynamic", "feedforward")[k % 2], 0, 0, B @ B.T)
+        out.append((p, T, k // 30, float(rng.uniform())))
+    return out
+
+
+def pose_bytes(n: int, seed: int = 0) -> dict:
+    """Bytes per pose (tracemalloc) of n published states as objects and in the pipeline's columns."""
+    from runtime.pose_history import PoseHistory
+    from runtime.startup import Published
+
+    states = _states(n, np.random.default_rng(seed))
+    tracemalloc.start()
+    try:
+        base = tracemalloc.get_traced_memory()[0]
+        kept = [(Published(p.t_ns + 0, p.t_cam_ns + 0, p.R_OI.copy(), p.p_OI.copy(), p.v_OI.copy(),
+                           p.source, p.filter_id, p.segment, p.covariance.copy()), (T.copy(), v, f))
+                for p, T, v, f in states]
+        objects = tracemalloc.get_traced_memory()[0] - base
+        del kept
+        base = tracemalloc.get_traced_memory()[0]
+        h = PoseHistory()
+        for p, T, v, f in states:
+            h.append(p, T, v, f)
+        columns = tracemalloc.get_traced_memory()[0] - base
+    finally:
+        tracemalloc.stop()
+    return {"poses": n, "objects_bytes_per_pose": objects / n, "columns_bytes_per_pose": columns / n}
+
+
+def _submap(index: int, rng: np.random.Generator) -> Any:
+    from runtime.mapping.submap import Submap
+
+    n_img, n_pts = 5, 50
+    T_SC = np.tile(np.eye(4), (n_img, 1, 1))
+    T_SC[:, :3, 3] = rng.normal(0, 0.2, (n_img, 3))
+    T = np.eye(4)
+    T[:3, 3] = rng.normal(0, 5, 3)
+    fit = {"baseline_m": float(rng.uniform(0.1, 1)), "fit_rmse_m": float(rng.uniform(0, 0.05)),
+           "log_s_hat": float(rng.normal(0, 0.05)), "window_id": index,
+           "frame_scale_rms_before": float(rng.uniform(0, 0.05)),
+           "frame_scale_rms_after": float(rng.uniform(0, 0.02)),
+           "frame_scale_matches": int(rng.integers(100, 900))}
+    return Submap(index=index, frame_t_ns=10**18 + np.arange(n_img, dtype=np.int64) * 500_000_000 + index,
+                  centre=2, T_OS=T, T_SC=T_SC, K=np.array([[400.0, 0, 250], [0, 400.0, 180], [0, 0, 1]]),
+                  s_hat=1.0, frame_scales=np.ones(n_img),
+                  points_C=rng.uniform(0.5, 3, (n_pts, 3)).astype(np.float32),
+                  image=rng.integers(0, n_img, n_pts).astype(np.uint8), conf=np.ones(n_pts, np.float32),
+                  grey=rng.integers(0, 256, n_pts).astype(np.uint8), T_MS=T.copy(), lam=0.0,
+                  version=index + 1, fit=fit)
+
+
+def _pair(a: int, rng: np.random.Generator) -> dict:
+    return {"a": a, "b": a + 1, "kappa": float(rng.normal(0, 0.03)), "sigma": 0.03, "method": "shared",
+            "n_images": 2, "n_pixels": int(rng.integers(10**5, 10**6)), "m": rng.normal(0, 0.03, 2).tolist()}
+
+
+def _whole_manifest_commit(w: Any, pairs: list, version: int, stats: dict) -> None:
+    """The writer's manifest before it kept entry texts: encode everything, write atomically."""
+    from runtime.files import atomic_write_bytes
+    from tools.map_archive.format import FORMAT, MANIFEST_NAME, SCHEMA_VERSION, davio_version, jsonable
+
+    manifest = {"format": FORMAT, "schema_version": SCHEMA_VERSION, "created_by": davio_version(),
+                **w.header, "map_version": version, "submaps": w.entries,
+                "pairs": jsonable(list(pairs)), "stats": jsonable(dict(stats))}
+    atomic_write_bytes(w.folder / (MANIFEST_NAME + ".whole"),
+                       json.dumps(manifest, allow_nan=False, indent=1).encode())
+
+
+def manifest_commit_times(n_submaps: int, repeats: int, header: dict, progress: bool) -> dict:
+    """Median seconds of one commit with n_submaps archived: the writer, and the whole-manifest encoding."""
+    from tools.map_archive import MapArchiveWriter
+
+    rng = np.random.default_rng(n_submaps)
+    with tempfile.TemporaryDirectory(prefix="davio-long-run-") as tmp:
+        w = MapArchiveWriter(Path(tmp) / "map", header)
+        subs = [_submap(k, rng) for k in range(n_submaps + repeats)]
+        pairs = [_pair(k, rng) for k in range(n_submaps)]
+        t_fill = time.perf_counter()
+        for k0 in range(0, n_submaps, 200):          # archive the first n (200 submaps per commit)
+            w.commit(subs[k0:min(k0 + 200, n_submaps)], pairs[:min(k0 + 200, n_submaps)], k0 + 1, {})
+            if progress and time.perf_counter() - t_fill > 10:
+                print(f"  archiving {min(k0 + 200, n_submaps)} / {n_submaps} submaps", flush=True)
+                t_fill = time.perf_counter()
+        writer_s, whole_s = [], []
+        stats = {"windows_offered": n_submaps, "windows_accepted": n_submaps, "rmse": 0.01}
+        for r in range(repeats):
+            j = n_submaps + r
+            moved = [subs[int(i)] for i in rng.choice(j, 3, replace=False)]
+            for sm in moved:
+                sm.T_MS[:3, 3] += rng.normal(0, 0.01, 3)
+                sm.version = j + 1
+            pairs.append(_pair(j - 1, rng))
+            t0 = time.perf_counter()
+            w.commit([subs[j], *moved], pairs, j + 1, stats)
+            writer_s.append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            _whole_manifest_commit(w, pairs, j + 1, stats)
+            whole_s.append(time.perf_counter() - t0)
+        manifest = Path(tmp) / "map" / "manifest.json"
+        same = manifest.read_bytes() == manifest.with_name(manifest.name + ".whole").read_bytes()
+        size = manifest.stat().st_size
+    return {"submaps": n_submaps, "manifest_mb": size / 1e6, "writer_s": statistics.median(writer_s),
+            "whole_manifest_s": statistics.median(whole_s), "same_text": same}
+
+
+def run(args: argparse.Namespace) -> int:
+    hours = _hours(args.hours)
+    if not (args.camera_hz > 0 and math.isfinite(args.camera_hz)):
+        raise SystemExit(f"davio bench long-run: --camera-hz must be positive, got {args.camera_hz}")
+    if args.poses < 100 or args.repeats < 1:
+        raise SystemExit("davio bench long-run: --poses must be >= 100 and --repeats >= 1")
+    from runtime.config import DavioConfig
+    from runtime.config_io import config_to_dict
+
+    progress = not args.json
+    header = {"rig": {"camera": "pinhole"}, "model": {"description": "bench"},
+              "config": config_to_dict(DavioConfig())}
+    poses = pose_bytes(args.poses)
+    per_hour = 3600 * args.camera_hz
+    poses["objects_mb_per_hour"] = poses["objects_bytes_per_pose"] * per_hour / 1e6
+    poses["columns_mb_per_hour"] = poses["columns_bytes_per_pose"] * per_hour / 1e6
+    rows = []
+    for h in hours:
+        n = int(round(h * 3600 / SUBMAP_PERIOD_S))
+        if progress:
+            print(f"  manifest with {n} submaps ({h:g} h)", flush=True)
+        rows.append({"hours": h, **manifest_commit_times(n, args.repeats, header, progress)})
+    out = {"camera_hz": args.camera_hz, "poses": poses, "manifest": rows,
+           "submap_period_s": SUBMAP_PERIOD_S}
+    if args.out:
+        Path(args.out).write_text(json.dumps(out, indent=1))
+    if args.json:
+        print(json.dumps(out, indent=1))
+        return 0 if all(r["same_text"] for r in rows) else 1
+    print(f"published states ({args.poses} poses, tracemalloc): objects "
+          f"{poses['objects_bytes_per_pose']:.0f} B/pose ({poses['objects_mb_per_hour']:.1f} MB/h at "
+          f"{args.camera_hz:g} Hz), columns "
+          f"{poses['columns_bytes_per_pose']:.0f} B/pose ({poses['columns_mb_per_hour']:.1f} MB/h)")
+    print("| run length | submaps | manifest MB | commit, writer ms | commit, whole manifest ms | ratio |")
+    print("|---|---|---|---|---|---|")
+    if not all(r["same_text"] for r in rows):
+        print("ERROR: the writer's manifest differs from encoding the whole manifest", flush=True)
+        return 1
+    for r in rows:
+        print(f"| {r['hours']:g} h | {r['submaps']} | {r['manifest_mb']:.1f} | {1e3 * r['writer_s']:.1f} | "
+              f"{1e3 * r['whole_manifest_s']:.1f} | {r['writer_s'] / r['whole_manifest_s']:.3f} |")
+    return 0
