@@ -18,7 +18,7 @@ from runtime.ffinit.extension import TrackSet
 from runtime.ffinit.initializer import FeedForwardInitializer
 from runtime.geometry.se3 import make_pose
 from runtime.graph.correction import CorrectionTimeline, final_corrections
-from runtime.mapping.mapper import MapCommit, Mapper, MappingStats
+from runtime.mapping.mapper import MAX_ERROR_MESSAGES, MapCommit, Mapper, MappingStats
 from runtime.mapping.windows import MappingWindow, WindowBuilder, WindowQueue
 from runtime.msckf.estimator import MsckfEstimator
 from runtime.msckf.init_dynamic import DynamicInitializer
@@ -349,8 +349,9 @@ class VioPipeline:
         if self._job_kind == "mapping":   # the mapper counted it; an exception is a mapping error
             if isinstance(result, Exception):
                 st = self.map_stats
-                st.reject("exception")
-                st.model_errors.append(f"{type(result).__name__}: {result}")
+                st.reject("exception")          # counted always; the first messages are kept
+                if len(st.model_errors) < MAX_ERROR_MESSAGES:
+                    st.model_errors.append(f"{type(result).__name__}: {result}")
             elif isinstance(result, MapCommit):
                 self._apply_commit(result)
             return

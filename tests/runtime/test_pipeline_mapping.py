@@ -121,3 +121,19 @@ def test_tracking_is_identical_with_mapping_on_and_drops_are_counted(recording):
     assert rep.frames == len(rec)
     # tracking never waited for the mapper: the same states as without mapping
     assert np.array_equal(_poses(on), _poses(off))
+
+
+def test_mapping_exceptions_are_all_counted_and_the_first_messages_kept(recording):
+    """A mapping job that raises at every window (a GPU out of memory, say) for hours must not grow the
+    report without bound: every failure is counted, the first MAX_ERROR_MESSAGES messages are kept."""
+    from runtime.mapping.mapper import MAX_ERROR_MESSAGES
+
+    rec, _ = recording
+    pipe = VioPipeline(rec.rig, _model(rec), _config(True), mapper_factory=_no_matcher)
+    pipe._job_kind = "mapping"
+    n = MAX_ERROR_MESSAGES + 25
+    for k in range(n):
+        pipe.on_model_result(MemoryError(f"window {k}"))
+    st = pipe.map_stats
+    assert st.windows_rejected["exception"] == n
+    assert st.model_errors == [f"MemoryError: window {k}" for k in range(MAX_ERROR_MESSAGES)]
