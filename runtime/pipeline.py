@@ -78,8 +78,8 @@ class VioPipeline:
             self._frames_waiting: dict[int, Frame] = {}
         #: live odometry-to-map correction (eq. correction), one timeline per odometry segment
         self.corrections: dict[int, CorrectionTimeline] = {}
-        #: every published state and its map-frame pose as published, in compact columns (about 250 B a
-        #: pose); `published` and `causal` are read-only sequence views of it
+        #: every published state and its map-frame pose as published, in compact columns (254 B a pose);
+        #: `published` and `causal` are read-only sequence views of it
         self.history = PoseHistory()
         #: per published state: (T_MI (4,4) as published in the map frame, version, fraction)
         self.causal: CausalView = self.history.causal

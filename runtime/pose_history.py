@@ -2,11 +2,12 @@
 
 A run keeps each published IMU state (for `odometry.tum` and the final re-export with the completed map
 corrections) and the map-frame pose it was published with (`causal.tum`). As Python objects that is
-about 1.6 kB a pose (a dataclass, five small numpy arrays, the filter's 6x6 covariance and a 4x4 pose):
-110 MB an hour at 20 Hz. `PoseHistory` holds the same values in fixed-size numpy chunks, 244 bytes a
-pose (17.6 MB an hour at 20 Hz), and gives them back as `Published` states and `(T_MI, version,
-fraction)` tuples with the same values bit for bit. The covariance is not kept: it goes to a live
-consumer with the state as published (`runtime.session.Pose`), and nothing reads it later.
+about 1.4 kB a pose (a dataclass, five small numpy arrays, the filter's 6x6 covariance and a 4x4 pose):
+100 MB an hour at 20 Hz. `PoseHistory` holds the same values in fixed-size numpy chunks, 254 bytes a
+pose (18.3 MB an hour at 20 Hz), and gives them back as `Published` states and `(T_MI, version,
+fraction)` tuples with the same values bit for bit (`davio bench long-run` measures both). The
+covariance is not kept: it goes to a live consumer with the state as published (`runtime.session.Pose`),
+and nothing reads it later.
 """
 
 from __future__ import annotations
@@ -49,9 +50,11 @@ class PoseHistory:
         return self._n
 
     def append(self, p: Published, T_MI: np.ndarray, version: int, fraction: float) -> None:
-        """Record one published state and the map-frame pose T_MI (4,4) it was published with."""
+        """Record one published state and the rigid map-frame pose T_MI (4,4) it was published with (its
+        last row is not stored: it reads back as [0, 0, 0, 1]). A value that does not fit (a stamp beyond
+        int64, a wrong shape) raises and records nothing: the next append writes the same row."""
         k = self._n % CHUNK_ROWS
-        if k == 0:
+        if len(self._chunks) * CHUNK_ROWS <= self._n:
             self._chunks.append(np.zeros(CHUNK_ROWS, ROW))
         row = self._chunks[-1][k]
         code = self._source_code.get(p.source)
@@ -88,6 +91,7 @@ class PoseHistory:
         return self._chunks[i // CHUNK_ROWS][i % CHUNK_ROWS]
 
     def source(self, code: int) -> str:
+        """The source name ("feedforward", "native:dynamic", ...) a row's `source` code stands for."""
         return self._sources[int(code)]
 
     def nbytes(self) -> int:
@@ -96,6 +100,7 @@ class PoseHistory:
 
 
 def _published(h: PoseHistory, r: np.void) -> Published:
+    """A row as the `Published` state it was recorded from (covariance None)."""
     return Published(int(r["t_ns"]), int(r["t_cam_ns"]), np.array(r["R_OI"]), np.array(r["p_OI"]),
                      np.array(r["v_OI"]), h.source(r["source"]), int(r["filter_id"]), int(r["segment"]))
 

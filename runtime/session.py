@@ -139,7 +139,8 @@ class Session:
                     pass
 
     def poses(self, timeout: float | None = 0.0) -> Iterator[Pose]:
-        """The poses published since the last call (waits up to `timeout` s for the first one)."""
+        """The poses published since the last call (waits up to `timeout` s for the first one); at most the
+        newest `max_unread_poses`, the older ones counted in `unread_poses_dropped`."""
         try:
             yield self._poses.get(timeout=timeout) if timeout else self._poses.get_nowait()
         except queue.Empty:

@@ -234,6 +234,20 @@ def published_segments(published: list) -> list[list]:
     return out
 
 
+def segment_bounds(segment: np.ndarray) -> list[tuple[int, int]]:
+    """[start, stop) of each run of equal values in `segment` (the filter's restarts), in order."""
+    segment = np.asarray(segment)
+    if not len(segment):
+        return []
+    cuts = [0, *(np.flatnonzero(np.diff(segment) != 0) + 1).tolist(), len(segment)]
+    return list(zip(cuts[:-1], cuts[1:], strict=True))
+
+
+def rows_trajectory(rows: np.ndarray) -> PoseTrajectory:
+    """Published states as rows of `runtime.pose_history.ROW` -> their IMU poses (odometry frame)."""
+    return PoseTrajectory(rows["t_ns"], rows["p_OI"], rows["R_OI"], v=rows["v_OI"])
+
+
 def published_trajectory(published: list) -> PoseTrajectory:
     """The published IMU poses (odometry frame) as a trajectory (one pose per frame)."""
     if not published:
@@ -308,11 +322,12 @@ def write_run(out_dir: Path, pipeline: Any, sched_report: Any, gt: PoseTrajector
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    segments = published_segments(pipeline.published)
-    if len(segments) > 1:  # restarts after a divergence: every segment has its own odometry frame
-        for k, seg in enumerate(segments):
-            write_tum(out_dir / f"odometry_segment{k}.tum", published_trajectory(seg))
-    est = published_trajectory(segments[-1] if segments else [])
+    rows = pipeline.history.rows()       # every published state, as columns (no per-pose objects)
+    bounds = segment_bounds(rows["segment"])
+    if len(bounds) > 1:  # restarts after a divergence: every segment has its own odometry frame
+        for k, (a, b) in enumerate(bounds):
+            write_tum(out_dir / f"odometry_segment{k}.tum", rows_trajectory(rows[a:b]))
+    est = rows_trajectory(rows[bounds[-1][0]:] if bounds else rows[:0])
     write_tum(out_dir / "odometry.tum", est)  # atomic
     causal, final = map_frame_trajectories(pipeline, len(est))
     write_tum(out_dir / "causal.tum", causal)
@@ -325,10 +340,10 @@ def write_run(out_dir: Path, pipeline: Any, sched_report: Any, gt: PoseTrajector
     report = {
         "schema": 1,
         **extra,
-        "published_poses": len(pipeline.published),
-        "segments": [{"poses": len(seg), "start_t_ns": seg[0].t_ns, "source": seg[0].source}
-                     for seg in segments],
-        "metrics_segment": len(segments) - 1 if segments else None,
+        "published_poses": len(rows),
+        "segments": [{"poses": b - a, "start_t_ns": int(rows["t_ns"][a]),
+                      "source": pipeline.history.source(rows["source"][a])} for a, b in bounds],
+        "metrics_segment": len(bounds) - 1 if bounds else None,
         "published_by": None if st is None else st.published_by,
         "T_f_s": None if t_pub is None or t0 is None else (t_pub - t0) * 1e-9,
         "metrics": evaluate(est, gt),
@@ -349,24 +364,27 @@ def map_frame_trajectories(pipeline: Any, n_last: int) -> tuple[PoseTrajectory, 
     """(causal, final) IMU trajectories in the map frame of the last `n_last` published states (the
     last segment): causal = each pose as published, T_MO(t) T_OI(t) with the correction in effect
     then; final = every pose re-exported with the completed corrections."""
-    pub = pipeline.published[len(pipeline.published) - n_last:]
-    if not pub:
+    n = len(pipeline.history)
+    rows = pipeline.history.rows(n - n_last)
+    if not len(rows):
         empty = PoseTrajectory(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3, 3)))
         return empty, empty
-    t = [p.t_ns for p in pub]
-    causal_T = [c[0] for c in pipeline.causal[len(pipeline.causal) - n_last:]]
-    final_T = pipeline.final_poses()[len(pipeline.published) - n_last:]
-    return (PoseTrajectory(t, [T[:3, 3] for T in causal_T], [T[:3, :3] for T in causal_T]),
-            PoseTrajectory(t, [T[:3, 3] for T in final_T], [T[:3, :3] for T in final_T]))
+    final_T = np.array(pipeline.final_poses()[n - n_last:]).reshape(-1, 4, 4)
+    return (PoseTrajectory(rows["t_ns"], rows["T_MI"][:, :, 3], rows["T_MI"][:, :, :3]),
+            PoseTrajectory(rows["t_ns"], final_T[:, :3, 3], final_T[:, :3, :3]))
 
 
 def _write_pose_table(path: Path, pipeline: Any) -> None:
     """poses.csv: every published state with its segment, source, and the map correction version and
     interpolation fraction it was published with."""
-    rows = ["t_ns,t_cam_ns,segment,source,correction_version,interpolation_fraction"]
-    for p, (_, version, fraction) in zip(pipeline.published, pipeline.causal, strict=True):
-        rows.append(f"{p.t_ns},{p.t_cam_ns},{p.segment},{p.source},{version},{fraction:.6f}")
-    atomic_write_text(path, "\n".join(rows) + "\n")
+    h = pipeline.history
+    r = h.rows()
+    names = [h.source(c) for c in range(int(r["source"].max()) + 1)] if len(r) else []
+    lines = ["t_ns,t_cam_ns,segment,source,correction_version,interpolation_fraction"]
+    lines += [f"{t},{tc},{seg},{names[src]},{version},{fraction:.6f}" for t, tc, seg, src, version, fraction
+              in zip(r["t_ns"].tolist(), r["t_cam_ns"].tolist(), r["segment"].tolist(), r["source"].tolist(),
+                     r["version"].tolist(), r["fraction"].tolist(), strict=True)]
+    atomic_write_text(path, "\n".join(lines) + "\n")
 
 
 def _plots(out_dir: Path, est: PoseTrajectory, gt: PoseTrajectory) -> None:

@@ -3,6 +3,7 @@ history costs a small fraction of the Python objects it replaces (measured with 
 from __future__ import annotations
 
 import tracemalloc
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -55,6 +56,23 @@ def test_states_and_causal_poses_come_back_bit_for_bit_across_chunks() -> None:
         h.published[n]
     with pytest.raises(IndexError):
         h.causal[-n - 1]
+
+
+def test_an_append_that_fails_records_nothing_and_leaves_later_rows_in_place() -> None:
+    rng = np.random.default_rng(4)
+    h = PoseHistory()
+    good = [_state(rng, k) for k in range(CHUNK_ROWS + 2)]
+    for p, T, v, f in good[:CHUNK_ROWS]:
+        h.append(p, T, v, f)
+    p, T, v, f = good[CHUNK_ROWS]
+    for bad in (replace(p, t_ns=2**63), replace(p, p_OI=np.zeros(2))):   # at a chunk's first row
+        with pytest.raises((OverflowError, ValueError)):
+            h.append(bad, T, v, f)
+        assert len(h) == CHUNK_ROWS
+    for p, T, v, f in good[CHUNK_ROWS:]:
+        h.append(p, T, v, f)
+    assert [s.t_ns for s in h.published[CHUNK_ROWS - 1:]] == [g[0].t_ns for g in good[CHUNK_ROWS - 1:]]
+    assert np.array_equal(h.published[CHUNK_ROWS].R_OI, good[CHUNK_ROWS][0].R_OI)
 
 
 def test_a_long_history_costs_a_fraction_of_the_objects_it_replaces() -> None:

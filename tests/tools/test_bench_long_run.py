@@ -3,6 +3,7 @@ bytes per pose of the columns against the objects (tracemalloc), on a small run.
 from __future__ import annotations
 
 import json
+import re
 
 import pytest
 
@@ -12,7 +13,7 @@ from tools.cli import main
 def test_long_run_bench_measures_both_costs(tmp_path, capsys) -> None:
     out = tmp_path / "long.json"
     assert main(["bench", "long-run", "--hours", "0.05,0.1", "--poses", "8192", "--repeats", "2",
-                 "--out", str(out)]) == 0
+                 "--track-seconds", "0", "--out", str(out)]) == 0
     table = capsys.readouterr().out
     assert "| 0.05 h | 120 |" in table and "| 0.1 h | 240 |" in table
     res = json.loads(out.read_text())
@@ -23,6 +24,7 @@ def test_long_run_bench_measures_both_costs(tmp_path, capsys) -> None:
     # 8192 poses fill two whole chunks of 254-byte rows; the objects were about 1.4 kB a pose
     assert 254 <= p["columns_bytes_per_pose"] < 300 and p["objects_bytes_per_pose"] > 1000
     assert p["columns_mb_per_hour"] == pytest.approx(p["columns_bytes_per_pose"] * 72000 / 1e6)
+    assert res["tracking"] is None                     # --track-seconds 0: the whole-pipeline run skipped
 
 
 @pytest.mark.parametrize("argv, message", [
@@ -30,7 +32,8 @@ def test_long_run_bench_measures_both_costs(tmp_path, capsys) -> None:
     (["--hours", "a,b"], "--hours must be numbers"),
     (["--camera-hz", "nan"], "--camera-hz must be positive"),
     (["--poses", "5"], "--poses must be >= 100"),
+    (["--track-seconds", "5"], "--track-seconds must be 0 or in [10, 3600]"),
 ])
 def test_long_run_bench_refuses_bad_arguments(argv, message) -> None:
-    with pytest.raises(SystemExit, match=message.replace("(", r"\(").replace("]", r"\]")):
+    with pytest.raises(SystemExit, match=re.escape(message)):
         main(["bench", "long-run", *argv])

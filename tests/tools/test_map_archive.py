@@ -153,6 +153,30 @@ def test_manifest_text_equals_encoding_the_whole_manifest_after_every_commit(tmp
     assert read_manifest(folder)["pairs"] == [] and read_manifest(folder)["submaps"] == w.entries
 
 
+def test_placeholder_text_in_any_value_cannot_corrupt_the_manifest(tmp_path):
+    """The writer splices the encoded lists into the manifest at placeholders; a header, entry, pair or
+    stats value holding a placeholder's text (whole, or after a quote) must come out as written."""
+    from tools.map_archive.format import FORMAT, SCHEMA_VERSION, davio_version, jsonable
+    from tools.map_archive.writer import _PAIRS_SLOT, _SUBMAPS_SLOT
+
+    for where in ("header", "entry", "pair", "stats"):
+        for value in (_SUBMAPS_SLOT, _PAIRS_SLOT, '"' + _PAIRS_SLOT, "x" + _SUBMAPS_SLOT):
+            header = {**HEADER, "model": {"description": value if where == "header" else "m"}}
+            folder = tmp_path / f"{where}{len(value)}{value[-3:-1]}"
+            w = MapArchiveWriter(folder, header)
+            sm = make_submap(0, seed=1)
+            if where == "entry":
+                sm.fit = {**sm.fit, "note": value}
+            pairs = [{"a": 0, "b": 1, "note": value if where == "pair" else "p"}]
+            stats = {"note": value if where == "stats" else "s"}
+            w.commit([sm], pairs, 1, stats)
+            text = (folder / "manifest.json").read_text()
+            expected = {"format": FORMAT, "schema_version": SCHEMA_VERSION, "created_by": davio_version(),
+                        **{k: jsonable(header[k]) for k in ("rig", "model", "config")}, "map_version": 1,
+                        "submaps": w.entries, "pairs": jsonable(pairs), "stats": jsonable(stats)}
+            assert text == json.dumps(expected, allow_nan=False, indent=1), (where, value)
+
+
 def test_crash_mid_commit_leaves_previous_archive(tmp_path, monkeypatch):
     folder = tmp_path / "map"
     subs = [make_submap(k, seed=10 + k) for k in range(3)]

@@ -9,6 +9,10 @@ Two costs grow with time however bounded the map and the graph are:
     three moved, one pair record) with N submaps already archived, by the writer
     (`tools.map_archive.MapArchiveWriter`, which keeps each entry's text) against encoding the whole
     manifest at once (what it did before), for N submaps = hours x 3600 / 1.5 (a submap every 1.5 s).
+  * the whole tracking pipeline (`--track-seconds S`, 0 = skip): a simulated `euroc` preset recording
+    through `runtime.pipeline.VioPipeline` (native start-up, no model, so no map) with tracemalloc on; the
+    least-squares slope of the traced bytes against the poses published, over the second half of the run.
+    (A `Session` adds its `poses()` queue, capped at 12000 poses, about 11 MB, full after ten minutes.)
 Submaps carry 50 points here (the manifest does not hold points; a real submap's npz is about 1.3 MB).
 """
 from __future__ import annotations
@@ -38,6 +42,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="published poses per second (a pose a frame)")
     p.add_argument("--poses", type=int, default=20000, help="poses measured for the bytes per pose")
     p.add_argument("--repeats", type=int, default=5, help="commits timed per size (median)")
+    p.add_argument("--track-seconds", type=float, default=300.0,
+                   help="length of the simulated tracking run measured whole (0 = skip)")
+    p.add_argument("--seed", type=int, default=0, help="seed of that recording")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", metavar="FILE.json", help="also write the JSON here")
 
@@ -91,6 +98,45 @@ def pose_bytes(n: int, seed: int = 0) -> dict:
     finally:
         tracemalloc.stop()
     return {"poses": n, "objects_bytes_per_pose": objects / n, "columns_bytes_per_pose": columns / n}
+
+
+def tracking_growth(seconds: float, seed: int, progress: bool) -> dict:
+    """Traced bytes the tracking pipeline holds, per published pose, over the second half of a run: the
+    pipeline driven event by event on this thread (no queue between the events and the pipeline), the
+    traced size read after every frame's state is published, slope by least squares."""
+    from drivers.sim import SimConfig, SimRecording
+    from runtime.config import DavioConfig
+    from runtime.events import Frame
+    from runtime.pipeline import VioPipeline
+
+    rec = SimRecording.from_preset(SimConfig(preset="euroc", seconds=seconds, seed=seed))
+    pipe = VioPipeline(rec.rig, None, DavioConfig())
+    samples: list[tuple[float, int, int]] = []      # (sensor s, published poses, traced bytes)
+    t0 = None
+    next_report = 0.5 * seconds
+    tracemalloc.start()
+    try:
+        for ev in rec.events():
+            t0 = ev.t_ns if t0 is None else t0
+            s = (ev.t_ns - t0) * 1e-9
+            out = pipe.on_frame(ev) if isinstance(ev, Frame) else pipe.on_imu(ev)
+            if out and s >= 0.5 * seconds:
+                samples.append((s, len(pipe.published), tracemalloc.get_traced_memory()[0]))
+                if progress and s >= next_report:
+                    print(f"  tracking run: t = {s:5.1f} s, {samples[-1][1]} poses, "
+                          f"{samples[-1][2] / 1e6:.2f} MB traced", flush=True)
+                    next_report += 0.1 * seconds
+    finally:
+        tracemalloc.stop()
+    if len(samples) < 10:
+        return {"seconds": seconds, "seed": seed, "poses_second_half": len(samples),
+                "traced_bytes_per_pose": None, "stderr_bytes_per_pose": None}
+    a = np.array(samples, np.float64)
+    (slope, icpt), cov = np.polyfit(a[:, 1], a[:, 2], 1, cov=True)
+    return {"seconds": seconds, "seed": seed, "poses_second_half": int(a[-1, 1] - a[0, 1]),
+            "traced_bytes_per_pose": float(slope), "stderr_bytes_per_pose": float(np.sqrt(cov[0, 0])),
+            "traced_mb_first": float(a[0, 2] / 1e6), "traced_mb_last": float(a[-1, 2] / 1e6),
+            "traced_mb_max": float(a[:, 2].max() / 1e6)}
 
 
 def _submap(index: int, rng: np.random.Generator) -> Any:
@@ -175,6 +221,10 @@ def run(args: argparse.Namespace) -> int:
         raise SystemExit(f"davio bench long-run: --camera-hz must be positive, got {args.camera_hz}")
     if args.poses < 100 or args.repeats < 1:
         raise SystemExit("davio bench long-run: --poses must be >= 100 and --repeats >= 1")
+    track_s = args.track_seconds
+    if not (math.isfinite(track_s) and (track_s == 0 or 10 <= track_s <= 3600)):
+        raise SystemExit(f"davio bench long-run: --track-seconds must be 0 or in [10, 3600], got "
+                         f"{args.track_seconds}")
     from runtime.config import DavioConfig
     from runtime.config_io import config_to_dict
 
@@ -191,8 +241,9 @@ def run(args: argparse.Namespace) -> int:
         if progress:
             print(f"  manifest with {n} submaps ({h:g} h)", flush=True)
         rows.append({"hours": h, **manifest_commit_times(n, args.repeats, header, progress)})
+    tracking = tracking_growth(args.track_seconds, args.seed, progress) if args.track_seconds else None
     out = {"camera_hz": args.camera_hz, "poses": poses, "manifest": rows,
-           "submap_period_s": SUBMAP_PERIOD_S}
+           "submap_period_s": SUBMAP_PERIOD_S, "tracking": tracking}
     if args.out:
         Path(args.out).write_text(json.dumps(out, indent=1))
     if args.json:
@@ -202,6 +253,11 @@ def run(args: argparse.Namespace) -> int:
           f"{poses['objects_bytes_per_pose']:.0f} B/pose ({poses['objects_mb_per_hour']:.1f} MB/h at "
           f"{args.camera_hz:g} Hz), columns "
           f"{poses['columns_bytes_per_pose']:.0f} B/pose ({poses['columns_mb_per_hour']:.1f} MB/h)")
+    if tracking is not None and tracking["traced_bytes_per_pose"] is not None:
+        b = tracking["traced_bytes_per_pose"]
+        print(f"tracking pipeline ({tracking['seconds']:g} s euroc preset, second half, "
+              f"{tracking['poses_second_half']} poses): {b:.0f} +- {tracking['stderr_bytes_per_pose']:.0f} B "
+              f"traced per published pose ({b * per_hour / 1e6:.1f} MB/h at {args.camera_hz:g} Hz)")
     print("| run length | submaps | manifest MB | commit, writer ms | commit, whole manifest ms | ratio |")
     print("|---|---|---|---|---|---|")
     if not all(r["same_text"] for r in rows):

@@ -76,7 +76,8 @@ class MapArchiveWriter:
 
     @property
     def entries(self) -> list[dict]:
-        """Manifest entries of every submap committed so far, by index."""
+        """Manifest entries of every submap committed so far, by index (read only: the manifest writes the
+        text encoded when the entry last went through `commit`)."""
         return [self._entries[k] for k in sorted(self._entries)]
 
     def commit(self, submaps: list[Submap], pairs: list[dict], version: int, stats: dict) -> None:
@@ -107,9 +108,15 @@ class MapArchiveWriter:
                     **self.header, "map_version": self.map_version, "submaps": _SUBMAPS_SLOT,
                     "pairs": _PAIRS_SLOT, "stats": jsonable(dict(stats))}
         text = json.dumps(manifest, allow_nan=False, indent=1)
-        text = text.replace(json.dumps(_SUBMAPS_SLOT), _list_text([self._entry_text[k]
-                                                                   for k in sorted(self._entry_text)]), 1)
-        text = text.replace(json.dumps(_PAIRS_SLOT), _list_text(self._pair_text), 1)
+        slots = (json.dumps(_SUBMAPS_SLOT), json.dumps(_PAIRS_SLOT))
+        if all(text.count(slot) == 1 for slot in slots):   # split the skeleton only, never the elements
+            head, rest = text.split(slots[0])
+            middle, tail = rest.split(slots[1])
+            text = "".join((head, _list_text([self._entry_text[k] for k in sorted(self._entry_text)]), middle,
+                            _list_text(self._pair_text), tail))
+        else:   # a header or stats value holds a placeholder's text: encode the whole manifest
+            manifest.update(submaps=self.entries, pairs=jsonable(list(pairs)))
+            text = json.dumps(manifest, allow_nan=False, indent=1)
         atomic_write_bytes(self.folder / MANIFEST_NAME, text.encode())
 
     def _encode_pairs(self, pairs: list) -> None:
@@ -140,7 +147,8 @@ class MapArchiveWriter:
 
 _SUBMAPS_SLOT = "\x00davio:submaps\x00"
 _PAIRS_SLOT = "\x00davio:pairs\x00"
-"""Placeholders for the two long lists in the encoded manifest (a NUL never occurs in a manifest value)."""
+"""Placeholders for the two long lists in the encoded manifest; a commit whose other values contain either
+one's encoded text (found by counting) is encoded whole instead."""
 
 
 def _element_text(value: object) -> str:

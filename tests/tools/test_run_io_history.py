@@ -1,0 +1,83 @@
+"""write_run builds its trajectories and pose table from the history's columns: the files must be what the
+per-state objects give (published_segments / published_trajectory, the causal tuples), restarts included."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from runtime.config import DavioConfig
+from runtime.pose_history import PoseHistory
+from runtime.scheduler import SchedulerReport
+from runtime.startup import Published
+from tools.evaluation import read_tum
+from tools.run_io import published_segments, published_trajectory, write_run
+
+
+class _Pipeline:
+    """What write_run reads of a VioPipeline: the history, its views, final poses, start-up and report."""
+
+    def __init__(self, history: PoseHistory, final: list[np.ndarray]) -> None:
+        self.history, self.published, self.causal = history, history.published, history.causal
+        self._final = final
+        self.startup = None
+
+    def final_poses(self) -> list[np.ndarray]:
+        return self._final
+
+    def report(self) -> dict:
+        return {}
+
+
+def _history(rng: np.random.Generator) -> tuple[PoseHistory, list]:
+    h = PoseHistory()
+    given = []
+    for k in range(30):
+        seg = 0 if k < 12 else 1                       # a restart after pose 12
+        p = Published(10**18 + 50_000_000 * k, 10**18 + 50_000_000 * k - 3,
+                      Rotation.random(random_state=k).as_matrix(), rng.normal(size=3), rng.normal(size=3),
+                      "native:dynamic" if seg == 0 else "feedforward", seg, seg)
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = Rotation.random(random_state=100 + k).as_matrix(), rng.normal(size=3)
+        h.append(p, T, k // 5, 0.25 * (k % 4))
+        given.append((p, T, k // 5, 0.25 * (k % 4)))
+    return h, given
+
+
+def _same(a, b) -> None:
+    assert np.array_equal(a.t_ns, b.t_ns)
+    np.testing.assert_allclose(a.p, b.p, atol=1e-12, rtol=0)
+    np.testing.assert_allclose(a.R, b.R, atol=1e-12, rtol=0)
+
+
+def test_run_files_from_columns_equal_the_per_state_objects(tmp_path) -> None:
+    rng = np.random.default_rng(1)
+    h, given = _history(rng)
+    final = [np.asarray(T) @ np.diag([1.0, 1.0, 1.0, 1.0]) for _, T, _, _ in given]
+    report = write_run(tmp_path, _Pipeline(h, final), SchedulerReport(), None, {}, DavioConfig())
+    objects = [p for p, _, _, _ in given]
+    segs = published_segments(objects)
+    assert [len(s) for s in segs] == [12, 18]
+    for k, seg in enumerate(segs):
+        _same(read_tum(tmp_path / f"odometry_segment{k}.tum"), published_trajectory(seg))
+    _same(read_tum(tmp_path / "odometry.tum"), published_trajectory(segs[-1]))
+    causal = read_tum(tmp_path / "causal.tum")
+    assert np.array_equal(causal.t_ns, [p.t_ns for p in segs[-1]])
+    np.testing.assert_allclose(causal.p, [T[:3, 3] for _, T, _, _ in given[12:]], atol=1e-12, rtol=0)
+    np.testing.assert_allclose(read_tum(tmp_path / "final.tum").p, [T[:3, 3] for T in final[12:]],
+                               atol=1e-12, rtol=0)
+    lines = (tmp_path / "poses.csv").read_text().splitlines()
+    assert lines[1:] == [f"{p.t_ns},{p.t_cam_ns},{p.segment},{p.source},{v},{f:.6f}" for p, _, v, f in given]
+    assert report["published_poses"] == 30 and report["metrics_segment"] == 1
+    assert report["segments"] == [{"poses": 12, "start_t_ns": objects[0].t_ns, "source": "native:dynamic"},
+                                  {"poses": 18, "start_t_ns": objects[12].t_ns, "source": "feedforward"}]
+    assert json.loads((tmp_path / "report.json").read_text())["segments"] == report["segments"]
+
+
+def test_a_run_that_published_nothing_writes_empty_files(tmp_path) -> None:
+    report = write_run(tmp_path, _Pipeline(PoseHistory(), []), SchedulerReport(), None, {}, DavioConfig())
+    assert report["published_poses"] == 0 and report["segments"] == [] and report["metrics_segment"] is None
+    assert (tmp_path / "poses.csv").read_text().splitlines()[1:] == []
+    for name in ("odometry.tum", "causal.tum", "final.tum"):   # the header line only
+        assert [ln for ln in (tmp_path / name).read_text().splitlines() if not ln.startswith("#")] == []
