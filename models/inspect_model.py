@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from models.onnx_file import check_model_file, model_signature
+from models.onnx_file import check_model_file, model_signature, require_file
 from runtime.errors import ModelError
 
 
@@ -33,11 +33,7 @@ def inspect_model(path: str | Path, load_session: bool = True) -> dict:
     from models.matcher.contract import check_lighterglue_signature, check_xfeat_signature
 
     path = Path(path)
-    if not path.is_file():
-        raise ModelError(
-            f"model file not found: {path} (export DA3 with `davio export-da3`, XFeat with "
-            "`davio export-xfeat`)"
-        )
+    require_file(path, " (export DA3 with `davio export-da3`, XFeat with `davio export-xfeat`)")
     model = check_model_file(path)
     inputs, outputs = model_signature(model)
     names = {n for n, _, _ in inputs}

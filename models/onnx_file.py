@@ -43,6 +43,15 @@ _ELEM = {
 }
 
 
+def require_file(path: Path, hint: str = "") -> None:
+    """Raise ModelError unless `path` is a file: "not found", or "is a folder" for a directory."""
+    if path.is_file():
+        return
+    if path.is_dir():
+        raise ModelError(f"{path} is a folder, not an ONNX model file{hint}")
+    raise ModelError(f"model file not found: {path}{hint}")
+
+
 def read_model(path: str | Path) -> onnx.ModelProto:
     """The model proto of `path`, without reading any external data.
 
@@ -52,8 +61,7 @@ def read_model(path: str | Path) -> onnx.ModelProto:
     import onnx
 
     path = Path(path)
-    if not path.is_file():
-        raise ModelError(f"model file not found: {path}")
+    require_file(path)
     try:
         model = onnx.load(str(path), load_external_data=False)
     except Exception as exc:

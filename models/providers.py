@@ -14,7 +14,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from models.onnx_file import ContractCheck, check_model_file
+from models.onnx_file import ContractCheck, check_model_file, require_file
 from runtime.errors import ModelError
 
 log = logging.getLogger(__name__)
@@ -119,8 +119,7 @@ def create_session(
     import onnxruntime as ort
 
     path = Path(path)
-    if not path.is_file():
-        raise ModelError(f"model file not found: {path}")
+    require_file(path)
     if threads is not None and threads < 1:
         raise ModelError(f"intra-op threads must be >= 1, got {threads}")
     check_model_file(path, contract)

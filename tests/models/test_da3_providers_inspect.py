@@ -92,6 +92,11 @@ def test_inspect_model_reports_contract_and_card(graph):
 def test_inspect_model_errors(tmp_path, graph):
     with pytest.raises(ModelError, match="not found"):
         inspect_model(tmp_path / "absent.onnx")
+    (tmp_path / "folder.onnx").mkdir()                     # a folder named like a model: said so
+    with pytest.raises(ModelError, match="folder.onnx is a folder, not an ONNX model file"):
+        inspect_model(tmp_path / "folder.onnx")
+    with pytest.raises(ModelError, match="is a folder, not an ONNX model file"):
+        providers.create_session(tmp_path / "folder.onnx")
     bad = tmp_path / "bad.onnx"
     bad.write_bytes(np.random.default_rng(1).integers(0, 255, 999, dtype=np.uint8).tobytes())
     with pytest.raises(ModelError, match="not a readable ONNX model"):
