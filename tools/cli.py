@@ -71,13 +71,25 @@ def _usage_lines(p: argparse.ArgumentParser) -> str:
     return "\n".join(out)
 
 
+def _chosen_parser(parser: argparse.ArgumentParser, args: argparse.Namespace) -> argparse.ArgumentParser:
+    """The innermost (sub)command parser `args` went through (e.g. that of `davio eval ate`)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            name = getattr(args, action.dest, None)
+            if name in action.choices:
+                return _chosen_parser(action.choices[name], args)
+    return parser
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `davio` console script; returns the process exit code."""
     # numba's default OpenMP layer busy-waits its idle threads, which halves throughput on the
     # small shared CPUs DAVIO runs on; the workqueue layer does not (override with the variable).
     os.environ.setdefault("NUMBA_THREADING_LAYER", "workqueue")
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:   # said by the command that was given (its usage), not by the top-level parser
+        _chosen_parser(parser, args).error(f"unrecognized arguments: {' '.join(extra)}")
     if args.version:
         from importlib.metadata import version
 

@@ -5,6 +5,8 @@ import json
 import subprocess
 import sys
 
+import pytest
+
 from tools.cli import build_parser, main
 
 
@@ -45,7 +47,13 @@ def test_options_are_not_abbreviated_and_help_hides_none_defaults(capsys):
         code = main(["run", "somewhere", "--nat"])
     except SystemExit as exc:
         code = exc.code
-    assert code == 2 and "unrecognized arguments: --nat" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert code == 2 and "davio run: error: unrecognized arguments: --nat" in err
+    assert "usage: davio run" in err                    # the command's usage, not the top-level one
+    with pytest.raises(SystemExit):
+        main(["eval", "ate", "a.tum", "b.tum", "--frob"])
+    err = capsys.readouterr().err
+    assert "davio eval ate: error: unrecognized arguments: --frob" in err and "usage: davio eval ate" in err
     parser = build_parser()
     sub = next(a for a in parser._actions if a.dest == "command")
     for sp in sub.choices.values():
