@@ -38,7 +38,8 @@ class StreamCounts:
 
     The identity `lines == parsed + truncated_lines + malformed_lines + dropped_nonfinite
     + dropped_nonmonotonic + dropped_duplicate` holds after reading, and for cameras
-    `parsed == emitted + missing_images + unreadable_images` once every event was produced.
+    `parsed == emitted + missing_images + repeated_images + unreadable_images` once every event was
+    produced.
     """
 
     lines: int = 0
@@ -59,6 +60,8 @@ class StreamCounts:
     """rows repeating an earlier row's stamp (the first row in the file is kept)"""
     missing_images: int = 0
     """frames whose image file does not exist"""
+    repeated_images: int = 0
+    """frames naming an image file an earlier frame already names (the earlier frame keeps it)"""
     unreadable_images: int = 0
     """frames whose image file exists but does not decode to a grey image of the stream's size"""
     converted: int = 0

@@ -9,6 +9,7 @@ Images are decoded lazily, only when their `Frame` is produced.
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -189,11 +190,24 @@ class EurocDriver(Driver):
             raise DataError("no usable frame: " + explain_unreadable(csv, 1, CAMERA_COLUMNS, counts), csv)
         files = [cam_dir / "data" / r[0] for r in rows.text]
         keep = np.ones(len(files), dtype=bool)
+        first_listed: dict[Path, int] = {}
         for i, f in enumerate(files):
             name_parts = Path(rows.text[i][0]).parts
             if Path(rows.text[i][0]).is_absolute() or ".." in name_parts:   # symlinked files are fine
                 raise DataError(f"image file name {rows.text[i][0]!r} points outside {name}/data/",
                                 csv, int(rows.line[i]))
+            earlier = first_listed.setdefault(Path(os.path.normpath(f)), i)
+            if earlier != i:     # one picture at two times: the second would be a frame of no motion
+                if self.policy == "strict":
+                    raise DataError(f"image file {f.name} is listed again (first on line "
+                                    f"{int(rows.line[earlier])})", csv, int(rows.line[i]))
+                if not counts.repeated_images:
+                    self._report.note(f"{name}: image {f.name} is listed at two stamps (lines "
+                                      f"{int(rows.line[earlier])} and {int(rows.line[i])}): the later frame "
+                                      "is skipped, as is every later repeat (counted)")
+                counts.repeated_images += 1
+                keep[i] = False
+                continue
             if not f.is_file():
                 if self.policy == "strict":
                     raise DataError(f"image file {f} does not exist", csv, int(rows.line[i]))

@@ -65,7 +65,8 @@ def assert_accounted(report: dict, replayed: bool = True) -> None:
                    + s["dropped_nonmonotonic"] + s["dropped_duplicate"])
         assert s["lines"] == s["parsed"] + dropped, name
         if replayed and name.startswith("cam"):
-            assert s["parsed"] == s["emitted"] + s["missing_images"] + s["unreadable_images"], name
+            assert s["parsed"] == (s["emitted"] + s["missing_images"] + s["repeated_images"]
+                                   + s["unreadable_images"]), name
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -274,6 +275,25 @@ def test_missing_and_corrupt_images(tmp_path: Path) -> None:
     assert [f.t_ns for f in frames] == [cams[i][0] for i in (0, 1, 3, 5)]
     assert frames[0].image[0, 0] == 255 and frames[0].image.shape == (6, 8)
     assert_accounted(drv.report())
+
+
+def test_an_image_listed_at_two_stamps_is_kept_once(tmp_path: Path) -> None:
+    """One picture at two times would be a frame of no motion (and a wrong one); the later listing is
+    skipped, counted and noted, and refused when strict."""
+    cams = cam_rows(6)
+    seq = write_asl(tmp_path, imu_rows(80), {"cam0": cams},
+                    extra_cam_lines={"cam0": [f"{cams[-1][0] + 50_000_000},{cams[1][1]}",
+                                              f"{cams[-1][0] + 100_000_000},./{cams[2][1]}"]})
+    drv = EurocDriver(seq)
+    _, frames = split(list(drv.events()))
+    rep = drv.report()
+    assert [f.t_ns for f in frames] == [t for t, _ in cams]
+    assert rep["streams"]["cam0"]["repeated_images"] == 2
+    assert any(f"image {cams[1][1]} is listed at two stamps (lines 3 and 8)" in n for n in rep["notes"])
+    assert_accounted(rep)
+    again = rf"data.csv:8: image file {cams[1][1]} is listed again \(first on line 3\)"
+    with pytest.raises(DataError, match=again):
+        EurocDriver(seq, policy="strict")
 
 
 def test_a_wrong_size_first_image_is_skipped_against_the_calibration(tmp_path: Path) -> None:

@@ -247,7 +247,7 @@ _DRIVER_COUNTERS = {
     "truncated_lines": "truncated lines", "malformed_lines": "malformed lines",
     "dropped_nonfinite": "non-finite samples dropped", "dropped_nonmonotonic": "corrupt stamps dropped",
     "dropped_duplicate": "duplicates dropped", "reordered": "out-of-order rows sorted",
-    "converted": "converted", "missing_images": "missing images",
+    "converted": "converted", "missing_images": "missing images", "repeated_images": "repeated images",
     "unreadable_images": "unreadable images", "gaps": "gaps",
 }
 
