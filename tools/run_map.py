@@ -6,21 +6,34 @@
 """
 from __future__ import annotations
 
+import shutil
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+MIN_FREE_MB = 1024.0
+"""Free disk space (MB) the archive leaves for the rest of the run: below it the archive stops taking
+commits, so that the trajectory files, report and map.ply written at the end still fit (a submap's
+archive is about 1.3 MB, 3 GB an hour)."""
+
 
 class MapOutput:
-    """Writes a run's map archive as the mapper commits, and the final export."""
+    """Writes a run's map archive as the mapper commits, and the final export.
 
-    def __init__(self, out_dir: Path, header: dict, voxel_m: float) -> None:
+    When the disk holding the run has less than `min_free_mb` free, the archive stops at its last commit
+    (the folder stays a valid archive of the map so far); the commits skipped are counted, and the summary
+    (report.json "map") and the console say so. The live map and the trajectory are not affected."""
+
+    def __init__(self, out_dir: Path, header: dict, voxel_m: float, min_free_mb: float = MIN_FREE_MB) -> None:
         from tools.map_archive import MapArchiveWriter
 
         self.out_dir = Path(out_dir)
         self.voxel_m = voxel_m
         self.archive = MapArchiveWriter(self.out_dir / "map", header, overwrite=True)
         self.pairs: list[dict] = []
+        self.min_free_mb = float(min_free_mb)
+        self.stopped: dict | None = None
+        """None, or why and where the archive stopped: reason, free_mb, map_version, commits_skipped."""
 
     @classmethod
     def create(cls, out_dir: Path, rig: Any, model_desc: str, model: Any, config: Any) -> MapOutput | None:
@@ -39,6 +52,15 @@ class MapOutput:
 
     def sink(self, commit: Any, stats: Any) -> None:
         """Checkpoint the archive at a map commit (called by the model worker)."""
+        if self.stopped is None:
+            free_mb = shutil.disk_usage(self.archive.folder).free / 1e6
+            if free_mb < self.min_free_mb:
+                self.stopped = {"reason": f"less than {self.min_free_mb:g} MB free on the run's disk",
+                                "free_mb": round(free_mb, 1), "map_version": self.archive.map_version,
+                                "commits_skipped": 0}
+        if self.stopped is not None:
+            self.stopped["commits_skipped"] += 1
+            return
         if commit.link is not None:
             self.pairs.append(commit.link.as_dict())
         self.archive.commit([commit.submap, *commit.changed], self.pairs, commit.version, asdict(stats))
@@ -49,8 +71,8 @@ class MapOutput:
         from tools.map_archive import export_map
 
         n_sub = len(self.archive.entries)
-        summary = {"archive": "map", "submaps": n_sub,
-                   "map_version": self.archive.map_version, "ply": None, "voxels": 0}
+        summary = {"archive": "map", "submaps": n_sub, "map_version": self.archive.map_version,
+                   "ply": None, "voxels": 0, "archive_stopped": self.stopped}
         if n_sub:
             summary["voxels"] = export_map(self.out_dir / "map", self.out_dir / "map.ply", self.voxel_m,
                                            verify=False)[0]   # the archive this run has just written

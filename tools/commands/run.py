@@ -230,7 +230,16 @@ def _mapping_line(mp: dict, summary: dict) -> str:
             f"{mp['points_retained']} points kept ({100 * mp['rejected_confidence'] / sampled:.0f} % low "
             f"confidence, {100 * mp['rejected_multiview'] / sampled:.0f} % failed the multi-view test, "
             f"{100 * mp.get('points_unverified', 0) / sampled:.0f} % kept seen by one image only); "
-            f"{summary.get('voxels', 0)} voxels in map.ply" + _graph_text(mp.get("graph")))
+            f"{summary.get('voxels', 0)} voxels in map.ply" + _graph_text(mp.get("graph"))
+            + _archive_stopped_text(summary.get("archive_stopped")))
+
+
+def _archive_stopped_text(stopped: dict | None) -> str:
+    if not stopped:
+        return ""
+    return (f"\n  WARNING: the map archive stopped at map version {stopped['map_version']} "
+            f"({stopped['reason']}: {stopped['free_mb']:g} MB); {stopped['commits_skipped']} later commits "
+            "were not archived, and map.ply holds the map up to then")
 
 
 def _graph_text(g: dict | None) -> str:

@@ -1,0 +1,51 @@
+"""A run's map archive stops, whole and readable, when the disk runs low: the later commits are counted and
+the console warns, and room is left for the trajectory files written at the end."""
+from __future__ import annotations
+
+import shutil
+from collections import namedtuple
+from types import SimpleNamespace
+
+from test_map_archive import make_submap
+
+from runtime.mapping.mapper import MappingStats
+from tools.commands.run import _mapping_line
+from tools.map_archive import check_integrity, read_manifest
+from tools.run_map import MIN_FREE_MB, MapOutput
+
+Usage = namedtuple("Usage", "total used free")
+MP = {"windows_accepted": 5, "windows_offered": 5, "windows_dropped_queue": 0, "windows_rejected": {},
+      "points_sampled": 1, "rejected_confidence": 0, "rejected_multiview": 0, "points_retained": 1}
+
+
+def test_the_archive_stops_at_its_last_commit_when_the_disk_runs_low(tmp_path, monkeypatch) -> None:
+    free = {"mb": 50_000.0}
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: Usage(10**12, 0, int(free["mb"] * 1e6)))
+    out = MapOutput(tmp_path, {"rig": {}, "model": {}, "config": {}}, voxel_m=0.25)
+    subs = [make_submap(k, seed=k) for k in range(5)]
+    for k, sm in enumerate(subs):
+        if k == 3:
+            free["mb"] = MIN_FREE_MB - 1            # the disk fills up before the fourth commit
+        if k == 4:
+            free["mb"] = 50_000.0                   # space freed again: the archive stays stopped
+        out.sink(SimpleNamespace(link=None, submap=sm, changed=[], version=k + 1), MappingStats())
+    assert [e["index"] for e in read_manifest(tmp_path / "map")["submaps"]] == [0, 1, 2]
+    assert check_integrity(tmp_path / "map") == []           # a whole, readable archive of the map so far
+    summary = out.finish()
+    assert summary["submaps"] == 3 and summary["map_version"] == 3 and summary["ply"] == "map.ply"
+    stopped = summary["archive_stopped"]
+    assert stopped == {"reason": f"less than {MIN_FREE_MB:g} MB free on the run's disk",
+                       "free_mb": MIN_FREE_MB - 1, "map_version": 3, "commits_skipped": 2}
+    line = _mapping_line(MP, summary)
+    assert "WARNING: the map archive stopped at map version 3" in line and "2 later commits" in line
+
+
+def test_plenty_of_space_archives_every_commit(tmp_path, monkeypatch) -> None:
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: Usage(10**12, 0, 10**12))
+    out = MapOutput(tmp_path, {"rig": {}, "model": {}, "config": {}}, voxel_m=0.25)
+    for k in range(2):
+        out.sink(SimpleNamespace(link=None, submap=make_submap(k, seed=k), changed=[], version=k + 1),
+                 MappingStats())
+    summary = out.finish()
+    assert summary["submaps"] == 2 and summary["archive_stopped"] is None
+    assert "WARNING" not in _mapping_line(MP, summary)
