@@ -11,10 +11,11 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-MIN_FREE_MB = 1024.0
+MIN_FREE_MB = 256.0
 """Free disk space (MB) the archive leaves for the rest of the run: below it the archive stops taking
-commits, so that the trajectory files, report and map.ply written at the end still fit (a submap's
-archive is about 1.3 MB, 3 GB an hour)."""
+commits, so that what is written at the end still fits: the trajectory files (about 5 MB an hour), the
+report and map.ply (about 16 bytes a voxel: 256 MB hold 16 million). A submap's archive is about 1.3 MB,
+3 GB an hour."""
 
 
 class MapOutput:
