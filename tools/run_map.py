@@ -7,6 +7,8 @@
 from __future__ import annotations
 
 import shutil
+import sys
+import time
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -76,6 +78,23 @@ class MapOutput:
                    "ply": None, "voxels": 0, "archive_stopped": self.stopped}
         if n_sub:
             summary["voxels"] = export_map(self.out_dir / "map", self.out_dir / "map.ply", self.voxel_m,
+                                           ExportProgress(),
                                            verify=False)[0]   # the archive this run has just written
             summary["ply"] = "map.ply"
         return summary
+
+
+class ExportProgress:
+    """Progress lines on stderr while the end of a run fuses its archive into map.ply, at most one every
+    `every_s` seconds (a long run's export reads every submap again: minutes after hours of mapping)."""
+
+    def __init__(self, every_s: float = 5.0) -> None:
+        self.every_s = every_s
+        self.t0 = self.last = time.monotonic()
+
+    def __call__(self, done: int, total: int) -> None:
+        now = time.monotonic()
+        if now - self.last >= self.every_s and done < total:
+            self.last = now
+            print(f"  exporting map.ply: {done}/{total} submaps fused ({now - self.t0:.0f} s)",
+                  file=sys.stderr, flush=True)

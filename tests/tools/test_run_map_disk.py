@@ -1,5 +1,6 @@
 """A run's map archive stops, whole and readable, when the disk runs low: the later commits are counted and
-the console warns, and room is left for the trajectory files written at the end."""
+the console warns, and room is left for the trajectory files written at the end. The export at the end of
+a run says how far it is."""
 from __future__ import annotations
 
 import shutil
@@ -49,3 +50,19 @@ def test_plenty_of_space_archives_every_commit(tmp_path, monkeypatch) -> None:
     summary = out.finish()
     assert summary["submaps"] == 2 and summary["archive_stopped"] is None
     assert "WARNING" not in _mapping_line(MP, summary)
+
+
+def test_a_long_export_at_the_end_of_a_run_says_how_far_it_is(tmp_path, monkeypatch, capsys) -> None:
+    from tools import run_map
+
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: Usage(10**12, 0, 10**12))
+    out = MapOutput(tmp_path, {"rig": {}, "model": {}, "config": {}}, voxel_m=0.25)
+    for k in range(4):
+        out.sink(SimpleNamespace(link=None, submap=make_submap(k, seed=k), changed=[], version=k + 1),
+                 MappingStats())
+    clock = iter(range(0, 1000, 3))                  # 3 s of wall time between calls
+    monkeypatch.setattr(run_map.time, "monotonic", lambda: float(next(clock)))
+    assert out.finish()["submaps"] == 4
+    err = capsys.readouterr().err
+    # one line at most every 5 s, none for the last submap (the export is then done)
+    assert err.splitlines() == ["  exporting map.ply: 2/4 submaps fused (6 s)"]
