@@ -124,8 +124,8 @@ class IntakeReport:
         """A JSON-ready dict: per-stream counters, totals of the drop counters, and notes."""
         totals = {k: self.total(k) for k in ("truncated_lines", "malformed_lines", "dropped_nonfinite",
                                              "dropped_nonmonotonic", "dropped_duplicate", "reordered",
-                                             "converted", "missing_images", "unreadable_images",
-                                             "gaps")}
+                                             "converted", "missing_images", "repeated_images",
+                                             "unreadable_images", "gaps")}
         return {"driver": self.driver, "source": self.source, "policy": self.policy,
                 "streams": {k: asdict(v) for k, v in self.streams.items()},
                 "totals": totals, "notes": list(self.notes)}
@@ -137,7 +137,7 @@ class IntakeReport:
             parts = [f"{s.parsed}/{s.lines} rows kept", f"{s.emitted} emitted"]
             for key in ("truncated_lines", "malformed_lines", "dropped_nonfinite", "dropped_nonmonotonic",
                         "dropped_duplicate", "reordered", "converted", "missing_images",
-                        "unreadable_images", "gaps"):
+                        "repeated_images", "unreadable_images", "gaps"):
                 value = getattr(s, key)
                 if value:
                     parts.append(f"{key.replace('_', ' ')} {value}")

@@ -198,13 +198,14 @@ class EurocDriver(Driver):
                                 csv, int(rows.line[i]))
             earlier = first_listed.setdefault(Path(os.path.normpath(f)), i)
             if earlier != i:     # one picture at two times: the second would be a frame of no motion
+                listed = rows.text[i][0]
                 if self.policy == "strict":
-                    raise DataError(f"image file {f.name} is listed again (first on line "
+                    raise DataError(f"image file {listed} is listed again (first on line "
                                     f"{int(rows.line[earlier])})", csv, int(rows.line[i]))
                 if not counts.repeated_images:
-                    self._report.note(f"{name}: image {f.name} is listed at two stamps (lines "
-                                      f"{int(rows.line[earlier])} and {int(rows.line[i])}): the later frame "
-                                      "is skipped, as is every later repeat (counted)")
+                    self._report.note(f"{name}: image {listed} is listed at two stamps (line "
+                                      f"{int(rows.line[earlier])}, and line {int(rows.line[i])} at the later "
+                                      "stamp, skipped); every repeat is skipped at its later stamp (counted)")
                 counts.repeated_images += 1
                 keep[i] = False
                 continue

@@ -43,13 +43,14 @@ _ELEM = {
 }
 
 
-def require_file(path: Path, hint: str = "") -> None:
-    """Raise ModelError unless `path` is a file: "not found", or "is a folder" for a directory."""
+def require_file(path: Path, hint: str = "", missing: str | None = None) -> None:
+    """Raise ModelError unless `path` is a file: "is a folder" for a directory, else `missing` (default
+    "model file not found: PATH"); `hint` ends either message."""
     if path.is_file():
         return
     if path.is_dir():
         raise ModelError(f"{path} is a folder, not an ONNX model file{hint}")
-    raise ModelError(f"model file not found: {path}{hint}")
+    raise ModelError((missing or f"model file not found: {path}") + hint)
 
 
 def read_model(path: str | Path) -> onnx.ModelProto:

@@ -211,21 +211,20 @@ class VioPipeline:
             T_MO = sm.T_MS @ np.linalg.inv(sm.T_OS)
             self.node_corrections[sm.index] = (sm.segment, int(sm.frame_t_ns[sm.centre]) + offset, T_MO)
 
-    def final_poses(self) -> list[np.ndarray]:
+    def final_poses(self) -> np.ndarray:
         """Every published pose re-exported with the completed corrections (T_MI per state): each
         state gets the final correction of its segment's submaps, interpolated between the submap
-        centres around it (runtime.graph.correction.final_corrections)."""
+        centres around it (runtime.graph.correction.final_corrections); (N,4,4), one array."""
         rows = self.history.rows()
         T_OI = make_pose(rows["R_OI"], rows["p_OI"]).reshape(-1, 4, 4)
-        out: list[np.ndarray] = [np.eye(4)] * len(rows)
+        out = T_OI.copy()
         for seg in np.unique(rows["segment"]):
             idx = np.flatnonzero(rows["segment"] == seg)
             nodes = sorted((t, T) for s, t, T in self.node_corrections.values() if s == seg)
             t_nodes = np.array([t for t, _ in nodes], np.int64)
             T_nodes = np.array([T for _, T in nodes]).reshape(-1, 4, 4)
             corr = final_corrections(rows["t_ns"][idx], t_nodes, T_nodes)
-            for j, k in enumerate(idx):
-                out[k] = corr[j] @ T_OI[k]
+            out[idx] = np.matmul(corr, T_OI[idx])
         return out
 
     # ------------------------------------------------------------------ mapping queue

@@ -88,8 +88,11 @@ def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("NUMBA_THREADING_LAYER", "workqueue")
     parser = build_parser()
     args, extra = parser.parse_known_args(argv)
-    if extra:   # said by the command that was given (its usage), not by the top-level parser
-        _chosen_parser(parser, args).error(f"unrecognized arguments: {' '.join(extra)}")
+    if extra:   # said by the command it was given to (with that command's usage)
+        given = sys.argv[1:] if argv is None else list(argv)
+        before = given.index(args.command) if args.command in given else len(given)
+        top = any(tok in given[:before] for tok in extra)
+        (parser if top else _chosen_parser(parser, args)).error(f"unrecognized arguments: {' '.join(extra)}")
     if args.version:
         from importlib.metadata import version
 

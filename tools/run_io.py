@@ -369,7 +369,7 @@ def map_frame_trajectories(pipeline: Any, n_last: int) -> tuple[PoseTrajectory, 
     if not len(rows):
         empty = PoseTrajectory(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3, 3)))
         return empty, empty
-    final_T = np.array(pipeline.final_poses()[n - n_last:]).reshape(-1, 4, 4)
+    final_T = np.asarray(pipeline.final_poses())[n - n_last:].reshape(-1, 4, 4)
     return (PoseTrajectory(rows["t_ns"], rows["T_MI"][:, :, 3], rows["T_MI"][:, :, :3]),
             PoseTrajectory(rows["t_ns"], final_T[:, :3, 3], final_T[:, :3, :3]))
 

@@ -29,6 +29,7 @@ from models.da3.preprocess import (
 )
 from models.da3.similarity import umeyama_sim3
 from models.depth_model import DepthPrediction
+from models.onnx_file import require_file
 from models.providers import create_session
 from runtime.errors import DataError, ModelError
 from runtime.events import Frame
@@ -82,11 +83,8 @@ class OnnxDA3:
         threads: int | None = None,
     ) -> None:
         self.path = Path(model_path)
-        if not self.path.is_file():
-            raise ModelError(
-                f"DA3 model not found: {self.path}. Export it once from the official checkpoint "
-                f"(Small or Base for commercial use) with: {export_hint(self.path, camera)}"
-            )
+        require_file(self.path, missing=f"DA3 model not found: {self.path}. Export it once from the official "
+                     f"checkpoint (Small or Base for commercial use) with: {export_hint(self.path, camera)}")
         # the contract is checked on the file before ONNX Runtime parses it, then on the session
         self.session, self.session_info = create_session(
             self.path, providers, threads, contract=check_da3_signature

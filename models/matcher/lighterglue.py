@@ -13,6 +13,7 @@ import numpy as np
 
 from models.matcher.contract import check_lighterglue_signature
 from models.matcher.features import Features
+from models.onnx_file import require_file
 from models.providers import create_session
 from runtime.errors import ModelError
 
@@ -55,11 +56,8 @@ class LighterGlue:
         threads: int | None = None,
     ) -> None:
         path = Path(model_path)
-        if not path.is_file():
-            raise ModelError(
-                f"LighterGlue model not found: {path}. Export it with: "
-                f"davio export-xfeat --lighterglue {path}"
-            )
+        require_file(path, missing=f"LighterGlue model not found: {path}. Export it with: "
+                                   f"davio export-xfeat --lighterglue {path}")
         self.path, self.min_conf = path, min_conf
         self.session, self.session_info = create_session(
             path, providers, threads, contract=check_lighterglue_signature

@@ -18,6 +18,7 @@ import numpy as np
 
 from models.matcher.contract import CELL, check_xfeat_signature
 from models.matcher.features import Features, pyramid_scales
+from models.onnx_file import require_file
 from models.providers import create_session
 from runtime.errors import DataError, ModelError
 
@@ -92,10 +93,8 @@ class XFeatDetector:
         threads: int | None = None,
     ) -> None:
         path = Path(model_path) if model_path is not None else DEFAULT_XFEAT_PATH
-        if not path.is_file():
-            raise ModelError(
-                f"XFeat model not found: {path}. Export it with: davio export-xfeat --out {path}"
-            )
+        require_file(path, missing=f"XFeat model not found: {path}. Export it with: "
+                                   f"davio export-xfeat --out {path}")
         self.path = path
         self.session, self.session_info = create_session(
             path, providers, threads, contract=check_xfeat_signature

@@ -289,7 +289,8 @@ def test_an_image_listed_at_two_stamps_is_kept_once(tmp_path: Path) -> None:
     rep = drv.report()
     assert [f.t_ns for f in frames] == [t for t, _ in cams]
     assert rep["streams"]["cam0"]["repeated_images"] == 2
-    assert any(f"image {cams[1][1]} is listed at two stamps (lines 3 and 8)" in n for n in rep["notes"])
+    assert any(f"image {cams[1][1]} is listed at two stamps (line 3, and line 8 at the later stamp, skipped)"
+               in n for n in rep["notes"])
     assert_accounted(rep)
     again = rf"data.csv:8: image file {cams[1][1]} is listed again \(first on line 3\)"
     with pytest.raises(DataError, match=again):

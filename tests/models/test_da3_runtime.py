@@ -116,6 +116,9 @@ def test_missing_model_names_file_and_export_command(tmp_path):
     with pytest.raises(ModelError) as e:
         OnnxDA3(path, CAM)
     assert str(path) in str(e.value) and "davio export-da3" in str(e.value)
+    path.mkdir()                               # a folder named like the model: said, no export command
+    with pytest.raises(ModelError, match="da3_small_378x504.onnx is a folder, not an ONNX model file$"):
+        OnnxDA3(path, CAM)
 
 
 def test_corrupt_file_is_a_model_error(tmp_path):

@@ -223,3 +223,11 @@ def test_errors(tmp_path):
         det.detect(np.zeros((64, 64), np.float32))
     with pytest.raises(ValueError):
         Matcher(None, ratio=0.0)
+
+
+def test_a_missing_or_folder_model_path_is_named(tmp_path):
+    with pytest.raises(ModelError, match="XFeat model not found: .*absent.onnx. Export it with: davio"):
+        XFeatDetector(tmp_path / "absent.onnx")
+    (tmp_path / "xfeat.onnx").mkdir()
+    with pytest.raises(ModelError, match="xfeat.onnx is a folder, not an ONNX model file$"):
+        XFeatDetector(tmp_path / "xfeat.onnx")

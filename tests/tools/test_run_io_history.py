@@ -8,6 +8,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from runtime.config import DavioConfig
+from runtime.geometry.trajectory import PoseTrajectory
 from runtime.pose_history import PoseHistory
 from runtime.scheduler import SchedulerReport
 from runtime.startup import Published
@@ -30,11 +31,11 @@ class _Pipeline:
         return {}
 
 
-def _history(rng: np.random.Generator) -> tuple[PoseHistory, list]:
+def _history(rng: np.random.Generator, n: int = 30, restart: int | None = 12) -> tuple[PoseHistory, list]:
     h = PoseHistory()
     given = []
-    for k in range(30):
-        seg = 0 if k < 12 else 1                       # a restart after pose 12
+    for k in range(n):
+        seg = 0 if restart is None or k < restart else 1     # a restart after pose `restart`
         p = Published(10**18 + 50_000_000 * k, 10**18 + 50_000_000 * k - 3,
                       Rotation.random(random_state=k).as_matrix(), rng.normal(size=3), rng.normal(size=3),
                       "native:dynamic" if seg == 0 else "feedforward", seg, seg)
@@ -46,15 +47,21 @@ def _history(rng: np.random.Generator) -> tuple[PoseHistory, list]:
 
 
 def _same(a, b) -> None:
-    assert np.array_equal(a.t_ns, b.t_ns)
-    np.testing.assert_allclose(a.p, b.p, atol=1e-12, rtol=0)
-    np.testing.assert_allclose(a.R, b.R, atol=1e-12, rtol=0)
+    """The same poses: stamps and positions exactly (TUM round-trips floats), rotations to rounding (the
+    file stores a quaternion)."""
+    assert np.array_equal(a.t_ns, b.t_ns) and np.array_equal(a.p, b.p)
+    np.testing.assert_allclose(a.R, b.R, atol=1e-14, rtol=0)
+
+
+def _poses(t_ns, T) -> PoseTrajectory:
+    T = np.asarray(T)
+    return PoseTrajectory(t_ns, T[:, :3, 3], T[:, :3, :3])
 
 
 def test_run_files_from_columns_equal_the_per_state_objects(tmp_path) -> None:
     rng = np.random.default_rng(1)
     h, given = _history(rng)
-    final = [np.asarray(T) @ np.diag([1.0, 1.0, 1.0, 1.0]) for _, T, _, _ in given]
+    final = [T @ _offset(k) for k, (_, T, _, _) in enumerate(given)]       # not the causal poses
     report = write_run(tmp_path, _Pipeline(h, final), SchedulerReport(), None, {}, DavioConfig())
     objects = [p for p, _, _, _ in given]
     segs = published_segments(objects)
@@ -62,17 +69,36 @@ def test_run_files_from_columns_equal_the_per_state_objects(tmp_path) -> None:
     for k, seg in enumerate(segs):
         _same(read_tum(tmp_path / f"odometry_segment{k}.tum"), published_trajectory(seg))
     _same(read_tum(tmp_path / "odometry.tum"), published_trajectory(segs[-1]))
-    causal = read_tum(tmp_path / "causal.tum")
-    assert np.array_equal(causal.t_ns, [p.t_ns for p in segs[-1]])
-    np.testing.assert_allclose(causal.p, [T[:3, 3] for _, T, _, _ in given[12:]], atol=1e-12, rtol=0)
-    np.testing.assert_allclose(read_tum(tmp_path / "final.tum").p, [T[:3, 3] for T in final[12:]],
-                               atol=1e-12, rtol=0)
+    t_last = [p.t_ns for p in segs[-1]]
+    _same(read_tum(tmp_path / "causal.tum"), _poses(t_last, [T for _, T, _, _ in given[12:]]))
+    _same(read_tum(tmp_path / "final.tum"), _poses(t_last, final[12:]))
     lines = (tmp_path / "poses.csv").read_text().splitlines()
     assert lines[1:] == [f"{p.t_ns},{p.t_cam_ns},{p.segment},{p.source},{v},{f:.6f}" for p, _, v, f in given]
     assert report["published_poses"] == 30 and report["metrics_segment"] == 1
     assert report["segments"] == [{"poses": 12, "start_t_ns": objects[0].t_ns, "source": "native:dynamic"},
                                   {"poses": 18, "start_t_ns": objects[12].t_ns, "source": "feedforward"}]
     assert json.loads((tmp_path / "report.json").read_text())["segments"] == report["segments"]
+
+
+def test_one_segment_across_a_chunk_boundary_writes_no_segment_files(tmp_path) -> None:
+    from runtime.pose_history import CHUNK_ROWS
+
+    h, given = _history(np.random.default_rng(2), n=CHUNK_ROWS + 5, restart=None)
+    final = [T @ _offset(k) for k, (_, T, _, _) in enumerate(given)]
+    report = write_run(tmp_path, _Pipeline(h, final), SchedulerReport(), None, {}, DavioConfig())
+    assert not list(tmp_path.glob("odometry_segment*.tum")) and report["metrics_segment"] == 0
+    _same(read_tum(tmp_path / "odometry.tum"), published_trajectory([p for p, _, _, _ in given]))
+    t = [p.t_ns for p, _, _, _ in given]
+    _same(read_tum(tmp_path / "causal.tum"), _poses(t, [T for _, T, _, _ in given]))
+    _same(read_tum(tmp_path / "final.tum"), _poses(t, final))
+
+
+def _offset(k: int) -> np.ndarray:
+    """A correction that differs per pose (so that final.tum cannot pass for causal.tum)."""
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec([0.0, 0.0, 0.01 * (k % 7)]).as_matrix()
+    T[:3, 3] = [0.1, -0.2 * (k % 3), 0.05]
+    return T
 
 
 def test_a_run_that_published_nothing_writes_empty_files(tmp_path) -> None:
