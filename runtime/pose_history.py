@@ -2,8 +2,8 @@
 
 A run keeps each published IMU state (for `odometry.tum` and the final re-export with the completed map
 corrections) and the map-frame pose it was published with (`causal.tum`). As Python objects that is
-about 1.4 kB a pose (a dataclass, five small numpy arrays, the filter's 6x6 covariance and a 4x4 pose):
-100 MB an hour at 20 Hz. `PoseHistory` holds the same values in fixed-size numpy chunks, 254 bytes a
+about 1.5 kB a pose (a dataclass, five small numpy arrays, the filter's 6x6 covariance and a 4x4 pose):
+108 MB an hour at 20 Hz. `PoseHistory` holds the same values in fixed-size numpy chunks, 254 bytes a
 pose (18.3 MB an hour at 20 Hz), and gives them back as `Published` states and `(T_MI, version,
 fraction)` tuples with the same values bit for bit (`davio bench long-run` measures both). The
 covariance is not kept: it goes to a live consumer with the state as published (`runtime.session.Pose`),

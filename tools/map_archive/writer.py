@@ -42,9 +42,10 @@ class MapArchiveWriter:
     manifest is replaced after the npz files it references, each through a temporary file and a
     rename, so the folder reloads whenever the process dies.
 
-    A long run's manifest grows by about 2 kB a submap (4 MB after an hour), and it is rewritten at every
-    commit. Re-encoding all of it each time held the model worker (and, through the GIL, the tracking
-    thread) for 0.26 s per commit after an hour; the writer therefore keeps each submap entry's and pair
+    A long run's manifest grows by about 1.5 kB a submap (3.5 MB after an hour), and it is rewritten at
+    every commit. Re-encoding all of it each time held the model worker (and, through the GIL, the tracking
+    thread) for 0.19 s per commit after an hour and 0.76 s after four (`davio bench long-run`); the writer
+    therefore keeps each submap entry's and pair
     record's JSON text and re-encodes only the entries a commit changes and the pairs it adds. The text
     is the same as `json.dumps(manifest, indent=1)`.
 
