@@ -141,10 +141,22 @@ def test_pure_translation_is_refused_with_no_rig_file(translation_folder, tmp_pa
     assert max(report["excitation"]["rms_rate_dps"]) < 1.0
 
 
+def test_a_fraction_of_a_second_is_refused_as_too_little_data(translation_folder, tmp_path, capsys):
+    """Not as "rotate about two axes": under a second the rates say nothing. The thresholds reach judge()
+    by name (--min-seconds is not taken for another option)."""
+    rc = main(["calibrate", str(translation_folder), "--out", str(tmp_path / "rig.yaml"), "--seconds", "0.5",
+               "--min-seconds", "3"])
+    assert rc == 3
+    report = json.loads((tmp_path / "rig.report.json").read_text())
+    assert report["refusal"] == "too_little_data"
+    assert "refused below 3 s" in capsys.readouterr().err
+
+
 # ------------------------------------------------------------------ refusal rules (no simulation)
 
 
-def _run(rates=(40.0, 30.0, 20.0), bringup_done=True, std=(0.01, 0.001, 2e-5), status="complete"):
+def _run(rates=(40.0, 30.0, 20.0), bringup_done=True, std=(0.01, 0.001, 2e-5), status="complete",
+         seconds=60.0):
     from tools.calibrate.core import Excitation
 
     cov = None if std is None else np.diag([np.radians(std[0]) ** 2] * 3 + [std[1] ** 2] * 3 + [std[2] ** 2])
@@ -156,7 +168,7 @@ def _run(rates=(40.0, 30.0, 20.0), bringup_done=True, std=(0.01, 0.001, 2e-5), s
         "rejections": {} if bringup_done else {"handeye_validation_failed": 2},
         "R_IC": np.eye(3).tolist() if bringup_done else None,
     }
-    ex = Excitation(60.0, np.eye(3).tolist(), list(rates), [r * 60 for r in rates])
+    ex = Excitation(seconds, np.eye(3).tolist(), list(rates), [r * seconds for r in rates])
     return CalibrationRun(samples, bu, ex, {}, status, None, 0, 60.0)
 
 
@@ -176,11 +188,16 @@ def test_judge_accepts_a_well_excited_converged_run():
         (dict(std=(0.01, 0.02, 2e-5)), "uncertain", "lever arm 2.00 cm > 0.5"),
         (dict(std=(0.01, 0.001, 3e-3)), "uncertain", "time offset 3.000 ms > 0.3"),
         (dict(status="failed"), "replay_failed", "did not complete"),
+        (dict(rates=(0.2, 0.1, 0.1), bringup_done=False, seconds=0.9), "too_little_data", "0.9 s of motion"),
+        (dict(rates=(0.2, 0.1, 0.1), bringup_done=False, seconds=1.0), "insufficient_rotation", "0 of 3"),
+        (dict(bringup_done=False, seconds=5.99), "too_little_data", "refused below 6 s"),
+        (dict(bringup_done=False, seconds=6.0), "bringup_incomplete", "handeye_validation_failed x2"),
+        (dict(seconds=2.0), "ok", ""),       # a bring-up that completed is judged on its result
     ],
 )
 def test_judge_refusals_name_what_was_observed(kwargs, code, words):
     v = judge(_run(**kwargs), Thresholds())
-    assert not v.ok and v.code == code
+    assert v.ok == (code == "ok") and v.code == code
     assert words in v.message and "\n" not in v.message
 
 

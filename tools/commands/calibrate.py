@@ -23,8 +23,9 @@ DESCRIPTION = (
     "<out stem>.report.json (bring-up windows, residuals and rejections, rotation excitation, the final "
     "estimate with its 1-sigma, convergence over time) and <out stem>.convergence.png. Refuses (exit 3, one "
     "line saying what was observed, no rig file written; the report is still written) when the rotation "
-    "excitation is insufficient (fewer than two principal axes at --min-axis-rate-dps), the bring-up never "
-    "completes, or the final 1-sigma exceeds --max-rot-std-deg / --max-lever-std-m / --max-offset-std-ms."
+    "excitation is insufficient (fewer than two principal axes at --min-axis-rate-dps), the data is too "
+    "short for the bring-up (under --min-seconds), the bring-up never completes, or the final 1-sigma "
+    "exceeds --max-rot-std-deg / --max-lever-std-m / --max-offset-std-ms."
 )
 
 #: exit status of a refusal (1: an error, 2: bad arguments)
@@ -91,6 +92,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="refuse unless two principal rotation axes of the gyro stream reach this RMS rate",
     )
     p.add_argument(
+        "--min-seconds",
+        type=float,
+        default=th.min_seconds,
+        metavar="S",
+        help="a run whose bring-up did not complete within fewer seconds of data is refused as too short",
+    )
+    p.add_argument(
         "--max-rot-std-deg",
         type=float,
         default=th.max_rot_std_deg,
@@ -136,7 +144,8 @@ def check_args(args: argparse.Namespace) -> None:
         raise ConfigError(
             f"--model-latency must be a finite number of seconds >= 0 (got {args.model_latency!r})"
         )
-    for opt in ("min_axis_rate_dps", "max_rot_std_deg", "max_lever_std_m", "max_offset_std_ms"):
+    for opt in ("min_axis_rate_dps", "min_seconds", "max_rot_std_deg", "max_lever_std_m",
+                "max_offset_std_ms"):
         v = getattr(args, opt)
         if not (math.isfinite(v) and v > 0):
             raise ConfigError(f"--{opt.replace('_', '-')} must be a finite number > 0 (got {v!r})")
@@ -291,9 +300,9 @@ def run(args: argparse.Namespace) -> int:
 
     check_args(args)
     config = load_davio_config(args.config) if args.config else DavioConfig()
-    th = Thresholds(
-        args.min_axis_rate_dps, args.max_rot_std_deg, args.max_lever_std_m, args.max_offset_std_ms
-    )
+    th = Thresholds(min_axis_rate_dps=args.min_axis_rate_dps, min_seconds=args.min_seconds,
+                    max_rot_std_deg=args.max_rot_std_deg, max_lever_std_m=args.max_lever_std_m,
+                    max_offset_std_ms=args.max_offset_std_ms)
     log = sys.stderr if args.json else sys.stdout
     live = is_live(args.source)
     with interruptible():
