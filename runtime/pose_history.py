@@ -12,7 +12,7 @@ and nothing reads it later.
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import overload
 
 import numpy as np
@@ -106,22 +106,21 @@ def _published(h: PoseHistory, r: np.void) -> Published:
 
 
 def _T_MI(r: np.void) -> np.ndarray:
+    """A row's map-frame pose T_MI (4,4), its last row [0, 0, 0, 1]."""
     T = np.eye(4)
     T[:3, :4] = r["T_MI"]
     return T
 
 
 class _View(Sequence):
-    """A read-only sequence over a PoseHistory; slices are lists."""
+    """A read-only sequence over a PoseHistory, each row given as `one(row)`; slices are lists."""
 
-    def __init__(self, history: PoseHistory) -> None:
+    def __init__(self, history: PoseHistory, one: Callable[[np.void], object]) -> None:
         self._h = history
+        self._one = one
 
     def __len__(self) -> int:
         return len(self._h)
-
-    def _one(self, r: np.void):   # pragma: no cover - overridden
-        raise NotImplementedError
 
     @overload
     def __getitem__(self, i: int): ...
@@ -141,12 +140,12 @@ class _View(Sequence):
 class PublishedView(_View):
     """The published states (`Published`, covariance None)."""
 
-    def _one(self, r: np.void) -> Published:
-        return _published(self._h, r)
+    def __init__(self, history: PoseHistory) -> None:
+        super().__init__(history, lambda r: _published(history, r))
 
 
 class CausalView(_View):
     """The poses as published in the map frame: (T_MI (4,4), correction version, interpolation fraction)."""
 
-    def _one(self, r: np.void) -> tuple[np.ndarray, int, float]:
-        return _T_MI(r), int(r["version"]), float(r["fraction"])
+    def __init__(self, history: PoseHistory) -> None:
+        super().__init__(history, lambda r: (_T_MI(r), int(r["version"]), float(r["fraction"])))

@@ -111,6 +111,14 @@ def _euroc_copy(tmp_path: Path, imu_lines=None, gt_text: str | None = None, imu_
     return dst.parent
 
 
+def _run_with_imu_lines(tmp_path: Path, capsys, lines: list[str]) -> tuple[str, dict]:
+    """`davio run --native-only` over 2.5 s of the V1_01 head with the given IMU rows: (console, report)."""
+    out = tmp_path / "run"
+    assert main(["run", str(_euroc_copy(tmp_path, imu_lines=lines)), "--out", str(out), "--native-only",
+                 "--seconds", "2.5"]) == 0
+    return capsys.readouterr().out, json.loads((out / "report.json").read_text())
+
+
 def _euroc_rows(name: str) -> list[str]:
     return (shared_path("euroc", "V1_01_easy_head") / "mav0" / name / "data.csv").read_text().splitlines()
 
@@ -123,12 +131,8 @@ def test_run_reports_input_repairs_on_the_console(tmp_path, capsys):
         cols[4] = "nan"
         lines[i] = ",".join(cols)
     lines.insert(200, lines[199])  # one duplicated timestamp
-    out = tmp_path / "run"
-    rec = _euroc_copy(tmp_path, imu_lines=lines)
-    assert main(["run", str(rec), "--out", str(out), "--native-only", "--seconds", "2.5"]) == 0
-    text = capsys.readouterr().out
+    text, report = _run_with_imu_lines(tmp_path, capsys, lines)
     assert "input imu0: non-finite samples dropped 3, duplicates dropped 1" in text
-    report = json.loads((out / "report.json").read_text())
     imu = report["driver"]["streams"]["imu0"]
     assert imu["dropped_nonfinite"] == 3 and imu["dropped_duplicate"] == 1
     assert report["imu_noise_defaulted"] == [] and "IMU noise withheld" not in text
@@ -274,10 +278,6 @@ def test_imu_values_beyond_any_imu_are_dropped_and_said(tmp_path, capsys):
     cols = lines[150].split(",")
     cols[5] = "1e6"
     lines[150] = ",".join(cols)
-    out = tmp_path / "run"
-    rec = _euroc_copy(tmp_path, imu_lines=lines)
-    assert main(["run", str(rec), "--out", str(out), "--native-only", "--seconds", "2.5"]) == 0
-    text = capsys.readouterr().out
+    text, report = _run_with_imu_lines(tmp_path, capsys, lines)
     assert "IMU samples beyond any IMU's range dropped: 1" in text
-    report = json.loads((out / "report.json").read_text())
     assert report["pipeline"]["tracking"]["imu_out_of_range"] == 1 and report["published_poses"] > 0

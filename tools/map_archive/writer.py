@@ -115,7 +115,7 @@ class MapArchiveWriter:
             middle, tail = rest.split(slots[1])
             text = "".join((head, _list_text([self._entry_text[k] for k in sorted(self._entry_text)]), middle,
                             _list_text(self._pair_text), tail))
-        else:   # a header or stats value holds a placeholder's text: encode the whole manifest
+        else:   # a header or stats value holds a slot's text: encode the whole manifest
             manifest.update(submaps=self.entries, pairs=jsonable(list(pairs)))
             text = json.dumps(manifest, allow_nan=False, indent=1)
         atomic_write_bytes(self.folder / MANIFEST_NAME, text.encode())
