@@ -136,6 +136,10 @@ def read_manifest(manifest: Path) -> dict:
     if mode is not None and mode not in ("imu-consistent", "as-recorded"):
         raise DataError(f"config.groundtruth_mode = {mode!r} is not 'imu-consistent' or 'as-recorded'; the "
                         "manifest is damaged or was written by a newer `davio simulate`", manifest)
+    span = cfg.get("scene_span") if isinstance(cfg, dict) else None
+    if span is not None and span not in ("recording", "trajectory"):
+        raise DataError(f"config.scene_span = {span!r} is not 'recording' or 'trajectory'; the manifest is "
+                        "damaged or was written by a newer `davio simulate`", manifest)
     return info
 
 
@@ -170,7 +174,8 @@ def _rebuild_simulation(info: dict, manifest: Path, groundtruth: PoseTrajectory 
                          camera_rate_hz=cfg.get("camera_rate_hz"), start_s=cfg.get("start_s") or 0.0,
                          # recordings from before the key were rendered from the ground truth's attitude
                          groundtruth_mode=cfg.get("groundtruth_mode", "as-recorded"),
-                         attitude_smoothing_s=cfg.get("attitude_smoothing_s", DEFAULT_SMOOTHING_S))
+                         attitude_smoothing_s=cfg.get("attitude_smoothing_s", DEFAULT_SMOOTHING_S),
+                         scene_span=cfg.get("scene_span", "recording"))
     except (KeyError, TypeError, AttributeError) as exc:
         raise DataError(f"manifest.json lacks {exc}", manifest) from exc
     if mode == "preset":

@@ -77,6 +77,10 @@ class SimConfig:
             "as-recorded" (the ground truth as is, whose jumps and attitude spells move the images where the
             IMU does not; the behaviour before 2026-11-26). drivers.sim.imu_consistent.
         attitude_smoothing_s: see groundtruth_mode, s.
+        scene_span: what the scene is built around (trajectory modes): "recording" (the rendered part,
+            the default) or "trajectory" (the whole trajectory file before --start/--seconds cut it, so
+            that recordings cut from one file at different starts share one scene: sessions of one
+            place, e.g. for `davio map align`).
     """
 
     preset: str = DEFAULT_PRESET
@@ -92,6 +96,7 @@ class SimConfig:
     start_s: float = 0.0
     groundtruth_mode: str = "imu-consistent"
     attitude_smoothing_s: float = DEFAULT_SMOOTHING_S
+    scene_span: str = "recording"
 
     def __post_init__(self) -> None:
         if isinstance(self.seed, bool) or not isinstance(self.seed, numbers.Integral) \
@@ -103,6 +108,8 @@ class SimConfig:
         if self.groundtruth_mode not in GROUNDTRUTH_MODES:
             raise ConfigError(f"SimConfig.groundtruth_mode must be one of {GROUNDTRUTH_MODES}, "
                               f"got {self.groundtruth_mode!r}")
+        if self.scene_span not in SCENE_SPANS:
+            raise ConfigError(f"SimConfig.scene_span must be one of {SCENE_SPANS}, got {self.scene_span!r}")
         s = self.attitude_smoothing_s
         if isinstance(s, bool) or not isinstance(s, int | float) or not 0.0 < s < float("inf"):
             raise ConfigError(f"SimConfig.attitude_smoothing_s must be a positive number of seconds, "
@@ -110,6 +117,7 @@ class SimConfig:
 
 
 GROUNDTRUTH_MODES = ("imu-consistent", "as-recorded")
+SCENE_SPANS = ("recording", "trajectory")
 MAX_SEED = 2**32
 """Seeds are integers in [0, MAX_SEED) (numpy's generators refuse negative ones)."""
 
@@ -126,6 +134,14 @@ def _frame_times(t0_ns: int, t_end_ns: int, rate_hz: float, margin_ns: int) -> n
 def _scene_positions(motion, t0_ns: int, t_end_ns: int, T_IC: np.ndarray) -> np.ndarray:
     t = np.linspace(t0_ns, t_end_ns, max(2, int((t_end_ns - t0_ns) / 2e7))).astype(np.int64)
     R, p = motion.pose(t)
+    return np.concatenate([p, p + R @ T_IC[:3, 3]])
+
+
+def _trajectory_positions(traj: PoseTrajectory, T_IC: np.ndarray) -> np.ndarray:
+    """Body and camera positions (world, m) of a whole trajectory, every 20 ms at most (as
+    `_scene_positions`): what a scene built around the whole trajectory file must leave free."""
+    step = max(1, int(round(2e7 / max(np.median(np.diff(traj.t_ns)), 1.0)))) if len(traj) > 1 else 1
+    p, R = traj.p[::step], traj.R[::step]
     return np.concatenate([p, p + R @ T_IC[:3, 3]])
 
 
@@ -172,6 +188,9 @@ class SimRecording(Driver):
         config = config or SimConfig()
         if config.seconds is None or not config.seconds > 0:
             raise ConfigError(f"a preset recording needs seconds > 0, got {config.seconds}")
+        if config.scene_span != "recording":
+            raise ConfigError("scene_span 'trajectory' needs a trajectory file; a preset's scene is built "
+                              "around its own motion")
         spline = preset_spline(config.preset, config.seconds, config.seed)
         return cls._from_spline(
             spline,
@@ -198,14 +217,17 @@ class SimRecording(Driver):
         the camera rate.
         """
         config = config or SimConfig(seconds=None)
-        traj = read_trajectory(path, strictly_increasing=True)
-        traj = _crop(traj, config.start_s, config.seconds, Path(path))
+        whole = read_trajectory(path, strictly_increasing=True)
+        traj = _crop(whole, config.start_s, config.seconds, Path(path))
+        around = whole if config.scene_span == "trajectory" else None
         if imu_path is None:
             spline = fit_pose_spline(traj.t_ns, traj.p, traj.R, dt_s=0.1)
-            return cls._from_spline(spline, config, rig, {"mode": "trajectory-spline", "source": str(path)})
+            return cls._from_spline(spline, config, rig, {"mode": "trajectory-spline", "source": str(path)},
+                                    scene_around=around)
         if camera_stamps_path is None and (Path(imu_path).parent / "cam0_timestamps.txt").is_file():
             camera_stamps_path = Path(imu_path).parent / "cam0_timestamps.txt"
-        return cls._replay(traj, Path(imu_path), camera_stamps_path, config, rig, str(path))
+        return cls._replay(traj, Path(imu_path), camera_stamps_path, config, rig, str(path),
+                           scene_around=around)
 
     @classmethod
     def from_euroc_imu_gt(
@@ -220,7 +242,8 @@ class SimRecording(Driver):
         if not gt.is_file():
             raise DataError("no groundtruth.csv or groundtruth_tum.txt", folder)
         config = config or SimConfig(seconds=None)
-        traj = _crop(read_trajectory(gt, strictly_increasing=True), config.start_s, config.seconds, gt)
+        whole = read_trajectory(gt, strictly_increasing=True)
+        traj = _crop(whole, config.start_s, config.seconds, gt)
         stamps = folder / "cam0_timestamps.txt"
         return cls._replay(
             traj,
@@ -230,10 +253,12 @@ class SimRecording(Driver):
             rig,
             str(folder),
             sequence=folder.name,
+            scene_around=whole if config.scene_span == "trajectory" else None,
         )
 
     @classmethod
-    def _from_spline(cls, spline: PoseSpline, config: SimConfig, rig: Rig | None, info: dict) -> SimRecording:
+    def _from_spline(cls, spline: PoseSpline, config: SimConfig, rig: Rig | None, info: dict,
+                     scene_around: PoseTrajectory | None = None) -> SimRecording:
         rig = _with_offset(rig or euroc_default_rig(), config.time_offset_s)
         t0 = spline.t0_ns
         t_end = (
@@ -252,8 +277,11 @@ class SimRecording(Driver):
         margin = int(config.image.exposure_time_s * 0.5e9) + abs(int(round(config.time_offset_s * 1e9)))
         t_true = _frame_times(t0 + margin, t_end, rate, margin)
         stamps = t_true - int(round(config.time_offset_s * 1e9))
-        scene = build_scene(_scene_positions(spline, t0, t_end, rig.T_IC), config.seed, config.style)
+        scene = build_scene(_scene_positions(spline, t0, t_end, rig.T_IC) if scene_around is None
+                            else _trajectory_positions(scene_around, rig.T_IC), config.seed, config.style)
         info = {**info, "seed": config.seed, "style": config.style, "seconds": (t_end - t0) * 1e-9}
+        if scene_around is not None:
+            info["scene_span"] = "trajectory"
         return cls(rig, scene, spline, imu, stamps, gt, config, info)
 
     @classmethod
@@ -266,6 +294,7 @@ class SimRecording(Driver):
         rig: Rig | None,
         source: str,
         sequence: str | None = None,
+        scene_around: PoseTrajectory | None = None,
     ) -> SimRecording:
         rig = _with_offset(rig or euroc_default_rig(), config.time_offset_s)
         t_all, gyro, accel = read_euroc_imu_csv(imu_path, policy="strict")
@@ -290,7 +319,8 @@ class SimRecording(Driver):
             )
         if t_true.size == 0:
             raise DataError("no camera stamp falls inside the trajectory", camera_stamps_path or imu_path)
-        scene = build_scene(_scene_positions(motion, t0, t_end, rig.T_IC), config.seed, config.style)
+        scene = build_scene(_scene_positions(motion, t0, t_end, rig.T_IC) if scene_around is None
+                            else _trajectory_positions(scene_around, rig.T_IC), config.seed, config.style)
         info = {
             "mode": "euroc-trajectory",
             "source": source,
@@ -305,6 +335,8 @@ class SimRecording(Driver):
             info["position_jumps_m"] = traj.meta["position_jumps_m"]
         if sequence:
             info["sequence"] = sequence
+        if scene_around is not None:
+            info["scene_span"] = "trajectory"
         gt = PoseTrajectory(
             traj.t_ns, traj.p, traj.R, traj.v, traj.bg, traj.ba, meta={"frame": "T_WI", "source": source}
         )

@@ -220,6 +220,7 @@ def write_euroc(
             else recording.config.imu_errors.__dict__,
             "imu_profile": recording.config.imu_profile,
             "start_s": recording.config.start_s,
+            "scene_span": recording.config.scene_span,
             "camera_rate_hz": recording.config.camera_rate_hz,
         },
         "inputs": _input_files(recording.info),

@@ -294,6 +294,79 @@ def _spread(cells: np.ndarray, err: np.ndarray, k: int) -> np.ndarray:
     return np.array(out[:k], np.int64)
 
 
+def verify_geometry(a: RevisitView, b: RevisitView, matches_ab: tuple[np.ndarray, np.ndarray],
+                    cfg: RevisitConfig) -> tuple[RevisitResult, np.ndarray | None, np.ndarray, np.ndarray]:
+    """The image-geometry tests of `verify_revisit`, without any prediction: raw match count, PnP-RANSAC
+    of a's back-projected keypoints (S_a) against b's pixels with the PnP gates, positive depth,
+    coverage of b's image and depth agreement; then up to `max_correspondences` inliers spread over b's
+    image, best reprojection first. Also the check of a map session against another (`relocalize`).
+
+    Returns:
+        (result, T_SaSb, p_a, p_b): on a failed test the result names its stage and T_SaSb is None; when
+        every test passed the result is not yet accepted (its stage is 'accepted', n_* and
+        depth_rel_error, log_depth_ratio filled), T_SaSb is the (4,4) PnP pose of S_b in S_a and p_a,
+        p_b the (K,3) selected correspondences in S_a and S_b from each view's own depths.
+    """
+    none = np.zeros((0, 3))
+    ia = np.asarray(matches_ab[0], np.int64).ravel()
+    ib = np.asarray(matches_ab[1], np.int64).ravel()
+    if ia.shape != ib.shape:
+        raise GraphError(f"match index arrays differ in length: {ia.shape} vs {ib.shape}")
+    if len(ia) and (ia.min() < 0 or ia.max() >= len(a.kpts) or ib.min() < 0 or ib.max() >= len(b.kpts)):
+        raise GraphError("match indices out of range of the keypoints")
+    gates = cfg.pnp
+    n = len(ia)
+    if n < gates.min_matches:
+        return (RevisitResult(False, "matches", f"too few matches ({n} < {gates.min_matches})", n_matches=n),
+                None, none, none)
+
+    # PnP-RANSAC: a's points (S_a) seen at b's pixels -> T_SbSa (a NaN depth drops its match).
+    P_a = a.points(ia)
+    pnp = verify_pnp(P_a, b.kpts[ib], b.K, gates)
+    res = RevisitResult(False, "pnp", pnp.reason, n_matches=n, n_inliers=pnp.n_inliers,
+                        inlier_fraction=pnp.inlier_fraction)
+    if not pnp.accepted:
+        return res, None, none, none
+    T_SbSa = pnp.T_CW
+    inl = pnp.inliers
+
+    # Positive depth: in front of b by the PnP pose, valid depths in a (finite points) and in b.
+    z_pred = (P_a[inl] @ T_SbSa[:3, :3].T + T_SbSa[:3, 3])[:, 2]
+    d_b = b.depth_at_kpts[ib[inl]]
+    pos = (z_pred > 0) & np.isfinite(d_b) & (d_b > 0) & (P_a[inl, 2] > 0)
+    inl, z_pred, d_b = inl[pos], z_pred[pos], d_b[pos]
+    res.n_verified = len(inl)
+    if len(inl) < gates.min_inliers:
+        res.stage = "positive_depth"
+        res.reason = f"too few inliers with positive depth ({len(inl)} < {gates.min_inliers})"
+        return res, None, none, none
+
+    # Coverage of b's image.
+    uv_b = b.kpts[ib[inl]]
+    cells = _cells(uv_b, b.image_size, cfg.coverage_grid)
+    res.coverage_cells = int(len(np.unique(cells)))
+    if res.coverage_cells < cfg.min_coverage_cells:
+        res.stage = "coverage"
+        res.reason = (f"inliers cover {res.coverage_cells} < {cfg.min_coverage_cells} cells of "
+                      f"{cfg.coverage_grid}x{cfg.coverage_grid}")
+        return res, None, none, none
+
+    # Depth agreement of a's points moved into b against b's own depths.
+    res.depth_rel_error = float(np.median(np.abs(z_pred - d_b) / d_b))
+    if not res.depth_rel_error <= cfg.max_depth_rel_error:
+        res.stage = "depth_agreement"
+        res.reason = f"median relative depth error {res.depth_rel_error:.3f} > {cfg.max_depth_rel_error}"
+        return res, None, none, none
+    res.log_depth_ratio = float(np.median(np.log(d_b / z_pred)))
+
+    # The point group: up to max_correspondences inliers spread over b's image, best reprojection first.
+    uv_pred = (P_a[inl] @ T_SbSa[:3, :3].T + T_SbSa[:3, 3]) @ b.K.T
+    err = np.linalg.norm(uv_pred[:, :2] / uv_pred[:, 2:] - uv_b, axis=1)
+    sel = inl[_spread(cells, err, cfg.max_correspondences)]
+    res.stage, res.reason = "accepted", "accepted"
+    return res, se3_inverse(T_SbSa), P_a[sel], b.points(ib[sel])
+
+
 def verify_revisit(a: RevisitView, b: RevisitView, matches_ab: tuple[np.ndarray, np.ndarray],
                    T_SaSb_pred: np.ndarray, sigma_pred: np.ndarray, cfg: RevisitConfig,
                    graph_cfg: GraphConfig | None = None) -> RevisitResult:
@@ -309,72 +382,20 @@ def verify_revisit(a: RevisitView, b: RevisitView, matches_ab: tuple[np.ndarray,
     Tests, in order (`STAGES`): raw match count; PnP-RANSAC of a's back-projected keypoints (S_a)
     against b's pixels, giving T_SbSa, with the PnP gates; positive depth (inliers in front of b by the
     PnP pose, with valid depths in a and b, still >= pnp.min_inliers); coverage of b's image by those
-    inliers; depth agreement median |z_pred - d_b| / d_b; innovation |Log(T_pred^-1 T_pnp)|_i <=
-    k sqrt(sigma_pred_i^2 + revisit_sigma_i^2) for all six components, revisit_sigma = the pose sigmas
-    measured by the selected pairs plus a's depth-scale uncertainty (`revisit_pose_sigma`). The PnP
-    pose is used for these tests only; the drift gate compares sigma_pred with revisit_sigma.
+    inliers; depth agreement median |z_pred - d_b| / d_b (these five: `verify_geometry`); innovation
+    |Log(T_pred^-1 T_pnp)|_i <= k sqrt(sigma_pred_i^2 + revisit_sigma_i^2) for all six components,
+    revisit_sigma = the pose sigmas measured by the selected pairs plus a's depth-scale uncertainty
+    (`revisit_pose_sigma`). The PnP pose is used for these tests only; the drift gate compares
+    sigma_pred with revisit_sigma.
     """
     gcfg = graph_cfg or GraphConfig()
     T_pred = check_pose(T_SaSb_pred, "T_SaSb_pred")
     sp = np.asarray(sigma_pred, np.float64)
     if sp.shape != (6,) or not np.all(np.isfinite(sp)) or np.any(sp < 0):
         raise GraphError(f"sigma_pred must be 6 finite sigmas >= 0, got {sigma_pred!r}")
-    ia = np.asarray(matches_ab[0], np.int64).ravel()
-    ib = np.asarray(matches_ab[1], np.int64).ravel()
-    if ia.shape != ib.shape:
-        raise GraphError(f"match index arrays differ in length: {ia.shape} vs {ib.shape}")
-    if len(ia) and (ia.min() < 0 or ia.max() >= len(a.kpts) or ib.min() < 0 or ib.max() >= len(b.kpts)):
-        raise GraphError("match indices out of range of the keypoints")
-    gates = cfg.pnp
-    n = len(ia)
-    if n < gates.min_matches:
-        return RevisitResult(False, "matches", f"too few matches ({n} < {gates.min_matches})", n_matches=n)
-
-    # PnP-RANSAC: a's points (S_a) seen at b's pixels -> T_SbSa (a NaN depth drops its match).
-    P_a = a.points(ia)
-    pnp = verify_pnp(P_a, b.kpts[ib], b.K, gates)
-    res = RevisitResult(False, "pnp", pnp.reason, n_matches=n, n_inliers=pnp.n_inliers,
-                        inlier_fraction=pnp.inlier_fraction)
-    if not pnp.accepted:
+    res, T_pnp, p_a, p_b = verify_geometry(a, b, matches_ab, cfg)
+    if T_pnp is None:
         return res
-    T_SbSa = pnp.T_CW
-    inl = pnp.inliers
-
-    # Positive depth: in front of b by the PnP pose, valid depths in a (finite points) and in b.
-    z_pred = (P_a[inl] @ T_SbSa[:3, :3].T + T_SbSa[:3, 3])[:, 2]
-    d_b = b.depth_at_kpts[ib[inl]]
-    pos = (z_pred > 0) & np.isfinite(d_b) & (d_b > 0) & (P_a[inl, 2] > 0)
-    inl, z_pred, d_b = inl[pos], z_pred[pos], d_b[pos]
-    res.n_verified = len(inl)
-    if len(inl) < gates.min_inliers:
-        res.stage = "positive_depth"
-        res.reason = f"too few inliers with positive depth ({len(inl)} < {gates.min_inliers})"
-        return res
-
-    # Coverage of b's image.
-    uv_b = b.kpts[ib[inl]]
-    cells = _cells(uv_b, b.image_size, cfg.coverage_grid)
-    res.coverage_cells = int(len(np.unique(cells)))
-    if res.coverage_cells < cfg.min_coverage_cells:
-        res.stage = "coverage"
-        res.reason = (f"inliers cover {res.coverage_cells} < {cfg.min_coverage_cells} cells of "
-                      f"{cfg.coverage_grid}x{cfg.coverage_grid}")
-        return res
-
-    # Depth agreement of a's points moved into b against b's own depths.
-    res.depth_rel_error = float(np.median(np.abs(z_pred - d_b) / d_b))
-    if not res.depth_rel_error <= cfg.max_depth_rel_error:
-        res.stage = "depth_agreement"
-        res.reason = f"median relative depth error {res.depth_rel_error:.3f} > {cfg.max_depth_rel_error}"
-        return res
-    res.log_depth_ratio = float(np.median(np.log(d_b / z_pred)))
-
-    # The point group: up to max_correspondences inliers spread over b's image, best reprojection first.
-    uv_pred = (P_a[inl] @ T_SbSa[:3, :3].T + T_SbSa[:3, 3]) @ b.K.T
-    err = np.linalg.norm(uv_pred[:, :2] / uv_pred[:, 2:] - uv_b, axis=1)
-    sel = inl[_spread(cells, err, cfg.max_correspondences)]
-    p_a, p_b = P_a[sel], b.points(ib[sel])
-    T_pnp = se3_inverse(T_SbSa)                              # T_SaSb by PnP: for the test only
     try:
         rs = revisit_pose_sigma(p_a, p_b, T_pnp, cfg.innovation_scale_sigma, gcfg)
     except GraphError as exc:

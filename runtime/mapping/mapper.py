@@ -236,6 +236,7 @@ class Mapper:
                                 link, points, t_ns=int(sub.frame_t_ns[sub.centre]))
         view = self._centre_view(sub, depths_by_t, centre_image)
         if view is not None:
+            sub.view = view
             self.backend.add_view(sub.index, *view)
             self.backend.try_revisits(sub.index, self.matcher)
         self.backend.finish_commit()

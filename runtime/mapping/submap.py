@@ -51,6 +51,9 @@ class Submap:
         version: map version (commit number) that last changed this node's state.
         segment: the filter segment (restarts after a divergence start a new odometry frame).
         fit: the conditioned call's acceptance figures (baseline_m, fit_rmse_m, log_s_hat, ...).
+        view: (Features, RevisitView) of the centre image as the revisits match it (the matcher's
+            keypoints and descriptors, their corrected depths), or None without the graph; archived
+            with the submap so that a later session can localise in the map (`davio map align`).
     """
 
     index: int
@@ -70,6 +73,7 @@ class Submap:
     version: int = 0
     segment: int = 0
     fit: dict = field(default_factory=dict)
+    view: tuple | None = field(default=None, repr=False, compare=False)
     fused_state: tuple | None = field(default=None, repr=False, compare=False)
     """(T_MS, lambda) the live voxel grid holds this submap at (None: not in the grid)."""
 

@@ -64,6 +64,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
              "where the IMU does not)",
     )
     p.add_argument(
+        "--scene",
+        dest="scene_span",
+        default="recording",
+        choices=["recording", "trajectory"],
+        help="what the scene is built around (--trajectory only): the rendered part (default), or the whole "
+             "trajectory file, so that recordings cut from one file at different --start see one place "
+             "(sessions to align with `davio map align`)",
+    )
+    p.add_argument(
         "--time-offset",
         type=float,
         default=0.0,
@@ -145,7 +154,10 @@ def run(args: argparse.Namespace) -> int:
         groundtruth_mode=args.groundtruth_mode or "imu-consistent",
         imu_errors=ImuErrorModel.noise_free() if args.exact else None,
         imu_profile=args.imu_model,
+        scene_span=args.scene_span,
     )
+    if args.scene_span != "recording" and not args.trajectory:
+        raise ConfigError("--scene trajectory needs --trajectory (a preset has no file to build around)")
     if args.exact and args.imu_model != "datasheet":
         raise ConfigError("--exact makes the IMU noise-free; it cannot be combined with --imu-model")
     if args.imu and not args.trajectory:

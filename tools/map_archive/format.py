@@ -26,6 +26,16 @@ ARRAYS: dict[str, str] = {
 }
 """Arrays of a submap .npz and their stored dtypes."""
 
+VIEW_ARRAYS: dict[str, str] = {
+    "view_kpts": "float32", "view_scores": "float32", "view_depth": "float32", "view_size": "int64",
+}
+"""Arrays of a submap's centre view (`Submap.view`), present when the run kept views (the submap graph
+on): keypoints (pixels of the rectified centre image, whose K is the submap's), detection scores,
+corrected depths at the keypoints (m, NaN where none) and the image size (width, height). Beside them
+`view_desc` (float16 for float descriptors, uint8 for binary ones) and, for pyramid features,
+`view_level` (int8). Archives written before views were stored lack them all; readers that do not
+know them ignore them (the schema is unchanged)."""
+
 
 def submap_filename(index: int) -> str:
     """File name of submap `index` (e.g. submap_000012.npz)."""

@@ -18,6 +18,7 @@ from tools.map_archive.format import (
     SCHEMA_VERSION,
     SUBMAP_RE,
     TEMP_RE,
+    VIEW_ARRAYS,
 )
 
 _ENTRY_KEYS = ("index", "file", "sha256", "bytes", "n_points", "T_MS", "lam", "version")
@@ -183,3 +184,48 @@ def iter_submaps(folder: str | Path, manifest: dict | None = None) -> Iterator[S
     info = read_manifest(folder) if manifest is None else manifest
     for e in sorted(info["submaps"], key=lambda e: int(e["index"])):
         yield load_submap(folder, e)
+
+
+def load_view(folder: str | Path, entry: dict) -> tuple | None:
+    """(Features, RevisitView) of the centre image of manifest entry `entry` (descriptors as float32, or
+    uint8 when binary), or None when its npz holds no view (an archive written without the submap graph,
+    or before views were stored).
+
+    Raises:
+        DataError: missing or corrupt file, or view arrays of inconsistent shapes.
+    """
+    from models.matcher.features import Features
+    from runtime.graph.factors import GraphError
+    from runtime.graph.revisits import RevisitView
+
+    path = Path(folder) / str(entry["file"])
+    if not path.is_file():
+        raise DataError(f"submap file missing (submap {entry['index']})", path)
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            if "view_kpts" not in npz.files:
+                return None
+            missing = [n for n in (*VIEW_ARRAYS, "view_desc") if n not in npz.files]
+            if missing:
+                raise DataError(f"centre view incomplete: {', '.join(missing)} missing", path)
+            a = {n: npz[n].astype(dt, copy=False) for n, dt in VIEW_ARRAYS.items()}
+            desc = npz["view_desc"]
+            level = npz["view_level"].astype(np.int8) if "view_level" in npz.files else None
+            K = npz["K"].astype(np.float64)
+    except DataError:
+        raise
+    except Exception as exc:  # damaged zip/npy bytes surface as many types
+        raise DataError(f"corrupt or truncated submap file: {type(exc).__name__}: {exc}", path) from exc
+    n = len(a["view_kpts"])
+    if (a["view_kpts"].shape != (n, 2) or a["view_scores"].shape != (n,) or a["view_depth"].shape != (n,)
+            or desc.ndim != 2 or len(desc) != n or a["view_size"].shape != (2,)
+            or (level is not None and level.shape != (n,))):
+        raise DataError(f"centre view arrays disagree in shape: kpts {a['view_kpts'].shape}, desc "
+                        f"{desc.shape}, depth {a['view_depth'].shape}, size {a['view_size'].shape}", path)
+    desc = desc.astype(np.float32) if desc.dtype == np.float16 else desc.astype(np.uint8, copy=False)
+    size = (int(a["view_size"][0]), int(a["view_size"][1]))
+    try:
+        view = RevisitView(K, a["view_kpts"], a["view_depth"], size)
+    except GraphError as exc:
+        raise DataError(f"centre view: {exc}", path) from exc
+    return Features(a["view_kpts"], a["view_scores"], desc, size, level), view

@@ -18,6 +18,7 @@ from tools.map_archive.format import (
     SCHEMA_VERSION,
     SUBMAP_RE,
     TEMP_RE,
+    VIEW_ARRAYS,
     davio_version,
     jsonable,
     submap_filename,
@@ -31,7 +32,27 @@ def submap_arrays(sm: Submap) -> dict[str, np.ndarray]:
     values = {"index": sm.index, "frame_t_ns": sm.frame_t_ns, "centre": sm.centre, "T_OS": sm.T_OS,
               "T_SC": sm.T_SC, "K": sm.K, "s_hat": sm.s_hat, "frame_scales": sm.frame_scales,
               "points_C": sm.points_C, "image": sm.image, "conf": sm.conf, "grey": sm.grey}
-    return {k: np.asarray(values[k]).astype(dt, order="C", copy=False) for k, dt in ARRAYS.items()}
+    out = {k: np.asarray(values[k]).astype(dt, order="C", copy=False) for k, dt in ARRAYS.items()}
+    if sm.view is not None:
+        out.update(view_arrays(*sm.view))
+    return out
+
+
+def view_arrays(features, view) -> dict[str, np.ndarray]:
+    """The centre-view arrays of a submap's .npz (`VIEW_ARRAYS`, `view_desc`, `view_level`) from its
+    matcher features and RevisitView (the same keypoints)."""
+    kpts = np.asarray(features.kpts, np.float32)
+    if len(kpts) != len(view.kpts):
+        raise ValueError(f"centre view: {len(kpts)} feature keypoints but {len(view.kpts)} view keypoints")
+    values = {"view_kpts": kpts, "view_scores": features.scores, "view_depth": view.depth_at_kpts,
+              "view_size": view.image_size}
+    out = {k: np.asarray(values[k]).astype(dt, order="C", copy=False) for k, dt in VIEW_ARRAYS.items()}
+    desc = np.asarray(features.desc)
+    binary = not np.issubdtype(desc.dtype, np.floating)
+    out["view_desc"] = desc.astype(np.uint8 if binary else np.float16, order="C")
+    if features.level is not None:
+        out["view_level"] = np.asarray(features.level, np.int8)
+    return out
 
 
 class MapArchiveWriter:
