@@ -90,18 +90,26 @@ class Matcher:
     def match_features(self, fa: Features, fb: Features) -> Matches:
         """Match two precomputed feature sets (pyramid features: `features.match_levels`)."""
         multi_level = fa.level is not None or fb.level is not None
-        if self.backend == "orb":
-            ia, ib, s = match_hamming(fa.desc, fb.desc)
-        elif multi_level:
-            ia, ib, s = match_levels(fa, fb, self.min_cossim, self.ratio)
-        elif self.glue is not None:
+        if self.glue is not None and not multi_level and self.backend != "orb":
             ia, ib, s = self.glue.match(fa, fb, fa.image_size, fb.image_size)
-        else:
-            ia, ib, s = mutual_nearest_neighbours(fa.desc, fb.desc, self.min_cossim, self.ratio)
-        return Matches(fa.kpts, fb.kpts, ia, ib, s)
+            return Matches(fa.kpts, fb.kpts, ia, ib, s)
+        return match_stored(fa, fb, self.min_cossim, self.ratio)
 
     def match(self, image_a: np.ndarray, image_b: np.ndarray, refine: bool = True) -> Matches:
         """Detect in both images and match them; `refine` re-localises the b-positions with LK
         (sub-pixel, drops matches that do not track), see models/matcher/refine.py."""
         m = self.match_features(self.detect(image_a), self.detect(image_b))
         return refine_matches_lk(image_a, image_b, m) if refine else m
+
+
+def match_stored(fa: Features, fb: Features, min_cossim: float = -1.0, ratio: float = 0.8) -> Matches:
+    """Match two stored feature sets without a model: binary (uint8) descriptors by Hamming
+    cross-check, pyramid features level pair by level pair (`match_levels`), others by mutual nearest
+    neighbours on cosine similarity with the ratio test (as `Matcher.match_features` without LighterGlue)."""
+    if not np.issubdtype(np.asarray(fa.desc).dtype, np.floating):
+        ia, ib, s = match_hamming(fa.desc, fb.desc)
+    elif fa.level is not None or fb.level is not None:
+        ia, ib, s = match_levels(fa, fb, min_cossim, ratio)
+    else:
+        ia, ib, s = mutual_nearest_neighbours(fa.desc, fb.desc, min_cossim, ratio)
+    return Matches(fa.kpts, fb.kpts, ia, ib, s)

@@ -1,4 +1,5 @@
-"""`davio map info|export|view D`: inspect, re-export and picture a run's map archive.
+"""`davio map info|export|view|align D`: inspect, re-export and picture a run's map archive, and
+localise it in an earlier run's map of the same place.
 
 D is a run folder holding `map/`, or the `map/` folder itself.
 """
@@ -13,7 +14,7 @@ from runtime.errors import ConfigError
 from runtime.json_out import strict_dumps
 
 NAME = "map"
-HELP = "inspect, re-export (PLY) or picture a run's map archive"
+HELP = "inspect, re-export (PLY), picture or align a run's map archive"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -50,6 +51,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     pv.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     pv.add_argument("--skip-damaged", action="store_true",
                     help="leave out submaps whose files fail the integrity check (default: refuse)")
+
+
+    pa = sub.add_parser("align", help="localise a run's map in an earlier run's map of the same place: the "
+                        "yaw and translation between their map frames (exit 1 when not localised)",
+                        formatter_class=fmt)
+    pa.add_argument("folder", type=Path, help="the new run: " + folder_help)
+    pa.add_argument("--to", dest="prior", type=Path, required=True,
+                    help="the earlier run whose map frame the new one is put in: " + folder_help)
+    pa.add_argument("--out", type=Path, default=None,
+                    help="the alignment JSON (default: alignment.json in the new run's folder); the new "
+                         "run's final.tum moved into the prior frame is written beside it as "
+                         "final.in_prior.tum")
+    pa.add_argument("--candidates", type=int, default=5,
+                    help="prior views verified per new view, ranked by appearance")
+    pa.add_argument("--min-views", type=int, default=3,
+                    help="distinct new views that must agree on the transform")
+    pa.add_argument("--json", action="store_true", help="print the alignment as JSON")
+    pa.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
 
 
 def resolve(folder: Path) -> tuple[Path, Path]:
@@ -148,9 +167,11 @@ def _print_info(info: dict) -> None:
 def run(args: argparse.Namespace) -> int:
     action = getattr(args, "map_command", None)
     if action is None:
-        print("davio map: name an action: info, export, view")
+        print("davio map: name an action: info, export, view, align")
         return 2
     archive, run_folder = resolve(args.folder)
+    if action == "align":
+        return _align(args, archive, run_folder)
     if action == "info":
         from tools.map_archive.info import map_info
 
@@ -199,3 +220,61 @@ def run(args: argparse.Namespace) -> int:
         if why:
             print(f"davio map view: no interactive viewer: {why}", file=sys.stderr)
     return 0
+
+
+def _align(args: argparse.Namespace, archive: Path, run_folder: Path) -> int:
+    from runtime.files import atomic_write_text
+    from runtime.graph.relocalize import AlignConfig
+    from tools.map_archive.align import align_archives, transform_tum
+    from tools.output_file import check_output_file
+
+    for name, value in (("--candidates", args.candidates), ("--min-views", args.min_views)):
+        if value < 1:
+            raise ConfigError(f"{name} must be at least 1, got {value}")
+    cfg = AlignConfig(candidates_per_view=args.candidates, min_views=args.min_views)
+    prior_archive, _ = resolve(args.prior)
+    if prior_archive.resolve() == archive.resolve():
+        raise ConfigError("--to names the same map as the new run; give an earlier run of the same place")
+    out = output_path(args.out, run_folder, "alignment.json")
+    own = args.out is None
+    replaced = check_output_file(out, "--out", (".json",), overwrite=args.overwrite, replaceable=own,
+                                 protected_dirs=[archive, prior_archive])
+    t0 = time.monotonic()
+
+    def progress(done: int, total: int) -> None:
+        if done == total or done % 20 == 0:
+            print(f"davio map align: {done}/{total} new views matched ({time.monotonic() - t0:.0f} s)",
+                  file=sys.stderr, flush=True)
+
+    res, summary, notes = align_archives(archive, prior_archive, cfg, progress)
+    _print_notes("align", notes)
+    trajectory = None
+    final = run_folder / "final.tum"
+    if res.localized and final.is_file():
+        if summary["new_segments"] > 1:
+            notes.append("final.tum not moved: the run has several filter segments, and only one is aligned")
+        else:
+            trajectory = out.parent / "final.in_prior.tum"
+            summary["final_in_prior"] = str(trajectory)
+            summary["final_in_prior_poses"] = transform_tum(final, trajectory, res.T_PN)
+    try:
+        atomic_write_text(out, strict_dumps(summary, indent=1) + "\n")
+    except OSError as exc:
+        raise ConfigError(f"--out {out}: cannot write ({exc.strerror or exc})") from None
+    if args.json:
+        print(strict_dumps(summary, indent=2))
+        return 0 if res.localized else 1
+    rej = ", ".join(f"{k} x{v}" for k, v in res.rejected.items() if v) or "none"
+    print(f"davio map align: {summary['new_views']} views of {archive} against {summary['prior_views']} of "
+          f"{prior_archive}: {res.attempts} candidate pairs, {len(res.hypotheses)} verified (refused: {rej})")
+    if res.localized:
+        t = res.T_PN[:3, 3]
+        views = len({res.hypotheses[i].new for i in res.agreeing})
+        print(f"davio map align: localised: yaw {res.yaw_deg:.2f} deg, t = ({t[0]:.3f}, {t[1]:.3f}, "
+              f"{t[2]:.3f}) m; {len(res.agreeing)} verified pairs from {views} new views agree (fit: "
+              f"{res.fit}, camera centres within {res.centre_rms_m:.3f} m RMS)")
+    else:
+        print(f"davio map align: not localised: {res.reason}")
+    print(f"davio map align: -> {out}{' (replaced)' if replaced else ''}"
+          + (f", {trajectory}" if trajectory else ""))
+    return 0 if res.localized else 1

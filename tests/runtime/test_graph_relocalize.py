@@ -1,0 +1,193 @@
+"""Localising a map session in another (runtime/graph/relocalize.py) on synthetic views of one room:
+the transform is known in closed form, the views are projections of textured wall points."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from models.matcher.features import Features
+from models.matcher.matcher import match_stored
+from runtime.graph.relocalize import (
+    AlignConfig,
+    Hypothesis,
+    PlaceView,
+    Vocabulary,
+    align_sessions,
+    consensus,
+    yaw_translation_fit,
+)
+from runtime.graph.revisits import RevisitView
+
+K = np.array([[380.0, 0.0, 376.0], [0.0, 380.0, 240.0], [0.0, 0.0, 1.0]])
+SIZE = (752, 480)
+
+
+def _rz(deg: float) -> np.ndarray:
+    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _pose(R: np.ndarray, t) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R, t
+    return T
+
+
+def _unit(x: np.ndarray) -> np.ndarray:
+    return x / np.linalg.norm(x, axis=-1, keepdims=True)
+
+
+def _room(seed: int, n: int = 3000) -> tuple[np.ndarray, np.ndarray]:
+    """Points on the four walls of an 8 x 6 x 3 m room (world frame, z up) and a descriptor each.
+
+    Textures as a vocabulary sees them: each 2 m stretch of wall draws its points' appearance from 6 of
+    60 texture prototypes (descriptor = 0.6 prototype + 0.8 a point's own part), so views of different
+    walls hold different words while every point stays distinct for matching."""
+    rng = np.random.default_rng(seed)
+    wall = rng.integers(0, 4, n)
+    u, z = rng.uniform(0, 1, n), rng.uniform(0.2, 2.8, n)
+    x = np.where(wall == 0, -4.0, np.where(wall == 1, 4.0, -4.0 + 8.0 * u))
+    y = np.where(wall == 2, -3.0, np.where(wall == 3, 3.0, -3.0 + 6.0 * u))
+    region = wall * 4 + np.minimum((u * np.where(wall < 2, 6.0, 8.0) / 2.0).astype(int), 3)
+    prototypes = _unit(rng.normal(size=(60, 64)))
+    region_words = np.stack([rng.choice(60, 6, replace=False) for _ in range(16)])
+    proto = prototypes[region_words[region, rng.integers(0, 6, n)]]
+    desc = _unit(0.6 * proto + 0.8 * _unit(rng.normal(size=(n, 64))))
+    return np.column_stack([x, y, z]), desc
+
+
+def _camera_pose_W(yaw_deg: float, position) -> np.ndarray:
+    """T_WC of a level camera (z forward, x right, y down) looking along world yaw_deg."""
+    R_look = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # camera axes in a yaw-0 body
+    return _pose(_rz(yaw_deg) @ R_look, position)
+
+
+def _view(points_W, desc, T_WC, rng, depth_error=0.02) -> tuple[Features, RevisitView]:
+    T_CW = np.linalg.inv(T_WC)
+    p = points_W @ T_CW[:3, :3].T + T_CW[:3, 3]
+    uv = p @ K.T
+    ok = p[:, 2] > 0.3
+    uv = uv[:, :2] / np.where(ok, p[:, 2], 1.0)[:, None]
+    ok &= (uv[:, 0] > 0) & (uv[:, 0] < SIZE[0] - 1) & (uv[:, 1] > 0) & (uv[:, 1] < SIZE[1] - 1)
+    idx = np.flatnonzero(ok)
+    kpts = (uv[idx] + rng.normal(0, 0.3, (len(idx), 2))).astype(np.float32)
+    d = desc[idx] + rng.normal(0, 0.05, (len(idx), desc.shape[1]))
+    d = (d / np.linalg.norm(d, axis=1, keepdims=True)).astype(np.float32)
+    depth = p[idx, 2] * (1.0 + depth_error * rng.normal(size=len(idx)))
+    return (Features(kpts, np.ones(len(idx), np.float32), d, SIZE, None),
+            RevisitView(K, kpts.astype(np.float64), depth, SIZE))
+
+
+def _session(points_W, desc, T_MW, yaws, positions, seed) -> list[PlaceView]:
+    rng = np.random.default_rng(seed)
+    out = []
+    for i, (yaw, pos) in enumerate(zip(yaws, positions, strict=True)):
+        T_WC = _camera_pose_W(yaw, pos)
+        f, v = _view(points_W, desc, T_WC, rng)
+        out.append(PlaceView(i, T_MW @ T_WC, f, v))
+    return out
+
+
+def _match(fa: Features, fb: Features):
+    m = match_stored(fa, fb)
+    return m.idx_a, m.idx_b
+
+
+def _sessions(T_PW, T_NW, new_room_seed=1):
+    pts, desc = _room(1)
+    yaws = np.arange(0, 360, 30.0)
+    ring = [(1.5 * np.cos(np.radians(a)), 1.0 * np.sin(np.radians(a)), 1.4) for a in yaws]
+    prior = _session(pts, desc, T_PW, yaws, ring, seed=2)
+    if new_room_seed != 1:
+        pts, desc = _room(new_room_seed)
+    ring_new = [(x + 0.3, y - 0.2, z + 0.1) for x, y, z in ring]
+    new = _session(pts, desc, T_NW, yaws[::2] + 8.0, ring_new[::2], seed=3)
+    return prior, new
+
+
+def test_align_sessions_recovers_the_yaw_and_translation_between_two_map_frames():
+    T_PW = _pose(_rz(-25.0), [0.4, 1.1, 0.0])
+    T_NW = _pose(_rz(40.0), [1.5, -2.0, 0.3])
+    prior, new = _sessions(T_PW, T_NW)
+    res = align_sessions(prior, new, _match, AlignConfig(words=64, candidates_per_view=1))
+    assert res.localized, res.reason                       # the vocabulary's first choice is right
+    assert res.attempts == len(new) and len(res.hypotheses) == len(new)
+    T_true = T_PW @ np.linalg.inv(T_NW)
+    dyaw = np.degrees(np.arctan2(*(res.T_PN[:3, :3] @ np.linalg.inv(T_true[:3, :3]))[[1, 0], [0, 0]]))
+    assert abs(dyaw) < 0.2
+    assert np.linalg.norm(res.T_PN[:3, 3] - T_true[:3, 3]) < 0.03
+    assert res.rms_m < 0.2
+    agreeing_views = {res.hypotheses[i].new for i in res.agreeing}
+    assert len(agreeing_views) >= 3
+    d = res.as_dict()
+    assert d["localized"] and d["verified"] == len(res.hypotheses) and d["attempts"] >= d["verified"]
+
+
+def test_a_session_of_another_place_is_not_localized():
+    prior, new = _sessions(np.eye(4), np.eye(4), new_room_seed=7)
+    res = align_sessions(prior, new, _match, AlignConfig(words=64))
+    assert not res.localized and res.T_PN is None
+    assert res.attempts > 0 and sum(res.rejected.values()) == res.attempts - len(res.hypotheses)
+
+
+def test_a_frame_that_is_not_gravity_aligned_is_refused_by_the_tilt_check():
+    c, s = np.cos(0.2), np.sin(0.2)
+    tilt = _pose(np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]]), [0.0, 0.0, 0.0])  # 11.5 deg of roll
+    prior, new = _sessions(np.eye(4), tilt)
+    res = align_sessions(prior, new, _match, AlignConfig(words=64))
+    assert not res.localized
+    assert res.rejected["tilt"] > 0 and not res.hypotheses
+    res_loose = align_sessions(prior, new, _match, AlignConfig(words=64, max_tilt_deg=15.0))
+    assert res_loose.hypotheses                                          # the same pairs, tilt allowed
+
+
+def _hyp(new: int, yaw: float, t) -> Hypothesis:
+    return Hypothesis(0, new, _pose(_rz(yaw), t), yaw, 0.0, 40, 0.05, np.zeros((2, 3)), np.zeros((2, 3)))
+
+
+def test_consensus_needs_enough_distinct_new_views_and_refuses_two_places():
+    cfg = AlignConfig(min_views=3)
+    one_place = [_hyp(1, 10.0, [1, 0, 0]), _hyp(2, 10.5, [1.1, 0, 0]), _hyp(3, 9.8, [1, 0.1, 0]),
+                 _hyp(4, 60.0, [4, 4, 0])]
+    group, reason = consensus(one_place, cfg)
+    assert sorted(group) == [0, 1, 2] and reason == "localized"
+    same_view = [_hyp(1, 10.0, [1, 0, 0]), _hyp(1, 10.2, [1, 0, 0]), _hyp(2, 10.1, [1, 0, 0])]
+    assert consensus(same_view, cfg)[0] == []                            # two new views only
+    two_places = one_place[:3] + [_hyp(5, 60.0, [4, 4, 0]), _hyp(6, 60.3, [4, 4.1, 0]),
+                                  _hyp(7, 59.9, [4.1, 4, 0])]
+    group, reason = consensus(two_places, cfg)
+    assert group == [] and reason.startswith("ambiguous")
+    assert consensus([], cfg) == ([], "no candidate pair passed verification")
+
+
+def test_yaw_translation_fit_is_the_closed_form_least_squares():
+    rng = np.random.default_rng(4)
+    x_N = rng.normal(size=(50, 3)) * 3
+    T = _pose(_rz(123.0), [2.0, -1.0, 0.5])
+    x_P = x_N @ T[:3, :3].T + T[:3, 3]
+    assert np.allclose(yaw_translation_fit(x_P, x_N), T, atol=1e-9)
+    noisy = x_P + rng.normal(0, 0.05, x_P.shape)
+    fit = yaw_translation_fit(noisy, x_N)
+    cost = np.sum((noisy - (x_N @ fit[:3, :3].T + fit[:3, 3])) ** 2)
+    for dyaw in (-0.5, 0.5):                                  # a nearby yaw (translation refitted) costs more
+        R = _rz(dyaw) @ fit[:3, :3]
+        t = (noisy - x_N @ R.T).mean(axis=0)
+        assert np.sum((noisy - (x_N @ R.T + t)) ** 2) > cost
+
+
+def test_the_vocabulary_ranks_a_view_of_the_same_wall_first():
+    pts, desc = _room(1)
+    rng = np.random.default_rng(5)
+    views = [_view(pts, desc, _camera_pose_W(yaw, (0, 0, 1.4)), rng)[0] for yaw in (0, 90, 180, 270)]
+    voc = Vocabulary.train([v.desc for v in views], words=64)
+    H = np.stack([voc.histogram(v.desc) for v in views])
+    query = _view(pts, desc, _camera_pose_W(95.0, (0.3, 0.2, 1.4)), rng)[0]
+    assert int(np.argmax(H @ voc.histogram(query.desc))) == 1
+    assert np.allclose(np.linalg.norm(H, axis=1), 1.0, atol=1e-5)
+
+
+def test_align_config_refuses_nonsense():
+    with pytest.raises(ValueError, match="min_views"):
+        AlignConfig(min_views=0)
+    with pytest.raises(ValueError, match="agree_m"):
+        AlignConfig(agree_m=float("nan"))

@@ -1,0 +1,96 @@
+"""`davio map align NEW --to PRIOR` on archives written here: two sessions of one synthetic room whose
+map frames differ by a known yaw and translation (tests/runtime/test_graph_relocalize.py), stored with
+their centre views through the archive writer."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from runtime.mapping.submap import Submap
+from tests.runtime.test_graph_relocalize import K, _pose, _rz, _sessions
+from tests.tools.test_map_archive import HEADER, make_submap
+from tools.cli import main
+from tools.map_archive import MapArchiveWriter, read_manifest
+from tools.map_archive.reader import load_view
+
+T_PW = _pose(_rz(-25.0), [0.4, 1.1, 0.0])
+T_NW = _pose(_rz(40.0), [1.5, -2.0, 0.3])
+
+
+def _write_session(folder: Path, views, with_views: bool = True) -> list[Submap]:
+    subs = []
+    for pv in views:
+        sm = make_submap(pv.index, seed=100 + pv.index)
+        sm.K, sm.T_MS = K.copy(), pv.T_MS
+        sm.T_OS = pv.T_MS.copy()
+        sm.view = (pv.features, pv.view) if with_views else None
+        subs.append(sm)
+    w = MapArchiveWriter(folder / "map", HEADER)
+    w.commit(subs, [], 1, {})
+    (folder / "run_status.json").write_text('{"status": "complete"}')
+    return subs
+
+
+@pytest.fixture
+def sessions(tmp_path: Path) -> tuple[Path, Path]:
+    prior, new = _sessions(T_PW, T_NW)
+    _write_session(tmp_path / "prior", prior)
+    _write_session(tmp_path / "new", new)
+    return tmp_path / "prior", tmp_path / "new"
+
+
+def test_views_round_trip_through_the_archive(sessions):
+    prior, _ = sessions
+    info = read_manifest(prior / "map")
+    views = _sessions(T_PW, T_NW)[0]
+    for e, pv in zip(sorted(info["submaps"], key=lambda e: e["index"]), views, strict=True):
+        f, v = load_view(prior / "map", e)
+        assert np.array_equal(f.kpts, pv.features.kpts) and f.level is None
+        assert np.allclose(f.desc, pv.features.desc, atol=1e-3)          # float16 on disk
+        assert f.desc.dtype == np.float32
+        assert np.allclose(v.depth_at_kpts, pv.view.depth_at_kpts, rtol=1e-6)
+        assert np.array_equal(v.K, K) and v.image_size == pv.view.image_size
+
+
+def test_align_puts_the_new_map_and_its_trajectory_in_the_prior_frame(sessions, capsys):
+    prior, new = sessions
+    t_ns = np.array([10**18, 10**18 + 50_000_000])
+    p_N = np.array([[1.0, 2.0, 0.5], [1.2, 2.1, 0.6]])
+    (new / "final.tum").write_text("".join(f"{t * 1e-9:.9f} {x} {y} {z} 0 0 0 1\n"
+                                           for t, (x, y, z) in zip(t_ns, p_N, strict=True)))
+    assert main(["map", "align", str(new), "--to", str(prior)]) == 0
+    out = capsys.readouterr().out
+    assert "localised" in out and "fit: centres" in out
+    al = json.loads((new / "alignment.json").read_text())
+    T_true = T_PW @ np.linalg.inv(T_NW)
+    assert np.allclose(np.array(al["T_PN"]), T_true, atol=0.03)
+    assert al["localized"] and al["agreeing_new_views"] >= 3 and al["final_in_prior_poses"] == 2
+    moved = np.loadtxt(new / "final.in_prior.tum")
+    assert np.allclose(moved[:, 1:4], p_N @ T_true[:3, :3].T + T_true[:3, 3], atol=0.05)
+    yaw = np.arctan2(T_true[1, 0], T_true[0, 0])                    # identity attitude -> pure yaw
+    assert np.allclose(np.abs(moved[:, 7]), np.cos(yaw / 2), atol=2e-3)
+
+
+def test_another_place_is_not_localised_and_exits_1(tmp_path, capsys):
+    prior, other = _sessions(np.eye(4), np.eye(4), new_room_seed=7)
+    _write_session(tmp_path / "prior", prior)
+    _write_session(tmp_path / "other", other)
+    (tmp_path / "other" / "final.tum").write_text("1.0 0 0 0 0 0 0 1\n")
+    assert main(["map", "align", str(tmp_path / "other"), "--to", str(tmp_path / "prior"), "--json"]) == 1
+    al = json.loads(capsys.readouterr().out)
+    assert not al["localized"] and al["T_PN"] is None and al["reason"]
+    assert not (tmp_path / "other" / "final.in_prior.tum").exists()
+
+
+def test_an_archive_without_views_is_refused_with_the_reason(tmp_path, capsys):
+    prior, new = _sessions(T_PW, T_NW)
+    _write_session(tmp_path / "prior", prior, with_views=False)
+    _write_session(tmp_path / "new", new)
+    assert main(["map", "align", str(tmp_path / "new"), "--to", str(tmp_path / "prior")]) != 0
+    err = capsys.readouterr().err
+    assert "stores no centre views" in err and "prior" in err
+    assert main(["map", "align", str(tmp_path / "new"), "--to", str(tmp_path / "new")]) != 0
+    assert "same map" in capsys.readouterr().err

@@ -1,0 +1,98 @@
+"""Aligning two map archives of one place (`davio map align NEW --to PRIOR`): the transform from the new
+session's map frame to the prior one's, from the centre views stored with the submaps
+(runtime/graph/relocalize.py), and the new run's trajectory moved into the prior frame."""
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from runtime.errors import DataError
+from runtime.graph.relocalize import AlignConfig, Alignment, PlaceView, align_sessions
+from tools.map_archive.reader import integrity, load_view, read_manifest, state_is_finite
+
+
+def load_place_views(archive: Path, notes: list[str]) -> tuple[list[PlaceView], int, int]:
+    """(the centre views of the archive's largest filter segment with their final map poses, that
+    segment, the number of segments). Submaps of other segments (another odometry frame after a filter
+    reset), with a non-finite state or without a stored view are left out and said in `notes`.
+
+    Raises:
+        DataError: a damaged archive (naming the file), or one that holds no centre view at all.
+    """
+    info = read_manifest(archive)
+    problems, _ = integrity(archive, info)
+    if problems:
+        raise DataError(f"damaged archive: {problems[0]}" + (f" (and {len(problems) - 1} more)"
+                                                             if len(problems) > 1 else ""), archive)
+    entries = [e for e in info["submaps"] if state_is_finite(e)]
+    if len(entries) < len(info["submaps"]):
+        notes.append(f"{archive}: {len(info['submaps']) - len(entries)} submap(s) without a finite state "
+                     "left out")
+    if not entries:
+        raise DataError("the archive holds no submap with a finite state", archive)
+    segments = Counter(int(e.get("segment", 0)) for e in entries)
+    segment = max(segments, key=lambda s: (segments[s], -s))
+    if len(segments) > 1:
+        notes.append(f"{archive}: {len(segments)} filter segments (each its own odometry frame); segment "
+                     f"{segment}, the largest ({segments[segment]} submaps), is aligned")
+    views: list[PlaceView] = []
+    missing = 0
+    for e in sorted(entries, key=lambda e: int(e["index"])):
+        if int(e.get("segment", 0)) != segment:
+            continue
+        fv = load_view(archive, e)
+        if fv is None:
+            missing += 1
+            continue
+        views.append(PlaceView(int(e["index"]), np.array(e["T_MS"], np.float64), fv[0], fv[1]))
+    if not views:
+        raise DataError("the archive stores no centre views, which alignment needs: it was written before "
+                        "davio stored them, or with the submap graph off (mapping.graph = false); run the "
+                        "recording again to align it", archive)
+    if missing:
+        notes.append(f"{archive}: {missing} submap(s) of segment {segment} without a stored view left out")
+    return views, segment, len(segments)
+
+
+def align_archives(new: Path, prior: Path, cfg: AlignConfig | None = None,
+                   progress: Callable[[int, int], None] | None = None) -> tuple[Alignment, dict, list[str]]:
+    """(the alignment of archive `new` to archive `prior`, a JSON-ready summary, notes)."""
+    notes: list[str] = []
+    prior_views, prior_segment, _ = load_place_views(prior, notes)
+    new_views, new_segment, new_segments = load_place_views(new, notes)
+    from models.matcher.matcher import match_stored
+
+    cfg = cfg or AlignConfig()
+
+    def match(fa, fb):
+        m = match_stored(fa, fb)
+        return m.idx_a, m.idx_b
+
+    res = align_sessions(prior_views, new_views, match, cfg, progress)
+    summary = {"format": "davio-alignment", "prior": str(prior), "new": str(new),
+               "prior_segment": prior_segment, "new_segment": new_segment, "new_segments": new_segments,
+               "frames": "T_PN maps points of the new map frame into the prior one: x_P = T_PN x_N",
+               "settings": {"candidates_per_view": cfg.candidates_per_view, "min_views": cfg.min_views,
+                            "agree_m": cfg.agree_m, "agree_deg": cfg.agree_deg,
+                            "max_tilt_deg": cfg.max_tilt_deg, "words": cfg.words},
+               **res.as_dict()}
+    return res, summary, notes
+
+
+def transform_tum(src: Path, dst: Path, T_PN: np.ndarray) -> int:
+    """Write TUM file `src` (poses T_NI in the new map frame) to `dst` with every pose moved into the
+    prior frame, T_PI = T_PN T_NI. Returns the number of poses."""
+    from drivers.trajectory_files import read_tum
+    from runtime.geometry.trajectory import PoseTrajectory
+    from tools.evaluation.trajectory_io import write_tum
+
+    traj = read_tum(src)
+    if not len(traj):
+        raise DataError("no poses", src)
+    T = np.asarray(T_PN, np.float64)
+    moved = PoseTrajectory(traj.t_ns, traj.p @ T[:3, :3].T + T[:3, 3], T[:3, :3] @ traj.R)
+    write_tum(dst, moved)
+    return len(traj)
