@@ -264,47 +264,174 @@ def _rz(yaw: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def _agree(a: Hypothesis, b: Hypothesis, cfg: AlignConfig) -> bool:
-    dyaw = (a.yaw_deg - b.yaw_deg + 180.0) % 360.0 - 180.0
-    return abs(dyaw) <= cfg.agree_deg and float(np.linalg.norm(a.T_PN[:3, 3] - b.T_PN[:3, 3])) <= cfg.agree_m
+def agreement(hyps: list[Hypothesis], cfg: AlignConfig) -> np.ndarray:
+    """(n,n) bool: hypotheses i and j agree (yaws within agree_deg, translations within agree_m)."""
+    yaw = np.array([h.yaw_deg for h in hyps])
+    t = np.array([h.T_PN[:3, 3] for h in hyps]).reshape(-1, 3)
+    dyaw = (yaw[:, None] - yaw[None, :] + 180.0) % 360.0 - 180.0
+    dist = np.linalg.norm(t[:, None, :] - t[None, :, :], axis=2)
+    return (np.abs(dyaw) <= cfg.agree_deg) & (dist <= cfg.agree_m)
 
 
-def _largest_group(hyps: list[Hypothesis], idx: list[int], cfg: AlignConfig) -> list[int]:
-    """The members of `idx` agreeing with the member that has the most agreeing new views."""
-    best: list[int] = []
-    best_views = 0
+def _largest_group(A: np.ndarray, new: np.ndarray, idx: np.ndarray) -> tuple[int, np.ndarray]:
+    """(centre, members): among hypotheses `idx`, the one whose agreeing members (within `idx`) come
+    from the most distinct new views (then the most members), and those members."""
+    best, best_key = -1, (-1, -1)
+    members = np.zeros(0, np.int64)
     for i in idx:
-        group = [j for j in idx if _agree(hyps[i], hyps[j], cfg)]
-        views = len({hyps[j].new for j in group})
-        if views > best_views or (views == best_views and len(group) > len(best)):
-            best, best_views = group, views
-    return best
+        m = idx[A[i, idx]]
+        key = (len(np.unique(new[m])), len(m))
+        if key > best_key:
+            best, best_key, members = int(i), key, m
+    return best, members
 
 
 def consensus(hyps: list[Hypothesis], cfg: AlignConfig) -> tuple[list[int], str]:
-    """(agreeing indices, reason): the largest group of mutually consistent hypotheses, refused when
-    it spans fewer than `min_views` new views or when a disjoint group elsewhere spans as many."""
+    """(agreeing indices, reason): the largest group of mutually consistent hypotheses (those agreeing
+    with one centre hypothesis), refused when it spans fewer than `min_views` new views or when a group
+    elsewhere (hypotheses agreeing with neither the centre nor its group) spans more than half as many."""
     if not hyps:
         return [], "no candidate pair passed verification"
-    group = _largest_group(hyps, list(range(len(hyps))), cfg)
-    views = len({hyps[j].new for j in group})
+    A = agreement(hyps, cfg)
+    new = np.array([h.new for h in hyps])
+    centre, group = _largest_group(A, new, np.arange(len(hyps)))
+    views = len(np.unique(new[group]))
     if views < cfg.min_views:
         return [], (f"the largest consistent group comes from {views} new view(s), fewer than "
                     f"{cfg.min_views}")
-    rest = [j for j in range(len(hyps)) if j not in group and not _agree(hyps[group[0]], hyps[j], cfg)]
-    other = _largest_group(hyps, rest, cfg) if rest else []
-    other_views = len({hyps[j].new for j in other})
+    rest = np.flatnonzero(~A[centre] & ~A[group].any(axis=0))
+    other_views = len(np.unique(new[_largest_group(A, new, rest)[1]])) if len(rest) else 0
     if other_views >= cfg.min_views and other_views * 2 > views:
         return [], (f"ambiguous: two inconsistent groups of {views} and {other_views} new views (a "
                     "repetitive place, or a different one)")
-    return group, "localized"
+    return [int(k) for k in group], "localized"
+
+
+class PriorMapLocalizer:
+    """Localises a session's submaps, one at a time, in a prior map: the incremental form of
+    `align_sessions`, which a live run calls after each map commit (on the model worker) while the
+    tracking thread reads the transform (`T_PN`, thread-safe).
+
+    Per filter segment (each has its own odometry and map frame) it keeps the verified hypotheses (at
+    most `max_hypotheses`, the oldest dropped) and the consensus transform, re-fitted whenever a
+    hypothesis is added. Once a segment is localised, a new view is tried only against prior views
+    whose centres lie within `candidate_radius_m` (the revisits' 8 m) of where the transform puts it.
+
+    Args:
+        prior: the prior map's centre views, poses in its map frame P.
+        match: (features a, features b) -> (idx_a, idx_b).
+        cfg: settings (`AlignConfig`).
+    """
+
+    def __init__(self, prior: Sequence[PlaceView],
+                 match: Callable[[object, object], tuple[np.ndarray, np.ndarray]],
+                 cfg: AlignConfig | None = None, max_hypotheses: int = 1000) -> None:
+        import threading
+
+        self.cfg = cfg or AlignConfig()
+        self.prior = list(prior)
+        self.match = match
+        self.max_hypotheses = int(max_hypotheses)
+        if not self.prior:
+            raise GraphError("the prior map holds no centre views")
+        self.vocabulary = Vocabulary.train([p.features.desc for p in self.prior], self.cfg.words,
+                                           self.cfg.seed)
+        self._H = np.stack([self.vocabulary.histogram(p.features.desc) for p in self.prior])
+        self._centres = np.array([np.asarray(p.T_MS, np.float64)[:3, 3] for p in self.prior])
+        self.views_tried = 0
+        self.attempts = 0
+        self.rejected = {s: 0 for s in ALIGN_STAGES}
+        self.hypotheses_dropped = 0
+        self._hyps: dict[int, list[Hypothesis]] = {}
+        self._result: dict[int, tuple[list[int], str, np.ndarray | None, str]] = {}
+        self._lock = threading.Lock()
+        self.version = 0
+        """Increases whenever a segment's transform changes."""
+        self.versions: dict[int, int] = {}
+
+    def _candidates(self, b: PlaceView, segment: int, search_near: bool) -> list[int]:
+        sim = self._H @ self.vocabulary.histogram(b.features.desc)
+        order = [int(k) for k in np.argsort(-sim, kind="stable") if sim[k] > 0]
+        T = self.T_PN(segment) if search_near else None
+        if T is not None:
+            c_P = T[:3, :3] @ np.asarray(b.T_MS, np.float64)[:3, 3] + T[:3, 3]
+            near = np.linalg.norm(self._centres - c_P, axis=1) <= self.cfg.gates.candidate_radius_m
+            order = [k for k in order if near[k]]
+        return order[: self.cfg.candidates_per_view]
+
+    def add_view(self, b: PlaceView, segment: int = 0, search_near: bool = True) -> bool:
+        """Verify view b (pose in the session's map frame of `segment`) against its best-ranked prior
+        views (near where the transform puts it once localised, unless `search_near` is False) and
+        update the segment's transform; returns True when the transform changed."""
+        self.views_tried += 1
+        new: list[Hypothesis] = []
+        for k in self._candidates(b, segment, search_near):
+            a = self.prior[k]
+            self.attempts += 1
+            res, T_SaSb, p_a, p_b = verify_geometry(a.view, b.view, self.match(a.features, b.features),
+                                                    self.cfg.gates)
+            if T_SaSb is None:
+                self.rejected[res.stage] = self.rejected.get(res.stage, 0) + 1
+                continue
+            T_MS_b = np.asarray(b.T_MS, np.float64)
+            T_PN = np.asarray(a.T_MS, np.float64) @ T_SaSb @ np.linalg.inv(T_MS_b)
+            tilt = _tilt_deg(T_PN[:3, :3])
+            if tilt > self.cfg.max_tilt_deg:
+                self.rejected["tilt"] += 1
+                continue
+            x_P = p_a @ a.T_MS[:3, :3].T + a.T_MS[:3, 3]
+            x_N = p_b @ T_MS_b[:3, :3].T + T_MS_b[:3, 3]
+            new.append(Hypothesis(a.index, b.index, T_PN, _yaw_deg(T_PN[:3, :3]), tilt, res.n_inliers,
+                                  res.depth_rel_error, x_P, x_N, T_MS_b[:3, 3].copy()))
+        if not new:
+            return False
+        hyps = self._hyps.setdefault(int(segment), [])
+        hyps.extend(new)
+        if len(hyps) > self.max_hypotheses:
+            self.hypotheses_dropped += len(hyps) - self.max_hypotheses
+            del hyps[: len(hyps) - self.max_hypotheses]
+        group, reason = consensus(hyps, self.cfg)
+        T, fit = _transform([hyps[i] for i in group], self.cfg) if group else (None, "")
+        with self._lock:
+            old = self._result.get(int(segment))
+            self._result[int(segment)] = (group, reason, T, fit)
+            changed = T is not None and (old is None or old[2] is None or not np.array_equal(old[2], T))
+            if changed:
+                self.version += 1
+                self.versions[int(segment)] = self.version
+        return changed
+
+    def T_PN(self, segment: int = 0) -> np.ndarray | None:
+        """(4,4) the segment's map frame -> the prior map frame, or None while it is not localised."""
+        with self._lock:
+            r = self._result.get(int(segment))
+            return None if r is None or r[2] is None else r[2].copy()
+
+    def alignment(self, segment: int = 0, new_views: int = 0) -> Alignment:
+        """The segment's state as an `Alignment` (hypotheses, consensus, transform, counters)."""
+        hyps = list(self._hyps.get(int(segment), []))
+        group, reason, T, fit = self._result.get(int(segment), ([], "", None, ""))
+        out = Alignment(T is not None, reason or "no candidate pair passed verification", T, hypotheses=hyps,
+                        agreeing=list(group), attempts=self.attempts, rejected=dict(self.rejected),
+                        prior_views=len(self.prior), new_views=new_views or self.views_tried, fit=fit)
+        if T is not None:
+            sel = [hyps[i] for i in group]
+            out.rms_m = _rms(np.concatenate([h.x_P for h in sel]), np.concatenate([h.x_N for h in sel]), T)
+            out.centre_rms_m = _rms(*_centres(sel), T)
+        return out
+
+    def segments(self) -> list[int]:
+        """Segments with at least one verified hypothesis."""
+        return sorted(self._hyps)
 
 
 def align_sessions(prior: Sequence[PlaceView], new: Sequence[PlaceView],
                    match: Callable[[object, object], tuple[np.ndarray, np.ndarray]],
                    cfg: AlignConfig | None = None,
                    progress: Callable[[int, int], None] | None = None) -> Alignment:
-    """The transform T_PN from the new session's map frame to the prior one's (module docstring).
+    """The transform T_PN from the new session's map frame to the prior one's (module docstring), all
+    of the new session's views tried against the prior map (no search radius: `PriorMapLocalizer`
+    narrows it only once the segment is localised, and the views come in their own order here).
 
     Args:
         prior, new: the two sessions' centre views with their map poses.
@@ -312,44 +439,15 @@ def align_sessions(prior: Sequence[PlaceView], new: Sequence[PlaceView],
         cfg: settings; progress: called with (new views done, new views) after each new view.
     """
     cfg = cfg or AlignConfig()
-    out = Alignment(False, "", prior_views=len(prior), new_views=len(new))
     if not prior or not new:
-        out.reason = "one of the sessions holds no centre views"
-        return out
-    voc = Vocabulary.train([p.features.desc for p in prior], cfg.words, cfg.seed)
-    H_prior = np.stack([voc.histogram(p.features.desc) for p in prior])
+        return Alignment(False, "one of the sessions holds no centre views", prior_views=len(prior),
+                         new_views=len(new))
+    loc = PriorMapLocalizer(prior, match, cfg, max_hypotheses=10**9)
     for n_done, b in enumerate(new, 1):
-        sim = H_prior @ voc.histogram(b.features.desc)
-        for k in np.argsort(-sim, kind="stable")[: cfg.candidates_per_view]:
-            if sim[k] <= 0:
-                break
-            a = prior[int(k)]
-            out.attempts += 1
-            res, T_SaSb, p_a, p_b = verify_geometry(a.view, b.view, match(a.features, b.features), cfg.gates)
-            if T_SaSb is None:
-                out.rejected[res.stage] = out.rejected.get(res.stage, 0) + 1
-                continue
-            T_PN = np.asarray(a.T_MS, np.float64) @ T_SaSb @ np.linalg.inv(np.asarray(b.T_MS, np.float64))
-            tilt = _tilt_deg(T_PN[:3, :3])
-            if tilt > cfg.max_tilt_deg:
-                out.rejected["tilt"] += 1
-                continue
-            x_P = p_a @ a.T_MS[:3, :3].T + a.T_MS[:3, 3]
-            x_N = p_b @ b.T_MS[:3, :3].T + b.T_MS[:3, 3]
-            out.hypotheses.append(Hypothesis(a.index, b.index, T_PN, _yaw_deg(T_PN[:3, :3]), tilt,
-                                             res.n_inliers, res.depth_rel_error, x_P, x_N,
-                                             np.asarray(b.T_MS, np.float64)[:3, 3].copy()))
+        loc.add_view(b, 0, search_near=False)
         if progress is not None:
             progress(n_done, len(new))
-    out.agreeing, out.reason = consensus(out.hypotheses, cfg)
-    if out.agreeing:
-        group = [out.hypotheses[i] for i in out.agreeing]
-        out.T_PN, out.fit = _transform(group, cfg)
-        out.localized = True
-        out.rms_m = _rms(np.concatenate([h.x_P for h in group]), np.concatenate([h.x_N for h in group]),
-                         out.T_PN)
-        out.centre_rms_m = _rms(*_centres(group), out.T_PN)
-    return out
+    return loc.alignment(0, len(new))
 
 
 def _rms(x_P: np.ndarray, x_N: np.ndarray, T_PN: np.ndarray) -> float:
