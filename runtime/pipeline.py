@@ -18,6 +18,7 @@ from runtime.ffinit.extension import TrackSet
 from runtime.ffinit.initializer import FeedForwardInitializer
 from runtime.geometry.se3 import make_pose
 from runtime.graph.correction import CorrectionTimeline, final_corrections
+from runtime.graph.prior_frame import PriorFrame
 from runtime.mapping.mapper import MAX_ERROR_MESSAGES, MapCommit, Mapper, MappingStats
 from runtime.mapping.windows import MappingWindow, WindowBuilder, WindowQueue
 from runtime.msckf.estimator import MsckfEstimator
@@ -59,11 +60,14 @@ class VioPipeline:
             initializer only (no map).
         map_sink: called by the model worker with every map commit (the run's map archive).
         mapper_factory: builds the Mapper (tests and benchmarks inject one); default `Mapper`.
+        prior_map: a `runtime.graph.relocalize.PriorMapLocalizer` over an earlier run's map: each
+            committed submap is localised in it, and published poses get their pose in its frame
+            (`prior_pose`, runtime.graph.prior_frame). Needs mapping (a model, mapping on).
     """
 
     def __init__(self, rig: Any, model: DepthModel | None = None, config: DavioConfig | None = None,
                  map_sink: Callable[[MapCommit, MappingStats], None] | None = None,
-                 mapper_factory: Callable[..., Mapper] | None = None) -> None:
+                 mapper_factory: Callable[..., Mapper] | None = None, prior_map: Any = None) -> None:
         self.config = config or DavioConfig()
         self.model = model
         self.map_sink = map_sink
@@ -76,6 +80,15 @@ class VioPipeline:
             self.map_queue = WindowQueue(self.config.mapping.max_pending_windows)
             self.map_stats = MappingStats()
             self._frames_waiting: dict[int, Frame] = {}
+        self.prior: PriorFrame | None = None
+        if prior_map is not None:
+            if self.windows is None:
+                raise ConfigError("a prior map needs the mapping: a depth model with mapping on (the run's "
+                                  "submaps are what is localised in it)")
+            if not self.config.mapping.graph or not self.config.revisits.enabled:
+                raise ConfigError("a prior map needs the submaps' centre views, which the submap graph keeps "
+                                  "for revisits: set mapping.graph and revisits.enabled to true")
+            self.prior = PriorFrame(prior_map, prior_map.source)
         #: live odometry-to-map correction (eq. correction), one timeline per odometry segment
         self.corrections: dict[int, CorrectionTimeline] = {}
         #: every published state and its map-frame pose as published, in compact columns (254 B a pose);
@@ -202,8 +215,16 @@ class VioPipeline:
         """A map commit defines a new correction from the sensor time it is applied at."""
         seg = commit.submap.segment
         tl = self.corrections.setdefault(seg, CorrectionTimeline())
-        tl.commit(max(self._last_t, tl.last_commit_ns or 0), commit.T_MO, commit.version)
+        t = max(self._last_t, tl.last_commit_ns or 0)
+        tl.commit(t, commit.T_MO, commit.version)
         self._record_nodes(commit)
+        if self.prior is not None:
+            self.prior.update(t)
+
+    def prior_pose(self, segment: int, t_ns: int, T_MI: np.ndarray) -> np.ndarray | None:
+        """T_PI (4,4) in the prior map's frame of a pose published at t_ns with map-frame pose T_MI, or
+        None (no prior map, or its segment not localised in it yet)."""
+        return None if self.prior is None else self.prior.pose(segment, t_ns, T_MI)
 
     def _record_nodes(self, commit: MapCommit) -> None:
         offset = int(round(self.time_offset_s * 1e9))
@@ -256,8 +277,13 @@ class VioPipeline:
             self.mapper = mapper
         mapper = self.mapper
 
+        prior = self.prior
+
         def job() -> Any:
-            return mapper.process(window)
+            result = mapper.process(window)
+            if prior is not None and isinstance(result, MapCommit):
+                prior.on_submap(result.submap)
+            return result
 
         return job
 
@@ -383,6 +409,8 @@ class VioPipeline:
             if self.mapper is not None and self.mapper.backend is not None:
                 rep["mapping"]["graph"] = asdict(self.mapper.backend.stats)
             rep["mapping"]["windows_dropped_ids"] = list(self.map_queue.dropped)
+        if self.prior is not None:
+            rep["prior_map"] = self.prior.report()
         rep["tracking"]["mean_tracks_per_frame"] = self.stats.tracks_total / max(self.stats.frames, 1)
         return rep
 

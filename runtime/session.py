@@ -50,6 +50,8 @@ class Pose:
         covariance: (6,6) covariance of [rotation error (body frame, rad), position (m)], or None.
         source: who published ("native:static", "feedforward", ...); segment: filter restarts before it.
         correction_version: the map correction's version (0: none yet).
+        T_PI: (4,4) IMU pose in a prior map's frame (`prior_map`), or None: no prior map, or this
+            segment not localised in it yet.
     """
 
     t_ns: int
@@ -61,6 +63,7 @@ class Pose:
     source: str
     segment: int
     correction_version: int
+    T_PI: np.ndarray | None = None
 
 
 @dataclass
@@ -90,11 +93,14 @@ class Session:
         max_pending_frames: images waiting for the tracker before the oldest is dropped (live).
         max_unread_poses: poses `poses()` keeps for the caller (default 12000, ten minutes at 20 Hz);
             beyond that the oldest unread one is dropped and counted in `unread_poses_dropped`.
+        prior_map: an earlier run's map to localise this one in (`tools.map_archive.align.
+            prior_map_localizer(path)`, or a `runtime.graph.relocalize.PriorMapLocalizer`): poses then
+            carry T_PI once localised. Needs a model and mapping.
     """
 
     def __init__(self, rig: Any, model: Any = None, config: DavioConfig | None = None,
                  on_pose: Callable[[Pose], None] | None = None, map_sink: Any = None,
-                 max_pending_frames: int = 2, max_unread_poses: int = 12_000) -> None:
+                 max_pending_frames: int = 2, max_unread_poses: int = 12_000, prior_map: Any = None) -> None:
         if rig is None or getattr(rig, "camera", None) is None:
             raise ConfigError("a session needs the camera intrinsics (rig.camera); see calib.load_rig")
         whole = isinstance(max_unread_poses, (int, np.integer)) and not isinstance(max_unread_poses, bool)
@@ -102,7 +108,7 @@ class Session:
             raise ConfigError(f"max_unread_poses must be a whole number >= 1, got {max_unread_poses!r}")
         self.rig = rig
         self.config = config or DavioConfig()
-        self.pipeline = VioPipeline(rig, model, self.config, map_sink=map_sink)
+        self.pipeline = VioPipeline(rig, model, self.config, map_sink=map_sink, prior_map=prior_map)
         self.on_pose = on_pose
         self.max_pending_frames = max_pending_frames
         self._poses: queue.Queue[Pose] = queue.Queue(maxsize=int(max_unread_poses))
@@ -120,7 +126,7 @@ class Session:
         causal = self.pipeline.causal[len(self.pipeline.causal) - len(published):]
         for p, (T_MI, version, _) in zip(published, causal, strict=True):
             pose = Pose(int(p.t_ns), int(p.t_cam_ns), p.T_OI, T_MI, np.asarray(p.v_OI), p.covariance,
-                        p.source, p.segment, version)
+                        p.source, p.segment, version, self.pipeline.prior_pose(p.segment, int(p.t_ns), T_MI))
             self._queue_pose(pose)
             if self.on_pose is not None:
                 self.on_pose(pose)

@@ -29,8 +29,8 @@ STATUSES = ("complete", "interrupted", "failed")
 RUN_MARKERS = (STATUS_FILE, "report.json", "odometry.tum")
 """Files whose presence suggests a folder holds a DAVIO run (used for messages; replacing one needs more:
 `not_replaceable`)."""
-DERIVED_FILES = ("map.ply", "map.png")
-"""Files `davio map export|view` write into a run folder by default after the run ended."""
+DERIVED_FILES = ("map.ply", "map.png", "alignment.json", "final.prior.tum")
+"""Files `davio map export|view|align` write into a run folder by default after the run ended."""
 
 
 def _partial_names() -> re.Pattern:

@@ -15,16 +15,17 @@ RunResult = SessionResult
 def run_pipeline(driver: Any, model: Any, config: DavioConfig, paced: bool = False, speed: float = 1.0,
                  model_latency_s: float = 0.5, show_progress: bool = True, seconds: float | None = None,
                  rig: Any = None, map_sink: Any = None, keep_partial: bool = False,
-                 on_pose: Any = None) -> RunResult:
+                 on_pose: Any = None, prior_map: Any = None) -> RunResult:
     """Run `driver` (events, rig) through a VioPipeline; returns the pipeline and scheduler report.
 
     With a model and mapping enabled, the windows still queued when the recording ends are mapped
     after the scheduler returns (`map_sink` receives every commit). With `keep_partial`, Ctrl-C
     (KeyboardInterrupt) and a DavioError during the run end it early and the result says so
     (`status`, `reason`) with everything computed until then; without, they propagate. `on_pose` gets
-    every published runtime.session.Pose (e.g. the live view's)."""
+    every published runtime.session.Pose (e.g. the live view's); `prior_map` (a PriorMapLocalizer) an
+    earlier run's map to localise this one in."""
     session = Session(rig if rig is not None else driver.rig, model, config, map_sink=map_sink,
-                      on_pose=on_pose)
+                      on_pose=on_pose, prior_map=prior_map)
     pipe = session.pipeline
     events = driver.events()
     if seconds is not None:

@@ -122,8 +122,9 @@ class CorrectionTimeline:
         """Sensor time of the newest commit (None before any)."""
         return self._t[-1] if self._t else None
 
-    def commit(self, t_ns: int, T_MO: np.ndarray, version: int) -> bool:
-        """Add a map commit at sensor time t_ns with target correction T_MO (4,4) and a new version.
+    def commit(self, t_ns: int, T_MO: np.ndarray, version: int, immediate: bool = False) -> bool:
+        """Add a map commit at sensor time t_ns with target correction T_MO (4,4) and a new version;
+        `immediate` applies it at once whatever its size (a first transform, with nothing to blend from).
 
         Returns True when the change is blended over the interpolation time, False when it applies at once.
         Raises GraphError (a ValueError) for a malformed pose, a non-increasing version or a commit older
@@ -139,7 +140,7 @@ class CorrectionTimeline:
                              f"at {self._t[-1]} ns")
         T_from, _, _ = self.at(t_ns)
         dp, dr = correction_change(T_from, T_MO)
-        blend = dp > self.config.trans_threshold_m or dr > self.config.rot_threshold_deg
+        blend = not immediate and (dp > self.config.trans_threshold_m or dr > self.config.rot_threshold_deg)
         duration = self.config.interpolation_ns if blend else 0
         self._t.append(t_ns)
         self._commits.append(_Commit(t_ns, version, T_from, T_MO, duration))

@@ -320,14 +320,15 @@ class PriorMapLocalizer:
     Args:
         prior: the prior map's centre views, poses in its map frame P.
         match: (features a, features b) -> (idx_a, idx_b).
-        cfg: settings (`AlignConfig`).
+        cfg: settings (`AlignConfig`); source: where the prior map came from (reports).
     """
 
     def __init__(self, prior: Sequence[PlaceView],
                  match: Callable[[object, object], tuple[np.ndarray, np.ndarray]],
-                 cfg: AlignConfig | None = None, max_hypotheses: int = 1000) -> None:
+                 cfg: AlignConfig | None = None, max_hypotheses: int = 1000, source: str = "") -> None:
         import threading
 
+        self.source = source
         self.cfg = cfg or AlignConfig()
         self.prior = list(prior)
         self.match = match
@@ -400,6 +401,11 @@ class PriorMapLocalizer:
                 self.version += 1
                 self.versions[int(segment)] = self.version
         return changed
+
+    def segment_versions(self) -> dict[int, int]:
+        """{segment: the version its transform last changed at} (a copy, thread-safe)."""
+        with self._lock:
+            return dict(self.versions)
 
     def T_PN(self, segment: int = 0) -> np.ndarray | None:
         """(4,4) the segment's map frame -> the prior map frame, or None while it is not localised."""

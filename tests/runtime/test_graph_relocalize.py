@@ -11,6 +11,7 @@ from runtime.graph.relocalize import (
     AlignConfig,
     Hypothesis,
     PlaceView,
+    PriorMapLocalizer,
     Vocabulary,
     align_sessions,
     consensus,
@@ -191,3 +192,49 @@ def test_align_config_refuses_nonsense():
         AlignConfig(min_views=0)
     with pytest.raises(ValueError, match="agree_m"):
         AlignConfig(agree_m=float("nan"))
+
+
+def test_the_localizer_narrows_its_search_once_localised_and_bounds_its_hypotheses():
+    T_PW, T_NW = _pose(_rz(-25.0), [0.4, 1.1, 0.0]), _pose(_rz(40.0), [1.5, -2.0, 0.3])
+    prior, new = _sessions(T_PW, T_NW)
+    loc = PriorMapLocalizer(prior, _match, AlignConfig(words=64), max_hypotheses=8)
+    changed = [loc.add_view(b, segment=2) for b in new]
+    assert loc.T_PN(2) is not None and loc.T_PN(0) is None and changed.count(True) >= 1
+    assert loc.segment_versions() == {2: loc.version} and loc.segments() == [2]
+    assert len(loc.alignment(2).hypotheses) == 8 and loc.hypotheses_dropped > 0
+    # localised: candidates only within the revisit radius of where the transform puts the view
+    far = PlaceView(99, T_NW @ _camera_pose_W(0.0, (40.0, 0.0, 1.4)), new[0].features, new[0].view)
+    assert loc._candidates(far, 2, search_near=True) == []
+    assert len(loc._candidates(far, 2, search_near=False)) == loc.cfg.candidates_per_view
+
+
+def test_prior_frame_publishes_nothing_before_localisation_then_the_transform_at_once():
+    from types import SimpleNamespace
+
+    from runtime.graph.prior_frame import PriorFrame
+
+    T_PW, T_NW = _pose(_rz(-25.0), [0.4, 1.1, 0.0]), _pose(_rz(40.0), [1.5, -2.0, 0.3])
+    prior, new = _sessions(T_PW, T_NW)
+    pf = PriorFrame(PriorMapLocalizer(prior, _match, AlignConfig(words=64)), "prior")
+    T_MI = _pose(_rz(10.0), [1.0, 2.0, 0.5])
+    t = 1_000_000_000
+    t_loc, T_first = None, None
+    for k, b in enumerate(new):
+        before = pf.localizer.T_PN(0) is None
+        pf.on_submap(SimpleNamespace(index=b.index, T_MS=b.T_MS, view=(b.features, b.view), segment=0))
+        pf.update(t + k * 10**9)
+        if before and pf.localizer.T_PN(0) is not None:
+            t_loc, T_first = t + k * 10**9, pf.localizer.T_PN(0)
+    assert t_loc is not None
+    assert pf.pose(0, t_loc - 1, T_MI) is None                     # before: no prior-frame pose
+    assert np.array_equal(pf.pose(0, t_loc, T_MI), T_first @ T_MI)  # the first transform applies at once
+    T_true = T_PW @ np.linalg.inv(T_NW)
+    assert np.allclose(pf.pose(0, t_loc + 10**10, T_MI), T_true @ T_MI, atol=0.03)
+    mask, T_PI = pf.causal(0, np.array([t_loc - 1, t_loc + 10**10]), np.stack([T_MI, T_MI]))
+    assert mask.tolist() == [False, True] and T_PI.shape == (1, 4, 4)
+    assert pf.final(0, T_MI[None])[0] == pytest.approx(pf.localizer.T_PN(0) @ T_MI)
+    assert pf.final(1, T_MI[None]) is None and pf.pose(1, t_loc, T_MI) is None
+    pf.on_submap(SimpleNamespace(index=50, T_MS=np.eye(4), view=None, segment=0))
+    rep = pf.report()
+    assert rep["submaps_without_view"] == 1 and rep["segments"]["0"]["localized"]
+    assert rep["segments"]["0"]["localized_at_t_ns"] == t_loc

@@ -67,8 +67,8 @@ def test_align_puts_the_new_map_and_its_trajectory_in_the_prior_frame(sessions, 
     al = json.loads((new / "alignment.json").read_text())
     T_true = T_PW @ np.linalg.inv(T_NW)
     assert np.allclose(np.array(al["T_PN"]), T_true, atol=0.03)
-    assert al["localized"] and al["agreeing_new_views"] >= 3 and al["final_in_prior_poses"] == 2
-    moved = np.loadtxt(new / "final.in_prior.tum")
+    assert al["localized"] and al["agreeing_new_views"] >= 3 and al["final_prior_poses"] == 2
+    moved = np.loadtxt(new / "final.prior.tum")
     assert np.allclose(moved[:, 1:4], p_N @ T_true[:3, :3].T + T_true[:3, 3], atol=0.05)
     yaw = np.arctan2(T_true[1, 0], T_true[0, 0])                    # identity attitude -> pure yaw
     assert np.allclose(np.abs(moved[:, 7]), np.cos(yaw / 2), atol=2e-3)
@@ -82,7 +82,7 @@ def test_another_place_is_not_localised_and_exits_1(tmp_path, capsys):
     assert main(["map", "align", str(tmp_path / "other"), "--to", str(tmp_path / "prior"), "--json"]) == 1
     al = json.loads(capsys.readouterr().out)
     assert not al["localized"] and al["T_PN"] is None and al["reason"]
-    assert not (tmp_path / "other" / "final.in_prior.tum").exists()
+    assert not (tmp_path / "other" / "final.prior.tum").exists()
 
 
 def test_an_archive_without_views_is_refused_with_the_reason(tmp_path, capsys):

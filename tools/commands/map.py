@@ -62,7 +62,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     pa.add_argument("--out", type=Path, default=None,
                     help="the alignment JSON (default: alignment.json in the new run's folder); the new "
                          "run's final.tum moved into the prior frame is written beside it as "
-                         "final.in_prior.tum")
+                         "final.prior.tum")
     pa.add_argument("--candidates", type=int, default=5,
                     help="prior views verified per new view, ranked by appearance")
     pa.add_argument("--min-views", type=int, default=3,
@@ -254,9 +254,9 @@ def _align(args: argparse.Namespace, archive: Path, run_folder: Path) -> int:
         if summary["new_segments"] > 1:
             notes.append("final.tum not moved: the run has several filter segments, and only one is aligned")
         else:
-            trajectory = out.parent / "final.in_prior.tum"
-            summary["final_in_prior"] = str(trajectory)
-            summary["final_in_prior_poses"] = transform_tum(final, trajectory, res.T_PN)
+            trajectory = out.parent / "final.prior.tum"
+            summary["final_prior"] = str(trajectory)
+            summary["final_prior_poses"] = transform_tum(final, trajectory, res.T_PN)
     try:
         atomic_write_text(out, strict_dumps(summary, indent=1) + "\n")
     except OSError as exc:

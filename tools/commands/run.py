@@ -48,6 +48,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-map", action="store_true",
                    help="do not map (mapping runs whenever a depth model is given)")
     p.add_argument("--config", metavar="TOML", help="configuration file (see config.toml of a run)")
+    p.add_argument("--prior-map", metavar="RUN",
+                   help="an earlier run of the same place (its folder, or its map/): this run's submaps are "
+                        "localised in its map, and the poses published once localised are also written in "
+                        "its frame (causal.prior.tum, final.prior.tum, alignment.json); needs a depth model")
     p.add_argument("--strict", action="store_true",
                    help="every input repair (dropped, reordered or converted rows and images) is an error "
                         "naming the file and line, instead of being counted in report.json")
@@ -94,9 +98,32 @@ def run(args: argparse.Namespace) -> int:
         rec, rig, model, model_desc = _open_inputs(args, config)
         if args.no_map:
             config = replace(config, mapping=replace(config.mapping, enabled=False))
+        prior = _prior_map(args, model, config)
         folder.create()
         with folder.discard_on_error():
-            return _run(args, folder, rec, rig, model, model_desc, config)
+            return _run(args, folder, rec, rig, model, model_desc, config, prior)
+
+
+def _prior_map(args: argparse.Namespace, model, config):
+    """The PriorMapLocalizer of --prior-map (None without it); ConfigError when this run cannot map."""
+    if not args.prior_map:
+        return None
+    import sys
+
+    from runtime.errors import ConfigError
+    from tools.map_archive.align import prior_map_localizer
+
+    if model is None or not config.mapping.enabled:
+        raise ConfigError("--prior-map localises this run's submaps in the earlier map: it needs a depth "
+                          "model (--model or --emulated) and the mapping on (not --native-only or --no-map)")
+    if not config.mapping.graph or not config.revisits.enabled:
+        raise ConfigError("--prior-map needs the submaps' centre views, which the submap graph keeps for "
+                          "revisits: set mapping.graph and revisits.enabled to true")
+    notes: list[str] = []
+    loc = prior_map_localizer(Path(args.prior_map), notes)
+    for n in notes:
+        print(f"davio run: prior map: note: {n}", file=sys.stderr)
+    return loc
 
 
 def _open_inputs(args: argparse.Namespace, config) -> tuple:
@@ -142,7 +169,7 @@ def _open_inputs(args: argparse.Namespace, config) -> tuple:
     return rec, rig, model, model_desc
 
 
-def _run(args, folder, rec, rig, model, model_desc: str, config) -> int:
+def _run(args, folder, rec, rig, model, model_desc: str, config, prior=None) -> int:
     import sys
 
     from tools.live_view import open_view
@@ -158,6 +185,7 @@ def _run(args, folder, rec, rig, model, model_desc: str, config) -> int:
     defaulted = config.msckf.defaulted_imu_noise(rig.imu)
     print(f"davio run: {rec.description}\n  model: {model_desc}"
           + (f"\n  mapping: on (archive {folder.out / 'map'})" if map_out is not None else "")
+          + (f"\n  prior map: {prior.source} ({len(prior.prior)} centre views)" if prior is not None else "")
           + (f"\n  {imu_noise_note(defaulted)}" if defaulted else ""), file=log)
     view = open_view(args.view)
     sink = None if map_out is None else map_out.sink
@@ -166,7 +194,8 @@ def _run(args, folder, rec, rig, model, model_desc: str, config) -> int:
         res = run_pipeline(rec.driver, model, config, paced=args.paced, speed=args.speed,
                            model_latency_s=args.model_latency, seconds=args.seconds, rig=rig,
                            map_sink=view.chain(sink) if view is not None else sink, keep_partial=True,
-                           on_pose=journal if view is None else chain_poses(journal, view.on_pose))
+                           on_pose=journal if view is None else chain_poses(journal, view.on_pose),
+                           prior_map=prior)
     finally:
         if view is not None:
             view.close()
@@ -216,9 +245,24 @@ def _summary(report: dict, out: Path) -> None:
     mp = report["pipeline"].get("mapping")
     if mp is not None:
         print("  " + _mapping_line(mp, report.get("map") or {}))
+    if report.get("prior_map") is not None:
+        print("  " + _prior_line(report["prior_map"]))
     print(f"  outputs: {out}/odometry.tum, causal.tum, final.tum, poses.csv, report.json, config.toml"
           + (", plots" if m else "")
           + (", map/, map.ply" if (report.get("map") or {}).get("ply") else ""))
+
+
+def _prior_line(pm: dict) -> str:
+    """One console line: localised in the prior map or not, and why."""
+    if pm["localized"]:
+        t = pm["t"]
+        after = pm["localized_after_s"]
+        return (f"prior map: localised {'' if after is None else f'{after:.1f} s into the run '}(yaw "
+                f"{pm['yaw_deg']:.2f} deg, t = ({t[0]:.3f}, {t[1]:.3f}, {t[2]:.3f}) m; {pm['agreeing']} "
+                f"verified pairs agree); {pm['poses_in_prior_frame']} poses published in its frame -> "
+                "causal.prior.tum, final.prior.tum")
+    return (f"prior map: NOT localised ({pm['reason']}; {pm['attempts']} candidate pairs tried, "
+            f"{pm['verified']} verified)")
 
 
 def _mapping_line(mp: dict, summary: dict) -> str:

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from runtime.errors import DataError
-from runtime.graph.relocalize import AlignConfig, Alignment, PlaceView, align_sessions
+from runtime.graph.relocalize import AlignConfig, Alignment, PlaceView, PriorMapLocalizer, align_sessions
 from tools.map_archive.reader import integrity, load_view, read_manifest, state_is_finite
 
 
@@ -55,6 +55,23 @@ def load_place_views(archive: Path, notes: list[str]) -> tuple[list[PlaceView], 
     if missing:
         notes.append(f"{archive}: {missing} submap(s) of segment {segment} without a stored view left out")
     return views, segment, len(segments)
+
+
+def prior_map_localizer(folder: Path, notes: list[str], cfg: AlignConfig | None = None) -> PriorMapLocalizer:
+    """A `PriorMapLocalizer` over the map of an earlier run (a run folder holding map/, or map/ itself):
+    its largest segment's centre views at their final poses. DataError naming the folder when it holds
+    no map, a damaged one, or one without views."""
+    from models.matcher.matcher import match_stored
+
+    folder = Path(folder)
+    archive = folder / "map" if (folder / "map").is_dir() else folder
+    views, _, _ = load_place_views(archive, notes)
+
+    def match(fa, fb):
+        m = match_stored(fa, fb)
+        return m.idx_a, m.idx_b
+
+    return PriorMapLocalizer(views, match, cfg, source=str(archive))
 
 
 def align_archives(new: Path, prior: Path, cfg: AlignConfig | None = None,
