@@ -38,6 +38,7 @@ def add_device_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from tools.commands.run import add_prior_map_argument
     from tools.live_view import add_view_argument
 
     p.add_argument("source", choices=["uvc", "oak"], help="the sensor module")
@@ -50,6 +51,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--native-only", action="store_true", help="native initializer only, no map")
     p.add_argument("--no-map", action="store_true", help="do not map")
     p.add_argument("--config", metavar="TOML", help="configuration file")
+    add_prior_map_argument(p)
     p.add_argument("--seconds", type=float, default=None, help="stop after S seconds of data (> 0)")
     p.add_argument("--out", default="davio_live", help="output folder (new or empty; see --overwrite)")
     p.add_argument("--overwrite", action="store_true", help="replace the previous run in --out")
@@ -60,7 +62,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from runtime.config import DavioConfig, load_davio_config
     from runtime.errors import ConfigError
-    from tools.commands.run import check_run_args
+    from tools.commands.run import check_run_args, prior_map
     from tools.run_folder import RunFolder
     from tools.run_outcome import interruptible
 
@@ -81,13 +83,14 @@ def run(args: argparse.Namespace) -> int:
         driver, rig = open_device(args, rig)
         try:
             model, model_desc = _open_model(args, rig, config)
+            prior = prior_map(args, model, config)
         except BaseException:
             driver.stop()
             raise
         folder.create()
         with folder.discard_on_error():
             try:
-                return _run(args, folder, driver, rig, model, model_desc, config)
+                return _run(args, folder, driver, rig, model, model_desc, config, prior)
             finally:
                 driver.stop()
 
@@ -169,7 +172,7 @@ def _open_driver(args: argparse.Namespace, rig):
     return driver
 
 
-def _run(args, folder, driver, rig, model, model_desc: str, config) -> int:
+def _run(args, folder, driver, rig, model, model_desc: str, config, prior=None) -> int:
     from runtime.session import Session
     from tools.commands.run import _summary
     from tools.live_view import open_view
@@ -190,7 +193,8 @@ def _run(args, folder, driver, rig, model, model_desc: str, config) -> int:
     journal = PoseJournal(folder.path)
     try:
         session = Session(rig, model, config, map_sink=view.chain(sink) if view is not None else sink,
-                          on_pose=journal if view is None else chain_poses(journal, view.on_pose))
+                          on_pose=journal if view is None else chain_poses(journal, view.on_pose),
+                          prior_map=prior)
         events = driver.events()
         if args.seconds is not None:
             events = _first_seconds(events, args.seconds)

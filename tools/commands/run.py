@@ -48,10 +48,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-map", action="store_true",
                    help="do not map (mapping runs whenever a depth model is given)")
     p.add_argument("--config", metavar="TOML", help="configuration file (see config.toml of a run)")
-    p.add_argument("--prior-map", metavar="RUN",
-                   help="an earlier run of the same place (its folder, or its map/): this run's submaps are "
-                        "localised in its map, and the poses published once localised are also written in "
-                        "its frame (causal.prior.tum, final.prior.tum, alignment.json); needs a depth model")
+    add_prior_map_argument(p)
     p.add_argument("--strict", action="store_true",
                    help="every input repair (dropped, reordered or converted rows and images) is an error "
                         "naming the file and line, instead of being counted in report.json")
@@ -67,6 +64,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true",
                    help="print the report as one JSON object on stdout (progress goes to stderr)")
     add_view_argument(p)
+
+
+def add_prior_map_argument(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--prior-map", metavar="RUN",
+                   help="an earlier run of the same place (its folder, or its map/): this run's submaps are "
+                        "localised in its map, and the poses published once localised are also written in "
+                        "its frame (causal.prior.tum, final.prior.tum, alignment.json); needs a depth model")
 
 
 def check_run_args(args: argparse.Namespace) -> None:
@@ -98,13 +102,13 @@ def run(args: argparse.Namespace) -> int:
         rec, rig, model, model_desc = _open_inputs(args, config)
         if args.no_map:
             config = replace(config, mapping=replace(config.mapping, enabled=False))
-        prior = _prior_map(args, model, config)
+        prior = prior_map(args, model, config)
         folder.create()
         with folder.discard_on_error():
             return _run(args, folder, rec, rig, model, model_desc, config, prior)
 
 
-def _prior_map(args: argparse.Namespace, model, config):
+def prior_map(args: argparse.Namespace, model, config):
     """The PriorMapLocalizer of --prior-map (None without it); ConfigError when this run cannot map."""
     if not args.prior_map:
         return None
@@ -122,7 +126,7 @@ def _prior_map(args: argparse.Namespace, model, config):
     notes: list[str] = []
     loc = prior_map_localizer(Path(args.prior_map), notes)
     for n in notes:
-        print(f"davio run: prior map: note: {n}", file=sys.stderr)
+        print(f"davio: prior map: note: {n}", file=sys.stderr)
     return loc
 
 
