@@ -44,3 +44,23 @@ def se3_inverse(T: np.ndarray) -> np.ndarray:
     T = as_matrices(T, "T", 4)
     Rt = np.swapaxes(T[..., :3, :3], -1, -2)
     return make_pose(Rt, -np.einsum("...ij,...j->...i", Rt, T[..., :3, 3]))
+
+
+def yaw_translation_fit(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """(R, t, strength): the rotation about z and translation minimising sum |dst_k - (R src_k + t)|^2
+    over (K,3) point pairs, in closed form.
+
+    With centred points x (src) and y (dst), sum y^T Rz x = cos(yaw) a + sin(yaw) b where
+    a = sum(x0 y0 + x1 y1) and b = sum(x0 y1 - x1 y0), so yaw = atan2(b, a) and t = mean(y) - Rz mean(x);
+    strength = hypot(a, b) (m^2), 0 when the yaw is unobservable (no horizontal extent).
+    """
+    from runtime.geometry.so3 import rot_z
+
+    src = np.asarray(src, np.float64).reshape(-1, 3)
+    dst = np.asarray(dst, np.float64).reshape(-1, 3)
+    mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
+    xs, xd = src - mu_s, dst - mu_d
+    a = float(np.sum(xs[:, 0] * xd[:, 0] + xs[:, 1] * xd[:, 1]))
+    b = float(np.sum(xs[:, 0] * xd[:, 1] - xs[:, 1] * xd[:, 0]))
+    R = rot_z(np.arctan2(b, a))
+    return R, mu_d - R @ mu_s, float(np.hypot(a, b))

@@ -31,6 +31,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from runtime.geometry.se3 import make_pose
+from runtime.geometry.se3 import yaw_translation_fit as fit_yaw
+from runtime.geometry.so3 import rot_z
 from runtime.graph.config import RevisitConfig
 from runtime.graph.factors import GraphError
 from runtime.graph.revisits import STAGES, RevisitView, verify_geometry
@@ -244,24 +247,14 @@ def _tilt_deg(R: np.ndarray) -> float:
 
 
 def yaw_translation_fit(x_P: np.ndarray, x_N: np.ndarray) -> np.ndarray:
-    """(4,4) T = [Rz(yaw), t] minimising sum |x_P - T x_N|^2 over (K,3) point pairs (closed form)."""
+    """(4,4) T = [Rz(yaw), t] minimising sum |x_P - T x_N|^2 over (K,3) point pairs (closed form,
+    `runtime.geometry.se3.yaw_translation_fit`)."""
     x_P = np.asarray(x_P, np.float64)
     x_N = np.asarray(x_N, np.float64)
     if x_P.shape != x_N.shape or x_P.ndim != 2 or x_P.shape[1] != 3 or len(x_P) < 2:
         raise GraphError(f"need two or more (K,3) point pairs, got {x_P.shape} and {x_N.shape}")
-    mP, mN = x_P.mean(axis=0), x_N.mean(axis=0)
-    a, b = x_P - mP, x_N - mN
-    yaw = np.arctan2(np.sum(b[:, 0] * a[:, 1] - b[:, 1] * a[:, 0]),
-                     np.sum(b[:, 0] * a[:, 0] + b[:, 1] * a[:, 1]))
-    T = np.eye(4)
-    T[:3, :3] = _rz(float(yaw))
-    T[:3, 3] = mP - T[:3, :3] @ mN
-    return T
-
-
-def _rz(yaw: float) -> np.ndarray:
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    R, t, _ = fit_yaw(x_N, x_P)
+    return make_pose(R, t)
 
 
 def agreement(hyps: list[Hypothesis], cfg: AlignConfig) -> np.ndarray:
@@ -475,7 +468,5 @@ def _transform(group: list[Hypothesis], cfg: AlignConfig) -> tuple[np.ndarray, s
         return yaw_translation_fit(c_P, c_N), "centres"
     yaws = np.radians([h.yaw_deg for h in group])
     yaw = float(np.arctan2(np.mean(np.sin(yaws)), np.mean(np.cos(yaws))))
-    T = np.eye(4)
-    T[:3, :3] = _rz(yaw)
-    T[:3, 3] = np.mean(c_P - c_N @ T[:3, :3].T, axis=0)
-    return T, "mean yaw"
+    R = rot_z(yaw)
+    return make_pose(R, np.mean(c_P - c_N @ R.T, axis=0)), "mean yaw"

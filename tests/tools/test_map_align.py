@@ -94,3 +94,17 @@ def test_an_archive_without_views_is_refused_with_the_reason(tmp_path, capsys):
     assert "stores no centre views" in err and "prior" in err
     assert main(["map", "align", str(tmp_path / "new"), "--to", str(tmp_path / "new")]) != 0
     assert "same map" in capsys.readouterr().err
+
+
+def test_align_elsewhere_replaces_a_trajectory_there_only_with_overwrite(sessions, tmp_path, capsys):
+    prior, new = sessions
+    (new / "final.tum").write_text("1.0 0 0 0 0 0 0 1\n")
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    (elsewhere / "final.prior.tum").write_text("mine\n")
+    args = ["map", "align", str(new), "--to", str(prior), "--out", str(elsewhere / "a.json")]
+    assert main(args) != 0
+    assert "final.prior.tum" in capsys.readouterr().err
+    assert (elsewhere / "final.prior.tum").read_text() == "mine\n" and not (elsewhere / "a.json").exists()
+    assert main([*args, "--overwrite"]) == 0
+    assert len(np.loadtxt(elsewhere / "final.prior.tum", ndmin=2)) == 1

@@ -239,6 +239,11 @@ def _align(args: argparse.Namespace, archive: Path, run_folder: Path) -> int:
     own = args.out is None
     replaced = check_output_file(out, "--out", (".json",), overwrite=args.overwrite, replaceable=own,
                                  protected_dirs=[archive, prior_archive])
+    final = run_folder / "final.tum"
+    moved = out.parent / "final.prior.tum"
+    if final.is_file():
+        check_output_file(moved, "--out (final.prior.tum beside it)", (".tum",), overwrite=args.overwrite,
+                          replaceable=own, inputs=[final], protected_dirs=[archive, prior_archive])
     t0 = time.monotonic()
 
     def progress(done: int, total: int) -> None:
@@ -249,12 +254,12 @@ def _align(args: argparse.Namespace, archive: Path, run_folder: Path) -> int:
     res, summary, notes = align_archives(archive, prior_archive, cfg, progress)
     _print_notes("align", notes)
     trajectory = None
-    final = run_folder / "final.tum"
     if res.localized and final.is_file():
         if summary["new_segments"] > 1:
-            notes.append("final.tum not moved: the run has several filter segments, and only one is aligned")
+            _print_notes("align", ["final.tum not moved: the run has several filter segments, and only one "
+                                   "is aligned"])
         else:
-            trajectory = out.parent / "final.prior.tum"
+            trajectory = moved
             summary["final_prior"] = str(trajectory)
             summary["final_prior_poses"] = transform_tum(final, trajectory, res.T_PN)
     try:

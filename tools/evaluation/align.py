@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from runtime.errors import TrajectoryError
-from runtime.geometry.so3 import rot_z
+from runtime.geometry.se3 import yaw_translation_fit
 from runtime.geometry.trajectory import PoseTrajectory
 
 METHODS: tuple[str, ...] = ("se3", "sim3", "posyaw", "none")
@@ -92,10 +92,8 @@ def umeyama(src: np.ndarray, dst: np.ndarray,
 
 
 def posyaw(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares yaw rotation about z and translation with dst ~ Rz(yaw) src + t.
-
-    With centred points x (src) and y (dst), sum y^T Rz x = cos(yaw) a + sin(yaw) b where
-    a = sum(x0 y0 + x1 y1) and b = sum(x0 y1 - x1 y0), so yaw = atan2(b, a) and t = mean(y) - Rz mean(x).
+    """Least-squares yaw rotation about z and translation with dst ~ Rz(yaw) src + t
+    (`runtime.geometry.se3.yaw_translation_fit`, closed form).
 
     Raises:
         TrajectoryError: no horizontal extent (yaw unobservable) or no points.
@@ -103,14 +101,10 @@ def posyaw(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     src, dst = _check_points(src, dst)
     if src.shape[0] < 2:
         raise TrajectoryError(f"position+yaw alignment needs at least 2 associated poses, got {src.shape[0]}")
-    mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
-    xs, xd = src - mu_s, dst - mu_d
-    a = float(np.sum(xs[:, 0] * xd[:, 0] + xs[:, 1] * xd[:, 1]))
-    b = float(np.sum(xs[:, 0] * xd[:, 1] - xs[:, 1] * xd[:, 0]))
-    if np.hypot(a, b) < 1e-12 * max(1.0, float(np.sum(xs[:, :2] ** 2))):
+    R, t, strength = yaw_translation_fit(src, dst)
+    if strength < 1e-12 * max(1.0, float(np.sum((src[:, :2] - src[:, :2].mean(axis=0)) ** 2))):
         raise TrajectoryError("no horizontal motion: yaw alignment is unobservable")
-    R = rot_z(np.arctan2(b, a))
-    return R, mu_d - R @ mu_s
+    return R, t
 
 
 def align(est: PoseTrajectory, ref: PoseTrajectory, method: str = "se3",
