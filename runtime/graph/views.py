@@ -45,7 +45,7 @@ class _Entry:
     axis_M: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
 
 
-def _compact(features: Any) -> Any:
+def compact_features(features: Any) -> Any:
     """The features with float descriptors stored as float16 (binary ORB descriptors unchanged)."""
     desc = getattr(features, "desc", None)
     if desc is None or not np.issubdtype(np.asarray(desc).dtype, np.floating):
@@ -53,7 +53,8 @@ def _compact(features: Any) -> Any:
     return replace(features, desc=np.asarray(desc, np.float16))
 
 
-def _expand(features: Any) -> Any:
+def expanded_features(features: Any) -> Any:
+    """The features with float16 descriptors as float32 (others unchanged)."""
     desc = getattr(features, "desc", None)
     if desc is not None and np.asarray(desc).dtype == np.float16:
         return replace(features, desc=np.asarray(desc, np.float32))
@@ -87,7 +88,7 @@ class ViewStore:
     def get(self, j: int) -> tuple[Any, RevisitView]:
         """(features with float32 descriptors, RevisitView) of node j."""
         e = self._views[int(j)]
-        return (_expand(e.features) if e.archived else e.features), e.view
+        return (expanded_features(e.features) if e.archived else e.features), e.view
 
     def archive(self, j: int, T_MS: np.ndarray) -> bool:
         """Node j left the graph at pose T_MS (4,4): keep its view compactly, or drop it when an archived
@@ -108,7 +109,7 @@ class ViewStore:
             del self._views[j]
             self.stats.capped += 1
             return False
-        self._views[j] = _Entry(_compact(e.features), e.view, True, centre.copy(), axis.copy())
+        self._views[j] = _Entry(compact_features(e.features), e.view, True, centre.copy(), axis.copy())
         self.stats.archived += 1
         return True
 

@@ -108,3 +108,14 @@ def test_align_elsewhere_replaces_a_trajectory_there_only_with_overwrite(session
     assert (elsewhere / "final.prior.tum").read_text() == "mine\n" and not (elsewhere / "a.json").exists()
     assert main([*args, "--overwrite"]) == 0
     assert len(np.loadtxt(elsewhere / "final.prior.tum", ndmin=2)) == 1
+
+
+def test_a_long_map_is_subsampled_evenly_and_said(sessions):
+    from tools.map_archive.align import load_place_views
+
+    prior, _ = sessions
+    notes: list[str] = []
+    views, segment, segments = load_place_views(prior / "map", notes, max_views=4)
+    assert [v.index for v in views] == [0, 4, 7, 11] and (segment, segments) == (0, 1)
+    assert views[0].features.desc.dtype == np.float16                 # kept compact in memory
+    assert any("12 submaps; 4 of their views" in n for n in notes)

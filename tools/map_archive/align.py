@@ -13,11 +13,18 @@ from runtime.errors import DataError
 from runtime.graph.relocalize import AlignConfig, Alignment, PlaceView, PriorMapLocalizer, align_sessions
 from tools.map_archive.reader import integrity, load_view, read_manifest, state_is_finite
 
+MAX_VIEWS = 600
+"""Views loaded from one archive at most (as many as the revisits keep archived): about 140 MB with
+float16 descriptors; a longer map is subsampled evenly, and the notes say so."""
 
-def load_place_views(archive: Path, notes: list[str]) -> tuple[list[PlaceView], int, int]:
+
+def load_place_views(archive: Path, notes: list[str], max_views: int = MAX_VIEWS
+                     ) -> tuple[list[PlaceView], int, int]:
     """(the centre views of the archive's largest filter segment with their final map poses, that
-    segment, the number of segments). Submaps of other segments (another odometry frame after a filter
-    reset), with a non-finite state or without a stored view are left out and said in `notes`.
+    segment, the number of segments). Descriptors stay float16 as stored (`match_views` expands them per
+    match). Submaps of other segments (another odometry frame after a filter reset), with a non-finite
+    state or without a stored view are left out, and beyond `max_views` views every k-th is kept; each
+    said in `notes`.
 
     Raises:
         DataError: a damaged archive (naming the file), or one that holds no centre view at all.
@@ -40,10 +47,15 @@ def load_place_views(archive: Path, notes: list[str]) -> tuple[list[PlaceView], 
                      f"{segment}, the largest ({segments[segment]} submaps), is aligned")
     views: list[PlaceView] = []
     missing = 0
-    for e in sorted(entries, key=lambda e: int(e["index"])):
-        if int(e.get("segment", 0)) != segment:
-            continue
-        fv = load_view(archive, e)
+    chosen = sorted((e for e in entries if int(e.get("segment", 0)) == segment),
+                    key=lambda e: int(e["index"]))
+    if len(chosen) > max_views:
+        keep = np.unique(np.linspace(0, len(chosen) - 1, max_views).round().astype(int))
+        notes.append(f"{archive}: {len(chosen)} submaps; {len(keep)} of their views, evenly spaced, are used "
+                     f"(at most {max_views})")
+        chosen = [chosen[k] for k in keep]
+    for e in chosen:
+        fv = load_view(archive, e, compact=True)
         if fv is None:
             missing += 1
             continue
@@ -61,17 +73,19 @@ def prior_map_localizer(folder: Path, notes: list[str], cfg: AlignConfig | None 
     """A `PriorMapLocalizer` over the map of an earlier run (a run folder holding map/, or map/ itself):
     its largest segment's centre views at their final poses. DataError naming the folder when it holds
     no map, a damaged one, or one without views."""
-    from models.matcher.matcher import match_stored
-
     folder = Path(folder)
     archive = folder / "map" if (folder / "map").is_dir() else folder
     views, _, _ = load_place_views(archive, notes)
+    return PriorMapLocalizer(views, match_views, cfg, source=str(archive))
 
-    def match(fa, fb):
-        m = match_stored(fa, fb)
-        return m.idx_a, m.idx_b
 
-    return PriorMapLocalizer(views, match, cfg, source=str(archive))
+def match_views(fa, fb) -> tuple[np.ndarray, np.ndarray]:
+    """(idx_a, idx_b) of two views' stored features (float16 descriptors expanded for the match)."""
+    from models.matcher.matcher import match_stored
+    from runtime.graph.views import expanded_features
+
+    m = match_stored(expanded_features(fa), expanded_features(fb))
+    return m.idx_a, m.idx_b
 
 
 def align_archives(new: Path, prior: Path, cfg: AlignConfig | None = None,
@@ -80,15 +94,8 @@ def align_archives(new: Path, prior: Path, cfg: AlignConfig | None = None,
     notes: list[str] = []
     prior_views, prior_segment, _ = load_place_views(prior, notes)
     new_views, new_segment, new_segments = load_place_views(new, notes)
-    from models.matcher.matcher import match_stored
-
     cfg = cfg or AlignConfig()
-
-    def match(fa, fb):
-        m = match_stored(fa, fb)
-        return m.idx_a, m.idx_b
-
-    res = align_sessions(prior_views, new_views, match, cfg, progress)
+    res = align_sessions(prior_views, new_views, match_views, cfg, progress)
     summary = {"format": "davio-alignment", "prior": str(prior), "new": str(new),
                "prior_segment": prior_segment, "new_segment": new_segment, "new_segments": new_segments,
                "frames": "T_PN maps points of the new map frame into the prior one: x_P = T_PN x_N",

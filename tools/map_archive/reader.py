@@ -186,10 +186,10 @@ def iter_submaps(folder: str | Path, manifest: dict | None = None) -> Iterator[S
         yield load_submap(folder, e)
 
 
-def load_view(folder: str | Path, entry: dict) -> tuple | None:
-    """(Features, RevisitView) of the centre image of manifest entry `entry` (descriptors as float32, or
-    uint8 when binary), or None when its npz holds no view (an archive written without the submap graph,
-    or before views were stored).
+def load_view(folder: str | Path, entry: dict, compact: bool = False) -> tuple | None:
+    """(Features, RevisitView) of the centre image of manifest entry `entry` (descriptors as float32,
+    float16 as stored with `compact`, or uint8 when binary), or None when its npz holds no view (an
+    archive written without the submap graph, or before views were stored).
 
     Raises:
         DataError: missing or corrupt file, or view arrays of inconsistent shapes.
@@ -222,7 +222,10 @@ def load_view(folder: str | Path, entry: dict) -> tuple | None:
             or (level is not None and level.shape != (n,))):
         raise DataError(f"centre view arrays disagree in shape: kpts {a['view_kpts'].shape}, desc "
                         f"{desc.shape}, depth {a['view_depth'].shape}, size {a['view_size'].shape}", path)
-    desc = desc.astype(np.float32) if desc.dtype == np.float16 else desc.astype(np.uint8, copy=False)
+    if desc.dtype == np.float16:
+        desc = desc if compact else desc.astype(np.float32)
+    else:
+        desc = desc.astype(np.uint8, copy=False)
     size = (int(a["view_size"][0]), int(a["view_size"][1]))
     try:
         view = RevisitView(K, a["view_kpts"], a["view_depth"], size)
