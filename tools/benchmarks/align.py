@@ -11,8 +11,10 @@ Truth: each session's final trajectory is fitted to its ground truth (SE(3)), gi
 the true transform is T_AB = T_WA^-1 T_WB. Reported: the yaw and translation error of the estimate
 against it (which includes the two fits' own errors, about each session's final ATE), and the RMS error
 of B's final trajectory put into A's frame by the estimate and into the world by A's fit, with no fit of
-its own (against B's own fitted ATE). A negative control aligns the second session of each sequence
-with the first session of the next (another place): it must not localise.
+its own (against B's own fitted ATE). Two negative controls must not localise: the second session of
+each sequence against the first session of the next (another place and scene style), at every factor;
+and against a first session over the same trajectory in another scene of the same style (seed + 1:
+the same texture generator, another layout), at x1.
 """
 from __future__ import annotations
 
@@ -163,28 +165,32 @@ def run(args: argparse.Namespace) -> int:
     sessions = []
     for folder, style, sa, da, sb, db in specs:
         pair = []
-        for start, seconds in ((sa, da), (sb, db)):
-            rec = _session(folder, style, start, seconds, args.seed)
-            log(f"{folder.name} [{start:g} s, +{seconds:g} s]: tracking ...")
-            pair.append({"rec": rec, **_tracked(rec, args.da3, args.seed)})
+        for start, seconds, seed in ((sa, da, args.seed), (sb, db, args.seed), (sa, da, args.seed + 1)):
+            rec = _session(folder, style, start, seconds, seed)
+            log(f"{folder.name} [{start:g} s, +{seconds:g} s], seed {seed}: tracking ...")
+            pair.append({"rec": rec, **_tracked(rec, args.da3, seed)})
         sessions.append((folder.name, pair))
     rows = []
     for k in scales:
         mapped = []
         for name, pair in sessions:
-            m = [_mapped(t, k) for t in pair]
+            m = [_mapped(t, k) for t in (pair if k == scales[0] else pair[:2])]
             mapped.append((name, pair, m))
             r = score(m[0][0], m[1][0], m[0][1], m[1][1], pair[0]["ctx"]["gt"], pair[1]["ctx"]["gt"])
             rows.append({"sequence": name, "depth_scale": k, "control": False, **r})
             log(_line(rows[-1]))
+            if len(m) > 2:
+                r = score(m[2][0], m[1][0], m[2][1], m[1][1], pair[2]["ctx"]["gt"], pair[1]["ctx"]["gt"])
+                rows.append({"sequence": f"{name} B against A in another scene (seed + 1)", "depth_scale": k,
+                             "control": True, **_control(r)})
+                log(_line(rows[-1]))
         for i, (name, pair, m) in enumerate(mapped):
             if len(mapped) < 2:
                 break
             oname, opair, om = mapped[(i + 1) % len(mapped)]
             r = score(om[0][0], m[1][0], om[0][1], m[1][1], opair[0]["ctx"]["gt"], pair[1]["ctx"]["gt"])
             rows.append({"sequence": f"{name} B against {oname} A", "depth_scale": k, "control": True,
-                         **{key: v for key, v in r.items() if key in ("localized", "reason", "attempts",
-                                                                       "verified", "agreeing", "views")}})
+                         **_control(r)})
             log(_line(rows[-1]))
     out = {"sequences": [f"{f.name}:{s}:{a:g}:{b:g}:{c:g}:{d:g}" for f, s, a, b, c, d in specs],
            "seed": args.seed, "da3": args.da3, "rows": rows, "wall_s": time.perf_counter() - t_start}
@@ -196,6 +202,11 @@ def run(args: argparse.Namespace) -> int:
         _table(rows)
     controls_ok = all(not r["localized"] for r in rows if r["control"])
     return 0 if controls_ok else 1
+
+
+def _control(r: dict) -> dict:
+    keys = ("localized", "reason", "attempts", "verified", "agreeing", "views")
+    return {key: v for key, v in r.items() if key in keys}
 
 
 def _line(r: dict) -> str:
