@@ -29,7 +29,7 @@ STATUSES = ("complete", "interrupted", "failed")
 RUN_MARKERS = (STATUS_FILE, "report.json", "odometry.tum")
 """Files whose presence suggests a folder holds a DAVIO run (used for messages; replacing one needs more:
 `not_replaceable`)."""
-DERIVED_FILES = ("map.ply", "map.png", "alignment.json", "final.prior.tum")
+DERIVED_FILES = ("map.ply", "map.png", "alignment.json", "final.prior.tum", "map.prior.ply", "map.merged.ply")
 """Files `davio map export|view|align` write into a run folder by default after the run ended."""
 
 

@@ -119,3 +119,30 @@ def test_a_long_map_is_subsampled_evenly_and_said(sessions):
     assert [v.index for v in views] == [0, 4, 7, 11] and (segment, segments) == (0, 1)
     assert views[0].features.desc.dtype == np.float16                 # kept compact in memory
     assert any("12 submaps; 4 of their views" in n for n in notes)
+
+
+def test_export_in_the_prior_frame_and_merged_with_the_prior_map(tmp_path, capsys):
+    from dataclasses import replace
+
+    from tests.tools.test_map_archive import assert_fusion_equals, brute_force_fusion
+    from tools.evaluation.ply import read_ply_vertices
+
+    prior_views, new_views = _sessions(T_PW, T_NW)
+    prior_subs = _write_session(tmp_path / "prior", prior_views)
+    new_subs = _write_session(tmp_path / "new", new_views)
+    new = tmp_path / "new"
+    assert main(["map", "export", str(new), "--in-prior"]) != 0          # not aligned yet
+    assert "align the run first" in capsys.readouterr().err
+    assert main(["map", "align", str(new), "--to", str(tmp_path / "prior")]) == 0
+    T = np.array(json.loads((new / "alignment.json").read_text())["T_PN"])
+    moved = [replace(s, T_MS=T @ s.T_MS) for s in new_subs]
+    assert main(["map", "export", str(new), "--in-prior", "--voxel", "0.25"]) == 0
+    pts = read_ply_vertices(new / "map.prior.ply")
+    expected = brute_force_fusion(moved, 0.25)
+    assert len(pts) == len(expected)
+    from tools.map_archive import fuse_archive
+
+    assert_fusion_equals(fuse_archive(new / "map", 0.25, T_out=T), expected, 0.25)
+    assert main(["map", "export", str(new), "--merge-prior", "--voxel", "0.25"]) == 0
+    merged = brute_force_fusion(prior_subs + moved, 0.25)
+    assert len(read_ply_vertices(new / "map.merged.ply")) == len(merged)

@@ -39,6 +39,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     pe.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     pe.add_argument("--skip-damaged", action="store_true",
                     help="leave out submaps whose files fail the integrity check (default: refuse)")
+    frame = pe.add_mutually_exclusive_group()
+    frame.add_argument("--in-prior", action="store_true",
+                       help="the map moved into the frame of the earlier run it was aligned to (the run's "
+                            "alignment.json, from --prior-map or `davio map align`); default out "
+                            "map.prior.ply")
+    frame.add_argument("--merge-prior", action="store_true",
+                       help="as --in-prior, fused into one map with the earlier run's own map; default out "
+                            "map.merged.ply")
     pv = sub.add_parser("view", help="a PNG with a top and an oblique view coloured by height",
                         formatter_class=fmt)
     pv.add_argument("folder", type=Path, help=folder_help)
@@ -122,6 +130,28 @@ def checked_output(args: argparse.Namespace, archive: Path, run_folder: Path, na
     return out, replaced
 
 
+def _prior_alignment(run_folder: Path) -> tuple:
+    """(T_PN (4,4), the prior archive) from the run folder's alignment.json; ConfigError when there is
+    none, it did not localise, or (for merging) its prior map is gone."""
+    import json
+
+    import numpy as np
+
+    path = run_folder / "alignment.json"
+    if not path.is_file():
+        raise ConfigError(f"{path} not found: align the run first (`davio map align {run_folder} --to "
+                          "PRIOR`, or run it with --prior-map)")
+    try:
+        al = json.loads(path.read_text())
+        T = np.array(al["T_PN"], np.float64) if al.get("T_PN") is not None else None
+        prior = Path(al["prior"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ConfigError(f"{path}: not a davio alignment ({type(exc).__name__}: {exc})") from None
+    if not al.get("localized") or T is None or T.shape != (4, 4) or not np.isfinite(T).all():
+        raise ConfigError(f"{path}: the run was not localised in the prior map ({al.get('reason')})")
+    return T, prior
+
+
 def _check_fuse_args(voxel: float, min_points: int = 1) -> None:
     from runtime.mapping.config import MAX_VOXEL_M, MIN_VOXEL_M
 
@@ -187,12 +217,15 @@ def run(args: argparse.Namespace) -> int:
         from tools.map_archive.export import export_map
 
         _check_fuse_args(args.voxel, args.min_points)
-        out, replaced = checked_output(args, archive, run_folder, "map.ply")
+        T_out, prior = _prior_alignment(run_folder) if args.in_prior or args.merge_prior else (None, None)
+        name = "map.merged.ply" if args.merge_prior else "map.prior.ply" if args.in_prior else "map.ply"
+        out, replaced = checked_output(args, archive, run_folder, name)
         t0 = time.monotonic()
         notes: list[str] = []
         try:
             n, fused = export_map(archive, out, args.voxel, _Progress("export"), args.min_points,
-                                  args.skip_damaged, notes)
+                                  args.skip_damaged, notes, T_out=T_out,
+                                  merge_with=prior if args.merge_prior else None)
         except OSError as exc:
             raise ConfigError(f"--out {out}: cannot write ({exc.strerror or exc})") from None
         _print_notes("export", notes)

@@ -76,7 +76,7 @@ def prior_map_localizer(folder: Path, notes: list[str], cfg: AlignConfig | None 
     folder = Path(folder)
     archive = folder / "map" if (folder / "map").is_dir() else folder
     views, _, _ = load_place_views(archive, notes)
-    return PriorMapLocalizer(views, match_views, cfg, source=str(archive))
+    return PriorMapLocalizer(views, match_views, cfg, source=str(archive.resolve()))
 
 
 def match_views(fa, fb) -> tuple[np.ndarray, np.ndarray]:
@@ -96,7 +96,8 @@ def align_archives(new: Path, prior: Path, cfg: AlignConfig | None = None,
     new_views, new_segment, new_segments = load_place_views(new, notes)
     cfg = cfg or AlignConfig()
     res = align_sessions(prior_views, new_views, match_views, cfg, progress)
-    summary = {"format": "davio-alignment", "prior": str(prior), "new": str(new),
+    summary = {"format": "davio-alignment", "prior": str(Path(prior).resolve()),
+               "new": str(Path(new).resolve()),
                "prior_segment": prior_segment, "new_segment": new_segment, "new_segments": new_segments,
                "frames": "T_PN maps points of the new map frame into the prior one: x_P = T_PN x_N",
                "settings": {"candidates_per_view": cfg.candidates_per_view, "min_views": cfg.min_views,

@@ -14,8 +14,8 @@ from tools.map_archive.reader import integrity, iter_submaps, read_manifest, sta
 
 def fuse_archive(folder: str | Path, voxel_m: float = 0.04,
                  progress: Callable[[int, int], None] | None = None, skip_damaged: bool = False,
-                 notes: list[str] | None = None, verify: bool = True
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 notes: list[str] | None = None, verify: bool = True, T_out: np.ndarray | None = None,
+                 grid: VoxelGrid | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fuse every submap of the archive at its manifest state (eq. placement) into voxels.
 
     Each voxel holds the unweighted mean of the points that fall in it. Every file is first checked
@@ -31,9 +31,13 @@ def fuse_archive(folder: str | Path, voxel_m: float = 0.04,
         notes: when given, one line is appended per kind of submap left out.
         verify: check every file's size and sha256 first (False: the run exporting the archive it has
             just written skips that second read of every file).
+        T_out: (4,4) moves the map frame M into another frame before fusion (e.g. a prior map's, T_PN
+            of `davio map align`); None keeps M.
+        grid: fuse into this grid (which may already hold another archive's points) instead of a new one.
 
     Returns:
-        (points (V,3) float64 in M, grey (V,) uint8, counts (V,) int64 points per voxel).
+        (points (V,3) float64 in M (or T_out's frame), grey (V,) uint8, counts (V,) int64 points per voxel)
+        of the whole grid.
     """
     info = read_manifest(folder)
     problems = integrity(folder, info)[0] if verify else []
@@ -53,9 +57,11 @@ def fuse_archive(folder: str | Path, voxel_m: float = 0.04,
                          f"({sum(int(e['n_points']) for e in unplaced)} points): "
                          f"{', '.join(e['file'] for e in unplaced)}")
     total = len(entries)
-    grid = VoxelGrid(voxel_m)
+    grid = VoxelGrid(voxel_m) if grid is None else grid
     for k, sm in enumerate(iter_submaps(folder, {**info, "submaps": entries}), start=1):
         pts = sm.points_M()
+        if T_out is not None:
+            pts = pts @ np.asarray(T_out, np.float64)[:3, :3].T + np.asarray(T_out, np.float64)[:3, 3]
         ok = np.isfinite(pts).all(axis=1)
         grid.integrate(pts[ok], sm.grey[ok])
         if progress is not None:
@@ -99,11 +105,15 @@ def supported(fused: tuple[np.ndarray, np.ndarray, np.ndarray], min_points: int
 
 def export_map(folder: str | Path, out_ply: str | Path, voxel_m: float = 0.04,
                progress: Callable[[int, int], None] | None = None, min_points: int = 1,
-               skip_damaged: bool = False, notes: list[str] | None = None, verify: bool = True
-               ) -> tuple[int, int]:
-    """Fuse the archive in `folder` (`fuse_archive`) and write the voxels holding at least `min_points`
-    points to `out_ply`; returns (voxels written, voxels fused)."""
-    fused = fuse_archive(folder, voxel_m, progress, skip_damaged, notes, verify)
+               skip_damaged: bool = False, notes: list[str] | None = None, verify: bool = True,
+               T_out: np.ndarray | None = None, merge_with: str | Path | None = None) -> tuple[int, int]:
+    """Fuse the archive in `folder` (`fuse_archive`, moved by `T_out` when given) and write the voxels
+    holding at least `min_points` points to `out_ply`; with `merge_with`, that archive (in its own frame,
+    which T_out must lead to) is fused into the same voxels first. Returns (voxels written, voxels fused)."""
+    grid = VoxelGrid(voxel_m)
+    if merge_with is not None:
+        fuse_archive(merge_with, voxel_m, progress, skip_damaged, notes, verify, grid=grid)
+    fused = fuse_archive(folder, voxel_m, progress, skip_damaged, notes, verify, T_out=T_out, grid=grid)
     points, grey, _ = supported(fused, min_points)
     write_ply(out_ply, points, grey)
     return int(len(points)), int(len(fused[0]))
