@@ -146,3 +146,13 @@ def test_export_in_the_prior_frame_and_merged_with_the_prior_map(tmp_path, capsy
     assert main(["map", "export", str(new), "--merge-prior", "--voxel", "0.25"]) == 0
     merged = brute_force_fusion(prior_subs + moved, 0.25)
     assert len(read_ply_vertices(new / "map.merged.ply")) == len(merged)
+
+
+def test_map_info_counts_the_stored_views(tmp_path, capsys):
+    prior_views, _ = _sessions(T_PW, T_NW)
+    _write_session(tmp_path / "with", prior_views)
+    _write_session(tmp_path / "without", prior_views, with_views=False)
+    assert main(["map", "info", str(tmp_path / "with"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["views"] == len(prior_views)
+    assert main(["map", "info", str(tmp_path / "without")]) == 0
+    assert "0 of 12 submaps keep their centre view (this map cannot be aligned" in capsys.readouterr().out

@@ -173,6 +173,9 @@ def _print_info(info: dict) -> None:
     print(f"map version  {info['map_version']}")
     print(f"submaps      {info['submaps']} in {info['segments']} segment(s), {info['pairs']} pairs")
     print(f"points       {info['points']} ({info['points_placed']} placed)")
+    print(f"views        {info['views']} of {info['submaps']} submaps keep their centre view"
+          + (" (what `davio map align` and --prior-map match)" if info["views"] else
+             " (this map cannot be aligned: written before davio kept them, or without the submap graph)"))
     ext = info["extent"]
     if ext:
         lo, hi, sz = (" ".join(f"{v:.2f}" for v in ext[k]) for k in ("min", "max", "size"))

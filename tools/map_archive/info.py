@@ -8,7 +8,7 @@ import numpy as np
 
 from runtime.errors import DataError
 from runtime.mapping.fusion import VoxelGrid
-from tools.map_archive.reader import integrity, load_submap, read_manifest, state_is_finite
+from tools.map_archive.reader import has_view, integrity, load_submap, read_manifest, state_is_finite
 
 
 def map_info(folder: str | Path, voxel_m: float | None = None) -> dict:
@@ -24,14 +24,15 @@ def map_info(folder: str | Path, voxel_m: float | None = None) -> dict:
     Returns:
         dict with folder, format, schema_version, created_by, map_version, submaps, points,
         points_placed, extent ({"min", "max", "size"} or None), voxels (or None), node_versions
-        ({version: submaps}), segments, pairs, problems, orphans, bytes_on_disk.
+        ({version: submaps}), segments, pairs, views (submaps storing a centre view, which `davio map
+        align` and --prior-map need), problems, orphans, bytes_on_disk.
     """
     folder = Path(folder)
     info = read_manifest(folder)
     problems, orphans = integrity(folder, info)
     bad = {p.split(":", 1)[0] for p in problems}
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
-    placed = 0
+    placed = views = 0
     grid = VoxelGrid(voxel_m) if voxel_m else None
     for e in info["submaps"]:
         if e["file"] in bad:
@@ -41,6 +42,7 @@ def map_info(folder: str | Path, voxel_m: float | None = None) -> dict:
         except DataError as exc:
             problems.append(str(exc))   # names the file
             continue
+        views += has_view(folder, e)
         if not state_is_finite(e):
             problems.append(f"{e['file']}: its graph state in the manifest is not finite (T_MS or lam null): "
                             f"its {e['n_points']} points cannot be placed")
@@ -61,6 +63,6 @@ def map_info(folder: str | Path, voxel_m: float | None = None) -> dict:
         "points_placed": placed, "extent": extent, "voxels": None if grid is None else len(grid),
         "node_versions": {str(v): versions[v] for v in sorted(versions)},
         "segments": len({int(e.get("segment", 0)) for e in info["submaps"]}),
-        "pairs": len(info.get("pairs") or []), "problems": problems, "orphans": orphans,
+        "pairs": len(info.get("pairs") or []), "views": views, "problems": problems, "orphans": orphans,
         "bytes_on_disk": int(sum(p.stat().st_size for p in folder.iterdir() if p.is_file())),
     }

@@ -186,6 +186,15 @@ def iter_submaps(folder: str | Path, manifest: dict | None = None) -> Iterator[S
         yield load_submap(folder, e)
 
 
+def has_view(folder: str | Path, entry: dict) -> bool:
+    """Whether the npz of manifest entry `entry` stores a centre view (reads its file list only)."""
+    try:
+        with np.load(Path(folder) / str(entry["file"]), allow_pickle=False) as npz:
+            return "view_kpts" in npz.files
+    except Exception:  # unreadable: load_submap and the integrity check say why
+        return False
+
+
 def load_view(folder: str | Path, entry: dict, compact: bool = False) -> tuple | None:
     """(Features, RevisitView) of the centre image of manifest entry `entry` (descriptors as float32,
     float16 as stored with `compact`, or uint8 when binary), or None when its npz holds no view (an
