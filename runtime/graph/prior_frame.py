@@ -100,6 +100,7 @@ class PriorFrame:
             segs[str(seg)] = {**d, "localized_at_t_ns": self.localized_at_ns.get(seg),
                               "transform_updates": len(self.timelines.get(seg, ()))}
         return {"source": self.source, "prior_views": len(loc.prior), "views_tried": loc.views_tried,
+                "seconds": loc.seconds, "seconds_max": loc.seconds_max,
                 "attempts": loc.attempts, "rejected": dict(loc.rejected),
                 "hypotheses_dropped": loc.hypotheses_dropped,
                 "submaps_without_view": self.submaps_without_view,

@@ -335,6 +335,9 @@ class PriorMapLocalizer:
         self._H = np.stack([self.vocabulary.histogram(p.features.desc) for p in self.prior])
         self._centres = np.array([np.asarray(p.T_MS, np.float64)[:3, 3] for p in self.prior])
         self.views_tried = 0
+        self.seconds = 0.0
+        """Time spent in `add_view` (s), and the longest call."""
+        self.seconds_max = 0.0
         self.attempts = 0
         self.rejected = {s: 0 for s in ALIGN_STAGES}
         self.hypotheses_dropped = 0
@@ -359,6 +362,17 @@ class PriorMapLocalizer:
         """Verify view b (pose in the session's map frame of `segment`) against its best-ranked prior
         views (near where the transform puts it once localised, unless `search_near` is False) and
         update the segment's transform; returns True when the transform changed."""
+        import time
+
+        t0 = time.perf_counter()
+        try:
+            return self._add_view(b, segment, search_near)
+        finally:
+            dt = time.perf_counter() - t0
+            self.seconds += dt
+            self.seconds_max = max(self.seconds_max, dt)
+
+    def _add_view(self, b: PlaceView, segment: int, search_near: bool) -> bool:
         self.views_tried += 1
         new: list[Hypothesis] = []
         for k in self._candidates(b, segment, search_near):
