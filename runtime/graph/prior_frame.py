@@ -35,15 +35,16 @@ class PriorFrame:
         self.error_messages: list[str] = []
 
     def on_submap(self, sub: Any) -> None:
-        """A committed submap (model worker): try its centre view against the prior map. A failure is
-        counted and kept as a message; it never fails the mapping job."""
+        """A committed submap (model worker): try its centre view against the prior map. Any failure (an
+        OpenCV error, a degenerate geometry) is counted and kept as a message: the mapper has already
+        committed the submap, and the commit must still reach the tracking thread."""
         if sub.view is None:
             self.submaps_without_view += 1
             return
         try:
             self.localizer.add_view(PlaceView(int(sub.index), np.asarray(sub.T_MS, np.float64), *sub.view),
                                     int(sub.segment))
-        except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        except Exception as exc:  # noqa: BLE001 - a localisation failure must never fail the map commit
             self.errors += 1
             if len(self.error_messages) < MAX_ERROR_MESSAGES:
                 self.error_messages.append(f"submap {sub.index}: {type(exc).__name__}: {exc}")
@@ -102,6 +103,6 @@ class PriorFrame:
         return {"source": self.source, "prior_views": len(loc.prior), "views_tried": loc.views_tried,
                 "seconds": loc.seconds, "seconds_max": loc.seconds_max,
                 "attempts": loc.attempts, "rejected": dict(loc.rejected),
-                "hypotheses_dropped": loc.hypotheses_dropped,
+                "hypotheses_dropped": loc.hypotheses_dropped, "consensus_lost": loc.consensus_lost,
                 "submaps_without_view": self.submaps_without_view,
                 "errors": self.errors, "error_messages": list(self.error_messages), "segments": segs}

@@ -259,13 +259,25 @@ def yaw_translation_fit(x_P: np.ndarray, x_N: np.ndarray) -> np.ndarray:
     return make_pose(R, t)
 
 
-def agreement(hyps: list[Hypothesis], cfg: AlignConfig) -> np.ndarray:
-    """(n,n) bool: hypotheses i and j agree (yaws within agree_deg, translations within agree_m)."""
+def agreement(hyps: list[Hypothesis], cfg: AlignConfig, block: int = 256) -> np.ndarray:
+    """(n,n) bool: hypotheses i and j agree: yaws within agree_deg, and the two transforms put the
+    midpoint of their new camera centres within agree_m of each other. (Compared where the views are:
+    at the new map's origin, which may lie tens of metres away, a yaw difference of a degree would
+    already move the translations apart.) Computed `block` rows at a time."""
+    n = len(hyps)
     yaw = np.array([h.yaw_deg for h in hyps])
-    t = np.array([h.T_PN[:3, 3] for h in hyps]).reshape(-1, 3)
+    R = np.array([h.T_PN[:3, :3] for h in hyps]).reshape(n, 3, 3)
+    t = np.array([h.T_PN[:3, 3] for h in hyps]).reshape(n, 3)
+    c = np.array([h.c_N for h in hyps]).reshape(n, 3)
     dyaw = (yaw[:, None] - yaw[None, :] + 180.0) % 360.0 - 180.0
-    dist = np.linalg.norm(t[:, None, :] - t[None, :, :], axis=2)
-    return (np.abs(dyaw) <= cfg.agree_deg) & (dist <= cfg.agree_m)
+    out = np.abs(dyaw) <= cfg.agree_deg
+    for a in range(0, n, block):
+        b = min(n, a + block)
+        m = 0.5 * (c[a:b, None, :] + c[None, :, :])                       # (rows, n, 3)
+        p_i = np.einsum("iab,ijb->ija", R[a:b], m) + t[a:b, None, :]
+        p_j = np.einsum("jab,ijb->ija", R, m) + t[None, :, :]
+        out[a:b] &= np.linalg.norm(p_i - p_j, axis=2) <= cfg.agree_m
+    return out
 
 
 def _largest_group(A: np.ndarray, new: np.ndarray, idx: np.ndarray) -> tuple[int, np.ndarray]:
@@ -320,7 +332,7 @@ class PriorMapLocalizer:
 
     def __init__(self, prior: Sequence[PlaceView],
                  match: Callable[[object, object], tuple[np.ndarray, np.ndarray]],
-                 cfg: AlignConfig | None = None, max_hypotheses: int = 1000, source: str = "") -> None:
+                 cfg: AlignConfig | None = None, max_hypotheses: int = 300, source: str = "") -> None:
         import threading
 
         self.source = source
@@ -341,6 +353,8 @@ class PriorMapLocalizer:
         self.attempts = 0
         self.rejected = {s: 0 for s in ALIGN_STAGES}
         self.hypotheses_dropped = 0
+        self.consensus_lost = 0
+        """Consensus updates that failed after the segment was localised (the last transform kept)."""
         self._hyps: dict[int, list[Hypothesis]] = {}
         self._result: dict[int, tuple[list[int], str, np.ndarray | None, str]] = {}
         self._lock = threading.Lock()
@@ -358,21 +372,21 @@ class PriorMapLocalizer:
             order = [k for k in order if near[k]]
         return order[: self.cfg.candidates_per_view]
 
-    def add_view(self, b: PlaceView, segment: int = 0, search_near: bool = True) -> bool:
+    def add_view(self, b: PlaceView, segment: int = 0, search_near: bool = True, solve: bool = True) -> bool:
         """Verify view b (pose in the session's map frame of `segment`) against its best-ranked prior
-        views (near where the transform puts it once localised, unless `search_near` is False) and
-        update the segment's transform; returns True when the transform changed."""
+        views (near where the transform puts it once localised, unless `search_near` is False) and,
+        with `solve`, update the segment's transform (`solve`); returns True when the transform changed."""
         import time
 
         t0 = time.perf_counter()
         try:
-            return self._add_view(b, segment, search_near)
+            return self._add_view(b, segment, search_near, solve)
         finally:
             dt = time.perf_counter() - t0
             self.seconds += dt
             self.seconds_max = max(self.seconds_max, dt)
 
-    def _add_view(self, b: PlaceView, segment: int, search_near: bool) -> bool:
+    def _add_view(self, b: PlaceView, segment: int, search_near: bool, solve: bool) -> bool:
         self.views_tried += 1
         new: list[Hypothesis] = []
         for k in self._candidates(b, segment, search_near):
@@ -395,20 +409,36 @@ class PriorMapLocalizer:
                                   res.depth_rel_error, x_P, x_N, T_MS_b[:3, 3].copy()))
         if not new:
             return False
-        hyps = self._hyps.setdefault(int(segment), [])
-        hyps.extend(new)
-        if len(hyps) > self.max_hypotheses:
-            self.hypotheses_dropped += len(hyps) - self.max_hypotheses
-            del hyps[: len(hyps) - self.max_hypotheses]
-        group, reason = consensus(hyps, self.cfg)
-        T, fit = _transform([hyps[i] for i in group], self.cfg) if group else (None, "")
         with self._lock:
-            old = self._result.get(int(segment))
-            self._result[int(segment)] = (group, reason, T, fit)
+            hyps = self._hyps.setdefault(int(segment), [])
+            hyps.extend(new)
+            if len(hyps) > self.max_hypotheses:
+                self.hypotheses_dropped += len(hyps) - self.max_hypotheses
+                del hyps[: len(hyps) - self.max_hypotheses]
+        return self.solve(segment) if solve else False
+
+    def solve(self, segment: int = 0) -> bool:
+        """Re-run the segment's consensus and transform; returns True when the transform changed. A
+        consensus that fails after the segment was localised (hypotheses of a drifted stretch, or an
+        ambiguous place) keeps the last transform, counted in `consensus_lost` and said in the reason."""
+        seg = int(segment)
+        with self._lock:
+            hyps = list(self._hyps.get(seg, []))
+        idx, reason = consensus(hyps, self.cfg)
+        group = [hyps[i] for i in idx]
+        T, fit = _transform(group, self.cfg) if group else (None, "")
+        with self._lock:
+            old = self._result.get(seg)
+            if T is None and old is not None and old[2] is not None:
+                self.consensus_lost += 1
+                self._result[seg] = (old[0], f"localized; the latest consensus failed ({reason}), the last "
+                                              "transform is kept", old[2], old[3])
+                return False
+            self._result[seg] = (group, reason, T, fit)
             changed = T is not None and (old is None or old[2] is None or not np.array_equal(old[2], T))
             if changed:
                 self.version += 1
-                self.versions[int(segment)] = self.version
+                self.versions[seg] = self.version
         return changed
 
     def segment_versions(self) -> dict[int, int]:
@@ -423,16 +453,21 @@ class PriorMapLocalizer:
             return None if r is None or r[2] is None else r[2].copy()
 
     def alignment(self, segment: int = 0, new_views: int = 0) -> Alignment:
-        """The segment's state as an `Alignment` (hypotheses, consensus, transform, counters)."""
-        hyps = list(self._hyps.get(int(segment), []))
-        group, reason, T, fit = self._result.get(int(segment), ([], "", None, ""))
+        """The segment's state as an `Alignment` (hypotheses, consensus, transform, counters), taken
+        under the lock (a consistent snapshot while another thread adds views)."""
+        with self._lock:
+            hyps = list(self._hyps.get(int(segment), []))
+            group, reason, T, fit = self._result.get(int(segment), ([], "", None, ""))
+            rejected = dict(self.rejected)
+        in_group = {id(h) for h in group}
         out = Alignment(T is not None, reason or "no candidate pair passed verification", T, hypotheses=hyps,
-                        agreeing=list(group), attempts=self.attempts, rejected=dict(self.rejected),
-                        prior_views=len(self.prior), new_views=new_views or self.views_tried, fit=fit)
-        if T is not None:
-            sel = [hyps[i] for i in group]
-            out.rms_m = _rms(np.concatenate([h.x_P for h in sel]), np.concatenate([h.x_N for h in sel]), T)
-            out.centre_rms_m = _rms(*_centres(sel), T)
+                        agreeing=[k for k, h in enumerate(hyps) if id(h) in in_group], attempts=self.attempts,
+                        rejected=rejected, prior_views=len(self.prior),
+                        new_views=new_views or self.views_tried, fit=fit)
+        if T is not None and group:
+            out.rms_m = _rms(np.concatenate([h.x_P for h in group]), np.concatenate([h.x_N for h in group]),
+                             T)
+            out.centre_rms_m = _rms(*_centres(group), T)
         return out
 
     def segments(self) -> list[int]:
@@ -459,9 +494,10 @@ def align_sessions(prior: Sequence[PlaceView], new: Sequence[PlaceView],
                          new_views=len(new))
     loc = PriorMapLocalizer(prior, match, cfg, max_hypotheses=10**9)
     for n_done, b in enumerate(new, 1):
-        loc.add_view(b, 0, search_near=False)
+        loc.add_view(b, 0, search_near=False, solve=False)
         if progress is not None:
             progress(n_done, len(new))
+    loc.solve(0)
     return loc.alignment(0, len(new))
 
 

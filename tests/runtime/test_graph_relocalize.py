@@ -238,3 +238,75 @@ def test_prior_frame_publishes_nothing_before_localisation_then_the_transform_at
     rep = pf.report()
     assert rep["submaps_without_view"] == 1 and rep["segments"]["0"]["localized"]
     assert rep["segments"]["0"]["localized_at_t_ns"] == t_loc
+
+
+def test_agreement_is_judged_where_the_views_are_not_at_a_far_origin():
+    # the new map's origin 80 m from the room: a 1 deg yaw difference moves T_PN's translation by 1.4 m
+    T_PW, T_NW = _pose(_rz(-25.0), [0.4, 1.1, 0.0]), _pose(_rz(40.0), [80.0, -2.0, 0.3])
+    prior, new = _sessions(T_PW, T_NW)
+    res = align_sessions(prior, new, _match)
+    assert res.localized and len(res.agreeing) == len(res.hypotheses) >= 15
+    T_true = T_PW @ np.linalg.inv(T_NW)
+    c = new[0].T_MS[:3, 3]                                     # checked where the views are
+    err = res.T_PN[:3, :3] @ c + res.T_PN[:3, 3] - (T_true[:3, :3] @ c + T_true[:3, 3])
+    assert np.linalg.norm(err) < 0.03
+
+
+def test_yaws_either_side_of_180_degrees_agree():
+    from runtime.graph.relocalize import agreement
+
+    hyps = [_hyp(1, 179.8, [1, 0, 0]), _hyp(2, -179.8, [1, 0, 0])]
+    hyps[1].T_PN[:3, :3] = _rz(-179.8)[:3, :3]
+    assert agreement(hyps, AlignConfig()).all()
+
+
+def test_consensus_prefers_distinct_views_to_many_pairs_of_one_view():
+    cfg = AlignConfig(min_views=3)
+    one_view = [_hyp(9, 50.0, [3, 3, 0]) for _ in range(6)]
+    spread = [_hyp(1, 10.0, [1, 0, 0]), _hyp(2, 10.2, [1, 0, 0]), _hyp(3, 9.9, [1, 0, 0])]
+    group, reason = consensus(one_view + spread, cfg)
+    assert sorted(group) == [6, 7, 8] and reason == "localized"
+
+
+def test_the_mean_yaw_fit_when_the_agreeing_views_stand_close_together():
+    T_PW, T_NW = _pose(_rz(-25.0), [0.4, 1.1, 0.0]), _pose(_rz(40.0), [1.5, -2.0, 0.3])
+    prior, new = _sessions(T_PW, T_NW)
+    res = align_sessions(prior, new, _match, AlignConfig(min_centre_spread_m=100.0))
+    assert res.localized and res.fit == "mean yaw"
+    T_true = T_PW @ np.linalg.inv(T_NW)
+    c = new[0].T_MS[:3, 3]
+    assert np.linalg.norm(res.T_PN[:3, :3] @ c + res.T_PN[:3, 3] - (T_true[:3, :3] @ c + T_true[:3, 3])) < 0.1
+
+
+def test_a_failed_consensus_after_localisation_keeps_the_last_transform_and_says_so():
+    T_PW, T_NW = _pose(_rz(-25.0), [0.4, 1.1, 0.0]), _pose(_rz(40.0), [1.5, -2.0, 0.3])
+    prior, new = _sessions(T_PW, T_NW)
+    loc = PriorMapLocalizer(prior, _match, AlignConfig())
+    for b in new:
+        loc.add_view(b)
+    T = loc.T_PN(0)
+    assert T is not None
+    for b in new[:4]:                      # a drifted stretch: the same views, their poses 1 m off
+        shifted = PlaceView(b.index + 100, _pose(np.eye(3), [1.0, 0.0, 0.0]) @ b.T_MS, b.features, b.view)
+        loc.add_view(shifted)
+    assert loc.consensus_lost >= 1 and np.array_equal(loc.T_PN(0), T)
+    al = loc.alignment(0)
+    assert al.localized and "last transform is kept" in al.reason and al.agreeing
+
+
+def test_a_failing_match_is_counted_not_raised_by_the_live_prior_frame():
+    from types import SimpleNamespace
+
+    import cv2
+
+    from runtime.graph.prior_frame import PriorFrame
+
+    prior, new = _sessions(np.eye(4), np.eye(4))
+
+    def broken(fa, fb):
+        raise cv2.error("simulated OpenCV failure")
+
+    pf = PriorFrame(PriorMapLocalizer(prior, broken, AlignConfig()), "prior")
+    b = new[0]
+    pf.on_submap(SimpleNamespace(index=0, T_MS=b.T_MS, view=(b.features, b.view), segment=0))
+    assert pf.errors == 1 and "simulated OpenCV failure" in pf.error_messages[0]

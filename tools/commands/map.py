@@ -272,12 +272,13 @@ def _align(args: argparse.Namespace, archive: Path, run_folder: Path) -> int:
     if prior_archive.resolve() == archive.resolve():
         raise ConfigError("--to names the same map as the new run; give an earlier run of the same place")
     out = output_path(args.out, run_folder, "alignment.json")
-    own = args.out is None
+    in_run = archive == run_folder / "map"            # a run folder's archive: its final.tum belongs to it
+    own = args.out is None and in_run
     replaced = check_output_file(out, "--out", (".json",), overwrite=args.overwrite, replaceable=own,
                                  protected_dirs=[archive, prior_archive])
-    final = run_folder / "final.tum"
+    final = run_folder / "final.tum" if in_run and (run_folder / "final.tum").is_file() else None
     moved = out.parent / "final.prior.tum"
-    if final.is_file():
+    if final is not None:
         check_output_file(moved, "--out (final.prior.tum beside it)", (".tum",), overwrite=args.overwrite,
                           replaceable=own, inputs=[final], protected_dirs=[archive, prior_archive])
     t0 = time.monotonic()
@@ -290,14 +291,18 @@ def _align(args: argparse.Namespace, archive: Path, run_folder: Path) -> int:
     res, summary, notes = align_archives(archive, prior_archive, cfg, progress)
     _print_notes("align", notes)
     trajectory = None
-    if res.localized and final.is_file():
-        if summary["new_segments"] > 1:
-            _print_notes("align", ["final.tum not moved: the run has several filter segments, and only one "
-                                   "is aligned"])
+    if res.localized and final is not None:
+        last = _last_segment(run_folder)
+        if summary["new_segments"] > 1 or (last is not None and last != summary["new_segment"]):
+            _print_notes("align", [f"final.tum not moved: it holds the run's last filter segment ({last}), "
+                                   f"and segment {summary['new_segment']} of the map was aligned"])
         else:
             trajectory = moved
             summary["final_prior"] = str(trajectory)
             summary["final_prior_poses"] = transform_tum(final, trajectory, res.T_PN)
+    if trajectory is None and own and moved.is_file():     # our earlier result, now stale
+        moved.unlink()
+        _print_notes("align", [f"{moved} of an earlier alignment removed: this one moved no trajectory"])
     try:
         atomic_write_text(out, strict_dumps(summary, indent=1) + "\n")
     except OSError as exc:
@@ -319,3 +324,13 @@ def _align(args: argparse.Namespace, archive: Path, run_folder: Path) -> int:
     print(f"davio map align: -> {out}{' (replaced)' if replaced else ''}"
           + (f", {trajectory}" if trajectory else ""))
     return 0 if res.localized else 1
+
+
+def _last_segment(run_folder: Path) -> int | None:
+    """The filter segment of the run's last published pose (the one final.tum holds), from poses.csv;
+    None when it cannot be read."""
+    try:
+        lines = (run_folder / "poses.csv").read_text().splitlines()
+        return int(lines[-1].split(",")[2]) if len(lines) > 1 else None
+    except (OSError, ValueError, IndexError):
+        return None

@@ -233,8 +233,13 @@ def load_view(folder: str | Path, entry: dict, compact: bool = False) -> tuple |
                         f"{desc.shape}, depth {a['view_depth'].shape}, size {a['view_size'].shape}", path)
     if desc.dtype == np.float16:
         desc = desc if compact else desc.astype(np.float32)
+    elif desc.dtype == np.float32:
+        desc = desc.astype(np.float16) if compact else desc
+    elif desc.dtype == np.uint8:
+        pass
     else:
-        desc = desc.astype(np.uint8, copy=False)
+        raise DataError(f"centre view descriptors are {desc.dtype}; expected float16 (or float32) or uint8 "
+                        "(binary)", path)
     size = (int(a["view_size"][0]), int(a["view_size"][1]))
     try:
         view = RevisitView(K, a["view_kpts"], a["view_depth"], size)
