@@ -156,3 +156,19 @@ def test_map_info_counts_the_stored_views(tmp_path, capsys):
     assert json.loads(capsys.readouterr().out)["views"] == len(prior_views)
     assert main(["map", "info", str(tmp_path / "without")]) == 0
     assert "0 of 12 submaps keep their centre view (this map cannot be aligned" in capsys.readouterr().out
+
+
+def test_an_archive_outside_a_run_folder_leaves_its_neighbours_alone(sessions, tmp_path, capsys):
+    import shutil
+
+    prior, new = sessions
+    loose = tmp_path / "loose"
+    shutil.copytree(new / "map", loose / "sessionB_map")
+    (loose / "alignment.json").write_text('{"mine": true}\n')
+    (loose / "final.tum").write_text("1.0 0 0 0 0 0 0 1\n")          # some other run's trajectory
+    assert main(["map", "align", str(loose / "sessionB_map"), "--to", str(prior)]) != 0
+    assert "--overwrite" in capsys.readouterr().err and json.loads((loose / "alignment.json").read_text())
+    assert main(["map", "align", str(loose / "sessionB_map"), "--to", str(prior),
+                 "--out", str(tmp_path / "b.json")]) == 0
+    assert "final_prior" not in json.loads((tmp_path / "b.json").read_text())
+    assert not (tmp_path / "final.prior.tum").exists() and not (loose / "final.prior.tum").exists()
