@@ -16,8 +16,8 @@ from typing import Any
 MIN_FREE_MB = 256.0
 """Free disk space (MB) the archive leaves for the rest of the run: below it the archive stops taking
 commits, so that what is written at the end still fits: the trajectory files (about 5 MB an hour), the
-report and map.ply (about 16 bytes a voxel: 256 MB hold 16 million). A submap's archive is about 1.3 MB,
-3 GB an hour."""
+report and map.ply (about 16 bytes a voxel: 256 MB hold 16 million). A submap's archive is about 1.5 MB
+(0.23 MB of it the centre view, `mapping.archive_views`), 3.6 GB an hour."""
 
 
 class MapOutput:
@@ -27,12 +27,13 @@ class MapOutput:
     (the folder stays a valid archive of the map so far); the commits skipped are counted, and the summary
     (report.json "map") and the console say so. The live map and the trajectory are not affected."""
 
-    def __init__(self, out_dir: Path, header: dict, voxel_m: float, min_free_mb: float = MIN_FREE_MB) -> None:
+    def __init__(self, out_dir: Path, header: dict, voxel_m: float, min_free_mb: float = MIN_FREE_MB,
+                 views: bool = True) -> None:
         from tools.map_archive import MapArchiveWriter
 
         self.out_dir = Path(out_dir)
         self.voxel_m = voxel_m
-        self.archive = MapArchiveWriter(self.out_dir / "map", header, overwrite=True)
+        self.archive = MapArchiveWriter(self.out_dir / "map", header, overwrite=True, views=views)
         self.pairs: list[dict] = []
         self.min_free_mb = float(min_free_mb)
         self.stopped: dict | None = None
@@ -51,7 +52,7 @@ class MapOutput:
         model_d = {"description": model_desc, "K_rect": model.K_rect.tolist(), "class": type(model).__name__,
                    "emulated": "EMULATED" in model_desc}
         return cls(out_dir, {"rig": rig_d, "model": model_d, "config": config_to_dict(config)},
-                   config.mapping.voxel_m)
+                   config.mapping.voxel_m, views=config.mapping.archive_views)
 
     def sink(self, commit: Any, stats: Any) -> None:
         """Checkpoint the archive at a map commit (called by the model worker)."""

@@ -20,7 +20,7 @@ T_PW = _pose(_rz(-25.0), [0.4, 1.1, 0.0])
 T_NW = _pose(_rz(40.0), [1.5, -2.0, 0.3])
 
 
-def _write_session(folder: Path, views, with_views: bool = True) -> list[Submap]:
+def _write_session(folder: Path, views, with_views: bool = True, archive_views: bool = True) -> list[Submap]:
     subs = []
     for pv in views:
         sm = make_submap(pv.index, seed=100 + pv.index)
@@ -28,7 +28,7 @@ def _write_session(folder: Path, views, with_views: bool = True) -> list[Submap]
         sm.T_OS = pv.T_MS.copy()
         sm.view = (pv.features, pv.view) if with_views else None
         subs.append(sm)
-    w = MapArchiveWriter(folder / "map", HEADER)
+    w = MapArchiveWriter(folder / "map", HEADER, views=archive_views)
     w.commit(subs, [], 1, {})
     (folder / "run_status.json").write_text('{"status": "complete"}')
     return subs
@@ -172,3 +172,10 @@ def test_an_archive_outside_a_run_folder_leaves_its_neighbours_alone(sessions, t
                  "--out", str(tmp_path / "b.json")]) == 0
     assert "final_prior" not in json.loads((tmp_path / "b.json").read_text())
     assert not (tmp_path / "final.prior.tum").exists() and not (loose / "final.prior.tum").exists()
+
+
+def test_a_run_configured_not_to_archive_views_writes_none(tmp_path):
+    prior_views, _ = _sessions(T_PW, T_NW)
+    _write_session(tmp_path / "r", prior_views, archive_views=False)     # mapping.archive_views = false
+    info = read_manifest(tmp_path / "r" / "map")
+    assert all(load_view(tmp_path / "r" / "map", e) is None for e in info["submaps"])

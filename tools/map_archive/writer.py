@@ -25,15 +25,16 @@ from tools.map_archive.format import (
 )
 
 
-def submap_arrays(sm: Submap) -> dict[str, np.ndarray]:
-    """The arrays of a submap's .npz (ARRAYS names and dtypes); its graph state is not among them."""
+def submap_arrays(sm: Submap, views: bool = True) -> dict[str, np.ndarray]:
+    """The arrays of a submap's .npz (ARRAYS names and dtypes), and its centre view's (`view_arrays`)
+    when it has one and `views`; its graph state is not among them."""
     if len(sm.frame_t_ns) > 256:
         raise ValueError(f"submap {sm.index}: {len(sm.frame_t_ns)} images; the archive stores at most 256")
     values = {"index": sm.index, "frame_t_ns": sm.frame_t_ns, "centre": sm.centre, "T_OS": sm.T_OS,
               "T_SC": sm.T_SC, "K": sm.K, "s_hat": sm.s_hat, "frame_scales": sm.frame_scales,
               "points_C": sm.points_C, "image": sm.image, "conf": sm.conf, "grey": sm.grey}
     out = {k: np.asarray(values[k]).astype(dt, order="C", copy=False) for k, dt in ARRAYS.items()}
-    if sm.view is not None:
+    if views and sm.view is not None:
         out.update(view_arrays(*sm.view))
     return out
 
@@ -75,10 +76,12 @@ class MapArchiveWriter:
         header: {"rig": dict, "model": dict, "config": dict} copied into every manifest.
         overwrite: replace an archive already in `folder` (its submap files and manifest are removed);
             without it such a folder is refused with DataError.
+        views: store each submap's centre view (`MappingConfig.archive_views`).
     """
 
-    def __init__(self, folder: str | Path, header: dict, overwrite: bool = False) -> None:
+    def __init__(self, folder: str | Path, header: dict, overwrite: bool = False, views: bool = True) -> None:
         self.folder = Path(folder)
+        self.views = bool(views)
         self.header = {k: jsonable(header.get(k) or {}) for k in ("rig", "model", "config")}
         manifest = self.folder / MANIFEST_NAME
         if manifest.exists() and not overwrite:
@@ -155,7 +158,7 @@ class MapArchiveWriter:
             self._pair_text.append(_element_text(jsonable(rec)))
 
     def _write_points(self, sm: Submap) -> dict:
-        arrays = submap_arrays(sm)
+        arrays = submap_arrays(sm, self.views)
         buf = io.BytesIO()
         np.savez_compressed(buf, **arrays)
         data = buf.getvalue()
