@@ -68,7 +68,10 @@ def run_pipeline(driver: Any, model: Any, config: DavioConfig, paced: bool = Fal
 def _status(pipe: VioPipeline) -> str:
     if pipe.startup is None:
         return "calibration bring-up"
-    return pipe.startup.report.published_by or "starting"
+    who = pipe.startup.report.published_by or "starting"
+    if pipe.prior is None:
+        return who
+    return f"{who}; prior map: {'localised' if pipe.prior.timelines else 'searching'}"
 
 
 def _first_seconds(events: Any, seconds: float) -> Any:

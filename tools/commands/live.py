@@ -248,6 +248,8 @@ class _StatusLine:
         drops = rep.frames_dropped if rep is not None else 0
         line = (f"  {sensor_s:7.1f} s  {rate:5.1f} fps  {tracks:4.0f} tracks  {st or 'starting':<16} "
                 f"{len(pipe.published):6d} poses  drops {drops}")
+        if pipe.prior is not None:
+            line += f"  prior map: {'localised' if pipe.prior.timelines else 'searching'}"
         print(("\r" + line) if self.tty else line, end="" if self.tty else "\n", file=sys.stderr, flush=True)
 
     def done(self) -> None:
