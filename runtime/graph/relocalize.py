@@ -12,9 +12,10 @@ views, which the map archive keeps (keypoints, descriptors, corrected depths):
    RANSAC with the 2 px / 50 matches / 30 inliers / 0.25 gates, positive depth, image coverage, depth
    agreement); each verified pair gives a hypothesis T_PN = T_PSa T_SaSb T_NSb^-1, refused when its
    rotation is not a yaw within `max_tilt_deg` (both frames are gravity-aligned);
-3. consensus: the hypotheses that agree with one another within `agree_m` and `agree_deg`; the largest
-   group must span `min_views` distinct new views, and a disjoint group of the same kind elsewhere makes
-   the place ambiguous (refused);
+3. consensus: the hypotheses that agree with one centre hypothesis (yaws within `agree_deg`, and the
+   two transforms place the midpoint of their new camera centres within `agree_m` of each other); the
+   largest group must span `min_views` distinct new views, and a group elsewhere spanning more than half
+   as many makes the place ambiguous (refused);
 4. the transform: the closed-form yaw-and-translation least squares that puts the agreeing pairs' new
    camera centres (in N) where their PnP poses put them (in P), when those centres spread at least
    `min_centre_spread_m` horizontally (refitted twice without the pairs whose centre lies beyond three
@@ -68,8 +69,8 @@ class AlignConfig:
     Attributes:
         words: visual words of the vocabulary (k-means centres of the prior map's descriptors).
         candidates_per_view: prior views verified per new view, best ranked first.
-        agree_m, agree_deg: two hypotheses agree when their translations differ by at most agree_m (m) and
-            their yaws by at most agree_deg (degrees).
+        agree_m, agree_deg: two hypotheses agree when they place the midpoint of their new camera centres
+            within agree_m (m) of each other and their yaws differ by at most agree_deg (degrees).
         min_views: distinct new views the agreeing hypotheses must come from.
         max_tilt_deg: a hypothesis whose rotation tilts the vertical by more is refused (the frames are
             gravity-aligned: the roll and pitch of a right answer come from the filters' attitude errors).
