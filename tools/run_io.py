@@ -369,6 +369,10 @@ def write_run(out_dir: Path, pipeline: Any, sched_report: Any, gt: PoseTrajector
     return report
 
 
+LIVE_ALIGNMENT = "this run (live)"
+"""alignment.json's "new" when a run wrote it with --prior-map (`davio map align` names the archive)."""
+
+
 def write_prior_frame(out_dir: Path, pipeline: Any, rows: np.ndarray, causal: PoseTrajectory,
                       final: PoseTrajectory, first_t_ns: int | None) -> dict | None:
     """With a prior map: the last segment's trajectories in its frame (causal.prior.tum: the poses
@@ -400,7 +404,8 @@ def write_prior_frame(out_dir: Path, pipeline: Any, rows: np.ndarray, causal: Po
         write_tum(out_dir / "final.prior.tum", PoseTrajectory(final.t_ns, F[:, :3, 3], F[:, :3, :3]))
         out["files"].append("final.prior.tum")
         atomic_write_text(out_dir / "alignment.json", strict_dumps(
-            {"format": "davio-alignment", "prior": pf.source, "new": "this run (live)", "new_segment": seg,
+            {"format": "davio-alignment", "prior": pf.source, "new": LIVE_ALIGNMENT, "new_segment": seg,
+             "prior_segment": pf.localizer.prior_segment,
              "frames": "T_PN maps points of this run's map frame into the prior one: x_P = T_PN x_N",
              **al.as_dict()}, indent=1) + "\n")
         out["files"].append("alignment.json")

@@ -71,7 +71,8 @@ def _status(pipe: VioPipeline) -> str:
     who = pipe.startup.report.published_by or "starting"
     if pipe.prior is None:
         return who
-    return f"{who}; prior map: {'localised' if pipe.prior.timelines else 'searching'}"
+    seg = pipe.published[len(pipe.published) - 1].segment if len(pipe.published) else 0
+    return f"{who}; prior map: {'localised' if pipe.prior.localized(seg) else 'searching'}"
 
 
 def _first_seconds(events: Any, seconds: float) -> Any:

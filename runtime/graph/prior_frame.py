@@ -64,6 +64,10 @@ class PriorFrame:
             self._seen[seg] = version
             self.localized_at_ns.setdefault(seg, t)
 
+    def localized(self, segment: int) -> bool:
+        """Whether poses of `segment` are published in the prior frame now."""
+        return int(segment) in self.timelines
+
     def pose(self, segment: int, t_ns: int, T_MI: np.ndarray) -> np.ndarray | None:
         """T_PI (4,4) of a pose published at t_ns in `segment` with map-frame pose T_MI, or None while
         the segment was not localised at t_ns."""

@@ -14,8 +14,8 @@ views, which the map archive keeps (keypoints, descriptors, corrected depths):
    rotation is not a yaw within `max_tilt_deg` (both frames are gravity-aligned);
 3. consensus: the hypotheses that agree with one centre hypothesis (yaws within `agree_deg`, and the
    two transforms place the midpoint of their new camera centres within `agree_m` of each other); the
-   largest group must span `min_views` distinct new views, and a group elsewhere spanning more than half
-   as many makes the place ambiguous (refused);
+   largest group must span `min_views` distinct new views, and a group elsewhere that also spans
+   `min_views` and more than half as many makes the place ambiguous (refused);
 4. the transform: the closed-form yaw-and-translation least squares that puts the agreeing pairs' new
    camera centres (in N) where their PnP poses put them (in P), when those centres spread at least
    `min_centre_spread_m` horizontally (refitted twice without the pairs whose centre lies beyond three
@@ -297,7 +297,8 @@ def _largest_group(A: np.ndarray, new: np.ndarray, idx: np.ndarray) -> tuple[int
 def consensus(hyps: list[Hypothesis], cfg: AlignConfig) -> tuple[list[int], str]:
     """(agreeing indices, reason): the largest group of mutually consistent hypotheses (those agreeing
     with one centre hypothesis), refused when it spans fewer than `min_views` new views or when a group
-    elsewhere (hypotheses agreeing with neither the centre nor its group) spans more than half as many."""
+    elsewhere (hypotheses agreeing with neither the centre nor its group) also spans `min_views` and
+    more than half as many."""
     if not hyps:
         return [], "no candidate pair passed verification"
     A = agreement(hyps, cfg)
@@ -337,6 +338,8 @@ class PriorMapLocalizer:
         import threading
 
         self.source = source
+        self.prior_segment: int | None = None
+        """The prior archive's filter segment the views come from (set by whoever loaded them)."""
         self.cfg = cfg or AlignConfig()
         self.prior = list(prior)
         self.match = match
@@ -460,6 +463,8 @@ class PriorMapLocalizer:
             hyps = list(self._hyps.get(int(segment), []))
             group, reason, T, fit = self._result.get(int(segment), ([], "", None, ""))
             rejected = dict(self.rejected)
+        held = {id(h) for h in hyps}
+        hyps += [h for h in group if id(h) not in held]     # a kept group's members dropped since
         in_group = {id(h) for h in group}
         out = Alignment(T is not None, reason or "no candidate pair passed verification", T, hypotheses=hyps,
                         agreeing=[k for k, h in enumerate(hyps) if id(h) in in_group], attempts=self.attempts,
@@ -473,7 +478,8 @@ class PriorMapLocalizer:
 
     def segments(self) -> list[int]:
         """Segments with at least one verified hypothesis."""
-        return sorted(self._hyps)
+        with self._lock:
+            return sorted(self._hyps)
 
 
 def align_sessions(prior: Sequence[PlaceView], new: Sequence[PlaceView],

@@ -310,3 +310,21 @@ def test_a_failing_match_is_counted_not_raised_by_the_live_prior_frame():
     b = new[0]
     pf.on_submap(SimpleNamespace(index=0, T_MS=b.T_MS, view=(b.features, b.view), segment=0))
     assert pf.errors == 1 and "simulated OpenCV failure" in pf.error_messages[0]
+
+
+def test_a_kept_transform_still_reports_its_group_after_its_hypotheses_were_dropped():
+    T_PW, T_NW = _pose(_rz(-25.0), [0.4, 1.1, 0.0]), _pose(_rz(40.0), [1.5, -2.0, 0.3])
+    prior, new = _sessions(T_PW, T_NW)
+    loc = PriorMapLocalizer(prior, _match, AlignConfig(), max_hypotheses=12)
+    for b in new:
+        loc.add_view(b)
+    group = len(loc.alignment(0).agreeing)
+    for k in range(3):           # views each drifted its own way push the good hypotheses out of the list
+        for j, b in enumerate(new):
+            moved = _pose(np.eye(3), [1.0 + j + 6 * k, 0.0, 0.0]) @ b.T_MS
+            loc.add_view(PlaceView(b.index + 100 * (k + 1), moved, b.features, b.view), search_near=False)
+    al = loc.alignment(0)
+    assert al.localized and loc.consensus_lost >= 1 and "last transform is kept" in al.reason
+    # the kept group (the last consensus that held: good views only) is reported though no longer held
+    assert len(al.hypotheses) > 12 and 3 <= len(al.agreeing) <= group
+    assert all(al.hypotheses[i].new < 100 for i in al.agreeing) and al.as_dict()["agreeing_new_views"] >= 3

@@ -179,3 +179,57 @@ def test_a_run_configured_not_to_archive_views_writes_none(tmp_path):
     _write_session(tmp_path / "r", prior_views, archive_views=False)     # mapping.archive_views = false
     info = read_manifest(tmp_path / "r" / "map")
     assert all(load_view(tmp_path / "r" / "map", e) is None for e in info["submaps"])
+
+
+def _two_segment_session(folder: Path) -> list[Submap]:
+    """The new session's views, its first submap in filter segment 0 and the rest in segment 1."""
+    _, new_views = _sessions(T_PW, T_NW)
+    subs = []
+    for pv in new_views:
+        sm = make_submap(pv.index, seed=100 + pv.index)
+        sm.K, sm.T_MS, sm.T_OS, sm.view = K.copy(), pv.T_MS, pv.T_MS.copy(), (pv.features, pv.view)
+        sm.segment = 0 if pv.index == 0 else 1
+        subs.append(sm)
+    MapArchiveWriter(folder / "map", HEADER).commit(subs, [], 1, {})
+    (folder / "run_status.json").write_text('{"status": "complete"}')
+    (folder / "final.tum").write_text("1.0 0 0 0 0 0 0 1\n")
+    return subs
+
+
+@pytest.mark.parametrize("last_segment, moved", [(1, True), (2, False)])
+def test_final_tum_is_moved_only_when_it_holds_the_aligned_segment(sessions, tmp_path, capsys, last_segment,
+                                                                   moved):
+    prior, _ = sessions
+    run = tmp_path / "two"
+    _two_segment_session(run)
+    (run / "poses.csv").write_text(f"t_ns,t_cam_ns,segment,source,correction_version,interpolation_fraction\n"
+                                   f"1000000000,1000000000,{last_segment},native:static,0,1.000000\n")
+    assert main(["map", "align", str(run), "--to", str(prior)]) == 0
+    al = json.loads((run / "alignment.json").read_text())
+    assert al["new_segment"] == 1 and al["new_segments"] == 2
+    assert (run / "final.prior.tum").exists() is moved
+    if not moved:
+        assert "final.tum not moved" in capsys.readouterr().err
+    # the map in the prior frame holds only the aligned segment's submaps, and says so
+    assert main(["map", "export", str(run), "--in-prior", "--voxel", "0.25"]) == 0
+    assert "1 submap(s) of other filter segments left out" in capsys.readouterr().err
+
+
+def test_a_live_runs_alignment_is_replaced_only_with_overwrite_and_a_stale_trajectory_after_the_write(
+        sessions, tmp_path, capsys):
+    from tools.run_io import LIVE_ALIGNMENT
+
+    prior, new = sessions
+    (new / "final.tum").write_text("1.0 0 0 0 0 0 0 1\n")
+    (new / "alignment.json").write_text(json.dumps({"new": LIVE_ALIGNMENT, "localized": True}))
+    assert main(["map", "align", str(new), "--to", str(prior)]) != 0
+    assert "--overwrite" in capsys.readouterr().err
+    assert json.loads((new / "alignment.json").read_text())["new"] == LIVE_ALIGNMENT
+    assert main(["map", "align", str(new), "--to", str(prior), "--overwrite"]) == 0
+    assert (new / "final.prior.tum").exists()
+    # an own earlier result whose new alignment moves nothing: the stale trajectory goes, after the write
+    _, other = _sessions(np.eye(4), np.eye(4), new_room_seed=7)        # another room
+    _write_session(tmp_path / "elsewhere", other)
+    assert main(["map", "align", str(new), "--to", str(tmp_path / "elsewhere")]) == 1
+    assert not (new / "final.prior.tum").exists()
+    assert not json.loads((new / "alignment.json").read_text())["localized"]

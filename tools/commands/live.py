@@ -249,7 +249,8 @@ class _StatusLine:
         line = (f"  {sensor_s:7.1f} s  {rate:5.1f} fps  {tracks:4.0f} tracks  {st or 'starting':<16} "
                 f"{len(pipe.published):6d} poses  drops {drops}")
         if pipe.prior is not None:
-            line += f"  prior map: {'localised' if pipe.prior.timelines else 'searching'}"
+            seg = pipe.published[len(pipe.published) - 1].segment if len(pipe.published) else 0
+            line += f"  prior map: {'localised' if pipe.prior.localized(seg) else 'searching'}"
         print(("\r" + line) if self.tty else line, end="" if self.tty else "\n", file=sys.stderr, flush=True)
 
     def done(self) -> None:

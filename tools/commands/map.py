@@ -130,9 +130,10 @@ def checked_output(args: argparse.Namespace, archive: Path, run_folder: Path, na
     return out, replaced
 
 
-def _prior_alignment(run_folder: Path) -> tuple:
-    """(T_PN (4,4), the prior archive) from the run folder's alignment.json; ConfigError when there is
-    none, it did not localise, or (for merging) its prior map is gone."""
+def _prior_alignment(run_folder: Path, merge: bool) -> tuple:
+    """(T_PN (4,4), the prior archive, the new map's aligned segment, the prior map's segment) from the
+    run folder's alignment.json (segments None when it does not say); ConfigError when there is none, it
+    did not localise, or (for merging) its prior map is gone."""
     import json
 
     import numpy as np
@@ -145,11 +146,14 @@ def _prior_alignment(run_folder: Path) -> tuple:
         al = json.loads(path.read_text())
         T = np.array(al["T_PN"], np.float64) if al.get("T_PN") is not None else None
         prior = Path(al["prior"])
-    except (OSError, ValueError, KeyError, TypeError) as exc:
+        segments = tuple(None if al.get(k) is None else int(al[k]) for k in ("new_segment", "prior_segment"))
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
         raise ConfigError(f"{path}: not a davio alignment ({type(exc).__name__}: {exc})") from None
     if not al.get("localized") or T is None or T.shape != (4, 4) or not np.isfinite(T).all():
         raise ConfigError(f"{path}: the run was not localised in the prior map ({al.get('reason')})")
-    return T, prior
+    if merge and not (prior / "manifest.json").is_file():
+        raise ConfigError(f"{path} names the prior map {prior}, which is gone (no manifest.json there)")
+    return T, prior, *segments
 
 
 def _check_fuse_args(voxel: float, min_points: int = 1) -> None:
@@ -175,7 +179,8 @@ def _print_info(info: dict) -> None:
     print(f"points       {info['points']} ({info['points_placed']} placed)")
     print(f"views        {info['views']} of {info['submaps']} submaps keep their centre view"
           + (" (what `davio map align` and --prior-map match)" if info["views"] else
-             " (this map cannot be aligned: written before davio kept them, or without the submap graph)"))
+             " (this map cannot be aligned: written before davio kept them, without the submap graph, or "
+             "with mapping.archive_views = false)"))
     ext = info["extent"]
     if ext:
         lo, hi, sz = (" ".join(f"{v:.2f}" for v in ext[k]) for k in ("min", "max", "size"))
@@ -220,7 +225,8 @@ def run(args: argparse.Namespace) -> int:
         from tools.map_archive.export import export_map
 
         _check_fuse_args(args.voxel, args.min_points)
-        T_out, prior = _prior_alignment(run_folder) if args.in_prior or args.merge_prior else (None, None)
+        T_out, prior, seg, prior_seg = (_prior_alignment(run_folder, args.merge_prior)
+                                        if args.in_prior or args.merge_prior else (None, None, None, None))
         name = "map.merged.ply" if args.merge_prior else "map.prior.ply" if args.in_prior else "map.ply"
         out, replaced = checked_output(args, archive, run_folder, name)
         t0 = time.monotonic()
@@ -228,7 +234,8 @@ def run(args: argparse.Namespace) -> int:
         try:
             n, fused = export_map(archive, out, args.voxel, _Progress("export"), args.min_points,
                                   args.skip_damaged, notes, T_out=T_out,
-                                  merge_with=prior if args.merge_prior else None)
+                                  merge_with=prior if args.merge_prior else None, segment=seg,
+                                  merge_segment=prior_seg)
         except OSError as exc:
             raise ConfigError(f"--out {out}: cannot write ({exc.strerror or exc})") from None
         _print_notes("export", notes)
@@ -273,7 +280,8 @@ def _align(args: argparse.Namespace, archive: Path, run_folder: Path) -> int:
         raise ConfigError("--to names the same map as the new run; give an earlier run of the same place")
     out = output_path(args.out, run_folder, "alignment.json")
     in_run = archive == run_folder / "map"            # a run folder's archive: its final.tum belongs to it
-    own = args.out is None and in_run
+    # our own earlier output may be replaced; a live run's localisation (--prior-map) only with --overwrite
+    own = args.out is None and in_run and not _written_live(run_folder / "alignment.json")
     replaced = check_output_file(out, "--out", (".json",), overwrite=args.overwrite, replaceable=own,
                                  protected_dirs=[archive, prior_archive])
     final = run_folder / "final.tum" if in_run and (run_folder / "final.tum").is_file() else None
@@ -293,20 +301,21 @@ def _align(args: argparse.Namespace, archive: Path, run_folder: Path) -> int:
     trajectory = None
     if res.localized and final is not None:
         last = _last_segment(run_folder)
-        if summary["new_segments"] > 1 or (last is not None and last != summary["new_segment"]):
+        wrong = last != summary["new_segment"] if last is not None else summary["new_segments"] > 1
+        if wrong:
             _print_notes("align", [f"final.tum not moved: it holds the run's last filter segment ({last}), "
                                    f"and segment {summary['new_segment']} of the map was aligned"])
         else:
             trajectory = moved
             summary["final_prior"] = str(trajectory)
             summary["final_prior_poses"] = transform_tum(final, trajectory, res.T_PN)
-    if trajectory is None and own and moved.is_file():     # our earlier result, now stale
-        moved.unlink()
-        _print_notes("align", [f"{moved} of an earlier alignment removed: this one moved no trajectory"])
     try:
         atomic_write_text(out, strict_dumps(summary, indent=1) + "\n")
     except OSError as exc:
         raise ConfigError(f"--out {out}: cannot write ({exc.strerror or exc})") from None
+    if trajectory is None and own and moved.is_file():     # our earlier result, now stale
+        moved.unlink()
+        _print_notes("align", [f"{moved} of an earlier alignment removed: this one moved no trajectory"])
     if args.json:
         print(strict_dumps(summary, indent=2))
         return 0 if res.localized else 1
@@ -324,6 +333,18 @@ def _align(args: argparse.Namespace, archive: Path, run_folder: Path) -> int:
     print(f"davio map align: -> {out}{' (replaced)' if replaced else ''}"
           + (f", {trajectory}" if trajectory else ""))
     return 0 if res.localized else 1
+
+
+def _written_live(path: Path) -> bool:
+    """Whether `path` is an alignment.json a run wrote with --prior-map."""
+    import json
+
+    from tools.run_io import LIVE_ALIGNMENT
+
+    try:
+        return json.loads(path.read_text()).get("new") == LIVE_ALIGNMENT
+    except (OSError, ValueError, AttributeError):
+        return False
 
 
 def _last_segment(run_folder: Path) -> int | None:

@@ -123,8 +123,10 @@ def prior_map(args: argparse.Namespace, model, config):
     if not config.mapping.graph or not config.revisits.enabled:
         raise ConfigError("--prior-map needs the submaps' centre views, which the submap graph keeps for "
                           "revisits: set mapping.graph and revisits.enabled to true")
+    from runtime.graph.relocalize import AlignConfig
+
     notes: list[str] = []
-    loc = prior_map_localizer(Path(args.prior_map), notes)
+    loc = prior_map_localizer(Path(args.prior_map), notes, AlignConfig(gates=config.revisits))
     for n in notes:
         print(f"davio: prior map: note: {n}", file=sys.stderr)
     return loc

@@ -62,8 +62,8 @@ def load_place_views(archive: Path, notes: list[str], max_views: int = MAX_VIEWS
         views.append(PlaceView(int(e["index"]), np.array(e["T_MS"], np.float64), fv[0], fv[1]))
     if not views:
         raise DataError("the archive stores no centre views, which alignment needs: it was written before "
-                        "davio stored them, or with the submap graph off (mapping.graph = false); run the "
-                        "recording again to align it", archive)
+                        "davio stored them, with the submap graph off (mapping.graph = false) or with "
+                        "mapping.archive_views = false; run the recording again to align it", archive)
     if missing:
         notes.append(f"{archive}: {missing} submap(s) of segment {segment} without a stored view left out")
     return views, segment, len(segments)
@@ -75,8 +75,10 @@ def prior_map_localizer(folder: Path, notes: list[str], cfg: AlignConfig | None 
     no map, a damaged one, or one without views."""
     folder = Path(folder)
     archive = folder / "map" if (folder / "map").is_dir() else folder
-    views, _, _ = load_place_views(archive, notes)
-    return PriorMapLocalizer(views, match_views, cfg, source=str(archive.resolve()))
+    views, segment, _ = load_place_views(archive, notes)
+    loc = PriorMapLocalizer(views, match_views, cfg, source=str(archive.resolve()))
+    loc.prior_segment = segment
+    return loc
 
 
 def match_views(fa, fb) -> tuple[np.ndarray, np.ndarray]:

@@ -15,7 +15,8 @@ from tools.map_archive.reader import integrity, iter_submaps, read_manifest, sta
 def fuse_archive(folder: str | Path, voxel_m: float = 0.04,
                  progress: Callable[[int, int], None] | None = None, skip_damaged: bool = False,
                  notes: list[str] | None = None, verify: bool = True, T_out: np.ndarray | None = None,
-                 grid: VoxelGrid | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 grid: VoxelGrid | None = None, segment: int | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fuse every submap of the archive at its manifest state (eq. placement) into voxels.
 
     Each voxel holds the unweighted mean of the points that fall in it. Every file is first checked
@@ -34,6 +35,8 @@ def fuse_archive(folder: str | Path, voxel_m: float = 0.04,
         T_out: (4,4) moves the map frame M into another frame before fusion (e.g. a prior map's, T_PN
             of `davio map align`); None keeps M.
         grid: fuse into this grid (which may already hold another archive's points) instead of a new one.
+        segment: only the submaps of this filter segment (a transform such as T_PN holds for one
+            segment's map frame); the others are left out and said in `notes`. None: every submap.
 
     Returns:
         (points (V,3) float64 in M (or T_out's frame), grey (V,) uint8, counts (V,) int64 points per voxel)
@@ -47,6 +50,12 @@ def fuse_archive(folder: str | Path, voxel_m: float = 0.04,
         raise DataError(f"damaged archive: {problems[0]}{more}; `davio map info` lists every problem, "
                         "--skip-damaged leaves those submaps out", folder)
     entries = [e for e in info["submaps"] if e["file"] not in damaged]
+    if segment is not None:
+        other = [e for e in entries if int(e.get("segment", 0)) != int(segment)]
+        entries = [e for e in entries if int(e.get("segment", 0)) == int(segment)]
+        if other and notes is not None:
+            notes.append(f"{folder}: {len(other)} submap(s) of other filter segments left out (segment "
+                         f"{segment} is the one aligned)")
     unplaced = [e for e in entries if not state_is_finite(e)]
     entries = [e for e in entries if state_is_finite(e)]
     if notes is not None:
@@ -106,14 +115,18 @@ def supported(fused: tuple[np.ndarray, np.ndarray, np.ndarray], min_points: int
 def export_map(folder: str | Path, out_ply: str | Path, voxel_m: float = 0.04,
                progress: Callable[[int, int], None] | None = None, min_points: int = 1,
                skip_damaged: bool = False, notes: list[str] | None = None, verify: bool = True,
-               T_out: np.ndarray | None = None, merge_with: str | Path | None = None) -> tuple[int, int]:
+               T_out: np.ndarray | None = None, merge_with: str | Path | None = None,
+               segment: int | None = None, merge_segment: int | None = None) -> tuple[int, int]:
     """Fuse the archive in `folder` (`fuse_archive`, moved by `T_out` when given) and write the voxels
     holding at least `min_points` points to `out_ply`; with `merge_with`, that archive (in its own frame,
-    which T_out must lead to) is fused into the same voxels first. Returns (voxels written, voxels fused)."""
+    which T_out must lead to) is fused into the same voxels first. `segment` / `merge_segment` keep only
+    that filter segment of each archive (`fuse_archive`). Returns (voxels written, voxels fused)."""
     grid = VoxelGrid(voxel_m)
     if merge_with is not None:
-        fuse_archive(merge_with, voxel_m, progress, skip_damaged, notes, verify, grid=grid)
-    fused = fuse_archive(folder, voxel_m, progress, skip_damaged, notes, verify, T_out=T_out, grid=grid)
+        fuse_archive(merge_with, voxel_m, progress, skip_damaged, notes, verify, grid=grid,
+                     segment=merge_segment)
+    fused = fuse_archive(folder, voxel_m, progress, skip_damaged, notes, verify, T_out=T_out, grid=grid,
+                         segment=segment)
     points, grey, _ = supported(fused, min_points)
     write_ply(out_ply, points, grey)
     return int(len(points)), int(len(fused[0]))
