@@ -328,3 +328,27 @@ def test_a_kept_transform_still_reports_its_group_after_its_hypotheses_were_drop
     # the kept group (the last consensus that held: good views only) is reported though no longer held
     assert len(al.hypotheses) > 12 and 3 <= len(al.agreeing) <= group
     assert all(al.hypotheses[i].new < 100 for i in al.agreeing) and al.as_dict()["agreeing_new_views"] >= 3
+
+
+def test_binary_descriptors_rank_and_match_as_well():
+    """ORB's packed bits (the matcher without the XFeat graph): ranked on +-1 bit vectors, matched by
+    Hamming distance."""
+    T_PW, T_NW = _pose(_rz(-25.0), [0.4, 1.1, 0.0]), _pose(_rz(40.0), [1.5, -2.0, 0.3])
+    prior, new = _sessions(T_PW, T_NW)
+    rng = np.random.default_rng(8)
+    proj = rng.normal(size=(64, 256))                          # the same float -> bit map for every view
+
+    def binary(views):
+        out = []
+        for v in views:
+            bits = (v.features.desc.astype(np.float64) @ proj > 0)
+            flips = rng.random(bits.shape) < 0.03
+            desc = np.packbits(bits ^ flips, axis=1)
+            out.append(PlaceView(v.index, v.T_MS, Features(v.features.kpts, v.features.scores, desc,
+                                                            v.features.image_size, None), v.view))
+        return out
+
+    res = align_sessions(binary(prior), binary(new), _match)
+    assert res.localized and res.hypotheses and res.hypotheses[0].n_inliers > 30
+    T_true = T_PW @ np.linalg.inv(T_NW)
+    assert np.linalg.norm(res.T_PN[:3, 3] - T_true[:3, 3]) < 0.05
