@@ -17,8 +17,7 @@ import numpy as np
 
 from runtime.graph.correction import CorrectionTimeline
 from runtime.graph.relocalize import PlaceView, PriorMapLocalizer
-
-MAX_ERROR_MESSAGES = 10
+from runtime.mapping.mapper import MAX_ERROR_MESSAGES
 
 
 class PriorFrame:

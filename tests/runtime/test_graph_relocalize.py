@@ -7,17 +7,10 @@ import pytest
 
 from models.matcher.features import Features
 from models.matcher.matcher import match_stored
-from runtime.graph.relocalize import (
-    AlignConfig,
-    Hypothesis,
-    PlaceView,
-    PriorMapLocalizer,
-    Vocabulary,
-    align_sessions,
-    consensus,
-    yaw_translation_fit,
-)
+from runtime.graph.place_consensus import Hypothesis, consensus, yaw_translation_fit
+from runtime.graph.relocalize import AlignConfig, PlaceView, PriorMapLocalizer, align_sessions
 from runtime.graph.revisits import RevisitView
+from runtime.graph.vocabulary import Vocabulary
 
 K = np.array([[380.0, 0.0, 376.0], [0.0, 380.0, 240.0], [0.0, 0.0, 1.0]])
 SIZE = (752, 480)
@@ -253,7 +246,7 @@ def test_agreement_is_judged_where_the_views_are_not_at_a_far_origin():
 
 
 def test_yaws_either_side_of_180_degrees_agree():
-    from runtime.graph.relocalize import agreement
+    from runtime.graph.place_consensus import agreement
 
     hyps = [_hyp(1, 179.8, [1, 0, 0]), _hyp(2, -179.8, [1, 0, 0])]
     hyps[1].T_PN[:3, :3] = _rz(-179.8)[:3, :3]

@@ -113,10 +113,6 @@ def _fit(final: Any, gt: Any) -> tuple[np.ndarray, float]:
     return T, float(r.trans["rmse"])
 
 
-def _yaw(R: np.ndarray) -> float:
-    return float(np.degrees(np.arctan2(R[1, 0] - R[0, 1], R[0, 0] + R[1, 1])))
-
-
 def _match(fa: Any, fb: Any) -> tuple[np.ndarray, np.ndarray]:
     from models.matcher.matcher import match_stored
 
@@ -126,6 +122,7 @@ def _match(fa: Any, fb: Any) -> tuple[np.ndarray, np.ndarray]:
 
 def score(views_a: list, views_b: list, final_a: Any, final_b: Any, gt_a: Any, gt_b: Any) -> dict:
     """Align B to A and compare with the transform the ground truth gives (module docstring)."""
+    from runtime.graph.place_consensus import yaw_deg
     from runtime.graph.relocalize import align_sessions
     from tools.evaluation.associate import associate
 
@@ -142,7 +139,7 @@ def score(views_a: list, views_b: list, final_a: Any, final_b: Any, gt_a: Any, g
         return row
     T_true = np.linalg.inv(T_WA) @ T_WB
     T = res.T_PN
-    row["yaw_error_deg"] = (_yaw(T[:3, :3]) - _yaw(T_true[:3, :3]) + 180.0) % 360.0 - 180.0
+    row["yaw_error_deg"] = (yaw_deg(T[:3, :3]) - yaw_deg(T_true[:3, :3]) + 180.0) % 360.0 - 180.0
     row["translation_error_m"] = float(np.linalg.norm(T[:3, 3] - T_true[:3, 3]))
     est, ref = associate(final_b, gt_b)
     T_W = T_WA @ T
