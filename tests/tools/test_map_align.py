@@ -217,7 +217,7 @@ def test_final_tum_is_moved_only_when_it_holds_the_aligned_segment(sessions, tmp
 
 def test_a_live_runs_alignment_is_replaced_only_with_overwrite_and_a_stale_trajectory_after_the_write(
         sessions, tmp_path, capsys):
-    from tools.run_io import LIVE_ALIGNMENT
+    from tools.run_prior_frame import LIVE_ALIGNMENT
 
     prior, new = sessions
     (new / "final.tum").write_text("1.0 0 0 0 0 0 0 1\n")

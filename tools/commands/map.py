@@ -339,7 +339,7 @@ def _written_live(path: Path) -> bool:
     """Whether `path` is an alignment.json a run wrote with --prior-map."""
     import json
 
-    from tools.run_io import LIVE_ALIGNMENT
+    from tools.run_prior_frame import LIVE_ALIGNMENT
 
     try:
         return json.loads(path.read_text()).get("new") == LIVE_ALIGNMENT

@@ -1,0 +1,54 @@
+"""A run's outputs in a prior map's frame (`--prior-map`): causal.prior.tum, final.prior.tum,
+alignment.json and report.json's "prior_map" (the localisation itself: runtime/graph/prior_frame.py)."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from runtime.files import atomic_write_text
+from runtime.geometry import PoseTrajectory, make_pose
+from runtime.json_out import strict_dumps
+
+LIVE_ALIGNMENT = "this run (live)"
+"""alignment.json's "new" when a run wrote it with --prior-map (`davio map align` names the archive)."""
+
+
+def write_prior_frame(out_dir: Path, pipeline: Any, rows: np.ndarray, causal: PoseTrajectory,
+                      final: PoseTrajectory, first_t_ns: int | None) -> dict | None:
+    """With a prior map: the last segment's trajectories in its frame (causal.prior.tum: the poses
+    published once localised, as published; final.prior.tum: every final pose with the newest
+    transform) and alignment.json; returns report.json's "prior_map" (None without a prior map)."""
+    from tools.evaluation import write_tum
+
+    pf = getattr(pipeline, "prior", None)
+    if pf is None:
+        return None
+    seg = int(rows["segment"][-1]) if len(rows) else 0
+    al = pf.localizer.alignment(seg)
+    out = {"source": pf.source, "segment": seg,
+           **{k: v for k, v in al.as_dict().items() if k != "hypotheses"},
+           "localized_after_s": None, "poses_in_prior_frame": 0, "files": []}
+    if not len(rows):
+        return out
+    mask, T_PI = pf.causal(seg, causal.t_ns, make_pose(causal.R, causal.p))
+    if mask.any():
+        write_tum(out_dir / "causal.prior.tum",
+                  PoseTrajectory(causal.t_ns[mask], T_PI[:, :3, 3], T_PI[:, :3, :3]))
+        out["poses_in_prior_frame"] = int(mask.sum())
+        out["files"].append("causal.prior.tum")
+        t_loc = pf.localized_at_ns.get(seg)
+        if t_loc is not None and first_t_ns is not None:
+            out["localized_after_s"] = (t_loc - first_t_ns) * 1e-9
+    F = pf.final(seg, make_pose(final.R, final.p))
+    if F is not None:
+        write_tum(out_dir / "final.prior.tum", PoseTrajectory(final.t_ns, F[:, :3, 3], F[:, :3, :3]))
+        out["files"].append("final.prior.tum")
+        atomic_write_text(out_dir / "alignment.json", strict_dumps(
+            {"format": "davio-alignment", "prior": pf.source, "new": LIVE_ALIGNMENT, "new_segment": seg,
+             "prior_segment": pf.localizer.prior_segment,
+             "frames": "T_PN maps points of this run's map frame into the prior one: x_P = T_PN x_N",
+             **al.as_dict()}, indent=1) + "\n")
+        out["files"].append("alignment.json")
+    return out
