@@ -29,7 +29,8 @@ def write_prior_frame(out_dir: Path, pipeline: Any, rows: np.ndarray, causal: Po
     al = pf.localizer.alignment(seg)
     out = {"source": pf.source, "segment": seg,
            **{k: v for k, v in al.as_dict().items() if k != "hypotheses"},
-           "localized_after_s": None, "poses_in_prior_frame": 0, "files": []}
+           "localized_after_s": None, "poses_in_prior_frame": 0, "files": [],
+           "switches": pf.localizer.switches.get(seg, 0)}
     if not len(rows):
         return out
     mask, T_PI = pf.causal(seg, causal.t_ns, make_pose(causal.R, causal.p))
@@ -49,6 +50,6 @@ def write_prior_frame(out_dir: Path, pipeline: Any, rows: np.ndarray, causal: Po
             {"format": "davio-alignment", "prior": pf.source, "new": LIVE_ALIGNMENT, "new_segment": seg,
              "prior_segment": pf.localizer.prior_segment,
              "frames": "T_PN maps points of this run's map frame into the prior one: x_P = T_PN x_N",
-             **al.as_dict()}, indent=1) + "\n")
+             **al.as_dict(), "switches": out["switches"]}, indent=1) + "\n")
         out["files"].append("alignment.json")
     return out

@@ -89,6 +89,15 @@ def agreement(hyps: list[Hypothesis], cfg: AlignConfig, block: int = 256) -> np.
     return out
 
 
+def transforms_agree(T_a: np.ndarray, T_b: np.ndarray, c_N: np.ndarray, cfg: AlignConfig) -> bool:
+    """Whether two transforms T_PN agree as two hypotheses do (`agreement`): yaws within agree_deg and
+    new-frame point c_N (3,) placed within agree_m by both."""
+    dyaw = (yaw_deg(T_a[:3, :3]) - yaw_deg(T_b[:3, :3]) + 180.0) % 360.0 - 180.0
+    c = np.asarray(c_N, np.float64)
+    gap = np.linalg.norm(T_a[:3, :3] @ c + T_a[:3, 3] - T_b[:3, :3] @ c - T_b[:3, 3])
+    return bool(abs(dyaw) <= cfg.agree_deg and gap <= cfg.agree_m)
+
+
 def _largest_group(A: np.ndarray, new: np.ndarray, idx: np.ndarray) -> tuple[int, np.ndarray]:
     """(centre, members): among hypotheses `idx`, the one whose agreeing members (within `idx`) come
     from the most distinct new views (then the most members), and those members."""

@@ -3,8 +3,10 @@
 The model worker hands each committed submap's centre view to a `PriorMapLocalizer` (right after the
 mapper commits it); the tracking thread, when it applies that commit, picks up a changed transform
 T_PM (this run's map frame M of the segment -> the prior map frame P) into a per-segment
-`CorrectionTimeline`: the first transform applies at once (there was none to blend from), later
-refinements above 5 cm / 2 deg are blended over a second of sensor time, as the map correction is.
+`CorrectionTimeline`: the first transform applies at once (there was none to blend from), and so does
+one that replaces a wrong lock (the localizer's `switches`: blending from a wrong place would only
+publish poses between two places); other refinements above 5 cm / 2 deg are blended over a second of
+sensor time, as the map correction is.
 A pose published at time t in segment s is then T_PI = T_PM(s, t) T_MI(t); before the segment is
 localised it has none. The final prior-frame trajectory applies each segment's newest T_PM to its final
 map-frame poses.
@@ -59,7 +61,7 @@ class PriorFrame:
                 continue
             tl = self.timelines.setdefault(seg, CorrectionTimeline())
             t = max(int(t_ns), tl.last_commit_ns or 0)
-            tl.commit(t, T, version, immediate=len(tl) == 0)
+            tl.commit(t, T, version, immediate=len(tl) == 0 or self.localizer.switched_at(seg) == version)
             self._seen[seg] = version
             self.localized_at_ns.setdefault(seg, t)
 
@@ -102,10 +104,12 @@ class PriorFrame:
             d = a.as_dict()
             d.pop("hypotheses")
             segs[str(seg)] = {**d, "localized_at_t_ns": self.localized_at_ns.get(seg),
-                              "transform_updates": len(self.timelines.get(seg, ()))}
+                              "transform_updates": len(self.timelines.get(seg, ())),
+                              "switches": loc.switches.get(seg, 0)}
         return {"source": self.source, "prior_views": len(loc.prior), "views_tried": loc.views_tried,
                 "seconds": loc.seconds, "seconds_max": loc.seconds_max,
                 "attempts": loc.attempts, "rejected": dict(loc.rejected),
                 "hypotheses_dropped": loc.hypotheses_dropped, "consensus_lost": loc.consensus_lost,
+                "global_fallbacks": loc.global_fallbacks, "switches": sum(loc.switches.values()),
                 "submaps_without_view": self.submaps_without_view,
                 "errors": self.errors, "error_messages": list(self.error_messages), "segments": segs}

@@ -44,6 +44,7 @@ from runtime.graph.place_consensus import (
     fit_transform,
     rms,
     tilt_deg,
+    transforms_agree,
     yaw_deg,
 )
 from runtime.graph.revisits import STAGES, RevisitView, verify_geometry
@@ -164,8 +165,12 @@ class PriorMapLocalizer:
 
     Per filter segment (each has its own odometry and map frame) it keeps the verified hypotheses (at
     most `max_hypotheses`, the oldest dropped) and the consensus transform, re-fitted whenever a
-    hypothesis is added. Once a segment is localised, a new view is tried only against prior views
-    whose centres lie within `candidate_radius_m` (the revisits' 8 m) of where the transform puts it.
+    hypothesis is added. Once a segment is localised, a new view is tried first against prior views
+    whose centres lie within `candidate_radius_m` (the revisits' 8 m) of where the transform puts it;
+    when none of those verifies, against the best-ranked prior views anywhere (`global_fallbacks`), so
+    that a wrong early lock (three views verified against a look-alike place) can still be outvoted:
+    the consensus then replaces the transform with one that disagrees with it (`switches`), which a live run
+    applies at once rather than blending towards it.
 
     Args:
         prior: the prior map's centre views, poses in its map frame P.
@@ -200,6 +205,11 @@ class PriorMapLocalizer:
         self.hypotheses_dropped = 0
         self.consensus_lost = 0
         """Consensus updates that failed after the segment was localised (the last transform kept)."""
+        self.global_fallbacks = 0
+        """Views of a localised segment tried against the whole prior map because nothing near verified."""
+        self.switches: dict[int, int] = {}
+        """{segment: times its transform was replaced by one that disagrees with it (`transforms_agree`)}."""
+        self.switch_versions: dict[int, int] = {}
         self._hyps: dict[int, list[Hypothesis]] = {}
         self._result: dict[int, tuple[list[int], str, np.ndarray | None, str]] = {}
         self._lock = threading.Lock()
@@ -207,15 +217,19 @@ class PriorMapLocalizer:
         """Increases whenever a segment's transform changes."""
         self.versions: dict[int, int] = {}
 
-    def _candidates(self, b: PlaceView, segment: int, search_near: bool) -> list[int]:
+    def _candidates(self, b: PlaceView, segment: int, search_near: bool) -> tuple[list[int], list[int]]:
+        """(first, fallback): the prior views to try, best ranked first; once the segment is localised
+        (and with `search_near`) `first` holds only those near where the transform puts b, and
+        `fallback` the best ranked of the others, tried when none of `first` verifies."""
         sim = self._H @ self.vocabulary.histogram(b.features.desc)
         order = [int(k) for k in np.argsort(-sim, kind="stable") if sim[k] > 0]
+        n = self.cfg.candidates_per_view
         T = self.T_PN(segment) if search_near else None
-        if T is not None:
-            c_P = T[:3, :3] @ np.asarray(b.T_MS, np.float64)[:3, 3] + T[:3, 3]
-            near = np.linalg.norm(self._centres - c_P, axis=1) <= self.cfg.gates.candidate_radius_m
-            order = [k for k in order if near[k]]
-        return order[: self.cfg.candidates_per_view]
+        if T is None:
+            return order[:n], []
+        c_P = T[:3, :3] @ np.asarray(b.T_MS, np.float64)[:3, 3] + T[:3, 3]
+        near = np.linalg.norm(self._centres - c_P, axis=1) <= self.cfg.gates.candidate_radius_m
+        return [k for k in order if near[k]][:n], [k for k in order[:n] if not near[k]]
 
     def add_view(self, b: PlaceView, segment: int = 0, search_near: bool = True, solve: bool = True) -> bool:
         """Verify view b (pose in the session's map frame of `segment`) against its best-ranked prior
@@ -233,8 +247,25 @@ class PriorMapLocalizer:
 
     def _add_view(self, b: PlaceView, segment: int, search_near: bool, solve: bool) -> bool:
         self.views_tried += 1
+        first, fallback = self._candidates(b, segment, search_near)
+        new = self._verify(b, first)
+        if not new and fallback:
+            self.global_fallbacks += 1
+            new = self._verify(b, fallback)
+        if not new:
+            return False
+        with self._lock:
+            hyps = self._hyps.setdefault(int(segment), [])
+            hyps.extend(new)
+            if len(hyps) > self.max_hypotheses:
+                self.hypotheses_dropped += len(hyps) - self.max_hypotheses
+                del hyps[: len(hyps) - self.max_hypotheses]
+        return self.solve(segment) if solve else False
+
+    def _verify(self, b: PlaceView, candidates: list[int]) -> list[Hypothesis]:
+        """The hypotheses of the candidate prior views that pass verification with b (rejections counted)."""
         new: list[Hypothesis] = []
-        for k in self._candidates(b, segment, search_near):
+        for k in candidates:
             a = self.prior[k]
             self.attempts += 1
             res, T_SaSb, p_a, p_b = verify_geometry(a.view, b.view, self.match(a.features, b.features),
@@ -252,15 +283,7 @@ class PriorMapLocalizer:
             x_N = p_b @ T_MS_b[:3, :3].T + T_MS_b[:3, 3]
             new.append(Hypothesis(a.index, b.index, T_PN, yaw_deg(T_PN[:3, :3]), tilt, res.n_inliers,
                                   res.depth_rel_error, x_P, x_N, T_MS_b[:3, 3].copy()))
-        if not new:
-            return False
-        with self._lock:
-            hyps = self._hyps.setdefault(int(segment), [])
-            hyps.extend(new)
-            if len(hyps) > self.max_hypotheses:
-                self.hypotheses_dropped += len(hyps) - self.max_hypotheses
-                del hyps[: len(hyps) - self.max_hypotheses]
-        return self.solve(segment) if solve else False
+        return new
 
     def solve(self, segment: int = 0) -> bool:
         """Re-run the segment's consensus and transform; returns True when the transform changed. A
@@ -284,7 +307,16 @@ class PriorMapLocalizer:
             if changed:
                 self.version += 1
                 self.versions[seg] = self.version
+                if old is not None and old[2] is not None and not transforms_agree(
+                        old[2], T, np.mean([h.c_N for h in group], axis=0), self.cfg):
+                    self.switches[seg] = self.switches.get(seg, 0) + 1
+                    self.switch_versions[seg] = self.version
         return changed
+
+    def switched_at(self, segment: int) -> int:
+        """The version at which the segment's transform was last replaced by a disagreeing one (0: never)."""
+        with self._lock:
+            return self.switch_versions.get(int(segment), 0)
 
     def segment_versions(self) -> dict[int, int]:
         """{segment: the version its transform last changed at} (a copy, thread-safe)."""

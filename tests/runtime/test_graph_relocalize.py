@@ -197,8 +197,10 @@ def test_the_localizer_narrows_its_search_once_localised_and_bounds_its_hypothes
     assert len(loc.alignment(2).hypotheses) == 8 and loc.hypotheses_dropped > 0
     # localised: candidates only within the revisit radius of where the transform puts the view
     far = PlaceView(99, T_NW @ _camera_pose_W(0.0, (40.0, 0.0, 1.4)), new[0].features, new[0].view)
-    assert loc._candidates(far, 2, search_near=True) == []
-    assert len(loc._candidates(far, 2, search_near=False)) == loc.cfg.candidates_per_view
+    near, fallback = loc._candidates(far, 2, search_near=True)
+    assert near == [] and len(fallback) == loc.cfg.candidates_per_view   # tried only if nothing near verifies
+    near, fallback = loc._candidates(far, 2, search_near=False)
+    assert len(near) == loc.cfg.candidates_per_view and fallback == []
 
 
 def test_prior_frame_publishes_nothing_before_localisation_then_the_transform_at_once():
@@ -345,3 +347,71 @@ def test_binary_descriptors_rank_and_match_as_well():
     assert res.localized and res.hypotheses and res.hypotheses[0].n_inliers > 30
     T_true = T_PW @ np.linalg.inv(T_NW)
     assert np.linalg.norm(res.T_PN[:3, 3] - T_true[:3, 3]) < 0.05
+
+
+def _look_alike_sessions(T_PW, T_NW, offset=(30.0, 0.0, 0.0)):
+    """A prior map of the room seen from 9 ring positions (yaws 90-330) plus a look-alike room (the same
+    walls, `offset` away) seen from the other three (yaws 0-60), and a new session of the room going
+    round from yaw 8: its first views see walls that the prior map holds only in the look-alike."""
+    pts, desc = _room(1)
+    off = np.asarray(offset)
+
+    def ring(yaws, shift=(0.0, 0.0, 0.0)):
+        return [(1.5 * np.cos(np.radians(a)) + shift[0], 1.0 * np.sin(np.radians(a)) + shift[1],
+                 1.4 + shift[2]) for a in yaws]
+
+    true_yaws, twin_yaws = np.arange(90, 360, 30.0), np.array([0.0, 30.0, 60.0])
+    prior = _session(pts, desc, T_PW, true_yaws, ring(true_yaws), seed=2)
+    twin = _session(pts + off, desc, T_PW, twin_yaws, ring(twin_yaws, off), seed=4)
+    for k, v in enumerate(twin):
+        v.index = 100 + k
+    new_yaws = np.arange(0, 360, 30.0) + 8.0
+    return prior + twin, _session(pts, desc, T_NW, new_yaws, ring(new_yaws, (0.3, -0.2, 0.1)), seed=3)
+
+
+def test_a_wrong_early_lock_on_a_look_alike_place_is_replaced_and_applied_at_once():
+    from types import SimpleNamespace
+
+    from runtime.graph.prior_frame import PriorFrame
+
+    T_PW, T_NW = _pose(_rz(-25.0), [0.4, 1.1, 0.0]), _pose(_rz(40.0), [1.5, -2.0, 0.3])
+    prior, new = _look_alike_sessions(T_PW, T_NW)
+    T_true = T_PW @ np.linalg.inv(T_NW)
+    pf = PriorFrame(PriorMapLocalizer(prior, _match, AlignConfig(words=64)), "prior")
+    loc = pf.localizer
+    T_MI = _pose(_rz(10.0), [1.0, 2.0, 0.5])
+    errors, t_switch = [], None
+    for k, b in enumerate(new):
+        pf.on_submap(SimpleNamespace(index=b.index, T_MS=b.T_MS, view=(b.features, b.view), segment=0))
+        t = 10**9 * (k + 1)
+        pf.update(t)
+        T = loc.T_PN(0)
+        errors.append(np.inf if T is None else float(np.linalg.norm(T[:3, 3] - T_true[:3, 3])))
+        if t_switch is None and loc.switches:
+            t_switch = t
+    wrong = [e for e in errors if 29.0 < e < 31.0]
+    assert len(wrong) >= 2                        # first localised in the look-alike room, 30 m away
+    assert errors[-1] < 0.03                      # then replaced by the room's own consensus
+    assert loc.switches == {0: 1} and loc.switched_at(0) > 0 and loc.global_fallbacks >= 1
+    # the live frame jumps to the replacing transform at once: no poses published between the two rooms
+    T_at_switch = pf.pose(0, t_switch, T_MI)
+    assert np.linalg.norm(T_at_switch[:3, 3] - (T_true @ T_MI)[:3, 3]) < 0.05
+    rep = pf.report()
+    assert rep["switches"] == 1 and rep["segments"]["0"]["switches"] == 1 and rep["global_fallbacks"] >= 1
+
+
+def test_a_consistent_refinement_is_not_counted_as_a_switch():
+    from runtime.graph.place_consensus import transforms_agree
+
+    cfg = AlignConfig()
+    T = _pose(_rz(30.0), [1.0, 2.0, 0.0])
+    c = np.array([5.0, 0.0, 1.0])
+    assert transforms_agree(T, _pose(_rz(32.9), [1.0, 2.0, 0.0]), np.zeros(3), cfg)
+    assert not transforms_agree(T, _pose(_rz(33.1), [1.0, 2.0, 0.0]), np.zeros(3), cfg)   # yaw beyond 3 deg
+    # 2 deg about the frame's origin moves a point 5 m away by 0.17 m (agrees), 10 m away by 0.35 m
+    T2 = _pose(_rz(32.0), [1.0, 2.0, 0.0])
+    assert transforms_agree(T, T2, c, cfg) and not transforms_agree(T, T2, 2 * c, cfg)
+    prior, new = _sessions(T, _pose(_rz(40.0), [1.5, -2.0, 0.3]))
+    loc = PriorMapLocalizer(prior, _match, AlignConfig(words=64))
+    changed = [loc.add_view(b) for b in new]
+    assert changed.count(True) >= 2 and loc.switches == {} and loc.switched_at(0) == 0

@@ -76,6 +76,7 @@ def test_a_live_run_is_localised_in_an_earlier_map_and_publishes_in_its_frame(tw
     assert _rms_through_A(root / "runB/causal.prior.tum", root) < 0.1
     assert _rms_through_A(root / "runB/final.prior.tum", root) < 0.1
     assert report["pipeline"]["prior_map"]["errors"] == 0
+    assert pm["switches"] == 0 and json.loads((root / "runB/alignment.json").read_text())["switches"] == 0
     # the same from the two saved maps afterwards, into another file
     assert main(["map", "align", str(root / "runB"), "--to", str(root / "runA"),
                  "--out", str(root / "offline.json")]) == 0
@@ -93,3 +94,13 @@ def test_prior_map_needs_a_map_and_views(two_sessions, tmp_path, capsys):
                  "--out", str(tmp_path / "y")]) != 0
     assert "nothing" in capsys.readouterr().err
     assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
+
+
+def test_the_console_line_says_when_a_wrong_lock_was_replaced():
+    from tools.commands.run import _prior_line
+
+    pm = {"localized": True, "t": [1.0, 2.0, 0.0], "localized_after_s": 3.5, "yaw_deg": 12.0, "agreeing": 9,
+          "poses_in_prior_frame": 40, "switches": 0}
+    assert "wrong lock" not in _prior_line(pm)
+    line = _prior_line({**pm, "switches": 1})
+    assert "localised 3.5 s into the run" in line and "a wrong lock was replaced 1x" in line

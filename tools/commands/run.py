@@ -266,7 +266,9 @@ def _prior_line(pm: dict) -> str:
         return (f"prior map: localised {'' if after is None else f'{after:.1f} s into the run '}(yaw "
                 f"{pm['yaw_deg']:.2f} deg, t = ({t[0]:.3f}, {t[1]:.3f}, {t[2]:.3f}) m; {pm['agreeing']} "
                 f"verified pairs agree); {pm['poses_in_prior_frame']} poses published in its frame -> "
-                "causal.prior.tum, final.prior.tum")
+                "causal.prior.tum, final.prior.tum"
+                + (f"; a wrong lock was replaced {pm['switches']}x (a look-alike place outvoted; "
+                   "causal.prior.tum holds the poses published before)" if pm.get("switches") else ""))
     return (f"prior map: NOT localised ({pm['reason']}; {pm['attempts']} candidate pairs tried, "
             f"{pm['verified']} verified)")
 
