@@ -8,6 +8,12 @@ DAVIO extension keys, ignored by Kalibr and OpenVINS: ``rate_hz`` (camera rate) 
 IMU file keys (``imu0``): ``accelerometer_noise_density``, ``accelerometer_random_walk``,
 ``gyroscope_noise_density``, ``gyroscope_random_walk``, ``update_rate``.
 
+The writer's files load in Kalibr (PyYAML) and in OpenVINS 2.7 (OpenCV's FileStorage, which refuses
+block sequences at their key's indentation): each camera also gets ``rostopic`` and ``cam_overlaps``,
+the IMU file ``rostopic`` and the IMU intrinsics OpenVINS 2.7 requires (``model: kalibr``, identity
+``Tw``, ``Ta``, ``R_IMUtoGYRO``, ``R_IMUtoACC``, zero ``Tg``: no IMU intrinsics, DAVIO's model). OpenVINS
+reads ``T_cam_imu`` as well as its own ``T_imu_cam``.
+
 Withheld values: absent extrinsics / timeshift (as in Kalibr's camera-only output) and null
 values read as None; any other absent key is an error.
 """
@@ -125,7 +131,18 @@ class _FlowList(list):
 
 
 class _Dumper(yaml.SafeDumper):
-    pass
+    """Block sequences indented under their key (OpenCV's YAML parser refuses them otherwise)."""
+
+    def increase_indent(self, flow: bool = False, indentless: bool = False) -> None:
+        return super().increase_indent(flow, False)
+
+
+DEFAULT_CAM_TOPIC = "/cam0/image_raw"
+DEFAULT_IMU_TOPIC = "/imu0"
+#: OpenVINS 2.7's IMU intrinsics (StateOptions ``model``, VioManagerOptions ``Tw`` ... ``Tg``), all required
+#: by its parser: the values of an IMU without intrinsic errors.
+OPENVINS_IMU_INTRINSICS = {"model": "kalibr", "Tw": np.eye(3), "R_IMUtoGYRO": np.eye(3), "Ta": np.eye(3),
+                           "R_IMUtoACC": np.eye(3), "Tg": np.zeros((3, 3))}
 
 
 _Dumper.add_representer(
@@ -133,7 +150,7 @@ _Dumper.add_representer(
 )
 
 
-def _camera_block(rig: Rig, extrinsics_key: str) -> dict:
+def _camera_block(rig: Rig, extrinsics_key: str, topic: str) -> dict:
     cam = rig.camera
     block: dict = {}
     if rig.T_IC is not None:
@@ -167,6 +184,8 @@ def _camera_block(rig: Rig, extrinsics_key: str) -> dict:
         block["rate_hz"] = rig.camera_rate_hz
     if rig.name:
         block["rig_name"] = rig.name
+    block["cam_overlaps"] = _FlowList()
+    block["rostopic"] = topic
     return block
 
 
@@ -182,6 +201,8 @@ def write_kalibr(
     imu_path: str | os.PathLike | None = None,
     extrinsics_key: Literal["T_cam_imu", "T_imu_cam"] = "T_cam_imu",
     comment: str | None = None,
+    cam_topic: str = DEFAULT_CAM_TOPIC,
+    imu_topic: str = DEFAULT_IMU_TOPIC,
 ) -> None:
     """Write ``rig`` as a Kalibr camchain (``cam0``) and optionally a Kalibr imu YAML (``imu0``).
 
@@ -192,16 +213,20 @@ def write_kalibr(
     Args:
         extrinsics_key: ``T_cam_imu`` (Kalibr, T_CI) or ``T_imu_cam`` (OpenVINS, T_IC).
         comment: optional text written as ``#`` lines at the top of each file.
+        cam_topic, imu_topic: the ``rostopic`` entries (Kalibr and OpenVINS's ROS nodes read them).
     """
     if extrinsics_key not in ("T_cam_imu", "T_imu_cam"):
         raise ValueError(f"extrinsics_key must be 'T_cam_imu' or 'T_imu_cam', got {extrinsics_key!r}")
     with rekeyed(camchain_path, {"distortion": "cam0.distortion_coeffs", "camera": "cam0"}):
-        camchain = {"cam0": _camera_block(rig, extrinsics_key)}
+        camchain = {"cam0": _camera_block(rig, extrinsics_key, cam_topic)}
     text = yaml.dump(camchain, Dumper=_Dumper, sort_keys=False, default_flow_style=False)
     write_text_atomic(camchain_path, _header(comment) + text)
     if imu_path is not None:
         imu = rig.imu if rig.imu is not None else ImuNoise()
         block = {KALIBR_IMU_KEYS[name]: getattr(imu, name) for name in IMU_FIELDS}
         block = {k: block[k] for k in sorted(block)}
+        block["rostopic"] = imu_topic
+        for key, value in OPENVINS_IMU_INTRINSICS.items():
+            block[key] = value if isinstance(value, str) else [_FlowList(map(float, row)) for row in value]
         text = yaml.dump({"imu0": block}, Dumper=_Dumper, sort_keys=False, default_flow_style=False)
         write_text_atomic(imu_path, _header(comment) + text)

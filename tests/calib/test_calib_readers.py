@@ -142,6 +142,44 @@ def test_writer_round_trip(rig: Rig, tmp_path: Path) -> None:
     assert without_imu.imu is None
 
 
+def _cv_matrix(node, rows: int, cols: int) -> np.ndarray:
+    """A nested-list node read as OpenVINS's YamlParser reads an Eigen matrix (element by element)."""
+    assert node.isSeq() and node.size() == rows, node.size()
+    return np.array([[node.at(r).at(c).real() for c in range(cols)] for r in range(rows)])
+
+
+@pytest.mark.parametrize("key", ["T_cam_imu", "T_imu_cam"])
+def test_written_files_load_as_openvins_2_7_reads_them(key: str, tmp_path: Path) -> None:
+    """OpenVINS 2.7 reads the camchain and IMU YAML with OpenCV's FileStorage, and its parser fails the
+    whole configuration when a required node is missing (ov_core/src/utils/opencv_yaml_parse.h at release
+    commit 93adc24; the nodes: ov_msckf VioManagerOptions.h, StateOptions.h, ros/ROS1Visualizer.cpp)."""
+    cv2 = pytest.importorskip("cv2")
+    rig = euroc_rig()
+    write_kalibr(rig, tmp_path / "camchain.yaml", tmp_path / "imu.yaml", extrinsics_key=key, comment="x")
+    fs_cam = cv2.FileStorage(str(tmp_path / "camchain.yaml"), cv2.FILE_STORAGE_READ)   # kept open: nodes
+    cam = fs_cam.getNode("cam0")                                                        # point into it
+    assert cam.getNode("distortion_model").string() == "radtan"
+    assert [cam.getNode("intrinsics").at(i).real() for i in range(4)] == EUROC_INTRINSICS
+    assert [cam.getNode("distortion_coeffs").at(i).real() for i in range(4)] == EUROC_DISTORTION
+    assert [int(cam.getNode("resolution").at(i).real()) for i in range(2)] == [752, 480]
+    assert cam.getNode("rostopic").string() == "/cam0/image_raw" and cam.getNode("cam_overlaps").isSeq()
+    assert cam.getNode("timeshift_cam_imu").real() == 0.0
+    T = _cv_matrix(cam.getNode(key), 4, 4)
+    T_IC = T if key == "T_imu_cam" else np.linalg.inv(T)      # OpenVINS inverts T_cam_imu itself
+    assert np.allclose(T_IC, EUROC_T_BS, atol=1e-12)
+    fs_imu = cv2.FileStorage(str(tmp_path / "imu.yaml"), cv2.FILE_STORAGE_READ)
+    imu = fs_imu.getNode("imu0")
+    assert imu.getNode("gyroscope_noise_density").real() == EUROC_IMU.gyro_noise_density
+    assert imu.getNode("accelerometer_random_walk").real() == EUROC_IMU.accel_random_walk
+    assert imu.getNode("rostopic").string() == "/imu0" and imu.getNode("model").string() == "kalibr"
+    for name in ("Tw", "Ta", "R_IMUtoACC", "R_IMUtoGYRO"):
+        assert np.array_equal(_cv_matrix(imu.getNode(name), 3, 3), np.eye(3)), name
+    assert np.array_equal(_cv_matrix(imu.getNode("Tg"), 3, 3), np.zeros((3, 3)))
+    # and Kalibr's own readers (PyYAML) find their topics and rate
+    assert yaml.safe_load((tmp_path / "imu.yaml").read_text())["imu0"]["update_rate"] == 200.0
+    assert yaml.safe_load((tmp_path / "camchain.yaml").read_text())["cam0"]["rostopic"] == "/cam0/image_raw"
+
+
 def test_bundled_euroc_rig() -> None:
     rig = euroc_rig()
     assert rig.is_complete and rig.time_offset_s == 0.0 and rig.name == "euroc_mav_cam0"
