@@ -131,6 +131,8 @@ class StartupReport:
     ff_requests: int = 0
     ff_accepted: int = 0
     ff_rejections: dict = field(default_factory=dict)
+    ff_rejection_first: dict = field(default_factory=dict)
+    """{reason: the first such rejection's detail} (what the counts alone do not say)."""
     candidates_started: int = 0
     candidates_selected: int = 0
     candidates_abandoned: int = 0
@@ -316,6 +318,8 @@ class StartupManager:
             reason = getattr(result, "reason", type(result).__name__)
             counts = self.report.ff_extension_rejections if extension else self.report.ff_rejections
             counts[reason] = counts.get(reason, 0) + 1
+            if not extension:
+                self.report.ff_rejection_first.setdefault(reason, str(getattr(result, "detail", "")))
             seed = getattr(result, "seed", None)
             if self.publisher is not None:   # another filter publishes already: nothing to re-solve
                 self._resolves.drop()

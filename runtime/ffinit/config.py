@@ -74,6 +74,14 @@ class FFInitConfig:
     """Bound on the gyro-bias step of the DA3-gyro alignment, rad/s (added, issue 15). EuRoC's
     ADIS16448 starts with |bg| of about 0.08 rad/s (measured: the step on every V1_02 window is
     0.074-0.082); a larger step means the DA3 rotations, not the gyro, are wrong."""
+    max_gyro_rate_ratio: float = 15.0
+    """Refuse a window (`gyro_scale`) whose gyro turns more than this many times as fast as DA3 sees the
+    camera turn (runtime.ffinit.gyro_scale; added, not the paper's). Measured with the right units (every
+    window 0.5 s apart, emulated DA3 at 0.05x and 1x its pose errors): at most 1.17 on the seven presets,
+    1.74 on V1_02's real IMU and 3.1 on MH_03's (a MAV's vibration: the gyro's path exceeds the chord
+    between images); a gyroscope in deg/s gives 57 or more."""
+    gyro_scale_min_rate: float = 0.1
+    """DA3 rotation rate (rad/s) below which the gyro's scale is not judged (noise and bias dominate)."""
     rotation_huber_deg: float = 0.1
     """Huber threshold of the gyro-bias alignment's per-image rotation residuals, deg: one image with a
     wrong DA3 rotation does not drag the bias (the consistency gate then sees it)."""
@@ -131,6 +139,9 @@ class FFInitConfig:
 
         if self.point_rotations not in ("da3", "gyro"):
             raise ConfigError(f"ffinit.point_rotations must be 'da3' or 'gyro', got {self.point_rotations!r}")
+        for name in ("max_gyro_rate_ratio", "gyro_scale_min_rate"):
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"ffinit.{name} must be > 0, got {getattr(self, name)}")
         for name in ("accel_bias_sigma", "max_scale_uncertainty", "max_gyro_bias_change",
                      "rotation_huber_deg", "min_median_depth_m", "extension_edge_ratio",
                      "extension_point_spread", "extension_min_inlier_fraction"):

@@ -17,6 +17,7 @@ from runtime.events import Frame
 from runtime.ffinit.config import FFInitConfig
 from runtime.ffinit.extension import EXTENDABLE, ExtensionSeed, TrackSet, extended_observations
 from runtime.ffinit.gyro_bias import align_gyro_bias, rotation_residuals
+from runtime.ffinit.gyro_scale import check_gyro_scale
 from runtime.ffinit.linear import scale_bias_sensitivity
 from runtime.ffinit.refine import Refined, refine
 from runtime.ffinit.robust import RobustResult, robust_solve
@@ -209,4 +210,7 @@ class FeedForwardInitializer:
             window = rebuild(np.zeros(3) if bg is None else bg)
         except DataError as exc:
             return Rejection("imu_gap", str(exc))
+        wrong_scale = check_gyro_scale(t_cam, obs, imu_t_ns, gyro, self.time_offset_s, self.cfg)
+        if wrong_scale is not None:
+            return wrong_scale
         return solve_window(window, self.cfg, rebuild)

@@ -230,6 +230,11 @@ def test_recovery_lines_name_every_counted_recovery():
         "feed-forward windows rejected: refit_failed x1, small_baseline x3",
         "filter resets after divergence: 2 (3 segments)",
     ]
+    report["pipeline"]["startup"]["ff_rejections"]["gyro_scale"] = 4
+    report["pipeline"]["startup"]["ff_rejection_first"] = {"gyro_scale": "the gyroscope turns 57.1x as fast"}
+    lines = _recovery_lines(report)
+    assert lines[2] == "feed-forward windows rejected: gyro_scale x4, refit_failed x1, small_baseline x3"
+    assert lines[3].startswith("GYROSCOPE SCALE: 4 windows refused, the first: the gyroscope turns 57.1x")
 
 
 @pytest.mark.parametrize("args, message", [

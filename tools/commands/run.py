@@ -340,6 +340,10 @@ def _recovery_lines(report: dict) -> list[str]:
     if startup.get("ff_rejections"):
         reasons = ", ".join(f"{k} x{v}" for k, v in sorted(startup["ff_rejections"].items()))
         lines.append(f"feed-forward windows rejected: {reasons}")
+        if startup["ff_rejections"].get("gyro_scale"):
+            first = (startup.get("ff_rejection_first") or {}).get("gyro_scale", "")
+            lines.append(f"GYROSCOPE SCALE: {startup['ff_rejections']['gyro_scale']} windows refused, the "
+                         f"first: {first}. Fix the IMU's units or scale; every filter integrates them too")
     if startup.get("ff_extensions"):
         ext_rej = startup.get("ff_extension_rejections") or {}
         reasons = ", ".join(f"{k} x{v}" for k, v in sorted(ext_rej.items()))
