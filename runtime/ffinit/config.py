@@ -80,6 +80,13 @@ class FFInitConfig:
     window 0.5 s apart, emulated DA3 at 0.05x and 1x its pose errors): at most 1.17 on the seven presets,
     1.74 on V1_02's real IMU and 3.1 on MH_03's (a MAV's vibration: the gyro's path exceeds the chord
     between images); a gyroscope in deg/s gives 57 or more."""
+    extrinsics_check_deg: float = 10.0
+    """A window the DA3-gyro alignment refuses is refused as `extrinsics_rotation` instead when a hand-eye
+    fit on it finds a camera-IMU rotation at least this far (degrees) from the rig's, within
+    `extrinsics_check_rms_deg` (runtime.ffinit.extrinsics_check; added, not the paper's)."""
+    extrinsics_check_rms_deg: float = 0.1
+    """The hand-eye fit's RMS rotation residual (degrees) at most for that diagnosis (measured: 0.015-0.07
+    on hand-held windows with the rig's rotation inverted; a false one at 0.14 with 20x DA3 pose errors)."""
     gyro_scale_min_rate: float = 0.1
     """DA3 rotation rate (rad/s) below which the gyro's scale is not judged (noise and bias dominate)."""
     rotation_huber_deg: float = 0.1
@@ -139,7 +146,8 @@ class FFInitConfig:
 
         if self.point_rotations not in ("da3", "gyro"):
             raise ConfigError(f"ffinit.point_rotations must be 'da3' or 'gyro', got {self.point_rotations!r}")
-        for name in ("max_gyro_rate_ratio", "gyro_scale_min_rate"):
+        for name in ("max_gyro_rate_ratio", "gyro_scale_min_rate", "extrinsics_check_deg",
+                     "extrinsics_check_rms_deg"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"ffinit.{name} must be > 0, got {getattr(self, name)}")
         for name in ("accel_bias_sigma", "max_scale_uncertainty", "max_gyro_bias_change",

@@ -235,6 +235,12 @@ def test_recovery_lines_name_every_counted_recovery():
     lines = _recovery_lines(report)
     assert lines[2] == "feed-forward windows rejected: gyro_scale x4, refit_failed x1, small_baseline x3"
     assert lines[3].startswith("GYROSCOPE SCALE: 4 windows refused, the first: the gyroscope turns 57.1x")
+    report["pipeline"]["startup"]["ff_rejections"]["extrinsics_rotation"] = 1     # one window: not blamed
+    report["pipeline"]["startup"]["ff_rejection_first"]["extrinsics_rotation"] = "the rig's ... inverted"
+    assert not any(line.startswith("CAMERA-IMU") for line in _recovery_lines(report))
+    report["pipeline"]["startup"]["ff_rejections"]["extrinsics_rotation"] = 2
+    line = [x for x in _recovery_lines(report) if x.startswith("CAMERA-IMU ROTATION: 2 windows refused")]
+    assert len(line) == 1 and "inverted" in line[0] and "--withhold-extrinsics" in line[0]
 
 
 @pytest.mark.parametrize("args, message", [

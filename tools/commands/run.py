@@ -313,6 +313,11 @@ _DRIVER_COUNTERS = {
 }
 
 
+EXTRINSICS_WARNING_WINDOWS = 2
+"""Windows refused as extrinsics_rotation before the console blames the rig's rotation (one such window
+came with 20x DA3 pose errors and the right rotation, BENCHMARKS.md "Start-up checks of the rig")."""
+
+
 def _recovery_lines(report: dict) -> list[str]:
     """One console line per kind of recovery the run made (input repairs, initializer rejections,
     filter resets), so that nothing counted in report.json goes unnoticed on the console."""
@@ -340,10 +345,15 @@ def _recovery_lines(report: dict) -> list[str]:
     if startup.get("ff_rejections"):
         reasons = ", ".join(f"{k} x{v}" for k, v in sorted(startup["ff_rejections"].items()))
         lines.append(f"feed-forward windows rejected: {reasons}")
+        first = startup.get("ff_rejection_first") or {}
         if startup["ff_rejections"].get("gyro_scale"):
-            first = (startup.get("ff_rejection_first") or {}).get("gyro_scale", "")
             lines.append(f"GYROSCOPE SCALE: {startup['ff_rejections']['gyro_scale']} windows refused, the "
-                         f"first: {first}. Fix the IMU's units or scale; every filter integrates them too")
+                         f"first: {first.get('gyro_scale', '')}. Fix the IMU's units or scale; every filter "
+                         "integrates them too")
+        if startup["ff_rejections"].get("extrinsics_rotation", 0) >= EXTRINSICS_WARNING_WINDOWS:
+            lines.append(f"CAMERA-IMU ROTATION: {startup['ff_rejections']['extrinsics_rotation']} windows "
+                         f"refused, the first: {first.get('extrinsics_rotation', '')}. Check the rig file's "
+                         "T_cam_imu / T_imu_cam, or run with --withhold-extrinsics to estimate it")
     if startup.get("ff_extensions"):
         ext_rej = startup.get("ff_extension_rejections") or {}
         reasons = ", ".join(f"{k} x{v}" for k, v in sorted(ext_rej.items()))
