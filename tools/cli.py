@@ -71,14 +71,21 @@ def _usage_lines(p: argparse.ArgumentParser) -> str:
     return "\n".join(out)
 
 
-def _chosen_parser(parser: argparse.ArgumentParser, args: argparse.Namespace) -> argparse.ArgumentParser:
-    """The innermost (sub)command parser `args` went through (e.g. that of `davio eval ate`)."""
-    for action in parser._actions:
-        if isinstance(action, argparse._SubParsersAction):
-            name = getattr(args, action.dest, None)
-            if name in action.choices:
-                return _chosen_parser(action.choices[name], args)
-    return parser
+def _owner_parser(parser: argparse.ArgumentParser, args: argparse.Namespace, given: list[str],
+                  extra: list[str]) -> argparse.ArgumentParser:
+    """The (sub)command parser unrecognised tokens `extra` were given to: the innermost one `args` went
+    through (e.g. that of `davio eval ate`) whose command name comes before them in `given`
+    (`davio eval --frob ate` is eval's, `davio --frob run` the top level's)."""
+    level, start = parser, 0
+    while True:
+        sub = next((a for a in level._actions if isinstance(a, argparse._SubParsersAction)), None)
+        name = None if sub is None else getattr(args, sub.dest, None)
+        if sub is None or name not in sub.choices or name not in given[start:]:
+            return level
+        pos = given.index(name, start)
+        if any(tok in given[start:pos] for tok in extra):
+            return level
+        level, start = sub.choices[name], pos + 1
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -90,9 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     args, extra = parser.parse_known_args(argv)
     if extra:   # said by the command it was given to (with that command's usage)
         given = sys.argv[1:] if argv is None else list(argv)
-        before = given.index(args.command) if args.command in given else len(given)
-        top = any(tok in given[:before] for tok in extra)
-        (parser if top else _chosen_parser(parser, args)).error(f"unrecognized arguments: {' '.join(extra)}")
+        _owner_parser(parser, args, given, extra).error(f"unrecognized arguments: {' '.join(extra)}")
     if args.version:
         from importlib.metadata import version
 

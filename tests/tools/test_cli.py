@@ -54,6 +54,14 @@ def test_options_are_not_abbreviated_and_help_hides_none_defaults(capsys):
         main(["eval", "ate", "a.tum", "b.tum", "--frob"])
     err = capsys.readouterr().err
     assert "davio eval ate: error: unrecognized arguments: --frob" in err and "usage: davio eval ate" in err
+    # an unknown option is the parser's it was given to: before the subcommand, the command's
+    for argv, owner in ((["eval", "--frob", "ate", "a.tum", "b.tum"], "davio eval: "),
+                        (["map", "--frob", "info", "x"], "davio map: "),
+                        (["--frob", "eval", "ate", "a.tum", "b.tum"], "davio: ")):
+        with pytest.raises(SystemExit):
+            main(argv)
+        err = capsys.readouterr().err
+        assert f"{owner}error: unrecognized arguments: --frob" in err, (argv, err)
     parser = build_parser()
     sub = next(a for a in parser._actions if a.dest == "command")
     for sp in sub.choices.values():
