@@ -8,11 +8,11 @@ DAVIO extension keys, ignored by Kalibr and OpenVINS: ``rate_hz`` (camera rate) 
 IMU file keys (``imu0``): ``accelerometer_noise_density``, ``accelerometer_random_walk``,
 ``gyroscope_noise_density``, ``gyroscope_random_walk``, ``update_rate``.
 
-The writer's files load in Kalibr (PyYAML) and in OpenVINS 2.7 (OpenCV's FileStorage, which refuses
-block sequences at their key's indentation): each camera also gets ``rostopic`` and ``cam_overlaps``,
-the IMU file ``rostopic`` and the IMU intrinsics OpenVINS 2.7 requires (``model: kalibr``, identity
-``Tw``, ``Ta``, ``R_IMUtoGYRO``, ``R_IMUtoACC``, zero ``Tg``: no IMU intrinsics, DAVIO's model). OpenVINS
-reads ``T_cam_imu`` as well as its own ``T_imu_cam``.
+The writer's files load in Kalibr (PyYAML) and in OpenVINS 2.7 (OpenCV's FileStorage, which opens only a
+file starting with ``%YAML`` and refuses block sequences at their key's indentation): each camera also
+gets ``rostopic`` and ``cam_overlaps``, the IMU file ``rostopic`` and the IMU intrinsics OpenVINS 2.7
+requires (``model: kalibr``, identity ``Tw``, ``Ta``, ``R_IMUtoGYRO``, ``R_IMUtoACC``, zero ``Tg``: no IMU
+intrinsics, DAVIO's model). OpenVINS reads ``T_cam_imu`` as well as its own ``T_imu_cam``.
 
 Withheld values: absent extrinsics / timeshift (as in Kalibr's camera-only output) and null
 values read as None; any other absent key is an error.
@@ -189,10 +189,15 @@ def _camera_block(rig: Rig, extrinsics_key: str, topic: str) -> dict:
     return block
 
 
+YAML_DIRECTIVE = "%YAML 1.1\n---\n"
+"""First lines of every written file: OpenCV 3.x/4.x's FileStorage (OpenVINS 2.7's reader) opens a file
+only when it starts with "%YAML"; PyYAML (Kalibr's) refuses OpenCV's own "%YAML:1.0" but reads this."""
+
+
 def _header(comment: str | None) -> str:
     if not comment:
-        return ""
-    return "".join(f"# {line}".rstrip() + "\n" for line in comment.splitlines())
+        return YAML_DIRECTIVE
+    return YAML_DIRECTIVE + "".join(f"# {line}".rstrip() + "\n" for line in comment.splitlines())
 
 
 def write_kalibr(

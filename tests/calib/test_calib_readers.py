@@ -137,7 +137,7 @@ def test_writer_round_trip(rig: Rig, tmp_path: Path) -> None:
     assert back.name == rig.name
     assert back.missing() == rig.missing()
     assert load_rig(tmp_path / "camchain.yaml").isclose(rig, rtol=0, atol=1e-15)  # finds imu.yaml
-    assert (tmp_path / "camchain.yaml").read_text().startswith("# round trip\n# test\n")
+    assert (tmp_path / "camchain.yaml").read_text().startswith("%YAML 1.1\n---\n# round trip\n# test\n")
     without_imu = read_kalibr(tmp_path / "camchain.yaml")
     assert without_imu.imu is None
 
@@ -156,6 +156,8 @@ def test_written_files_load_as_openvins_2_7_reads_them(key: str, tmp_path: Path)
     cv2 = pytest.importorskip("cv2")
     rig = euroc_rig()
     write_kalibr(rig, tmp_path / "camchain.yaml", tmp_path / "imu.yaml", extrinsics_key=key, comment="x")
+    for name in ("camchain.yaml", "imu.yaml"):   # OpenCV 3.x/4.x open a file only when it starts so
+        assert (tmp_path / name).read_bytes()[:5] == b"%YAML"
     fs_cam = cv2.FileStorage(str(tmp_path / "camchain.yaml"), cv2.FILE_STORAGE_READ)   # kept open: nodes
     cam = fs_cam.getNode("cam0")                                                        # point into it
     assert cam.getNode("distortion_model").string() == "radtan"
