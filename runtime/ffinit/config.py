@@ -84,9 +84,12 @@ class FFInitConfig:
     """A window the DA3-gyro alignment refuses is refused as `extrinsics_rotation` instead when a hand-eye
     fit on it finds a camera-IMU rotation at least this far (degrees) from the rig's, within
     `extrinsics_check_rms_deg` (runtime.ffinit.extrinsics_check; added, not the paper's)."""
-    extrinsics_check_rms_deg: float = 0.1
-    """The hand-eye fit's RMS rotation residual (degrees) at most for that diagnosis (measured: 0.015-0.07
-    on hand-held windows with the rig's rotation inverted; a false one at 0.14 with 20x DA3 pose errors)."""
+    extrinsics_check_rms_deg: float = 0.5
+    """The hand-eye fit's RMS rotation residual (degrees) at most for that diagnosis: a fit no better is not
+    trusted whatever the rig's."""
+    extrinsics_check_ratio: float = 10.0
+    """...and the rig's own rotation (with the alignment's gyro-bias step) must leave at least this many
+    times the fit's RMS residual (`davio bench rig-checks`, BENCHMARKS.md "Start-up checks of the rig")."""
     gyro_scale_min_rate: float = 0.1
     """DA3 rotation rate (rad/s) below which the gyro's scale is not judged (noise and bias dominate)."""
     rotation_huber_deg: float = 0.1
@@ -147,7 +150,7 @@ class FFInitConfig:
         if self.point_rotations not in ("da3", "gyro"):
             raise ConfigError(f"ffinit.point_rotations must be 'da3' or 'gyro', got {self.point_rotations!r}")
         for name in ("max_gyro_rate_ratio", "gyro_scale_min_rate", "extrinsics_check_deg",
-                     "extrinsics_check_rms_deg"):
+                     "extrinsics_check_ratio", "extrinsics_check_rms_deg"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"ffinit.{name} must be > 0, got {getattr(self, name)}")
         for name in ("accel_bias_sigma", "max_scale_uncertainty", "max_gyro_bias_change",
