@@ -98,6 +98,25 @@ def transforms_agree(T_a: np.ndarray, T_b: np.ndarray, c_N: np.ndarray, cfg: Ali
     return bool(abs(dyaw) <= cfg.agree_deg and gap <= cfg.agree_m)
 
 
+def replaces(old_group: list[Hypothesis], old_T: np.ndarray, group: list[Hypothesis], T: np.ndarray,
+             held: set[int], cfg: AlignConfig) -> bool:
+    """Whether consensus `group` (transform T) replaces the last one (`old_group`, `old_T`) rather than
+    refining it: the two transforms disagree at the new group's cameras (`transforms_agree`), the groups
+    share no hypothesis, and either some of the old group are still held (`held`: ids of the hypotheses
+    kept) and so outvoted, or, when all were dropped, the transforms lie more than half the revisit search
+    radius apart (a drifting refinement whose old pairs aged out is not a replacement)."""
+    c = np.mean([h.c_N for h in group], axis=0)
+    if transforms_agree(old_T, T, c, cfg):
+        return False
+    old_ids = {id(h) for h in old_group}
+    if old_ids & {id(h) for h in group}:
+        return False
+    if old_ids & held:
+        return True
+    gap = np.linalg.norm(old_T[:3, :3] @ c + old_T[:3, 3] - T[:3, :3] @ c - T[:3, 3])
+    return bool(gap > 0.5 * cfg.gates.candidate_radius_m)
+
+
 def _largest_group(A: np.ndarray, new: np.ndarray, idx: np.ndarray) -> tuple[int, np.ndarray]:
     """(centre, members): among hypotheses `idx`, the one whose agreeing members (within `idx`) come
     from the most distinct new views (then the most members), and those members."""

@@ -54,14 +54,16 @@ class PriorFrame:
         """Take up transforms the localizer changed since the last call (tracking thread), from sensor
         time t_ns."""
         for seg, version in self.localizer.segment_versions().items():
-            if version <= self._seen.get(seg, 0):
+            seen = self._seen.get(seg, 0)
+            if version <= seen:
                 continue
-            T = self.localizer.T_PN(seg)
+            version, T, switched = self.localizer.state(seg)
             if T is None:
                 continue
             tl = self.timelines.setdefault(seg, CorrectionTimeline())
             t = max(int(t_ns), tl.last_commit_ns or 0)
-            tl.commit(t, T, version, immediate=len(tl) == 0 or self.localizer.switched_at(seg) == version)
+            # a replacement since the last update applies at once, even when a refinement followed it
+            tl.commit(t, T, version, immediate=len(tl) == 0 or switched > seen)
             self._seen[seg] = version
             self.localized_at_ns.setdefault(seg, t)
 

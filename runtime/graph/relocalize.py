@@ -42,9 +42,9 @@ from runtime.graph.place_consensus import (
     centres,
     consensus,
     fit_transform,
+    replaces,
     rms,
     tilt_deg,
-    transforms_agree,
     yaw_deg,
 )
 from runtime.graph.revisits import STAGES, RevisitView, verify_geometry
@@ -169,7 +169,7 @@ class PriorMapLocalizer:
     whose centres lie within `candidate_radius_m` (the revisits' 8 m) of where the transform puts it;
     when none of those verifies, against the best-ranked prior views anywhere (`global_fallbacks`), so
     that a wrong early lock (three views verified against a look-alike place) can still be outvoted:
-    the consensus then replaces the transform with one that disagrees with it (`switches`), which a live run
+    the consensus then replaces the transform with another group's (`switches`), which a live run
     applies at once rather than blending towards it.
 
     Args:
@@ -208,7 +208,7 @@ class PriorMapLocalizer:
         self.global_fallbacks = 0
         """Views of a localised segment tried against the whole prior map because nothing near verified."""
         self.switches: dict[int, int] = {}
-        """{segment: times its transform was replaced by one that disagrees with it (`transforms_agree`)}."""
+        """{segment: times its transform was replaced by another consensus (`place_consensus.replaces`)}."""
         self.switch_versions: dict[int, int] = {}
         self._hyps: dict[int, list[Hypothesis]] = {}
         self._result: dict[int, tuple[list[int], str, np.ndarray | None, str]] = {}
@@ -307,16 +307,25 @@ class PriorMapLocalizer:
             if changed:
                 self.version += 1
                 self.versions[seg] = self.version
-                if old is not None and old[2] is not None and not transforms_agree(
-                        old[2], T, np.mean([h.c_N for h in group], axis=0), self.cfg):
+                if old is not None and old[2] is not None and replaces(old[0], old[2], group, T,
+                                                                       {id(h) for h in hyps}, self.cfg):
                     self.switches[seg] = self.switches.get(seg, 0) + 1
                     self.switch_versions[seg] = self.version
         return changed
 
     def switched_at(self, segment: int) -> int:
-        """The version at which the segment's transform was last replaced by a disagreeing one (0: never)."""
+        """The version at which the segment's transform was last replaced by another consensus (0: never)."""
         with self._lock:
             return self.switch_versions.get(int(segment), 0)
+
+    def state(self, segment: int) -> tuple[int, np.ndarray | None, int]:
+        """(version, T_PN or None, switch version) of the segment, read together under the lock (a
+        thread applying them must not pair one commit's transform with another's version)."""
+        seg = int(segment)
+        with self._lock:
+            r = self._result.get(seg)
+            T = None if r is None or r[2] is None else r[2].copy()
+            return self.versions.get(seg, 0), T, self.switch_versions.get(seg, 0)
 
     def segment_versions(self) -> dict[int, int]:
         """{segment: the version its transform last changed at} (a copy, thread-safe)."""

@@ -415,3 +415,61 @@ def test_a_consistent_refinement_is_not_counted_as_a_switch():
     loc = PriorMapLocalizer(prior, _match, AlignConfig(words=64))
     changed = [loc.add_view(b) for b in new]
     assert changed.count(True) >= 2 and loc.switches == {} and loc.switched_at(0) == 0
+
+
+def test_a_replacement_is_told_from_a_refinement():
+    from runtime.graph.place_consensus import replaces
+
+    cfg = AlignConfig()
+    at = np.array([30.0, 0.0, 1.0])       # the new group's cameras 30 m from the new map's origin
+
+    def group(views, yaw, t):
+        out = [_hyp(v, yaw, t) for v in views]
+        for h in out:
+            h.c_N = at.copy()
+        return out
+
+    old = group([0, 1, 2], 0.0, [0.0, 0.0, 0.0])
+    T_old = old[0].T_PN
+    # a refinement that moves 0.37 m at 30 m (0.7 deg of yaw) but keeps two of the old pairs: not a switch
+    ref = old[:2] + group([3, 4], 0.7, [0.0, 0.0, 0.0])
+    held = {id(h) for h in old + ref}
+    assert not replaces(old, T_old, ref, _pose(_rz(0.7), [0, 0, 0]), held, cfg)
+    # another place's group while the old pairs are still held: a switch
+    other = group([5, 6, 7], 0.0, [20.0, 0.0, 0.0])
+    T_other = other[0].T_PN
+    assert replaces(old, T_old, other, T_other, held | {id(h) for h in other}, cfg)
+    # the old pairs aged out: a 0.4 m drift is not a switch, a 20 m jump is
+    drift = group([8, 9, 10], 0.0, [0.4, 0.0, 0.0])
+    assert not replaces(old, T_old, drift, drift[0].T_PN, {id(h) for h in drift}, cfg)
+    assert replaces(old, T_old, other, T_other, {id(h) for h in other}, cfg)
+    # agreeing transforms are never a switch
+    assert not replaces(old, T_old, group([11, 12, 13], 0.0, [0.1, 0.0, 0.0]), _pose(_rz(0.0), [0.1, 0, 0]),
+                        held, cfg)
+
+
+def test_a_switch_followed_by_a_refinement_before_the_tracking_thread_looks_still_applies_at_once():
+    """The model worker may commit the replacing transform and a refinement of it before the tracking
+    thread's next update: the jump must not be blended from the wrong place."""
+    from types import SimpleNamespace
+
+    from runtime.graph.prior_frame import PriorFrame
+
+    T_PW, T_NW = _pose(_rz(-25.0), [0.4, 1.1, 0.0]), _pose(_rz(40.0), [1.5, -2.0, 0.3])
+    prior, new = _look_alike_sessions(T_PW, T_NW)
+    T_true = T_PW @ np.linalg.inv(T_NW)
+    pf = PriorFrame(PriorMapLocalizer(prior, _match, AlignConfig(words=64)), "prior")
+    T_MI = _pose(_rz(10.0), [1.0, 2.0, 0.5])
+    switch_view = None
+    for k, b in enumerate(new):
+        pf.on_submap(SimpleNamespace(index=b.index, T_MS=b.T_MS, view=(b.features, b.view), segment=0))
+        if pf.localizer.switches and switch_view is None:
+            switch_view = k
+        if switch_view is None or k > switch_view + 1:
+            pf.update(10**9 * (k + 1))
+        if switch_view is not None and k == switch_view + 1:
+            assert pf.localizer.version > pf.localizer.switched_at(0)     # a refinement came after it
+            pf.update(10**9 * (k + 1))
+            T_PI = pf.pose(0, 10**9 * (k + 1), T_MI)
+            assert np.linalg.norm(T_PI[:3, 3] - (T_true @ T_MI)[:3, 3]) < 0.05
+    assert switch_view is not None and switch_view + 1 < len(new)

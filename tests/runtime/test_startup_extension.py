@@ -118,3 +118,16 @@ def test_a_refusal_that_arrives_after_another_filter_published_keeps_no_seed():
     assert m.published
     m.on_feedforward(_refusal(), extension=True)
     assert not m.extension_pending() and m.extension() is None
+
+
+def test_the_report_keeps_each_rejection_reasons_first_detail():
+    from runtime.ffinit.window import Rejection
+
+    m, _ = _manager()
+    m.on_feedforward(Rejection("gyro_scale", "the gyroscope turns 57.3x as fast"))
+    m.on_feedforward(Rejection("gyro_scale", "the gyroscope turns 60.1x as fast"))
+    m.on_feedforward(Rejection("small_baseline", "baseline 0.01"))
+    m.on_feedforward(Rejection("gyro_bias_step", "re-solve"), extension=True)    # a re-solve's: not kept
+    assert m.report.ff_rejections == {"gyro_scale": 2, "small_baseline": 1}
+    assert m.report.ff_rejection_first == {"gyro_scale": "the gyroscope turns 57.3x as fast",
+                                           "small_baseline": "baseline 0.01"}
