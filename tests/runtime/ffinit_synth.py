@@ -39,22 +39,18 @@ class Truth:
 
 def motion(kind: str):
     """Closed-form p_WI(t), v_W(t), R_WI(t) for a motion kind."""
-    if kind == "general":
+    if kind in ("general", "tumbling"):   # tumbling: turning about all three axes (hand-eye observable)
         w = np.array([2.1, 2.7, 1.7])
         amp = np.array([0.6, 0.5, 0.3])
         phase = np.array([0.3, 1.1, 2.0])
         p = lambda t: amp * np.sin(w * t + phase)  # noqa: E731
         v = lambda t: amp * w * np.cos(w * t + phase)  # noqa: E731
-        R = lambda t: Rotation.from_rotvec(  # noqa: E731
-            [0.25 * np.sin(1.3 * t), 0.4 * t, 0.15 * np.cos(0.9 * t)]).as_matrix()
-    elif kind == "tumbling":   # "general"'s translation, turning about all three axes (hand-eye observable)
-        w = np.array([2.1, 2.7, 1.7])
-        amp = np.array([0.6, 0.5, 0.3])
-        phase = np.array([0.3, 1.1, 2.0])
-        p = lambda t: amp * np.sin(w * t + phase)  # noqa: E731
-        v = lambda t: amp * w * np.cos(w * t + phase)  # noqa: E731
-        R = lambda t: Rotation.from_rotvec(  # noqa: E731
-            [0.5 * np.sin(2.3 * t), 0.6 * t, 0.4 * np.cos(1.7 * t) - 0.4]).as_matrix()
+        if kind == "general":
+            R = lambda t: Rotation.from_rotvec(  # noqa: E731
+                [0.25 * np.sin(1.3 * t), 0.4 * t, 0.15 * np.cos(0.9 * t)]).as_matrix()
+        else:
+            R = lambda t: Rotation.from_rotvec(  # noqa: E731
+                [0.5 * np.sin(2.3 * t), 0.6 * t, 0.4 * np.cos(1.7 * t) - 0.4]).as_matrix()
     elif kind == "constant_velocity":
         vel = np.array([0.5, 0.2, 0.05])
         p = lambda t: vel * t  # noqa: E731
