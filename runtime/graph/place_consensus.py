@@ -89,13 +89,17 @@ def agreement(hyps: list[Hypothesis], cfg: AlignConfig, block: int = 256) -> np.
     return out
 
 
+def _gap_m(T_a: np.ndarray, T_b: np.ndarray, c_N: np.ndarray) -> float:
+    """Distance (m) between where two transforms T_PN put new-frame point c_N (3,)."""
+    c = np.asarray(c_N, np.float64)
+    return float(np.linalg.norm(T_a[:3, :3] @ c + T_a[:3, 3] - T_b[:3, :3] @ c - T_b[:3, 3]))
+
+
 def transforms_agree(T_a: np.ndarray, T_b: np.ndarray, c_N: np.ndarray, cfg: AlignConfig) -> bool:
     """Whether two transforms T_PN agree as two hypotheses do (`agreement`): yaws within agree_deg and
     new-frame point c_N (3,) placed within agree_m by both."""
     dyaw = (yaw_deg(T_a[:3, :3]) - yaw_deg(T_b[:3, :3]) + 180.0) % 360.0 - 180.0
-    c = np.asarray(c_N, np.float64)
-    gap = np.linalg.norm(T_a[:3, :3] @ c + T_a[:3, 3] - T_b[:3, :3] @ c - T_b[:3, 3])
-    return bool(abs(dyaw) <= cfg.agree_deg and gap <= cfg.agree_m)
+    return bool(abs(dyaw) <= cfg.agree_deg and _gap_m(T_a, T_b, c_N) <= cfg.agree_m)
 
 
 def replaces(old_group: list[Hypothesis], old_T: np.ndarray, group: list[Hypothesis], T: np.ndarray,
@@ -113,8 +117,7 @@ def replaces(old_group: list[Hypothesis], old_T: np.ndarray, group: list[Hypothe
         return False
     if old_ids & held:
         return True
-    gap = np.linalg.norm(old_T[:3, :3] @ c + old_T[:3, 3] - T[:3, :3] @ c - T[:3, 3])
-    return bool(gap > 0.5 * cfg.gates.candidate_radius_m)
+    return _gap_m(old_T, T, c) > 0.5 * cfg.gates.candidate_radius_m
 
 
 def _largest_group(A: np.ndarray, new: np.ndarray, idx: np.ndarray) -> tuple[int, np.ndarray]:
