@@ -28,15 +28,16 @@ def rotation_angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> float:
     return float(np.degrees(np.linalg.norm(so3_log(np.asarray(R_a).T @ np.asarray(R_b)))))
 
 
-def check_extrinsic_rotation(window: InitWindow, cfg: FFInitConfig, dbg: np.ndarray | None = None
-                             ) -> Rejection | None:
+def check_extrinsic_rotation(window: InitWindow, cfg: FFInitConfig, dbg: np.ndarray | None = None,
+                             bg_ref: np.ndarray | None = None) -> Rejection | None:
     """An `extrinsics_rotation` Rejection when the window's rotations fit a camera–IMU rotation far from
     the rig's (module docstring), else None: the window rotates about one axis only, no rotation fits it
     well, the rig's is near the fit, or the rig's own rotation (with the alignment's gyro-bias step
     `dbg`, rad/s) fits nearly as well: then the bias or DA3's noise, not the rotation, is what is off
     (with one window and a free bias, a large bias can be traded for a rotated R_IC: a review found 8-13
     of 120 windows of a right rig with a 0.3 rad/s bias fitted 13-41 deg off, while the rig's rotation
-    fitted them within 0.07-0.13 deg with the bias step)."""
+    fitted them within 0.07-0.13 deg with the bias step). The fit's gyro bias must lie within
+    `max_gyro_bias_change` of `bg_ref` (the bias before the alignment; default: the window's)."""
     if window.num_images < 3:
         return None
     r = rotation_residuals(window, np.zeros(3) if dbg is None else np.asarray(dbg, float))
@@ -47,9 +48,10 @@ def check_extrinsic_rotation(window: InitWindow, cfg: FFInitConfig, dbg: np.ndar
     if not isinstance(fit, HandEyeResult):
         return None
     off_deg = rotation_angle_deg(window.R_IC, fit.R_IC)
+    bias_step = np.linalg.norm(fit.bg - (window.bg if bg_ref is None else bg_ref))
     if not (fit.rms_deg <= cfg.extrinsics_check_rms_deg and off_deg >= cfg.extrinsics_check_deg
             and rig_rms_deg >= cfg.extrinsics_check_ratio * fit.rms_deg
-            and np.linalg.norm(fit.bg - window.bg) <= cfg.max_gyro_bias_change):
+            and bias_step <= cfg.max_gyro_bias_change):
         return None
     inverted = rotation_angle_deg(window.R_IC.T, fit.R_IC) <= cfg.extrinsics_check_deg / 2
     return Rejection("extrinsics_rotation",

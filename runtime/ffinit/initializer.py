@@ -60,10 +60,11 @@ def solve_window(window: InitWindow, cfg: FFInitConfig, rebuild=None) -> InitRes
 
     rebuild(bg) -> InitWindow re-preintegrates at a new gyro bias (None: keep first order).
     """
+    bg0 = np.asarray(window.bg, float).copy()
     dbg = align_gyro_bias(window, huber_rad=np.radians(cfg.rotation_huber_deg))
     dbg_total = dbg.copy()
     if not np.linalg.norm(dbg) <= cfg.max_gyro_bias_change:
-        return check_extrinsic_rotation(window, cfg, dbg) or Rejection("gyro_bias_step",
+        return check_extrinsic_rotation(window, cfg, dbg, bg0) or Rejection("gyro_bias_step",
                          f"DA3-gyro alignment asks for a gyro-bias step of {np.linalg.norm(dbg):.3f} rad/s "
                          f"(> {cfg.max_gyro_bias_change})")
     if rebuild is not None and np.linalg.norm(dbg) > 0:
@@ -72,7 +73,7 @@ def solve_window(window: InitWindow, cfg: FFInitConfig, rebuild=None) -> InitRes
     # DA3-gyro consistency after the bias alignment: large DA3 rotation errors make wrong scales
     rot_rms_deg = float(np.degrees(np.sqrt(np.mean(np.sum(rotation_residuals(window, dbg) ** 2, axis=1)))))
     if not rot_rms_deg <= cfg.max_rotation_residual_deg:
-        return check_extrinsic_rotation(window, cfg, dbg) or Rejection("rotation_inconsistent",
+        return check_extrinsic_rotation(window, cfg, dbg, bg0) or Rejection("rotation_inconsistent",
                          f"DA3 and gyro rotations differ by {rot_rms_deg:.3f} deg RMS after the bias "
                          f"alignment (> {cfg.max_rotation_residual_deg})")
     if cfg.point_rotations == "gyro":

@@ -63,6 +63,11 @@ def test_the_solve_refuses_an_inverted_rig_for_that_reason():
 def _preintegrated_window(seed: int, bg: np.ndarray, noise_deg: float, R_IC_rig: np.ndarray):
     """A window built as the initializer builds it (preintegrated 1 kHz gyro with bias `bg`, so the
     bias Jacobians are real), turning at w0 + t w1 about random axes; DA3 rotations with noise_deg."""
+    return _preintegrated(seed, bg, noise_deg, R_IC_rig)(np.zeros(3))
+
+
+def _preintegrated(seed: int, bg: np.ndarray, noise_deg: float, R_IC_rig: np.ndarray):
+    """The window of `_preintegrated_window` as the initializer's rebuild: gyro bias -> InitWindow."""
     rng = np.random.default_rng(seed)
     w0, w1 = rng.normal(size=3) * 0.6, rng.normal(size=3)
     t = np.arange(-0.05, 0.85, 1e-3)
@@ -81,7 +86,7 @@ def _preintegrated_window(seed: int, bg: np.ndarray, noise_deg: float, R_IC_rig:
         noise = Rotation.from_rotvec(rng.normal(size=3) * np.radians(noise_deg) / np.sqrt(3)).as_matrix()
         obs.append(ImageObservations(np.zeros((3, 2)), np.ones(3), np.ones(3),
                                      R_WC[0].T @ R_WC[i] @ (noise if i else np.eye(3)), np.zeros(3)))
-    return build_window(t_cam, obs, t_ns, gyro, accel, R_IC_rig, P_IC_EUROC, 0.0, np.zeros(3))
+    return lambda bg_est: build_window(t_cam, obs, t_ns, gyro, accel, R_IC_rig, P_IC_EUROC, 0.0, bg_est)
 
 
 def test_a_large_gyro_bias_on_a_right_rig_is_not_blamed_on_the_rotation():
@@ -102,3 +107,14 @@ def test_a_large_gyro_bias_on_a_right_rig_is_not_blamed_on_the_rotation():
                         "reason", "accepted") for s in range(10)]
     assert inverted.count("extrinsics_rotation") >= 5 and set(inverted) <= {"extrinsics_rotation",
                                                                                 "gyro_bias_step"}
+
+
+def test_the_check_also_names_a_rotated_rig_after_the_bias_rebuild():
+    """A 15 deg rotated rig whose window passes the bias-step bound: the window is re-preintegrated at the
+    aligned bias (the initializer's rebuild) and refused for inconsistent rotations, which the check names."""
+    cfg = FFInitConfig()
+    rebuild = _preintegrated(1, Rotation.random(random_state=1).apply([0.1, 0.0, 0.0]), 0.05, _rotated(15.0))
+    rej = solve_window(rebuild(np.zeros(3)), cfg, rebuild)
+    assert rej.reason == "extrinsics_rotation" and "inverted" not in rej.detail
+    unchecked = solve_window(rebuild(np.zeros(3)), replace(cfg, extrinsics_check_deg=180.0), rebuild)
+    assert unchecked.reason == "rotation_inconsistent"      # the branch the check was asked from

@@ -439,6 +439,10 @@ def test_a_replacement_is_told_from_a_refinement():
     other = group([5, 6, 7], 0.0, [20.0, 0.0, 0.0])
     T_other = other[0].T_PN
     assert replaces(old, T_old, other, T_other, held | {id(h) for h in other}, cfg)
+    # 2 m away (inside the 4 m bar): a switch while the old pairs are held, not once they aged out
+    near = group([14, 15, 16], 0.0, [2.0, 0.0, 0.0])
+    assert replaces(old, T_old, near, near[0].T_PN, held | {id(h) for h in near}, cfg)
+    assert not replaces(old, T_old, near, near[0].T_PN, {id(h) for h in near}, cfg)
     # the old pairs aged out: a 0.4 m drift is not a switch, a 20 m jump is
     drift = group([8, 9, 10], 0.0, [0.4, 0.0, 0.0])
     assert not replaces(old, T_old, drift, drift[0].T_PN, {id(h) for h in drift}, cfg)

@@ -314,8 +314,10 @@ _DRIVER_COUNTERS = {
 
 
 EXTRINSICS_WARNING_WINDOWS = 2
-"""Windows refused as extrinsics_rotation before the console blames the rig's rotation (one such window
-came with 20x DA3 pose errors and the right rotation, BENCHMARKS.md "Start-up checks of the rig")."""
+"""Windows refused as extrinsics_rotation before the console blames the rig's rotation: one window is one
+hand-eye fit of four rotations (`davio bench rig-checks` saw no such window with the right rotation, and
+several per recording with it inverted wherever the rig turns about two axes: BENCHMARKS.md "Start-up
+checks of the rig")."""
 
 
 def _recovery_lines(report: dict) -> list[str]:
