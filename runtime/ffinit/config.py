@@ -76,11 +76,10 @@ class FFInitConfig:
     0.074-0.082); a larger step means the DA3 rotations, not the gyro, are wrong."""
     max_gyro_rate_ratio: float = 15.0
     """Refuse a window (`gyro_scale`) whose gyro turns more than this many times as fast as DA3 sees the
-    camera turn (runtime.ffinit.gyro_scale; added, not the paper's). Measured with the right units (every
-    window 0.5 s apart, emulated DA3 at 0.05x and 1x its pose errors): at most 1.17 on the seven presets,
-    1.74 on V1_02's real IMU and 3.1 on MH_03's (a MAV's vibration: the gyro's path exceeds the chord
-    between images, so vibration near the 5 Hz image rate raises the ratio); a gyroscope in deg/s gives 57
-    or more."""
+    camera turn (runtime.ffinit.gyro_scale; added, not the paper's). Measured with the right units
+    (`davio bench rig-checks`, DA3 pose errors x1-x20): at most 1.17 on the seven presets, 1.74 on V1_02's
+    real IMU and 3.3 on MH_03's (a MAV's vibration: the gyro's path exceeds the chord between images, so
+    vibration near the 5 Hz image rate raises the ratio); a gyroscope in deg/s gives 57 or more."""
     extrinsics_check_deg: float = 10.0
     """A window the DA3-gyro alignment refuses is refused as `extrinsics_rotation` instead when a hand-eye
     fit on it finds a camera-IMU rotation at least this far (degrees) from the rig's, within

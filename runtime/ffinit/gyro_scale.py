@@ -5,8 +5,9 @@ fast as the camera does. The bias alignment then asks for an impossible bias ste
 inconsistent, and the window is refused for a reason that does not name the cause. Comparing rates names
 it: over the window's span, the mean of |omega| (the gyro's path, trapezoidal) against the sum of DA3's
 rotation angles between consecutive images (a chord, so at most the path) divided by the span. With the
-right units the ratio is about 1 (measured up to 1.17 on the simulator's presets, 3.1 on MH_03's real
-IMU); a ratio above `FFInitConfig.max_gyro_rate_ratio` (15) is refused as `gyro_scale`.
+right units the ratio is about 1 (measured up to 1.17 on the simulator's presets, 3.3 on MH_03's real
+IMU: `davio bench rig-checks`); a ratio above `FFInitConfig.max_gyro_rate_ratio` (15) is refused as
+`gyro_scale`.
 """
 from __future__ import annotations
 
