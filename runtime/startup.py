@@ -150,6 +150,9 @@ class StartupReport:
     ff_windows_imu_lost: int = 0
     """Feed-forward windows not solved: the live driver lost IMU samples inside them."""
     published_by: str | None = None
+    """The filter publishing now (None after a reset, until another is selected)."""
+    first_published_by: str | None = None
+    """The filter that published the run's first state (kept through resets)."""
     first_publish_t_ns: int | None = None
     first_measurement_t_ns: int | None = None
     restarts_after_divergence: int = 0
@@ -393,6 +396,8 @@ class StartupManager:
         self.publisher_source = source
         self.publisher_id = fid
         self.report.published_by = source
+        if self.report.first_published_by is None:
+            self.report.first_published_by = source
         for c in self.candidates:
             if c.filter is not filt and c.status == "replaying":
                 c.status = "outrun"

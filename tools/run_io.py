@@ -355,6 +355,7 @@ def write_run(out_dir: Path, pipeline: Any, sched_report: Any, gt: PoseTrajector
                       "source": pipeline.history.source(rows["source"][a])} for a, b in bounds],
         "metrics_segment": len(bounds) - 1 if bounds else None,
         "published_by": None if st is None else st.published_by,
+        "first_published_by": None if st is None else st.first_published_by,
         "T_f_s": None if t_pub is None or t0 is None else (t_pub - t0) * 1e-9,
         "metrics": evaluate(est, gt),
         "metrics_causal": evaluate(causal, gt),

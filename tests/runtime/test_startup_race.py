@@ -210,6 +210,7 @@ def test_restart_after_the_publisher_diverges():
     events = _stream(6.0)
     pub = _feed(m, [e for e in events if e[1] <= 3000 * MS], offers=[(2000 * MS, 1500 * MS)])
     assert m.report.published_by is None and m.report.restarts_after_divergence == 1
+    assert m.report.first_published_by == "feedforward"          # who published first is kept
     assert m.native is first and m.publisher is None
     assert pub and {(p.source, p.segment) for p in pub} == {("feedforward", 0)}
     assert pub[-1].t_cam_ns < 3000 * MS
@@ -228,6 +229,7 @@ def test_after_a_restart_the_diverged_filter_can_publish_natively():
     m = StartupManager(_factory(RecordingFilter(), first))
     pub = _feed(m, _stream(6.0), offers=[(2000 * MS, 1500 * MS)])
     assert m.report.restarts_after_divergence == 1 and m.report.published_by == "native:static"
+    assert m.report.first_published_by == "feedforward"
     before = [p for p in pub if p.segment == 0]
     after = [p for p in pub if p.segment == 1]
     assert before and {p.source for p in before} == {"feedforward"} and before[-1].t_cam_ns < 3000 * MS

@@ -292,3 +292,14 @@ def test_imu_values_beyond_any_imu_are_dropped_and_said(tmp_path, capsys):
     text, report = _run_with_imu_lines(tmp_path, capsys, lines)
     assert "IMU samples beyond any IMU's range dropped: 1" in text
     assert report["pipeline"]["tracking"]["imu_out_of_range"] == 1 and report["published_poses"] > 0
+
+
+def test_the_summary_names_who_published_first_even_after_a_reset():
+    from tools.commands.run import _first_published_line as line
+
+    base = {"T_f_s": 2.03, "published_poses": 16}
+    assert line({**base, "first_published_by": "native:static", "published_by": None}) == (
+        "first published state: 2.03 s by native:static (at the end: nobody, after a reset); 16 poses")
+    assert line({**base, "first_published_by": "feedforward", "published_by": "feedforward"}).endswith(
+        "2.03 s by feedforward; 16 poses")
+    assert line({"T_f_s": None, "published_poses": 0}) == "first published state: none by -; 0 poses"

@@ -127,13 +127,13 @@ def _native_only(rec, config, args: argparse.Namespace) -> dict:
     st = res.pipeline.startup.report
     t0 = res.scheduler.first_t_ns
     t_f = None if st.first_publish_t_ns is None or t0 is None else (st.first_publish_t_ns - t0) * 1e-9
-    return {"T_f_s": t_f, "published_by": st.published_by, "seconds": args.seconds}
+    return {"T_f_s": t_f, "published_by": st.first_published_by, "seconds": args.seconds}
 
 
 def _race_line(report: dict) -> str:
     """Who published first and when, beside the native initializer alone on the same recording."""
     first = report.get("T_f_s")
-    who = report.get("published_by") or "nobody"
+    who = report.get("first_published_by") or report.get("published_by") or "nobody"
     line = f"start-up race: {who} published first, at {first:.2f} s" if first is not None else \
         "start-up race: nothing was published"
     nat = report.get("native_only")

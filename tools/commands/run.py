@@ -223,11 +223,18 @@ def _run(args, folder, rec, rig, model, model_desc: str, config, prior=None) -> 
     return conclude(folder, res, report, as_json=args.json, summary=_summary)
 
 
+def _first_published_line(report: dict) -> str:
+    """When the first state was published and by whom (and who publishes at the end, when another)."""
+    tf = report.get("T_f_s")
+    first, now = report.get("first_published_by"), report.get("published_by")
+    at_end = "" if first is None or now == first else f" (at the end: {now or 'nobody, after a reset'})"
+    return (f"first published state: {'none' if tf is None else f'{tf:.2f} s'} by {first or now or '-'}"
+            f"{at_end}; {report['published_poses']} poses")
+
+
 def _summary(report: dict, out: Path) -> None:
     m = report.get("metrics", {})
-    tf = report.get("T_f_s")
-    print(f"  first published state: {'none' if tf is None else f'{tf:.2f} s'}"
-          f" by {report.get('published_by') or '-'}; {report['published_poses']} poses")
+    print("  " + _first_published_line(report))
     if m and "ate_se3_m" not in m and m.get("ate_se3_error"):
         print(f"  ATE: not computed: {m['ate_se3_error']}")
     elif m:
