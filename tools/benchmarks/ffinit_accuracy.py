@@ -182,13 +182,20 @@ def measure_recording(rec: Any, ks: list[float], reference: str, every_s: float,
     return rows
 
 
-def run(args: argparse.Namespace) -> int:
+def parse_k(text: str) -> list[float]:
+    """The pose-error factors of `--k` (comma-separated numbers); ConfigError otherwise."""
     from runtime.errors import ConfigError
 
     try:
-        ks = [float(x) for x in args.k.split(",") if x.strip()]
+        return [float(x) for x in text.split(",") if x.strip()]
     except ValueError as exc:
-        raise ConfigError(f"--k expects comma-separated numbers, got {args.k!r}") from exc
+        raise ConfigError(f"--k expects comma-separated numbers, got {text!r}") from exc
+
+
+def run(args: argparse.Namespace) -> int:
+    from runtime.errors import ConfigError
+
+    ks = parse_k(args.k)
     from models.emulated_da3.params import POSE_ERROR_FIELDS
 
     fields = None if not args.fields else [f.strip() for f in args.fields.split(",") if f.strip()]

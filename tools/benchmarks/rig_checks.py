@@ -133,11 +133,9 @@ def run(args: argparse.Namespace) -> int:
     from runtime.errors import ConfigError
     from runtime.ffinit.config import FFInitConfig
     from runtime.json_out import strict_dumps
+    from tools.benchmarks.ffinit_accuracy import parse_k
 
-    try:
-        ks = [float(x) for x in args.k.split(",") if x.strip()]
-    except ValueError as exc:
-        raise ConfigError(f"--k expects comma-separated numbers, got {args.k!r}") from exc
+    ks = parse_k(args.k)
     if not ks or not args.every > 0:
         raise ConfigError("--k needs at least one factor and --every must be > 0")
     cfg = FFInitConfig()
