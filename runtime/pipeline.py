@@ -137,17 +137,29 @@ class VioPipeline:
                 if cfg.use_dynamic_init:
                     inits.append(DynamicInitializer(rig.camera, self.T_IC, cfg.dynamic_init, imu_noise,
                                                     self.time_offset_s))
-            return MsckfEstimator(rig, msckf_cfg, initializers=inits)
+            est = MsckfEstimator(rig, msckf_cfg, initializers=inits)
+            est.set_time_offset(self.time_offset_s)    # the rig's, or one the start-up adopted since
+            return est
 
         startup_cfg = cfg.startup
         if self.model is None and startup_cfg.feedforward:
             startup_cfg = replace(startup_cfg, feedforward=False)
-        self.startup = StartupManager(make_filter, startup_cfg, self.time_offset_s)
+        adopt = self._adopt_time_offset if cfg.ffinit.correct_time_offset else None
+        self.startup = StartupManager(make_filter, startup_cfg, self.time_offset_s,
+                                      imu_lead_s=cfg.ffinit.time_offset_check_range_s + 0.02,
+                                      adopt_time_offset=adopt)
         self.ffinit = None
         if self.model is not None and startup_cfg.feedforward:
             self.ffinit = FeedForwardInitializer(self.model, self.T_IC[:3, :3], self.T_IC[:3, 3],
                                                  self.time_offset_s, cfg.ffinit)
         self._bg_prior = bg_prior
+
+    def _adopt_time_offset(self, time_offset_s: float) -> None:
+        """The start-up's windows agree on a camera-IMU time offset other than the rig's: later windows and
+        filters use it (the start-up and its native filter took it up already)."""
+        self.time_offset_s = float(time_offset_s)
+        if self.ffinit is not None:
+            self.ffinit.time_offset_s = self.time_offset_s
 
     def _finish_bringup(self) -> None:
         """Hand-eye done: R_IC estimated, lever arm and time offset zero; the filter refines all three."""
@@ -227,7 +239,8 @@ class VioPipeline:
         return None if self.prior is None else self.prior.pose(segment, t_ns, T_MI)
 
     def _record_nodes(self, commit: MapCommit) -> None:
-        offset = int(round(self.time_offset_s * 1e9))
+        publisher = self.startup.publisher if self.startup is not None else None
+        offset = int(round(getattr(publisher, "time_offset_s", self.time_offset_s) * 1e9))
         for sm in (commit.submap, *commit.changed):
             T_MO = sm.T_MS @ np.linalg.inv(sm.T_OS)
             self.node_corrections[sm.index] = (sm.segment, int(sm.frame_t_ns[sm.centre]) + offset, T_MO)

@@ -60,12 +60,18 @@ class StartupConfig:
     model's answer: a model slower than this never gets a re-solve."""
     native: bool = True
     """Keep the filter's own (static/dynamic) initializers armed."""
+    time_offset_findings: int = 2
+    """Feed-forward windows that must find the same camera-IMU time offset far from the rig's
+    (runtime.ffinit.time_offset_check) before the start-up adopts it: later windows, the native filter and
+    its initializers then use it (with ffinit.correct_time_offset)..."""
+    time_offset_agree_s: float = 0.01
+    """...within this of each other (s); their mean is adopted."""
 
     def __post_init__(self) -> None:
         s = "startup"
-        positive(self, s, "buffer_s", "abandon_after_s", "window_spacing_s")
+        positive(self, s, "buffer_s", "abandon_after_s", "window_spacing_s", "time_offset_agree_s")
         non_negative(self, s, "catch_up_s", "window_tolerance_s", "extend_refused_s")
-        at_least(self, s, 1, "consecutive_states", "max_candidates", "replay_batch")
+        at_least(self, s, 1, "consecutive_states", "max_candidates", "replay_batch", "time_offset_findings")
         at_least(self, s, 3, "window_images")
         if self.window_tolerance_s >= self.window_spacing_s / 2:
             raise ConfigError(f"startup.window_tolerance_s must be below half of startup.window_spacing_s "
@@ -147,6 +153,19 @@ class StartupReport:
     ff_extension_rejections: dict = field(default_factory=dict)
     ff_extension_expired: int = 0
     """Refused windows whose extension reached extend_refused_s without an accepted state."""
+    ff_time_offset_corrected: int = 0
+    """Accepted windows solved at a camera-IMU time offset other than the rig's (runtime.ffinit.
+    time_offset_check): the rig's offset is wrong."""
+    ff_time_offset_first: str = ""
+    """The first such window's finding."""
+    ff_time_offset_s: float | None = None
+    """The offset (t_imu = t_cam + offset, s) of the newest such window."""
+    time_offset_findings: int = 0
+    """Windows that found a camera-IMU time offset far from the one in use (accepted at it or refused)."""
+    time_offset_adopted_s: float | None = None
+    """The offset the start-up adopted from agreeing findings (None: the rig's kept)..."""
+    time_offset_adopted_t_ns: int | None = None
+    """...and when (the newest measurement's stamp then)."""
     ff_windows_imu_lost: int = 0
     """Feed-forward windows not solved: the live driver lost IMU samples inside them."""
     published_by: str | None = None
@@ -165,13 +184,22 @@ class StartupManager:
         make_filter: builds a fresh filter (an MsckfEstimator with its native initializers armed
             when `native`) — called for the native filter and for every candidate.
         time_offset_s: t_imu = t_cam + time_offset_s (to place feed-forward windows on the IMU clock).
+        imu_lead_s: IMU kept before a window's first image in the arrays handed to its solve (the time-offset
+            check scans shifts towards earlier IMU times).
+        adopt_time_offset: called with a camera-IMU time offset the feed-forward windows agree on
+            (`StartupConfig.time_offset_findings`), after the start-up and its native filter took it up; None:
+            findings are only counted.
     """
 
     def __init__(self, make_filter: Callable[[bool], Any], cfg: StartupConfig | None = None,
-                 time_offset_s: float = 0.0) -> None:
+                 time_offset_s: float = 0.0, imu_lead_s: float = 0.02,
+                 adopt_time_offset: Callable[[float], None] | None = None) -> None:
         self.cfg = cfg or StartupConfig()
         self.make_filter = make_filter
         self.offset_ns = int(round(time_offset_s * 1e9))
+        self.imu_lead_ns = int(round(imu_lead_s * 1e9))
+        self.adopt_time_offset = adopt_time_offset
+        self._offset_findings: list[float] = []
         self.buffer = MeasurementBuffer(self.cfg.buffer_s)
         self.native = make_filter(self.cfg.native)
         self.candidates: list[Candidate] = []
@@ -260,7 +288,7 @@ class StartupManager:
         """(IMU arrays covering the span, or None; whether samples were lost inside it)."""
         t0 = int(t0_cam_ns) + self.offset_ns
         t1 = int(t1_cam_ns) + self.offset_ns
-        t, w, a = self.buffer.imu_arrays(t0 - 20_000_000, t1 + 20_000_000)
+        t, w, a = self.buffer.imu_arrays(t0 - max(self.imu_lead_ns, 20_000_000), t1 + 20_000_000)
         if t.size < 2 or t[0] > t0 or t[-1] < t1:
             return None, False
         if any(t[0] < lost <= t[-1] for lost in self._imu_loss_ns):
@@ -316,7 +344,12 @@ class StartupManager:
 
     def on_feedforward(self, result: Any, extension: bool = False) -> None:
         """Apply a finished feed-forward attempt (extension: a re-solve over a longer span): an InitResult
-        starts a candidate; a rejection is counted, and keeps (or ends) the longer re-solves."""
+        starts a candidate; a rejection is counted, and keeps (or ends) the longer re-solves. A time offset
+        the window found (runtime.ffinit.time_offset_check) counts towards its adoption."""
+        found = result.info.get("time_offset_s") if isinstance(result, InitResult) else \
+            getattr(result, "time_offset_s", None)
+        if found is not None:
+            self._offset_found(float(found))
         if not isinstance(result, InitResult):
             reason = getattr(result, "reason", type(result).__name__)
             counts = self.report.ff_extension_rejections if extension else self.report.ff_rejections
@@ -332,6 +365,11 @@ class StartupManager:
                 self._resolves.drop()
             return
         self._resolves.drop()
+        if "time_offset_s" in result.info:
+            self.report.ff_time_offset_corrected += 1
+            self.report.ff_time_offset_first = self.report.ff_time_offset_first or \
+                str(result.info.get("time_offset_detail", ""))
+            self.report.ff_time_offset_s = float(result.info["time_offset_s"])
         if extension:   # the window's own refusal is in ff_rejections: count the re-solve apart
             self.report.ff_extension_accepted += 1
         else:
@@ -351,11 +389,29 @@ class StartupManager:
             return
         filt = self.make_filter(self.cfg.native)
         filt.initialize_from_state(result.t_ns, result.R_OI, result.p_OI, result.v_OI, result.bg,
-                                   result.ba, result.cov, source="feedforward")
+                                   result.ba, result.cov, source="feedforward",
+                                   time_offset_s=result.info.get("time_offset_s"))
         self._cid += 1
         self._tried += 1
         self.candidates.append(Candidate(self._cid, filt, result, self._newest_ns, start))
         self.report.candidates_started += 1
+
+    def _offset_found(self, offset_s: float) -> None:
+        """Count a window's time-offset finding; adopt the offset once enough recent ones agree."""
+        self.report.time_offset_findings += 1
+        self._offset_findings = (self._offset_findings + [offset_s])[-self.cfg.time_offset_findings:]
+        recent = self._offset_findings
+        if self.adopt_time_offset is None or len(recent) < self.cfg.time_offset_findings \
+                or max(recent) - min(recent) > self.cfg.time_offset_agree_s:
+            return
+        adopted = float(np.mean(recent))
+        self._offset_findings = []
+        self.offset_ns = int(round(adopted * 1e9))
+        self.report.time_offset_adopted_s = adopted
+        self.report.time_offset_adopted_t_ns = self._newest_ns
+        if hasattr(self.native, "set_time_offset"):
+            self.native.set_time_offset(adopted)
+        self.adopt_time_offset(adopted)
 
     # ------------------------------------------------------------------ internals
     def _advance_candidates(self) -> list[Published]:

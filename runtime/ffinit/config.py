@@ -90,6 +90,18 @@ class FFInitConfig:
     extrinsics_check_ratio: float = 10.0
     """...and the rig's own rotation (with the alignment's gyro-bias step) must leave at least this many
     times the fit's RMS residual (`davio bench rig-checks`, BENCHMARKS.md "Start-up checks of the rig")."""
+    correct_time_offset: bool = True
+    """A window the DA3-gyro alignment refuses (and the rotation check does not explain) whose rotations fit
+    a camera-IMU time offset far from the rig's is solved again at that offset, and the filter it starts uses
+    it; False: refused as `time_offset` (runtime.ffinit.time_offset_check; added, not the paper's)."""
+    time_offset_check_s: float = 0.015
+    """That offset must be at least this far (s) from the rig's..."""
+    time_offset_check_ratio: float = 3.0
+    """...within `max_rotation_residual_deg` there and this many times better than at the rig's offset."""
+    time_offset_check_range_s: float = 0.2
+    """The shifts tried span +- this (s) around the rig's offset..."""
+    time_offset_check_step_s: float = 0.005
+    """...in steps of this (s)."""
     gyro_scale_min_rate: float = 0.1
     """DA3 rotation rate (rad/s) below which the gyro's scale is not judged (noise and bias dominate)."""
     rotation_huber_deg: float = 0.1
@@ -150,7 +162,8 @@ class FFInitConfig:
         if self.point_rotations not in ("da3", "gyro"):
             raise ConfigError(f"ffinit.point_rotations must be 'da3' or 'gyro', got {self.point_rotations!r}")
         for name in ("max_gyro_rate_ratio", "gyro_scale_min_rate", "extrinsics_check_deg",
-                     "extrinsics_check_ratio", "extrinsics_check_rms_deg"):
+                     "extrinsics_check_ratio", "extrinsics_check_rms_deg", "time_offset_check_s",
+                     "time_offset_check_ratio", "time_offset_check_range_s", "time_offset_check_step_s"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"ffinit.{name} must be > 0, got {getattr(self, name)}")
         for name in ("accel_bias_sigma", "max_scale_uncertainty", "max_gyro_bias_change",

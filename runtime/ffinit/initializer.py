@@ -24,6 +24,7 @@ from runtime.ffinit.refine import Refined, refine
 from runtime.ffinit.robust import RobustResult, robust_solve
 from runtime.ffinit.sampling import observations_from_prediction
 from runtime.ffinit.state import scale_relative_std, state_at_last_image
+from runtime.ffinit.time_offset_check import fit_time_offset
 from runtime.ffinit.window import ImageObservations, InitWindow, Rejection
 from runtime.imu import Preintegrator
 from runtime.msckf.init_common import InitResult
@@ -141,6 +142,10 @@ def scale_gates(window: InitWindow, robust: RobustResult, ref: Refined,
             "scale_observed_rel_std": scale_relative_std(ref, observed=True)}
 
 
+OFFSET_CHECKED = ("gyro_bias_step", "rotation_inconsistent")
+"""Rejections after which the window's camera-IMU time offset is fitted (runtime.ffinit.time_offset_check)."""
+
+
 class FeedForwardInitializer:
     """Runs the DA3 start-up call on a window of frames and solves for the metric state.
 
@@ -204,15 +209,37 @@ class FeedForwardInitializer:
                accel: np.ndarray, bg: np.ndarray | None, ba: np.ndarray | None) -> InitResult | Rejection:
         """Preintegrate to every image (again at each new gyro bias) and solve the window."""
 
-        def rebuild(bg_new: np.ndarray) -> InitWindow:
-            return build_window(t_cam, obs, imu_t_ns, gyro, accel, self.R_IC, self.p_IC,
-                                self.time_offset_s, bg_new, ba)
+        def solve_at(offset_s: float) -> InitResult | Rejection:
+            def rebuild(bg_new: np.ndarray) -> InitWindow:
+                return build_window(t_cam, obs, imu_t_ns, gyro, accel, self.R_IC, self.p_IC, offset_s,
+                                    bg_new, ba)
 
-        try:
-            window = rebuild(np.zeros(3) if bg is None else bg)
-        except DataError as exc:
-            return Rejection("imu_gap", str(exc))
+            try:
+                window = rebuild(np.zeros(3) if bg is None else bg)
+            except DataError as exc:
+                return Rejection("imu_gap", str(exc))
+            return solve_window(window, self.cfg, rebuild)
+
         wrong_scale = check_gyro_scale(t_cam, obs, imu_t_ns, gyro, self.time_offset_s, self.cfg)
         if wrong_scale is not None:
             return wrong_scale
-        return solve_window(window, self.cfg, rebuild)
+        result = solve_at(self.time_offset_s)
+        if not (isinstance(result, Rejection) and result.reason in OFFSET_CHECKED):
+            return result
+        fit = fit_time_offset(t_cam, obs, self.R_IC, imu_t_ns, gyro, self.time_offset_s, self.cfg)
+        if fit is None:
+            return result
+        detail = fit.describe(self.time_offset_s)
+        found = self.time_offset_s + fit.shift_s
+        if not self.cfg.correct_time_offset:
+            return Rejection("time_offset", detail, time_offset_s=found)
+        corrected = solve_at(found)
+        if isinstance(corrected, Rejection) and corrected.reason == "imu_gap":   # live: the IMU ends near it
+            return Rejection("time_offset", f"{detail}; not solved at that offset: the IMU does not reach "
+                                            "that far past the window yet", time_offset_s=found)
+        if isinstance(corrected, Rejection):
+            return Rejection("time_offset", f"{detail}; solved at that offset the window is refused too "
+                                            f"({corrected.reason}: {corrected.detail})", time_offset_s=found)
+        corrected.info.update({"time_offset_s": found, "time_offset_shift_s": fit.shift_s,
+                               "time_offset_detail": detail})
+        return corrected

@@ -85,6 +85,8 @@ class Rejection:
     detail: str = ""
     seed: Any = field(default=None, repr=False, compare=False)
     """An ExtensionSeed when a longer span could cure the rejection (runtime.ffinit.extension)."""
+    time_offset_s: float | None = field(default=None, compare=False)
+    """A `time_offset` rejection's finding: the camera-IMU offset the window fits (t_imu = t_cam + offset)."""
 
     def __str__(self) -> str:
         return f"{self.reason}: {self.detail}" if self.detail else self.reason

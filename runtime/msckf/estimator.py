@@ -105,10 +105,15 @@ class MsckfEstimator:
         ba: np.ndarray,
         cov: np.ndarray | None = None,
         source: str = "external",
+        time_offset_s: float | None = None,
     ) -> None:
         """Write the IMU state once (t_ns: IMU clock, ns). cov (15,15) in the order [dtheta (body), dp, dv,
-        dbg, dba]; its diagonal is floored at the config's init sigmas (None: those sigmas)."""
+        dbg, dba]; its diagonal is floored at the config's init sigmas (None: those sigmas).
+        time_offset_s: t_imu = t_cam + time_offset_s from now on (and at later initialisations), e.g. the
+        offset a feed-forward window was solved at; None keeps the rig's (or the last one set)."""
         cfg = self.config
+        if time_offset_s is not None:
+            self.set_time_offset(time_offset_s)
         vals = [np.asarray(x, dtype=float) for x in (R_OI, p_OI, v_OI, bg, ba)]
         shapes = [(3, 3), (3,), (3,), (3,), (3,)]
         for x, s, n in zip(vals, shapes, ("R_OI", "p_OI", "v_OI", "bg", "ba"), strict=True):
@@ -179,6 +184,23 @@ class MsckfEstimator:
             self.state_.R_IC = self._R_IC0.copy()
             self.state_.p_IC = self._p_IC0.copy()
             self.state_.t_d = self._t_d0
+
+    @property
+    def time_offset_s(self) -> float:
+        """t_imu = t_cam + this (s): the running estimate, else the prior of the next initialisation."""
+        return float(self.state_.t_d if self.state_ is not None else self._t_d0)
+
+    def set_time_offset(self, time_offset_s: float) -> None:
+        """Use t_imu = t_cam + time_offset_s from now on: the running state's (if any), the prior of later
+        initialisations and the native initializers' (which place camera frames on the IMU clock)."""
+        if not np.isfinite(time_offset_s):
+            raise EstimatorError("set_time_offset: time_offset_s must be finite")
+        self._t_d0 = float(time_offset_s)
+        if self.state_ is not None:
+            self.state_.t_d = self._t_d0
+        for ini in self.initializers:
+            if hasattr(ini, "time_offset_ns"):
+                ini.time_offset_ns = int(round(self._t_d0 * 1e9))
 
     def set_intrinsics(self, params: np.ndarray) -> None:
         """Replace the camera intrinsics [fx, fy, cx, cy, d0..d4] (9, the CameraParams layout; given 8:

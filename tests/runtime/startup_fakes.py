@@ -23,9 +23,10 @@ class RecordingFilter:
     def initialized(self) -> bool:
         return self.t_init is not None
 
-    def initialize_from_state(self, t_ns, R_OI, p_OI, v_OI, bg, ba, cov, source="x"):
+    def initialize_from_state(self, t_ns, R_OI, p_OI, v_OI, bg, ba, cov, source="x", time_offset_s=None):
         self.t_init = int(t_ns)
         self.init_source = source
+        self.time_offset_s = time_offset_s
 
     def feed_imu(self, s):
         self.fed.append(("imu", int(s.t_ns)))

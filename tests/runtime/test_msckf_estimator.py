@@ -212,6 +212,23 @@ def test_initialize_from_state_checks_input_and_floors_covariance() -> None:
     assert np.isclose(P[6, 6], cfg.init_sigma_vel**2)
 
 
+def test_a_time_offset_given_at_initialisation_or_later_reaches_the_state_and_the_initializers() -> None:
+    from types import SimpleNamespace
+
+    ini = SimpleNamespace(time_offset_ns=0, source="fake")
+    est = MsckfEstimator(_rig(), initializers=[ini])
+    assert est.time_offset_s == 0.0
+    est.set_time_offset(-0.045)                          # before any state: the prior and the initializers
+    assert est.time_offset_s == -0.045 and ini.time_offset_ns == -45_000_000
+    est.initialize_from_state(0, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3),
+                              time_offset_s=0.03)
+    assert est.state_.t_d == 0.03 and est.time_offset_s == 0.03 and ini.time_offset_ns == 30_000_000
+    est.set_time_offset(0.01)                            # while running: the state's too
+    assert est.state_.t_d == 0.01
+    with pytest.raises(EstimatorError, match="finite"):
+        est.set_time_offset(float("nan"))
+
+
 def test_initializer_result_starts_the_filter() -> None:
     class OneShot:
         def __init__(self):

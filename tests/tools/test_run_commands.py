@@ -243,6 +243,28 @@ def test_recovery_lines_name_every_counted_recovery():
     assert len(line) == 1 and "inverted" in line[0] and "--withhold-extrinsics" in line[0]
 
 
+
+def test_the_time_offset_line_says_what_the_start_up_did_with_its_finding():
+    from tools.commands.run import _recovery_lines
+
+    def lines(startup: dict, rig_offset=None) -> list[str]:
+        report = {"rig": {"time_offset_s": rig_offset},
+                  "pipeline": {"startup": {"ff_rejections": {}, "restarts_after_divergence": 0, **startup}}}
+        return [x for x in _recovery_lines(report) if x.startswith("CAMERA-IMU TIME OFFSET")]
+
+    assert lines({"time_offset_findings": 0}) == []
+    first = {"time_offset": "the window's rotations fit ... +60 ms"}
+    adopted = lines({"time_offset_findings": 2, "time_offset_adopted_s": 0.0601, "ff_rejection_first": first},
+                    0.01)
+    assert adopted == ["CAMERA-IMU TIME OFFSET: 2 windows fit another offset, adopted +60.1 ms (the rig says "
+                       "+10.0 ms); the first: the window's rotations fit ... +60 ms. Put the offset in the "
+                       "rig file (Kalibr timeshift_cam_imu: t_imu = t_cam + shift)"]
+    solved = lines({"time_offset_findings": 1, "ff_time_offset_s": -0.03,
+                    "ff_time_offset_first": "fits -30 ms"})
+    assert "a window was solved at -30.0 ms (the rig says +0.0 ms); the first: fits -30 ms" in solved[0]
+    assert "not adopted" in lines({"time_offset_findings": 1, "ff_rejection_first": first})[0]
+
+
 @pytest.mark.parametrize("args, message", [
     (["--seconds", "0"], "--seconds must be a finite number > 0"),
     (["--seconds", "nan"], "--seconds must be a finite number > 0"),

@@ -182,14 +182,15 @@ def measure_recording(rec: Any, ks: list[float], reference: str, every_s: float,
     return rows
 
 
-def parse_k(text: str) -> list[float]:
-    """The pose-error factors of `--k` (comma-separated numbers); ConfigError otherwise."""
+def parse_k(text: str, option: str = "--k") -> list[float]:
+    """The numbers of a comma-separated option such as `--k` (the pose-error factors); ConfigError naming
+    `option` otherwise."""
     from runtime.errors import ConfigError
 
     try:
         return [float(x) for x in text.split(",") if x.strip()]
     except ValueError as exc:
-        raise ConfigError(f"--k expects comma-separated numbers, got {text!r}") from exc
+        raise ConfigError(f"{option} expects comma-separated numbers, got {text!r}") from exc
 
 
 def run(args: argparse.Namespace) -> int:

@@ -18,7 +18,8 @@ counts if any trajectory passes, with the time from the failed one's end to the 
 Gravity-direction and velocity errors are those of the first published state (velocity compared after
 the ATE alignment's rotation); `ff |log s|` is the sim(3) scale error of the windows the feed-forward
 initializer published. `--pose-error-scale K` and `--depth-error-scale D` set the emulated DA3's error
-levels (the sensitivity sweep in BENCHMARKS.md).
+levels (the sensitivity sweep in BENCHMARKS.md). `--rig-time-offset-error S` hands every arm a rig whose
+camera-IMU time offset is S seconds off the recording's (a camera stamped late or early against the IMU).
 Recordings are simulated: a motion preset, or images rendered along a real EuRoC ground truth with its
 real IMU stream (EuRoC-trajectory mode).
 """
@@ -64,6 +65,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "(the presets use K = 0.05; 1.0 = the upper-bound table, PRESETS.md)")
     p.add_argument("--depth-error-scale", type=float, default=None, metavar="D",
                    help="multiply the emulated DA3's depth errors (scale jitter, smooth field, noise) by D")
+    p.add_argument("--rig-time-offset-error", type=float, default=0.0, metavar="S",
+                   help="give the arms a rig whose camera-IMU time offset (t_imu = t_cam + offset) is S s "
+                        "off the recording's (negative: the camera's stamps run late against the IMU's)")
     p.add_argument("--ate-threshold", type=float, default=0.5, help="success threshold, m")
     p.add_argument("--min-span", type=float, default=1.0, metavar="S",
                    help="a successful trajectory covers at least S seconds of poses")
@@ -91,9 +95,11 @@ def _recording(args: argparse.Namespace) -> Any:
 class _WindowDriver:
     """The events of a recording inside [t0, t1) (frames rendered only inside the window)."""
 
-    def __init__(self, rec: Any, t0_ns: int, t1_ns: int) -> None:
+    def __init__(self, rec: Any, t0_ns: int, t1_ns: int, time_offset_error_s: float = 0.0) -> None:
         self.rec, self.t0, self.t1 = rec, t0_ns, t1_ns
         self.rig = rec.rig
+        if time_offset_error_s:
+            self.rig = rec.rig.replace(time_offset_s=(rec.rig.time_offset_s or 0.0) + time_offset_error_s)
 
     def events(self):
         from runtime.events import ImuSample
@@ -286,9 +292,13 @@ def _short(source: str) -> str:
 def run(args: argparse.Namespace) -> int:
     from models.emulated_da3 import EmulatedDA3, make_params
     from runtime.config import DavioConfig, load_davio_config
+    from runtime.errors import ConfigError
     from tools.run_session import run_pipeline
 
     overrides = {**_error_scales(args), **_overrides(args.da3_param)}
+    if not abs(args.rig_time_offset_error) < 1.0:
+        raise ConfigError(f"--rig-time-offset-error must be a finite number of seconds below 1 in size, got "
+                          f"{args.rig_time_offset_error}")
     arms = _arms(args.arms, load_davio_config(args.config) if args.config else DavioConfig())
     make_params(args.da3, **overrides)  # an unknown preset or parameter fails before the slow part
     rec = _recording(args)
@@ -311,14 +321,17 @@ def run(args: argparse.Namespace) -> int:
             if cfg.startup.feedforward:
                 model = EmulatedDA3(rec.gt_source, cam.K, cam.width, cam.height, preset=args.da3,
                                     seed=args.seed * 1000 + w, **overrides)
-            res = run_pipeline(_WindowDriver(rec, t0, t1), model, cfg, model_latency_s=args.model_latency,
-                               show_progress=False)
+            driver = _WindowDriver(rec, t0, t1, args.rig_time_offset_error)
+            res = run_pipeline(driver, model, cfg, model_latency_s=args.model_latency, show_progress=False)
             row = _score(res.pipeline, gt, t0, args.window, args.ate_threshold, args.min_span)
             srep = res.pipeline.startup.report
             row.update({"window": w, "start_s": (t0 - t_first) * 1e-9, "ff_rejections": srep.ff_rejections,
                         "ff_extensions": srep.ff_extensions,
                         "ff_extension_accepted": srep.ff_extension_accepted,
-                        "ff_extension_rejections": srep.ff_extension_rejections})
+                        "ff_extension_rejections": srep.ff_extension_rejections,
+                        "time_offset_findings": srep.time_offset_findings,
+                        "time_offset_adopted_s": srep.time_offset_adopted_s,
+                        "ff_time_offset_corrected": srep.ff_time_offset_corrected})
             rows[arm].append(row)
             if not args.json:
                 print(f"  window {w:2d} ({row['start_s']:6.1f} s) {arm:16s} "
@@ -335,6 +348,7 @@ def run(args: argparse.Namespace) -> int:
     result["pose_error_scale"] = args.pose_error_scale
     result["depth_error_scale"] = args.depth_error_scale
     result["model_latency_s"] = args.model_latency
+    result["rig_time_offset_error_s"] = args.rig_time_offset_error
     if args.out:
         Path(args.out).write_text(strict_dumps({**result, "per_window": rows}, indent=2))
     if args.json:

@@ -327,6 +327,27 @@ several per recording with it inverted wherever the rig turns about two axes: BE
 checks of the rig")."""
 
 
+def _time_offset_line(startup: dict, rig_offset_s: float | None) -> str | None:
+    """The console's word on a camera-IMU time offset the start-up found far from the rig's: adopted,
+    solved at, or only found (runtime.ffinit.time_offset_check); None when it found none."""
+    found = startup.get("time_offset_findings") or 0
+    if not found:
+        return None
+    rig_ms = (rig_offset_s or 0.0) * 1e3
+    adopted = startup.get("time_offset_adopted_s")
+    first = startup.get("ff_time_offset_first") or \
+        (startup.get("ff_rejection_first") or {}).get("time_offset", "")
+    rig = f"(the rig says {rig_ms:+.1f} ms)"
+    if adopted is not None:
+        what = f"adopted {adopted * 1e3:+.1f} ms {rig}"
+    elif startup.get("ff_time_offset_s") is not None:
+        what = f"a window was solved at {startup['ff_time_offset_s'] * 1e3:+.1f} ms {rig}"
+    else:
+        what = "not adopted"
+    return (f"CAMERA-IMU TIME OFFSET: {found} windows fit another offset, {what}; the first: {first}. Put "
+            "the offset in the rig file (Kalibr timeshift_cam_imu: t_imu = t_cam + shift)")
+
+
 def _recovery_lines(report: dict) -> list[str]:
     """One console line per kind of recovery the run made (input repairs, initializer rejections,
     filter resets), so that nothing counted in report.json goes unnoticed on the console."""
@@ -363,6 +384,9 @@ def _recovery_lines(report: dict) -> list[str]:
             lines.append(f"CAMERA-IMU ROTATION: {startup['ff_rejections']['extrinsics_rotation']} windows "
                          f"refused, the first: {first.get('extrinsics_rotation', '')}. Check the rig file's "
                          "T_cam_imu / T_imu_cam, or run with --withhold-extrinsics to estimate it")
+    line = _time_offset_line(startup, (report.get("rig") or {}).get("time_offset_s"))
+    if line:
+        lines.append(line)
     if startup.get("ff_extensions"):
         ext_rej = startup.get("ff_extension_rejections") or {}
         reasons = ", ".join(f"{k} x{v}" for k, v in sorted(ext_rej.items()))

@@ -1,0 +1,109 @@
+"""The start-up's adoption of a camera-IMU time offset its feed-forward windows found
+(runtime/startup.py, runtime/ffinit/time_offset_check.py): when findings agree, what takes the offset up."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from startup_fakes import RecordingFilter
+
+from runtime.ffinit.window import Rejection
+from runtime.msckf.init_common import InitResult
+from runtime.startup import StartupConfig, StartupManager
+
+
+class OffsetFilter(RecordingFilter):
+    """A fake filter that keeps the time offset it is told."""
+
+    def set_time_offset(self, time_offset_s):
+        self.offset_told = time_offset_s
+
+
+def _manager(cfg: StartupConfig | None = None, adopt: bool = True):
+    filters, adopted = [], []
+
+    def make(native):
+        f = OffsetFilter()
+        filters.append(f)
+        return f
+
+    m = StartupManager(make, cfg, time_offset_s=0.0, imu_lead_s=0.22,
+                       adopt_time_offset=adopted.append if adopt else None)
+    return m, filters, adopted
+
+
+def _finding(offset_s: float) -> Rejection:
+    return Rejection("time_offset", "fits another offset", time_offset_s=offset_s)
+
+
+def test_two_agreeing_findings_are_adopted_by_the_start_up_its_native_filter_and_the_caller():
+    m, filters, adopted = _manager()
+    m.on_feedforward(_finding(0.061))
+    assert adopted == [] and m.report.time_offset_adopted_s is None and m.offset_ns == 0
+    m.on_feedforward(_finding(0.055))
+    assert adopted == [pytest.approx(0.058)] and m.report.time_offset_adopted_s == pytest.approx(0.058)
+    assert m.offset_ns == 58_000_000                     # later windows' IMU is taken at the adopted offset
+    assert filters[0].offset_told == pytest.approx(0.058)
+    assert m.report.time_offset_findings == 2 and m.report.ff_rejections == {"time_offset": 2}
+
+
+def test_findings_that_disagree_are_not_adopted_and_only_the_recent_ones_count():
+    m, _, adopted = _manager()
+    m.on_feedforward(_finding(0.06))
+    m.on_feedforward(_finding(-0.04))                    # 100 ms apart: not adopted
+    assert adopted == []
+    m.on_feedforward(_finding(-0.035))                   # agrees with the one before
+    assert adopted == [pytest.approx(-0.0375)] and m.report.time_offset_findings == 3
+
+
+def test_an_accepted_window_solved_at_another_offset_counts_and_its_candidate_starts_there():
+    m, filters, adopted = _manager(StartupConfig(time_offset_findings=1))
+    from startup_fakes import stream
+
+    from runtime.events import ImuSample
+
+    for kind, t in stream(1.5):
+        if kind == "imu":
+            m.on_imu(ImuSample(t, np.zeros(3), np.array([0, 0, 9.81])))
+        else:
+            m.on_tracks(t, np.arange(3), np.zeros((3, 2)))
+    res = InitResult(1_000_000_000, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), None,
+                     "feedforward")
+    res.info.update(time_offset_s=-0.03, time_offset_shift_s=-0.03, time_offset_detail="fits -30 ms")
+    m.on_feedforward(res)
+    assert m.report.candidates_started == 1 and filters[-1].time_offset_s == -0.03
+    assert m.report.ff_time_offset_corrected == 1 and m.report.ff_time_offset_s == -0.03
+    assert m.report.ff_time_offset_first == "fits -30 ms" and adopted == [pytest.approx(-0.03)]
+
+
+def test_without_a_caller_findings_are_only_counted():
+    m, filters, adopted = _manager(adopt=False)
+    for _ in range(3):
+        m.on_feedforward(_finding(0.06))
+    assert m.report.time_offset_findings == 3 and m.report.time_offset_adopted_s is None
+    assert m.offset_ns == 0 and not hasattr(filters[0], "offset_told")
+
+
+def test_the_window_imu_reaches_back_by_the_lead():
+    """The arrays handed to a window's solve start imu_lead_s before its first image (the time-offset scan
+    looks there), not only the 20 ms margin."""
+    from startup_fakes import stream
+
+    from runtime.events import Frame, ImuSample
+
+    m, _, _ = _manager()
+    for kind, t in stream(2.0):
+        if kind == "imu":
+            m.on_imu(ImuSample(t, np.zeros(3), np.array([0, 0, 9.81])))
+        else:
+            m.on_tracks(t, np.arange(3), np.zeros((3, 2)), Frame(t, np.zeros((4, 4), np.uint8)))
+    frames = m.window()
+    t, _, _ = m.imu_for(frames)
+    assert t[0] <= frames[0].t_ns - 220_000_000 < t[0] + 5_000_000
+
+
+@pytest.mark.parametrize("field", ["time_offset_findings", "time_offset_agree_s"])
+def test_config_refuses_non_positive_values(field):
+    from runtime.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=field):
+        StartupConfig(**{field: 0})
