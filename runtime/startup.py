@@ -251,20 +251,24 @@ class StartupManager:
 
     # ------------------------------------------------------------------ feed-forward
     def window(self) -> list[Frame] | None:
-        """Five buffered frames spaced 0.2 s ending at the newest frame, or None.
+        """Five buffered frames spaced 0.2 s ending at the newest frame the IMU covers, or None.
 
-        None also while the newest frame is less than one spacing after the newest frame of the last
-        requested window: with a fast model, consecutive windows would share four of five images, and
-        one request per event would starve tracking."""
+        The IMU covers a frame once a sample reached its time on the IMU clock (t_cam + time offset): with a
+        positive offset the newest frames wait for it, or no window would ever be covered. None also while
+        that frame is less than one spacing after the newest frame of the last requested window: with a fast
+        model, consecutive windows would share four of five images, and one request per event would starve
+        tracking."""
         if self.publisher is not None or not self.cfg.feedforward or not self._frames:
             return None
         if self._tried >= self.cfg.max_candidates:
             return None
+        frames = [f for f in self._frames if int(f.t_ns) + self.offset_ns <= self._newest_ns]
+        if not frames:
+            return None
         spacing_ns = self.cfg.window_spacing_s * 1e9
-        newest = int(self._frames[-1].t_ns)
+        newest = int(frames[-1].t_ns)
         if self._last_request_ns is not None and newest - self._last_request_ns < 0.999 * spacing_ns:
             return None
-        frames = list(self._frames)
         t = np.array([f.t_ns for f in frames], np.int64)
         ideal = [int(t[-1]) - int(round(k * spacing_ns)) for k in range(self.cfg.window_images - 1, -1, -1)]
         idx = nearest_stamps(t, ideal, self.cfg.window_tolerance_s)

@@ -107,3 +107,26 @@ def test_config_refuses_non_positive_values(field):
 
     with pytest.raises(ConfigError, match=field):
         StartupConfig(**{field: 0})
+
+
+def test_with_a_positive_offset_windows_end_at_the_newest_frame_the_imu_covers():
+    """t_imu = t_cam + 120 ms: the newest frames wait for the IMU (more than two frame periods behind), so
+    a window ending at the newest frame would never be covered; it ends at the newest covered one."""
+    from startup_fakes import stream
+
+    from runtime.events import Frame, ImuSample
+
+    m = StartupManager(lambda native: OffsetFilter(), StartupConfig(), time_offset_s=0.12)
+    solvable = []
+    for kind, t in stream(2.0):
+        if kind == "imu":
+            m.on_imu(ImuSample(t, np.zeros(3), np.array([0, 0, 9.81])))
+        else:
+            m.on_tracks(t, np.arange(3), np.zeros((3, 2)), Frame(t, np.zeros((4, 4), np.uint8)))
+        frames = m.window()
+        if frames is not None:
+            assert frames[-1].t_ns + 120_000_000 <= t         # covered by the IMU received so far
+            if m.imu_for(frames) is not None:
+                solvable.append(frames[-1].t_ns)
+                m.note_request(frames)
+    assert len(solvable) >= 4 and np.all(np.diff(solvable) >= 200_000_000 * 0.999)

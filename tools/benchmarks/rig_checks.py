@@ -12,7 +12,7 @@ so 0.05, 0.1, 0.25, 1 are x1, x2, x5, x20), one DA3 call per window and then:
   and with it inverted (T_cam_imu given as T_imu_cam); windows refused as `extrinsics_rotation` (with the
   right rotation: false alarms) and the other outcomes;
 - camera-IMU time offset (runtime/ffinit/time_offset_check.py): the whole window solve with the rig's offset
-  off by each --time-offset-error (s; negative: the camera's stamps run late); windows solved at an offset
+  off by each --time-offset-error (s; positive: the camera's stamps run late); windows solved at an offset
   the check found (with its distance from the truth and the solved scale's |log s|) or refused as
   `time_offset`, and, from the right rig's solves, findings where there is nothing to find (false alarms).
   These solves have the whole recording's IMU; live, the IMU ends near the newest image, and an offset

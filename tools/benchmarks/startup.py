@@ -19,7 +19,8 @@ Gravity-direction and velocity errors are those of the first published state (ve
 the ATE alignment's rotation); `ff |log s|` is the sim(3) scale error of the windows the feed-forward
 initializer published. `--pose-error-scale K` and `--depth-error-scale D` set the emulated DA3's error
 levels (the sensitivity sweep in BENCHMARKS.md). `--rig-time-offset-error S` hands every arm a rig whose
-camera-IMU time offset is S seconds off the recording's (a camera stamped late or early against the IMU).
+camera-IMU time offset is S seconds off the recording's (positive: the camera's stamps run later than the rig
+says, as a camera stamped on arrival at the host does; negative: earlier).
 Recordings are simulated: a motion preset, or images rendered along a real EuRoC ground truth with its
 real IMU stream (EuRoC-trajectory mode).
 """
@@ -67,7 +68,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="multiply the emulated DA3's depth errors (scale jitter, smooth field, noise) by D")
     p.add_argument("--rig-time-offset-error", type=float, default=0.0, metavar="S",
                    help="give the arms a rig whose camera-IMU time offset (t_imu = t_cam + offset) is S s "
-                        "off the recording's (negative: the camera's stamps run late against the IMU's)")
+                        "off the recording's (positive: the camera's stamps run later than the rig says, "
+                        "as a camera stamped on arrival)")
     p.add_argument("--ate-threshold", type=float, default=0.5, help="success threshold, m")
     p.add_argument("--min-span", type=float, default=1.0, metavar="S",
                    help="a successful trajectory covers at least S seconds of poses")
