@@ -60,10 +60,13 @@ class StartupConfig:
     model's answer: a model slower than this never gets a re-solve."""
     native: bool = True
     """Keep the filter's own (static/dynamic) initializers armed."""
-    time_offset_findings: int = 2
-    """Feed-forward windows that must find the same camera-IMU time offset far from the rig's
+    time_offset_findings: int = 1
+    """Feed-forward windows that must find the same camera-IMU time offset far from the one in use
     (runtime.ffinit.time_offset_check) before the start-up adopts it: later windows, the native filter and
-    its initializers then use it (with ffinit.correct_time_offset)..."""
+    its initializers then use it (with ffinit.correct_time_offset). One: no window of a right rig found
+    another offset in `davio bench rig-checks`, the native dynamic initializer would otherwise start (and
+    diverge) with the wrong offset before a second window answers, and a later window that finds another
+    offset relative to the adopted one adopts again..."""
     time_offset_agree_s: float = 0.01
     """...within this of each other (s); their mean is adopted."""
 

@@ -36,7 +36,7 @@ def _finding(offset_s: float) -> Rejection:
 
 
 def test_two_agreeing_findings_are_adopted_by_the_start_up_its_native_filter_and_the_caller():
-    m, filters, adopted = _manager()
+    m, filters, adopted = _manager(StartupConfig(time_offset_findings=2))
     m.on_feedforward(_finding(0.061))
     assert adopted == [] and m.report.time_offset_adopted_s is None and m.offset_ns == 0
     m.on_feedforward(_finding(0.055))
@@ -47,7 +47,7 @@ def test_two_agreeing_findings_are_adopted_by_the_start_up_its_native_filter_and
 
 
 def test_findings_that_disagree_are_not_adopted_and_only_the_recent_ones_count():
-    m, _, adopted = _manager()
+    m, _, adopted = _manager(StartupConfig(time_offset_findings=2))
     m.on_feedforward(_finding(0.06))
     m.on_feedforward(_finding(-0.04))                    # 100 ms apart: not adopted
     assert adopted == []
@@ -73,6 +73,14 @@ def test_an_accepted_window_solved_at_another_offset_counts_and_its_candidate_st
     assert m.report.candidates_started == 1 and filters[-1].time_offset_s == -0.03
     assert m.report.ff_time_offset_corrected == 1 and m.report.ff_time_offset_s == -0.03
     assert m.report.ff_time_offset_first == "fits -30 ms" and adopted == [pytest.approx(-0.03)]
+
+
+def test_by_default_the_first_finding_is_adopted_and_a_later_one_relative_to_it_adopts_again():
+    m, filters, adopted = _manager()
+    m.on_feedforward(_finding(0.04))
+    assert adopted == [pytest.approx(0.04)] and m.offset_ns == 40_000_000
+    m.on_feedforward(_finding(-0.01))           # found against the adopted offset: the windows' new finding
+    assert adopted == [pytest.approx(0.04), pytest.approx(-0.01)] and filters[0].offset_told == -0.01
 
 
 def test_without_a_caller_findings_are_only_counted():
