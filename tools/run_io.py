@@ -36,12 +36,15 @@ class OpenedRecording:
         description: one line for the console and the report.
         ground_truth_source: the rebuilt simulation's GroundTruthSource for the emulated DA3
             (simulated recordings opened with rebuild=True only; None otherwise).
+        time_offset_s: a simulated folder's camera-IMU time offset from its manifest (t_imu = t_cam +
+            offset; an ASL sensor.yaml has no field for it), or None.
     """
 
     driver: Any
     kind: str  # "euroc" | "simulated"
     description: str
     ground_truth_source: Any = None
+    time_offset_s: float | None = None
 
 
 def open_recording(path: str | Path, rebuild: bool = True, policy: str = "drop", rig: Any = None,
@@ -75,8 +78,10 @@ def open_recording(path: str | Path, rebuild: bool = True, policy: str = "drop",
         return OpenedRecording(driver, "euroc", f"EuRoC folder {p}")
     info = read_manifest(manifest)
     description = f"simulated recording {p} ({_describe_simulation(info)})"
+    cfg = info.get("config")
+    offset = (cfg.get("time_offset_s") if isinstance(cfg, dict) else None) or None   # read_manifest checks
     if not rebuild:
-        return OpenedRecording(driver, "simulated", description)
+        return OpenedRecording(driver, "simulated", description, time_offset_s=offset)
     gt_file = driver.groundtruth()
     rec = _rebuild_simulation(info, manifest, gt_file)
     gt_sim = rec.groundtruth()
@@ -87,7 +92,7 @@ def open_recording(path: str | Path, rebuild: bool = True, policy: str = "drop",
                 raise DataError("the simulation rebuilt from manifest.json does not match the folder's "
                                 "ground truth (edited folder, changed input files or another davio "
                                 "version); `davio run --native-only` still works", manifest)
-    return OpenedRecording(driver, "simulated", description, rec.gt_source)
+    return OpenedRecording(driver, "simulated", description, rec.gt_source, offset)
 
 
 _TRAJECTORY_MODES = ("trajectory-spline", "euroc-trajectory")

@@ -38,6 +38,32 @@ def test_startup_bench_json_contract(capsys, tmp_path):
     assert ff["source"] == expect
 
 
+@pytest.mark.slow
+def test_a_rig_time_offset_50_ms_off_is_corrected_by_davio_and_not_by_the_native_arm(tmp_path, capsys):
+    """The camera's stamps 50 ms later than the rig says: the native dynamic initializer starts with the
+    rig's offset and diverges (its first trajectory fails); DAVIO's windows find the offset, the start-up
+    adopts it within 3 ms of the truth (the preset's own offset, 0), and the first trajectory it publishes
+    passes."""
+    out_file = tmp_path / "startup.json"
+    assert main(["bench", "startup", "--preset", "handheld", "--seconds", "6", "--window", "5", "--json",
+                 "--arms", "feedforward,native", "--rig-time-offset-error", "0.05",
+                 "--out", str(out_file)]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["rig_time_offset_error_s"] == 0.05
+    assert (out["feedforward"]["successes"], out["feedforward"]["published_wrong"]) == (1, 0)
+    assert (out["native"]["successes"], out["native"]["published_wrong"]) == (0, 1)
+    rows = json.loads(out_file.read_text())["per_window"]
+    ff, native = rows["feedforward"][0], rows["native"][0]
+    assert ff["time_offset_findings"] >= 1 and abs(ff["time_offset_adopted_s"]) < 0.003
+    assert native["time_offset_findings"] == 0 and native["time_offset_adopted_s"] is None
+
+
+@pytest.mark.parametrize("value", ["nan", "1.5"])
+def test_a_rig_time_offset_error_beyond_a_second_is_a_clear_error(capsys, value):
+    assert main(["bench", "startup", "--preset", "euroc", "--rig-time-offset-error", value]) == 1
+    assert "--rig-time-offset-error must be a finite number" in capsys.readouterr().err
+
+
 def test_bad_override_is_a_clear_error(capsys):
     assert main(["bench", "startup", "--preset", "euroc", "--da3-param", "oops"]) == 1
     assert "NAME=NUMBER" in capsys.readouterr().err

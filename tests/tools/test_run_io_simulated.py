@@ -173,3 +173,26 @@ def test_sim_config_seed_range() -> None:
     for bad in (-1, 2**32, 1.0, True):
         with pytest.raises(ConfigError, match="seed must be an integer from 0 to 4294967295"):
             SimConfig(seed=bad)
+
+
+def test_a_simulated_folders_time_offset_reaches_the_run_s_rig(tmp_path: Path) -> None:
+    """An ASL sensor.yaml has no field for the camera-IMU time offset: `davio run` takes a simulated
+    folder's from its manifest (the offset its images were rendered at), unless --rig gives one."""
+    from argparse import Namespace
+
+    from calib.kalibr import write_kalibr
+    from runtime.config import DavioConfig
+    from tools.commands.run import _open_inputs
+
+    rec = SimRecording.from_preset(SimConfig(preset="euroc", seconds=2.0, seed=0, time_offset_s=0.03))
+    folder = tmp_path / "sim"
+    write_euroc(rec, folder, depth=False, cloud_spacing_m=None)
+    opened = open_recording(folder, rebuild=False)
+    assert opened.time_offset_s == pytest.approx(0.03) and opened.driver.rig.time_offset_s in (None, 0.0)
+    args = Namespace(path=str(folder), rig=None, native_only=True, strict=False, image_topic=None,
+                     imu_topic=None, withhold_extrinsics=False, model=None, emulated=None)
+    assert _open_inputs(args, DavioConfig())[1].time_offset_s == pytest.approx(0.03)
+    camchain = tmp_path / "camchain.yaml"                 # a rig file given: its offset (0) is used
+    write_kalibr(rec.rig.replace(time_offset_s=0.0), camchain)
+    args.rig = str(camchain)
+    assert not _open_inputs(args, DavioConfig())[1].time_offset_s

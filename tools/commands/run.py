@@ -145,6 +145,8 @@ def _open_inputs(args: argparse.Namespace, config) -> tuple:
     rec = open_recording(args.path, rebuild=not args.native_only, policy="strict" if args.strict else "drop",
                          rig=given_rig, image_topic=args.image_topic, imu_topic=args.imu_topic)
     rig = given_rig if given_rig is not None else rec.driver.rig
+    if given_rig is None and rig is not None and rec.time_offset_s is not None and not rig.time_offset_s:
+        rig = rig.replace(time_offset_s=rec.time_offset_s)      # a simulated folder's, from its manifest
     if rig is None or rig.camera is None:
         where = "no CameraInfo in the bag" if rec.kind == "bag" else "no cam0/sensor.yaml"
         raise ConfigError(f"{args.path}: no camera calibration ({where}); DAVIO needs intrinsics: pass "

@@ -77,7 +77,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=float,
         default=0.0,
         metavar="S",
-        help="camera-to-IMU clock offset, t_imu = t_cam + S",
+        help="camera-to-IMU clock offset, t_imu = t_cam + S (kept in manifest.json, since an ASL sensor.yaml "
+             "has no field for it; `davio run` uses it unless --rig gives a rig file)",
     )
     p.add_argument(
         "--motion-blur", type=int, default=1, metavar="N", help="renders averaged per frame (1 = off)"
