@@ -113,7 +113,7 @@ class Candidate:
         self.created_ns = created_ns
         self.cursor = start_seq
         self.consecutive = 0
-        self.status = "replaying"  # replaying | selected | abandoned | diverged | outrun
+        self.status = "replaying"  # replaying | selected | abandoned | diverged | outrun | offset_dropped
         self.states_out = 0
 
     def step(self, buffer: MeasurementBuffer, limit: int | None) -> list:
@@ -149,6 +149,8 @@ class StartupReport:
     candidates_diverged: int = 0
     candidates_outrun: int = 0
     """Candidates still replaying when another filter was selected (they are dropped)."""
+    candidates_offset_dropped: int = 0
+    """Candidates still replaying at a time offset other than one the start-up adopted (dropped)."""
     ff_extensions: int = 0
     """Re-solves of refused windows over a longer span (no model call)."""
     ff_extension_accepted: int = 0
@@ -157,7 +159,7 @@ class StartupReport:
     ff_extension_expired: int = 0
     """Refused windows whose extension reached extend_refused_s without an accepted state."""
     ff_time_offset_corrected: int = 0
-    """Accepted windows solved at a camera-IMU time offset other than the rig's (runtime.ffinit.
+    """Accepted windows solved at a camera-IMU time offset other than the one in use (runtime.ffinit.
     time_offset_check): the rig's offset is wrong."""
     ff_time_offset_first: str = ""
     """The first such window's finding."""
@@ -265,7 +267,7 @@ class StartupManager:
             return None
         if self._tried >= self.cfg.max_candidates:
             return None
-        frames = [f for f in self._frames if int(f.t_ns) + self.offset_ns <= self._newest_ns]
+        frames = self._covered_frames()
         if not frames:
             return None
         spacing_ns = self.cfg.window_spacing_s * 1e9
@@ -276,6 +278,10 @@ class StartupManager:
         ideal = [int(t[-1]) - int(round(k * spacing_ns)) for k in range(self.cfg.window_images - 1, -1, -1)]
         idx = nearest_stamps(t, ideal, self.cfg.window_tolerance_s)
         return None if idx is None else [frames[i] for i in idx]
+
+    def _covered_frames(self) -> list[Frame]:
+        """The buffered frames the IMU covers: a sample reached t_cam + time offset."""
+        return [f for f in self._frames if int(f.t_ns) + self.offset_ns <= self._newest_ns]
 
     def imu_for(self, frames: list[Frame]) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
         """IMU arrays covering the window on the IMU clock, or None if not yet covered or if IMU samples
@@ -292,14 +298,18 @@ class StartupManager:
         return imu
 
     def _imu_span(self, t0_cam_ns: int, t1_cam_ns: int) -> tuple[tuple | None, bool]:
-        """(IMU arrays covering the span, or None; whether samples were lost inside it)."""
+        """(IMU arrays covering the span, or None; whether samples were lost inside it). The arrays reach
+        back `imu_lead_s` before the span, or to the newest loss there (a sample flagged `lost_before` starts
+        an intact run), so that a loss before the span only shortens the lead."""
         t0 = int(t0_cam_ns) + self.offset_ns
         t1 = int(t1_cam_ns) + self.offset_ns
-        t, w, a = self.buffer.imu_arrays(t0 - max(self.imu_lead_ns, 20_000_000), t1 + 20_000_000)
+        lead = t0 - max(self.imu_lead_ns, 20_000_000)
+        if any(t0 < lost <= t1 + 20_000_000 for lost in self._imu_loss_ns):
+            return None, True
+        lead = max([lead] + [lost for lost in self._imu_loss_ns if lead < lost <= t0])
+        t, w, a = self.buffer.imu_arrays(lead, t1 + 20_000_000)
         if t.size < 2 or t[0] > t0 or t[-1] < t1:
             return None, False
-        if any(t[0] < lost <= t[-1] for lost in self._imu_loss_ns):
-            return None, True
         return (t, w, a), False
 
     def extension_imu(self, stamps: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
@@ -316,9 +326,11 @@ class StartupManager:
 
         stamps: the window's images, then the frames after it spaced about one window spacing, ending at
         the newest frame (runtime.startup_resolves.ReSolves decides when one is due and when they end)."""
-        if not self.extension_pending() or not self._frames:
+        if not self.extension_pending():
             return None
-        t = np.array([f.t_ns for f in self._frames], np.int64)
+        t = np.array([f.t_ns for f in self._covered_frames()], np.int64)
+        if not t.size:
+            return None
         ideal = self._resolves.due_times(int(t[-1]))
         idx = None if ideal is None else nearest_stamps(t, ideal, self.cfg.window_tolerance_s)
         if idx is None:
@@ -385,9 +397,11 @@ class StartupManager:
             return
         start = None
         margin = 50_000_000
+        offset_ns = self.offset_ns if "time_offset_s" not in result.info else \
+            int(round(float(result.info["time_offset_s"]) * 1e9))      # the offset the state was solved at
         for e in self.buffer.entries:
             if (e.kind == "imu" and e.t_ns >= result.t_ns - margin) or \
-               (e.kind == "tracks" and e.t_ns + self.offset_ns > result.t_ns):
+               (e.kind == "tracks" and e.t_ns + offset_ns > result.t_ns):
                 start = e.seq
                 break
         first_imu = next((e for e in self.buffer.entries if e.kind == "imu"), None)
@@ -404,11 +418,14 @@ class StartupManager:
         self.report.candidates_started += 1
 
     def _offset_found(self, offset_s: float) -> None:
-        """Count a window's time-offset finding; adopt the offset once enough recent ones agree."""
+        """Count a window's time-offset finding; adopt the offset once enough recent ones agree, unless a
+        filter publishes already (its state was propagated at its offset: the finding is only counted).
+        Candidates still replaying at another offset are dropped (not counted against max_candidates)."""
         self.report.time_offset_findings += 1
         self._offset_findings = (self._offset_findings + [offset_s])[-self.cfg.time_offset_findings:]
         recent = self._offset_findings
-        if self.adopt_time_offset is None or len(recent) < self.cfg.time_offset_findings \
+        if self.adopt_time_offset is None or self.publisher is not None \
+                or len(recent) < self.cfg.time_offset_findings \
                 or max(recent) - min(recent) > self.cfg.time_offset_agree_s:
             return
         adopted = float(np.mean(recent))
@@ -418,6 +435,13 @@ class StartupManager:
         self.report.time_offset_adopted_t_ns = self._newest_ns
         if hasattr(self.native, "set_time_offset"):
             self.native.set_time_offset(adopted)
+        for c in list(self.candidates):
+            offset = getattr(c.filter, "time_offset_s", None)
+            if offset is not None and abs(offset - adopted) > self.cfg.time_offset_agree_s:
+                c.status = "offset_dropped"
+                self.candidates.remove(c)
+                self._tried -= 1
+                self.report.candidates_offset_dropped += 1
         self.adopt_time_offset(adopted)
 
     # ------------------------------------------------------------------ internals

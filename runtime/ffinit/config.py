@@ -92,10 +92,11 @@ class FFInitConfig:
     times the fit's RMS residual (`davio bench rig-checks`, BENCHMARKS.md "Start-up checks of the rig")."""
     correct_time_offset: bool = True
     """A window the DA3-gyro alignment refuses (and the rotation check does not explain) whose rotations fit
-    a camera-IMU time offset far from the rig's is solved again at that offset, and the filter it starts uses
-    it; False: refused as `time_offset` (runtime.ffinit.time_offset_check; added, not the paper's)."""
+    a camera-IMU time offset far from the one in use is solved again at that offset, the filter it starts
+    uses it, and the start-up adopts it (startup.time_offset_findings); False: refused as `time_offset` and
+    nothing adopted (runtime.ffinit.time_offset_check; added, not the paper's)."""
     time_offset_check_s: float = 0.015
-    """That offset must be at least this far (s) from the rig's..."""
+    """That offset must be at least this far (s) from the one in use (the rig's, or one adopted)..."""
     time_offset_check_ratio: float = 3.0
     """...within `max_rotation_residual_deg` there and this many times better than at the rig's offset."""
     time_offset_check_range_s: float = 0.2
@@ -173,6 +174,9 @@ class FFInitConfig:
                 raise ConfigError(f"ffinit.{name} must be >= 0, got {getattr(self, name)}")
         if not self.extension_pnp_px > 0 or not self.extension_min_inliers >= 4:
             raise ConfigError("ffinit.extension_pnp_px must be > 0 and ffinit.extension_min_inliers >= 4")
+        if not self.time_offset_check_step_s < self.time_offset_check_range_s:
+            raise ConfigError(f"ffinit.time_offset_check_step_s ({self.time_offset_check_step_s}) must be "
+                              f"below ffinit.time_offset_check_range_s ({self.time_offset_check_range_s})")
         if not self.max_median_depth_m > self.min_median_depth_m:
             raise ConfigError(f"ffinit.max_median_depth_m ({self.max_median_depth_m}) must exceed "
                               f"min_median_depth_m ({self.min_median_depth_m})")

@@ -235,8 +235,12 @@ class FeedForwardInitializer:
             return Rejection("time_offset", detail, time_offset_s=found)
         corrected = solve_at(found)
         if isinstance(corrected, Rejection) and corrected.reason == "imu_gap":   # live: the IMU ends near it
-            return Rejection("time_offset", f"{detail}; not solved at that offset: the IMU does not reach "
-                                            "that far past the window yet", time_offset_s=found)
+            return Rejection("time_offset", f"{detail}; not solved at that offset: the IMU handed to the "
+                                            "window does not cover it there", time_offset_s=found)
+        if isinstance(corrected, Rejection) and corrected.reason in EXTENDABLE:   # a longer span may cure it
+            corrected.detail = f"at the offset the rotations fit ({detail}): {corrected.detail}"
+            corrected.time_offset_s = found
+            return corrected
         if isinstance(corrected, Rejection):
             return Rejection("time_offset", f"{detail}; solved at that offset the window is refused too "
                                             f"({corrected.reason}: {corrected.detail})", time_offset_s=found)

@@ -1,5 +1,6 @@
-"""Is the rig's camera–IMU time offset the one the motion shows? Asked of a window the DA3–gyro alignment
-refused (`gyro_bias_step`, `rotation_inconsistent`) when the rotation check found nothing.
+"""Is the camera–IMU time offset in use (the rig's, or one the start-up adopted) the one the motion shows?
+Asked of a window the DA3–gyro alignment refused (`gyro_bias_step`, `rotation_inconsistent`) when the
+rotation check found nothing.
 
 A camera stamped late or early against the IMU (a UVC camera stamped on the host after readout and
 transfer, a serial IMU's own latency: tens of ms are common, and Kalibr's `timeshift_cam_imu` is what
@@ -8,12 +9,16 @@ changes, by about the rate change times the shift, and from about 30 ms on every
 reason that does not name the cause (measured on the hand-held preset: 14 of 28 windows at 10 ms, all at
 30 ms). A scan of the shift tells the two apart: the gyro is integrated once over the window and a margin,
 and for each shift on a grid the consecutive-image rotations are compared with DA3's after the best gyro
-bias for that shift (least squares, first order). When the best shift is at least
-`FFInitConfig.time_offset_check_s` from the rig's offset, fits within `max_rotation_residual_deg` (the
-consistency gate would then pass) with a plausible bias step, and `time_offset_check_ratio` times better
-than the rig's offset does, the window is solved again at that offset (every gate as before) and an
-accepted state carries the offset to the filter it starts (`ffinit.correct_time_offset`; without it, or
-when the re-solve is refused, the window is refused as `time_offset`, saying how far and which way).
+bias for that shift (least squares, first order). Only the image pairs the IMU covers at every shift are
+compared: live, the IMU handed to a window ends just past its newest image, so the last pair is left out
+and three pairs of a five-image window are scanned. When the best shift is at least
+`FFInitConfig.time_offset_check_s` from zero, fits within `max_rotation_residual_deg` (the consistency gate
+would then pass) with a plausible bias step, and `time_offset_check_ratio` times better than the offset in
+use does, the window is solved again at that offset (every gate as before). An accepted state carries the
+offset to the filter it starts; a refusal a longer span could cure keeps its reason and re-solve seed;
+any other refusal becomes `time_offset`, saying how far and which way. Either way the finding travels with
+the result, and the start-up adopts it (`ffinit.correct_time_offset`; without it every such window is only
+refused as `time_offset`).
 """
 from __future__ import annotations
 
@@ -29,7 +34,7 @@ from runtime.ffinit.window import ImageObservations
 @dataclass
 class OffsetScan:
     """RMS rotation residual (deg) of the consecutive-image rotations against each trial shift (s, added to
-    the rig's time offset), each with its own least-squares gyro-bias step (rad/s)."""
+    the time offset in use), each with its own least-squares gyro-bias step (rad/s)."""
 
     shifts_s: np.ndarray
     rms_deg: np.ndarray
@@ -37,6 +42,7 @@ class OffsetScan:
 
     @property
     def best(self) -> int:
+        """Index of the shift with the smallest residual."""
         return int(np.nanargmin(self.rms_deg))
 
     def refined_shift(self, b: int) -> float:
@@ -96,6 +102,7 @@ def scan_time_offset(t_cam_ns: Sequence[int], observations: Sequence[ImageObserv
     t_s = (imu_t[first:last + 1] - base) * 1e-9
     R_cum = _cumulative_rotations(t_s, np.asarray(gyro, np.float64)[first:last + 1])
     query = ((t_imu[used] - base) * 1e-9)[None, :] + shifts_s[:, None]        # (S, images) on the IMU clock
+    query = np.clip(query, t_s[0], t_s[-1])     # a sample exactly at an end: float rounding, not a gap
     R_q = Slerp(t_s, Rotation.from_matrix(R_cum))(query.ravel()).as_matrix().reshape(len(shifts_s), -1, 3, 3)
     a, b = np.searchsorted(used, pairs), np.searchsorted(used, pairs + 1)
     R_pre = np.einsum("snji,snjk->snik", R_q[:, a], R_q[:, b])                 # the pairs' IMU increments
@@ -113,27 +120,31 @@ def scan_time_offset(t_cam_ns: Sequence[int], observations: Sequence[ImageObserv
 
 @dataclass
 class OffsetFit:
-    """A camera-IMU time offset the window's rotations fit far better than the rig's."""
+    """A camera-IMU time offset the window's rotations fit far better than the one in use."""
 
     shift_s: float
-    """Added to the rig's offset (t_imu = t_cam + offset), s."""
+    """Added to the offset in use (t_imu = t_cam + offset), s."""
     rms_deg: float
-    rig_rms_deg: float
+    """RMS rotation residual there, degrees."""
+    in_use_rms_deg: float
+    """RMS rotation residual at the offset in use, degrees."""
 
-    def describe(self, rig_offset_s: float) -> str:
+    def describe(self, offset_s: float) -> str:
+        """One line for reports: the shift from `offset_s` (the offset in use, s), both fits, and which way
+        the camera's stamps run (a negative shift: later than the offset in use says)."""
         ms = self.shift_s * 1e3
-        return (f"the window's rotations fit a camera-IMU time offset {ms:+.0f} ms from the rig's "
-                f"({rig_offset_s * 1e3:+.1f} ms, t_imu = t_cam + offset; {self.rms_deg:.3f} deg RMS there, "
-                f"{self.rig_rms_deg:.2f} at the rig's): the camera's stamps run {abs(ms):.0f} ms "
+        return (f"the window's rotations fit a camera-IMU time offset {ms:+.0f} ms from the one in use "
+                f"({offset_s * 1e3:+.1f} ms, t_imu = t_cam + offset; {self.rms_deg:.3f} deg RMS there, "
+                f"{self.in_use_rms_deg:.2f} at the one in use): the camera's stamps run {abs(ms):.0f} ms "
                 f"{'early' if ms > 0 else 'late'} against the IMU's")
 
 
 def fit_time_offset(t_cam_ns: Sequence[int], observations: Sequence[ImageObservations], R_IC: np.ndarray,
                     imu_t_ns: np.ndarray, gyro: np.ndarray, time_offset_s: float,
                     cfg: FFInitConfig) -> OffsetFit | None:
-    """The shift the window's rotations fit when it is far from the rig's offset and fits far better
-    (module docstring), else None: the best shift is near the rig's, at the edge of the scanned range, fits
-    no better than the consistency gate allows, needs an implausible bias step, or the rig's offset fits
+    """The shift the window's rotations fit when it is far from the offset in use and fits far better
+    (module docstring), else None: the best shift is near zero, at the edge of the scanned range, fits
+    no better than the consistency gate allows, needs an implausible bias step, or the offset in use fits
     nearly as well (the rotation rate hardly changes in the window, so the shift is not determined)."""
     step = cfg.time_offset_check_step_s
     n = int(np.floor(cfg.time_offset_check_range_s / step + 1e-9))
@@ -144,7 +155,7 @@ def fit_time_offset(t_cam_ns: Sequence[int], observations: Sequence[ImageObserva
     b = scan.best
     fit = OffsetFit(scan.refined_shift(b), float(scan.rms_deg[b]), scan.rms_at(0.0))
     if not (abs(fit.shift_s) >= cfg.time_offset_check_s and fit.rms_deg <= cfg.max_rotation_residual_deg
-            and fit.rig_rms_deg >= cfg.time_offset_check_ratio * fit.rms_deg
+            and fit.in_use_rms_deg >= cfg.time_offset_check_ratio * fit.rms_deg
             and scan.bias_step[b] <= cfg.max_gyro_bias_change and 0 < b < len(scan.shifts_s) - 1):
         return None
     return fit

@@ -112,8 +112,8 @@ class MsckfEstimator:
         time_offset_s: t_imu = t_cam + time_offset_s from now on (and at later initialisations), e.g. the
         offset a feed-forward window was solved at; None keeps the rig's (or the last one set)."""
         cfg = self.config
-        if time_offset_s is not None:
-            self.set_time_offset(time_offset_s)
+        if time_offset_s is not None and not np.isfinite(time_offset_s):
+            raise EstimatorError("initialize_from_state: time_offset_s must be finite")
         vals = [np.asarray(x, dtype=float) for x in (R_OI, p_OI, v_OI, bg, ba)]
         shapes = [(3, 3), (3,), (3,), (3,), (3,)]
         for x, s, n in zip(vals, shapes, ("R_OI", "p_OI", "v_OI", "bg", "ba"), strict=True):
@@ -122,7 +122,8 @@ class MsckfEstimator:
         R = vals[0]
         if np.abs(R.T @ R - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0:
             raise EstimatorError("initialize_from_state: R_OI is not a rotation")
-        st = State(self._R_IC0, self._p_IC0, self._t_d0, cfg.calib_time_offset, cfg.calib_extrinsics,
+        t_d = self._t_d0 if time_offset_s is None else float(time_offset_s)
+        st = State(self._R_IC0, self._p_IC0, t_d, cfg.calib_time_offset, cfg.calib_extrinsics,
                    self.camera.params.copy() if cfg.calib_intrinsics else None)
         st.t_ns = int(t_ns)
         st.R, st.p, st.v, st.bg, st.ba = (x.copy() for x in vals)
@@ -164,6 +165,8 @@ class MsckfEstimator:
             # report them with zero uncertainty rather than an unchanging prior
             sig += [0.0 if self.camera.model == "none" else cfg.sigma_calib_distortion] * 4
             st.P[i : i + 8, i : i + 8] = np.diag(np.square(sig))
+        if time_offset_s is not None:     # every input checked: only now does the offset change
+            self.set_time_offset(time_offset_s)
         self.state_ = st
         self._t_init_ns = int(t_ns)
         self._last_update_ns = None

@@ -45,7 +45,7 @@ def test_a_wrong_offset_is_found_to_the_millisecond(rig_error_s):
     fit = fit_time_offset(t_cam, obs, R_IC, imu_t, gyro, rig_error_s, FFInitConfig())
     assert fit is not None
     assert fit.shift_s == pytest.approx(-rig_error_s, abs=1e-3)     # between the 5 ms grid points
-    assert fit.rms_deg < 0.02 and fit.rig_rms_deg > 10 * fit.rms_deg
+    assert fit.rms_deg < 0.02 and fit.in_use_rms_deg > 10 * fit.rms_deg
     early_or_late = "late" if rig_error_s > 0 else "early"
     assert f"{abs(fit.shift_s) * 1e3:.0f} ms {early_or_late} against the IMU" in fit.describe(rig_error_s)
 
@@ -93,6 +93,24 @@ def test_live_the_pairs_the_imu_does_not_cover_are_left_out():
     grid = np.array([-0.2, 0.0, 0.2])
     assert scan_time_offset(t_cam, obs, R_IC, imu_t[short], gyro[short], 0.0, grid) is None
     assert fit_time_offset(t_cam, obs, R_IC, imu_t[short], gyro[short], -0.05, FFInitConfig()) is None
+
+
+def test_an_imu_sample_exactly_at_the_scans_end_is_not_a_gap():
+    """Frame stamps whose shifted ends fall exactly on IMU samples (simulated stamps do): float rounding of
+    the query times must not stop the scan (a review found a ValueError from the interpolation)."""
+    t_cam, obs, imu_t, gyro = _window(0.0)
+    stamps = [T0 + int(s * 1e9) for s in (0.0, 0.2, 0.35, 0.5, 0.7)]
+    obs_at = [obs[0], obs[1], obs[2], obs[3], obs[4]]
+    keep = imu_t <= stamps[-1] + 200_000_000                # the last sample exactly at the last shifted end
+    scan = scan_time_offset(stamps, obs_at, R_IC, imu_t[keep], gyro[keep], 0.0, np.arange(-40, 41) * 0.005)
+    assert scan is not None and np.isfinite(scan.rms_deg).all()
+
+
+def test_config_refuses_a_step_not_below_the_range():
+    from runtime.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="time_offset_check_step_s"):
+        FFInitConfig(time_offset_check_step_s=0.2, time_offset_check_range_s=0.2)
 
 
 @pytest.mark.parametrize("name", ["time_offset_check_s", "time_offset_check_ratio",
@@ -148,3 +166,14 @@ def test_a_simulated_window_is_solved_at_the_offset_its_rotations_fit(handheld_w
     # what the check replaces: a plain refusal
     off = FFInitConfig(time_offset_check_range_s=0.02)            # the scan cannot reach 60 ms
     assert _solve(rec, frames, 0.06, off)[0].reason == "rotation_inconsistent"
+
+
+def test_a_refusal_a_longer_span_may_cure_keeps_its_reason_and_seed_at_the_found_offset(handheld_window):
+    """Solved at the offset found, a window refused for too short a span keeps that reason and its re-solve
+    seed (the start-up re-solves it, at the adopted offset), and carries the finding."""
+    rec, frames = handheld_window
+    strict = FFInitConfig(max_scale_uncertainty=1e-6)              # every scale is too uncertain
+    res, _ = _solve(rec, frames, 0.06, strict)
+    assert res.reason == "scale_unobservable" and res.seed is not None
+    assert res.time_offset_s == pytest.approx(rec.rig.time_offset_s or 0.0, abs=0.002)
+    assert "at the offset the rotations fit" in res.detail

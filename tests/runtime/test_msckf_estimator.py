@@ -227,6 +227,10 @@ def test_a_time_offset_given_at_initialisation_or_later_reaches_the_state_and_th
     assert est.state_.t_d == 0.01
     with pytest.raises(EstimatorError, match="finite"):
         est.set_time_offset(float("nan"))
+    with pytest.raises(EstimatorError, match="rotation"):   # a refused call changes nothing, the offset too
+        est.initialize_from_state(0, np.eye(3) * 2, np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3),
+                                  time_offset_s=0.2)
+    assert est.time_offset_s == 0.01 and ini.time_offset_ns == 10_000_000
 
 
 def test_initializer_result_starts_the_filter() -> None:

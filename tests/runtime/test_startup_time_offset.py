@@ -138,3 +138,98 @@ def test_with_a_positive_offset_windows_end_at_the_newest_frame_the_imu_covers()
                 solvable.append(frames[-1].t_ns)
                 m.note_request(frames)
     assert len(solvable) >= 4 and np.all(np.diff(solvable) >= 200_000_000 * 0.999)
+
+
+def _feed(m: StartupManager, seconds: float, frames: bool = True, lost_at_ns: tuple = ()) -> None:
+    from startup_fakes import stream
+
+    from runtime.events import Frame, ImuSample
+
+    for kind, t in stream(seconds):
+        if kind == "imu":
+            m.on_imu(ImuSample(t, np.zeros(3), np.array([0, 0, 9.81]), lost_before=int(t in lost_at_ns)))
+        else:
+            frame = Frame(t, np.zeros((4, 4), np.uint8)) if frames else None
+            m.on_tracks(t, np.arange(3), np.zeros((3, 2)), frame)
+
+
+def test_a_finding_after_another_filter_published_is_only_counted():
+    """The publishing filter's state was propagated at its offset: an answer that arrives after it started
+    (its window was requested before) must not move it."""
+    m, filters, adopted = _manager()
+    m.publisher = filters[0]
+    m.on_feedforward(_finding(0.05))
+    assert m.report.time_offset_findings == 1 and adopted == [] and m.report.time_offset_adopted_s is None
+    assert not hasattr(filters[0], "offset_told") and m.offset_ns == 0
+
+
+def test_a_candidate_replaying_at_another_offset_is_dropped_on_adoption_and_not_counted_as_tried():
+    m, filters, adopted = _manager(StartupConfig(max_candidates=1))
+    _feed(m, 1.5)
+    m.on_feedforward(InitResult(1_000_000_000, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3),
+                                None, "feedforward"))
+    assert m.report.candidates_started == 1 and len(m.candidates) == 1
+    filters[-1].time_offset_s = 0.0                       # started at the offset then in use
+    m.on_feedforward(_finding(0.06))
+    assert adopted == [pytest.approx(0.06)] and m.candidates == [] and m.report.candidates_offset_dropped == 1
+    res = InitResult(1_200_000_000, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), None,
+                     "feedforward")
+    m.on_feedforward(res)                                 # max_candidates = 1: the dropped one did not count
+    assert m.report.candidates_started == 2
+
+
+def test_a_corrected_candidate_replays_from_the_frames_after_its_state_at_its_own_offset():
+    m, filters, _ = _manager(adopt=False)            # the start-up's offset stays 0
+    _feed(m, 1.5)
+    res = InitResult(1_000_000_000, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), None,
+                     "feedforward")
+    res.info.update(time_offset_s=0.2, time_offset_shift_s=0.2, time_offset_detail="fits +200 ms")
+    m.on_feedforward(res)
+    cand = m.candidates[0]
+    cand.step(m.buffer, None)
+    first_tracks = next(t for kind, t in filters[-1].fed if kind == "tracks")
+    # the first frame whose t_cam + 0.2 s follows the state's 1.0 s, though it precedes the IMU replayed from
+    # 50 ms before the state (at the start-up's own offset, 0, the replay began after it)
+    assert first_tracks == 850_000_000
+
+
+def test_re_solves_also_end_at_the_newest_frame_the_imu_covers():
+    """t_imu = t_cam + 120 ms: a refused window's re-solves use covered frames, so they run."""
+    from types import SimpleNamespace
+
+    m = StartupManager(lambda native: OffsetFilter(), StartupConfig(), time_offset_s=0.12)
+    _feed(m, 1.2)
+    frames = m.window()
+    seed = SimpleNamespace(t_cam_ns=np.array([f.t_ns for f in frames], np.int64),
+                           last_ns=int(frames[-1].t_ns))
+    m.note_request(frames)
+    m.on_feedforward(Rejection("scale_unobservable", "short", seed=seed))
+    assert m.extension_pending()
+    from startup_fakes import stream
+
+    from runtime.events import Frame, ImuSample
+
+    for kind, t in stream(2.0):
+        if t <= 1.2e9:          # fed already
+            continue
+        if kind == "imu":
+            m.on_imu(ImuSample(t, np.zeros(3), np.array([0, 0, 9.81])))
+        else:
+            m.on_tracks(t, np.arange(3), np.zeros((3, 2)), Frame(t, np.zeros((4, 4), np.uint8)))
+        due = m.extension()
+        if due is not None and m.extension_imu(due[1]) is not None:
+            break
+    else:
+        pytest.fail("no re-solve was ever covered by the IMU")
+    assert due[1][-1] + 120_000_000 <= t
+
+
+def test_an_imu_loss_before_a_window_shortens_the_lead_and_one_inside_refuses_it():
+    m, _, _ = _manager()
+    _feed(m, 2.0, lost_at_ns=(1_100_000_000,))
+    frames = m.window()                                   # 1.2 ... 2.0 s: the loss is 100 ms before it
+    t, _, _ = m.imu_for(frames)
+    assert t[0] == 1_100_000_000 and m.report.ff_windows_imu_lost == 0
+    m2, _, _ = _manager()
+    _feed(m2, 2.0, lost_at_ns=(1_500_000_000,))            # inside the window
+    assert m2.imu_for(m2.window()) is None and m2.report.ff_windows_imu_lost == 1

@@ -42,13 +42,15 @@ def test_summary_of_the_time_offset_solves():
 @pytest.mark.slow
 def test_a_hand_held_recording_passes_with_the_right_rig_and_names_both_mistakes(capsys):
     assert main(["bench", "rig-checks", "--preset", "handheld", "--seconds", "8", "--every", "0.5", "--k",
-                 "0.05", "--time-offset-error", "-0.05", "--json"]) == 0
+                 "0.05", "--time-offset-error", "0.05,-0.05", "--json"]) == 0
     s = json.loads(capsys.readouterr().out)["recordings"]["preset handheld"]["0.05"]
     assert s["judged"] >= 2 and s["refused_right_units"] == 0 and s["refused_deg_s"] == s["judged"]
     assert 0.8 < s["median"] < 1.5          # the chord of the camera's turn against the gyro's path
     assert s["extrinsics_false_alarms"] == 0 and s["extrinsics_named"] >= 3 and s["inverted_accepted"] == 0
     t = s["time_offset"]
     assert t["false_findings"] == 0
-    late = t["errors"]["-0.05"]               # the camera's stamps 50 ms late: found, and solved there
+    late = t["errors"]["0.05"]                # the camera's stamps 50 ms late: found, and solved there
     assert late["solved"] + late["named"] >= s["windows"] // 2 and late["solved"] >= 3
     assert late["found_err_ms_max"] <= 5.0 and late["outcomes"].get("rotation_inconsistent", 0) <= 2
+    early = t["errors"]["-0.05"]              # 50 ms early: found, but the IMU handed over ends too soon
+    assert early["solved"] == 0 and early["named"] >= s["windows"] // 2 and early["found_err_ms_max"] <= 5.0

@@ -243,7 +243,6 @@ def test_recovery_lines_name_every_counted_recovery():
     assert len(line) == 1 and "inverted" in line[0] and "--withhold-extrinsics" in line[0]
 
 
-
 def test_the_time_offset_line_says_what_the_start_up_did_with_its_finding():
     from tools.commands.run import _recovery_lines
 
@@ -262,7 +261,8 @@ def test_the_time_offset_line_says_what_the_start_up_did_with_its_finding():
     solved = lines({"time_offset_findings": 1, "ff_time_offset_s": -0.03,
                     "ff_time_offset_first": "fits -30 ms"})
     assert "a window was solved at -30.0 ms (the rig says +0.0 ms); the first: fits -30 ms" in solved[0]
-    assert "not adopted" in lines({"time_offset_findings": 1, "ff_rejection_first": first})[0]
+    assert "1 window fits another offset, not adopted" in lines({"time_offset_findings": 1,
+                                                                  "ff_rejection_first": first})[0]
 
 
 @pytest.mark.parametrize("args, message", [

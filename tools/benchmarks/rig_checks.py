@@ -15,13 +15,16 @@ so 0.05, 0.1, 0.25, 1 are x1, x2, x5, x20), one DA3 call per window and then:
   off by each --time-offset-error (s; positive: the camera's stamps run late); windows solved at an offset
   the check found (with its distance from the truth and the solved scale's |log s|) or refused as
   `time_offset`, and, from the right rig's solves, findings where there is nothing to find (false alarms).
-  These solves have the whole recording's IMU; live, the IMU ends near the newest image, and an offset
-  towards later IMU times is found from the pairs before it but solved only once the start-up adopted it.
+Every solve gets the IMU as the start-up hands it over (`IMU_LEAD_S` before the window's first image to 20 ms
+past its last, at the offset in use): a camera stamped early (a negative error) is then found from the
+window's first three pairs but not solved at the offset found, which needs IMU past the window; live, the
+start-up adopts it and solves the windows after it there.
 """
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -48,6 +51,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", metavar="FILE.json", help="also write the JSON here")
 
 
+IMU_LEAD_S = 0.22
+"""IMU handed to a start-up window's solve before its first image (runtime.pipeline: the time-offset scan's
+range, 0.2 s, plus 20 ms)."""
+
+
+def _handed_over(imu, t_cam: list[int], offset_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(t_ns, gyro, accel) of the IMU samples the start-up hands a window's solve (runtime.startup)."""
+    off = int(round(offset_s * 1e9))
+    keep = (imu.t_ns >= t_cam[0] + off - int(IMU_LEAD_S * 1e9)) & (imu.t_ns <= t_cam[-1] + off + 20_000_000)
+    return imu.t_ns[keep], imu.gyro[keep], imu.accel[keep]
+
+
 class _Cached:
     """A DepthModel answering every call with one prediction (one DA3 call, several solves)."""
 
@@ -58,7 +73,7 @@ class _Cached:
         return self._prediction
 
 
-def _outcome(res, model) -> tuple[str, dict]:
+def _outcome(res: Any, model: Any) -> tuple[str, dict]:
     """(the solve's outcome: "accepted", "accepted_at_found_offset" or the rejection reason, and the figures
     of an offset finding: its offset and the accepted state's |log s|)."""
     from runtime.msckf.init_common import InitResult
@@ -115,7 +130,7 @@ def measure(rec, ks: list[float], every_s: float, seed: int,
             for name, R_IC, off in (("right", T_IC[:3, :3], offset), ("inverted", T_IC[:3, :3].T, offset),
                                     *((f"offset {e:g}", T_IC[:3, :3], offset + e) for e in offset_errors)):
                 init = FeedForwardInitializer(cached, R_IC, T_IC[:3, 3], off, cfg)
-                outcome, fig = _outcome(init.solve(frames, imu.t_ns, imu.gyro, imu.accel), model)
+                outcome, fig = _outcome(init.solve(frames, *_handed_over(imu, t_cam, off)), model)
                 row[name][outcome] = row[name].get(outcome, 0) + 1
                 if name == "right":
                     row["right_findings"] += int("offset" in fig)

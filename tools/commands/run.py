@@ -346,7 +346,8 @@ def _time_offset_line(startup: dict, rig_offset_s: float | None) -> str | None:
         what = f"a window was solved at {startup['ff_time_offset_s'] * 1e3:+.1f} ms {rig}"
     else:
         what = "not adopted"
-    return (f"CAMERA-IMU TIME OFFSET: {found} windows fit another offset, {what}; the first: {first}. Put "
+    windows = "1 window fits" if found == 1 else f"{found} windows fit"
+    return (f"CAMERA-IMU TIME OFFSET: {windows} another offset, {what}; the first: {first}. Put "
             "the offset in the rig file (Kalibr timeshift_cam_imu: t_imu = t_cam + shift)")
 
 
