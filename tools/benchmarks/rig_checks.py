@@ -13,7 +13,7 @@ so 0.05, 0.1, 0.25, 1 are x1, x2, x5, x20), one DA3 call per window and then:
   right rotation: false alarms) and the other outcomes;
 - camera-IMU time offset (runtime/ffinit/time_offset_check.py): the whole window solve with the rig's offset
   off by each --time-offset-error (s; positive: the camera's stamps run late); windows solved at an offset
-  the check found (with its distance from the truth and the solved scale's |log s|) or refused as
+  the check found (with its distance from the truth; |log s| of every accepted window) or refused as
   `time_offset`, and, from the right rig's solves, findings where there is nothing to find (false alarms).
 Every solve gets the IMU as the start-up hands it over (`IMU_LEAD_S` before the window's first image to 20 ms
 past its last, at the offset in use): a camera stamped early (a negative error) is then found from the
@@ -207,7 +207,7 @@ def _print_offsets(result: dict, ks: list[float]) -> None:
     """The time-offset table: per recording, k and offset error."""
     f = (lambda v, d=3: "     -" if v is None else f"{v:6.{d}f}")  # noqa: E731
     print("camera-IMU time offset: the rig's off by each error; windows solved at the offset found, named "
-          "(refused as time_offset), |found - truth| ms, |log s| of the solved windows (the right rig's "
+          "(refused as time_offset), |found - truth| ms, |log s| of the accepted windows (the right rig's "
           "beside)")
     print(f"  {'recording':24s} {'k':>5s} {'error ms':>8s} {'windows':>7s} {'solved':>6s} {'named':>5s} "
           f"{'|err| med':>9s} {'|err| max':>9s} {'log s med':>9s} {'log s max':>9s} {'right med':>9s} "
