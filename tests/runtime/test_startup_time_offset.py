@@ -35,6 +35,30 @@ def _finding(offset_s: float) -> Rejection:
     return Rejection("time_offset", "fits another offset", time_offset_s=offset_s)
 
 
+def _fed(m: StartupManager, seconds: float, frames: bool = True, lost_at_ns: tuple = (),
+         after_s: float = -1.0):
+    """Feed the fake stream's events after `after_s` up to `seconds` to `m`, yielding each event's stamp once
+    it is in (IMU samples at `lost_at_ns` carry the driver's loss flag)."""
+    from startup_fakes import stream
+
+    from runtime.events import Frame, ImuSample
+
+    for kind, t in stream(seconds):
+        if t <= after_s * 1e9:
+            continue
+        if kind == "imu":
+            m.on_imu(ImuSample(t, np.zeros(3), np.array([0, 0, 9.81]), lost_before=int(t in lost_at_ns)))
+        else:
+            frame = Frame(t, np.zeros((4, 4), np.uint8)) if frames else None
+            m.on_tracks(t, np.arange(3), np.zeros((3, 2)), frame)
+        yield t
+
+
+def _feed(m: StartupManager, seconds: float, **kwargs) -> None:
+    for _ in _fed(m, seconds, **kwargs):
+        pass
+
+
 def test_two_agreeing_findings_are_adopted_by_the_start_up_its_native_filter_and_the_caller():
     m, filters, adopted = _manager(StartupConfig(time_offset_findings=2))
     m.on_feedforward(_finding(0.061))
@@ -57,15 +81,7 @@ def test_findings_that_disagree_are_not_adopted_and_only_the_recent_ones_count()
 
 def test_an_accepted_window_solved_at_another_offset_counts_and_its_candidate_starts_there():
     m, filters, adopted = _manager(StartupConfig(time_offset_findings=1))
-    from startup_fakes import stream
-
-    from runtime.events import ImuSample
-
-    for kind, t in stream(1.5):
-        if kind == "imu":
-            m.on_imu(ImuSample(t, np.zeros(3), np.array([0, 0, 9.81])))
-        else:
-            m.on_tracks(t, np.arange(3), np.zeros((3, 2)))
+    _feed(m, 1.5, frames=False)
     res = InitResult(1_000_000_000, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), None,
                      "feedforward")
     res.info.update(time_offset_s=-0.03, time_offset_shift_s=-0.03, time_offset_detail="fits -30 ms")
@@ -94,16 +110,8 @@ def test_without_a_caller_findings_are_only_counted():
 def test_the_window_imu_reaches_back_by_the_lead():
     """The arrays handed to a window's solve start imu_lead_s before its first image (the time-offset scan
     looks there), not only the 20 ms margin."""
-    from startup_fakes import stream
-
-    from runtime.events import Frame, ImuSample
-
     m, _, _ = _manager()
-    for kind, t in stream(2.0):
-        if kind == "imu":
-            m.on_imu(ImuSample(t, np.zeros(3), np.array([0, 0, 9.81])))
-        else:
-            m.on_tracks(t, np.arange(3), np.zeros((3, 2)), Frame(t, np.zeros((4, 4), np.uint8)))
+    _feed(m, 2.0)
     frames = m.window()
     t, _, _ = m.imu_for(frames)
     assert t[0] <= frames[0].t_ns - 220_000_000 < t[0] + 5_000_000
@@ -120,17 +128,9 @@ def test_config_refuses_non_positive_values(field):
 def test_with_a_positive_offset_windows_end_at_the_newest_frame_the_imu_covers():
     """t_imu = t_cam + 120 ms: the newest frames wait for the IMU (more than two frame periods behind), so
     a window ending at the newest frame would never be covered; it ends at the newest covered one."""
-    from startup_fakes import stream
-
-    from runtime.events import Frame, ImuSample
-
     m = StartupManager(lambda native: OffsetFilter(), StartupConfig(), time_offset_s=0.12)
     solvable = []
-    for kind, t in stream(2.0):
-        if kind == "imu":
-            m.on_imu(ImuSample(t, np.zeros(3), np.array([0, 0, 9.81])))
-        else:
-            m.on_tracks(t, np.arange(3), np.zeros((3, 2)), Frame(t, np.zeros((4, 4), np.uint8)))
+    for t in _fed(m, 2.0):
         frames = m.window()
         if frames is not None:
             assert frames[-1].t_ns + 120_000_000 <= t         # covered by the IMU received so far
@@ -138,19 +138,6 @@ def test_with_a_positive_offset_windows_end_at_the_newest_frame_the_imu_covers()
                 solvable.append(frames[-1].t_ns)
                 m.note_request(frames)
     assert len(solvable) >= 4 and np.all(np.diff(solvable) >= 200_000_000 * 0.999)
-
-
-def _feed(m: StartupManager, seconds: float, frames: bool = True, lost_at_ns: tuple = ()) -> None:
-    from startup_fakes import stream
-
-    from runtime.events import Frame, ImuSample
-
-    for kind, t in stream(seconds):
-        if kind == "imu":
-            m.on_imu(ImuSample(t, np.zeros(3), np.array([0, 0, 9.81]), lost_before=int(t in lost_at_ns)))
-        else:
-            frame = Frame(t, np.zeros((4, 4), np.uint8)) if frames else None
-            m.on_tracks(t, np.arange(3), np.zeros((3, 2)), frame)
 
 
 def test_a_finding_after_another_filter_published_is_only_counted():
@@ -205,23 +192,14 @@ def test_re_solves_also_end_at_the_newest_frame_the_imu_covers():
     m.note_request(frames)
     m.on_feedforward(Rejection("scale_unobservable", "short", seed=seed))
     assert m.extension_pending()
-    from startup_fakes import stream
-
-    from runtime.events import Frame, ImuSample
-
-    for kind, t in stream(2.0):
-        if t <= 1.2e9:          # fed already
-            continue
-        if kind == "imu":
-            m.on_imu(ImuSample(t, np.zeros(3), np.array([0, 0, 9.81])))
-        else:
-            m.on_tracks(t, np.arange(3), np.zeros((3, 2)), Frame(t, np.zeros((4, 4), np.uint8)))
+    for t in _fed(m, 2.0, after_s=1.2):
         due = m.extension()
         if due is not None and m.extension_imu(due[1]) is not None:
+            covered_at = t
             break
     else:
         pytest.fail("no re-solve was ever covered by the IMU")
-    assert due[1][-1] + 120_000_000 <= t
+    assert due[1][-1] + 120_000_000 <= covered_at
 
 
 def test_an_imu_loss_before_a_window_shortens_the_lead_and_one_inside_refuses_it():
