@@ -239,8 +239,7 @@ class VioPipeline:
         return None if self.prior is None else self.prior.pose(segment, t_ns, T_MI)
 
     def _record_nodes(self, commit: MapCommit) -> None:
-        publisher = self.startup.publisher if self.startup is not None else None
-        offset = int(round(getattr(publisher, "time_offset_s", self.time_offset_s) * 1e9))
+        offset = int(round(self.time_offset_s * 1e9))     # the rig's, or the one the start-up adopted
         for sm in (commit.submap, *commit.changed):
             T_MO = sm.T_MS @ np.linalg.inv(sm.T_OS)
             self.node_corrections[sm.index] = (sm.segment, int(sm.frame_t_ns[sm.centre]) + offset, T_MO)

@@ -68,7 +68,8 @@ class StartupConfig:
     diverge) with the wrong offset before a second window answers, and a later window that finds another
     offset relative to the adopted one adopts again..."""
     time_offset_agree_s: float = 0.01
-    """...within this of each other (s); their mean is adopted."""
+    """...within this of each other (s); their mean is adopted. Candidates still replaying at an offset
+    further than this from the adopted one are dropped."""
 
     def __post_init__(self) -> None:
         s = "startup"
@@ -167,6 +168,8 @@ class StartupReport:
     """The offset (t_imu = t_cam + offset, s) of the newest such window."""
     time_offset_findings: int = 0
     """Windows that found a camera-IMU time offset far from the one in use (accepted at it or refused)."""
+    time_offset_first: str = ""
+    """The first finding's detail (how far, which way, both fits)."""
     time_offset_adopted_s: float | None = None
     """The offset the start-up adopted from agreeing findings (None: the rig's kept)..."""
     time_offset_adopted_t_ns: int | None = None
@@ -368,6 +371,9 @@ class StartupManager:
         found = result.info.get("time_offset_s") if isinstance(result, InitResult) else \
             getattr(result, "time_offset_s", None)
         if found is not None:
+            detail = result.info.get("time_offset_detail", "") if isinstance(result, InitResult) else \
+                str(getattr(result, "detail", ""))
+            self.report.time_offset_first = self.report.time_offset_first or detail
             self._offset_found(float(found))
         if not isinstance(result, InitResult):
             reason = getattr(result, "reason", type(result).__name__)

@@ -98,9 +98,9 @@ class FFInitConfig:
     time_offset_check_s: float = 0.015
     """That offset must be at least this far (s) from the one in use (the rig's, or one adopted)..."""
     time_offset_check_ratio: float = 3.0
-    """...within `max_rotation_residual_deg` there and this many times better than at the rig's offset."""
+    """...within `max_rotation_residual_deg` there and this many times better than at the offset in use."""
     time_offset_check_range_s: float = 0.2
-    """The shifts tried span +- this (s) around the rig's offset..."""
+    """The shifts tried span +- this (s) around the offset in use..."""
     time_offset_check_step_s: float = 0.005
     """...in steps of this (s)."""
     gyro_scale_min_rate: float = 0.1

@@ -99,6 +99,17 @@ def test_by_default_the_first_finding_is_adopted_and_a_later_one_relative_to_it_
     assert adopted == [pytest.approx(0.04), pytest.approx(-0.01)] and filters[0].offset_told == -0.01
 
 
+def test_the_first_findings_detail_is_kept_whatever_the_window_ended_as():
+    """A finding may come with a refusal a longer span can cure (its reason kept): its detail is still the
+    report's first finding."""
+    m, _, adopted = _manager()
+    m.on_feedforward(Rejection("scale_unobservable", "at the offset the rotations fit (+40 ms ...): short",
+                               time_offset_s=0.04))
+    m.on_feedforward(_finding(0.041))
+    assert m.report.time_offset_first.startswith("at the offset the rotations fit (+40 ms")
+    assert m.report.ff_rejections == {"scale_unobservable": 1, "time_offset": 1} and len(adopted) == 2
+
+
 def test_without_a_caller_findings_are_only_counted():
     m, filters, adopted = _manager(adopt=False)
     for _ in range(3):

@@ -263,6 +263,10 @@ def test_the_time_offset_line_says_what_the_start_up_did_with_its_finding():
     assert "a window was solved at -30.0 ms (the rig says +0.0 ms); the first: fits -30 ms" in solved[0]
     assert "1 window fits another offset, not adopted" in lines({"time_offset_findings": 1,
                                                                   "ff_rejection_first": first})[0]
+    # a finding that came with a refusal a longer span may cure: its detail is the start-up's first finding
+    cured = lines({"time_offset_findings": 1, "time_offset_adopted_s": -0.0016,
+                   "time_offset_first": "at the offset the rotations fit (-48 ms ...): short"}, 0.05)
+    assert "; the first: at the offset the rotations fit (-48 ms ...): short. Put" in cured[0]
 
 
 @pytest.mark.parametrize("args, message", [

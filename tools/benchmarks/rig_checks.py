@@ -15,7 +15,7 @@ so 0.05, 0.1, 0.25, 1 are x1, x2, x5, x20), one DA3 call per window and then:
   off by each --time-offset-error (s; positive: the camera's stamps run late); windows solved at an offset
   the check found (with its distance from the truth; |log s| of every accepted window) or refused as
   `time_offset`, and, from the right rig's solves, findings where there is nothing to find (false alarms).
-Every solve gets the IMU as the start-up hands it over (`IMU_LEAD_S` before the window's first image to 20 ms
+Every solve gets the IMU as the start-up hands it over (0.22 s before the window's first image to 20 ms
 past its last, at the offset in use): a camera stamped early (a negative error) is then found from the
 window's first three pairs but not solved at the offset found, which needs IMU past the window; live, the
 start-up adopts it and solves the windows after it there.
@@ -51,15 +51,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", metavar="FILE.json", help="also write the JSON here")
 
 
-IMU_LEAD_S = 0.22
-"""IMU handed to a start-up window's solve before its first image (runtime.pipeline: the time-offset scan's
-range, 0.2 s, plus 20 ms)."""
+def _imu_lead_s() -> float:
+    """IMU handed to a start-up window's solve before its first image (runtime.pipeline: the time-offset
+    scan's range plus 20 ms)."""
+    from runtime.ffinit.config import FFInitConfig
+
+    return FFInitConfig().time_offset_check_range_s + 0.02
 
 
 def _handed_over(imu, t_cam: list[int], offset_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(t_ns, gyro, accel) of the IMU samples the start-up hands a window's solve (runtime.startup)."""
     off = int(round(offset_s * 1e9))
-    keep = (imu.t_ns >= t_cam[0] + off - int(IMU_LEAD_S * 1e9)) & (imu.t_ns <= t_cam[-1] + off + 20_000_000)
+    lead_ns = int(round(_imu_lead_s() * 1e9))
+    keep = (imu.t_ns >= t_cam[0] + off - lead_ns) & (imu.t_ns <= t_cam[-1] + off + 20_000_000)
     return imu.t_ns[keep], imu.gyro[keep], imu.accel[keep]
 
 

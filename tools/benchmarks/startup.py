@@ -95,7 +95,8 @@ def _recording(args: argparse.Namespace) -> Any:
 
 
 class _WindowDriver:
-    """The events of a recording inside [t0, t1) (frames rendered only inside the window)."""
+    """The events of a recording inside [t0, t1) (frames rendered only inside the window), with the
+    recording's rig, or with its camera-IMU time offset off by `time_offset_error_s` (s)."""
 
     def __init__(self, rec: Any, t0_ns: int, t1_ns: int, time_offset_error_s: float = 0.0) -> None:
         self.rec, self.t0, self.t1 = rec, t0_ns, t1_ns

@@ -337,8 +337,8 @@ def _time_offset_line(startup: dict, rig_offset_s: float | None) -> str | None:
         return None
     rig_ms = (rig_offset_s or 0.0) * 1e3
     adopted = startup.get("time_offset_adopted_s")
-    first = startup.get("ff_time_offset_first") or \
-        (startup.get("ff_rejection_first") or {}).get("time_offset", "")
+    first = startup.get("time_offset_first") or startup.get("ff_time_offset_first") or \
+        (startup.get("ff_rejection_first") or {}).get("time_offset", "") or "-"
     rig = f"(the rig says {rig_ms:+.1f} ms)"
     if adopted is not None:
         what = f"adopted {adopted * 1e3:+.1f} ms {rig}"
