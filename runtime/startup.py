@@ -312,7 +312,11 @@ class StartupManager:
         lead = max([lead] + [lost for lost in self._imu_loss_ns if lead < lost <= t0])
         t, w, a = self.buffer.imu_arrays(lead, t1 + 20_000_000)
         if t.size < 2 or t[0] > t0 or t[-1] < t1:
-            return None, False
+            # none reached t1, and the next sample is flagged as following lost ones: the gap spans t1
+            after = [lost for lost in self._imu_loss_ns if lost > t1]
+            gap = bool(t.size) and t[-1] < t1 and bool(after) and \
+                self.buffer.imu_arrays(int(t[-1]) + 1, min(after))[0].size == 1
+            return None, gap
         return (t, w, a), False
 
     def extension_imu(self, stamps: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:

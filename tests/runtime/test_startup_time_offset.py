@@ -222,3 +222,25 @@ def test_an_imu_loss_before_a_window_shortens_the_lead_and_one_inside_refuses_it
     m2, _, _ = _manager()
     _feed(m2, 2.0, lost_at_ns=(1_500_000_000,))            # inside the window
     assert m2.imu_for(m2.window()) is None and m2.report.ff_windows_imu_lost == 1
+
+
+def test_a_gap_across_a_windows_end_flagged_after_it_is_counted_as_lost():
+    """Samples lost from before a window's last image to after it, the flag on the first sample past the
+    gap: the window can never be covered, and is counted once as lost instead of waiting silently."""
+    from startup_fakes import stream
+
+    from runtime.events import Frame, ImuSample
+
+    m, _, _ = _manager()
+    gap = (1_960_000_000, 2_060_000_000)                  # samples missing around the 2.0 s frame
+    for kind, t in stream(2.2):
+        if kind == "imu":
+            if gap[0] <= t < gap[1]:
+                continue
+            m.on_imu(ImuSample(t, np.zeros(3), np.array([0, 0, 9.81]), lost_before=int(t == gap[1])))
+        else:
+            m.on_tracks(t, np.arange(3), np.zeros((3, 2)), Frame(t, np.zeros((4, 4), np.uint8)))
+    frames = [f for f in m._frames if f.t_ns <= 2_000_000_000][-17::4]    # 1.2 ... 2.0 s
+    assert [f.t_ns for f in frames][-1] == 2_000_000_000
+    assert m.imu_for(frames) is None and m.report.ff_windows_imu_lost == 1
+    assert m.imu_for(frames) is None and m.report.ff_windows_imu_lost == 1     # counted once
