@@ -16,6 +16,7 @@ from runtime.errors import ConfigError
 from runtime.events import Frame, ImuSample
 from runtime.ffinit.extension import TrackSet
 from runtime.ffinit.initializer import FeedForwardInitializer
+from runtime.ffinit.time_offset_check import imu_lead_s
 from runtime.geometry.se3 import make_pose
 from runtime.graph.correction import CorrectionTimeline, final_corrections
 from runtime.graph.prior_frame import PriorFrame
@@ -146,7 +147,7 @@ class VioPipeline:
             startup_cfg = replace(startup_cfg, feedforward=False)
         adopt = self._adopt_time_offset if cfg.ffinit.correct_time_offset else None
         self.startup = StartupManager(make_filter, startup_cfg, self.time_offset_s,
-                                      imu_lead_s=cfg.ffinit.time_offset_check_range_s + 0.02,
+                                      imu_lead_s=imu_lead_s(cfg.ffinit),
                                       adopt_time_offset=adopt)
         self.ffinit = None
         if self.model is not None and startup_cfg.feedforward:

@@ -26,6 +26,7 @@ from runtime.events import Frame, ImuSample
 from runtime.geometry.se3 import make_pose
 from runtime.msckf.init_common import InitResult
 from runtime.startup_buffer import MeasurementBuffer, nearest_stamps
+from runtime.startup_offset import OffsetFindings
 from runtime.startup_resolves import ReSolves
 
 
@@ -207,7 +208,6 @@ class StartupManager:
         self.offset_ns = int(round(time_offset_s * 1e9))
         self.imu_lead_ns = int(round(imu_lead_s * 1e9))
         self.adopt_time_offset = adopt_time_offset
-        self._offset_findings: list[float] = []
         self.buffer = MeasurementBuffer(self.cfg.buffer_s)
         self.native = make_filter(self.cfg.native)
         self.candidates: list[Candidate] = []
@@ -224,6 +224,8 @@ class StartupManager:
         self._imu_loss_ns: deque[int] = deque(maxlen=256)
         self._refused_window_ns: int | None = None
         self._resolves = ReSolves(self.cfg.extend_refused_s, self.cfg.window_spacing_s, self.report)
+        self._offsets = OffsetFindings(self.cfg.time_offset_findings, self.cfg.time_offset_agree_s,
+                                       self.report)
 
     # ------------------------------------------------------------------ measurements
     @property
@@ -372,13 +374,10 @@ class StartupManager:
         """Apply a finished feed-forward attempt (extension: a re-solve over a longer span): an InitResult
         starts a candidate; a rejection is counted, and keeps (or ends) the longer re-solves. A time offset
         the window found (runtime.ffinit.time_offset_check) counts towards its adoption."""
-        found = result.info.get("time_offset_s") if isinstance(result, InitResult) else \
-            getattr(result, "time_offset_s", None)
-        if found is not None:
-            detail = result.info.get("time_offset_detail", "") if isinstance(result, InitResult) else \
-                str(getattr(result, "detail", ""))
-            self.report.time_offset_first = self.report.time_offset_first or detail
-            self._offset_found(float(found))
+        # a filter publishing already was propagated at its offset: a finding is then only counted
+        adopted = self._offsets.record(result, self.adopt_time_offset is not None and self.publisher is None)
+        if adopted is not None:
+            self._adopt_offset(adopted)
         if not isinstance(result, InitResult):
             reason = getattr(result, "reason", type(result).__name__)
             counts = self.report.ff_extension_rejections if extension else self.report.ff_rejections
@@ -394,11 +393,6 @@ class StartupManager:
                 self._resolves.drop()
             return
         self._resolves.drop()
-        if "time_offset_s" in result.info:
-            self.report.ff_time_offset_corrected += 1
-            self.report.ff_time_offset_first = self.report.ff_time_offset_first or \
-                str(result.info.get("time_offset_detail", ""))
-            self.report.ff_time_offset_s = float(result.info["time_offset_s"])
         if extension:   # the window's own refusal is in ff_rejections: count the re-solve apart
             self.report.ff_extension_accepted += 1
         else:
@@ -427,19 +421,10 @@ class StartupManager:
         self.candidates.append(Candidate(self._cid, filt, result, self._newest_ns, start))
         self.report.candidates_started += 1
 
-    def _offset_found(self, offset_s: float) -> None:
-        """Count a window's time-offset finding; adopt the offset once enough recent ones agree, unless a
-        filter publishes already (its state was propagated at its offset: the finding is only counted).
-        Candidates still replaying at another offset are dropped (not counted against max_candidates)."""
-        self.report.time_offset_findings += 1
-        self._offset_findings = (self._offset_findings + [offset_s])[-self.cfg.time_offset_findings:]
-        recent = self._offset_findings
-        if self.adopt_time_offset is None or self.publisher is not None \
-                or len(recent) < self.cfg.time_offset_findings \
-                or max(recent) - min(recent) > self.cfg.time_offset_agree_s:
-            return
-        adopted = float(np.mean(recent))
-        self._offset_findings = []
+    def _adopt_offset(self, adopted: float) -> None:
+        """Take up the camera-IMU time offset `adopted` (s): later windows' IMU, the native filter and the
+        caller; candidates still replaying at another offset are dropped (not counted against
+        max_candidates)."""
         self.offset_ns = int(round(adopted * 1e9))
         self.report.time_offset_adopted_s = adopted
         self.report.time_offset_adopted_t_ns = self._newest_ns

@@ -74,6 +74,11 @@ def _cumulative_rotations(t_s: np.ndarray, gyro: np.ndarray) -> np.ndarray:
     return out
 
 
+def imu_lead_s(cfg: FFInitConfig) -> float:
+    """IMU (s) a start-up window's solve needs before its first image: the scan's range plus 20 ms."""
+    return cfg.time_offset_check_range_s + 0.02
+
+
 MIN_PAIRS = 3
 """Consecutive-image pairs the scan needs (each gives three residuals; the bias takes three)."""
 

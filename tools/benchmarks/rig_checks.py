@@ -51,18 +51,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", metavar="FILE.json", help="also write the JSON here")
 
 
-def _imu_lead_s() -> float:
-    """IMU handed to a start-up window's solve before its first image (runtime.pipeline: the time-offset
-    scan's range plus 20 ms)."""
-    from runtime.ffinit.config import FFInitConfig
-
-    return FFInitConfig().time_offset_check_range_s + 0.02
-
-
 def _handed_over(imu, t_cam: list[int], offset_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(t_ns, gyro, accel) of the IMU samples the start-up hands a window's solve (runtime.startup)."""
     off = int(round(offset_s * 1e9))
-    lead_ns = int(round(_imu_lead_s() * 1e9))
+    from runtime.ffinit.config import FFInitConfig
+    from runtime.ffinit.time_offset_check import imu_lead_s
+
+    lead_ns = int(round(imu_lead_s(FFInitConfig()) * 1e9))
     keep = (imu.t_ns >= t_cam[0] + off - lead_ns) & (imu.t_ns <= t_cam[-1] + off + 20_000_000)
     return imu.t_ns[keep], imu.gyro[keep], imu.accel[keep]
 
