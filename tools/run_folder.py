@@ -36,13 +36,15 @@ DERIVED_FILES = ("map.ply", "map.png", "alignment.json", "final.prior.tum", "map
 def _partial_names() -> re.Pattern:
     """What a run writes into `<out>.partial/`: run_io's outputs, the pose journal, the map archive's files
     (map_archive.format) and atomic-write temporaries."""
+    from tools.map_archive.format import JOURNAL_NAME as MAP_JOURNAL
     from tools.map_archive.format import MANIFEST_NAME, SUBMAP_RE, TEMP_RE
     from tools.pose_journal import JOURNAL_NAME
     from tools.run_io import RUN_OUTPUTS
 
     top = "|".join([RUN_OUTPUTS.pattern.strip("^$"), re.escape(JOURNAL_NAME), re.escape(STATUS_FILE),
                     r"map\.ply", r"\..+\.tmp"])
-    archive = "|".join([re.escape(MANIFEST_NAME), SUBMAP_RE.pattern.strip("^$"), TEMP_RE.pattern.strip("^$")])
+    archive = "|".join([re.escape(MANIFEST_NAME), re.escape(MAP_JOURNAL), SUBMAP_RE.pattern.strip("^$"),
+                        TEMP_RE.pattern.strip("^$")])
     return re.compile(f"^(({top})|map/({archive}))$")
 
 

@@ -76,7 +76,16 @@ class MapOutput:
 
         n_sub = len(self.archive.entries)
         summary = {"archive": "map", "submaps": n_sub, "map_version": self.archive.map_version,
-                   "ply": None, "voxels": 0, "archive_stopped": self.stopped}
+                   "ply": None, "voxels": 0, "archive_stopped": self.stopped, "archive_journal_left": None}
+        try:
+            self.archive.close()        # manifest.json whole, the journal removed
+        except OSError as exc:          # the journal still brings the manifest up to date
+            summary["archive_journal_left"] = f"manifest.json could not be written whole: {exc}"
+            print(f"davio: warning: map/manifest.json was left with its journal ({exc}); the archive "
+                  "reloads as it is", file=sys.stderr)
+        summary["archive_written_mb"] = {"submaps": round(self.archive.points_bytes / 1e6, 3),
+                                         "manifest": round(self.archive.bytes_written / 1e6, 3),
+                                         "manifest_whole_writes": self.archive.compactions + 1}
         if n_sub:
             summary["voxels"] = export_map(self.out_dir / "map", self.out_dir / "map.ply", self.voxel_m,
                                            ExportProgress(),

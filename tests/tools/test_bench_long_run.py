@@ -1,5 +1,6 @@
-"""`davio bench long-run`: the JSON it writes, the writer's manifest equal to the whole encoding, and the
-bytes per pose of the columns against the objects (tracemalloc), on a small run."""
+"""`davio bench long-run`: the JSON it writes, the archive read back as the whole manifest and the bytes a
+commit of its journal against the whole manifest's, and the bytes per pose of the columns against the
+objects (tracemalloc), on a small run."""
 from __future__ import annotations
 
 import json
@@ -12,14 +13,23 @@ from tools.cli import main
 
 def test_long_run_bench_measures_both_costs(tmp_path, capsys) -> None:
     out = tmp_path / "long.json"
-    assert main(["bench", "long-run", "--hours", "0.05,0.1", "--poses", "8192", "--repeats", "2",
+    assert main(["bench", "long-run", "--hours", "0.05,0.1", "--poses", "8192", "--moved", "20",
                  "--track-seconds", "0", "--out", str(out)]) == 0
     table = capsys.readouterr().out
     assert "| 0.05 h | 120 |" in table and "| 0.1 h | 240 |" in table
     res = json.loads(out.read_text())
     rows = res["manifest"]
-    assert [r["submaps"] for r in rows] == [120, 240] and all(r["same_text"] for r in rows)
+    assert [r["submaps"] for r in rows] == [120, 240]
+    assert all(r["same_text"] and r["reads_back"] and r["complete_cycle"] for r in rows)
     assert rows[1]["manifest_mb"] > rows[0]["manifest_mb"] > 0
+    for r in rows:
+        # a cycle's journal grows to the manifest's size, then the manifest is written once: on average a
+        # commit writes about twice the manifest over the cycle's commits, less than the whole manifest
+        whole = r["whole_bytes_per_commit"]
+        assert r["cycle_commits"] >= 2 and whole == pytest.approx(1e6 * r["manifest_mb"])
+        n = r["cycle_commits"]
+        assert 1.5 * whole / n <= r["bytes_per_commit"] <= 2.5 * whole / (n - 1)
+    assert rows[1]["bytes_per_commit"] < 0.3 * rows[1]["whole_bytes_per_commit"]
     p = res["poses"]
     # 8192 poses fill two whole chunks of 254-byte rows; the objects were about 1.4 kB a pose
     assert 254 <= p["columns_bytes_per_pose"] < 300 and p["objects_bytes_per_pose"] > 1000
@@ -32,6 +42,7 @@ def test_long_run_bench_measures_both_costs(tmp_path, capsys) -> None:
     (["--hours", "a,b"], "--hours must be numbers"),
     (["--camera-hz", "nan"], "--camera-hz must be positive"),
     (["--poses", "5"], "--poses must be >= 100"),
+    (["--moved", "-1"], "--moved >= 0"),
     (["--track-seconds", "5"], "--track-seconds must be 0 or in [10, 3600]"),
 ])
 def test_long_run_bench_refuses_bad_arguments(argv, message) -> None:

@@ -91,7 +91,9 @@ def assert_same_submap(a: Submap, b: Submap) -> None:
         (b.index, b.centre, b.s_hat, b.lam, b.version, b.segment)
 
 
-def write_two_commits(folder: Path) -> tuple[MapArchiveWriter, list[Submap]]:
+def write_two_commits(folder: Path, close: bool = True) -> tuple[MapArchiveWriter, list[Submap]]:
+    """An archive of three submaps in two commits, the second a journal line; `close`: as a finished run
+    leaves it (manifest.json whole, no journal)."""
     subs = [make_submap(k, seed=k) for k in range(3)]
     w = MapArchiveWriter(folder, HEADER)
     w.commit(subs[:2], pairs=[{"a": 0, "b": 1, "ratio": 1.02}], version=1, stats={"windows": 2})
@@ -99,14 +101,24 @@ def write_two_commits(folder: Path) -> tuple[MapArchiveWriter, list[Submap]]:
     subs[0].lam, subs[0].version = -0.05, 2
     w.commit([subs[2], subs[0]], pairs=[{"a": 0, "b": 1}, {"a": 1, "b": 2}], version=2,
              stats={"windows": 3, "rmse": float("inf")})
+    if close:
+        w.close()
     return w, subs
 
 
 def test_round_trip_and_export_equals_brute_force(tmp_path):
     folder = tmp_path / "run" / "map"
-    _, subs = write_two_commits(folder)
+    w, subs = write_two_commits(folder, close=False)
+    during = read_manifest(folder)                   # the second commit is a journal line
+    assert during["map_version"] == 2
+    assert during["journal"] == {"commits": 1, "stale": 0, "incomplete_bytes": 0}
+    w.close()                                        # the end of a run: manifest.json whole, no journal
+    names = ["manifest.json", *(f"submap_00000{k}.npz" for k in range(3))]
+    assert sorted(p.name for p in folder.iterdir()) == names
     info = json.loads((folder / "manifest.json").read_text(), parse_constant=lambda c: pytest.fail(c))
-    assert info["format"] == "davio-map" and info["schema_version"] == 1 and info["map_version"] == 2
+    assert info == {k: v for k, v in during.items() if k not in ("journal", "journal_generation")} | {
+        "journal_generation": 2}
+    assert info["format"] == "davio-map" and info["schema_version"] == 2 and info["map_version"] == 2
     assert info["rig"] == HEADER["rig"] and len(info["pairs"]) == 2 and info["stats"]["rmse"] is None
     assert [e["index"] for e in info["submaps"]] == [0, 1, 2]
     assert info["submaps"][0]["fit"]["log_s_hat"] is None and info["submaps"][0]["version"] == 2
@@ -120,9 +132,11 @@ def test_round_trip_and_export_equals_brute_force(tmp_path):
     assert_fusion_equals(fuse_archive(folder, VOXEL), brute_force_fusion(subs, VOXEL), VOXEL)
 
 
-def test_manifest_text_equals_encoding_the_whole_manifest_after_every_commit(tmp_path):
-    """The writer re-encodes only the entries a commit changes and the pairs it adds; its file must still
-    be, commit after commit, what encoding the whole manifest at once gives (the writer before)."""
+@pytest.mark.parametrize("whole_every_commit", [False, True])
+def test_manifest_equals_encoding_the_whole_manifest_after_every_commit(tmp_path, whole_every_commit):
+    """Commit after commit, manifest.json and its journal read back as the whole manifest; when written
+    whole (here: after every commit, or at the end), its text is what encoding the whole manifest at once
+    gives (the writer re-encodes only the entries changed since, and the pairs added)."""
     from tools.map_archive.format import FORMAT, SCHEMA_VERSION, davio_version, jsonable
 
     folder = tmp_path / "map"
@@ -132,6 +146,7 @@ def test_manifest_text_equals_encoding_the_whole_manifest_after_every_commit(tmp
     pairs: list[dict] = []
     # (submaps committed: new ones, then ones whose state moved; pair records added)
     plan = [([0, 1], 1), ([2, 0], 2), ([], 0), ([3, 1, 2], 1), ([0], 0)]
+    most_lines = 0
     for version, (committed, n_pairs) in enumerate(plan, start=1):
         for k in committed:
             if k in w._entries:                        # already archived: its graph state moves
@@ -144,13 +159,33 @@ def test_manifest_text_equals_encoding_the_whole_manifest_after_every_commit(tmp
             pairs[0] = {"a": 0, "b": 9, "method": "revisit"}     # a record replaced by another object
         stats = {"windows": version, "rmse": float("inf") if version == 2 else 0.1}
         w.commit([subs[k] for k in committed], pairs, version, stats)
+        if whole_every_commit:
+            w.compact()
         expected = {"format": FORMAT, "schema_version": SCHEMA_VERSION, "created_by": davio_version(),
                     **{k: jsonable(HEADER[k]) for k in ("rig", "model", "config")}, "map_version": version,
-                    "submaps": w.entries, "pairs": jsonable(list(pairs)), "stats": jsonable(stats)}
-        assert (folder / "manifest.json").read_text() == json.dumps(expected, allow_nan=False, indent=1)
+                    "journal_generation": w.generation, "submaps": w.entries, "pairs": jsonable(list(pairs)),
+                    "stats": jsonable(stats)}
+        info = read_manifest(folder)
+        lines = len(_journal_lines(folder))
+        assert info.pop("journal")["commits"] == lines and (lines == 0 or not whole_every_commit)
+        most_lines = max(most_lines, lines)
+        assert info == json.loads(json.dumps(expected, allow_nan=False))
+        if whole_every_commit:
+            assert (folder / "manifest.json").read_text() == json.dumps(expected, allow_nan=False, indent=1)
+    # without forced writes both ways were taken: journal lines, and whole writes when it grew too long
+    assert whole_every_commit or (most_lines >= 2 and w.compactions >= 1)
     assert [e["version"] for e in read_manifest(folder)["submaps"]] == [5, 4, 4, subs[3].version]
     w.commit([], [], 6, {})                            # the pairs list may also shrink
     assert read_manifest(folder)["pairs"] == [] and read_manifest(folder)["submaps"] == w.entries
+    w.close()
+    expected.update(map_version=6, journal_generation=w.generation, submaps=w.entries, pairs=[], stats={})
+    assert (folder / "manifest.json").read_text() == json.dumps(expected, allow_nan=False, indent=1)
+    assert not (folder / "manifest.journal").exists()
+
+
+def _journal_lines(folder: Path) -> list[bytes]:
+    path = folder / "manifest.journal"
+    return path.read_bytes().splitlines() if path.exists() else []
 
 
 def test_placeholder_text_in_any_value_cannot_corrupt_the_manifest(tmp_path):
@@ -173,13 +208,14 @@ def test_placeholder_text_in_any_value_cannot_corrupt_the_manifest(tmp_path):
             text = (folder / "manifest.json").read_text()
             expected = {"format": FORMAT, "schema_version": SCHEMA_VERSION, "created_by": davio_version(),
                         **{k: jsonable(header[k]) for k in ("rig", "model", "config")}, "map_version": 1,
-                        "submaps": w.entries, "pairs": jsonable(pairs), "stats": jsonable(stats)}
+                        "journal_generation": 1, "submaps": w.entries, "pairs": jsonable(pairs),
+                        "stats": jsonable(stats)}
             assert text == json.dumps(expected, allow_nan=False, indent=1), (where, value)
 
 
 def test_crash_mid_commit_leaves_previous_archive(tmp_path, monkeypatch):
     folder = tmp_path / "map"
-    subs = [make_submap(k, seed=10 + k) for k in range(3)]
+    subs = [make_submap(k, seed=10 + k) for k in range(4)]
     w = MapArchiveWriter(folder, HEADER)
     w.commit(subs[:2], pairs=[], version=1, stats={})
     before = fuse_archive(folder, VOXEL)
@@ -192,6 +228,7 @@ def test_crash_mid_commit_leaves_previous_archive(tmp_path, monkeypatch):
 
     monkeypatch.setattr(os, "replace", crashing_replace)
     subs[0].T_MS = np.eye(4)
+    w.manifest_bytes = 0                     # this commit writes manifest.json whole, and crashes doing it
     with pytest.raises(OSError, match="simulated crash"):
         w.commit([subs[2], subs[0]], pairs=[], version=2, stats={})
     monkeypatch.undo()
@@ -204,6 +241,132 @@ def test_crash_mid_commit_leaves_previous_archive(tmp_path, monkeypatch):
     notes = check_integrity(folder)
     assert len(notes) == 1 and notes[0].startswith("submap_000002.npz") and "orphan" in notes[0]
     assert main(["map", "info", str(folder)]) == 0  # an orphan is not an integrity problem
+
+    # a crash while the end of the run writes the manifest whole leaves the journal, which still applies
+    w = MapArchiveWriter(tmp_path / "map2", HEADER)
+    w.commit(subs[:2], pairs=[], version=1, stats={})
+    subs[1].T_MS = np.diag([1.0, 1.0, 1.0, 1.0])
+    subs[1].T_MS[:3, 3] = [7.0, 8.0, 9.0]
+    w.commit([subs[3], subs[1]], pairs=[{"a": 1, "b": 3}], version=2, stats={"n": 2})
+    assert len(_journal_lines(w.folder)) == 1
+    monkeypatch.setattr(os, "replace", crashing_replace)
+    with pytest.raises(OSError, match="simulated crash"):
+        w.close()
+    monkeypatch.undo()
+    info = read_manifest(w.folder)
+    assert info["map_version"] == 2 and [e["index"] for e in info["submaps"]] == [0, 1, 3]
+    assert info["submaps"][1]["T_MS"][0][3] == 7.0 and info["pairs"] == [{"a": 1, "b": 3}]
+    assert check_integrity(w.folder) == []
+
+
+def _commit_plan(folder: Path, n_commits: int) -> tuple[MapArchiveWriter, list[dict]]:
+    """A writer's archive after n_commits (the first one written whole, the others journal lines while
+    the journal stays smaller than manifest.json), and after each commit what the manifest must read as:
+    map_version, the submap entries, the pairs and the stats, from the writer's own arguments."""
+    from tools.map_archive.format import jsonable
+
+    rng = np.random.default_rng(7)
+    subs = [make_submap(k, seed=40 + k, n_pts=30) for k in range(n_commits + 8)]
+    w = MapArchiveWriter(folder, HEADER)
+    pairs: list[dict] = []
+    states = []
+    w.commit(subs[:8], pairs, 1, {"windows": 1})
+    for version in range(2, n_commits + 1):
+        moved = [subs[int(k)] for k in rng.choice(version + 6, 2, replace=False)]
+        for sm in moved:
+            sm.T_MS = _pose(rng, 0.3)
+            sm.lam, sm.version = float(rng.normal(0, 0.05)), version
+        pairs.append({"a": version, "b": version + 1, "kappa": float(rng.normal())})
+        w.commit([subs[version + 6], *moved], pairs, version, {"windows": version})
+        states.append({"map_version": version, "submaps": json.loads(json.dumps(w.entries)),
+                       "pairs": jsonable(list(pairs)), "stats": {"windows": version}})
+    return w, states
+
+
+def test_killed_anywhere_in_a_journal_line_reloads_the_commits_before_it(tmp_path, capsys):
+    """A run killed while appending a commit's line leaves a line without its newline: the archive reads as
+    the commit before, whatever the cut; each complete line brings the next commit."""
+    w, states = _commit_plan(tmp_path / "map", 6)
+    assert w.compactions == 0 and len(_journal_lines(w.folder)) == 5     # all five after the first
+    journal = (w.folder / "manifest.journal").read_bytes()
+    ends = [i + 1 for i, b in enumerate(journal) if b == ord("\n")]
+    cuts = sorted({*range(0, len(journal) + 1, 97), *ends, *(e - 1 for e in ends),
+                   *(e + 1 for e in ends[:-1])})
+    for cut in cuts:
+        (w.folder / "manifest.journal").write_bytes(journal[:cut])
+        info = read_manifest(w.folder)
+        done = sum(e <= cut for e in ends)
+        want = states[done - 1] if done else {"map_version": 1}
+        assert info["journal"] == {"commits": done, "stale": 0,
+                                   "incomplete_bytes": cut - (ends[done - 1] if done else 0)}, cut
+        assert {k: info[k] for k in want} == want, cut
+    capsys.readouterr()
+    assert main(["map", "info", str(w.folder)]) == 0
+    assert (f"journal      {len(ends)} commit(s) since manifest.json was last written whole"
+            in capsys.readouterr().out)
+
+
+def test_a_journal_from_before_the_last_whole_write_is_skipped(tmp_path):
+    """A kill between writing manifest.json whole and removing the journal leaves the old journal beside the
+    new manifest: its lines carry the older generation and are already in the manifest."""
+    w, states = _commit_plan(tmp_path / "map", 4)
+    old = (w.folder / "manifest.journal").read_bytes()
+    w.close()
+    (w.folder / "manifest.journal").write_bytes(old)
+    info = read_manifest(w.folder)
+    assert info["journal"] == {"commits": 0, "stale": 3, "incomplete_bytes": 0}
+    assert {k: info[k] for k in states[-1]} == states[-1]
+
+
+def test_the_writer_never_appends_after_bytes_it_did_not_write(tmp_path):
+    """Bytes appended to the journal by someone else (or a write cut short) would join the next line: the
+    writer sees the journal's length differ and writes the manifest whole instead."""
+    w, states = _commit_plan(tmp_path / "map", 3)
+    with open(w.folder / "manifest.journal", "ab") as fh:
+        fh.write(b'{"generation": 1, "map_ver')
+    sm = make_submap(50, seed=50, n_pts=30)
+    w.commit([sm], [], 4, {"windows": 4})
+    assert not (w.folder / "manifest.journal").exists() and w.generation == 2
+    info = read_manifest(w.folder)
+    assert info["map_version"] == 4 and info["submaps"][-1]["index"] == 50 and info["pairs"] == []
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda lines: [lines[0], b"{not json", *lines[1:]], r"line 2 is not valid JSON"),
+    (lambda lines: [lines[0], b"[1, 2]", *lines[1:]], r"line 2 is not a JSON object"),
+    (lambda lines: [lines[0].replace(b'"pairs_keep"', b'"pairs_kept"'), *lines[1:]],
+     r"line 1: pairs_keep is None, expected a non-negative integer"),
+    (lambda lines: [lines[0].replace(b'"pairs_keep":0', b'"pairs_keep":9'), *lines[1:]],
+     r"line 1 keeps 9 pair records of 0"),
+    (lambda lines: [lines[0].replace(b'"file":', b'"fil":'), *lines[1:]], r"line 1: new submap 8 lacks file"),
+    (lambda lines: [lines[0].replace(b'"generation":1', b'"generation":2'), *lines[1:]],
+     r"changed 5 times while it was read"),
+])
+def test_a_damaged_journal_is_named_with_its_line(tmp_path, edit, message):
+    w, _ = _commit_plan(tmp_path / "map", 3)
+    path = w.folder / "manifest.journal"
+    assert b'"pairs_keep":0' in path.read_bytes().splitlines()[0]
+    path.write_bytes(b"\n".join(edit(path.read_bytes().splitlines())) + b"\n")
+    with pytest.raises(DataError, match=r"manifest\.journal.*" + message):
+        read_manifest(w.folder)
+
+
+def test_schema_1_archives_are_read_without_a_journal(tmp_path):
+    """An archive written before the journal (schema 1: no journal_generation) reads as its manifest.json,
+    even beside a journal file, which only schema 2 defines."""
+    w, states = _commit_plan(tmp_path / "map", 3)
+    w.close()
+    manifest = w.folder / "manifest.json"
+    info = json.loads(manifest.read_text())
+    del info["journal_generation"]
+    manifest.write_text(json.dumps({**info, "schema_version": 1}))
+    (w.folder / "manifest.journal").write_bytes(b"not even json\n")
+    got = read_manifest(w.folder)
+    assert got["schema_version"] == 1 and got["journal"]["commits"] == 0
+    assert {k: got[k] for k in states[-1]} == states[-1]
+    manifest.write_text(json.dumps({**info, "schema_version": 2}))
+    with pytest.raises(DataError, match="journal_generation is None"):
+        read_manifest(w.folder)
 
 
 def test_damaged_archives_are_named(tmp_path, capsys):

@@ -52,6 +52,42 @@ def test_plenty_of_space_archives_every_commit(tmp_path, monkeypatch) -> None:
     assert "WARNING" not in _mapping_line(MP, summary)
 
 
+def test_the_end_of_a_run_writes_the_manifest_whole_or_says_why_not(tmp_path, monkeypatch, capsys) -> None:
+    """A finished run's archive is manifest.json alone; when that last write fails, the journal stays, the
+    archive reads the same, and the summary and stderr say so."""
+    import os
+    from pathlib import Path
+
+    real_replace = os.replace
+
+    def failing_replace(src, dst):
+        if Path(dst).name == "manifest.json":
+            raise OSError("disk gone")
+        return real_replace(src, dst)
+
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: Usage(10**12, 0, 10**12))
+    for fail in (False, True):
+        folder = tmp_path / str(fail)
+        out = MapOutput(folder, {"rig": {}, "model": {}, "config": {}}, voxel_m=0.25)
+        subs = [make_submap(k, seed=k, n_pts=40) for k in range(5)]
+        for k, sm in enumerate(subs):
+            out.sink(SimpleNamespace(link=None, submap=sm, changed=[], version=k + 1), MappingStats())
+        lines = (folder / "map" / "manifest.journal").read_bytes().count(b"\n")   # the later commits
+        assert lines >= 1
+        if fail:
+            monkeypatch.setattr(os, "replace", failing_replace)
+        summary = out.finish()
+        monkeypatch.undo()
+        monkeypatch.setattr(shutil, "disk_usage", lambda p: Usage(10**12, 0, 10**12))
+        assert (folder / "map" / "manifest.journal").exists() == fail
+        info = read_manifest(folder / "map")
+        assert info["map_version"] == 5 and info["journal"]["commits"] == (lines if fail else 0)
+        npz = sum((folder / "map" / e["file"]).stat().st_size for e in info["submaps"])
+        assert summary["archive_written_mb"]["submaps"] == round(npz / 1e6, 3)
+        assert (summary["archive_journal_left"] is not None) == fail
+        assert ("was left with its journal (disk gone)" in capsys.readouterr().err) == fail
+
+
 def test_a_long_export_at_the_end_of_a_run_says_how_far_it_is(tmp_path, monkeypatch, capsys) -> None:
     from tools import run_map
 

@@ -1,14 +1,15 @@
 """`davio bench long-run`: what grows with a run's length, per hour of operation, measured in one process.
 
-Two costs grow with time however bounded the map and the graph are:
+What grows with time however bounded the map and the graph are:
   * the published states a run keeps for `odometry.tum`, `causal.tum` and the final re-export: bytes per
     pose (tracemalloc) of the pipeline's columns (`runtime.pose_history.PoseHistory`) against the same
     states kept as Python objects (a `Published` with its covariance and the (T_MI, version, fraction)
     tuple, as the pipeline kept them before), and per hour at --camera-hz;
-  * the map archive's manifest, rewritten at every map commit: the time of one commit (one new submap,
-    three moved, one pair record) with N submaps already archived, by the writer
-    (`tools.map_archive.MapArchiveWriter`, which keeps each entry's text) against encoding the whole
-    manifest at once (what it did before), for N submaps = hours x 3600 / 1.5 (a submap every 1.5 s).
+  * the map archive's manifest (`tools.map_archive.MapArchiveWriter`) with N submaps archived, N = hours x
+    3600 / 1.5 (a submap every 1.5 s): one journal cycle, from manifest.json written whole through commits
+    (one new submap, --moved others moved, one pair record), each a journal line, to the next whole write:
+    time a commit and bytes written a commit on average, against writing the whole manifest at every
+    commit (what the writer did before the journal).
   * the whole tracking pipeline (`--track-seconds S`, 0 = skip): a simulated `euroc` preset recording
     through `runtime.pipeline.VioPipeline` (native start-up, no model, so no map) with tracemalloc on; the
     least-squares slope of the traced bytes against the poses published, over the second half of the run.
@@ -41,7 +42,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--camera-hz", type=float, default=20.0,
                    help="published poses per second (a pose a frame)")
     p.add_argument("--poses", type=int, default=20000, help="poses measured for the bytes per pose")
-    p.add_argument("--repeats", type=int, default=5, help="commits timed per size (median)")
+    p.add_argument("--moved", type=int, default=63,
+                   help="submaps a commit moves besides the new one (default: the graph's other nodes, "
+                   "graph.max_resident_nodes - 1)")
     p.add_argument("--track-seconds", type=float, default=300.0,
                    help="length of the simulated tracking run measured whole (0 = skip)")
     p.add_argument("--seed", type=int, default=0, help="seed of that recording")
@@ -166,26 +169,30 @@ def _pair(a: int, rng: np.random.Generator) -> dict:
             "n_images": 2, "n_pixels": int(rng.integers(10**5, 10**6)), "m": rng.normal(0, 0.03, 2).tolist()}
 
 
-def _whole_manifest_commit(w: Any, pairs: list, version: int, stats: dict) -> None:
-    """The writer's manifest before it kept entry texts: encode everything, write atomically."""
-    from runtime.files import atomic_write_bytes
-    from tools.map_archive.format import FORMAT, MANIFEST_NAME, SCHEMA_VERSION, davio_version, jsonable
+def _whole_manifest(w: Any, pairs: list, version: int, stats: dict) -> dict:
+    """The whole manifest of writer `w`'s state, built here from its entries and the commit's arguments."""
+    from tools.map_archive.format import FORMAT, SCHEMA_VERSION, davio_version, jsonable
 
-    manifest = {"format": FORMAT, "schema_version": SCHEMA_VERSION, "created_by": davio_version(),
-                **w.header, "map_version": version, "submaps": w.entries,
-                "pairs": jsonable(list(pairs)), "stats": jsonable(dict(stats))}
-    atomic_write_bytes(w.folder / (MANIFEST_NAME + ".whole"),
-                       json.dumps(manifest, allow_nan=False, indent=1).encode())
+    return {"format": FORMAT, "schema_version": SCHEMA_VERSION, "created_by": davio_version(), **w.header,
+            "map_version": version, "journal_generation": w.generation, "submaps": w.entries,
+            "pairs": jsonable(list(pairs)), "stats": jsonable(dict(stats))}
 
 
-def manifest_commit_times(n_submaps: int, repeats: int, header: dict, progress: bool) -> dict:
-    """Median seconds of one commit with n_submaps archived: the writer, and the whole-manifest encoding."""
-    from tools.map_archive import MapArchiveWriter
+def manifest_cycle(n_submaps: int, moved: int, header: dict, progress: bool,
+                   max_commits: int = 20000) -> dict:
+    """One journal cycle of the map archive with n_submaps archived: from a manifest.json just written
+    whole, commits (one new submap, `moved` others moved, one pair record) until the writer writes it whole
+    again. Returns the commits, their median and mean seconds, the whole write's seconds, bytes written a
+    commit on average (journal lines and the whole write), the manifest's size (what every commit wrote
+    before the journal), and whether the archive reads back as the whole manifest built here
+    (`reads_back`, after the cycle's last journal line) and, written whole at the end, has its text
+    (`same_text`)."""
+    from tools.map_archive import MapArchiveWriter, read_manifest
 
     rng = np.random.default_rng(n_submaps)
     with tempfile.TemporaryDirectory(prefix="davio-long-run-") as tmp:
         w = MapArchiveWriter(Path(tmp) / "map", header)
-        subs = [_submap(k, rng) for k in range(n_submaps + repeats)]
+        subs = [_submap(k, rng) for k in range(n_submaps)]
         pairs = [_pair(k, rng) for k in range(n_submaps)]
         t_fill = time.perf_counter()
         for k0 in range(0, n_submaps, 200):          # archive the first n (200 submaps per commit)
@@ -193,34 +200,45 @@ def manifest_commit_times(n_submaps: int, repeats: int, header: dict, progress: 
             if progress and time.perf_counter() - t_fill > 10:
                 print(f"  archiving {min(k0 + 200, n_submaps)} / {n_submaps} submaps", flush=True)
                 t_fill = time.perf_counter()
-        writer_s, whole_s = [], []
-        stats = {"windows_offered": n_submaps, "windows_accepted": n_submaps, "rmse": 0.01}
-        for r in range(repeats):
-            j = n_submaps + r
-            moved = [subs[int(i)] for i in rng.choice(j, 3, replace=False)]
-            for sm in moved:
+        w.close()
+        manifest_bytes, written0, whole0 = w.manifest_bytes, w.bytes_written, w.compactions
+        times, reads_back = [], None
+        stats: dict = {}
+        while w.compactions == whole0 and len(times) < max_commits:
+            j = len(subs)
+            subs.append(_submap(j, rng))
+            moved_subs = [subs[int(i)] for i in rng.choice(j, min(moved, j), replace=False)]
+            for sm in moved_subs:
+                sm.T_MS = sm.T_MS.copy()
                 sm.T_MS[:3, 3] += rng.normal(0, 0.01, 3)
                 sm.version = j + 1
             pairs.append(_pair(j - 1, rng))
+            stats = {"windows_offered": j, "windows_accepted": j, "rmse": 0.01}
             t0 = time.perf_counter()
-            w.commit([subs[j], *moved], pairs, j + 1, stats)
-            writer_s.append(time.perf_counter() - t0)
-            t0 = time.perf_counter()
-            _whole_manifest_commit(w, pairs, j + 1, stats)
-            whole_s.append(time.perf_counter() - t0)
-        manifest = Path(tmp) / "map" / "manifest.json"
-        same = manifest.read_bytes() == manifest.with_name(manifest.name + ".whole").read_bytes()
-        size = manifest.stat().st_size
-    return {"submaps": n_submaps, "manifest_mb": size / 1e6, "writer_s": statistics.median(writer_s),
-            "whole_manifest_s": statistics.median(whole_s), "same_text": same}
+            w.commit([subs[j], *moved_subs], pairs, j + 1, stats)
+            times.append(time.perf_counter() - t0)
+            if w.compactions == whole0 and w.journal_bytes * 2 > w.manifest_bytes and reads_back is None:
+                info = read_manifest(w.folder)
+                info.pop("journal")
+                expected = _whole_manifest(w, pairs, j + 1, stats)
+                reads_back = info == json.loads(json.dumps(expected, allow_nan=False))
+        expected = _whole_manifest(w, pairs, len(subs), stats)
+        same = (w.folder / "manifest.json").read_text() == json.dumps(expected, allow_nan=False, indent=1)
+        cycle = len(times)
+        written = w.bytes_written - written0
+    return {"submaps": n_submaps, "manifest_mb": manifest_bytes / 1e6, "moved": moved, "cycle_commits": cycle,
+            "complete_cycle": w.compactions > whole0, "commit_median_s": statistics.median(times),
+            "commit_mean_s": statistics.fmean(times), "whole_write_s": times[-1],
+            "bytes_per_commit": written / cycle, "whole_bytes_per_commit": manifest_bytes,
+            "reads_back": bool(reads_back), "same_text": same}
 
 
 def run(args: argparse.Namespace) -> int:
     hours = _hours(args.hours)
     if not (args.camera_hz > 0 and math.isfinite(args.camera_hz)):
         raise SystemExit(f"davio bench long-run: --camera-hz must be positive, got {args.camera_hz}")
-    if args.poses < 100 or args.repeats < 1:
-        raise SystemExit("davio bench long-run: --poses must be >= 100 and --repeats >= 1")
+    if args.poses < 100 or args.moved < 0:
+        raise SystemExit("davio bench long-run: --poses must be >= 100 and --moved >= 0")
     track_s = args.track_seconds
     if not (math.isfinite(track_s) and (track_s == 0 or 10 <= track_s <= 3600)):
         raise SystemExit(f"davio bench long-run: --track-seconds must be 0 or in [10, 3600], got "
@@ -240,7 +258,7 @@ def run(args: argparse.Namespace) -> int:
         n = int(round(h * 3600 / SUBMAP_PERIOD_S))
         if progress:
             print(f"  manifest with {n} submaps ({h:g} h)", flush=True)
-        rows.append({"hours": h, **manifest_commit_times(n, args.repeats, header, progress)})
+        rows.append({"hours": h, **manifest_cycle(n, args.moved, header, progress)})
     tracking = tracking_growth(args.track_seconds, args.seed, progress) if args.track_seconds else None
     out = {"camera_hz": args.camera_hz, "poses": poses, "manifest": rows,
            "submap_period_s": SUBMAP_PERIOD_S, "tracking": tracking}
@@ -248,7 +266,7 @@ def run(args: argparse.Namespace) -> int:
         Path(args.out).write_text(json.dumps(out, indent=1))
     if args.json:
         print(json.dumps(out, indent=1))
-        return 0 if all(r["same_text"] for r in rows) else 1
+        return 0 if all(r["same_text"] and r["reads_back"] for r in rows) else 1
     print(f"published states ({args.poses} poses, tracemalloc): objects "
           f"{poses['objects_bytes_per_pose']:.0f} B/pose ({poses['objects_mb_per_hour']:.1f} MB/h at "
           f"{args.camera_hz:g} Hz), columns "
@@ -258,12 +276,20 @@ def run(args: argparse.Namespace) -> int:
         print(f"tracking pipeline ({tracking['seconds']:g} s euroc preset, second half, "
               f"{tracking['poses_second_half']} poses): {b:.0f} +- {tracking['stderr_bytes_per_pose']:.0f} B "
               f"traced per published pose ({b * per_hour / 1e6:.1f} MB/h at {args.camera_hz:g} Hz)")
-    print("| run length | submaps | manifest MB | commit, writer ms | commit, whole manifest ms | ratio |")
-    print("|---|---|---|---|---|---|")
-    if not all(r["same_text"] for r in rows):
-        print("ERROR: the writer's manifest differs from encoding the whole manifest", flush=True)
+    per_h = 3600 / SUBMAP_PERIOD_S / 1e6
+    print(f"map manifest: one journal cycle a size (a commit adds a submap and moves {args.moved}); "
+          f"MB written an hour at a commit every {SUBMAP_PERIOD_S:g} s")
+    print("| run length | submaps | manifest MB | commits a cycle | commit ms median / mean | "
+          "whole write ms | MB/h journal | MB/h whole every commit | ratio |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    if not all(r["same_text"] and r["reads_back"] for r in rows):
+        print("ERROR: the archive does not read back as the whole manifest", flush=True)
         return 1
     for r in rows:
-        print(f"| {r['hours']:g} h | {r['submaps']} | {r['manifest_mb']:.1f} | {1e3 * r['writer_s']:.1f} | "
-              f"{1e3 * r['whole_manifest_s']:.1f} | {r['writer_s'] / r['whole_manifest_s']:.3f} |")
+        cycle = f"{r['cycle_commits']}" + ("" if r["complete_cycle"] else " (cut)")
+        print(f"| {r['hours']:g} h | {r['submaps']} | {r['manifest_mb']:.1f} | {cycle} | "
+              f"{1e3 * r['commit_median_s']:.1f} / {1e3 * r['commit_mean_s']:.1f} | "
+              f"{1e3 * r['whole_write_s']:.1f} | "
+              f"{r['bytes_per_commit'] * per_h:.0f} | {r['whole_bytes_per_commit'] * per_h:.0f} | "
+              f"{r['bytes_per_commit'] / r['whole_bytes_per_commit']:.3f} |")
     return 0

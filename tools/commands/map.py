@@ -192,6 +192,12 @@ def _print_info(info: dict) -> None:
     if info["voxels"] is not None:
         print(f"voxels       {info['voxels']}")
     print(f"on disk      {info['bytes_on_disk'] / 1e6:.2f} MB")
+    j = info["journal"]
+    if j["commits"] or j["incomplete_bytes"]:
+        print(f"journal      {j['commits']} commit(s) since manifest.json was last written whole (a run is "
+              "writing this archive, or stopped before its end)"
+              + (f"; a last commit cut short ({j['incomplete_bytes']} bytes) was left out"
+                 if j["incomplete_bytes"] else ""))
     if info["problems"]:
         print(f"integrity    {len(info['problems'])} problem(s):")
         for line in info["problems"]:

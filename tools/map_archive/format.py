@@ -9,11 +9,14 @@ import numpy as np
 
 FORMAT = "davio-map"
 """Value of the manifest's `format` key."""
-SCHEMA_VERSION = 1
-"""Schema written by this davio (and the newest it reads)."""
+SCHEMA_VERSION = 2
+"""Schema written by this davio (and the newest it reads). Schema 2 added the journal: a manifest.json
+with `journal_generation` G is brought up to date by the lines of manifest.journal written for G."""
 MIN_SCHEMA_VERSION = 1
-"""Oldest schema this davio reads."""
+"""Oldest schema this davio reads (schema 1: manifest.json alone, no journal)."""
 MANIFEST_NAME = "manifest.json"
+JOURNAL_NAME = "manifest.journal"
+"""The commits since manifest.json was last written whole: one JSON object a line (`MapArchiveWriter`)."""
 SUBMAP_RE = re.compile(r"^submap_(\d{6,})\.npz$")
 """Names of submap files (orphans are matched with it)."""
 TEMP_RE = re.compile(r"^\.(manifest\.json|submap_\d{6,}\.npz)\..*\.tmp$")

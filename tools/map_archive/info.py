@@ -25,7 +25,7 @@ def map_info(folder: str | Path, voxel_m: float | None = None) -> dict:
         dict with folder, format, schema_version, created_by, map_version, submaps, points,
         points_placed, extent ({"min", "max", "size"} or None), voxels (or None), node_versions
         ({version: submaps}), segments, pairs, views (submaps storing a centre view, which `davio map
-        align` and --prior-map need), problems, orphans, bytes_on_disk.
+        align` and --prior-map need), journal (`read_manifest`), problems, orphans, bytes_on_disk.
     """
     folder = Path(folder)
     info = read_manifest(folder)
@@ -63,6 +63,7 @@ def map_info(folder: str | Path, voxel_m: float | None = None) -> dict:
         "points_placed": placed, "extent": extent, "voxels": None if grid is None else len(grid),
         "node_versions": {str(v): versions[v] for v in sorted(versions)},
         "segments": len({int(e.get("segment", 0)) for e in info["submaps"]}),
-        "pairs": len(info.get("pairs") or []), "views": views, "problems": problems, "orphans": orphans,
+        "pairs": len(info.get("pairs") or []), "views": views, "journal": info["journal"],
+        "problems": problems, "orphans": orphans,
         "bytes_on_disk": int(sum(p.stat().st_size for p in folder.iterdir() if p.is_file())),
     }

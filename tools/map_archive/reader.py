@@ -13,6 +13,7 @@ from runtime.mapping.submap import Submap
 from tools.map_archive.format import (
     ARRAYS,
     FORMAT,
+    JOURNAL_NAME,
     MANIFEST_NAME,
     MIN_SCHEMA_VERSION,
     SCHEMA_VERSION,
@@ -27,11 +28,14 @@ _SCALAR_ARRAYS = ("index", "centre", "s_hat")
 
 
 def read_manifest(folder: str | Path) -> dict:
-    """The manifest of the archive in `folder`, after checking its format and schema.
+    """The manifest of the archive in `folder`, after checking its format and schema, brought up to date
+    by its journal (schema 2; `MapArchiveWriter`). `info["journal"]` says what the journal held:
+    {"commits": lines applied, "stale": lines of an older generation skipped, "incomplete_bytes": the
+    length of a last line cut short (a run killed while writing it; that commit is lost)}.
 
     Raises:
-        DataError: missing folder or manifest, not JSON, foreign format, unsupported schema, or a
-            submap entry lacking a key (each naming the file).
+        DataError: missing folder or manifest, not JSON, foreign format, unsupported schema, a damaged
+            journal line, or a submap entry lacking a key (each naming the file).
     """
     folder = Path(folder)
     if not folder.is_dir():
@@ -40,6 +44,26 @@ def read_manifest(folder: str | Path) -> dict:
     if not path.is_file():
         raise DataError("no manifest.json: not a davio map archive, or the run stopped before its first "
                         "map commit", path)
+    for _ in range(_READ_TRIES):      # a run writing the archive may rewrite manifest.json meanwhile
+        info = _read_whole(path)
+        _check_entries(info, path)
+        journal = _apply_journal(folder / JOURNAL_NAME, info)
+        if journal is not None:
+            break
+    else:
+        raise DataError(f"the archive changed {_READ_TRIES} times while it was read (a run is writing it); "
+                        "try again", folder / JOURNAL_NAME)
+    if journal["commits"]:
+        _check_entries(info, folder / JOURNAL_NAME)
+    info["journal"] = journal
+    return info
+
+
+_READ_TRIES = 5
+
+
+def _read_whole(path: Path) -> dict:
+    """manifest.json parsed, its format and schema checked."""
     try:
         info = json.loads(path.read_text())
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
@@ -60,10 +84,89 @@ def read_manifest(folder: str | Path) -> dict:
         raise DataError(f"schema {schema} is no longer supported (this davio reads schemas "
                         f"{MIN_SCHEMA_VERSION}..{SCHEMA_VERSION}); needs a davio with schema {schema} "
                         "support", path)
-    subs = info.get("submaps")
-    if not isinstance(subs, list):
+    if schema >= 2:
+        gen = info.get("journal_generation")
+        if not isinstance(gen, int) or isinstance(gen, bool) or gen < 1:
+            raise DataError(f"journal_generation is {gen!r}, expected an integer >= 1", path)
+    if not isinstance(info.get("submaps"), list):
         raise DataError("manifest lacks the 'submaps' list", path)
-    for k, e in enumerate(subs):
+    if info.get("pairs") is not None and not isinstance(info["pairs"], list):
+        raise DataError(f"'pairs' is {info['pairs']!r}, expected a list", path)
+    return info
+
+
+def _apply_journal(path: Path, info: dict) -> dict | None:
+    """Apply the journal's lines of the manifest's generation to `info` (in place); returns what it held,
+    or None when a line belongs to a newer manifest.json than `info` (written meanwhile: read again)."""
+    out = {"commits": 0, "stale": 0, "incomplete_bytes": 0}
+    gen = info.get("journal_generation")
+    if gen is None or not path.is_file():
+        return out
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise DataError(f"journal unreadable: {exc}", path) from exc
+    lines = data.split(b"\n")
+    out["incomplete_bytes"] = len(lines.pop())    # after the last newline: a line the writer did not finish
+    entries = {e["index"]: e for e in info["submaps"]}     # checked by _check_entries
+    pairs = list(info.get("pairs") or [])
+    for no, raw in enumerate(lines, start=1):
+        rec = _journal_record(raw, no, path)
+        if rec["generation"] > gen:
+            return None
+        if rec["generation"] < gen:               # written before manifest.json was last written whole
+            out["stale"] += 1
+            continue
+        if rec["pairs_keep"] > len(pairs):
+            raise DataError(f"line {no} keeps {rec['pairs_keep']} pair records of {len(pairs)}", path)
+        for k, e in enumerate(rec["submaps"]):
+            idx = e.get("index") if isinstance(e, dict) else None
+            if not _is_int(idx):
+                raise DataError(f"line {no}: submaps[{k}] has no integer index", path)
+            if idx not in entries:
+                missing = [key for key in _ENTRY_KEYS if key not in e]
+                if missing:
+                    raise DataError(f"line {no}: new submap {idx} lacks {', '.join(missing)}", path)
+                entries[idx] = dict(e)
+            else:
+                entries[idx].update(e)
+        del pairs[rec["pairs_keep"]:]
+        pairs.extend(rec["pairs"])
+        info.update(map_version=rec["map_version"], stats=rec["stats"])
+        out["commits"] += 1
+    if out["commits"]:
+        info["submaps"] = [entries[k] for k in sorted(entries)]
+        info["pairs"] = pairs
+    return out
+
+
+_RECORD_TYPES = {"generation": int, "map_version": int, "submaps": list, "pairs_keep": int, "pairs": list,
+                 "stats": dict}
+
+
+def _journal_record(raw: bytes, no: int, path: Path) -> dict:
+    """Journal line `no`, parsed and its keys type-checked."""
+    try:
+        rec = json.loads(raw)
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise DataError(f"line {no} is not valid JSON ({exc}): the journal is damaged", path) from exc
+    if not isinstance(rec, dict):
+        raise DataError(f"line {no} is not a JSON object: the journal is damaged", path)
+    for key, typ in _RECORD_TYPES.items():
+        value = rec.get(key)
+        if not isinstance(value, typ) or isinstance(value, bool) or (typ is int and value < 0):
+            raise DataError(f"line {no}: {key} is {value!r}, expected "
+                            f"{'a non-negative integer' if typ is int else 'a ' + typ.__name__}", path)
+    return rec
+
+
+def _is_int(x: object) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool)
+
+
+def _check_entries(info: dict, path: Path) -> None:
+    """Every submap entry has the keys and types the readers use."""
+    for k, e in enumerate(info["submaps"]):
         missing = [key for key in _ENTRY_KEYS if not isinstance(e, dict) or key not in e]
         if missing:
             raise DataError(f"submaps[{k}] lacks {', '.join(missing)}", path)
@@ -81,9 +184,6 @@ def read_manifest(folder: str | Path) -> dict:
             raise DataError(f"submaps[{k}].lam is {lam!r}, expected a number (or null)", path)
         if e.get("fit") is not None and not isinstance(e["fit"], dict):
             raise DataError(f"submaps[{k}].fit is {e['fit']!r}, expected an object (or null)", path)
-    if info.get("pairs") is not None and not isinstance(info["pairs"], list):
-        raise DataError(f"'pairs' is {info['pairs']!r}, expected a list", path)
-    return info
 
 
 def state_is_finite(entry: dict) -> bool:

@@ -1,4 +1,4 @@
-"""Checkpointing writer of the map archive: new submaps' points once, the manifest at every commit."""
+"""Checkpointing writer of the map archive: new submaps' points once, a journal line at every commit."""
 from __future__ import annotations
 
 import hashlib
@@ -14,6 +14,7 @@ from runtime.mapping.submap import Submap
 from tools.map_archive.format import (
     ARRAYS,
     FORMAT,
+    JOURNAL_NAME,
     MANIFEST_NAME,
     SCHEMA_VERSION,
     SUBMAP_RE,
@@ -60,22 +61,29 @@ class MapArchiveWriter:
     """Writes a run's `map/` folder, one checkpoint per map commit.
 
     Submap points are written once (one npz per submap, never rewritten); graph state (T_MS, lambda,
-    version, segment, fit) lives in the manifest, so a state change rewrites only the manifest. The
-    manifest is replaced after the npz files it references, each through a temporary file and a
-    rename, so the folder reloads whenever the process dies.
+    version, segment, fit) lives in the manifest. A commit appends one line to manifest.journal: the new
+    submaps' entries, the state of the submaps it moved, the pair records it added and the mapper's
+    counters. When the journal has grown to the size of manifest.json, manifest.json is written whole
+    (through a temporary file and a rename) with the next journal generation, and the journal is removed;
+    `close` does the same at the end of a run, so a finished archive is manifest.json alone.
 
-    A long run's manifest grows by about 1.5 kB a submap (3.5 MB after an hour), and it is rewritten at
-    every commit. Re-encoding all of it each time held the model worker (and, through the GIL, the tracking
-    thread) for 0.19 s per commit after an hour and 0.76 s after four (`davio bench long-run`); the writer
-    therefore keeps each submap entry's and pair
-    record's JSON text and re-encodes only the entries a commit changes and the pairs it adds. The text
-    is the same as `json.dumps(manifest, indent=1)`.
+    Why a journal: manifest.json grows by about 1.5 kB a submap (3.5 MB after an hour, 14 MB after four),
+    and writing it whole at every commit (a submap every 1.5 s) wrote 9 MB/s to the robot's disk after four
+    hours, six times what the submaps' points need (`davio bench long-run`). With the journal a commit
+    writes what it changed, and the rewrites add as much again (each one follows a journal as large).
+
+    A process killed at any moment leaves an archive that reloads (`read_manifest`): npz files are written
+    before the line that names them, a line cut short by the kill is ignored (the commit in flight is
+    lost), and a journal left from before the last whole write carries the older generation and is skipped.
+    The whole manifest's text is `json.dumps(manifest, indent=1)`; the writer keeps each submap entry's and
+    pair record's text, encoded when committed, so that a whole write only joins them (encoding every
+    entry moved since the last one at that moment held the GIL for 0.16 s after an hour).
 
     Args:
         folder: the archive folder (created if needed).
         header: {"rig": dict, "model": dict, "config": dict} copied into every manifest.
-        overwrite: replace an archive already in `folder` (its submap files and manifest are removed);
-            without it such a folder is refused with DataError.
+        overwrite: replace an archive already in `folder` (its submap files, manifest and journal are
+            removed); without it such a folder is refused with DataError.
         views: store each submap's centre view (`MappingConfig.archive_views`).
     """
 
@@ -90,20 +98,36 @@ class MapArchiveWriter:
         self.folder.mkdir(parents=True, exist_ok=True)
         if overwrite:
             for p in self.folder.iterdir():
-                ours = p.name == MANIFEST_NAME or SUBMAP_RE.match(p.name) or TEMP_RE.match(p.name)
+                ours = (p.name in (MANIFEST_NAME, JOURNAL_NAME) or SUBMAP_RE.match(p.name)
+                        or TEMP_RE.match(p.name))
                 if ours and p.is_file():
                     p.unlink()
         self._entries: dict[int, dict] = {}
         self._entry_text: dict[int, str] = {}      # index -> the entry's JSON, indented as in the manifest
-        self._pair_text: list[str] = []
-        self._pair_objs: list[dict] = []            # the records _pair_text encodes (identity checked)
+        self._pair_objs: list = []                 # the records last committed (identity checked)
+        self._pair_data: list = []                 # ... as strict-JSON data
+        self._pair_text: list[str] = []            # ... encoded for the manifest
+        self._stats: dict = {}
         self.map_version = 0
+        self.generation = 0
+        """Journal generation of the last whole manifest.json (0: none written yet)."""
+        self.manifest_bytes = 0
+        self.journal_bytes = 0
+        self.bytes_written = 0
+        """Manifest and journal bytes written so far (submap files not counted)."""
+        self.points_bytes = 0
+        """Bytes of the submap files written so far."""
+        self.compactions = 0
+        """Whole writes of manifest.json after the first."""
 
     @property
     def entries(self) -> list[dict]:
-        """Manifest entries of every submap committed so far, by index (read only: the manifest writes the
-        text encoded when the entry last went through `commit`)."""
+        """Manifest entries of every submap committed so far, by index (read only)."""
         return [self._entries[k] for k in sorted(self._entries)]
+
+    @property
+    def journal_path(self) -> Path:
+        return self.folder / JOURNAL_NAME
 
     def commit(self, submaps: list[Submap], pairs: list[dict], version: int, stats: dict) -> None:
         """Checkpoint one map commit.
@@ -116,46 +140,96 @@ class MapArchiveWriter:
             version: the map version of this commit.
             stats: counters and figures of the mapper (written as given).
         """
+        records = []
         for sm in submaps:
             entry = self._entries.get(sm.index)
-            if entry is None:
+            new = entry is None
+            if new:
                 entry = self._write_points(sm)
             elif entry["n_points"] != sm.n_points:
                 raise ValueError(f"submap {sm.index}: points changed after they were archived "
                                  f"({entry['n_points']} -> {sm.n_points})")
-            entry.update(T_MS=jsonable(np.asarray(sm.T_MS, np.float64)), lam=jsonable(float(sm.lam)),
-                         version=int(sm.version), segment=int(sm.segment), fit=jsonable(dict(sm.fit)))
+            state = {"T_MS": jsonable(np.asarray(sm.T_MS, np.float64)), "lam": jsonable(float(sm.lam)),
+                     "version": int(sm.version), "segment": int(sm.segment), "fit": jsonable(dict(sm.fit))}
+            entry.update(state)
             self._entries[sm.index] = entry
-            self._entry_text[sm.index] = _element_text(entry)
+            self._entry_text[sm.index] = _element_text(entry)   # now, so a whole write only joins texts
+            records.append(entry if new else {"index": int(sm.index), **state})
+        keep = self._take_pairs(list(pairs))
         self.map_version = int(version)
-        self._encode_pairs(list(pairs))
-        manifest = {"format": FORMAT, "schema_version": SCHEMA_VERSION, "created_by": davio_version(),
-                    **self.header, "map_version": self.map_version, "submaps": _SUBMAPS_SLOT,
-                    "pairs": _PAIRS_SLOT, "stats": jsonable(dict(stats))}
-        text = json.dumps(manifest, allow_nan=False, indent=1)
-        slots = (json.dumps(_SUBMAPS_SLOT), json.dumps(_PAIRS_SLOT))
-        if all(text.count(slot) == 1 for slot in slots):   # split the skeleton only, never the elements
-            head, rest = text.split(slots[0])
-            middle, tail = rest.split(slots[1])
-            text = "".join((head, _list_text([self._entry_text[k] for k in sorted(self._entry_text)]), middle,
-                            _list_text(self._pair_text), tail))
-        else:   # a header or stats value holds a slot's text: encode the whole manifest
-            manifest.update(submaps=self.entries, pairs=jsonable(list(pairs)))
-            text = json.dumps(manifest, allow_nan=False, indent=1)
-        atomic_write_bytes(self.folder / MANIFEST_NAME, text.encode())
+        self._stats = jsonable(dict(stats))
+        line = json.dumps({"generation": self.generation, "map_version": self.map_version, "submaps": records,
+                           "pairs_keep": keep, "pairs": self._pair_data[keep:], "stats": self._stats},
+                          allow_nan=False, separators=(",", ":")) + "\n"
+        data = line.encode()
+        full = self.journal_bytes + len(data) > self.manifest_bytes
+        if self.generation == 0 or full or not self._append(data):
+            self.compact()
 
-    def _encode_pairs(self, pairs: list) -> None:
-        """Bring the cached pair texts up to `pairs`: records already encoded (the same objects, in the same
-        places) keep their text; from the first that differs on, records are encoded."""
+    def close(self) -> None:
+        """Write manifest.json whole and remove the journal (the end of a run); a no-op when the journal is
+        empty. The archive stays valid if this fails (the journal still brings the manifest up to date)."""
+        if self.generation and (self.journal_bytes or self.journal_path.exists()):
+            self.compact()
+
+    def compact(self) -> None:
+        """Write manifest.json whole, with the next journal generation, then remove the journal."""
+        generation = self.generation + 1
+        data = self._manifest_text(generation).encode()
+        atomic_write_bytes(self.folder / MANIFEST_NAME, data)
+        self.compactions += self.generation > 0
+        self.generation, self.manifest_bytes = generation, len(data)
+        self.bytes_written += len(data)
+        self.journal_path.unlink(missing_ok=True)
+        self.journal_bytes = 0
+
+    def _append(self, data: bytes) -> bool:
+        """Append one commit's line to the journal; False (nothing appended) when the file is not what this
+        writer wrote or the write failed, in which case the caller writes the manifest whole."""
+        try:
+            with open(self.journal_path, "ab") as fh:
+                if fh.tell() != self.journal_bytes:
+                    return False
+                try:
+                    fh.write(data)
+                    fh.flush()
+                except OSError:
+                    fh.truncate(self.journal_bytes)   # never leave half a line before the next one
+                    return False
+        except OSError:
+            return False
+        self.journal_bytes += len(data)
+        self.bytes_written += len(data)
+        return True
+
+    def _take_pairs(self, pairs: list) -> int:
+        """Bring the pair records up to `pairs`; returns how many of the previous ones stay (the same
+        objects at the same places), the rest being replaced or added."""
         keep = 0
         for old, new in zip(self._pair_objs, pairs, strict=False):
             if old is not new:
                 break
             keep += 1
-        del self._pair_objs[keep:], self._pair_text[keep:]
-        for rec in pairs[keep:]:
-            self._pair_objs.append(rec)
-            self._pair_text.append(_element_text(jsonable(rec)))
+        del self._pair_objs[keep:], self._pair_data[keep:], self._pair_text[keep:]
+        self._pair_objs.extend(pairs[keep:])
+        self._pair_data.extend(jsonable(rec) for rec in pairs[keep:])
+        self._pair_text.extend(_element_text(rec) for rec in self._pair_data[keep:])
+        return keep
+
+    def _manifest_text(self, generation: int) -> str:
+        """The whole manifest as `json.dumps(manifest, indent=1)` writes it, from the cached element texts."""
+        manifest = {"format": FORMAT, "schema_version": SCHEMA_VERSION, "created_by": davio_version(),
+                    **self.header, "map_version": self.map_version, "journal_generation": generation,
+                    "submaps": _SUBMAPS_SLOT, "pairs": _PAIRS_SLOT, "stats": self._stats}
+        text = json.dumps(manifest, allow_nan=False, indent=1)
+        slots = (json.dumps(_SUBMAPS_SLOT), json.dumps(_PAIRS_SLOT))
+        if all(text.count(slot) == 1 for slot in slots):   # split the skeleton only, never the elements
+            head, rest = text.split(slots[0])
+            middle, tail = rest.split(slots[1])
+            return "".join((head, _list_text([self._entry_text[k] for k in sorted(self._entry_text)]), middle,
+                            _list_text(self._pair_text), tail))
+        manifest.update(submaps=self.entries, pairs=self._pair_data)   # a value holds a slot's text
+        return json.dumps(manifest, allow_nan=False, indent=1)
 
     def _write_points(self, sm: Submap) -> dict:
         arrays = submap_arrays(sm, self.views)
@@ -164,6 +238,7 @@ class MapArchiveWriter:
         data = buf.getvalue()
         name = submap_filename(sm.index)
         atomic_write_bytes(self.folder / name, data)
+        self.points_bytes += len(data)
         return {"index": int(sm.index), "file": name, "sha256": hashlib.sha256(data).hexdigest(),
                 "bytes": len(data), "n_points": sm.n_points, "frame_t_ns": [int(t) for t in sm.frame_t_ns],
                 "centre": int(sm.centre), "T_MS": None, "T_OS": jsonable(arrays["T_OS"]), "lam": 0.0,
