@@ -4,11 +4,12 @@ with its retained points, and a manifest.json with the graph state of every subm
 Layout of a run's `map/` folder::
 
     manifest.json          format, schema, rig/model/config, map version, per-submap state, pairs, stats
+    manifest.journal       while a run maps: the commits since manifest.json was last written whole
     submap_000000.npz      retained points of submap 0 (written once, never rewritten)
     submap_000001.npz      ...
 
-Every file is written through a temporary file and a rename, npz files before the manifest that
-references them, so a process killed at any moment leaves an archive that reloads.
+npz files are written through a temporary file and a rename before the journal line or manifest that
+references them, so a process killed at any moment leaves an archive that reloads (`MapArchiveWriter`).
 """
 from tools.map_archive.export import export_map, fuse_archive, write_ply
 from tools.map_archive.format import FORMAT, MANIFEST_NAME, SCHEMA_VERSION
