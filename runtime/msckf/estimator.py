@@ -263,6 +263,8 @@ class MsckfEstimator:
         d["ms_per_frame"] = 1e3 * c.time_frame_s / max(c.frames_processed, 1)          # wall clock
         d["cpu_ms_per_frame"] = 1e3 * c.cpu_frame_s / max(c.frames_processed, 1)      # this thread's CPU
         d["initialized"] = self.initialized
+        d["time_offset_s"] = self.time_offset_s           # t_imu = t_cam + this: the estimate, if estimated
+        d["time_offset_estimated"] = bool(self.config.calib_time_offset)
         d["initializers"] = {ini.source: ini.report() for ini in self.initializers if hasattr(ini, "report")}
         return d
 

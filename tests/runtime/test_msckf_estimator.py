@@ -673,7 +673,10 @@ def test_frames_waiting_for_a_stalled_imu_are_bounded() -> None:
 def test_feature_order_seed_changes_only_the_tie_break() -> None:
     # with a small MSCKF budget many equal-length tracks compete; the seed picks among them reproducibly
     imu, frames = _stream(3.0, pix_noise=1.0, seed=3)
-    cfg = MsckfConfig(max_msckf_in_update=8, max_slam=0, max_time_without_update_s=1000.0)
+    # the time offset fixed at the stream's: over 3 s without landmarks an estimated offset takes up part of
+    # the velocity error (it wanders 6-10 ms and the end error doubles), which is not what this test is about
+    cfg = MsckfConfig(max_msckf_in_update=8, max_slam=0, max_time_without_update_s=1000.0,
+                      calib_time_offset=False)
     dv = np.array([0.03, -0.03, 0.02])        # a 3-sigma initial velocity error for the features to correct
 
     def run(seed: int | None, features: bool = True) -> np.ndarray:

@@ -20,6 +20,25 @@ def test_vio_sim_tracks_a_simulated_sequence(capsys):
     assert out["filter_ms_per_frame_wall"] >= out["filter_updates_ms_per_frame_wall"] > 0
 
 
+@pytest.mark.slow
+def test_a_rig_time_offset_50_ms_off_is_estimated_by_the_filter_and_breaks_a_fixed_one(capsys):
+    """The default filter estimates the camera-IMU time offset (msckf.calib_time_offset, as OpenVINS's
+    EuRoC config): given a rig 50 ms off the recording's, it tracks as with the right rig and ends near the
+    true offset; with the offset fixed at the rig's, the same recording diverges."""
+    from runtime.msckf.config import MsckfConfig
+
+    assert MsckfConfig().calib_time_offset
+    assert main(["bench", "vio-sim", "--preset", "aggressive", "--seconds", "8", "--time-offset-error",
+                 "0,0.05", "--calib-time-offset", "both", "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    name = "preset aggressive, rig offset {:+d} ms, dt {}"
+    right, fixed, estimated = (rows[name.format(0, "fixed")], rows[name.format(50, "fixed")],
+                               rows[name.format(50, "in state")])
+    assert right["resets"] == 0 and estimated["resets"] == 0 and fixed["resets"] >= 1
+    assert estimated["ate_se3_m"] < 1.5 * right["ate_se3_m"] + 0.005
+    assert abs(estimated["time_offset_end_error_s"]) < 0.002 and fixed["time_offset_end_error_s"] == 0.05
+
+
 def test_frames_are_rendered_ahead_in_batches_and_keep_their_order():
     """The timed loop sees the events in their order, but each batch of frames is produced (rendered)
     before the first of them is handed on; 1 frame ahead is the old interleaved rendering."""

@@ -269,6 +269,26 @@ def test_the_time_offset_line_says_what_the_start_up_did_with_its_finding():
     assert "; the first: at the offset the rotations fit (-48 ms ...): short. Put" in cured[0]
 
 
+def test_the_filter_s_estimate_of_the_time_offset_is_named_when_it_ends_far_from_the_rig_s():
+    from tools.commands.run import ESTIMATED_OFFSET_NOTE_S, _recovery_lines
+
+    def lines(filt: dict, rig_offset=0.01) -> list[str]:
+        report = {"rig": {"time_offset_s": rig_offset},
+                  "pipeline": {"filter": {"initialized": True, "time_offset_estimated": True, **filt},
+                               "startup": {"ff_rejections": {}, "restarts_after_divergence": 0}}}
+        return [x for x in _recovery_lines(report) if x.startswith("CAMERA-IMU TIME OFFSET")]
+
+    assert lines({"time_offset_s": 0.0612}) == [
+        "CAMERA-IMU TIME OFFSET: the filter estimated +61.2 ms at the end (the rig says +10.0 ms, "
+        "t_imu = t_cam + offset). If the rig file is yours, put the estimate in it "
+        "(Kalibr timeshift_cam_imu)"]
+    assert lines({"time_offset_s": 0.01 - 0.9 * ESTIMATED_OFFSET_NOTE_S}) == []           # within the spread
+    assert len(lines({"time_offset_s": 0.01 - 1.1 * ESTIMATED_OFFSET_NOTE_S})) == 1
+    assert lines({"time_offset_s": 0.0612, "time_offset_estimated": False}) == []        # the rig's, fixed
+    assert lines({"time_offset_s": 0.0612, "initialized": False}) == []                  # nothing estimated
+    assert len(lines({"time_offset_s": -0.02}, rig_offset=None)) == 1                    # the rig says 0
+
+
 @pytest.mark.parametrize("args, message", [
     (["--seconds", "0"], "--seconds must be a finite number > 0"),
     (["--seconds", "nan"], "--seconds must be a finite number > 0"),

@@ -351,6 +351,26 @@ def _time_offset_line(startup: dict, rig_offset_s: float | None) -> str | None:
             "the offset in the rig file (Kalibr timeshift_cam_imu: t_imu = t_cam + shift)")
 
 
+ESTIMATED_OFFSET_NOTE_S = 0.005
+"""The console names the filter's estimate of the camera-IMU time offset when it ends at least this far from
+the rig's (s): about a sample period of a 200 Hz IMU, and five times the estimate's spread on a right rig
+(BENCHMARKS "The camera-IMU time offset in the filter's state")."""
+
+
+def _estimated_offset_line(filter_rep: dict, rig_offset_s: float | None) -> str | None:
+    """The console's word on the publishing filter's estimate of the camera-IMU time offset (msckf.
+    calib_time_offset) when it ends ESTIMATED_OFFSET_NOTE_S or more from the rig's; None otherwise."""
+    est = filter_rep.get("time_offset_s")
+    if not filter_rep.get("time_offset_estimated") or est is None or not filter_rep.get("initialized"):
+        return None
+    rig = rig_offset_s or 0.0
+    if abs(est - rig) < ESTIMATED_OFFSET_NOTE_S:
+        return None
+    return (f"CAMERA-IMU TIME OFFSET: the filter estimated {est * 1e3:+.1f} ms at the end (the rig says "
+            f"{rig * 1e3:+.1f} ms, t_imu = t_cam + offset). If the rig file is yours, put the estimate in it "
+            "(Kalibr timeshift_cam_imu)")
+
+
 def _recovery_lines(report: dict) -> list[str]:
     """One console line per kind of recovery the run made (input repairs, initializer rejections,
     filter resets), so that nothing counted in report.json goes unnoticed on the console."""
@@ -387,9 +407,11 @@ def _recovery_lines(report: dict) -> list[str]:
             lines.append(f"CAMERA-IMU ROTATION: {startup['ff_rejections']['extrinsics_rotation']} windows "
                          f"refused, the first: {first.get('extrinsics_rotation', '')}. Check the rig file's "
                          "T_cam_imu / T_imu_cam, or run with --withhold-extrinsics to estimate it")
-    line = _time_offset_line(startup, (report.get("rig") or {}).get("time_offset_s"))
-    if line:
-        lines.append(line)
+    rig_offset_s = (report.get("rig") or {}).get("time_offset_s")
+    for line in (_time_offset_line(startup, rig_offset_s),
+                 _estimated_offset_line(report["pipeline"].get("filter") or {}, rig_offset_s)):
+        if line:
+            lines.append(line)
     if startup.get("ff_extensions"):
         ext_rej = startup.get("ff_extension_rejections") or {}
         reasons = ", ".join(f"{k} x{v}" for k, v in sorted(ext_rej.items()))
