@@ -39,11 +39,12 @@ def test_startup_bench_json_contract(capsys, tmp_path):
 
 
 @pytest.mark.slow
-def test_a_rig_time_offset_50_ms_off_is_corrected_by_davio_and_not_by_the_native_arm(tmp_path, capsys):
-    """The camera's stamps 50 ms later than the rig says: the native dynamic initializer starts with the
-    rig's offset and diverges (its first trajectory fails); DAVIO's windows find the offset, the start-up
-    adopts it within 3 ms of the truth (the preset's own offset, 0), and the first trajectory it publishes
-    passes."""
+def test_a_rig_time_offset_50_ms_off_is_found_by_davio_and_estimated_by_the_native_filter(tmp_path, capsys):
+    """The camera's stamps 50 ms later than the rig says: DAVIO's windows find the offset and the start-up
+    adopts it within 3 ms of the truth (the preset's own offset, 0); the native arm finds nothing, its
+    dynamic initializer starts at the rig's offset, and its filter, which estimates the offset
+    (msckf.calib_time_offset), still publishes a first trajectory that passes. (With the offset fixed in
+    the filter that trajectory failed: tests/tools/test_bench_vio_sim.py shows the fixed filter diverge.)"""
     out_file = tmp_path / "startup.json"
     assert main(["bench", "startup", "--preset", "handheld", "--seconds", "6", "--window", "5", "--json",
                  "--arms", "feedforward,native", "--rig-time-offset-error", "0.05",
@@ -51,7 +52,7 @@ def test_a_rig_time_offset_50_ms_off_is_corrected_by_davio_and_not_by_the_native
     out = json.loads(capsys.readouterr().out)
     assert out["rig_time_offset_error_s"] == 0.05
     assert (out["feedforward"]["successes"], out["feedforward"]["published_wrong"]) == (1, 0)
-    assert (out["native"]["successes"], out["native"]["published_wrong"]) == (0, 1)
+    assert (out["native"]["successes"], out["native"]["published_wrong"]) == (1, 0)
     rows = json.loads(out_file.read_text())["per_window"]
     ff, native = rows["feedforward"][0], rows["native"][0]
     assert ff["time_offset_findings"] >= 1 and abs(ff["time_offset_adopted_s"]) < 0.003

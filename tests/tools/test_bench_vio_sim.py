@@ -28,14 +28,13 @@ def test_a_rig_time_offset_50_ms_off_is_estimated_by_the_filter_and_breaks_a_fix
     from runtime.msckf.config import MsckfConfig
 
     assert MsckfConfig().calib_time_offset
-    assert main(["bench", "vio-sim", "--preset", "aggressive", "--seconds", "8", "--time-offset-error",
-                 "0,0.05", "--calib-time-offset", "both", "--json"]) == 0
+    assert main(["bench", "vio-sim", "--preset", "aggressive", "--seconds", "6", "--time-offset-error",
+                 "0.05", "--calib-time-offset", "both", "--json"]) == 0
     rows = json.loads(capsys.readouterr().out)
-    name = "preset aggressive, rig offset {:+d} ms, dt {}"
-    right, fixed, estimated = (rows[name.format(0, "fixed")], rows[name.format(50, "fixed")],
-                               rows[name.format(50, "in state")])
-    assert right["resets"] == 0 and estimated["resets"] == 0 and fixed["resets"] >= 1
-    assert estimated["ate_se3_m"] < 1.5 * right["ate_se3_m"] + 0.005
+    row = "preset aggressive, rig offset +50 ms, dt {}"
+    fixed, estimated = rows[row.format("fixed")], rows[row.format("in state")]
+    assert estimated["resets"] == 0 and fixed["resets"] >= 1
+    assert estimated["ate_se3_m"] < 0.05       # centimetre-level, as with the right rig (test above)
     assert abs(estimated["time_offset_end_error_s"]) < 0.002 and fixed["time_offset_end_error_s"] == 0.05
 
 
