@@ -85,7 +85,7 @@ class MapOutput:
                   "reloads as it is", file=sys.stderr)
         summary["archive_written_mb"] = {"submaps": round(self.archive.points_bytes / 1e6, 3),
                                          "manifest": round(self.archive.bytes_written / 1e6, 3),
-                                         "manifest_whole_writes": self.archive.compactions + 1}
+                                         "manifest_whole_writes": self.archive.whole_writes}
         if n_sub:
             summary["voxels"] = export_map(self.out_dir / "map", self.out_dir / "map.ply", self.voxel_m,
                                            ExportProgress(),

@@ -201,10 +201,10 @@ def manifest_cycle(n_submaps: int, moved: int, header: dict, progress: bool,
                 print(f"  archiving {min(k0 + 200, n_submaps)} / {n_submaps} submaps", flush=True)
                 t_fill = time.perf_counter()
         w.close()
-        manifest_bytes, written0, whole0 = w.manifest_bytes, w.bytes_written, w.compactions
+        manifest_bytes, written0, whole0 = w.manifest_bytes, w.bytes_written, w.whole_writes
         times, reads_back = [], None
         stats: dict = {}
-        while w.compactions == whole0 and len(times) < max_commits:
+        while w.whole_writes == whole0 and len(times) < max_commits:
             j = len(subs)
             subs.append(_submap(j, rng))
             moved_subs = [subs[int(i)] for i in rng.choice(j, min(moved, j), replace=False)]
@@ -217,7 +217,7 @@ def manifest_cycle(n_submaps: int, moved: int, header: dict, progress: bool,
             t0 = time.perf_counter()
             w.commit([subs[j], *moved_subs], pairs, j + 1, stats)
             times.append(time.perf_counter() - t0)
-            if w.compactions == whole0 and w.journal_bytes * 2 > w.manifest_bytes and reads_back is None:
+            if w.whole_writes == whole0 and w.journal_bytes * 2 > w.manifest_bytes and reads_back is None:
                 info = read_manifest(w.folder)
                 info.pop("journal")
                 expected = _whole_manifest(w, pairs, j + 1, stats)
@@ -227,8 +227,9 @@ def manifest_cycle(n_submaps: int, moved: int, header: dict, progress: bool,
         cycle = len(times)
         written = w.bytes_written - written0
     return {"submaps": n_submaps, "manifest_mb": manifest_bytes / 1e6, "moved": moved, "cycle_commits": cycle,
-            "complete_cycle": w.compactions > whole0, "commit_median_s": statistics.median(times),
-            "commit_mean_s": statistics.fmean(times), "whole_write_s": times[-1],
+            "complete_cycle": w.whole_writes > whole0, "commit_median_s": statistics.median(times),
+            "commit_mean_s": statistics.fmean(times),
+            "whole_write_s": times[-1] if w.whole_writes > whole0 else None,
             "bytes_per_commit": written / cycle, "whole_bytes_per_commit": manifest_bytes,
             "reads_back": bool(reads_back), "same_text": same}
 
@@ -287,9 +288,10 @@ def run(args: argparse.Namespace) -> int:
         return 1
     for r in rows:
         cycle = f"{r['cycle_commits']}" + ("" if r["complete_cycle"] else " (cut)")
+        whole = "-" if r["whole_write_s"] is None else f"{1e3 * r['whole_write_s']:.1f}"
         print(f"| {r['hours']:g} h | {r['submaps']} | {r['manifest_mb']:.1f} | {cycle} | "
               f"{1e3 * r['commit_median_s']:.1f} / {1e3 * r['commit_mean_s']:.1f} | "
-              f"{1e3 * r['whole_write_s']:.1f} | "
+              f"{whole} | "
               f"{r['bytes_per_commit'] * per_h:.0f} | {r['whole_bytes_per_commit'] * per_h:.0f} | "
               f"{r['bytes_per_commit'] / r['whole_bytes_per_commit']:.3f} |")
     return 0

@@ -104,6 +104,8 @@ def _apply_journal(path: Path, info: dict) -> dict | None:
         return out
     try:
         data = path.read_bytes()
+    except FileNotFoundError:             # removed by a whole write since is_file(): read manifest.json again
+        return None
     except OSError as exc:
         raise DataError(f"journal unreadable: {exc}", path) from exc
     lines = data.split(b"\n")

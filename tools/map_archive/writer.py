@@ -4,12 +4,14 @@ from __future__ import annotations
 import hashlib
 import io
 import json
+import os
+import threading
 from pathlib import Path
 
 import numpy as np
 
 from runtime.errors import DataError
-from runtime.files import atomic_write_bytes
+from runtime.files import FILE_MODE, atomic_write_bytes
 from runtime.mapping.submap import Submap
 from tools.map_archive.format import (
     ARRAYS,
@@ -75,6 +77,10 @@ class MapArchiveWriter:
     A process killed at any moment leaves an archive that reloads (`read_manifest`): npz files are written
     before the line that names them, a line cut short by the kill is ignored (the commit in flight is
     lost), and a journal left from before the last whole write carries the older generation and is skipped.
+    A commit that fails (an OSError, a ValueError) leaves the disk behind the writer's state: the next
+    commit, or `close`, writes the manifest whole instead of a line that would build on the lost one.
+    Nothing is fsync'ed (as every DAVIO output): a killed process is covered, a power cut may lose the
+    last commits the operating system had not written. Commits and `close` are serialised by a lock.
     The whole manifest's text is `json.dumps(manifest, indent=1)`; the writer keeps each submap entry's and
     pair record's text, encoded when committed, so that a whole write only joins them (encoding every
     entry moved since the last one at that moment held the GIL for 0.16 s after an hour).
@@ -117,8 +123,10 @@ class MapArchiveWriter:
         """Manifest and journal bytes written so far (submap files not counted)."""
         self.points_bytes = 0
         """Bytes of the submap files written so far."""
-        self.compactions = 0
-        """Whole writes of manifest.json after the first."""
+        self.whole_writes = 0
+        """Whole writes of manifest.json so far."""
+        self._behind = False      # a commit failed after it changed the state: the disk lags it
+        self._lock = threading.Lock()
 
     @property
     def entries(self) -> list[dict]:
@@ -140,6 +148,11 @@ class MapArchiveWriter:
             version: the map version of this commit.
             stats: counters and figures of the mapper (written as given).
         """
+        with self._lock:
+            self._commit(submaps, pairs, version, stats)
+
+    def _commit(self, submaps: list[Submap], pairs: list[dict], version: int, stats: dict) -> None:
+        behind, self._behind = self._behind, True      # cleared once this commit reaches the disk
         records = []
         for sm in submaps:
             entry = self._entries.get(sm.index)
@@ -163,41 +176,58 @@ class MapArchiveWriter:
                           allow_nan=False, separators=(",", ":")) + "\n"
         data = line.encode()
         full = self.journal_bytes + len(data) > self.manifest_bytes
-        if self.generation == 0 or full or not self._append(data):
-            self.compact()
+        if behind or self.generation == 0 or full or not self._append(data):
+            self._compact()
+        self._behind = False
 
     def close(self) -> None:
         """Write manifest.json whole and remove the journal (the end of a run); a no-op when the journal is
-        empty. The archive stays valid if this fails (the journal still brings the manifest up to date)."""
-        if self.generation and (self.journal_bytes or self.journal_path.exists()):
-            self.compact()
+        empty and no commit failed. The archive stays valid if this fails (the journal still brings the
+        manifest up to date)."""
+        with self._lock:
+            if self._behind or (self.generation and (self.journal_bytes or self.journal_path.exists())):
+                self._compact()
+                self._behind = False
 
     def compact(self) -> None:
         """Write manifest.json whole, with the next journal generation, then remove the journal."""
+        with self._lock:
+            self._compact()
+
+    def _compact(self) -> None:
         generation = self.generation + 1
         data = self._manifest_text(generation).encode()
         atomic_write_bytes(self.folder / MANIFEST_NAME, data)
-        self.compactions += self.generation > 0
+        self.whole_writes += 1
         self.generation, self.manifest_bytes = generation, len(data)
         self.bytes_written += len(data)
         self.journal_path.unlink(missing_ok=True)
         self.journal_bytes = 0
 
     def _append(self, data: bytes) -> bool:
-        """Append one commit's line to the journal; False (nothing appended) when the file is not what this
-        writer wrote or the write failed, in which case the caller writes the manifest whole."""
+        """Append one commit's line to the journal (unbuffered); False (nothing appended) when the file is not
+        what this writer wrote or the write failed, in which case the caller writes the manifest whole. A
+        write cut short is truncated away; where even that fails, the file's length no longer matches and no
+        later line is appended to it."""
         try:
-            with open(self.journal_path, "ab") as fh:
-                if fh.tell() != self.journal_bytes:
-                    return False
-                try:
-                    fh.write(data)
-                    fh.flush()
-                except OSError:
-                    fh.truncate(self.journal_bytes)   # never leave half a line before the next one
-                    return False
+            fd = os.open(self.journal_path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, FILE_MODE)
         except OSError:
             return False
+        try:
+            if os.fstat(fd).st_size != self.journal_bytes:
+                return False
+            view = memoryview(data)
+            try:
+                while view:
+                    view = view[os.write(fd, view):]
+            except OSError:
+                try:
+                    os.ftruncate(fd, self.journal_bytes)   # never leave half a line before the next one
+                except OSError:
+                    pass
+                return False
+        finally:
+            os.close(fd)
         self.journal_bytes += len(data)
         self.bytes_written += len(data)
         return True
