@@ -264,7 +264,10 @@ class MsckfEstimator:
         d["cpu_ms_per_frame"] = 1e3 * c.cpu_frame_s / max(c.frames_processed, 1)      # this thread's CPU
         d["initialized"] = self.initialized
         d["time_offset_s"] = self.time_offset_s           # t_imu = t_cam + this: the estimate, if estimated
+        st = self.state_
+        estimated = st is not None and st.idx_dt >= 0
         d["time_offset_estimated"] = bool(self.config.calib_time_offset)
+        d["time_offset_std_s"] = float(np.sqrt(max(st.P[st.idx_dt, st.idx_dt], 0.0))) if estimated else None
         d["initializers"] = {ini.source: ini.report() for ini in self.initializers if hasattr(ini, "report")}
         return d
 

@@ -825,3 +825,20 @@ def _propagated_covariance(est: MsckfEstimator) -> np.ndarray:
         est.feed_imu(ImuSample(k * 5_000_000, np.array([0.0, 0.0, 0.5]), np.array([0.0, 0.5, 9.81])))
     assert est._propagate_to(500_000_000)
     return est.state_.P[:15, :15].copy()
+
+
+def test_the_report_gives_the_time_offset_estimate_and_its_standard_deviation() -> None:
+    """Estimated (the default): the offset and its standard deviation from the covariance, the prior's
+    right after initialisation and smaller once features constrain it; fixed: the rig's, no deviation."""
+    imu, frames = _stream(2.0, seed=4)
+    est = MsckfEstimator(_rig(), MsckfConfig())
+    assert est.report()["time_offset_std_s"] is None                      # not running yet
+    _init(est, np.zeros(3))
+    rep = est.report()
+    assert rep["time_offset_estimated"] and rep["time_offset_s"] == 0.0
+    assert rep["time_offset_std_s"] == pytest.approx(MsckfConfig().sigma_calib_dt)
+    _run(est, imu, frames)
+    assert 0.0 < est.report()["time_offset_std_s"] < 0.9 * MsckfConfig().sigma_calib_dt      # 7.3 ms measured
+    fixed = MsckfEstimator(_rig(), MsckfConfig(calib_time_offset=False))
+    _init(fixed, np.zeros(3))
+    assert not fixed.report()["time_offset_estimated"] and fixed.report()["time_offset_std_s"] is None

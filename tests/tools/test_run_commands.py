@@ -269,24 +269,32 @@ def test_the_time_offset_line_says_what_the_start_up_did_with_its_finding():
     assert "; the first: at the offset the rotations fit (-48 ms ...): short. Put" in cured[0]
 
 
-def test_the_filter_s_estimate_of_the_time_offset_is_named_when_it_ends_far_from_the_rig_s():
+def test_the_filter_s_estimate_of_the_time_offset_is_named_when_it_ends_far_from_the_offset_in_use():
     from tools.commands.run import ESTIMATED_OFFSET_NOTE_S, _recovery_lines
 
-    def lines(filt: dict, rig_offset=0.01) -> list[str]:
+    def lines(filt: dict, rig_offset=0.01, adopted=None) -> list[str]:
         report = {"rig": {"time_offset_s": rig_offset},
-                  "pipeline": {"filter": {"initialized": True, "time_offset_estimated": True, **filt},
-                               "startup": {"ff_rejections": {}, "restarts_after_divergence": 0}}}
-        return [x for x in _recovery_lines(report) if x.startswith("CAMERA-IMU TIME OFFSET")]
+                  "pipeline": {"filter": {"time_offset_estimated": True, "time_offset_std_s": 0.0004, **filt},
+                               "startup": {"ff_rejections": {}, "restarts_after_divergence": 0,
+                                           "time_offset_adopted_s": adopted}}}
+        return [x for x in _recovery_lines(report) if x.startswith("CAMERA-IMU TIME OFFSET: the filter")]
 
     assert lines({"time_offset_s": 0.0612}) == [
-        "CAMERA-IMU TIME OFFSET: the filter estimated +61.2 ms at the end (the rig says +10.0 ms, "
+        "CAMERA-IMU TIME OFFSET: the filter estimated +61.2 +- 0.4 ms at the end (the rig says +10.0 ms; "
         "t_imu = t_cam + offset). If the rig file is yours, put the estimate in it "
         "(Kalibr timeshift_cam_imu)"]
     assert lines({"time_offset_s": 0.01 - 0.9 * ESTIMATED_OFFSET_NOTE_S}) == []           # within the spread
     assert len(lines({"time_offset_s": 0.01 - 1.1 * ESTIMATED_OFFSET_NOTE_S})) == 1
+    # an uncertain estimate (a short run, a late start) must be three standard deviations off
+    assert lines({"time_offset_s": 0.0212, "time_offset_std_s": 0.004}) == []
+    assert len(lines({"time_offset_s": 0.0232, "time_offset_std_s": 0.004})) == 1
     assert lines({"time_offset_s": 0.0612, "time_offset_estimated": False}) == []        # the rig's, fixed
-    assert lines({"time_offset_s": 0.0612, "initialized": False}) == []                  # nothing estimated
+    assert lines({"time_offset_s": 0.0612, "time_offset_std_s": None}) == []             # not running
     assert len(lines({"time_offset_s": -0.02}, rig_offset=None)) == 1                    # the rig says 0
+    # after an adoption the estimate is compared with the adopted offset, and the line names both
+    assert lines({"time_offset_s": 0.0612}, adopted=0.06) == []
+    back = lines({"time_offset_s": 0.011}, adopted=0.06)
+    assert len(back) == 1 and "(the rig says +10.0 ms, the start-up adopted +60.0 ms;" in back[0]
 
 
 @pytest.mark.parametrize("args, message", [

@@ -182,7 +182,9 @@ def load_sim_folder(folder: Path, max_seconds: float | None = None) -> SimRun:
         "zupt_noise_multiplier": "zupt_noise_multiplier",
         "zupt_max_disparity": "zupt_max_disparity",
     }
-    kw = {ours: est[theirs] for theirs, ours in mapping.items() if theirs in est}
+    # OpenVINS 2.7's defaults where its yaml is silent (VioManagerOptions.h: every calibration off), not ours
+    kw = {"calib_extrinsics": False, "calib_time_offset": False, "calib_intrinsics": False}
+    kw.update({ours: est[theirs] for theirs, ours in mapping.items() if theirs in est})
     kw.update(openvins_triangulation(est))
     reps = {"GLOBAL_3D": "global_3d", "ANCHORED_MSCKF_INVERSE_DEPTH": "anchored_inverse_depth"}
     if "feat_rep_slam" in est:

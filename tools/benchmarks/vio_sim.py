@@ -14,7 +14,7 @@ the true state, so the ATE hides them: read it with the resets).
 `--time-offset-error S,...` hands the filter a rig whose camera-IMU time offset is S off the recording's
 (positive: the rig says t_imu = t_cam + S more than the truth), and `--calib-time-offset on|off|both`
 runs the filter with and without the offset in its state (`msckf.calib_time_offset`); each combination
-is one row, the recording rendered once.
+is one row (its images rendered again for each).
 """
 from __future__ import annotations
 
@@ -196,7 +196,7 @@ def run(args: argparse.Namespace) -> int:
     from runtime.msckf.config import MsckfConfig
 
     try:
-        errors = [float(x) for x in args.time_offset_error.split(",") if x.strip()]
+        errors = list(dict.fromkeys(float(x) for x in args.time_offset_error.split(",") if x.strip()))
     except ValueError:
         errors = []
     if not errors or not all(np.isfinite(e) and abs(e) <= 0.5 for e in errors):

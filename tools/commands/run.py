@@ -352,22 +352,27 @@ def _time_offset_line(startup: dict, rig_offset_s: float | None) -> str | None:
 
 
 ESTIMATED_OFFSET_NOTE_S = 0.005
-"""The console names the filter's estimate of the camera-IMU time offset when it ends at least this far from
-the rig's (s): about a sample period of a 200 Hz IMU, and five times the estimate's spread on a right rig
-(BENCHMARKS "The camera-IMU time offset in the filter's state")."""
+"""The console names the filter's estimate of the camera-IMU time offset when it ends at least this far (s),
+and three of its standard deviations, from the offset in use (the rig's, or the one the start-up adopted):
+about a sample period of a 200 Hz IMU, and five times the estimate's spread on a right rig (BENCHMARKS
+"The camera-IMU time offset in the filter's state")."""
 
 
-def _estimated_offset_line(filter_rep: dict, rig_offset_s: float | None) -> str | None:
+def _estimated_offset_line(filter_rep: dict, startup: dict, rig_offset_s: float | None) -> str | None:
     """The console's word on the publishing filter's estimate of the camera-IMU time offset (msckf.
-    calib_time_offset) when it ends ESTIMATED_OFFSET_NOTE_S or more from the rig's; None otherwise."""
-    est = filter_rep.get("time_offset_s")
-    if not filter_rep.get("time_offset_estimated") or est is None or not filter_rep.get("initialized"):
+    calib_time_offset) when it ends far from the offset in use; None otherwise."""
+    est, std = filter_rep.get("time_offset_s"), filter_rep.get("time_offset_std_s")
+    if not filter_rep.get("time_offset_estimated") or est is None or std is None:
         return None
     rig = rig_offset_s or 0.0
-    if abs(est - rig) < ESTIMATED_OFFSET_NOTE_S:
+    adopted = startup.get("time_offset_adopted_s")
+    ref = rig if adopted is None else adopted
+    if abs(est - ref) < max(ESTIMATED_OFFSET_NOTE_S, 3.0 * std):
         return None
-    return (f"CAMERA-IMU TIME OFFSET: the filter estimated {est * 1e3:+.1f} ms at the end (the rig says "
-            f"{rig * 1e3:+.1f} ms, t_imu = t_cam + offset). If the rig file is yours, put the estimate in it "
+    said = f"the rig says {rig * 1e3:+.1f} ms" + ("" if adopted is None else
+                                                  f", the start-up adopted {adopted * 1e3:+.1f} ms")
+    return (f"CAMERA-IMU TIME OFFSET: the filter estimated {est * 1e3:+.1f} +- {std * 1e3:.1f} ms at the end "
+            f"({said}; t_imu = t_cam + offset). If the rig file is yours, put the estimate in it "
             "(Kalibr timeshift_cam_imu)")
 
 
@@ -409,7 +414,7 @@ def _recovery_lines(report: dict) -> list[str]:
                          "T_cam_imu / T_imu_cam, or run with --withhold-extrinsics to estimate it")
     rig_offset_s = (report.get("rig") or {}).get("time_offset_s")
     for line in (_time_offset_line(startup, rig_offset_s),
-                 _estimated_offset_line(report["pipeline"].get("filter") or {}, rig_offset_s)):
+                 _estimated_offset_line(report["pipeline"].get("filter") or {}, startup, rig_offset_s)):
         if line:
             lines.append(line)
     if startup.get("ff_extensions"):
