@@ -90,7 +90,7 @@ class MsckfConfig:
     calib_extrinsics: bool = False  #: estimate R_IC, p_IC
     #: estimate t_imu - t_cam in the state (as OpenVINS 2.7's euroc_mav, tum_vi, kaist and rs_d455 configs,
     #: calib_cam_timeoffset). A rig file's offset 20 ms off made the filter with a fixed offset diverge on
-    #: five of six 30 s simulations (3-15 resets), 50 ms off on all six; estimated, no reset but one (MH_03 at
+    #: five of six 30 s simulations (3-10 resets), 50 ms off on all six; estimated, no reset but one (MH_03 at
     #: -50 ms), the offset within 1.2 ms at the end, and the right rig's ATE the same within 0.005 m
     #: (BENCHMARKS "The camera-IMU time offset in the filter's state"; `davio bench vio-sim
     #: --time-offset-error ... --calib-time-offset both`)

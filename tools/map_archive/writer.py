@@ -71,7 +71,7 @@ class MapArchiveWriter:
 
     Why a journal: manifest.json grows by about 1.5 kB a submap (3.5 MB after an hour, 14 MB after four),
     and writing it whole at every commit (a submap every 1.5 s) wrote 9 MB/s to the robot's disk after four
-    hours, six times what the submaps' points need (`davio bench long-run`). With the journal a commit
+    hours, nine times what the submaps' points need (`davio bench long-run`). With the journal a commit
     writes what it changed, and the rewrites add as much again (each one follows a journal as large).
 
     A process killed at any moment leaves an archive that reloads (`read_manifest`): npz files are written
