@@ -69,8 +69,6 @@ def run(args: argparse.Namespace) -> int:
     check_run_args(args)
     check_device_args(args, "davio live")
     config = load_davio_config(args.config) if args.config else DavioConfig()
-    # host-stamped camera and IMU: the filter estimates the camera-IMU time offset online
-    config = replace(config, msckf=replace(config.msckf, calib_time_offset=True))
     if args.no_map:
         config = replace(config, mapping=replace(config.mapping, enabled=False))
     folder = RunFolder.prepare(args.out, overwrite=args.overwrite)
