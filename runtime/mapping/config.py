@@ -22,7 +22,7 @@ class MappingConfig:
     graph: bool = True
     """Place submaps with the submap graph (off: the filter's poses as they are, lambda = 0)."""
     archive_views: bool = True
-    """Store each submap's centre view in the map archive (about 0.23 MB of a submap's 1.5 MB), so that a
+    """Store each submap's centre view in the map archive (about 0.23 MB of a submap's 0.9 MB), so that a
     later run can be localised in the map (`--prior-map`, `davio map align`); false saves that disk."""
     keyframe_spacing_s: float = 0.5
     """Keyframes at this sensor-time spacing during tracking (Sec. III)."""

@@ -37,7 +37,7 @@ from runtime.mapping.config import MappingConfig
 from runtime.mapping.frame_scales import FrameScaleResult, PairMatches, solve_frame_scales
 from runtime.mapping.fusion import VoxelGrid
 from runtime.mapping.multiview import confidence_mask, multiview_test, sample_grid
-from runtime.mapping.placement import backproject, place_points
+from runtime.mapping.placement import backproject, place_points, ray_points
 from runtime.mapping.rectify import Rectifier, sample_at
 from runtime.mapping.shared_scale import ScaleLink, overlap_link, shared_link
 from runtime.mapping.submap import Submap, SubmapState
@@ -407,7 +407,8 @@ class Mapper:
         img_idx, g_idx = img_idx[keep], g_idx[keep]
         grey_vals = np.stack([g[v, u] for g in grey])[img_idx, g_idx].astype(np.uint8)
         failed, judged = int((seen & ~agree).sum()), int(seen.sum())
-        return pts_C[keep], img_idx, c[img_idx, g_idx], grey_vals, failed, judged
+        points_C = ray_points(d[img_idx, g_idx], self.K, u[g_idx], v[g_idx])   # as the archive reads them
+        return points_C, img_idx, c[img_idx, g_idx], grey_vals, failed, judged
 
     def _link(self, sub: Submap, depths_by_t: dict[int, np.ndarray], T_OC: np.ndarray) -> ScaleLink | None:
         """kappa_ab to the previous submap of the same segment (shared images, else projected overlap)."""

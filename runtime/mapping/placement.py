@@ -19,6 +19,14 @@ def backproject(depth: np.ndarray, K: np.ndarray, u: np.ndarray, v: np.ndarray) 
     return np.stack([x * d, y * d, d], axis=-1)
 
 
+def ray_points(depth: np.ndarray, K: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(P,3) float32 camera-frame points of float32 depths at pixels (u, v): `backproject` of the
+    float32 depths, rounded to float32. The mapper stores its points so, and the map archive stores the
+    depths and pixels alone (tools.map_archive.point_rays): both give back the same points, bit for bit."""
+    d = np.asarray(depth, np.float32).astype(np.float64)
+    return backproject(d, K, u, v).astype(np.float32)
+
+
 def place_points(points_C: np.ndarray, image: np.ndarray, T_SC: np.ndarray, T_MS: np.ndarray,
                  lam: float = 0.0) -> np.ndarray:
     """Map-frame points of camera-frame points (eq. placement).

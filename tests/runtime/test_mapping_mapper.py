@@ -69,6 +69,23 @@ def test_retained_points_lie_on_the_surfaces_and_flying_pixels_go():
     assert np.allclose(sm.T_OS, _window(0).T_OC[2]) and np.allclose(sm.T_SC[2], np.eye(4))
 
 
+def test_points_are_float32_depths_on_the_sample_grid_so_the_archive_stores_them_as_rays():
+    """Each retained point is the model's float32 depth at a grid pixel, on that pixel's ray of K: the map
+    archive then stores depth and pixel (schema 3) and reads the same points back."""
+    from tools.map_archive.point_rays import decode_rays, encode_rays
+
+    model = _ExactModel()
+    sm = _mapper(model).process(_window(0)).submap
+    rays = encode_rays(sm.points_C, sm.K)
+    assert rays is not None
+    u, v = rays["pixel_u"].astype(int), rays["pixel_v"].astype(int)
+    assert set(np.unique(u)) <= set(range(1, W_TEST, 2)) and set(np.unique(v)) <= set(range(1, H_TEST, 2))
+    T_WC = _window(0).T_OC
+    truth = np.stack([render_room_depth(T, room=ROOM) for T in T_WC]).astype(np.float32)
+    np.testing.assert_allclose(rays["depth"], truth[sm.image, v, u], rtol=1e-5)
+    np.testing.assert_array_equal(decode_rays(rays["depth"], u, v, sm.K), sm.points_C)
+
+
 def test_a_surface_only_one_image_sees_is_kept_unverified_or_dropped_by_the_paper_rule():
     """Image 0 looks at the side wall that no other image of the window sees: its depths are unseen.
     The default keeps them (counted as unverified); the paper's strict rule drops them."""

@@ -118,7 +118,7 @@ def test_round_trip_and_export_equals_brute_force(tmp_path):
     info = json.loads((folder / "manifest.json").read_text(), parse_constant=lambda c: pytest.fail(c))
     assert info == {k: v for k, v in during.items() if k not in ("journal", "journal_generation")} | {
         "journal_generation": 2}
-    assert info["format"] == "davio-map" and info["schema_version"] == 2 and info["map_version"] == 2
+    assert info["format"] == "davio-map" and info["schema_version"] == 3 and info["map_version"] == 2
     assert info["rig"] == HEADER["rig"] and len(info["pairs"]) == 2 and info["stats"]["rmse"] is None
     assert [e["index"] for e in info["submaps"]] == [0, 1, 2]
     assert info["submaps"][0]["fit"]["log_s_hat"] is None and info["submaps"][0]["version"] == 2
@@ -418,6 +418,68 @@ def test_a_damaged_journal_is_named_with_its_line(tmp_path, edit, message):
     path.write_bytes(b"\n".join(edit(path.read_bytes().splitlines())) + b"\n")
     with pytest.raises(DataError, match=r"manifest\.journal.*" + message):
         read_manifest(w.folder)
+
+
+def _ray_submap(index: int, seed: int, stride: int = 4) -> Submap:
+    """A submap whose points are float32 depths on a pixel grid of its K, as the mapper keeps them."""
+    sm = make_submap(index, seed)
+    rng = np.random.default_rng(seed)
+    v, u = np.mgrid[2:360:stride, 2:500:stride]
+    image = rng.integers(0, 3, u.size)
+    depth = rng.uniform(0.3, 12.0, u.size).astype(np.float32)
+    K = sm.K
+    x = (u.ravel() - K[0, 2]) / K[0, 0] * depth.astype(np.float64)
+    y = (v.ravel() - K[1, 2]) / K[1, 1] * depth.astype(np.float64)
+    sm.points_C = np.stack([x, y, depth], axis=1).astype(np.float32)
+    sm.image = image.astype(np.uint8)
+    sm.conf = rng.uniform(1, 20, u.size).astype(np.float32)
+    sm.grey = rng.integers(0, 256, u.size).astype(np.uint8)
+    return sm
+
+
+def test_points_on_pixel_rays_are_stored_as_depths_and_pixels_and_read_back_bit_for_bit(tmp_path):
+    """Schema 3: the mapper's points (float32 depths on pixels of K) are stored as depth and pixel, a
+    third of the bytes of x, y, z; a submap with one point off its ray keeps x, y, z. Both read back
+    equal to what was written, and fuse as the points written."""
+    on_ray = _ray_submap(0, seed=3)
+    off_ray = _ray_submap(1, seed=3)
+    off_ray.index = 1
+    off_ray.points_C = off_ray.points_C.copy()
+    off_ray.points_C[7, 0] += 0.01
+    folder = tmp_path / "map"
+    w = MapArchiveWriter(folder, HEADER)
+    w.commit([on_ray, off_ray], pairs=[], version=1, stats={})
+    w.close()
+    with np.load(folder / "submap_000000.npz") as a, np.load(folder / "submap_000001.npz") as b:
+        assert "points_C" not in a.files and a["depth"].dtype == np.float32
+        np.testing.assert_array_equal(a["depth"], on_ray.points_C[:, 2])
+        assert a["pixel_u"].dtype == a["pixel_v"].dtype == np.uint16
+        assert a["pixel_u"].shape == a["pixel_v"].shape == (on_ray.n_points,)
+        assert not {"depth", "pixel_u", "pixel_v"} & set(b.files)
+        np.testing.assert_array_equal(b["points_C"], off_ray.points_C)
+    sizes = [(folder / f"submap_00000{k}.npz").stat().st_size for k in range(2)]
+    assert sizes[0] < 0.7 * sizes[1]
+    for a, b in zip([on_ray, off_ray], iter_submaps(folder), strict=True):
+        assert_same_submap(a, b)
+    assert_fusion_equals(fuse_archive(folder, VOXEL), brute_force_fusion([on_ray, off_ray], VOXEL), VOXEL)
+
+
+def test_a_submap_file_without_points_or_with_mismatched_rays_is_named(tmp_path):
+    folder = tmp_path / "map"
+    w = MapArchiveWriter(folder, HEADER)
+    w.commit([_ray_submap(0, seed=4)], pairs=[], version=1, stats={})
+    w.close()
+    path = folder / "submap_000000.npz"
+    entry = read_manifest(folder)["submaps"][0]
+    with np.load(path) as npz:
+        arrays = dict(npz)
+    np.savez(path, **{k: v for k, v in arrays.items() if k != "pixel_v"})
+    with pytest.raises(DataError, match=r"submap_000000\.npz.*holds no points: neither array 'points_C' nor "
+                                        r"'depth', 'pixel_u', 'pixel_v'"):
+        load_submap(folder, entry)
+    np.savez(path, **{**arrays, "pixel_u": arrays["pixel_u"][:-1]})
+    with pytest.raises(DataError, match=r"submap_000000\.npz.*inconsistent submap arrays: depth"):
+        load_submap(folder, entry)
 
 
 def test_schema_1_archives_are_read_without_a_journal(tmp_path):

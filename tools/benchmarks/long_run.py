@@ -14,7 +14,7 @@ What grows with time however bounded the map and the graph are:
     through `runtime.pipeline.VioPipeline` (native start-up, no model, so no map) with tracemalloc on; the
     least-squares slope of the traced bytes against the poses published, over the second half of the run.
     (A `Session` adds its `poses()` queue, capped at 12000 poses, about 11 MB, full after ten minutes.)
-Submaps carry 50 points here (the manifest does not hold points; a real submap's npz is about 1.5 MB).
+Submaps carry 50 points here (the manifest does not hold points; a real submap's npz is about 0.9 MB).
 """
 from __future__ import annotations
 

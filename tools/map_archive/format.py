@@ -9,9 +9,10 @@ import numpy as np
 
 FORMAT = "davio-map"
 """Value of the manifest's `format` key."""
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 """Schema written by this davio (and the newest it reads). Schema 2 added the journal: a manifest.json
-with `journal_generation` G is brought up to date by the lines of manifest.journal written for G."""
+with `journal_generation` G is brought up to date by the lines of manifest.journal written for G.
+Schema 3 stores a submap's points as depths and pixels (`RAY_ARRAYS`) where that is exact."""
 MIN_SCHEMA_VERSION = 1
 """Oldest schema this davio reads (schema 1: manifest.json alone, no journal)."""
 MANIFEST_NAME = "manifest.json"
@@ -24,10 +25,16 @@ TEMP_RE = re.compile(r"^\.(manifest\.json|submap_\d{6,}\.npz)\..*\.tmp$")
 
 ARRAYS: dict[str, str] = {
     "index": "int64", "frame_t_ns": "int64", "centre": "int64", "T_OS": "float64", "T_SC": "float64",
-    "K": "float64", "s_hat": "float64", "frame_scales": "float64", "points_C": "float32",
+    "K": "float64", "s_hat": "float64", "frame_scales": "float64",
     "image": "uint8", "conf": "float32", "grey": "uint8",
 }
-"""Arrays of a submap .npz and their stored dtypes."""
+"""Arrays every submap .npz holds and their stored dtypes; beside them its points, either `POINTS_ARRAY`
+or `RAY_ARRAYS`."""
+POINTS_ARRAY = ("points_C", "float32")
+"""The points as x, y, z (P,3) in the camera of their image (schemas 1-2, and where rays are not exact)."""
+RAY_ARRAYS: dict[str, str] = {"depth": "float32", "pixel_u": "uint16", "pixel_v": "uint16"}
+"""The points as depths (P,) along the rays of pixels (pixel_u, pixel_v) (P,) of the submap's K (schema 3;
+tools.map_archive.point_rays): about 0.3 MB of a submap's npz where x, y, z took 0.9 MB."""
 
 VIEW_ARRAYS: dict[str, str] = {
     "view_kpts": "float32", "view_scores": "float32", "view_depth": "float32", "view_size": "int64",

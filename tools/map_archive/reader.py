@@ -16,11 +16,14 @@ from tools.map_archive.format import (
     JOURNAL_NAME,
     MANIFEST_NAME,
     MIN_SCHEMA_VERSION,
+    POINTS_ARRAY,
+    RAY_ARRAYS,
     SCHEMA_VERSION,
     SUBMAP_RE,
     TEMP_RE,
     VIEW_ARRAYS,
 )
+from tools.map_archive.point_rays import decode_rays
 
 _ENTRY_KEYS = ("index", "file", "sha256", "bytes", "n_points", "T_MS", "lam", "version")
 _INT_KEYS = ("index", "bytes", "n_points", "version")
@@ -257,6 +260,7 @@ def load_submap(folder: str | Path, entry: dict) -> Submap:
                 if name not in npz.files:
                     raise DataError(f"array {name!r} missing from the submap file", path)
                 arrays[name] = npz[name].astype(dtype, copy=False)
+            arrays.update(_point_arrays(npz, path))
     except DataError:
         raise
     except Exception as exc:  # damaged zip/npy bytes surface as many types (BadZipFile, zlib, tokenize...)
@@ -264,6 +268,12 @@ def load_submap(folder: str | Path, entry: dict) -> Submap:
     for name in _SCALAR_ARRAYS:
         if arrays[name].size != 1:
             raise DataError(f"array {name!r} holds {arrays[name].size} values, expected one", path)
+    if "points_C" not in arrays:
+        depth, u, v = (arrays.pop(n) for n in RAY_ARRAYS)
+        if depth.ndim != 1 or u.shape != depth.shape or v.shape != depth.shape or arrays["K"].shape != (3, 3):
+            raise DataError(f"inconsistent submap arrays: depth {depth.shape}, pixel_u {u.shape}, "
+                            f"pixel_v {v.shape}, K {arrays['K'].shape}", path)
+        arrays["points_C"] = decode_rays(depth, u, v, arrays["K"])
     if int(arrays["index"]) != int(entry["index"]):
         raise DataError(f"file holds submap {int(arrays['index'])}, the manifest says {entry['index']}", path)
     manifest = Path(folder) / MANIFEST_NAME
@@ -279,6 +289,19 @@ def load_submap(folder: str | Path, entry: dict) -> Submap:
                       segment=int(entry.get("segment", 0)), fit=dict(entry.get("fit") or {}))
     except (TypeError, ValueError) as exc:
         raise DataError(f"inconsistent submap arrays: {exc}", path) from exc
+
+
+def _point_arrays(npz, path: Path) -> dict[str, np.ndarray]:
+    """A submap file's points: `points_C` (x, y, z), or `depth` and `pixel` (schema 3, decoded by the caller
+    once K is read)."""
+    name, dtype = POINTS_ARRAY
+    if name in npz.files:
+        return {name: npz[name].astype(dtype, copy=False)}
+    missing = [n for n in RAY_ARRAYS if n not in npz.files]
+    if missing:
+        raise DataError(f"the submap file holds no points: neither array {name!r} nor "
+                        f"{', '.join(repr(n) for n in RAY_ARRAYS)}", path)
+    return {n: npz[n].astype(dt, copy=False) for n, dt in RAY_ARRAYS.items()}
 
 
 def iter_submaps(folder: str | Path, manifest: dict | None = None) -> Iterator[Submap]:

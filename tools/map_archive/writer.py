@@ -18,6 +18,7 @@ from tools.map_archive.format import (
     FORMAT,
     JOURNAL_NAME,
     MANIFEST_NAME,
+    POINTS_ARRAY,
     SCHEMA_VERSION,
     SUBMAP_RE,
     TEMP_RE,
@@ -26,17 +27,26 @@ from tools.map_archive.format import (
     jsonable,
     submap_filename,
 )
+from tools.map_archive.point_rays import encode_rays
 
 
 def submap_arrays(sm: Submap, views: bool = True) -> dict[str, np.ndarray]:
-    """The arrays of a submap's .npz (ARRAYS names and dtypes), and its centre view's (`view_arrays`)
-    when it has one and `views`; its graph state is not among them."""
+    """The arrays of a submap's .npz (ARRAYS names and dtypes; the points as RAY_ARRAYS where that is
+    exact, else POINTS_ARRAY), and its centre view's (`view_arrays`) when it has one and `views`; its
+    graph state is not among them."""
     if len(sm.frame_t_ns) > 256:
         raise ValueError(f"submap {sm.index}: {len(sm.frame_t_ns)} images; the archive stores at most 256")
     values = {"index": sm.index, "frame_t_ns": sm.frame_t_ns, "centre": sm.centre, "T_OS": sm.T_OS,
               "T_SC": sm.T_SC, "K": sm.K, "s_hat": sm.s_hat, "frame_scales": sm.frame_scales,
-              "points_C": sm.points_C, "image": sm.image, "conf": sm.conf, "grey": sm.grey}
+              "image": sm.image, "conf": sm.conf, "grey": sm.grey}
     out = {k: np.asarray(values[k]).astype(dt, order="C", copy=False) for k, dt in ARRAYS.items()}
+    name, dtype = POINTS_ARRAY
+    points = np.asarray(sm.points_C).astype(dtype, order="C", copy=False)
+    rays = encode_rays(points, out["K"])
+    if rays is None:
+        out[name] = points
+    else:
+        out.update(rays)
     if views and sm.view is not None:
         out.update(view_arrays(*sm.view))
     return out
