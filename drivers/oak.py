@@ -1,8 +1,9 @@
 """Luxonis OAK (depthai 3): one camera socket and the on-board IMU, read on threads (notes/drivers.md §1).
 
 `OakDevice` builds one depthai pipeline (a `Camera` node with one GRAY8 output at the requested size and
-rate, an `IMU` node with ACCELEROMETER_RAW + GYROSCOPE_RAW at one rate, batch threshold 1, at most 10
-reports a batch; both host queues non-blocking and bounded) and exposes two sources for `LiveDriver`:
+rate, an `IMU` node with ACCELEROMETER_UNCALIBRATED + GYROSCOPE_UNCALIBRATED at one rate (`imu_calibrated`:
+the _CALIBRATED streams), batch threshold 1, at most 10 reports a batch; both host queues non-blocking and
+bounded) and exposes two sources for `LiveDriver`:
 
 - `device.camera` (`OakCamera`): `Frame`s, grey (H, W) uint8 of the requested size. Each is stamped
   with `getTimestampDevice(dai.CameraExposureOffset.MIDDLE)`: the DEVICE clock at mid-exposure, int64
@@ -15,7 +16,13 @@ reports a batch; both host queues non-blocking and bounded) and exposes two sour
   a sample is emitted at each gyroscope stamp, with the accelerometer taken at that stamp (linearly
   interpolated between the two accelerometer reports around it when the stamps differ). A report that
   repeats or precedes its stream's previous stamp is dropped and counted. The queue is meant to be
-  lossless; on overflow the oldest sample goes and is counted (`overflow`, `take_overflow()`).
+  lossless; on overflow the oldest sample goes and is counted (`overflow`, `take_overflow()`). Batches the
+  device's own non-blocking queue dropped before the host read them show as a gyroscope stamp step of more
+  than 1.5 periods (the median of the steps seen): the samples missing are counted (`gaps`,
+  `lost_before_host`) and flagged through `take_overflow()` as well.
+  The samples are in the DepthAI IMU frame, the frame `getImuToCameraExtrinsics` relates to the camera:
+  since depthai 3's firmware the _RAW streams are the chip's native axes instead (their docstring), so
+  they are not used.
 
 Camera and IMU share the device clock, so LiveDriver merges them without any clock mapping; the Rig's
 time offset is 0 (`read_oak_rig`). The reader threads only read, convert and enqueue.
@@ -25,7 +32,10 @@ within `probe_timeout_s` (2 s) when none is attached (probe: `dai.Device.getAllA
 or why the device or the pipeline could not be opened. A queue that fails while running (the device
 was unplugged or crashed: depthai closes the queues and raises `MessageQueue.QueueException`) or that
 stays silent for `stall_timeout_s` sets `.error` on both sources; `get` raises it once the samples
-already buffered have been taken. `stop()` is idempotent.
+already buffered have been taken. `stop()` is idempotent. Reconnection is off
+(`setMaxReconnectionAttempts(0)`) and the pipeline stops on device loss (`setStopOnDeviceLoss(True)`):
+depthai's default would reconnect a crashed device, whose clock then restarts near zero, so every
+stamp after it would be dropped as going backwards while messages keep coming.
 
 Calibration (`read_oak_rig`): intrinsics are `getCameraIntrinsics(socket, width, height)` (depthai's
 own scaling / centre-crop to the output size); distortion `Perspective` (OpenCV's 14 coefficients
@@ -50,6 +60,7 @@ The calibration reading itself lives in `drivers.oak_calib`.
 """
 from __future__ import annotations
 
+import dataclasses
 import datetime as _dt
 import threading
 import time
@@ -144,6 +155,22 @@ def oak_available(timeout_s: float = 2.0) -> list[dict[str, Any]]:
 
 
 # -- pipeline ------------------------------------------------------------------------------------
+GAP_FACTOR = 1.5
+"""A gyroscope stamp step above this many median steps is a gap (samples lost before the host)."""
+GAP_MIN_STEPS = 10
+GAP_STEPS = 64
+"""Steps the median period is taken over (the gaps left out), and the most gap flags kept waiting."""
+
+
+def imu_sensors(dai: Any, calibrated: bool = False) -> list:
+    """The accelerometer and gyroscope streams to enable: both in the DepthAI IMU frame (the frame of
+    `getImuToCameraExtrinsics`), with or without the stored affine calibration."""
+    S = dai.IMUSensor
+    if calibrated:
+        return [S.ACCELEROMETER_CALIBRATED, S.GYROSCOPE_CALIBRATED]
+    return [S.ACCELEROMETER_UNCALIBRATED, S.GYROSCOPE_UNCALIBRATED]
+
+
 @dataclass
 class OakPipeline:
     """What a pipeline factory returns: two depthai-like output queues and what owns them.
@@ -190,11 +217,13 @@ def build_pipeline(dev: OakDevice) -> OakPipeline:
     what = f"OAK {info['device_id'] or info['name']}"
     try:
         device = dai.Device(info["info"])
+        device.setMaxReconnectionAttempts(0)      # a reconnected device restarts its clock: fail instead
     except Exception as exc:  # noqa: BLE001 - any depthai failure is a device error
         raise DeviceError(f"{what}: cannot be opened ({_one_line(exc)}; state {info['state']}: "
                           f"in use by another program?)") from None
     try:
         pipeline = dai.Pipeline(device)
+        pipeline.setStopOnDeviceLoss(True)
         try:
             calibration = device.readCalibration()
         except Exception:  # noqa: BLE001 - streaming works without it; read_oak_rig says what is missing
@@ -205,7 +234,7 @@ def build_pipeline(dev: OakDevice) -> OakPipeline:
         out = cam.requestOutput((dev.width, dev.height), kind, dai.ImgResizeMode.CROP, dev.fps, False)
         q_img = out.createOutputQueue(dev.camera_queue_size, False)
         imu = pipeline.create(dai.node.IMU)
-        sensors = [dai.IMUSensor.ACCELEROMETER_RAW, dai.IMUSensor.GYROSCOPE_RAW]
+        sensors = imu_sensors(dai, dev.imu_calibrated)
         imu.enableIMUSensor(sensors, int(dev.imu_rate_hz))
         imu.setBatchReportThreshold(1)
         imu.setMaxBatchReports(10)
@@ -230,6 +259,9 @@ class OakDevice:
         socket: "CAM_B" (left mono, default), "CAM_C" (right mono) or "CAM_A" (colour; its luma).
         width, height, fps: the camera output (the Camera node crops to the aspect ratio and scales).
         imu_rate_hz: the rate requested for both accelerometer and gyroscope (the chip may round it).
+        imu_calibrated: read the IMU streams corrected with the device's stored affine calibration
+            (ACCELEROMETER/GYROSCOPE_CALIBRATED) instead of the uncorrected ones (_UNCALIBRATED, the
+            default; the filter estimates the biases). Both are in the DepthAI IMU frame.
         device_id: the device's id (MxId) or name when several are attached; None: the first one.
         pipeline_factory: `factory(device) -> OakPipeline` (tests inject recorded queues); default
             `build_pipeline` (a real device).
@@ -246,7 +278,7 @@ class OakDevice:
                  pipeline_factory: Callable[[OakDevice], OakPipeline] | None = None, *,
                  keep_frames: int = 2, imu_queue_seconds: float = 5.0, stall_timeout_s: float = 2.0,
                  first_message_timeout_s: float = 10.0, probe_timeout_s: float = 2.0,
-                 camera_id: int = 0) -> None:
+                 camera_id: int = 0, imu_calibrated: bool = False) -> None:
         if socket not in SOCKETS:
             raise DeviceError(f"OAK socket must be one of {', '.join(SOCKETS)}, not {socket!r}")
         if int(width) <= 0 or int(height) <= 0:
@@ -259,6 +291,7 @@ class OakDevice:
         self.width, self.height = int(width), int(height)
         self.fps = float(fps)
         self.imu_rate_hz = int(imu_rate_hz)
+        self.imu_calibrated = bool(imu_calibrated)
         self.device_id = device_id
         self.pipeline_factory = pipeline_factory or build_pipeline
         self.stall_timeout_s = float(stall_timeout_s)
@@ -546,16 +579,40 @@ class OakImu(_Source):
         self.batches = self.packets = self.enqueued = self.delivered = 0
         self.overflow = 0
         self._overflow_pending = 0
+        self.gaps = self.lost_before_host = 0
+        self._steps: deque[int] = deque(maxlen=GAP_STEPS)
+        self._last_gyro_ns: int | None = None
+        self._gap_at: dict[int, int] = {}      # gyro stamp -> samples missing right before it
         self.port = None  # LiveDriver._describe looks for .port or .device
 
     def get(self, timeout: float | None = None) -> ImuSample | None:
-        """The next sample (device-clock int64 ns, gyro rad/s, accel m/s^2 in the IMU chip's axes).
+        """The next sample (device-clock int64 ns, gyro rad/s, accel m/s^2 in the DepthAI IMU frame).
         None on timeout or once stopped and drained; raises the device's DeviceError once drained."""
         s = self._take(self._queue, timeout)
         if s is not None:
             with self._cond:
                 self.delivered += 1
         return s
+
+    def _check_gap(self, t_ns: int) -> None:
+        """A gyroscope stamp more than GAP_FACTOR median periods after the previous one: the samples
+        between were lost before the host (the device's queue dropped batches); flag the sample."""
+        last = self._last_gyro_ns
+        if last is not None and t_ns <= last:
+            return                           # a repeated report: the pairer counts and drops it
+        self._last_gyro_ns = t_ns
+        if last is None:
+            return
+        step = t_ns - last
+        if len(self._steps) >= GAP_MIN_STEPS:
+            period = float(np.median(self._steps))
+            if step > GAP_FACTOR * period:
+                lost = max(1, int(round(step / period)) - 1)
+                self.gaps += 1
+                self.lost_before_host += lost
+                self._gap_at[t_ns] = lost
+                return
+        self._steps.append(step)
 
     def take_overflow(self) -> int:
         """Samples lost to overflow since the last call (non-zero: reset the IMU preintegration)."""
@@ -570,9 +627,13 @@ class OakImu(_Source):
         out: dict[str, Any] = {"driver": "oak_imu", "device": self.device, "rate_hz": self.owner.imu_rate_hz,
                                "batches": self.batches, "packets": self.packets, "samples": self.enqueued,
                                "delivered": self.delivered, "queued": len(self._queue),
-                               "queue_capacity": self.capacity, "overflow": self.overflow}
+                               "queue_capacity": self.capacity, "overflow": self.overflow,
+                               "gaps": self.gaps, "lost_before_host": self.lost_before_host}
         out.update(self.pairer.counts())
         notes = []
+        if self.gaps:
+            notes.append(f"{self.gaps} gaps in the gyroscope stamps: about {self.lost_before_host} samples "
+                         f"lost before reaching the host (each flagged on the sample after it)")
         if self.pairer.interpolated:
             notes.append(f"{self.pairer.interpolated} accelerometer values interpolated to gyroscope stamps")
         if self.pairer.unpaired:
@@ -595,10 +656,17 @@ class OakImu(_Source):
             if ta:
                 p.add_accel(ta, (a.x, a.y, a.z))
             if tg:
+                self._check_gap(tg)
                 p.add_gyro(tg, (g.x, g.y, g.z))
         samples = p.pop()
         if not samples:
             return
+        if self._gap_at:
+            samples = [dataclasses.replace(x, lost_before=x.lost_before + self._gap_at.pop(x.t_ns))
+                       if x.t_ns in self._gap_at else x for x in samples]
+            if len(self._gap_at) > GAP_STEPS:        # stamps the pairer dropped never come
+                for t in sorted(self._gap_at)[:-GAP_STEPS]:
+                    del self._gap_at[t]
         with self._cond:
             for s in samples:
                 if len(self._queue) >= self.capacity:

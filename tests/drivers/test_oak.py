@@ -37,6 +37,7 @@ from drivers.oak import (  # noqa: E402
     NEVER,
     OakDevice,
     OakPipeline,
+    imu_sensors,
     timedelta_ns,
 )
 from drivers.oak_calib import check_extrinsics_direction, read_oak_rig  # noqa: E402
@@ -280,9 +281,95 @@ def test_imu_overflow_counted() -> None:
     dev, _, iq, _ = fake_device(imu_queue_seconds=0.05)  # 15 samples at 200 Hz x 1.5
     iq.put(imu_batch([(T0 + k * 5_000_000,) * 2 for k in range(40)]))
     with dev:
-        wait_until(lambda: dev.imu.batches == 1)
+        wait_until(lambda: dev.imu.enqueued == 40)          # `batches` counts a batch before its samples
         assert dev.imu.queued() == 15 and dev.imu.take_overflow() == 25 and dev.imu.take_overflow() == 0
         assert dev.imu.get(0.1).t_ns == T0 + 25 * 5_000_000
+
+
+def test_samples_after_batches_lost_before_the_host_are_flagged() -> None:
+    """The device's queue dropped batches: the gyroscope stamps jump. The sample after the jump carries
+    the number of samples missing (so the filter treats the interval as a gap), and no other one does;
+    stamp jitter of a tenth of a period is not a gap."""
+    dev, _, iq, _ = fake_device()
+    rng = np.random.default_rng(0)
+    ms = 1_000_000
+    t = [T0 + k * 5 * ms + int(rng.integers(-ms // 2, ms // 2)) for k in range(60)]
+    kept = t[:30] + t[34:50] + t[51:]           # 4 samples lost, then 1
+    iq.put(imu_batch([(x, x) for x in kept[:20]]))
+    iq.put(imu_batch([(x, x) for x in kept[20:40]]))
+    iq.put(imu_batch([(x, x) for x in kept[40:]]))
+    with dev:
+        wait_until(lambda: dev.imu.batches == 3)
+        out = []
+        while (s := dev.imu.get(0.05)) is not None:
+            out.append(s)
+        rep = dev.imu.report()
+    assert [s.t_ns for s in out] == kept
+    lost = {s.t_ns: s.lost_before for s in out if s.lost_before}
+    assert lost == {t[34]: 4, t[51]: 1}
+    assert rep["gaps"] == 2 and rep["lost_before_host"] == 5 and rep["overflow"] == 0
+    assert any("5 samples lost before reaching the host" in n for n in rep["notes"])
+
+
+def test_imu_streams_are_in_the_depthai_imu_frame() -> None:
+    """The streams enabled are the ones depthai documents as aligned to the DepthAI IMU frame (the frame
+    getImuToCameraExtrinsics relates to the camera), never the _RAW ones (the chip's native axes)."""
+    members = re.split(r"\n  ([A-Z_]+) : ", dai.IMUSensor.__doc__)
+    doc = {name: " ".join(text.split()) for name, text in zip(members[1::2], members[2::2], strict=True)}
+    for sensor in (*imu_sensors(dai), *imu_sensors(dai, calibrated=True)):
+        assert "aligned to the DepthAI IMU frame" in doc[sensor.name], sensor.name
+    assert "sensor-native frame" in doc["ACCELEROMETER_RAW"] and "sensor-native frame" in doc["GYROSCOPE_RAW"]
+    assert [x.name for x in imu_sensors(dai)] == ["ACCELEROMETER_UNCALIBRATED", "GYROSCOPE_UNCALIBRATED"]
+
+
+class _Recorder:
+    """Stands in for a depthai object: records every method called on it as (real class, name)."""
+
+    def __init__(self, calls: list, real: type, children: dict | None = None) -> None:
+        self._calls, self._real, self._children = calls, real, children or {}
+
+    def __getattr__(self, name: str):
+        if name in self._children:
+            return self._children[name]
+
+        def method(*args, **kwargs):
+            self._calls.append((self._real, name, args))
+            return self._children.get(f"{name}()", _Recorder(self._calls, object))
+        return method
+
+
+def test_the_pipeline_disables_reconnection_and_stops_on_device_loss(monkeypatch) -> None:
+    """build_pipeline against a recording stand-in of depthai: every method it calls on the device,
+    pipeline and nodes exists on the real depthai class; reconnection is off before the pipeline is
+    built, the pipeline stops on device loss, and the IMU enables the frame-aligned streams."""
+    import types
+
+    import drivers.oak as oak
+
+    calls: list = []
+    out = _Recorder(calls, dai.Node.Output)
+    cam = _Recorder(calls, dai.node.Camera, {"requestOutput()": out})
+    imu = _Recorder(calls, dai.node.IMU, {"out": out})
+    pipe = _Recorder(calls, dai.Pipeline)
+    device = _Recorder(calls, dai.Device)
+    creations = iter([_Recorder(calls, dai.node.Camera, {"build()": cam}), imu])
+    pipe._children["create()"] = None
+    pipe.create = lambda node: (calls.append((dai.Pipeline, "create", (node,))), next(creations))[1]
+    fake = types.SimpleNamespace(
+        Device=lambda info: device, Pipeline=lambda d: pipe, node=dai.node, IMUSensor=dai.IMUSensor,
+        CameraBoardSocket=dai.CameraBoardSocket, ImgFrame=dai.ImgFrame, ImgResizeMode=dai.ImgResizeMode)
+    monkeypatch.setattr(oak, "_import_depthai", lambda: fake)
+    monkeypatch.setattr(oak, "oak_available", lambda timeout: [
+        {"info": None, "device_id": "X1", "name": "1.1", "state": "UNBOOTED"}])
+    oak.build_pipeline(OakDevice())
+    names = [(real, name) for real, name, _ in calls]
+    for real, name in names:
+        assert hasattr(real, name), f"{real.__name__}.{name} does not exist in depthai"
+    assert names.index((dai.Device, "setMaxReconnectionAttempts")) < names.index((dai.Pipeline, "start"))
+    assert [a for r, n, a in calls if n == "setMaxReconnectionAttempts"] == [(0,)]
+    assert [a for r, n, a in calls if n == "setStopOnDeviceLoss"] == [(True,)]
+    sensors = [a[0] for r, n, a in calls if n == "enableIMUSensor"][0]
+    assert sensors == imu_sensors(dai)
 
 
 # -- errors -------------------------------------------------------------------------------------

@@ -26,6 +26,9 @@ def add_device_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--socket", choices=["CAM_B", "CAM_C", "CAM_A"], default="CAM_B",
                    help="OAK camera socket (CAM_B/CAM_C: mono; CAM_A: colour, used in grey)")
     p.add_argument("--imu-rate", type=int, default=200, help="OAK IMU rate (Hz)")
+    p.add_argument("--imu-calibrated", action="store_true",
+                   help="OAK: read the IMU streams corrected with the device's stored affine calibration "
+                        "(default: the uncorrected ones; both in the DepthAI IMU frame)")
     p.add_argument("--device-id", default=None, help="OAK device id (default: the first found)")
     p.add_argument("--width", type=int, default=None, help="requested image width (px)")
     p.add_argument("--height", type=int, default=None, help="requested image height (px)")
@@ -135,7 +138,8 @@ def _open_oak(args: argparse.Namespace, rig):
     from drivers.oak import OakDevice
 
     dev = OakDevice(socket=args.socket, width=args.width or 640, height=args.height or 400,
-                    fps=args.fps or 30.0, imu_rate_hz=args.imu_rate, device_id=args.device_id)
+                    fps=args.fps or 30.0, imu_rate_hz=args.imu_rate, device_id=args.device_id,
+                    imu_calibrated=args.imu_calibrated)
     dev.start()
     try:
         if rig is None:
