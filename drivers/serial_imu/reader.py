@@ -37,6 +37,8 @@ import numpy as np
 from drivers.serial_imu.clock import DeviceClock
 from drivers.serial_imu.text import TextParser
 from drivers.serial_imu.xsens import (
+    DEFAULT_MAX_PAYLOAD,
+    XBUS_MAX_PAYLOAD,
     XsensParser,
     go_to_config,
     go_to_measurement,
@@ -52,10 +54,12 @@ READ_TIMEOUT_S = 0.05
 """Serial read timeout: how long one read waits for the first byte (bounds `stop()` and stall checks)."""
 
 
-def make_parser(protocol: str) -> XsensParser | TextParser:
-    """The byte parser of a protocol name (see PROTOCOLS)."""
+def make_parser(protocol: str, configure: bool = False) -> XsensParser | TextParser:
+    """The byte parser of a protocol name (see PROTOCOLS). An Xsens device the reader configures sends the
+    four fields it asks for (DEFAULT_MAX_PAYLOAD); one it only listens to may send any frame
+    (XBUS_MAX_PAYLOAD)."""
     if protocol == "xsens":
-        return XsensParser()
+        return XsensParser(DEFAULT_MAX_PAYLOAD if configure else XBUS_MAX_PAYLOAD)
     if protocol == "text":
         return TextParser()
     raise ConfigError(f"unknown serial IMU protocol {protocol!r}; expected one of {', '.join(PROTOCOLS)}")
@@ -135,7 +139,7 @@ class SerialImu:
         self.output_rate_hz = int(output_rate_hz)
         self.open_timeout_s = float(open_timeout_s)
         self.first_byte_timeout_s = float(first_byte_timeout_s)
-        self.parser = make_parser(protocol)
+        self.parser = make_parser(protocol, configure)
         self.clock = clock if clock is not None else DeviceClock()
         self.error: DeviceError | None = None
         """the failure recorded by the reader thread (raised by `get` once the queue is drained)"""

@@ -52,6 +52,11 @@ FREQ_EVERY_PACKET = 0xFFFF
 
 DEFAULT_MAX_PAYLOAD = 128
 """largest DATA accepted; the four fields above in float64 need 66 bytes, in float32 42"""
+XBUS_MAX_PAYLOAD = 2048
+"""largest DATA an Xbus frame carries (extended length): what a device left in its own output
+configuration may send (orientation, delta-q/v, magnetic field, status... beside the four fields). The
+serial reader accepts it when it only listens (`serial_imu.reader.make_parser`); a fake header then
+holds the parser for at most this many bytes (about 45 ms at 460800 baud), without losing any."""
 
 
 def checksum(body: bytes | bytearray) -> int:

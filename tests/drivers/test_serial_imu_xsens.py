@@ -101,6 +101,25 @@ def test_fake_header_does_not_stall_the_next_frame() -> None:
     assert len(out) == 1 and p.counts.oversized_headers == 1 and p.pending == 0
 
 
+def test_a_listening_reader_takes_frames_with_more_fields_than_the_four() -> None:
+    """A device left in its own output configuration sends MTData2 frames with more fields (here 146
+    bytes of DATA: orientation, delta-q, delta-v, magnetic field, status, temperature beside the four).
+    The reader that only listens parses them; the one that configured the device keeps the tight cap."""
+    from drivers.serial_imu.reader import make_parser
+
+    extra = [(0x2010, bytes(16)), (0x8030, bytes(16)), (0x4010, bytes(12)), (0xC020, bytes(12)),
+             (0xE020, bytes(4)), (0x0810, bytes(4)), (0x2030, bytes(12)), (0x4030, bytes(12)),
+             (0x3010, bytes(4))]
+    frames = [encode_mtdata2(counter=k, sample_time_fine=1000 + 25 * k, accel=(k, 0, 9.8), gyro=(0, 0, k),
+                             extra=extra) for k in range(5)]
+    assert len(frames[0]) > 4 + 128 + 1
+    listening = make_parser("xsens")
+    samples = listening.feed(b"".join(frames))
+    assert [s.accel[0] for s in samples] == [0, 1, 2, 3, 4] and listening.counts.oversized_headers == 0
+    configured = make_parser("xsens", configure=True)
+    assert configured.feed(b"".join(frames)) == [] and configured.counts.oversized_headers == 5
+
+
 def test_sample_time_fine_and_counter_unwrap_across_wraparound() -> None:
     stf0, c0 = 2**32 - 60, 65530
     p = XsensParser()
