@@ -37,11 +37,14 @@ already buffered have been taken. `stop()` is idempotent. Reconnection is off
 depthai's default would reconnect a crashed device, whose clock then restarts near zero, so every
 stamp after it would be dropped as going backwards while messages keep coming.
 
-Calibration (`read_oak_rig`): intrinsics are `getCameraIntrinsics(socket, width, height)` (depthai's
-own scaling / centre-crop to the output size); distortion `Perspective` (OpenCV's 14 coefficients
-k1 k2 p1 p2 k3 k4 k5 k6 s1..s4 tx ty) becomes radtan (k1 k2 p1 p2[ k3]) when k4.. are zero, and is
-refused otherwise (the rational model is not one of DAVIO's camera models); `Fisheye` becomes
-equidistant (k1..k4).
+Calibration (`read_oak_rig`): intrinsics are the calibration's K at its own size, cropped and scaled to
+the output size as the Camera node's ImgResizeMode.CROP does (`oak_calib.crop_intrinsics`; depthai's
+`getCameraIntrinsics(socket, w, h)` pads instead for a 4:3 output of a 16:10 calibration). The first
+frame's own intrinsics (`getTransformation().getIntrinsicMatrix()`) are kept in the camera's report
+(`device_K`), and a difference of more than 1 % from the rig's K is noted there. Distortion
+`Perspective` (OpenCV's 14 coefficients k1 k2 p1 p2 k3 k4 k5 k6 s1..s4 tx ty) becomes radtan (k1 k2 p1
+p2[ k3]) when k4.. are zero, and is refused otherwise (the rational model is not one of DAVIO's camera
+models: pass a Kalibr calibration with --rig); `Fisheye` becomes equidistant (k1..k4).
 
 Extrinsics direction. `getImuToCameraExtrinsics(socket, False, dai.LengthUnit.METER)` (its default
 unit is CENTIMETRES) returns the matrix that maps IMU coordinates to camera coordinates,
@@ -251,6 +254,35 @@ def build_pipeline(dev: OakDevice) -> OakPipeline:
     return OakPipeline(q_img, q_imu, pipeline, calibration, what, device)
 
 
+def frame_intrinsics(msg: Any) -> np.ndarray | None:
+    """K (3,3) depthai computed for the image it delivered (crop, scale and sensor mode applied), or None
+    when the frame carries no valid transformation."""
+    try:
+        t = msg.getTransformation()
+        if not t.isValid():
+            return None
+        K = np.array(t.getIntrinsicMatrix(), dtype=np.float64)
+    except Exception:  # noqa: BLE001 - an older message without a transformation: nothing to compare
+        return None
+    return K if K.shape == (3, 3) and np.isfinite(K).all() else None
+
+
+def intrinsics_mismatch(rig_K: np.ndarray | None, device_K: np.ndarray | None, width: int,
+                        height: int, tol: float = 0.01) -> str:
+    """A note when the rig's K and the device's own K of the delivered image differ by more than `tol`
+    (focal lengths relative, principal point relative to the image size); '' otherwise."""
+    if rig_K is None or device_K is None:
+        return ""
+    f_rel = np.abs(np.diag(device_K)[:2] / np.diag(rig_K)[:2] - 1.0)
+    c_rel = np.abs(device_K[:2, 2] - rig_K[:2, 2]) / np.array([width, height], float)
+    if max(f_rel.max(), c_rel.max()) <= tol:
+        return ""
+    fmt = lambda K: f"fx {K[0, 0]:.1f} fy {K[1, 1]:.1f} cx {K[0, 2]:.1f} cy {K[1, 2]:.1f}"  # noqa: E731
+    return (f"the device's own intrinsics of the delivered image ({fmt(device_K)}) differ from the rig's "
+            f"({fmt(rig_K)}): the rig read from the factory calibration may not match the image; check it, "
+            f"or pass a calibration of this output with --rig")
+
+
 # -- the device ----------------------------------------------------------------------------------
 class OakDevice:
     """An OAK camera socket and its IMU; `camera` and `imu` are the sources for `LiveDriver`.
@@ -310,6 +342,8 @@ class OakDevice:
         self._stopped = False
         self._threads: list[threading.Thread] = []
         self.start_ns: int | None = None
+        self.rig_K: np.ndarray | None = None
+        """K of the last `rig()` (the camera's report compares the first frame's own K with it)."""
 
     @property
     def calibration(self) -> Any:
@@ -320,8 +354,10 @@ class OakDevice:
         """`read_oak_rig` of the device's calibration for this socket and output size."""
         if self.calibration is None:
             raise CalibrationError(f"{self.device}: no calibration read from the device", None, "oak")
-        return read_oak_rig(self.calibration, self.socket, self.width, self.height, fps=self.fps,
-                            time_offset_s=time_offset_s)
+        rig = read_oak_rig(self.calibration, self.socket, self.width, self.height, fps=self.fps,
+                           time_offset_s=time_offset_s)
+        self.rig_K = np.array(rig.camera.K)
+        return rig
 
     def start(self) -> OakDevice:
         """Open the device, start the pipeline and both readers. Idempotent (both sources call it).
@@ -481,6 +517,8 @@ class OakCamera(KeptFrames, _Source):
         self.frames = self.emitted = self.dropped_old = self.nonmonotonic = 0
         self.seq_gaps = self.converted = 0
         self.conversion: str | None = None
+        self.device_K: np.ndarray | None = None
+        """The first frame's own intrinsics (`getTransformation().getIntrinsicMatrix()`), when valid."""
         self._last_t: int | None = None
         self._first_t: int | None = None
         self._last_seq: int | None = None
@@ -512,12 +550,16 @@ class OakCamera(KeptFrames, _Source):
         notes = []
         if self.seq_gaps:
             notes.append(f"{self.seq_gaps} frames skipped before reaching the host (sequence numbers)")
+        mismatch = intrinsics_mismatch(self.owner.rig_K, self.device_K, self.owner.width, self.owner.height)
+        if mismatch:
+            notes.append(mismatch)
         return {"device": self.device, "socket": self.owner.socket, "kind": "oak",
                 "size": [self.owner.width, self.owner.height], "fps_requested": self.owner.fps,
                 "fps_measured": None if fps_m is None else round(fps_m, 3),
                 "frames": self.frames, "emitted": self.emitted, "dropped_old": self.dropped_old,
                 "seq_gaps": self.seq_gaps, "nonmonotonic": self.nonmonotonic,
                 "converted": self.converted, "conversion": self.conversion, "keep_frames": self.keep_frames,
+                "device_K": None if self.device_K is None else self.device_K.tolist(),
                 "stamps": "device clock, mid-exposure (getTimestampDevice(MIDDLE))",
                 "error": None if self.error is None else str(self.error), "notes": notes}
 
@@ -526,6 +568,8 @@ class OakCamera(KeptFrames, _Source):
         dai = _import_depthai()
         t_ns = timedelta_ns(msg.getTimestampDevice(dai.CameraExposureOffset.MIDDLE))
         seq = int(msg.getSequenceNum())
+        if self.device_K is None:
+            self.device_K = frame_intrinsics(msg)
         if self._last_seq is not None and seq > self._last_seq + 1:
             self.seq_gaps += seq - self._last_seq - 1
         self._last_seq = seq

@@ -30,12 +30,32 @@ def _orthonormal(T: np.ndarray) -> np.ndarray:
     return out
 
 
+def crop_intrinsics(K: np.ndarray, size: tuple[int, int], out: tuple[int, int]) -> np.ndarray:
+    """K (3,3) of the image the Camera node's ImgResizeMode.CROP makes of a `size` = (W, H) image at `out`
+    = (w, h): the largest centred region of the output's aspect ratio, in whole pixels, scaled to the
+    output (depthai's `ImgTransformation` addCrop + addScale maths: coordinates scale, no half-pixel
+    shift).
+
+    depthai's `getCameraIntrinsics(socket, w, h)` is not that for every size: for a 4:3 output of a
+    16:10 calibration it scales to fit the width and pads the height (640 x 480 of 1280 x 800 gives
+    fx / 2 where the cropped image has 0.6 fx)."""
+    (W, H), (w, h) = size, out
+    s = max(w / W, h / H)
+    cw, ch = min(W, round(w / s)), min(H, round(h / s))
+    x0, y0 = (W - cw) // 2, (H - ch) // 2
+    sx, sy = w / cw, h / ch
+    K = np.asarray(K, np.float64)
+    return np.array([[K[0, 0] * sx, 0.0, (K[0, 2] - x0) * sx], [0.0, K[1, 1] * sy, (K[1, 2] - y0) * sy],
+                     [0.0, 0.0, 1.0]])
+
+
 def read_oak_rig(calib: Any, socket: str = "CAM_B", width: int = 640, height: int = 400, *,
                  fps: float | None = None, time_offset_s: float | None = 0.0,
                  require_extrinsics: bool = False) -> Rig:
     """A `calib.Rig` from a `dai.CalibrationHandler` for one socket at one output size.
 
-    Camera: `getCameraIntrinsics(socket, width, height)` and the distortion mapped as in the module
+    Camera: the calibration's K at its own size (`getDefaultIntrinsics`) brought to the output size as the
+    Camera node's CROP makes it (`crop_intrinsics`), and the distortion mapped as in the module
     docstring (CalibrationError naming the socket when the model is not representable). T_IC: the
     inverse of `getImuToCameraExtrinsics(socket, False, METER)` (x_C = M x_I; see the module
     docstring), in metres; None when the calibration holds no IMU extrinsics (CalibrationError with
@@ -53,7 +73,8 @@ def read_oak_rig(calib: Any, socket: str = "CAM_B", width: int = 640, height: in
     sock = getattr(dai.CameraBoardSocket, socket)
     where = f"OAK calibration {socket}"
     try:
-        K = np.array(calib.getCameraIntrinsics(sock, int(width), int(height)), dtype=np.float64)
+        K_cal, W, H = calib.getDefaultIntrinsics(sock)
+        K = crop_intrinsics(np.array(K_cal, dtype=np.float64), (int(W), int(H)), (int(width), int(height)))
         model = calib.getDistortionModel(sock)
         coeffs = np.array(calib.getDistortionCoefficients(sock), dtype=np.float64)
     except RuntimeError as exc:

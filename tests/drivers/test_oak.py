@@ -593,6 +593,53 @@ def test_read_oak_rig_intrinsics_distortion_units_and_direction(calib: dai.Calib
     np.testing.assert_allclose(rig_c.T_IC, np.linalg.inv(T_CcI), atol=2e-6)
 
 
+def _device_transformation(size: tuple[int, int], out: tuple[int, int], K: list) -> dai.ImgTransformation:
+    """depthai's own ImgTransformation of a centred crop of `size` to the output's aspect ratio (whole
+    pixels), scaled to `out`: what the Camera node's CROP does."""
+    (W, H), (w, h) = size, out
+    s = max(w / W, h / H)
+    cw, ch = min(W, round(w / s)), min(H, round(h / s))
+    t = dai.ImgTransformation(W, H, K)
+    t.addCrop((W - cw) // 2, (H - ch) // 2, cw, ch)
+    t.addScale(w / cw, h / ch)
+    assert tuple(t.getSize()) == (w, h)
+    return t
+
+
+@pytest.mark.parametrize("out", [(640, 400), (640, 480), (320, 240), (1280, 720), (800, 800)])
+def test_intrinsics_are_those_of_the_cropped_output(calib: dai.CalibrationHandler, out) -> None:
+    """The rig's K at an output size is what depthai's own transformation maths gives for the Camera node's
+    centred crop and scale (getCameraIntrinsics pads a 4:3 output of the 16:10 calibration instead)."""
+    rig = read_oak_rig(calib, "CAM_B", *out)
+    expected = np.array(_device_transformation((1280, 800), out, K_MONO).getIntrinsicMatrix())
+    np.testing.assert_allclose(rig.camera.K, expected, rtol=1e-6, atol=1e-6)
+    if out == (640, 480):
+        padded = np.array(calib.getCameraIntrinsics(dai.CameraBoardSocket.CAM_B, 640, 480))
+        assert padded[0, 0] == pytest.approx(400.0) and rig.camera.fx == pytest.approx(480.0, rel=1e-3)
+
+
+def test_the_first_frames_own_intrinsics_are_reported_and_compared_with_the_rig(calib) -> None:
+    """A frame carries depthai's K of the delivered image: the camera's report keeps it, and notes when it
+    differs from the rig's (the factory calibration read for another crop than the device made)."""
+    for device_size, noted in (((W, H), False), ((W, 48), True)):
+        dev, cq, _, _ = fake_device(calibration=calib)
+        f = img_frame(0, 33_333_333)
+        t = _device_transformation((1280, 800), device_size, K_MONO)
+        if device_size != (W, H):                     # the device cropped to another aspect, then to W x H
+            t.addCrop(0, (device_size[1] - H) // 2, W, H)
+        f.setTransformation(t)
+        cq.put(f)
+        with dev:
+            rig = dev.rig()
+            assert dev.camera.get(2.0) is not None
+            rep = dev.camera.report()
+        np.testing.assert_allclose(rep["device_K"], t.getIntrinsicMatrix(), atol=1e-9)
+        notes = [n for n in rep["notes"] if "own intrinsics" in n]
+        assert bool(notes) == noted, notes
+        if noted:
+            assert f"fx {rig.camera.fx:.1f}" in notes[0] and "--rig" in notes[0]
+
+
 def test_read_oak_rig_refuses_rational_model(calib: dai.CalibrationHandler) -> None:
     with pytest.raises(CalibrationError, match=r"CAM_A.*rational.*k4=-5\.5.*Kalibr"):
         read_oak_rig(calib, "CAM_A", 640, 400)
