@@ -417,6 +417,45 @@ class PinholeEquidistant(CameraModel):
         return xy
 
 
+class PinholeRational(CameraModel):
+    """Pinhole + OpenCV's rational distortion ``(k1, k2, p1, p2, k3, k4, k5, k6)`` (CALIB_RATIONAL_MODEL;
+    ROS's ``rational_polynomial``), the model of many factory calibrations (Luxonis OAK):
+
+    radial = (1 + k1 r^2 + k2 r^4 + k3 r^6) / (1 + k4 r^2 + k5 r^4 + k6 r^6), the tangential terms as
+    radtan. With k4 = k5 = k6 = 0 it is radtan with k3. Kalibr and OpenVINS have no such model.
+    """
+
+    distortion_model = "rational"
+    distortion_sizes = (8,)
+
+    def _terms(self, xy: np.ndarray) -> tuple:
+        k1, k2, p1, p2, k3, k4, k5, k6 = (float(v) for v in self.distortion)
+        x, y = xy[:, 0], xy[:, 1]
+        r2 = x * x + y * y
+        num = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        den = 1.0 + r2 * (k4 + r2 * (k5 + r2 * k6))
+        d_num = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
+        d_den = k4 + r2 * (2.0 * k5 + 3.0 * k6 * r2)
+        radial = num / den
+        d_radial = (d_num * den - num * d_den) / (den * den)      # d radial / d r^2
+        return x, y, r2, radial, d_radial, p1, p2
+
+    def _distort_normalized(self, xy: np.ndarray) -> np.ndarray:
+        x, y, r2, radial, _, p1, p2 = self._terms(xy)
+        xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+        yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+        return np.stack([xd, yd], axis=-1)
+
+    def _distort_normalized_jacobian(self, xy: np.ndarray) -> np.ndarray:
+        x, y, _, radial, d_radial, p1, p2 = self._terms(xy)
+        J = np.empty((xy.shape[0], 2, 2))
+        J[:, 0, 0] = radial + 2.0 * x * x * d_radial + 2.0 * p1 * y + 6.0 * p2 * x
+        J[:, 0, 1] = 2.0 * x * y * d_radial + 2.0 * p1 * x + 2.0 * p2 * y
+        J[:, 1, 0] = J[:, 0, 1]
+        J[:, 1, 1] = radial + 2.0 * y * y * d_radial + 6.0 * p1 * y + 2.0 * p2 * x
+        return J
+
+
 #: Distortion-model names accepted by the readers (Kalibr, EuRoC, OpenCV spellings) -> class.
 DISTORTION_MODELS: dict[str, type[CameraModel]] = {
     "none": Pinhole,
@@ -427,6 +466,8 @@ DISTORTION_MODELS: dict[str, type[CameraModel]] = {
     "equidistant": PinholeEquidistant,
     "equi": PinholeEquidistant,
     "fisheye": PinholeEquidistant,
+    "rational": PinholeRational,
+    "rational_polynomial": PinholeRational,
 }
 
 

@@ -2,8 +2,10 @@
 
 Camchain keys per camera (``cam0``): ``camera_model`` (pinhole), ``intrinsics`` [fx, fy, cx, cy],
 ``resolution`` [w, h], ``distortion_model`` (radtan | equidistant, aliases equi / fisheye /
-radial-tangential, none), ``distortion_coeffs``, extrinsics as Kalibr's ``T_cam_imu`` (= T_CI) or
-OpenVINS's ``T_imu_cam`` (= T_IC), ``timeshift_cam_imu`` (t_imu = t_cam + shift, seconds).
+radial-tangential, none; and DAVIO's ``rational``, OpenCV's eight coefficients k1 k2 p1 p2 k3 k4 k5 k6 of
+a factory calibration, which neither Kalibr nor OpenVINS reads), ``distortion_coeffs``, extrinsics as
+Kalibr's ``T_cam_imu`` (= T_CI) or OpenVINS's ``T_imu_cam`` (= T_IC), ``timeshift_cam_imu``
+(t_imu = t_cam + shift, seconds).
 DAVIO extension keys, ignored by Kalibr and OpenVINS: ``rate_hz`` (camera rate) and ``rig_name``.
 IMU file keys (``imu0``): ``accelerometer_noise_density``, ``accelerometer_random_walk``,
 ``gyroscope_noise_density``, ``gyroscope_random_walk``, ``update_rate``.
@@ -27,7 +29,7 @@ from typing import Literal
 import numpy as np
 import yaml
 
-from calib.camera import Pinhole, PinholeEquidistant, PinholeRadtan
+from calib.camera import Pinhole, PinholeEquidistant, PinholeRadtan, PinholeRational
 from calib.fields import Fields, read_camera, read_yaml, rekeyed, write_text_atomic
 from calib.rig import IMU_FIELDS, ImuNoise, Rig, rigid_transform
 from runtime.errors import CalibrationError
@@ -170,8 +172,8 @@ def _camera_block(rig: Rig, extrinsics_key: str, topic: str) -> dict:
                         "distortion",
                     )
                 coeffs = coeffs[:4]
-        elif isinstance(cam, (PinholeEquidistant, Pinhole)):
-            coeffs = cam.distortion.tolist()
+        elif isinstance(cam, (PinholeEquidistant, Pinhole, PinholeRational)):
+            coeffs = cam.distortion.tolist()    # rational: DAVIO reads it back; Kalibr and OpenVINS do not
         else:
             raise CalibrationError(f"cannot write {type(cam).__name__} to Kalibr", None, "camera")
         block["distortion_coeffs"] = _FlowList(coeffs)

@@ -43,8 +43,9 @@ the output size as the Camera node's ImgResizeMode.CROP does (`oak_calib.crop_in
 frame's own intrinsics (`getTransformation().getIntrinsicMatrix()`) are kept in the camera's report
 (`device_K`), and a difference of more than 1 % from the rig's K is noted there. Distortion
 `Perspective` (OpenCV's 14 coefficients k1 k2 p1 p2 k3 k4 k5 k6 s1..s4 tx ty) becomes radtan (k1 k2 p1
-p2[ k3]) when k4.. are zero, and is refused otherwise (the rational model is not one of DAVIO's camera
-models: pass a Kalibr calibration with --rig); `Fisheye` becomes equidistant (k1..k4).
+p2[ k3]) when k4.. are zero, rational (k1..k6, `calib.PinholeRational`: most factory calibrations) when
+only s1.. are, and is refused otherwise (thin-prism and tilt terms: pass a Kalibr calibration with --rig);
+`Fisheye` becomes equidistant (k1..k4).
 
 Extrinsics direction. `getImuToCameraExtrinsics(socket, False, dai.LengthUnit.METER)` (its default
 unit is CENTIMETRES) returns the matrix that maps IMU coordinates to camera coordinates,

@@ -14,7 +14,8 @@ if TYPE_CHECKING:
     from calib import Rig
 
 RATIONAL_TOLERANCE = 1e-6
-"""Perspective coefficients k4.. with |value| at most this count as zero (radtan is then exact)."""
+"""Perspective coefficients k4.. with |value| at most this count as zero (radtan is then exact; likewise
+the thin-prism and tilt terms s1..ty, which no DAVIO camera model has)."""
 
 
 def _orthonormal(T: np.ndarray) -> np.ndarray:
@@ -62,7 +63,7 @@ def read_oak_rig(calib: Any, socket: str = "CAM_B", width: int = 640, height: in
     `require_extrinsics`). time_offset_s: 0 by default (camera and IMU share the device clock and the
     frames are stamped at mid-exposure). IMU noise: withheld (OAK calibrations do not carry it).
     """
-    from calib import PinholeEquidistant, PinholeRadtan, Rig
+    from calib import PinholeEquidistant, PinholeRadtan, PinholeRational, Rig
     from drivers.oak import SOCKETS, _import_depthai, _one_line
 
     dai = _import_depthai()
@@ -83,17 +84,20 @@ def read_oak_rig(calib: Any, socket: str = "CAM_B", width: int = 640, height: in
     if model == dai.CameraModel.Perspective:
         c = np.zeros(14)
         c[: min(14, coeffs.size)] = coeffs[:14]
-        rest = c[5:]
-        if np.any(np.abs(rest) > RATIONAL_TOLERANCE):
-            names = ("k4", "k5", "k6", "s1", "s2", "s3", "s4", "tx", "ty")
-            named = ", ".join(f"{n}={v:.4g}" for n, v in zip(names, rest, strict=True)
+        prism = c[8:]
+        if np.any(np.abs(prism) > RATIONAL_TOLERANCE):
+            names = ("s1", "s2", "s3", "s4", "tx", "ty")
+            named = ", ".join(f"{n}={v:.4g}" for n, v in zip(names, prism, strict=True)
                               if abs(v) > RATIONAL_TOLERANCE)
             raise CalibrationError(
-                f"{where}: the lens uses OpenCV's rational/thin-prism model ({named}), which DAVIO's camera "
-                f"models (radtan, equidistant) cannot represent; calibrate the camera with Kalibr "
+                f"{where}: the lens uses OpenCV's thin-prism / tilted model ({named}), which DAVIO's camera "
+                f"models (radtan, rational, equidistant) cannot represent; calibrate the camera with Kalibr "
                 f"(pinhole-radtan or pinhole-equi) and pass that calibration instead", None, "distortion")
-        dist = c[:5] if abs(c[4]) > RATIONAL_TOLERANCE else c[:4]
-        camera = PinholeRadtan(int(width), int(height), fx, fy, cx, cy, dist)
+        if np.any(np.abs(c[5:8]) > RATIONAL_TOLERANCE):
+            camera = PinholeRational(int(width), int(height), fx, fy, cx, cy, c[:8])
+        else:
+            dist = c[:5] if abs(c[4]) > RATIONAL_TOLERANCE else c[:4]
+            camera = PinholeRadtan(int(width), int(height), fx, fy, cx, cy, dist)
     elif model == dai.CameraModel.Fisheye:
         if coeffs.size < 4:
             raise CalibrationError(f"{where}: a fisheye calibration with {coeffs.size} coefficients", None,

@@ -1,7 +1,9 @@
 """Camera projection kernels for the filter (numba): distortion, its Jacobian, undistortion.
 
 The filter reads intrinsics from a calib camera object once (`CameraParams.from_camera`) and then
-works on plain arrays. Models: "radtan" (k1 k2 p1 p2 [k3]), "equidistant" (k1..k4), "none".
+works on plain arrays. Models: "radtan" (k1 k2 p1 p2 [k3]), "rational" (k1 k2 p1 p2 k3 k4 k5 k6, OpenCV's:
+radtan's radial term divided by 1 + k4 r^2 + k5 r^4 + k6 r^6; one kernel serves both, radtan with
+k4..k6 = 0), "equidistant" (k1..k4), "none".
 Pixels follow OpenCV: (0, 0) is the centre of the top-left pixel.
 """
 from __future__ import annotations
@@ -13,12 +15,12 @@ from numba import njit
 
 from runtime.errors import CalibrationError
 
-MODEL_CODES = {"none": 0, "radtan": 1, "equidistant": 2}
+MODEL_CODES = {"none": 0, "radtan": 1, "equidistant": 2, "rational": 1}
 
 
 @dataclass(frozen=True)
 class CameraParams:
-    """Pinhole intrinsics plus a distortion model; `params` = [fx, fy, cx, cy, d0, d1, d2, d3, d4]."""
+    """Pinhole intrinsics plus a distortion model; `params` = [fx, fy, cx, cy, d0, ..., d7] (unused: 0)."""
 
     model: str
     params: np.ndarray
@@ -40,9 +42,10 @@ class CameraParams:
                  "fisheye": "equidistant", "pinhole": "none"}.get(str(model).lower(), str(model).lower())
         if model not in MODEL_CODES:
             raise CalibrationError(f"unsupported distortion model {model!r} for the MSCKF")
-        d = np.zeros(5)
+        d = np.zeros(8)
         dist = np.asarray(getattr(camera, "distortion", np.zeros(0)), dtype=float).ravel()
-        if dist.size > 5 or (dist.size > 4 and model != "radtan"):
+        most = {"radtan": 5, "rational": 8}.get(model, 4)
+        if dist.size > most or (model == "rational" and dist.size != 8):
             raise CalibrationError(f"{model} distortion with {dist.size} coefficients is not supported")
         d[: dist.size] = dist
         if model != "none" and dist.size == 0:
@@ -60,11 +63,16 @@ def distort_point(code: int, prm: np.ndarray, x: float, y: float) -> tuple:
     J = np.zeros((2, 2))
     if code == 1:
         k1, k2, p1, p2, k3 = prm[4], prm[5], prm[6], prm[7], prm[8]
+        k4, k5, k6 = (prm[9], prm[10], prm[11]) if prm.shape[0] >= 12 else (0.0, 0.0, 0.0)
         r2 = x * x + y * y
-        rad = 1.0 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
+        num = 1.0 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
+        den = 1.0 + k4 * r2 + k5 * r2 * r2 + k6 * r2 * r2 * r2       # 1 for radtan: exact, as before
+        rad = num / den
         xd = x * rad + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
         yd = y * rad + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-        drad = k1 + 2 * k2 * r2 + 3 * k3 * r2 * r2  # d rad / d r2
+        dnum = k1 + 2 * k2 * r2 + 3 * k3 * r2 * r2
+        dden = k4 + 2 * k5 * r2 + 3 * k6 * r2 * r2
+        drad = (dnum * den - num * dden) / (den * den)  # d rad / d r2
         dxd_dx = rad + x * drad * 2 * x + 2 * p1 * y + p2 * 6 * x
         dxd_dy = x * drad * 2 * y + 2 * p1 * x + p2 * 2 * y
         dyd_dx = y * drad * 2 * x + p1 * 2 * x + 2 * p2 * y
@@ -140,7 +148,8 @@ def distort_points(code: int, prm: np.ndarray, xy: np.ndarray) -> np.ndarray:
 
 
 #: number of estimated intrinsics: fx, fy, cx, cy and four distortion coefficients
-#: (radtan k1 k2 p1 p2, equidistant k1..k4; a radtan k3 stays fixed), as OpenVINS's calib_cam_intrinsics
+#: (radtan and rational k1 k2 p1 p2, equidistant k1..k4; k3..k6 stay fixed), as OpenVINS's
+#: calib_cam_intrinsics
 NUM_INTRINSICS = 8
 
 
@@ -156,14 +165,17 @@ def distort_jacobian_params(code: int, prm: np.ndarray, x: float, y: float) -> n
     if code == 1:
         k1, k2, p1, p2, k3 = prm[4], prm[5], prm[6], prm[7], prm[8]
         r2 = x * x + y * y
-        rad = 1.0 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2
+        den = 1.0
+        if prm.shape[0] >= 12:                     # rational (radtan: k4..k6 = 0, or a 9-value array)
+            den = 1.0 + prm[9] * r2 + prm[10] * r2 * r2 + prm[11] * r2 * r2 * r2
+        rad = (1.0 + k1 * r2 + k2 * r2 * r2 + k3 * r2 * r2 * r2) / den
         xy2 = 2.0 * x * y
         J[0, 0] = x * rad + p1 * xy2 + p2 * (r2 + 2.0 * x * x)
         J[1, 1] = y * rad + p1 * (r2 + 2.0 * y * y) + p2 * xy2
-        J[0, 4] = fx * x * r2
-        J[1, 4] = fy * y * r2
-        J[0, 5] = fx * x * r2 * r2
-        J[1, 5] = fy * y * r2 * r2
+        J[0, 4] = fx * x * r2 / den
+        J[1, 4] = fy * y * r2 / den
+        J[0, 5] = fx * x * r2 * r2 / den
+        J[1, 5] = fy * y * r2 * r2 / den
         J[0, 6] = fx * xy2
         J[1, 6] = fy * (r2 + 2.0 * y * y)
         J[0, 7] = fx * (r2 + 2.0 * x * x)

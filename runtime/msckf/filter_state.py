@@ -17,7 +17,7 @@ class FilterState:
     R_IC, p_IC, time_offset_s: current calibration (t_imu = t_cam + time_offset_s);
     calib_covariance: (7, 7) covariance of [dphi (right on R_IC), dp_IC, dt] for the estimated blocks
     (extrinsics 6 then time offset 1; None when neither is estimated);
-    intrinsics: (9,) camera parameters in use [fx, fy, cx, cy, d0..d4] (px, px, px, px, unitless), the
+    intrinsics: (12,) camera parameters in use [fx, fy, cx, cy, d0..d7] (px, px, px, px, unitless), the
     state's estimate with online intrinsics calibration; intrinsics_covariance: (8, 8) covariance of
     intrinsics[:8] when estimated (else None); intrinsics_std: the square roots of its diagonal.
     """

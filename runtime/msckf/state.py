@@ -47,8 +47,9 @@ class State:
 
     def __init__(self, R_IC: np.ndarray, p_IC: np.ndarray, t_d: float, calib_dt: bool, calib_ext: bool,
                  cam_params: np.ndarray | None = None) -> None:
-        """cam_params: the camera's 9 parameters [fx, fy, cx, cy, d0..d4] to estimate online (the first 8
-        become error states after the extrinsics); None: the intrinsics are fixed outside the state."""
+        """cam_params: the camera's parameters [fx, fy, cx, cy, d0..d7] (`CameraParams.params`; 9 values for
+        radtan are accepted) to estimate online (the first 8 become error states after the extrinsics); None:
+        the intrinsics are fixed outside the state."""
         self.t_ns = 0                    # IMU-clock time of the IMU state, ns
         self.R = np.eye(3)
         self.p = np.zeros(3)
@@ -73,8 +74,8 @@ class State:
         self.idx_intr = -1
         self.cam_params = None if cam_params is None else np.array(cam_params, dtype=float)
         if self.cam_params is not None:
-            if self.cam_params.shape != (9,):
-                raise ValueError(f"cam_params must have 9 entries, got shape {self.cam_params.shape}")
+            if self.cam_params.shape not in ((9,), (12,)):
+                raise ValueError(f"cam_params must have 9 or 12 entries, got shape {self.cam_params.shape}")
             self.idx_intr = n
             n += 8
         self.P = np.zeros((n, n))

@@ -240,7 +240,7 @@ EUROC_CASES = [
         "T_BS",
     ),
     ("cam", "T_BS NaN", "T_BS.data", [NAN] + [0.0] * 15, "T_BS.data"),
-    ("cam", "unknown distortion model", "distortion_model", "rational", "distortion_model"),
+    ("cam", "unknown distortion model", "distortion_model", "fov", "distortion_model"),
     ("cam", "imu file as camera", "sensor_type", "imu", "sensor_type"),
     ("cam", "negative rate", "rate_hz", -20, "rate_hz"),
     ("imu", "missing gyro noise", "gyroscope_noise_density", KeyError, "gyroscope_noise_density"),

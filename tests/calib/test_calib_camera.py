@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from calib import CameraModel, Pinhole, PinholeEquidistant, PinholeRadtan, camera_class
+from calib import CameraModel, Pinhole, PinholeEquidistant, PinholeRadtan, PinholeRational, camera_class
 from runtime.errors import CalibrationError
 
 # EuRoC cam0 (radtan), the same with a k3 term, and a TUM-VI-like fisheye (equidistant).
@@ -18,6 +18,10 @@ FISHEYE = PinholeEquidistant(
     512, 512, 190.978, 190.973, 254.932, 256.897, [0.0034823, 0.0007150, -0.0020532, 0.0002029]
 )
 PINHOLE = Pinhole(640, 480, 500.0, 505.0, 320.5, 240.5)
+# OpenCV's rational model with the coefficients of an OAK-D factory calibration (EEPROM dump's order
+# k1 k2 p1 p2 k3 k4 k5 k6), on a 1280 x 800 mono camera
+RATIONAL = PinholeRational(1280, 800, 800.0, 800.5, 640.5, 400.25,
+                           [9.49, -102.07, 0.0008, 0.0020, 401.19, 9.26, -100.43, 394.56])
 
 CV_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-15)
 
@@ -38,7 +42,7 @@ def _points_in_fov(cam: CameraModel, n: int, seed: int, max_angle_deg: float) ->
     return np.concatenate(out)[:n]
 
 
-CASES = [(EUROC, 60.0), (RADTAN5, 45.0), (PINHOLE, 40.0)]
+CASES = [(EUROC, 60.0), (RADTAN5, 45.0), (PINHOLE, 40.0), (RATIONAL, 45.0)]
 
 
 @pytest.mark.parametrize("cam,max_angle", CASES)
@@ -156,11 +160,12 @@ def test_shapes_are_kept_and_points_behind_are_nan() -> None:
         EUROC.project(np.zeros((4, 2)))
 
 
-def test_undistortion_maps_match_cv2_radtan() -> None:
+@pytest.mark.parametrize("cam", [EUROC, RATIONAL])
+def test_undistortion_maps_match_cv2_radtan(cam: CameraModel) -> None:
     K_new = np.array([[400.0, 0.0, 380.0], [0.0, 410.0, 250.0], [0.0, 0.0, 1.0]])
     size = (760, 500)
-    mx, my = EUROC.undistortion_maps(K_new, size)
-    cx, cy = cv2.initUndistortRectifyMap(EUROC.K, EUROC.distortion, np.eye(3), K_new, size, cv2.CV_32FC1)
+    mx, my = cam.undistortion_maps(K_new, size)
+    cx, cy = cv2.initUndistortRectifyMap(cam.K, cam.distortion, np.eye(3), K_new, size, cv2.CV_32FC1)
     assert mx.shape == (500, 760) and mx.dtype == np.float32
     np.testing.assert_allclose(mx, cx, atol=2e-3)
     np.testing.assert_allclose(my, cy, atol=2e-3)
@@ -222,6 +227,7 @@ def test_rectified_flags_and_pinhole() -> None:
 def test_camera_class_names() -> None:
     assert camera_class("radtan") is PinholeRadtan
     assert camera_class("radial-tangential") is PinholeRadtan
+    assert camera_class("rational") is camera_class("rational_polynomial") is PinholeRational
     for name in ("equidistant", "equi", "Fisheye"):
         assert camera_class(name) is PinholeEquidistant
     with pytest.raises(CalibrationError) as err:
@@ -238,13 +244,15 @@ def test_camera_class_names() -> None:
         ((0, 480, 458.0, 457.0, 367.0, 248.0, [0.0] * 4), "resolution"),
         ((752.5, 480, 458.0, 457.0, 367.0, 248.0, [0.0] * 4), "resolution"),
         ((752, 480, 458.0, 457.0, 367.0, 248.0, [0.0] * 3), "distortion"),
+        ((752, 480, 458.0, 457.0, 367.0, 248.0, [0.0] * 5, PinholeRational), "distortion"),
         ((752, 480, 458.0, 457.0, 367.0, 248.0, [0.0, float("inf"), 0.0, 0.0]), "distortion"),
         ((752, 480, 458.0, 457.0, 367.0, 248.0, ["a", 0.0, 0.0, 0.0]), "distortion"),
     ],
 )
 def test_invalid_camera_numbers_raise(args: tuple, key: str) -> None:
+    cls = args[7] if len(args) > 7 else PinholeRadtan
     with pytest.raises(CalibrationError) as err:
-        PinholeRadtan(*args)
+        cls(*args[:7])
     assert err.value.key == key
     with pytest.raises(CalibrationError):
         PinholeEquidistant(752, 480, 458.0, 457.0, 367.0, 248.0, [0.0] * 5)

@@ -13,6 +13,7 @@ from calib import (
     Pinhole,
     PinholeEquidistant,
     PinholeRadtan,
+    PinholeRational,
     Rig,
     euroc_rig,
     find_imu_yaml,
@@ -125,6 +126,9 @@ def _rigs() -> list[Rig]:
         Rig(radtan, T, -0.0123456789, ImuNoise(1e-4, 2e-5, 3e-3, 4e-4, 400.0), 30.0, "radtan"),
         Rig(fisheye, T, None, ImuNoise(gyro_noise_density=1e-3), None, "fisheye-partial"),
         Rig(Pinhole(320, 240, 300.0, 300.0, 159.5, 119.5), None, 0.0, None, 15.0, "pinhole"),
+        Rig(PinholeRational(1280, 800, 800.0, 800.5, 640.5, 400.25,
+                            [9.49, -102.07, 0.0008, 0.0020, 401.19, 9.26, -100.43, 394.56]),
+            T, 0.001, None, 30.0, "rational"),
         Rig(None, None, None, None, None, "withheld"),
     ]
 

@@ -640,9 +640,23 @@ def test_the_first_frames_own_intrinsics_are_reported_and_compared_with_the_rig(
             assert f"fx {rig.camera.fx:.1f}" in notes[0] and "--rig" in notes[0]
 
 
-def test_read_oak_rig_refuses_rational_model(calib: dai.CalibrationHandler) -> None:
-    with pytest.raises(CalibrationError, match=r"CAM_A.*rational.*k4=-5\.5.*Kalibr"):
-        read_oak_rig(calib, "CAM_A", 640, 400)
+def test_read_oak_rig_reads_the_rational_model_and_refuses_thin_prism(calib: dai.CalibrationHandler) -> None:
+    """A factory calibration in OpenCV's rational model (CAM_A) becomes a rational camera whose projection
+    is OpenCV's with the eight coefficients; thin-prism terms are refused with the reason."""
+    import cv2
+
+    from calib import PinholeRational
+
+    rig = read_oak_rig(calib, "CAM_A", 640, 360)
+    cam = rig.camera
+    assert isinstance(cam, PinholeRational) and cam.distortion.tolist() == pytest.approx(RATIONAL[:8])
+    p = np.random.default_rng(0).uniform([-0.5, -0.3, 1.0], [0.5, 0.3, 1.0], (100, 3))
+    uv_cv = cv2.projectPoints(p, np.zeros(3), np.zeros(3), cam.K, cam.distortion)[0].reshape(-1, 2)
+    np.testing.assert_allclose(cam.project(p), uv_cv, atol=1e-6)
+    prism = make_calibration()
+    prism.setDistortionCoefficients(dai.CameraBoardSocket.CAM_A, RATIONAL[:8] + [0.01, 0, 0, 0, 0, 0])
+    with pytest.raises(CalibrationError, match=r"CAM_A.*thin-prism.*s1=0\.01.*Kalibr"):
+        read_oak_rig(prism, "CAM_A", 640, 360)
 
 
 def test_read_oak_rig_radtan4_and_missing_imu() -> None:

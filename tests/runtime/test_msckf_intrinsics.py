@@ -19,12 +19,15 @@ from tests.runtime.test_msckf_estimator import PRM, _init, _rig, _run, _stream
 
 
 def _random_params(rng: np.random.Generator, model: str) -> np.ndarray:
-    prm = np.zeros(9)
+    prm = np.zeros(12)
     prm[0:2] = rng.uniform(300.0, 600.0, 2)
     prm[2:4] = rng.uniform(200.0, 400.0, 2)
     if model == "radtan":
         prm[4:9] = [rng.uniform(-0.3, 0.1), rng.uniform(-0.05, 0.1), *rng.uniform(-1e-3, 1e-3, 2),
                     rng.uniform(-0.01, 0.01)]
+    elif model == "rational":                      # around an OAK-D factory calibration's coefficients
+        prm[4:12] = np.array([9.49, -102.07, 0.0008, 0.0020, 401.19, 9.26, -100.43, 394.56]) * \
+            rng.uniform(0.9, 1.1, 8)
     elif model == "equidistant":
         prm[4:8] = rng.uniform(-0.05, 0.05, 4)
     return prm
@@ -43,7 +46,7 @@ def _numeric_jacobian(fun, prm: np.ndarray) -> np.ndarray:
     return np.stack(cols, axis=1)
 
 
-@pytest.mark.parametrize("model", ["radtan", "equidistant", "none"])
+@pytest.mark.parametrize("model", ["radtan", "rational", "equidistant", "none"])
 def test_intrinsics_jacobian_matches_central_differences(model: str) -> None:
     rng = np.random.default_rng(7)
     code = MODEL_CODES[model]
@@ -55,6 +58,31 @@ def test_intrinsics_jacobian_matches_central_differences(model: str) -> None:
         if model == "none":
             num[:, 4:] = 0.0           # "none" ignores the coefficients: so does its Jacobian
         assert np.allclose(J, num, rtol=1e-6, atol=1e-6), (model, J - num)
+
+
+def test_the_filters_rational_kernel_is_the_calib_model_and_radtan_with_k4_to_k6_zero() -> None:
+    """The filter's distortion kernel against calib.PinholeRational (itself checked against OpenCV's
+    projectPoints): pixels and the 2x2 Jacobian; with k4..k6 = 0, a 9-value radtan array gives the same."""
+    from calib import PinholeRational
+    from runtime.msckf.camera_kernels import CameraParams, distort_points, undistort_points
+
+    coeffs = [9.49, -102.07, 0.0008, 0.0020, 401.19, 9.26, -100.43, 394.56]
+    cam = PinholeRational(1280, 800, 800.0, 800.5, 640.5, 400.25, coeffs)
+    cp = CameraParams.from_camera(cam)
+    assert cp.model == "rational" and cp.params.size == 12 and cp.code == MODEL_CODES["radtan"]
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(-0.7, 0.7, (200, 2))
+    np.testing.assert_allclose(distort_points(cp.code, cp.params, xy), cam.distort(xy), rtol=0, atol=1e-9)
+    for x, y in xy[:20]:
+        np.testing.assert_allclose(distort_point(cp.code, cp.params, x, y)[2],
+                                   cam.distort_jacobian(np.array([x, y])), rtol=1e-9, atol=1e-6)
+    np.testing.assert_allclose(undistort_points(cp.code, cp.params, cam.distort(xy)), xy, atol=1e-10)
+    radtan = cp.params.copy()
+    radtan[9:] = 0.0
+    for x, y in xy[:20]:
+        u12, v12, J12 = distort_point(1, radtan, x, y)
+        u9, v9, J9 = distort_point(1, radtan[:9], x, y)
+        assert (u12, v12) == (u9, v9) and np.array_equal(J12, J9)
 
 
 def test_equidistant_jacobian_at_the_optical_axis() -> None:

@@ -102,6 +102,12 @@ def write_outputs(run: CalibrationRun, rig: Any, paths: dict[str, Path], report:
         f"time offset {std['time_offset_ms']:.3f} ms after {report['sensor_s']:.1f} s; "
         "timeshift_cam_imu: t_imu = t_cam + shift"
     )
+    if getattr(rig.camera, "distortion_model", "") == "rational":
+        note = ("the camchain keeps the camera's rational distortion model (OpenCV's k1 k2 p1 p2 k3 k4 k5 "
+                "k6, a factory calibration's): DAVIO reads it, Kalibr and OpenVINS 2.7 do not; calibrate "
+                "the lens with Kalibr for them")
+        comment += "\n" + note
+        report["camchain_note"] = note
     new = estimated_rig(rig, run.final, name=f"davio_calibrate_{paths['camchain'].stem}")
     write_kalibr(new, paths["camchain"], paths["imu"] if rig.imu is not None else None, comment=comment)
     report["files"]["camchain"] = str(paths["camchain"])
@@ -110,7 +116,7 @@ def write_outputs(run: CalibrationRun, rig: Any, paths: dict[str, Path], report:
 
 def summary_lines(report: dict) -> list[str]:
     """The console summary."""
-    lines = []
+    lines = [f"NOTE: {report['camchain_note']}"] if report.get("camchain_note") else []
     bu = report.get("bringup") or {}
     if bu:
         rej = ", ".join(f"{k} x{v}" for k, v in sorted((bu.get("rejections") or {}).items())) or "none"
