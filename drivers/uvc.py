@@ -3,13 +3,20 @@
 One reader thread only grabs, stamps, converts to grey and enqueues; the consumer takes frames with
 `get(timeout)`. The buffer keeps the newest `keep_frames` frames and counts the older ones it drops.
 
-Stamps (int64 ns, host `time.monotonic_ns()`): taken right after `grab()` returns, minus half the
-exposure time when it is known (`exposure_s`), i.e. an estimate of mid-exposure. This is an
-approximation: `grab()` returns once the frame has been read out, transferred over USB and dequeued
-by the kernel, so the stamp is late by a roughly constant latency (readout + transfer, typically a few
-ms to a frame period) and jitters with the thread's wake-up. That constant part is what the camera-IMU
-time offset of the calibration (Kalibr `timeshift_cam_imu`) and the filter's online estimate absorb.
-A stamp that does not increase (clock jitter, a frame delivered twice) is dropped and counted.
+Stamps (int64 ns on the host's `time.monotonic_ns()` clock), minus half the exposure time when it is
+known (`exposure_s`), i.e. an estimate of mid-exposure:
+- a V4L2 device (Linux): the kernel's buffer stamp (`CAP_PROP_POS_MSEC`: uvcvideo stamps a frame when its
+  first packet arrives, on CLOCK_MONOTONIC, the clock of `time.monotonic_ns()`). It does not depend on
+  when the reader thread gets to `grab()`: OpenCV's V4L2 backend queues a few buffers and `grab()` takes
+  the oldest, so after a stall several frames would otherwise be stamped at nearly the same moment. A
+  kernel stamp that is not between `KERNEL_STAMP_MAX_AGE_S` before the grab and the grab (another clock,
+  or none) is replaced by the host stamp below and counted (`host_stamped`);
+- otherwise (other backends, `kernel_stamps=False`): the host time right after `grab()` returns. It is
+  late by a roughly constant latency (readout + transfer, a few ms to a frame period) and jitters with
+  the thread's wake-up.
+The constant part of either is what the camera-IMU time offset of the calibration (Kalibr
+`timeshift_cam_imu`) and the filter's online estimate absorb. A stamp that does not increase (clock
+jitter, a frame delivered twice) is dropped and counted.
 
 A video file (replay, tests) is read the same way. With `realtime=True` frames are paced at the
 file's rate and the newest-frames buffer behaves as for a camera; with `realtime=False` the reader
@@ -46,6 +53,19 @@ NEVER = 2**63 - 1
 
 _POLL_S = 0.05
 """How often a waiting `get` re-checks for a stall."""
+KERNEL_STAMP_MAX_AGE_S = 0.5
+"""Oldest a V4L2 buffer stamp may be at `grab()` (frames queued while the reader was late) to be used."""
+
+
+def kernel_stamp_ns(pos_msec: float, grab_ns: int, max_age_ns: int = int(KERNEL_STAMP_MAX_AGE_S * 1e9)
+                    ) -> int | None:
+    """The V4L2 buffer stamp `CAP_PROP_POS_MSEC` (ms on CLOCK_MONOTONIC) as int64 ns, or None when it is not
+    on the clock of `grab_ns` (host monotonic right after the grab): later than the grab, older than
+    `max_age_ns`, zero, negative or not finite."""
+    if not (pos_msec == pos_msec and 0.0 < pos_msec < 9.2e15):       # NaN, none, or beyond int64 ns
+        return None
+    t = int(round(pos_msec * 1e6))
+    return t if grab_ns - max_age_ns <= t <= grab_ns else None
 
 
 class UvcCamera(KeptFrames):
@@ -68,13 +88,16 @@ class UvcCamera(KeptFrames):
         camera_id: the `Frame.camera_id` of the frames.
         open_timeout_s: how long `start()` waits for the device to open (then for a first frame
             `open_timeout_s + stall_timeout_s` more).
+        kernel_stamps: stamp a V4L2 device's frames with the kernel's buffer stamps (see the module
+            docstring); False: the host time after `grab()` always.
     """
 
     def __init__(self, device: int | str, width: int | None = None, height: int | None = None,
                  fps: float | None = None, exposure_s: float | None = None, stall_timeout_s: float = 2.0,
                  keep_frames: int = 2, expected_size: tuple[int, int] | None = None,
                  realtime: bool = False, file_stamps: bool = False, bit_depth: int | None = None,
-                 fourcc: str | None = None, camera_id: int = 0, open_timeout_s: float = 3.0) -> None:
+                 fourcc: str | None = None, camera_id: int = 0, open_timeout_s: float = 3.0,
+                 kernel_stamps: bool = True) -> None:
         if isinstance(device, bool) or not isinstance(device, int | str | os.PathLike):
             raise DeviceError(f"camera device must be an index, a path or a video file, not {device!r}")
         if keep_frames < 1:
@@ -99,6 +122,10 @@ class UvcCamera(KeptFrames):
         self.camera_id = int(camera_id)
         self.open_timeout_s = float(open_timeout_s)
         self.is_file = self._is_video_file(self.device)
+        self.kernel_stamps = bool(kernel_stamps)
+        """Use the V4L2 buffer stamps (decided once the device is open: a V4L2 device, not a file)."""
+        self.host_stamped = 0
+        """Frames of a kernel-stamped device whose buffer stamp was unusable (stamped on the host)."""
         self._half_exposure_ns = 0 if exposure_s is None else int(round(exposure_s * 0.5e9))
 
         self._cond = threading.Condition()
@@ -229,6 +256,7 @@ class UvcCamera(KeptFrames):
             "device": str(self.device), "kind": "file" if self.is_file else "device", "backend": self.backend,
             "frames": self.frames, "emitted": self.emitted, "dropped_old": self.dropped_old,
             "nonmonotonic": self.nonmonotonic, "converted": self.converted, "conversion": self.conversion,
+            "host_stamped": self.host_stamped,
             "size": None if self.size is None else list(self.size),
             "requested_size": (None if self.width is None and self.height is None
                                else [self.width, self.height]),
@@ -308,6 +336,7 @@ class UvcCamera(KeptFrames):
             cap.set(cv2.CAP_PROP_FRAME_HEIGHT, float(self.height))
         if self.fps is not None:
             cap.set(cv2.CAP_PROP_FPS, float(self.fps))
+        self.kernel_stamps = self.kernel_stamps and self.backend == "V4L2"
         if self.exposure_s is not None and self.backend == "V4L2":
             # V4L2: auto_exposure 1 = manual; exposure_time_absolute in units of 100 us
             cap.set(cv2.CAP_PROP_AUTO_EXPOSURE, 1.0)
@@ -377,6 +406,8 @@ class UvcCamera(KeptFrames):
         return self.start_ns + int(round(i * 1e9 / self.file_fps))
 
     def _read_loop(self, cap: Any) -> None:
+        import cv2
+
         self.start_ns = time.monotonic_ns()
         self._alive_ns = self.start_ns
         i = 0
@@ -391,14 +422,14 @@ class UvcCamera(KeptFrames):
                 if self.file_stamps and self.is_file:
                     self._floor_ns = self._file_stamp(i)
                 else:  # a frame grabbed from now on is stamped later than this
-                    self._floor_ns = time.monotonic_ns() - self._half_exposure_ns
+                    self._floor_ns = self._live_floor()
             if self.is_file and self.realtime:
                 self._pace(self.start_ns + int(round(i * 1e9 / self.file_fps)))
                 if self._stop:
                     return
                 if not self.file_stamps:
                     with self._cond:
-                        self._floor_ns = time.monotonic_ns() - self._half_exposure_ns
+                        self._floor_ns = self._live_floor()
             ok = cap.grab()
             t_host = time.monotonic_ns()
             if not ok:
@@ -412,6 +443,12 @@ class UvcCamera(KeptFrames):
                 t_ns = self._file_stamp(i)
             else:
                 t_ns = t_host - self._half_exposure_ns
+                if self.kernel_stamps:
+                    t_k = kernel_stamp_ns(cap.get(cv2.CAP_PROP_POS_MSEC), t_host)
+                    if t_k is None:
+                        self.host_stamped += 1
+                    else:
+                        t_ns = t_k - self._half_exposure_ns
             i += 1
             self._alive_ns = t_host
             if self._last_t is not None and t_ns <= self._last_t:
@@ -498,9 +535,24 @@ class UvcCamera(KeptFrames):
                                           f"(stall_timeout_s {self.stall_timeout_s:g}): unplugged or stalled")
         return self._error
 
+    def _live_floor(self) -> int:
+        """A lower bound of the stamp of a frame grabbed from now on: the host time less half the exposure;
+        with kernel stamps also less their largest age, and never below the last stamp (stamps increase)."""
+        floor = time.monotonic_ns() - self._half_exposure_ns
+        if self.kernel_stamps:
+            floor -= int(KERNEL_STAMP_MAX_AGE_S * 1e9)
+            if self._last_t is not None:
+                floor = max(floor, self._last_t + 1)
+        return floor
+
     def _stamp_description(self) -> str:
         if self.is_file and self.file_stamps:
             return f"file: start + index / {self.file_fps:g} fps"
+        if self.kernel_stamps:
+            return ("V4L2 kernel buffer stamps (CLOCK_MONOTONIC)"
+                    + (" minus half the exposure (mid-exposure estimate)" if self._half_exposure_ns else "")
+                    + (f"; {self.host_stamped} frames host-stamped after grab() (unusable buffer stamp)"
+                       if self.host_stamped else ""))
         if self._half_exposure_ns:
             return "host monotonic after grab() minus half the exposure (mid-exposure estimate)"
         return "host monotonic after grab() (exposure unknown: end of readout plus transfer latency)"

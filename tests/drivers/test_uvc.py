@@ -233,3 +233,84 @@ def test_fake_device_size_mismatch_and_requested_size_note(fake_cv2: type[FakeCa
     assert cam.size == (W, H)
     assert any("640x480 requested" in n for n in cam.report()["notes"])
     cam.stop()
+
+
+class FakeV4l2(FakeCapture):
+    """A V4L2 device whose kernel stamps each buffer when its frame arrives, one `period_ns` apart, while
+    the reader grabs them late and all at once (a stalled reader): `pos_ms` gives each buffer's stamp,
+    None = a driver without stamps (0)."""
+
+    period_ns = 33_333_333
+    stamps: list = []
+
+    def __init__(self, target, api=None) -> None:
+        super().__init__(target, api)
+        self.k = -1
+        self.t0 = time.monotonic_ns() - 400_000_000        # the first frame arrived 0.4 s ago
+
+    def getBackendName(self) -> str:  # noqa: N802
+        return "V4L2"
+
+    def grab(self) -> bool:
+        self.k += 1
+        return super().grab()
+
+    def get(self, prop: int) -> float:
+        if prop == cv2.CAP_PROP_POS_MSEC:
+            kind = type(self).stamps[self.k] if self.k < len(type(self).stamps) else "ok"
+            if kind == "none":
+                return 0.0
+            if kind == "realtime":                          # another clock: the wall clock
+                return time.time() * 1e3
+            return (self.t0 + self.k * self.period_ns) / 1e6
+        return super().get(prop)
+
+
+def _until_unplugged(cam: UvcCamera) -> list:
+    """Every frame the camera delivers until its script's read failure (raised after the drain)."""
+    out = []
+    with pytest.raises(DeviceError, match="read failed"):
+        while (f := cam.get(1.0)) is not None:
+            out.append(f)
+    return out
+
+
+def test_kernel_stamp_is_used_only_on_the_grab_clock() -> None:
+    from drivers.uvc import kernel_stamp_ns
+
+    grab = 10**12
+    assert kernel_stamp_ns((grab - 30_000_000) / 1e6, grab) == grab - 30_000_000
+    assert kernel_stamp_ns((grab + 1_000_000) / 1e6, grab) is None        # after the grab
+    assert kernel_stamp_ns((grab - 600_000_000) / 1e6, grab) is None      # older than 0.5 s
+    assert kernel_stamp_ns(0.0, grab) is None and kernel_stamp_ns(float("nan"), grab) is None
+    assert kernel_stamp_ns(-5.0, grab) is None
+
+
+def test_v4l2_frames_carry_the_kernels_stamps_not_the_grab_time(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Frames queued in the kernel while the reader was late keep their arrival stamps (one period apart,
+    minus half the exposure), though grabbed together; a buffer without a usable stamp (none, or another
+    clock) is stamped on the host and counted; a file or kernel_stamps=False keeps host stamps."""
+    monkeypatch.setattr(cv2, "VideoCapture", FakeV4l2)
+    monkeypatch.setattr(UvcCamera, "_check_exists", lambda self: None)
+    img = np.full((H, W), 100, np.uint8)
+    FakeV4l2.script = [img] * 8 + [None]
+    FakeV4l2.period_s = 0.0                                    # grabbed all at once
+    FakeV4l2.stamps = ["ok"] * 6 + ["none", "realtime"]
+    cam = UvcCamera(0, exposure_s=0.01, stall_timeout_s=1.0, keep_frames=16).start()
+    frames = _until_unplugged(cam)
+    rep = cam.report()
+    cam.stop()
+    assert [f.meta["seq"] for f in frames] == list(range(8))
+    t0 = frames[0].t_ns + 5_000_000                           # + half the exposure: the first buffer's stamp
+    for f in frames[:6]:                              # grabbed within microseconds, stamped 33 ms apart
+        assert f.t_ns == t0 + f.meta["seq"] * FakeV4l2.period_ns - 5_000_000
+    assert frames[5].meta["grab_ns"] - frames[0].meta["grab_ns"] < FakeV4l2.period_ns
+    for f in frames[6:]:                                      # no stamp, another clock: the host's
+        assert f.t_ns == f.meta["grab_ns"] - 5_000_000
+    assert rep["host_stamped"] == 2 and "V4L2 kernel buffer stamps" in rep["stamps"]
+    FakeV4l2.stamps = []
+    FakeV4l2.script = [img] * 3 + [None]
+    host = UvcCamera(0, stall_timeout_s=1.0, kernel_stamps=False, keep_frames=8).start()
+    got = _until_unplugged(host)
+    host.stop()
+    assert not host.kernel_stamps and got and all(f.t_ns >= f.meta["grab_ns"] for f in got)
