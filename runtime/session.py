@@ -118,6 +118,8 @@ class Session:
         self._thread: threading.Thread | None = None
         self._scheduler: Scheduler | None = None
         self._error: BaseException | None = None
+        self._error_raised = False
+        self._closed = False
         self._last_imu_ns: int | None = None
         self.result: SessionResult | None = None
 
@@ -221,7 +223,10 @@ class Session:
 
     def _push(self, ev: Any) -> None:
         if self._error is not None:
+            self._error_raised = True
             raise DavioError(f"the session stopped: {self._error}") from self._error
+        if self._closed:
+            raise DavioError("the session is closed: start a new Session for more data")
         self.start()
         self._inbox.put(ev)
 
@@ -245,7 +250,12 @@ class Session:
         self._push(Frame(_stamp(t_ns), img, 0))
 
     def close(self, timeout_s: float = 60.0) -> SessionResult:
-        """Process what was pushed, stop the threads, map the windows still queued; returns the result."""
+        """Process what was pushed, stop the threads, map the windows still queued; returns the result.
+        A second call returns the same result. Raises DavioError("the session stopped: ...") when the
+        session's thread failed (an exception in `on_pose`, an internal error) and the caller was not told
+        yet by an add_*; the result (status "failed") stays in `self.result`."""
+        if self._closed:
+            return self.result
         if self._thread is not None:
             self._inbox.put(_CLOSE)
             self._thread.join(timeout_s)
@@ -256,13 +266,23 @@ class Session:
             self.result = SessionResult(self.pipeline, SchedulerReport())
         if self.result.status == "complete":
             self.pipeline.finish_mapping()
+        self._closed = True
+        if self._error is not None and not self._error_raised:
+            self._error_raised = True
+            raise DavioError(f"the session stopped: {self._error}") from self._error
         return self.result
 
     def __enter__(self) -> Session:
         return self.start()
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: object, *exc: object) -> None:
+        if exc_type is None:
+            self.close()
+            return
+        try:                                   # an exception is on its way out: do not replace it
+            self.close()
+        except DavioError:
+            pass
 
 
 def _vector3(value: Any, what: str, t_ns: Any) -> np.ndarray:
@@ -279,7 +299,10 @@ def _vector3(value: Any, what: str, t_ns: Any) -> np.ndarray:
 def _stamp(t_ns: Any) -> int:
     if isinstance(t_ns, float) and not math.isfinite(t_ns) or isinstance(t_ns, bool):
         raise DataError(f"stamp {t_ns!r} is not an integer number of nanoseconds")
-    t = int(t_ns)
-    if t != t_ns or t < 0:
-        raise DataError(f"stamp {t_ns!r} is not a non-negative integer number of nanoseconds")
+    try:
+        t = int(t_ns)
+    except (TypeError, ValueError, OverflowError):
+        raise DataError(f"stamp {t_ns!r} is not an integer number of nanoseconds") from None
+    if t != t_ns or not 0 <= t < 2**63:
+        raise DataError(f"stamp {t_ns!r} is not a non-negative integer number of nanoseconds below 2^63")
     return t

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from runtime.config import DavioConfig
-from runtime.errors import ConfigError, DataError
+from runtime.errors import ConfigError, DataError, DavioError
 from runtime.events import Frame
 from runtime.session import Pose, Session
 
@@ -48,6 +48,30 @@ def test_pushed_samples_publish_what_a_replay_publishes(recording) -> None:
 
 
 @pytest.mark.slow
+def test_an_error_in_the_session_thread_reaches_the_caller_at_close(recording) -> None:
+    """A callback that raises after the last push stops the session's thread; leaving the `with` block
+    raises it (as add_* does when it comes earlier) and the result says failed."""
+    rec, events = recording
+    calls = []
+
+    def on_pose(pose: Pose) -> None:
+        calls.append(pose)
+        if len(calls) == 5:
+            raise KeyError("t_ns")
+
+    with pytest.raises(DavioError, match="the session stopped: 't_ns'") as info:
+        with Session(rec.rig, on_pose=on_pose, max_pending_frames=10_000) as s:
+            for ev in events:     # straight into the inbox: every push is in before the thread fails
+                s._inbox.put(ev)
+    assert isinstance(info.value.__cause__, KeyError)
+    assert s.result.status == "failed" and "KeyError" in s.result.reason and len(calls) == 5
+    with pytest.raises(ValueError, match="the caller's own"):       # an exception already leaving is kept
+        with Session(rec.rig, on_pose=on_pose) as s2:
+            _push(s2, events[:100])
+            raise ValueError("the caller's own")
+
+
+@pytest.mark.slow
 def test_a_tracker_that_falls_behind_drops_images_not_imu_samples(recording) -> None:
     rec, events = recording
     with Session(rec.rig, max_pending_frames=1) as s:
@@ -73,7 +97,13 @@ def test_bad_pushes_are_clear_errors(recording) -> None:
         s.add_imu(7, np.zeros(2), [0, 0, 9.81])
     with pytest.raises(DataError, match="add_imu at 7: accel is not numeric"):
         s.add_imu(7, [0, 0, 0], ["x", 0, 9.81])
+    for stamp in (2**70, np.uint64(2**63 + 5), None, "abc", np.array([1, 2]), -3):
+        with pytest.raises(DataError, match="nanoseconds"):
+            s.add_imu(stamp, [0, 0, 0], [0, 0, 9.81])
     assert s.close().status == "complete"
+    assert s.close().status == "complete"                       # a second close: the same result
+    with pytest.raises(DavioError, match="the session is closed"):
+        s.add_imu(10, [0, 0, 0], [0, 0, 9.81])
     with pytest.raises(ConfigError, match="camera intrinsics"):
         Session(rec.rig.replace(camera=None))
 
