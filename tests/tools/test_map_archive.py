@@ -409,7 +409,8 @@ def test_a_reader_that_loses_the_journal_to_a_whole_write_reads_again(tmp_path, 
      r"line 1 keeps 9 pair records of 0"),
     (lambda lines: [lines[0].replace(b'"file":', b'"fil":'), *lines[1:]], r"line 1: new submap 8 lacks file"),
     (lambda lines: [lines[0].replace(b'"generation":1', b'"generation":2'), *lines[1:]],
-     r"changed 5 times while it was read"),
+     r"changed 5 times while it was read: its lines are of a later generation than manifest.json's \(1\)\. "
+     r"A run writing it: try again\. Otherwise manifest.json is an older copy"),
 ])
 def test_a_damaged_journal_is_named_with_its_line(tmp_path, edit, message):
     w, _ = _commit_plan(tmp_path / "map", 3)
@@ -418,6 +419,47 @@ def test_a_damaged_journal_is_named_with_its_line(tmp_path, edit, message):
     path.write_bytes(b"\n".join(edit(path.read_bytes().splitlines())) + b"\n")
     with pytest.raises(DataError, match=r"manifest\.journal.*" + message):
         read_manifest(w.folder)
+
+
+def test_manifest_entries_that_repeat_an_index_or_disagree_with_their_file_are_named(tmp_path):
+    """A manifest entry repeated (same index or file), a point count other than its file's, and a point
+    whose image index is past the submap's images (a faulty writer; checksums match) are DataErrors."""
+    folder = tmp_path / "map"
+    write_two_commits(folder)
+    manifest = folder / "manifest.json"
+    info = json.loads(manifest.read_text())
+    manifest.write_text(json.dumps({**info, "submaps": [*info["submaps"], info["submaps"][0]]}))
+    with pytest.raises(DataError, match=r"submaps\[3\] and submaps\[0\] have the same index 0"):
+        read_manifest(folder)
+    bad = [dict(e) for e in info["submaps"]]
+    bad[1]["n_points"] = 10**30
+    manifest.write_text(json.dumps({**info, "submaps": bad}))
+    with pytest.raises(DataError, match=r"submap_000001\.npz.*holds 400 points, the manifest says 10+"):
+        load_submap(folder, read_manifest(folder)["submaps"][1])
+    manifest.write_text(json.dumps(info))
+    path = folder / "submap_000002.npz"
+    with np.load(path) as npz:
+        arrays = dict(npz)
+    np.savez_compressed(path, **{**arrays, "image": np.full_like(arrays["image"], 9)})
+    with pytest.raises(DataError, match=r"submap_000002\.npz.*image index is 9, the submap has 3 images"):
+        load_submap(folder, read_manifest(folder)["submaps"][2])
+
+
+def test_an_export_with_nothing_to_write_is_refused_and_keeps_the_old_file(tmp_path, capsys):
+    folder = tmp_path / "run" / "map"
+    write_two_commits(folder)
+    out = tmp_path / "run" / "map.ply"
+    assert main(["map", "export", str(tmp_path / "run")]) == 0
+    before = out.read_bytes()
+    for p in folder.glob("*.npz"):
+        p.unlink()
+    capsys.readouterr()
+    assert main(["map", "export", str(tmp_path / "run"), "--skip-damaged"]) == 1
+    assert "nothing to export: no submap could be fused (3 damaged submap file(s) left out" in \
+        capsys.readouterr().err
+    assert out.read_bytes() == before
+    assert main(["map", "view", str(tmp_path / "run"), "--skip-damaged"]) == 1
+    assert "nothing to draw" in capsys.readouterr().err
 
 
 def _ray_submap(index: int, seed: int, stride: int = 4) -> Submap:

@@ -10,7 +10,7 @@ import sys
 import time
 from pathlib import Path
 
-from runtime.errors import ConfigError
+from runtime.errors import ConfigError, DataError
 from runtime.json_out import strict_dumps
 
 NAME = "map"
@@ -241,7 +241,7 @@ def run(args: argparse.Namespace) -> int:
             n, fused = export_map(archive, out, args.voxel, _Progress("export"), args.min_points,
                                   args.skip_damaged, notes, T_out=T_out,
                                   merge_with=prior if args.merge_prior else None, segment=seg,
-                                  merge_segment=prior_seg)
+                                  merge_segment=prior_seg, refuse_empty=True)
         except OSError as exc:
             raise ConfigError(f"--out {out}: cannot write ({exc.strerror or exc})") from None
         _print_notes("export", notes)
@@ -250,7 +250,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"davio map export: {n} voxels ({args.voxel} m){dropped} -> {out}"
               f"{' (replaced)' if replaced else ''} in {time.monotonic() - t0:.1f} s")
         return 0
-    from tools.map_archive.export import fuse_archive, supported
+    from tools.map_archive.export import empty_reason, fuse_archive, supported
     from tools.map_archive.view import interactive, render_views
 
     _check_fuse_args(args.voxel, args.min_points)
@@ -259,6 +259,9 @@ def run(args: argparse.Namespace) -> int:
     fused = fuse_archive(archive, args.voxel, _Progress("view"), args.skip_damaged, notes)
     points, grey, _ = supported(fused, args.min_points)
     _print_notes("view", notes)
+    if not len(points):
+        raise DataError(empty_reason(len(fused[0]), args.min_points, notes).replace("export", "draw", 1),
+                        archive)
     try:
         render_views(points, grey, out)
     except OSError as exc:

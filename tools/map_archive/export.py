@@ -112,15 +112,26 @@ def supported(fused: tuple[np.ndarray, np.ndarray, np.ndarray], min_points: int
     return points[keep], grey[keep], counts[keep]
 
 
+def empty_reason(fused: int, min_points: int, notes: list[str] | None) -> str:
+    """Why an export or view has no voxel to show."""
+    if fused:
+        return f"nothing to export: none of the {fused} fused voxels holds {min_points} or more points"
+    why = "; ".join(notes or []) or "the archive holds no placed point"
+    return f"nothing to export: no submap could be fused ({why})"
+
+
 def export_map(folder: str | Path, out_ply: str | Path, voxel_m: float = 0.04,
                progress: Callable[[int, int], None] | None = None, min_points: int = 1,
                skip_damaged: bool = False, notes: list[str] | None = None, verify: bool = True,
                T_out: np.ndarray | None = None, merge_with: str | Path | None = None,
-               segment: int | None = None, merge_segment: int | None = None) -> tuple[int, int]:
+               segment: int | None = None, merge_segment: int | None = None,
+               refuse_empty: bool = False) -> tuple[int, int]:
     """Fuse the archive in `folder` (`fuse_archive`, moved by `T_out` when given) and write the voxels
     holding at least `min_points` points to `out_ply`; with `merge_with`, that archive (in its own frame,
     which T_out must lead to) is fused into the same voxels first. `segment` / `merge_segment` keep only
-    that filter segment of each archive (`fuse_archive`). Returns (voxels written, voxels fused)."""
+    that filter segment of each archive (`fuse_archive`). `refuse_empty`: no voxel to write is a DataError
+    and `out_ply` is left as it was (a re-export must not replace a map with nothing). Returns (voxels
+    written, voxels fused)."""
     grid = VoxelGrid(voxel_m)
     if merge_with is not None:
         fuse_archive(merge_with, voxel_m, progress, skip_damaged, notes, verify, grid=grid,
@@ -128,5 +139,7 @@ def export_map(folder: str | Path, out_ply: str | Path, voxel_m: float = 0.04,
     fused = fuse_archive(folder, voxel_m, progress, skip_damaged, notes, verify, T_out=T_out, grid=grid,
                          segment=segment)
     points, grey, _ = supported(fused, min_points)
+    if refuse_empty and not len(points):
+        raise DataError(empty_reason(len(fused[0]), min_points, notes), folder)
     write_ply(out_ply, points, grey)
     return int(len(points)), int(len(fused[0]))

@@ -54,8 +54,13 @@ def read_manifest(folder: str | Path) -> dict:
         if journal is not None:
             break
     else:
-        raise DataError(f"the archive changed {_READ_TRIES} times while it was read (a run is writing it); "
-                        "try again", folder / JOURNAL_NAME)
+        gen = info.get("journal_generation")
+        raise DataError(f"the archive changed {_READ_TRIES} times while it was read: its lines are of a "
+                        f"later generation than manifest.json's ({gen}). A run writing it: try again. "
+                        "Otherwise manifest.json is an older copy than the journal (a copy of a running "
+                        "archive, a restored backup): copy the matching manifest.json, or remove "
+                        "manifest.journal to read manifest.json as it is (its commits are lost)",
+                        folder / JOURNAL_NAME)
     if journal["commits"]:
         _check_entries(info, folder / JOURNAL_NAME)
     info["journal"] = journal
@@ -170,7 +175,8 @@ def _is_int(x: object) -> bool:
 
 
 def _check_entries(info: dict, path: Path) -> None:
-    """Every submap entry has the keys and types the readers use."""
+    """Every submap entry has the keys and types the readers use, and names its own index and file."""
+    seen: dict[object, int] = {}
     for k, e in enumerate(info["submaps"]):
         missing = [key for key in _ENTRY_KEYS if not isinstance(e, dict) or key not in e]
         if missing:
@@ -181,6 +187,11 @@ def _check_entries(info: dict, path: Path) -> None:
         if not isinstance(e["file"], str) or not SUBMAP_RE.match(e["file"]):
             raise DataError(f"submaps[{k}].file is {e['file']!r}, expected a name like submap_000000.npz "
                             "inside the archive folder", path)
+        for key in (("index", e["index"]), ("file", e["file"])):
+            if key in seen:
+                raise DataError(f"submaps[{k}] and submaps[{seen[key]}] have the same {key[0]} {key[1]!r}",
+                                path)
+            seen[key] = k
         segment = e.get("segment", 0)
         if not isinstance(segment, int) or isinstance(segment, bool):
             raise DataError(f"submaps[{k}].segment is {segment!r}, expected an integer", path)
@@ -274,6 +285,12 @@ def load_submap(folder: str | Path, entry: dict) -> Submap:
             raise DataError(f"inconsistent submap arrays: depth {depth.shape}, pixel_u {u.shape}, "
                             f"pixel_v {v.shape}, K {arrays['K'].shape}", path)
         arrays["points_C"] = decode_rays(depth, u, v, arrays["K"])
+    n_img, n_pts = len(arrays["T_SC"]), len(arrays["points_C"])
+    if n_pts != entry["n_points"]:
+        raise DataError(f"the file holds {n_pts} points, the manifest says {entry['n_points']}", path)
+    if n_pts and arrays["image"].size == n_pts and int(arrays["image"].max()) >= n_img:
+        raise DataError(f"a point's image index is {int(arrays['image'].max())}, the submap has {n_img} "
+                        "images", path)
     if int(arrays["index"]) != int(entry["index"]):
         raise DataError(f"file holds submap {int(arrays['index'])}, the manifest says {entry['index']}", path)
     manifest = Path(folder) / MANIFEST_NAME
