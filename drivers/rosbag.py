@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from drivers.base import Driver, IntakeReport, Policy, StreamCounts, check_policy
-from drivers.diagnose import G_STANDARD, accel_looks_like_g, check_stamp_units
+from drivers.diagnose import G_STANDARD, accel_looks_like_g, check_distinct_stamps, check_stamp_units
 from drivers.images import data_bit_depth, to_8bit
 from drivers.validation import count_gaps, time_order_repair
 from runtime.errors import ConfigError, DataError
@@ -154,6 +154,7 @@ class RosbagDriver(Driver):
                 cam_t.append(_stamp_ns(msg))
         t = np.array(imu_t, np.int64)
         v = np.array(imu_v, np.float64).reshape(-1, 6)
+        check_distinct_stamps(t, self.imu_topic, self.path)
         t, v, _ = self._order(t, v, imu_counts, self.imu_topic)
         if t.shape[0] == 0:
             raise DataError(f"no usable IMU sample on {self.imu_topic} ({imu_counts.lines} messages)",
@@ -171,6 +172,7 @@ class RosbagDriver(Driver):
         count_gaps(self._imu_t, imu_counts)
         # images: bag order -> kept, time-ordered stamps (the replay pass re-reads them in bag order)
         c = np.array(cam_t, np.int64)
+        check_distinct_stamps(c, self.image_topic, self.path)
         keep_t, _, kept_index = self._order(c, np.zeros((c.shape[0], 0)), cam_counts, self.image_topic)
         if keep_t.shape[0] == 0:
             raise DataError(f"no image on {self.image_topic} ({cam_counts.lines} messages)", self.path)

@@ -205,6 +205,25 @@ def test_camera_info_of_ros1_and_beside_a_compressed_topic(tmp_path: Path, fmt: 
     assert cam.distortion_model == "radtan"
 
 
+@pytest.mark.parametrize("topic", ["/imu0", "/cam0/image_raw"])
+def test_a_publisher_that_does_not_stamp_its_messages_is_named(tmp_path: Path, topic: str) -> None:
+    """Header stamps all 0 on one topic (record times fine): a clear error naming the topic, not a run that
+    spans decades and blames the motion."""
+    ts = typestore("mcap")
+    imu_t, gyro, accel, cam_t, images = _synthetic()
+    def stamp(t: int, on: str) -> int:
+        return 0 if on == topic else t
+
+    msgs = [("/imu0", int(t), imu_msg(ts, False, stamp(int(t), "/imu0"), k, gyro[k], accel[k]))
+            for k, t in enumerate(imu_t)]
+    msgs += [("/cam0/image_raw", int(t), image_msg(ts, False, stamp(int(t), "/cam0/image_raw"), k, images[k]))
+             for k, t in enumerate(cam_t)]
+    bag = write_bag(tmp_path / "unstamped", "mcap", sorted(msgs, key=lambda m: m[1]))
+    with pytest.raises(DataError, match=rf"{topic}: \d+ of \d+ messages repeat another's header stamp "
+                                        r"\(1 distinct, \d+ of them 0\): the publisher does not stamp"):
+        RosbagDriver(bag)
+
+
 def test_not_a_bag_and_a_corrupt_bag_are_clear_errors(tmp_path: Path) -> None:
     (tmp_path / "x.bag").write_bytes(b"#ROSBAG V2.0\n" + b"\x00" * 40)
     with pytest.raises(DataError, match="cannot read the bag"):
