@@ -147,7 +147,7 @@ def _prior_alignment(run_folder: Path, merge: bool) -> tuple:
         T = np.array(al["T_PN"], np.float64) if al.get("T_PN") is not None else None
         prior = Path(al["prior"])
         segments = tuple(None if al.get(k) is None else int(al[k]) for k in ("new_segment", "prior_segment"))
-    except (OSError, ValueError, KeyError, TypeError, AttributeError) as exc:
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, RecursionError) as exc:
         raise ConfigError(f"{path}: not a davio alignment ({type(exc).__name__}: {exc})") from None
     if not al.get("localized") or T is None or T.shape != (4, 4) or not np.isfinite(T).all():
         raise ConfigError(f"{path}: the run was not localised in the prior map ({al.get('reason')})")

@@ -74,7 +74,7 @@ def _read_whole(path: Path) -> dict:
     """manifest.json parsed, its format and schema checked."""
     try:
         info = json.loads(path.read_text())
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
         raise DataError(f"manifest is not valid JSON: {exc}", path) from exc
     if not isinstance(info, dict) or info.get("format") != FORMAT:
         fmt = info.get("format") if isinstance(info, dict) else None
@@ -158,7 +158,7 @@ def _journal_record(raw: bytes, no: int, path: Path) -> dict:
     """Journal line `no`, parsed and its keys type-checked."""
     try:
         rec = json.loads(raw)
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
         raise DataError(f"line {no} is not valid JSON ({exc}): the journal is damaged", path) from exc
     if not isinstance(rec, dict):
         raise DataError(f"line {no} is not a JSON object: the journal is damaged", path)
