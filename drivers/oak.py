@@ -126,8 +126,9 @@ def _report_ns(report: Any) -> int:
 
 # -- probing -------------------------------------------------------------------------------------
 def oak_available(timeout_s: float = 2.0) -> list[dict[str, Any]]:
-    """The OAK devices depthai can see, as dicts: device_id, name, state, protocol, platform (strings)
-    and info (the `dai.DeviceInfo`, to open that device).
+    """The OAK devices depthai can see, as dicts: device_id, name, state, protocol, platform (strings),
+    info (the `dai.DeviceInfo`, to open that device) and available (False: connected but already opened by
+    another program, which `getAllAvailableDevices` leaves out); the available ones first.
 
     `[]` when none is attached. Raises DeviceError when depthai is not installed or the probe does not
     finish within `timeout_s`."""
@@ -137,6 +138,7 @@ def oak_available(timeout_s: float = 2.0) -> list[dict[str, Any]]:
     def probe() -> None:
         try:
             result["infos"] = list(dai.Device.getAllAvailableDevices())
+            result["connected"] = list(dai.Device.getAllConnectedDevices())
         except BaseException as exc:  # noqa: BLE001 - reported to the caller below
             result["exc"] = exc
 
@@ -147,14 +149,19 @@ def oak_available(timeout_s: float = 2.0) -> list[dict[str, Any]]:
         raise DeviceError(f"probing for OAK devices did not finish within {timeout_s:g} s")
     if "exc" in result:
         raise DeviceError(f"probing for OAK devices failed: {_one_line(result['exc'])}")
-    out = []
-    for info in result["infos"]:
-        out.append({"device_id": str(getattr(info, "deviceId", "") or ""),
-                    "name": str(getattr(info, "name", "") or ""),
-                    "state": str(getattr(info, "state", "")).split(".")[-1],
-                    "protocol": str(getattr(info, "protocol", "")).split(".")[-1],
-                    "platform": str(getattr(info, "platform", "")).split(".")[-1],
-                    "info": info})
+    out, seen = [], set()
+    for available, infos in ((True, result["infos"]), (False, result["connected"])):
+        for info in infos:
+            d = {"device_id": str(getattr(info, "deviceId", "") or ""),
+                 "name": str(getattr(info, "name", "") or ""),
+                 "state": str(getattr(info, "state", "")).split(".")[-1],
+                 "protocol": str(getattr(info, "protocol", "")).split(".")[-1],
+                 "platform": str(getattr(info, "platform", "")).split(".")[-1],
+                 "info": info, "available": available}
+            key = d["device_id"] or d["name"]
+            if key not in seen:
+                seen.add(key)
+                out.append(d)
     return out
 
 
@@ -219,6 +226,9 @@ def build_pipeline(dev: OakDevice) -> OakPipeline:
             raise DeviceError(f"OAK device {dev.device_id} not found; attached: {listed}")
         info = match[0]
     what = f"OAK {info['device_id'] or info['name']}"
+    if not info.get("available", True):
+        raise DeviceError(f"{what}: connected but opened by another program (state {info['state']}); close "
+                          "it, or unplug and plug in the device")
     try:
         device = dai.Device(info["info"])
         device.setMaxReconnectionAttempts(0)      # a reconnected device restarts its clock: fail instead
@@ -228,9 +238,9 @@ def build_pipeline(dev: OakDevice) -> OakPipeline:
     try:
         pipeline = dai.Pipeline(device)
         pipeline.setStopOnDeviceLoss(True)
-        try:
-            calibration = device.readCalibration()
-        except Exception:  # noqa: BLE001 - streaming works without it; read_oak_rig says what is missing
+        try:              # readCalibration would return a default calibration when none is flashed
+            calibration = device.readCalibration2()
+        except Exception:  # noqa: BLE001 - streaming works without it; rig() says none was read
             calibration = None
         socket = getattr(dai.CameraBoardSocket, dev.socket)
         cam = pipeline.create(dai.node.Camera).build(socket)

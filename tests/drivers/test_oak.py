@@ -338,6 +338,32 @@ class _Recorder:
         return method
 
 
+def test_a_device_opened_by_another_program_is_named_as_such(monkeypatch) -> None:
+    """getAllAvailableDevices leaves out a device another program opened; the probe also lists the
+    connected ones, after the available ones, so the error says it is in use, not that none is plugged in."""
+    import types
+
+    import drivers.oak as oak
+
+    busy = types.SimpleNamespace(deviceId="1844301011", name="1.3", state="XLinkDeviceState.X_LINK_BOOTED",
+                                 protocol="X_LINK_USB_VSC", platform="RVC2")
+    free = types.SimpleNamespace(deviceId="1944301022", name="1.4", state="XLinkDeviceState.X_LINK_UNBOOTED",
+                                 protocol="X_LINK_USB_VSC", platform="RVC2")
+    for available, connected in (([], [busy]), ([free], [busy, free])):
+        fake = types.SimpleNamespace(Device=types.SimpleNamespace(
+            getAllAvailableDevices=lambda a=available: a, getAllConnectedDevices=lambda c=connected: c))
+        monkeypatch.setattr(oak, "_import_depthai", lambda f=fake: f)
+        found = oak.oak_available(1.0)
+        assert [d["available"] for d in found] == [True] * len(available) + [False]
+        assert found[0]["device_id"] == (free.deviceId if available else busy.deviceId)
+    monkeypatch.setattr(oak, "oak_available", lambda timeout: [
+        {"info": busy, "device_id": busy.deviceId, "name": busy.name, "state": "X_LINK_BOOTED",
+         "available": False}])
+    with pytest.raises(DeviceError, match=r"^OAK 1844301011: connected but opened by another program "
+                                          r"\(state X_LINK_BOOTED\)"):
+        oak.build_pipeline(OakDevice())
+
+
 def test_the_pipeline_disables_reconnection_and_stops_on_device_loss(monkeypatch) -> None:
     """build_pipeline against a recording stand-in of depthai: every method it calls on the device,
     pipeline and nodes exists on the real depthai class; reconnection is off before the pipeline is
