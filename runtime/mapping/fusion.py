@@ -2,8 +2,8 @@
 
 Each voxel holds the weighted sums of the positions and grey values of the points that fell in it,
 so a submap can be taken out again exactly (`integrate(..., sign=-1)`) when the graph moves it and
-re-added at its new pose. The grid is a sorted array of packed voxel keys with parallel accumulators:
-merging a submap is one `np.unique` and one sorted merge, O(voxels + points).
+re-added at its new pose. The grid is a sorted array of packed voxel keys with parallel accumulators;
+added points wait as per-voxel sums until they are as many as the grid's voxels (`VoxelGrid`).
 """
 from __future__ import annotations
 
@@ -37,22 +37,46 @@ def key_centres(keys: np.ndarray, voxel_m: float) -> np.ndarray:
 class VoxelGrid:
     """Weighted average of points per voxel.
 
+    Added points are first reduced per call (one `np.unique` over the call's points) and kept as pending
+    per-voxel sums; the pending sums join the sorted grid in one pass when they hold as many rows as the
+    grid (or `MERGE_MIN_ROWS`), and before anything reads the grid or takes points out. Joining the grid at
+    every call cost a sort of the whole grid per submap, which made fusing an archive quadratic in its
+    length (BENCHMARKS.md "Fusing a long run's archive at the end"); now the grid is copied once per
+    merge, and a merge comes after as many pending rows as the grid holds.
+
     Args:
         voxel_m: voxel edge length, metres (> 0).
+        pending_rows: the most pending rows kept before they join the grid; None: as many as the grid
+            holds, at least MERGE_MIN_ROWS; 0: every call joins the grid (as before; a benchmark's anchor).
     """
 
-    def __init__(self, voxel_m: float = 0.04) -> None:
+    MERGE_MIN_ROWS = 1 << 20
+    """Pending voxel rows below which they wait for more (a few tens of submaps)."""
+
+    def __init__(self, voxel_m: float = 0.04, pending_rows: int | None = None) -> None:
         if not voxel_m > 0:
             raise ValueError(f"voxel size must be > 0, got {voxel_m}")
+        if pending_rows is not None and pending_rows < 0:
+            raise ValueError(f"pending_rows must be >= 0 or None, got {pending_rows}")
         self.voxel_m = float(voxel_m)
-        self.keys = np.zeros(0, np.int64)
-        self.w = np.zeros(0, np.float64)          # sum of weights
-        self.wp = np.zeros((0, 3), np.float64)    # sum of weight * position
-        self.wg = np.zeros(0, np.float64)         # sum of weight * grey
-        self.n = np.zeros(0, np.int64)            # number of points
+        self.pending_rows = pending_rows
+        self._keys = np.zeros(0, np.int64)
+        self._w = np.zeros(0, np.float64)          # sum of weights
+        self._wp = np.zeros((0, 3), np.float64)    # sum of weight * position
+        self._wg = np.zeros(0, np.float64)         # sum of weight * grey
+        self._n = np.zeros(0, np.int64)            # number of points
+        self._pending: list[tuple[np.ndarray, ...]] = []
+        self._pending_rows = 0
+
+    @property
+    def keys(self) -> np.ndarray:
+        """(V,) int64 sorted packed keys of the voxels (`voxel_keys`)."""
+        self._merge()
+        return self._keys
 
     def __len__(self) -> int:
-        return int(self.keys.size)
+        self._merge()
+        return int(self._keys.size)
 
     def integrate(self, points: np.ndarray, grey: np.ndarray | None = None,
                   weights: np.ndarray | None = None, sign: int = 1) -> None:
@@ -73,36 +97,75 @@ class VoxelGrid:
         add_p = sign * np.stack([np.bincount(inv, w * pts[:, a], m) for a in range(3)], axis=1)
         add_g = sign * np.bincount(inv, w * g, m)
         add_n = sign * np.bincount(inv, minlength=m).astype(np.int64)
-        pos = np.searchsorted(self.keys, uk)
-        hit = pos < self.keys.size
-        hit[hit] = self.keys[pos[hit]] == uk[hit]
+        if sign > 0:
+            self._pending.append((uk, add_w, add_p, add_g, add_n))
+            self._pending_rows += m
+            limit = self.pending_rows
+            if limit is None:
+                limit = max(self._keys.size, self.MERGE_MIN_ROWS)
+            if self._pending_rows >= limit:
+                self._merge()
+            return
+        self._merge()
+        pos = np.searchsorted(self._keys, uk)
+        hit = pos < self._keys.size
+        hit[hit] = self._keys[pos[hit]] == uk[hit]
+        if not hit.all():
+            raise ValueError(f"{int((~hit).sum())} voxels removed that were never integrated")
+        self._w[pos] += add_w
+        self._wp[pos] += add_p
+        self._wg[pos] += add_g
+        self._n[pos] += add_n
+        keep = self._n > 0
+        if not keep.all():
+            self._keys, self._w, self._wp, self._wg, self._n = (
+                self._keys[keep], self._w[keep], self._wp[keep], self._wg[keep], self._n[keep])
+
+    def _merge(self) -> None:
+        """Join the pending sums to the grid: the pending rows reduced among themselves (one sort of
+        them), then added where the grid has their voxel and inserted in key order where it has not (one
+        pass over the grid; it is never sorted again)."""
+        if not self._pending:
+            return
+        parts, self._pending, self._pending_rows = self._pending, [], 0
+        if len(parts) == 1:
+            uk, w, wp, wg, n = parts[0]
+        else:
+            uk, inv = np.unique(np.concatenate([q[0] for q in parts]), return_inverse=True)
+            m = len(uk)
+            w = np.bincount(inv, np.concatenate([q[1] for q in parts]), m)
+            wp_all = np.concatenate([q[2] for q in parts])
+            wp = np.stack([np.bincount(inv, wp_all[:, a], m) for a in range(3)], axis=1)
+            del wp_all
+            wg = np.bincount(inv, np.concatenate([q[3] for q in parts]), m)
+            n_all = np.concatenate([q[4] for q in parts]).astype(np.float64)    # exact below 2^53
+            n = np.bincount(inv, n_all, m).astype(np.int64)
+            del parts, inv, n_all
+        pos = np.searchsorted(self._keys, uk)
+        hit = pos < self._keys.size
+        hit[hit] = self._keys[pos[hit]] == uk[hit]
         hp = pos[hit]
-        self.w[hp] += add_w[hit]
-        self.wp[hp] += add_p[hit]
-        self.wg[hp] += add_g[hit]
-        self.n[hp] += add_n[hit]
+        self._w[hp] += w[hit]
+        self._wp[hp] += wp[hit]
+        self._wg[hp] += wg[hit]
+        self._n[hp] += n[hit]
         new = ~hit
-        if sign < 0 and new.any():
-            raise ValueError(f"{int(new.sum())} voxels removed that were never integrated")
-        if new.any():
-            keys_all = np.concatenate([self.keys, uk[new]])
-            order = np.argsort(keys_all, kind="stable")
-            self.keys = keys_all[order]
-            self.w = np.concatenate([self.w, add_w[new]])[order]
-            self.wp = np.concatenate([self.wp, add_p[new]])[order]
-            self.wg = np.concatenate([self.wg, add_g[new]])[order]
-            self.n = np.concatenate([self.n, add_n[new]])[order]
-        if sign < 0:
-            keep = self.n > 0
-            if not keep.all():
-                self.keys, self.w, self.wp, self.wg, self.n = (
-                    self.keys[keep], self.w[keep], self.wp[keep], self.wg[keep], self.n[keep])
+        if new.any():                    # sorted keys inserted at non-decreasing places stay sorted
+            at = pos[new]
+            self._keys = np.insert(self._keys, at, uk[new])
+            self._w = np.insert(self._w, at, w[new])
+            self._wp = np.insert(self._wp, at, wp[new], axis=0)
+            self._wg = np.insert(self._wg, at, wg[new])
+            self._n = np.insert(self._n, at, n[new])
 
     def points(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(positions (V,3) weighted means, grey (V,) uint8, point count (V,)) of every voxel."""
-        w = np.maximum(self.w, 1e-12)
-        grey = np.clip(np.round(self.wg / w), 0, 255).astype(np.uint8)
-        return self.wp / w[:, None], grey, self.n.copy()
+        self._merge()
+        w = np.maximum(self._w, 1e-12)
+        grey = np.clip(np.round(self._wg / w), 0, 255).astype(np.uint8)
+        return self._wp / w[:, None], grey, self._n.copy()
 
     def nbytes(self) -> int:
-        return int(self.keys.nbytes + self.w.nbytes + self.wp.nbytes + self.wg.nbytes + self.n.nbytes)
+        """Bytes of the grid's arrays and the pending sums."""
+        arrays = [self._keys, self._w, self._wp, self._wg, self._n, *(a for q in self._pending for a in q)]
+        return int(sum(a.nbytes for a in arrays))

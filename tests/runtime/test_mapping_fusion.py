@@ -54,6 +54,46 @@ def test_removing_a_submap_restores_the_previous_grid():
         grid.integrate(rng.uniform(10, 11, (5, 3)), sign=-1)
 
 
+@pytest.mark.parametrize("pending_rows", [None, 0, 1, 700])
+def test_pending_sums_join_the_grid_as_brute_force_whenever_they_do(pending_rows):
+    """However long added points wait as per-voxel sums before they join the sorted grid (every call, or
+    after hundreds of rows, or at the first read), the grid is the brute-force average, removals included."""
+    rng = np.random.default_rng(2)
+    chunks = [rng.uniform(-1, 1, (400, 3)) + [0.3 * k, 0, 0] for k in range(12)]
+    greys = [rng.integers(0, 256, 400) for _ in chunks]
+    grid = VoxelGrid(0.1, pending_rows=pending_rows)
+    for k, (c, g) in enumerate(zip(chunks, greys, strict=True)):
+        grid.integrate(c, g)
+        if k == 6:
+            grid.integrate(chunks[3], greys[3], sign=-1)      # a submap moved: taken out mid-stream
+            assert len(grid) == len(_brute_force(np.concatenate(chunks[:3] + chunks[4:7]),
+                                                 np.concatenate(greys[:3] + greys[4:7]), np.ones(2400), 0.1))
+    kept = [k for k in range(12) if k != 3]
+    ref = _brute_force(np.concatenate([chunks[k] for k in kept]), np.concatenate([greys[k] for k in kept]),
+                       np.ones(400 * len(kept)), 0.1)
+    pts, grey, n = grid.points()
+    assert len(pts) == len(ref) and np.all(np.diff(grid.keys) > 0)
+    for p, g, cnt in zip(pts, grey, n, strict=True):
+        mean, g_ref, cnt_ref = ref[tuple(int(np.floor(x / 0.1)) for x in p)]
+        assert np.allclose(p, mean) and abs(int(g) - g_ref) <= 0.5 + 1e-9 and cnt == cnt_ref
+
+
+def test_pending_sums_are_bounded_by_the_grid_size():
+    """Without a set limit, pending rows join once they are as many as the grid's voxels (at least
+    MERGE_MIN_ROWS): what waits never holds more than the grid, so memory stays within twice it."""
+    rng = np.random.default_rng(3)
+    grid = VoxelGrid(0.01)
+    grid.MERGE_MIN_ROWS = 5000
+    cells = set()
+    for k in range(40):
+        pts = rng.uniform(0, 1, (1000, 3)) + [k, 0, 0]
+        cells |= {tuple(c) for c in np.floor(pts / 0.01).astype(int)}
+        grid.integrate(pts)
+        assert grid._pending_rows < max(grid._keys.size, 5000) + 1000
+    assert grid._pending and grid.nbytes() > sum(a.nbytes for a in (grid._keys, grid._w, grid._wp, grid._n))
+    assert len(grid) == len(cells) and not grid._pending
+
+
 def test_voxel_keys_round_trip_and_negative_coordinates():
     p = np.array([[-0.01, 0.0, 0.05], [1.0, -2.0, 3.0]])
     c = key_centres(voxel_keys(p, 0.04), 0.04)
