@@ -131,8 +131,17 @@ def _frame_times(t0_ns: int, t_end_ns: int, rate_hz: float, margin_ns: int) -> n
     return first + np.round(np.arange(n) * period).astype(np.int64)
 
 
+def scene_times(t0_ns: int, t_end_ns: int) -> np.ndarray:
+    """int64 stamps from t0_ns to t_end_ns (both included) about every 20 ms. Offsets from t0 are spaced in
+    float64, not the stamps: at 1.4e18 ns a float64 is 256 ns coarse, and a rounded end stamp fell outside
+    the motion's span (a TUM file whose first stamp rounded up)."""
+    n = max(2, int((t_end_ns - t0_ns) / 2e7))
+    span = int(t_end_ns) - int(t0_ns)
+    return int(t0_ns) + np.minimum(np.round(np.linspace(0.0, span, n)).astype(np.int64), span)
+
+
 def _scene_positions(motion, t0_ns: int, t_end_ns: int, T_IC: np.ndarray) -> np.ndarray:
-    t = np.linspace(t0_ns, t_end_ns, max(2, int((t_end_ns - t0_ns) / 2e7))).astype(np.int64)
+    t = scene_times(t0_ns, t_end_ns)
     R, p = motion.pose(t)
     return np.concatenate([p, p + R @ T_IC[:3, 3]])
 

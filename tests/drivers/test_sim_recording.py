@@ -116,3 +116,15 @@ def test_zero_offset_and_exposure_changes(small_rig) -> None:
 def test_preset_needs_positive_seconds() -> None:
     with pytest.raises(ConfigError):
         SimRecording.from_preset(SimConfig(seconds=0.0))
+
+
+@pytest.mark.parametrize("t0_ns", [1403715524907143354, 1403715524907142912, 10**18 + 1, 0])
+def test_scene_times_stay_within_the_span_of_epoch_stamps(t0_ns: int) -> None:
+    """A TUM file's first stamp at 1.4e18 ns: the scene's sample times (once float64 stamps, 256 ns coarse)
+    start and end exactly at the span's ends, increase, and are about 20 ms apart."""
+    from drivers.sim.recording import scene_times
+
+    t_end = t0_ns + 2_000_000_001
+    t = scene_times(t0_ns, t_end)
+    assert t.dtype == np.int64 and t[0] == t0_ns and t[-1] == t_end
+    assert np.all(np.diff(t) > 0) and 1.9e7 < np.median(np.diff(t)) < 2.1e7
