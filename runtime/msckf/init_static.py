@@ -141,6 +141,11 @@ class StaticInitializer(BufferedInitializer):
                 return rej(newest, "moving", f"newest half disparity {disp_new:.2f} > {dmax} px")
 
         a_mean = a[old_half].mean(axis=0)
+        g_meas = float(np.linalg.norm(a_mean))
+        if not 0.5 * cfg.gravity_mag <= g_meas <= 1.5 * cfg.gravity_mag:
+            return rej(newest, "accel_magnitude",
+                       f"mean specific force {g_meas:.2f} m/s^2 at rest is not gravity's "
+                       f"{cfg.gravity_mag:.2f} (an accelerometer reading zero or saturated, or not in m/s^2)")
         R_OI = rotation_from_up(a_mean)
         ba = a_mean - R_OI.T @ np.array([0.0, 0.0, cfg.gravity_mag])
         bg = w[old_half].mean(axis=0)

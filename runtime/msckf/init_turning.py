@@ -220,6 +220,9 @@ class TurningInitializer(BufferedInitializer):
             return rej(t_end, "bias_unobservable", f"the turn's spread {spread:.3f} rad < "
                        f"{cfg.min_bias_turn_rad} rad: the accelerometer bias across the turn axis cannot "
                        "be told from gravity yet")
+        if not (np.isfinite(up).all() and np.linalg.norm(up) > 0.0):
+            return rej(t_end, "accel_magnitude", "no gravity direction in the specific force (an "
+                       "accelerometer reading zero)")
         R_OI = rotation_from_up(up)
         cov = diagonal_cov((cfg.sigma_theta, cfg.sigma_p, cfg.sigma_v, cfg.sigma_bg, cfg.sigma_ba))
         info["n_samples"] = int(t.size)

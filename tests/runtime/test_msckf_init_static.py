@@ -89,6 +89,18 @@ def test_moving_from_the_start_is_rejected() -> None:
         assert "excitation" in init.last_reason and init.report()["rejections"]["moving"] > 0
 
 
+@pytest.mark.parametrize("scale", [0.0, 0.1, 1 / G0, 3.0])
+def test_an_accelerometer_that_does_not_read_gravity_at_rest_is_refused(scale: float) -> None:
+    """Still samples whose specific force is zero (an IMU warming up), tiny, in g, or saturated are a counted
+    rejection with the magnitude, not an error from the gravity direction."""
+    still = synth_imu(R_TRUE, BG, np.zeros(3), 4.0, 0.0)
+    samples = [ImuSample(s.t_ns, s.gyro, s.accel * scale) for s in still]
+    init = StaticInitializer(StaticInitConfig(wait_for_jerk=False))
+    res, _ = run_until_init(init, samples)
+    assert res is None and init.log.last.code == "accel_magnitude"
+    assert f"mean specific force {G0 * scale:.2f} m/s^2 at rest is not gravity's" in init.last_reason
+
+
 def _feed_tracks(init: StaticInitializer, t0_ns: int, t1_ns: int, motion_start_ns: int | None) -> None:
     """30 tracks at 20 Hz, still until motion_start_ns, then moving 100 px/s."""
     rng = np.random.default_rng(1)
