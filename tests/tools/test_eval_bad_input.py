@@ -86,6 +86,35 @@ def test_plot_naming_a_file_is_a_one_line_error(tum_pair, capsys, metric: str) -
     assert err == f"davio eval: error: --plot {ref}: is a file; --plot takes a folder for the PNG plots\n"
 
 
+@pytest.mark.parametrize("argv, message", [
+    (["--offset", "nan"], "--offset must be a finite number in [-1e+06, 1e+06], got nan"),
+    (["--offset", "1e300"], "--offset must be a finite number"),
+    (["--max-diff", "nan"], "--max-diff must be a finite number > 0, got nan"),
+    (["--max-diff", "-1"], "--max-diff must be a finite number > 0, got -1.0"),
+    (["--n-align", "-3"], "--n-align must be at least 2 poses, got -3"),
+    (["--plot", "/proc/davio-plots"], "--plot /proc/davio-plots: cannot create the folder"),
+])
+def test_bad_numbers_and_unwritable_plot_folders_are_named_before_any_work(tum_pair, capsys, argv,
+                                                                          message) -> None:
+    est, _, ref = tum_pair
+    assert main(["eval", "ate", str(est), str(ref), *argv]) == 1
+    assert message in capsys.readouterr().err
+
+
+def test_surface_voxel_and_threshold_must_be_positive_numbers(tmp_path: Path, capsys) -> None:
+    cloud = tmp_path / "c.npy"
+    np.save(cloud, np.random.default_rng(0).uniform(0, 1, (50, 3)))
+    for flag, value in (("--voxel", "nan"), ("--threshold", "0"), ("--threshold", "inf")):
+        assert main(["eval", "surface", str(cloud), str(cloud), flag, value]) == 1
+        assert f"{flag} must be a finite number > 0" in capsys.readouterr().err
+
+
+def test_simulate_into_a_folder_that_cannot_be_made_fails_before_rendering(capsys) -> None:
+    assert main(["simulate", "--seconds", "1", "--out", "/proc/davio-sim"]) == 1
+    err = capsys.readouterr().err
+    assert "--out /proc/davio-sim" in err and "building scene" not in err
+
+
 @pytest.mark.parametrize(
     "body,message",
     [

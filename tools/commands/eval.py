@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import argparse
+import math
+import os
 import sys
 from pathlib import Path
 
@@ -108,13 +110,41 @@ def _read_pair(args: argparse.Namespace) -> tuple:
 
 
 def _plot_dir(args: argparse.Namespace) -> Path | None:
-    """The --plot folder; ConfigError when it names an existing file."""
+    """The --plot folder, created before the evaluation; ConfigError when it names an existing file or
+    cannot be created or written."""
     if not args.plot:
         return None
     d = Path(args.plot)
     if d.exists() and not d.is_dir():
         raise ConfigError(f"--plot {d}: is a file; --plot takes a folder for the PNG plots")
+    try:
+        d.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"--plot {d}: cannot create the folder ({exc.strerror or exc})") from None
+    if not os.access(d, os.W_OK):
+        raise ConfigError(f"--plot {d}: the folder is not writable")
     return d
+
+
+_FINITE = {"max_diff": (0.0, None), "offset": (-1e6, 1e6), "delta": (0.0, None), "threshold": (0.0, None),
+           "voxel": (0.0, None)}
+"""Numeric options checked before any file is read: (exclusive lower bound, upper bound) in their units."""
+
+
+def check_numbers(args: argparse.Namespace) -> None:
+    """ConfigError naming the option for a non-finite or out-of-range number (NaN would pass every
+    comparison further down)."""
+    for name, (lo, hi) in _FINITE.items():
+        v = getattr(args, name, None)
+        if v is None:
+            continue
+        flag = "--" + name.replace("_", "-")
+        if not math.isfinite(v) or (hi is None and not v > lo) or (hi is not None and not lo <= v <= hi):
+            rng = f"> {lo:g}" if hi is None else f"in [{lo:g}, {hi:g}]"
+            raise ConfigError(f"{flag} must be a finite number {rng}, got {v}")
+    n_align = getattr(args, "n_align", None)
+    if n_align is not None and n_align < 2:
+        raise ConfigError(f"--n-align must be at least 2 poses, got {n_align}")
 
 
 def aligned_path(save: str, est: str) -> Path:
@@ -235,4 +265,5 @@ def run(args: argparse.Namespace) -> int:
     if not getattr(args, "_eval", None):
         print("davio eval: name an evaluation: ate, rpe or surface (see davio eval --help)")
         return 2
+    check_numbers(args)
     return int(args._eval(args) or 0)

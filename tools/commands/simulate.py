@@ -140,6 +140,10 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--out {out} is not empty; choose a new or empty folder")
     if args.seconds is not None:
         check_sim_seconds(args.seconds)
+    try:            # made now, not after the rendering (a filesystem such as /sys refuses it even to root)
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"--out {out}: cannot create the folder ({exc.strerror or exc})") from None
     prefer_workqueue_layer()  # idle OpenMP threads spin: costly on a shared 2-core machine
     con = Console(stderr=True)
     image = ImageOptions.exact() if args.exact else ImageOptions()
