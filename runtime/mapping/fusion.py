@@ -47,7 +47,7 @@ class VoxelGrid:
     Args:
         voxel_m: voxel edge length, metres (> 0).
         pending_rows: the most pending rows kept before they join the grid; None: as many as the grid
-            holds, at least MERGE_MIN_ROWS; 0: every call joins the grid (as before; a benchmark's anchor).
+            holds, at least MERGE_MIN_ROWS; 0: every call joins the grid at once.
     """
 
     MERGE_MIN_ROWS = 1 << 20
@@ -78,12 +78,13 @@ class VoxelGrid:
         self._merge()
         return int(self._keys.size)
 
-    def integrate(self, points: np.ndarray, grey: np.ndarray | None = None,
-                  weights: np.ndarray | None = None, sign: int = 1) -> None:
-        """Add (sign=+1) or remove (sign=-1) points (P,3) with grey values (P,) and weights (P,)."""
+    def reduce(self, points: np.ndarray, grey: np.ndarray | None = None, weights: np.ndarray | None = None,
+               sign: int = 1) -> tuple[np.ndarray, ...] | None:
+        """Per-voxel sums of points (P,3) with grey values (P,) and weights (P,), times `sign`: (sorted unique
+        keys, weights, weighted positions (V,3), weighted greys, counts); None for no point."""
         pts = np.asarray(points, np.float64).reshape(-1, 3)
         if pts.shape[0] == 0:
-            return
+            return None
         if not np.isfinite(pts).all():
             raise ValueError("non-finite points cannot be fused")
         g = np.zeros(len(pts)) if grey is None else np.asarray(grey, np.float64).reshape(-1)
@@ -97,6 +98,16 @@ class VoxelGrid:
         add_p = sign * np.stack([np.bincount(inv, w * pts[:, a], m) for a in range(3)], axis=1)
         add_g = sign * np.bincount(inv, w * g, m)
         add_n = sign * np.bincount(inv, minlength=m).astype(np.int64)
+        return uk, add_w, add_p, add_g, add_n
+
+    def integrate(self, points: np.ndarray, grey: np.ndarray | None = None,
+                  weights: np.ndarray | None = None, sign: int = 1) -> None:
+        """Add (sign=+1) or remove (sign=-1) points (P,3) with grey values (P,) and weights (P,)."""
+        sums = self.reduce(points, grey, weights, sign)
+        if sums is None:
+            return
+        uk, add_w, add_p, add_g, add_n = sums
+        m = len(uk)
         if sign > 0:
             self._pending.append((uk, add_w, add_p, add_g, add_n))
             self._pending_rows += m

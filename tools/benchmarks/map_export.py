@@ -5,8 +5,8 @@ A run ends by fusing every archived submap at its latest graph state into voxels
 long corridor would (a submap every 1.5 s at 0.25 m/s; five images 0.5 s apart; depths on a 4-pixel grid
 of a 752 x 480 camera, 2 % depth noise, so that each submap adds new wall, floor and ceiling), and at each
 size in --submaps times `fuse_archive` (the fusion step of the export, files read and placed) with
-today's `VoxelGrid`, and, up to --anchor-max submaps, with a grid that joins every submap's sums to the
-sorted grid at once (`pending_rows=0`, what the grid did before): the anchor of the same run. The two
+today's `VoxelGrid`, and, up to --anchor-max submaps, with the grid as it was before (`former_grid`: every
+submap's sums joined at once by re-sorting the whole grid): the anchor of the same run. The two
 must give the same voxels (the bench exits 1 otherwise). Peak traced memory of each fusion
 (tracemalloc) is reported beside it. The points are synthetic: the figures are costs, not map quality.
 """
@@ -81,13 +81,46 @@ def corridor_submap(index: int, rng: np.random.Generator, max_depth: float):
                   version=index + 1, fit={})
 
 
-def timed_fusion(folder: Path, voxel: float, pending_rows: int | None) -> tuple[dict, tuple]:
+def former_grid(voxel: float):
+    """The anchor: `VoxelGrid` as it was before the twenty-sixth session, each call's sums joined to the grid
+    at once by re-sorting the whole grid (concatenate, argsort, gather), only for adding points."""
+    from runtime.mapping.fusion import VoxelGrid
+
+    class FormerGrid(VoxelGrid):
+        def integrate(self, points, grey=None, weights=None, sign=1) -> None:
+            self._merge()
+            sums = self.reduce(points, grey, weights, sign)
+            if sums is None:
+                return
+            uk, add_w, add_p, add_g, add_n = sums
+            pos = np.searchsorted(self._keys, uk)
+            hit = pos < self._keys.size
+            hit[hit] = self._keys[pos[hit]] == uk[hit]
+            hp = pos[hit]
+            self._w[hp] += add_w[hit]
+            self._wp[hp] += add_p[hit]
+            self._wg[hp] += add_g[hit]
+            self._n[hp] += add_n[hit]
+            new = ~hit
+            if new.any():
+                keys_all = np.concatenate([self._keys, uk[new]])
+                order = np.argsort(keys_all, kind="stable")
+                self._keys = keys_all[order]
+                self._w = np.concatenate([self._w, add_w[new]])[order]
+                self._wp = np.concatenate([self._wp, add_p[new]])[order]
+                self._wg = np.concatenate([self._wg, add_g[new]])[order]
+                self._n = np.concatenate([self._n, add_n[new]])[order]
+
+    return FormerGrid(voxel)
+
+
+def timed_fusion(folder: Path, voxel: float, former: bool) -> tuple[dict, tuple]:
     from runtime.mapping.fusion import VoxelGrid
     from tools.map_archive import fuse_archive
 
     tracemalloc.start()
     t0 = time.perf_counter()
-    fused = fuse_archive(folder, voxel, verify=False, grid=VoxelGrid(voxel, pending_rows=pending_rows))
+    fused = fuse_archive(folder, voxel, verify=False, grid=former_grid(voxel) if former else VoxelGrid(voxel))
     seconds = time.perf_counter() - t0
     peak = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
@@ -117,12 +150,12 @@ def measure(sizes: list[int], anchor_max: int, voxel: float, max_depth: float, s
                "archive_mb": w.points_bytes / 1e6}
         if progress:
             print(f"  fusing {n} submaps", flush=True)
-        row["grid"], fused = timed_fusion(folder, voxel, None)
+        row["grid"], fused = timed_fusion(folder, voxel, False)
         row["anchor"] = None
         if n <= anchor_max:
             if progress:
                 print(f"  fusing {n} submaps, every submap joined at once (anchor)", flush=True)
-            row["anchor"], ref = timed_fusion(folder, voxel, 0)
+            row["anchor"], ref = timed_fusion(folder, voxel, True)
             same = len(ref[0]) == len(fused[0]) and np.array_equal(ref[2], fused[2]) and \
                 np.allclose(ref[0], fused[0], rtol=0, atol=1e-9) and np.array_equal(ref[1], fused[1])
             row["same_voxels"] = bool(same)
