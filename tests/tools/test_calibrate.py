@@ -152,6 +152,27 @@ def test_a_fraction_of_a_second_is_refused_as_too_little_data(translation_folder
     assert "refused below 3 s" in capsys.readouterr().err
 
 
+def test_input_repairs_are_said_and_kept_in_the_report(translation_folder, tmp_path, capsys):
+    """NaN IMU rows dropped by the driver show on the console and in the report, as `davio run` says them
+    (they were dropped silently)."""
+    import shutil
+
+    rec = tmp_path / "rec"
+    shutil.copytree(translation_folder, rec, ignore=shutil.ignore_patterns("data"))
+    (rec / "mav0" / "cam0" / "data").symlink_to(translation_folder / "mav0" / "cam0" / "data")
+    csv = rec / "mav0" / "imu0" / "data.csv"
+    rows = csv.read_text().splitlines()
+    for k in range(10, 40, 3):                                   # 10 rows of NaN
+        t = rows[k].split(",")[0]
+        rows[k] = ",".join([t] + ["nan"] * 6)
+    csv.write_text("\n".join(rows) + "\n")
+    rc = main(["calibrate", str(rec), "--out", str(tmp_path / "rig.yaml"), "--seconds", "0.5", "--no-plots"])
+    assert rc == 3
+    assert "input imu0: non-finite samples dropped 10" in capsys.readouterr().out
+    report = json.loads((tmp_path / "rig.report.json").read_text())
+    assert report["driver"]["streams"]["imu0"]["dropped_nonfinite"] == 10
+
+
 # ------------------------------------------------------------------ refusal rules (no simulation)
 
 

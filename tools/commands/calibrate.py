@@ -336,13 +336,24 @@ def run(args: argparse.Namespace) -> int:
         finally:
             if live:
                 driver.stop()
-    return finish(args, run_, rig, th, desc, what, reference, log)
+    return finish(args, run_, rig, th, desc, what, reference, log, driver_report=_driver_report(driver))
+
+
+def _driver_report(driver) -> dict | None:
+    """The driver's intake counters (repaired and dropped input), or None when it keeps none."""
+    report = getattr(driver, "report", None)
+    try:
+        return report() if callable(report) else None
+    except Exception:  # noqa: BLE001 - the counters are informative; a failing report must not lose the run
+        return None
 
 
 def finish(
-    args: argparse.Namespace, run_, rig, th, model_desc: str, recording: str, reference: dict, log
+    args: argparse.Namespace, run_, rig, th, model_desc: str, recording: str, reference: dict, log,
+    driver_report: dict | None = None,
 ) -> int:
-    """Judge the run, write the report (always), the camchain (only when accepted) and the plots."""
+    """Judge the run, write the report (always), the camchain (only when accepted) and the plots. The
+    driver's input repairs go into the report ("driver") and on the console, as `davio run` says them."""
     from runtime.files import atomic_write_text
     from runtime.json_out import strict_dumps
     from tools.calibrate.checks import judge
@@ -352,6 +363,7 @@ def finish(
     verdict = judge(run_, th)
     paths = paths_for(Path(args.out))
     report = build_report(run_, verdict, th, model_desc, recording, reference, paths)
+    report["driver"] = driver_report
     if verdict.ok:
         write_outputs(run_, rig, paths, report)
     else:   # a refused run writes no rig: say so when an earlier one is left where this one would go
@@ -370,8 +382,9 @@ def finish(
         print(strict_dumps(report))
     else:
         from tools.calibrate.report import summary_lines
+        from tools.commands.run import input_lines
 
-        for line in summary_lines(report):
+        for line in [*input_lines(driver_report), *summary_lines(report)]:
             print(f"  {line}", file=log)
     if not verdict.ok:
         print(f"davio calibrate: refused: {verdict.message}", file=sys.stderr)

@@ -376,16 +376,21 @@ def _estimated_offset_line(filter_rep: dict, startup: dict, rig_offset_s: float 
             "(Kalibr timeshift_cam_imu)")
 
 
-def _recovery_lines(report: dict) -> list[str]:
-    """One console line per kind of recovery the run made (input repairs, initializer rejections,
-    filter resets), so that nothing counted in report.json goes unnoticed on the console."""
+def input_lines(driver_report: dict | None) -> list[str]:
+    """One console line per input stream the driver repaired (its counters), then its notes."""
     lines = []
-    streams = (report.get("driver") or {}).get("streams") or {}
-    for name, counts in streams.items():
+    for name, counts in ((driver_report or {}).get("streams") or {}).items():
         parts = [f"{label} {counts[k]}" for k, label in _DRIVER_COUNTERS.items() if counts.get(k)]
         if parts:
             lines.append(f"input {name}: " + ", ".join(parts))
-    lines.extend(f"input note: {n}" for n in (report.get("driver") or {}).get("notes") or [])
+    lines.extend(f"input note: {n}" for n in (driver_report or {}).get("notes") or [])
+    return lines
+
+
+def _recovery_lines(report: dict) -> list[str]:
+    """One console line per kind of recovery the run made (input repairs, initializer rejections,
+    filter resets), so that nothing counted in report.json goes unnoticed on the console."""
+    lines = input_lines(report.get("driver"))
     out_of_range = (report["pipeline"].get("tracking") or {}).get("imu_out_of_range") or 0
     if out_of_range:
         from runtime.pipeline import MAX_ACCEL_M_S2, MAX_GYRO_RAD_S
