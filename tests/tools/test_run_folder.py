@@ -163,3 +163,18 @@ def test_sigint_keeps_the_outputs_and_marks_them_interrupted(small_sim_folder: P
     os.umask(umask)
     for f in ("report.json", "odometry.tum", "run_status.json"):   # the usual permissions, not mkstemp's 0600
         assert (out / f).stat().st_mode & 0o777 == 0o666 & ~umask, f
+
+
+def test_a_rig_file_without_intrinsics_is_named_not_the_recording(small_sim_folder: Path, tmp_path: Path,
+                                                                  capsys) -> None:
+    """--rig whose cam0.intrinsics is null: the error names that file and key, not the recording's
+    sensor.yaml (which exists)."""
+    from calib import Rig, write_kalibr
+    from tools.cli import main
+
+    rig = tmp_path / "withheld.yaml"
+    write_kalibr(Rig(None, None, None, None, None, "withheld"), rig)
+    assert main(["run", str(small_sim_folder), "--rig", str(rig), "--native-only", "--out",
+                 str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err
+    assert f"--rig {rig}: holds no camera intrinsics" in err and "sensor.yaml" not in err

@@ -147,6 +147,9 @@ def _open_inputs(args: argparse.Namespace, config) -> tuple:
     rig = given_rig if given_rig is not None else rec.driver.rig
     if given_rig is None and rig is not None and rec.time_offset_s is not None and not rig.time_offset_s:
         rig = rig.replace(time_offset_s=rec.time_offset_s)      # a simulated folder's, from its manifest
+    if given_rig is not None and given_rig.camera is None:
+        raise ConfigError(f"--rig {args.rig}: holds no camera intrinsics (cam0.intrinsics withheld or null); "
+                          "DAVIO needs them: give cam0's intrinsics, resolution and distortion in that file")
     if rig is None or rig.camera is None:
         where = "no CameraInfo in the bag" if rec.kind == "bag" else "no cam0/sensor.yaml"
         raise ConfigError(f"{args.path}: no camera calibration ({where}); DAVIO needs intrinsics: pass "
