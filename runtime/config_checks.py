@@ -6,6 +6,7 @@ deep inside a run.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import numbers
 from collections.abc import Iterable
@@ -63,3 +64,13 @@ def each_at_least(values: Iterable[int], section: str, name: str, minimum: int) 
     values = list(values)
     if any(isinstance(v, bool) or not isinstance(v, numbers.Integral) or v < minimum for v in values):
         _fail(section, name, values, f"a list of integers >= {minimum}")
+
+
+def finite_fields(obj: object, section: str, allow_inf: Iterable[str] = ()) -> None:
+    """Every field of dataclass `obj` that holds a float is finite: a NaN passes or fails every comparison
+    further down, so it surfaced as a failure deep inside a run."""
+    allowed = set(allow_inf)
+    for f in dataclasses.fields(obj):
+        v = getattr(obj, f.name)
+        if isinstance(v, float) and not math.isfinite(v) and not (f.name in allowed and math.isinf(v)):
+            _fail(section, f.name, v, "a finite number")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields, replace
 
+from runtime.config_checks import finite_fields, non_negative, positive
 from runtime.errors import ConfigError
 
 SLAM_REPRESENTATIONS = ("anchored_inverse_depth", "global_3d")
@@ -199,6 +200,12 @@ class MsckfConfig:
     visual_health_after_zupt_s: float = 3.0
 
     def __post_init__(self) -> None:
+        finite_fields(self, "msckf")
+        positive(self, "msckf", "tri_min_dist", "tri_max_dist", "tri_max_cond", "tri_max_baseline_ratio",
+                 "init_sigma_ori", "init_sigma_pos", "init_sigma_vel", "init_sigma_bg", "init_sigma_ba",
+                 "max_imu_gap_s", "imu_buffer_s", "max_velocity", "max_gyro_bias", "max_accel_bias",
+                 "max_position_std", "sigma_calib_rot", "sigma_calib_pos", "sigma_calib_dt")
+        non_negative(self, "msckf", "dt_slam_delay", "max_imu_extrapolation_s")
         if self.slam_representation not in SLAM_REPRESENTATIONS:
             raise ConfigError(
                 f"slam_representation must be one of {SLAM_REPRESENTATIONS}, got {self.slam_representation!r}"

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from runtime.config_checks import finite_fields, positive
 from runtime.errors import ConfigError
 from runtime.msckf.init_common import (
     BufferedInitializer,
@@ -61,6 +62,8 @@ class StaticInitConfig:
     """Initial accelerometer bias std, m/s^2 (OpenVINS 0.02)."""
 
     def __post_init__(self) -> None:
+        finite_fields(self, "static_init")
+        positive(self, "static_init", "sigma_theta", "sigma_p", "sigma_v", "sigma_bg", "sigma_ba")
         if not self.init_window_time_s > 0:
             raise ConfigError(f"static init window must be > 0 s, got {self.init_window_time_s}")
         if not self.init_imu_thresh > 0:

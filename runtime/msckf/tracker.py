@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
+from runtime.config_checks import finite_fields, in_range, non_negative, positive
 from runtime.errors import ConfigError, DataError
 from runtime.msckf.corner_grid import block_neighbourhoods, choose_corners
 
@@ -91,6 +92,10 @@ class TrackerConfig:
     """A frame whose intensity std is below this (featureless/saturated) counts as dark and is skipped."""
 
     def __post_init__(self) -> None:
+        finite_fields(self, "tracker")
+        positive(self, "tracker", "lk_epsilon", "ransac_threshold_px", "clahe_clip_limit")
+        in_range(self, "tracker", "ransac_confidence", 0.0, 1.0, lo_open=True, hi_open=True)
+        non_negative(self, "tracker", "dark_mean_max", "dark_std_min")
         if self.num_pts < 1:
             raise ConfigError(f"tracker.num_pts must be >= 1, got {self.num_pts}")
         if self.grid_x < 1 or self.grid_y < 1:

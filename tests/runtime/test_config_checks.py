@@ -35,6 +35,14 @@ from runtime.startup import StartupConfig
     ("[revisits.pnp]\nconfidence = 1.0", "revisits.pnp.confidence must be in (0, 1)"),
     ("[msckf]\nmax_clones = 1", "[msckf] max_clones must be >= 2, got 1"),   # the section is named
     ("[tracker]\nnum_ptss = 150", "unknown option(s) tracker.num_ptss (did you mean tracker.num_pts?)"),
+    ("[tracker]\nmin_px_dist = nan", "tracker.min_px_dist must be a finite number, got nan"),
+    ("[tracker]\nransac_confidence = 1.0", "tracker.ransac_confidence must be in (0, 1), got 1.0"),
+    ("[msckf]\nimu_buffer_s = nan", "msckf.imu_buffer_s must be a finite number, got nan"),
+    ("[msckf]\nimu_buffer_s = -1.0", "msckf.imu_buffer_s must be a finite number > 0, got -1.0"),
+    ("[msckf]\nmax_velocity = -1.0", "msckf.max_velocity must be a finite number > 0"),
+    ("[msckf]\ninit_sigma_pos = inf", "msckf.init_sigma_pos must be a finite number, got inf"),
+    ("[static_init]\nsigma_p = nan", "static_init.sigma_p must be a finite number, got nan"),
+    ("[static_init]\nsigma_v = 0.0", "static_init.sigma_v must be a finite number > 0"),
     ("use_dynamic_int = true", "use_dynamic_int (did you mean use_dynamic_init?)"),
 ])
 def test_out_of_range_values_name_the_key(tmp_path: Path, toml: str, message: str) -> None:
