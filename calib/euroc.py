@@ -97,4 +97,5 @@ def euroc_rig_from(f: Fields, imu_yaml: Path, name: str) -> Rig:
     if imu_yaml.is_file():
         imu, T_BI = read_euroc_imu(imu_yaml)
     T_IC = None if T_BC is None or T_BI is None else invert_rigid(T_BI) @ T_BC
-    return Rig(camera=camera, T_IC=T_IC, time_offset_s=None, imu=imu, camera_rate_hz=rate_hz, name=name)
+    with rekeyed(cam_yaml, {"T_IC": "T_BS"}):
+        return Rig(camera=camera, T_IC=T_IC, time_offset_s=None, imu=imu, camera_rate_hz=rate_hz, name=name)

@@ -356,7 +356,26 @@ def read_camera(f: Fields, distortion_key: str) -> CameraModel | None:
     with rekeyed(f.path, keys):
         camera = cls(resolution[0], resolution[1], *intrinsics, coeffs)
     _check_principal_point(f, camera)
+    _check_focal_length(f, camera)
     return camera
+
+
+FOCAL_RANGE = (0.05, 100.0)
+"""Focal lengths (px) per pixel of image width or height accepted: below, a field of view no lens has
+(beyond 180 deg for a pinhole); above, under 0.6 deg (a focal length in the wrong unit or image size)."""
+
+
+def _check_focal_length(f: Fields, cam: CameraModel) -> None:
+    lo, hi = FOCAL_RANGE
+    if lo * cam.width <= cam.fx <= hi * cam.width and lo * cam.height <= cam.fy <= hi * cam.height:
+        return
+    fov = 2.0 * np.degrees(np.arctan(cam.width / (2.0 * cam.fx)))
+    raise f.error(
+        "intrinsics",
+        f"focal lengths (fx, fy) = ({cam.fx:g}, {cam.fy:g}) px are implausible for a "
+        f"{cam.width}x{cam.height} image (a pinhole field of view of {fov:.3g} deg); they must be in pixels "
+        "of this resolution",
+    )
 
 
 def _check_principal_point(f: Fields, cam: CameraModel) -> None:

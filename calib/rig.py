@@ -23,6 +23,8 @@ RIGID_TOLERANCE = 1e-5
 
 IMU_FIELDS = ("gyro_noise_density", "gyro_random_walk", "accel_noise_density", "accel_random_walk", "rate_hz")
 MAX_TIME_OFFSET_S = 1.0
+MAX_LEVER_ARM_M = 5.0
+"""Largest camera-IMU distance accepted, m: a translation in mm or cm reads as tens of metres or more."""
 """Largest camera-IMU time offset a rig may hold (s): Kalibr's are milliseconds; a larger one is a unit
 error or two unsynchronised clocks, which the filter's online time-offset estimate cannot absorb."""
 RIG_FIELDS = ("camera", "T_IC", "time_offset_s", "camera_rate_hz") + tuple(f"imu.{f}" for f in IMU_FIELDS)
@@ -141,6 +143,12 @@ class Rig:
             raise CalibrationError(f"expected an ImuNoise, got {type(self.imu).__name__}", None, "imu")
         if self.T_IC is not None:
             object.__setattr__(self, "T_IC", rigid_transform(self.T_IC, "T_IC"))
+            lever = float(np.linalg.norm(self.T_IC[:3, 3]))
+            if lever > MAX_LEVER_ARM_M:
+                raise CalibrationError(
+                    f"the camera-IMU lever arm is {lever:.4g} m, implausible (more than "
+                    f"{MAX_LEVER_ARM_M:g} m): the translation must be in metres, not millimetres or "
+                    "centimetres", None, "T_IC")
         object.__setattr__(self, "time_offset_s", _optional_number(self.time_offset_s, "time_offset_s"))
         if self.time_offset_s is not None and abs(self.time_offset_s) > MAX_TIME_OFFSET_S:
             raise CalibrationError(

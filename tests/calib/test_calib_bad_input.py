@@ -154,6 +154,10 @@ KALIBR_CASES = [
     ("NaN extrinsics", "cam0.T_imu_cam", [[NAN] * 4, *T_IMU_CAM[1:]], "cam0.T_imu_cam"),
     ("string timeshift", "cam0.timeshift_cam_imu", "0.001", "cam0.timeshift_cam_imu"),
     ("NaN timeshift", "cam0.timeshift_cam_imu", NAN, "cam0.timeshift_cam_imu"),
+    ("focal length in the wrong unit", "cam0.intrinsics", [1e9, 1e9, 367.0, 248.0], "cam0.intrinsics"),
+    ("tiny focal length", "cam0.intrinsics", [0.001, 0.001, 367.0, 248.0], "cam0.intrinsics"),
+    ("lever arm in millimetres", "cam0.T_imu_cam",
+     [[*r[:3], 1000 * r[3]] for r in T_IMU_CAM[:3]] + [T_IMU_CAM[3]], "cam0.T_imu_cam"),
 ]
 
 
