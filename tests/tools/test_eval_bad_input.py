@@ -109,6 +109,18 @@ def test_surface_voxel_and_threshold_must_be_positive_numbers(tmp_path: Path, ca
         assert f"{flag} must be a finite number > 0" in capsys.readouterr().err
 
 
+def test_surface_counts_the_points_it_leaves_out(tmp_path: Path, capsys) -> None:
+    pts = np.random.default_rng(0).uniform(0, 1, (2001, 3))
+    pts[7] = np.nan
+    rec = tmp_path / "rec.npy"
+    np.save(rec, pts)
+    assert main(["eval", "surface", str(rec), str(rec), "--json"]) == 0
+    out = capsys.readouterr()
+    assert f"{rec}: 1 of 2001 points are not finite (NaN or Inf) and are left out" in out.err
+    res = json.loads(out.out)
+    assert res["nonfinite_points"] == {"rec": 1, "ref": 1} and res["n_rec"] == 2000
+
+
 def test_simulate_into_a_folder_that_cannot_be_made_fails_before_rendering(capsys) -> None:
     assert main(["simulate", "--seconds", "1", "--out", "/proc/davio-sim"]) == 1
     err = capsys.readouterr().err

@@ -226,6 +226,7 @@ def _run_rpe(args: argparse.Namespace) -> int:
 
 
 def _run_surface(args: argparse.Namespace) -> int:
+    import numpy as np
     from rich.table import Table
 
     from tools.evaluation import read_point_cloud, surface_metrics
@@ -233,15 +234,21 @@ def _run_surface(args: argparse.Namespace) -> int:
     rec = read_point_cloud(args.rec)
     alignment = None
     if args.align_with:
-        import numpy as np
-
         from tools.evaluation import ate, read_trajectory
 
         est_traj, ref_traj = (read_trajectory(f) for f in args.align_with)
         alignment = ate(est_traj, ref_traj, args.align, args.max_diff).alignment
         rec = alignment.s * np.asarray(rec, np.float64) @ alignment.R.T + alignment.t
-    res = surface_metrics(rec, read_point_cloud(args.ref), args.threshold, args.voxel)
-    out = {**res.as_dict(), "rec": str(args.rec), "ref": str(args.ref),
+    ref = read_point_cloud(args.ref)
+    nonfinite = {}
+    for name, path, pts in (("rec", args.rec, rec), ("ref", args.ref, ref)):
+        arr = np.asarray(pts, np.float64).reshape(-1, 3)
+        nonfinite[name] = int((~np.isfinite(arr).all(axis=1)).sum())
+        if nonfinite[name]:
+            print(f"davio eval: note: {path}: {nonfinite[name]} of {len(arr)} points are not finite (NaN or "
+                  "Inf) and are left out", file=sys.stderr)
+    res = surface_metrics(rec, ref, args.threshold, args.voxel)
+    out = {**res.as_dict(), "rec": str(args.rec), "ref": str(args.ref), "nonfinite_points": nonfinite,
            "alignment": None if alignment is None else alignment.as_dict()}
     if args.json:
         print(strict_dumps(out))
