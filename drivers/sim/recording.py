@@ -231,8 +231,9 @@ class SimRecording(Driver):
         around = whole if config.scene_span == "trajectory" else None
         if imu_path is None:
             spline = fit_pose_spline(traj.t_ns, traj.p, traj.R, dt_s=0.1)
-            return cls._from_spline(spline, config, rig, {"mode": "trajectory-spline", "source": str(path)},
-                                    scene_around=around)
+            info = {"mode": "trajectory-spline", "source": str(path),
+                    "notes": trajectory_gap_notes(traj.t_ns)}
+            return cls._from_spline(spline, config, rig, info, scene_around=around)
         if camera_stamps_path is None and (Path(imu_path).parent / "cam0_timestamps.txt").is_file():
             camera_stamps_path = Path(imu_path).parent / "cam0_timestamps.txt"
         return cls._replay(traj, Path(imu_path), camera_stamps_path, config, rig, str(path),
@@ -427,6 +428,26 @@ def _with_offset(rig: Rig, time_offset_s: float) -> Rig:
     elif rig.time_offset_s is None:
         rig = rig.replace(time_offset_s=0.0)
     return rig
+
+
+GAP_MIN_S = 0.2
+"""A step between trajectory poses longer than this and ten median steps is a gap (a tracking dropout)."""
+
+
+def trajectory_gap_notes(t_ns: np.ndarray) -> list[str]:
+    """A note when the poses have gaps (a motion-capture dropout): the spline fitted through them makes up
+    the motion there, and the IMU and images follow it."""
+    if len(t_ns) < 3:
+        return []
+    step = np.diff(np.asarray(t_ns, np.int64))
+    limit = max(GAP_MIN_S * 1e9, 10.0 * float(np.median(step)))
+    gaps = np.flatnonzero(step > limit)
+    if not len(gaps):
+        return []
+    k = int(gaps[np.argmax(step[gaps])])
+    return [f"the trajectory has {len(gaps)} gap(s) longer than {limit * 1e-9:.2g} s (the longest "
+            f"{step[k] * 1e-9:.2f} s, {(t_ns[k] - t_ns[0]) * 1e-9:.2f} s after its first pose): the spline "
+            "through the poses makes up the motion there, and the IMU and the images follow it"]
 
 
 def _crop(traj: PoseTrajectory, start_s: float, seconds: float | None, path: Path) -> PoseTrajectory:

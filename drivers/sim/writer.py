@@ -177,6 +177,7 @@ def write_euroc(
         for t, w, a in zip(imu.t_ns, imu.gyro, imu.accel, strict=True):
             fh.write(f"{int(t)},{w[0]:.17g},{w[1]:.17g},{w[2]:.17g},{a[0]:.17g},{a[1]:.17g},{a[2]:.17g}\n")
     notes = write_groundtruth_csv(gt_dir / "data.csv", recording.groundtruth())
+    notes = [*recording.info.get("notes", []), *notes]
     n = len(recording)
     cam_rows, depth_rows = [], []
     for k in range(n):

@@ -128,3 +128,16 @@ def test_scene_times_stay_within_the_span_of_epoch_stamps(t0_ns: int) -> None:
     t = scene_times(t0_ns, t_end)
     assert t.dtype == np.int64 and t[0] == t0_ns and t[-1] == t_end
     assert np.all(np.diff(t) > 0) and 1.9e7 < np.median(np.diff(t)) < 2.1e7
+
+
+def test_a_gap_in_the_trajectory_is_noted() -> None:
+    """Poses every 5 ms with a 2 s dropout: the note names the gap (the spline makes up the motion there);
+    poses without a gap give none."""
+    from drivers.sim.recording import trajectory_gap_notes
+
+    t = 10**18 + np.arange(1000) * 5_000_000
+    assert trajectory_gap_notes(t) == []
+    gappy = np.concatenate([t[:200], t[600:]])
+    (note,) = trajectory_gap_notes(gappy)
+    assert "1 gap(s) longer than 0.2 s (the longest 2.01 s, 1.00 s after its first pose)" in note
+    assert "makes up the motion" in note

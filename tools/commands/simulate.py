@@ -188,6 +188,8 @@ def run(args: argparse.Namespace) -> int:
         f"mode {info['mode']}, {info['seconds']:.1f} s, {len(rec)} frames, {len(rec.imu)} IMU samples, "
         f"scene {rec.scene.summary()['room_size_m']} m with {rec.scene.n_boxes - 1} boxes"
     )
+    for note in info.get("notes", []):
+        con.print(f"note: {note}")
     with Progress(
         TextColumn("rendering"),
         BarColumn(),
@@ -203,7 +205,7 @@ def run(args: argparse.Namespace) -> int:
             progress=lambda done, total: bar.update(task, completed=done),
         )
     con.print(f"wrote {args.out}: {manifest['counts']}")
-    for note in manifest["notes"]:
+    for note in manifest["notes"][len(info.get("notes", [])):]:     # the trajectory's were said above
         con.print(f"note: {note}")
     if args.json:
         print(strict_dumps(manifest))
