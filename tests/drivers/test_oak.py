@@ -251,6 +251,16 @@ def test_wrong_size_is_a_device_error() -> None:
 
 
 # -- IMU ----------------------------------------------------------------------------------------
+def _drain_imu(dev: OakDevice, batches: int) -> tuple[list, dict]:
+    """Start the device, wait for `batches` IMU batches, take every sample; (samples, IMU report)."""
+    with dev:
+        wait_until(lambda: dev.imu.batches == batches)
+        out = []
+        while (s := dev.imu.get(0.05)) is not None:
+            out.append(s)
+        return out, dev.imu.report()
+
+
 def test_imu_batches_paired_ordered_device_clock() -> None:
     dev, _, iq, _ = fake_device()
     ms = 1_000_000
@@ -260,12 +270,7 @@ def test_imu_batches_paired_ordered_device_clock() -> None:
     # then accel and gyro 1 ms apart; one packet without gyro, one without accel
     iq.put(imu_batch([(x, x + ms) for x in t[20:25]] + [(t[25], None), (None, t[25] + ms)]
                      + [(x, x + ms) for x in t[26:30]]))
-    with dev:
-        wait_until(lambda: dev.imu.batches == 3)
-        out = []
-        while (s := dev.imu.get(0.05)) is not None:
-            out.append(s)
-        rep = dev.imu.report()
+    out, rep = _drain_imu(dev, batches=3)
     stamps = [s.t_ns for s in out]
     assert stamps == t[:20] + [x + ms for x in t[20:29]]  # the last gyro waits for the next accel
     assert all(isinstance(s, ImuSample) and type(s.t_ns) is int for s in out)
@@ -298,12 +303,7 @@ def test_samples_after_batches_lost_before_the_host_are_flagged() -> None:
     iq.put(imu_batch([(x, x) for x in kept[:20]]))
     iq.put(imu_batch([(x, x) for x in kept[20:40]]))
     iq.put(imu_batch([(x, x) for x in kept[40:]]))
-    with dev:
-        wait_until(lambda: dev.imu.batches == 3)
-        out = []
-        while (s := dev.imu.get(0.05)) is not None:
-            out.append(s)
-        rep = dev.imu.report()
+    out, rep = _drain_imu(dev, batches=3)
     assert [s.t_ns for s in out] == kept
     lost = {s.t_ns: s.lost_before for s in out if s.lost_before}
     assert lost == {t[34]: 4, t[51]: 1}
