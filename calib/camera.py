@@ -61,7 +61,8 @@ class CameraModel(ABC):
         distortion: read-only float64 vector of distortion coefficients (model specific).
     """
 
-    #: Name of the distortion model as written to Kalibr files (``none``, ``radtan``, ``equidistant``).
+    #: Name of the distortion model as written to Kalibr files (``none``, ``radtan``, ``equidistant``, and
+    #: DAVIO's ``rational``).
     distortion_model: str = ""
     #: Allowed lengths of the distortion vector.
     distortion_sizes: tuple[int, ...] = ()

@@ -361,8 +361,8 @@ def read_camera(f: Fields, distortion_key: str) -> CameraModel | None:
 
 
 FOCAL_RANGE = (0.05, 100.0)
-"""Focal lengths (px) per pixel of image width or height accepted: below, a field of view no lens has
-(beyond 180 deg for a pinhole); above, under 0.6 deg (a focal length in the wrong unit or image size)."""
+"""Focal lengths (px) per pixel of image width or height accepted: below, a pinhole field of view over 168
+deg; above, under 0.6 deg (a focal length in the wrong unit or for another image size)."""
 
 
 def _check_focal_length(f: Fields, cam: CameraModel) -> None:

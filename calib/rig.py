@@ -23,10 +23,10 @@ RIGID_TOLERANCE = 1e-5
 
 IMU_FIELDS = ("gyro_noise_density", "gyro_random_walk", "accel_noise_density", "accel_random_walk", "rate_hz")
 MAX_TIME_OFFSET_S = 1.0
-MAX_LEVER_ARM_M = 5.0
-"""Largest camera-IMU distance accepted, m: a translation in mm or cm reads as tens of metres or more."""
 """Largest camera-IMU time offset a rig may hold (s): Kalibr's are milliseconds; a larger one is a unit
 error or two unsynchronised clocks, which the filter's online time-offset estimate cannot absorb."""
+MAX_LEVER_ARM_M = 5.0
+"""Largest camera-IMU distance accepted, m: a translation in mm or cm reads as tens of metres or more."""
 RIG_FIELDS = ("camera", "T_IC", "time_offset_s", "camera_rate_hz") + tuple(f"imu.{f}" for f in IMU_FIELDS)
 
 

@@ -19,7 +19,7 @@ bounded) and exposes two sources for `LiveDriver`:
   lossless; on overflow the oldest sample goes and is counted (`overflow`, `take_overflow()`). Batches the
   device's own non-blocking queue dropped before the host read them show as a gyroscope stamp step of more
   than 1.5 periods (the median of the steps seen): the samples missing are counted (`gaps`,
-  `lost_before_host`) and flagged through `take_overflow()` as well.
+  `lost_before_host`) and set on the next sample's `lost_before`.
   The samples are in the DepthAI IMU frame, the frame `getImuToCameraExtrinsics` relates to the camera:
   since depthai 3's firmware the _RAW streams are the chip's native axes instead (their docstring), so
   they are not used.
@@ -170,7 +170,7 @@ GAP_FACTOR = 1.5
 """A gyroscope stamp step above this many median steps is a gap (samples lost before the host)."""
 GAP_MIN_STEPS = 10
 GAP_STEPS = 64
-"""Steps the median period is taken over (the gaps left out), and the most gap flags kept waiting."""
+"""Steps the median period is taken over, and the most gap flags kept waiting."""
 
 
 def imu_sensors(dai: Any, calibrated: bool = False) -> list:
@@ -666,8 +666,7 @@ class OakImu(_Source):
                 self.gaps += 1
                 self.lost_before_host += lost
                 self._gap_at[t_ns] = lost
-                return
-        self._steps.append(step)
+        self._steps.append(step)     # gaps too: the median of 64 ignores a few, and follows a rate change
 
     def take_overflow(self) -> int:
         """Samples lost to overflow since the last call (non-zero: reset the IMU preintegration)."""

@@ -105,7 +105,7 @@ def read_oak_rig(calib: Any, socket: str = "CAM_B", width: int = 640, height: in
         camera = PinholeEquidistant(int(width), int(height), fx, fy, cx, cy, coeffs[:4])
     else:
         raise CalibrationError(f"{where}: distortion model {model.name} is not supported (Perspective "
-                               f"without rational terms, or Fisheye)", None, "distortion")
+                               f"without thin-prism terms, or Fisheye)", None, "distortion")
     T_IC = None
     try:
         M = np.array(calib.getImuToCameraExtrinsics(sock, False, dai.LengthUnit.METER), dtype=np.float64)

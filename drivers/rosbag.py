@@ -227,6 +227,8 @@ class RosbagDriver(Driver):
             model = info.distortion_model or "none"
             if model == "plumb_bob" and len(d) == 5 and d[4] == 0.0:
                 d = d[:4]
+            if model == "rational_polynomial" and len(d) > 8 and not any(d[8:]):
+                d = d[:8]                         # 14 coefficients with no thin-prism or tilt terms
             try:
                 cam = camera_class(model if any(d) else "none")(
                     info.width, info.height, K[0, 0], K[1, 1], K[0, 2], K[1, 2], d if any(d) else ())

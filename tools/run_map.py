@@ -16,8 +16,8 @@ from typing import Any
 MIN_FREE_MB = 256.0
 """Free disk space (MB) the archive leaves for the rest of the run: below it the archive stops taking
 commits, so that what is written at the end still fits: the trajectory files (about 5 MB an hour), the
-report and map.ply (about 16 bytes a voxel: 256 MB hold 16 million). A submap's archive is about 1.5 MB
-(0.23 MB of it the centre view, `mapping.archive_views`), 3.6 GB an hour."""
+report and map.ply (about 16 bytes a voxel: 256 MB hold 16 million). A submap's archive is about 0.9 MB
+(0.23 MB of it the centre view, `mapping.archive_views`), 2.2 GB an hour."""
 
 
 class MapOutput:

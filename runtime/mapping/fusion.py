@@ -42,7 +42,8 @@ class VoxelGrid:
     grid (or `MERGE_MIN_ROWS`), and before anything reads the grid or takes points out. Joining the grid at
     every call cost a sort of the whole grid per submap, which made fusing an archive quadratic in its
     length (BENCHMARKS.md "Fusing a long run's archive at the end"); now the grid is copied once per
-    merge, and a merge comes after as many pending rows as the grid holds.
+    merge, and a merge comes after as many pending rows as the grid holds. (The live mapper reads the grid's
+    size after every window, so its small grid merges at every window: one pass, not the former sort.)
 
     Args:
         voxel_m: voxel edge length, metres (> 0).

@@ -20,11 +20,15 @@ def backproject(depth: np.ndarray, K: np.ndarray, u: np.ndarray, v: np.ndarray) 
 
 
 def ray_points(depth: np.ndarray, K: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """(P,3) float32 camera-frame points of float32 depths at pixels (u, v): `backproject` of the
-    float32 depths, rounded to float32. The mapper stores its points so, and the map archive stores the
-    depths and pixels alone (tools.map_archive.point_rays): both give back the same points, bit for bit."""
+    """(P,3) float32 camera-frame points of float32 depths at pixels (u, v): d (u - cx) / fx, d (v - cy) /
+    fy, d in float64, rounded to float32. The mapper stores its points so, and the map archive stores the
+    depths and pixels alone (tools.map_archive.point_rays, schema 3): both give back the same points, bit
+    for bit. Archives on disk depend on this arithmetic: do not change it (not even its order)."""
+    K = np.asarray(K, np.float64)
     d = np.asarray(depth, np.float32).astype(np.float64)
-    return backproject(d, K, u, v).astype(np.float32)
+    x = (np.asarray(u, np.float64) - K[0, 2]) / K[0, 0]
+    y = (np.asarray(v, np.float64) - K[1, 2]) / K[1, 1]
+    return np.stack([x * d, y * d, d], axis=-1).astype(np.float32)
 
 
 def place_points(points_C: np.ndarray, image: np.ndarray, T_SC: np.ndarray, T_MS: np.ndarray,

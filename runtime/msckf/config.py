@@ -96,9 +96,10 @@ class MsckfConfig:
     #: (BENCHMARKS "The camera-IMU time offset in the filter's state"; `davio bench vio-sim
     #: --time-offset-error ... --calib-time-offset both`)
     calib_time_offset: bool = True
-    #: estimate the camera intrinsics [fx, fy, cx, cy, d0..d3] (radtan k1 k2 p1 p2 or equidistant k1..k4;
-    #: a radtan k3 stays fixed) in the state, as OpenVINS's calib_cam_intrinsics. The filter's residuals
-    #: and undistortion use the estimate; the KLT front-end and the native initializers keep the rig's
+    #: estimate the camera intrinsics [fx, fy, cx, cy, d0..d3] (radtan and rational k1 k2 p1 p2, or
+    #: equidistant k1..k4; k3..k6 stay fixed) in the state, as OpenVINS's calib_cam_intrinsics. The
+    #: filter's residuals and undistortion use the estimate; the KLT front-end and the native initializers
+    #: keep the rig's
     calib_intrinsics: bool = False
     # initial calibration uncertainty when estimated
     sigma_calib_rot: float = 0.035  #: rad, prior std of R_IC (about 2 deg)

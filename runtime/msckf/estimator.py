@@ -206,14 +206,17 @@ class MsckfEstimator:
                 ini.time_offset_ns = int(round(self._t_d0 * 1e9))
 
     def set_intrinsics(self, params: np.ndarray) -> None:
-        """Replace the camera intrinsics [fx, fy, cx, cy, d0..d4] (9, the CameraParams layout; given 8:
-        d4 = 0) used from now on: the fixed ones, or the prior of the online estimate at the next
-        initialisation (and the current estimate, if running)."""
+        """Replace the camera intrinsics [fx, fy, cx, cy, d0..d7] (12, the CameraParams layout) used from now
+        on: the fixed ones, or the prior of the online estimate at the next initialisation (and the current
+        estimate, if running). Given 8 or 9 values (the estimated eight, or radtan's nine), the camera's
+        own later coefficients are kept."""
         p = np.asarray(params, dtype=float).ravel()
-        if p.size == 8:
-            p = np.append(p, 0.0)
-        if p.size != 9 or not np.all(np.isfinite(p)) or p[0] <= 0 or p[1] <= 0:
-            raise EstimatorError(f"set_intrinsics: need 8 or 9 finite values with fx, fy > 0, got {p}")
+        if p.size not in (8, 9, 12) or not np.all(np.isfinite(p)) or p[0] <= 0 or p[1] <= 0:
+            raise EstimatorError(f"set_intrinsics: need 8, 9 or 12 finite values with fx, fy > 0, got {p}")
+        full = np.zeros(12)
+        full[: self.camera.params.size] = self.camera.params
+        full[: p.size] = p
+        p = full
         cam = self.camera
         self.camera = CameraParams(cam.model, p, cam.width, cam.height)
         if self.state_ is not None and self.state_.cam_params is not None:

@@ -93,9 +93,9 @@ class TrackerConfig:
 
     def __post_init__(self) -> None:
         finite_fields(self, "tracker")
-        positive(self, "tracker", "lk_epsilon", "ransac_threshold_px", "clahe_clip_limit")
-        in_range(self, "tracker", "ransac_confidence", 0.0, 1.0, lo_open=True, hi_open=True)
-        non_negative(self, "tracker", "dark_mean_max", "dark_std_min")
+        positive(self, "tracker", "ransac_threshold_px")
+        in_range(self, "tracker", "ransac_confidence", 0.0, 1.0, lo_open=True)
+        non_negative(self, "tracker", "lk_epsilon", "clahe_clip_limit", "dark_mean_max", "dark_std_min")
         if self.num_pts < 1:
             raise ConfigError(f"tracker.num_pts must be >= 1, got {self.num_pts}")
         if self.grid_x < 1 or self.grid_y < 1:

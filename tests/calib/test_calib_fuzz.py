@@ -144,11 +144,12 @@ _positive = st.floats(1e-6, 10.0, allow_nan=False)
 @st.composite
 def rigs(draw: st.DrawFn) -> Rig:
     w, h = draw(st.integers(16, 2000)), draw(st.integers(16, 2000))
-    f = draw(st.floats(50.0, 2000.0))
+    f = draw(st.floats(0.2, 20.0)) * w          # focal lengths of real lenses for this width (FOCAL_RANGE)
     cx, cy = draw(st.floats(-0.5, w - 0.5)), draw(st.floats(-0.5, h - 0.5))
     cls = draw(st.sampled_from([Pinhole, PinholeRadtan, PinholeEquidistant]))
     n = {Pinhole: 0, PinholeRadtan: 4, PinholeEquidistant: 4}[cls]
-    cam = cls(w, h, f, draw(st.floats(50.0, 2000.0)), cx, cy, draw(st.lists(_finite, min_size=n, max_size=n)))
+    fy = draw(st.floats(0.2, 20.0)) * h
+    cam = cls(w, h, f, fy, cx, cy, draw(st.lists(_finite, min_size=n, max_size=n)))
     q = np.array(draw(st.lists(st.floats(-1, 1), min_size=4, max_size=4))) + [0.0, 0.0, 0.0, 1.5]
     from scipy.spatial.transform import Rotation
 

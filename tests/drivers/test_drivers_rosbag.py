@@ -171,6 +171,15 @@ def test_camera_info_gives_intrinsics_and_a_size_mismatch_is_counted(tmp_path: P
     assert (cam.width, cam.height, cam.fx, cam.cy) == (32, 24, 30.0, 12.0)
     assert cam.distortion_model == "radtan"
     assert drv.rig.T_IC is None     # extrinsics withheld: the bring-up estimates them (with a model)
+    rational = [-0.28, 0.07, 0.0002, 0.00002, 0.01, 0.1, 0.02, 0.003]
+    msgs[-1] = (msgs[-1][0], msgs[-1][1], Info(header=hdr, height=24, width=32,
+                                                distortion_model="rational_polynomial",
+                                                d=np.array(rational + [0.0] * 6),    # 14, no thin prism
+                                                k=np.array([30.0, 0, 16, 0, 31.0, 12, 0, 0, 1]),
+                                                r=np.eye(3).reshape(-1), p=np.zeros(12), binning_x=0,
+                                                binning_y=0, roi=roi))
+    rat = RosbagDriver(write_bag(tmp_path / "rational", "mcap", sorted(msgs, key=lambda m: m[1]))).rig.camera
+    assert rat.distortion_model == "rational" and rat.distortion.tolist() == rational
     wrong = Rig(camera=Pinhole(64, 48, 50.0, 50.0, 32.0, 24.0))
     drv = RosbagDriver(bag, rig=wrong)
     assert _frames(drv) == [] and drv.report()["streams"]["cam0"]["unreadable_images"] == len(images)
@@ -219,9 +228,15 @@ def test_a_publisher_that_does_not_stamp_its_messages_is_named(tmp_path: Path, t
     msgs += [("/cam0/image_raw", int(t), image_msg(ts, False, stamp(int(t), "/cam0/image_raw"), k, images[k]))
              for k, t in enumerate(cam_t)]
     bag = write_bag(tmp_path / "unstamped", "mcap", sorted(msgs, key=lambda m: m[1]))
-    with pytest.raises(DataError, match=rf"{topic}: \d+ of \d+ messages repeat another's header stamp "
-                                        r"\(1 distinct, \d+ of them 0\): the publisher does not stamp"):
+    with pytest.raises(DataError, match=rf"{topic}: (\d+) of \1 messages share the header stamp 0 "
+                                        r"\(1 distinct stamps\): the publisher does not stamp"):
         RosbagDriver(bag)
+    twice = write_bag(tmp_path / "twice", "mcap", sorted(
+        [(tp, t, m) for tp, t, _ in msgs for m in [
+            imu_msg(ts, False, t, 0, gyro[0], accel[0]) if tp == "/imu0" else
+            image_msg(ts, False, t, 0, images[0])]] * 2, key=lambda m: m[1]))
+    drv = RosbagDriver(twice)                        # every stamp twice: a topic recorded twice, repaired
+    assert drv.report()["streams"]["imu0"]["dropped_duplicate"] == len(imu_t)
 
 
 def test_not_a_bag_and_a_corrupt_bag_are_clear_errors(tmp_path: Path) -> None:

@@ -311,6 +311,21 @@ def test_samples_after_batches_lost_before_the_host_are_flagged() -> None:
     assert any("5 samples lost before reaching the host" in n for n in rep["notes"])
 
 
+def test_gap_detection_follows_a_rate_change_instead_of_flagging_every_sample() -> None:
+    """A start at twice the rate (a FIFO flush) must not lock the median period: flags stop once the window
+    holds mostly the steady rate's steps."""
+    dev, _, iq, _ = fake_device()
+    ms = 1_000_000
+    t = [T0 + k * 2 * ms for k in range(20)]
+    t += [t[-1] + k * 5 * ms for k in range(1, 181)]
+    for k in range(0, 200, 10):                       # the device's batches hold at most 10 reports
+        iq.put(imu_batch([(x, x) for x in t[k:k + 10]]))
+    out, rep = _drain_imu(dev, batches=20)
+    assert len(out) == 200
+    flagged = [k for k, s in enumerate(out) if s.lost_before]
+    assert flagged and max(flagged) < 20 + 64 and rep["gaps"] == len(flagged)
+
+
 def test_imu_streams_are_in_the_depthai_imu_frame() -> None:
     """The streams enabled are the ones depthai documents as aligned to the DepthAI IMU frame (the frame
     getImuToCameraExtrinsics relates to the camera), never the _RAW ones (the chip's native axes)."""

@@ -36,7 +36,7 @@ from runtime.startup import StartupConfig
     ("[msckf]\nmax_clones = 1", "[msckf] max_clones must be >= 2, got 1"),   # the section is named
     ("[tracker]\nnum_ptss = 150", "unknown option(s) tracker.num_ptss (did you mean tracker.num_pts?)"),
     ("[tracker]\nmin_px_dist = nan", "tracker.min_px_dist must be a finite number, got nan"),
-    ("[tracker]\nransac_confidence = 1.0", "tracker.ransac_confidence must be in (0, 1), got 1.0"),
+    ("[tracker]\nransac_confidence = 0.0", "tracker.ransac_confidence must be in (0, 1], got 0.0"),
     ("[msckf]\nimu_buffer_s = nan", "msckf.imu_buffer_s must be a finite number, got nan"),
     ("[msckf]\nimu_buffer_s = -1.0", "msckf.imu_buffer_s must be a finite number > 0, got -1.0"),
     ("[msckf]\nmax_velocity = -1.0", "msckf.max_velocity must be a finite number > 0"),

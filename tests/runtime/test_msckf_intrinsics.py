@@ -243,8 +243,23 @@ def test_set_intrinsics_checks_input_and_without_calibration_fixes_them() -> Non
     est.set_intrinsics(new)
     _init(est, np.zeros(3))
     snap = est.state()
-    assert np.array_equal(snap.intrinsics, np.append(new, 0.0))
+    assert np.array_equal(snap.intrinsics, np.append(new, np.zeros(4)))     # the camera's k3..k6: 0
     assert snap.intrinsics_covariance is None and snap.intrinsics_std is None and est.state_.idx_intr == -1
+    est.set_intrinsics(snap.intrinsics)                     # a snapshot's 12 values go back as they are
+    assert np.array_equal(est.camera.params, snap.intrinsics)
+
+
+def test_set_intrinsics_keeps_a_rational_cameras_later_coefficients() -> None:
+    """Eight values (what the filter estimates) replace fx..p2 of a rational camera; its k3..k6 stay."""
+    from calib import PinholeRational
+
+    coeffs = [9.49, -102.07, 0.0008, 0.0020, 401.19, 9.26, -100.43, 394.56]
+    rig = _rig().replace(camera=PinholeRational(752, 480, 458.0, 457.0, 367.0, 248.0, coeffs))
+    est = MsckfEstimator(rig, MsckfConfig())
+    new = np.array([460.0, 459.0, 366.0, 249.0, 9.5, -102.0, 0.001, 0.002])
+    est.set_intrinsics(new)
+    assert np.array_equal(est.camera.params, np.concatenate([new, coeffs[4:]]))
+    assert est.camera.model == "rational"
 
 
 @pytest.mark.slow

@@ -443,6 +443,9 @@ def test_manifest_entries_that_repeat_an_index_or_disagree_with_their_file_are_n
     np.savez_compressed(path, **{**arrays, "image": np.full_like(arrays["image"], 9)})
     with pytest.raises(DataError, match=r"submap_000002\.npz.*image index is 9, the submap has 3 images"):
         load_submap(folder, read_manifest(folder)["submaps"][2])
+    np.savez_compressed(path, **{**arrays, "T_SC": np.float64(1.0)})
+    with pytest.raises(DataError, match=r"submap_000002\.npz.*inconsistent submap arrays: T_SC \(\)"):
+        load_submap(folder, read_manifest(folder)["submaps"][2])
 
 
 def test_an_export_with_nothing_to_write_is_refused_and_keeps_the_old_file(tmp_path, capsys):

@@ -126,9 +126,10 @@ def _plot_dir(args: argparse.Namespace) -> Path | None:
     return d
 
 
-_FINITE = {"max_diff": (0.0, None), "offset": (-1e6, 1e6), "delta": (0.0, None), "threshold": (0.0, None),
-           "voxel": (0.0, None)}
-"""Numeric options checked before any file is read: (exclusive lower bound, upper bound) in their units."""
+_FINITE = {"max_diff": (0.0, 9.2e9), "offset": (-9.2e9, 9.2e9), "delta": (0.0, None),
+           "threshold": (0.0, None), "voxel": (0.0, None)}
+"""Numeric options checked before any file is read: (exclusive lower bound, upper bound) in their units, or
+[lower, upper] when an upper bound is given (seconds: what int64 nanoseconds hold)."""
 
 
 def check_numbers(args: argparse.Namespace) -> None:

@@ -140,10 +140,6 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--out {out} is not empty; choose a new or empty folder")
     if args.seconds is not None:
         check_sim_seconds(args.seconds)
-    try:            # made now, not after the rendering (a filesystem such as /sys refuses it even to root)
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise ConfigError(f"--out {out}: cannot create the folder ({exc.strerror or exc})") from None
     prefer_workqueue_layer()  # idle OpenMP threads spin: costly on a shared 2-core machine
     con = Console(stderr=True)
     image = ImageOptions.exact() if args.exact else ImageOptions()
@@ -174,6 +170,10 @@ def run(args: argparse.Namespace) -> int:
     if real_imu and args.imu_model != "datasheet":
         raise ConfigError("--imu-model applies to a synthetic IMU; EuRoC-trajectory mode replays the real "
                           "one")
+    try:            # after the checks, before the rendering (/sys refuses it even to root)
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"--out {out}: cannot create the folder ({exc.strerror or exc})") from None
     con.print("[bold]davio simulate[/]: building scene and motion ...")
     if args.trajectory is None:
         rec = SimRecording.from_preset(replace(cfg, seconds=args.seconds or 20.0))

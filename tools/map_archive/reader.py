@@ -285,6 +285,9 @@ def load_submap(folder: str | Path, entry: dict) -> Submap:
             raise DataError(f"inconsistent submap arrays: depth {depth.shape}, pixel_u {u.shape}, "
                             f"pixel_v {v.shape}, K {arrays['K'].shape}", path)
         arrays["points_C"] = decode_rays(depth, u, v, arrays["K"])
+    if arrays["T_SC"].ndim != 3 or arrays["points_C"].ndim != 2 or arrays["image"].ndim != 1:
+        raise DataError(f"inconsistent submap arrays: T_SC {arrays['T_SC'].shape}, points "
+                        f"{arrays['points_C'].shape}, image {arrays['image'].shape}", path)
     n_img, n_pts = len(arrays["T_SC"]), len(arrays["points_C"])
     if n_pts != entry["n_points"]:
         raise DataError(f"the file holds {n_pts} points, the manifest says {entry['n_points']}", path)
@@ -309,8 +312,8 @@ def load_submap(folder: str | Path, entry: dict) -> Submap:
 
 
 def _point_arrays(npz, path: Path) -> dict[str, np.ndarray]:
-    """A submap file's points: `points_C` (x, y, z), or `depth` and `pixel` (schema 3, decoded by the caller
-    once K is read)."""
+    """A submap file's points: `points_C` (x, y, z), or `depth`, `pixel_u` and `pixel_v` (schema 3, decoded
+    by the caller once K is read)."""
     name, dtype = POINTS_ARRAY
     if name in npz.files:
         return {name: npz[name].astype(dtype, copy=False)}
