@@ -454,6 +454,8 @@ def test_an_export_with_nothing_to_write_is_refused_and_keeps_the_old_file(tmp_p
     out = tmp_path / "run" / "map.ply"
     assert main(["map", "export", str(tmp_path / "run")]) == 0
     before = out.read_bytes()
+    assert main(["map", "export", str(tmp_path / "run"), "--min-points", "100000"]) == 1
+    assert "nothing to export: none of the" in capsys.readouterr().err and out.read_bytes() == before
     for p in folder.glob("*.npz"):
         p.unlink()
     capsys.readouterr()

@@ -244,6 +244,9 @@ def run(args: argparse.Namespace) -> int:
                                   merge_segment=prior_seg, refuse_empty=True)
         except OSError as exc:
             raise ConfigError(f"--out {out}: cannot write ({exc.strerror or exc})") from None
+        except DataError:
+            _print_notes("export", notes)        # what was left out, before why nothing was written
+            raise
         _print_notes("export", notes)
         dropped = (f" ({fused - n} of {fused} with fewer than {args.min_points} samples left out)"
                    if args.min_points > 1 else "")
