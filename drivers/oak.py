@@ -43,7 +43,7 @@ the output size as the Camera node's ImgResizeMode.CROP does (`oak_calib.crop_in
 frame's own intrinsics (`getTransformation().getIntrinsicMatrix()`) are kept in the camera's report
 (`device_K`), and a difference of more than 1 % from the rig's K is noted there. Distortion
 `Perspective` (OpenCV's 14 coefficients k1 k2 p1 p2 k3 k4 k5 k6 s1..s4 tx ty) becomes radtan (k1 k2 p1
-p2[ k3]) when k4.. are zero, rational (k1..k6, `calib.PinholeRational`: most factory calibrations) when
+p2[ k3]) when k4.. are zero, rational (k1..k6, `calib.PinholeRational`: many factory calibrations) when
 only s1.. are, and is refused otherwise (thin-prism and tilt terms: pass a Kalibr calibration with --rig);
 `Fisheye` becomes equidistant (k1..k4).
 
