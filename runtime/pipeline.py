@@ -20,6 +20,7 @@ from runtime.ffinit.time_offset_check import imu_lead_s
 from runtime.geometry.se3 import make_pose
 from runtime.graph.correction import CorrectionTimeline, final_corrections
 from runtime.graph.prior_frame import PriorFrame
+from runtime.imu.rate_quantiles import RateQuantiles
 from runtime.mapping.mapper import MAX_ERROR_MESSAGES, MapCommit, Mapper, MappingStats
 from runtime.mapping.windows import MappingWindow, WindowBuilder, WindowQueue
 from runtime.msckf.estimator import MsckfEstimator
@@ -106,6 +107,7 @@ class VioPipeline:
         self._job_kind = ""
         self._last_t = 0
         self._lost_carried = 0   # lost_before of IMU samples dropped as out of range, for the next one
+        self._gyro_rates = RateQuantiles()   # the run's |gyro|: a gyroscope in deg/s reads 57.3x
         if rig.T_IC is None:
             if model is None:
                 raise ConfigError("the camera-IMU extrinsics are withheld: calibration-withheld bring-up "
@@ -181,6 +183,7 @@ class VioPipeline:
             self.stats.imu_out_of_range += 1
             self._lost_carried += int(getattr(sample, "lost_before", 0) or 0)   # a driver's gap flag stays
             return []
+        self._gyro_rates.add(g[0], g[1], g[2])
         if self._lost_carried:
             sample = replace(sample, lost_before=int(sample.lost_before) + self._lost_carried)
             self._lost_carried = 0
@@ -425,5 +428,8 @@ class VioPipeline:
         if self.prior is not None:
             rep["prior_map"] = self.prior.report()
         rep["tracking"]["mean_tracks_per_frame"] = self.stats.tracks_total / max(self.stats.frames, 1)
+        # the run's |gyro| (runtime.imu.rate_quantiles; a p90 above GYRO_UNITS_P90_RAD_S: deg/s?)
+        rep["tracking"]["gyro_rate_median_rad_s"] = self._gyro_rates.quantile(0.5)
+        rep["tracking"]["gyro_rate_p90_rad_s"] = self._gyro_rates.quantile(0.9)
         return rep
 

@@ -401,6 +401,13 @@ def _recovery_lines(report: dict) -> list[str]:
         lines.append(f"IMU samples beyond any IMU's range dropped: {out_of_range} (|gyro| > "
                      f"{MAX_GYRO_RAD_S:g} rad/s or |accel| > {MAX_ACCEL_M_S2:g} m/s^2 on an axis: corrupt "
                      "values, or a gyroscope in deg/s?)")
+    from runtime.imu.rate_quantiles import GYRO_UNITS_P90_RAD_S
+
+    p90 = (report["pipeline"].get("tracking") or {}).get("gyro_rate_p90_rad_s")
+    if p90 is not None and p90 > GYRO_UNITS_P90_RAD_S:
+        lines.append(f"GYROSCOPE UNITS? a tenth of the run turns faster than {p90:.1f} rad/s (EuRoC's "
+                     "flights: 0.6-1.0 rad/s); a gyroscope logging deg/s reads 57.3 times too high: check "
+                     "its unit (rad/s)")
     errors = (report["pipeline"].get("tracking") or {}).get("ff_exceptions") or []
     if errors:
         lines.append(f"feed-forward model calls failed: {len(errors)} (first: {errors[0]})")
