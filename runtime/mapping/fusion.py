@@ -119,19 +119,30 @@ class VoxelGrid:
                 self._merge()
             return
         self._merge()
-        pos = np.searchsorted(self._keys, uk)
-        hit = pos < self._keys.size
-        hit[hit] = self._keys[pos[hit]] == uk[hit]
+        pos, hit = self._locate(uk)
         if not hit.all():
             raise ValueError(f"{int((~hit).sum())} voxels removed that were never integrated")
-        self._w[pos] += add_w
-        self._wp[pos] += add_p
-        self._wg[pos] += add_g
-        self._n[pos] += add_n
+        self._add_at(pos, hit, add_w, add_p, add_g, add_n)
         keep = self._n > 0
         if not keep.all():
             self._keys, self._w, self._wp, self._wg, self._n = (
                 self._keys[keep], self._w[keep], self._wp[keep], self._wg[keep], self._n[keep])
+
+    def _locate(self, uk: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(insertion places in the sorted grid, whether the grid already holds the voxel) of sorted keys."""
+        pos = np.searchsorted(self._keys, uk)
+        hit = pos < self._keys.size
+        hit[hit] = self._keys[pos[hit]] == uk[hit]
+        return pos, hit
+
+    def _add_at(self, pos: np.ndarray, hit: np.ndarray, w: np.ndarray, wp: np.ndarray, wg: np.ndarray,
+                n: np.ndarray) -> None:
+        """Add the sums of the rows marked `hit` to the grid's voxels at `pos` (unique places)."""
+        hp = pos[hit]
+        self._w[hp] += w[hit]
+        self._wp[hp] += wp[hit]
+        self._wg[hp] += wg[hit]
+        self._n[hp] += n[hit]
 
     def _merge(self) -> None:
         """Join the pending sums to the grid: the pending rows reduced among themselves (one sort of
@@ -153,14 +164,8 @@ class VoxelGrid:
             n_all = np.concatenate([q[4] for q in parts]).astype(np.float64)    # exact below 2^53
             n = np.bincount(inv, n_all, m).astype(np.int64)
             del parts, inv, n_all
-        pos = np.searchsorted(self._keys, uk)
-        hit = pos < self._keys.size
-        hit[hit] = self._keys[pos[hit]] == uk[hit]
-        hp = pos[hit]
-        self._w[hp] += w[hit]
-        self._wp[hp] += wp[hit]
-        self._wg[hp] += wg[hit]
-        self._n[hp] += n[hit]
+        pos, hit = self._locate(uk)
+        self._add_at(pos, hit, w, wp, wg, n)
         new = ~hit
         if new.any():                    # sorted keys inserted at non-decreasing places stay sorted
             at = pos[new]

@@ -93,14 +93,8 @@ def former_grid(voxel: float):
             if sums is None:
                 return
             uk, add_w, add_p, add_g, add_n = sums
-            pos = np.searchsorted(self._keys, uk)
-            hit = pos < self._keys.size
-            hit[hit] = self._keys[pos[hit]] == uk[hit]
-            hp = pos[hit]
-            self._w[hp] += add_w[hit]
-            self._wp[hp] += add_p[hit]
-            self._wg[hp] += add_g[hit]
-            self._n[hp] += add_n[hit]
+            pos, hit = self._locate(uk)
+            self._add_at(pos, hit, add_w, add_p, add_g, add_n)
             new = ~hit
             if new.any():
                 keys_all = np.concatenate([self._keys, uk[new]])

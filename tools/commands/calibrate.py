@@ -336,16 +336,7 @@ def run(args: argparse.Namespace) -> int:
         finally:
             if live:
                 driver.stop()
-    return finish(args, run_, rig, th, desc, what, reference, log, driver_report=_driver_report(driver))
-
-
-def _driver_report(driver) -> dict | None:
-    """The driver's intake counters (repaired and dropped input), or None when it keeps none."""
-    report = getattr(driver, "report", None)
-    try:
-        return report() if callable(report) else None
-    except Exception:  # noqa: BLE001 - the counters are informative; a failing report must not lose the run
-        return None
+    return finish(args, run_, rig, th, desc, what, reference, log, driver_report=driver.report())
 
 
 def finish(
