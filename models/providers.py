@@ -8,6 +8,8 @@ off: on small CPUs shared with the filter, spinning threads double the latency (
 
 from __future__ import annotations
 
+import contextlib
+import io
 import logging
 import os
 import sys
@@ -86,6 +88,31 @@ def describe_providers() -> dict:
     return {"selected": providers[0], "reason": reason, "available": available}
 
 
+def preload_cuda_libraries(ort) -> str:
+    """Load CUDA and cuDNN from pip's `nvidia-*` packages before a CUDA session (`onnxruntime.preload_dlls`).
+
+    onnxruntime-gpu does not find the CUDA libraries that `pip install onnxruntime-gpu[cuda,cudnn]`
+    puts in site-packages by itself (only through LD_LIBRARY_PATH, a system CUDA install, or an
+    earlier `import torch`, which the runtime never does), and the session then falls back to the
+    CPU. Missing libraries are not an error here: the fallback is detected and reported after the
+    session is made. Returns what happened, for the log; what ONNX Runtime prints goes to the log.
+    """
+    preload = getattr(ort, "preload_dlls", None)
+    if preload is None:  # onnxruntime < 1.21
+        return "onnxruntime has no preload_dlls"
+    printed = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(printed):
+            preload()
+    except Exception as exc:  # a library that fails to load: the session's own fallback says the rest
+        log.warning("loading the CUDA libraries failed: %s: %s", type(exc).__name__, exc)
+        return f"preload failed ({type(exc).__name__}: {exc})"
+    for line in printed.getvalue().splitlines():
+        if line.strip():
+            log.info("onnxruntime.preload_dlls: %s", line.strip())
+    return "preloaded"
+
+
 def default_threads() -> int:
     """Intra-op threads when none are configured: all cores up to 4, leaving one on >2-core CPUs."""
     n = os.cpu_count() or 1
@@ -124,6 +151,8 @@ def create_session(
         raise ModelError(f"intra-op threads must be >= 1, got {threads}")
     check_model_file(path, contract)
     chosen, reason = choose_providers(providers)
+    if chosen[0] == CUDA:
+        preload_cuda_libraries(ort)
     so = ort.SessionOptions()
     so.intra_op_num_threads = int(threads or default_threads())
     so.inter_op_num_threads = 1

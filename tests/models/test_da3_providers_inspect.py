@@ -116,3 +116,43 @@ def test_inspect_model_errors(tmp_path, graph):
     graph.with_suffix(".json").write_text("{not json")
     with pytest.raises(ModelError, match="model card"):
         inspect_model(graph)
+
+
+@pytest.mark.filterwarnings("ignore:Specified provider 'CUDAExecutionProvider'")
+def test_cuda_session_preloads_pip_cuda_libraries_first(monkeypatch, graph, caplog):
+    # onnxruntime-gpu finds pip's nvidia-* libraries only after preload_dlls: called for a CUDA session
+    import onnxruntime as ort
+
+    calls = []
+
+    def preload():
+        calls.append("cuda")
+        print("WARNING: cuDNN 9 not found")  # what ORT prints goes to the log, never to stdout
+
+    monkeypatch.setattr(ort, "preload_dlls", preload, raising=False)
+    fake_gpu(monkeypatch, True, True)
+    with caplog.at_level("INFO", logger="models.providers"):
+        providers.create_session(graph, threads=1)
+    assert calls == ["cuda"]
+    assert "cuDNN 9 not found" in caplog.text
+    providers.create_session(graph, providers=["CPUExecutionProvider"], threads=1)
+    fake_gpu(monkeypatch, False, False)
+    providers.create_session(graph, threads=1)
+    assert calls == ["cuda"]  # never for a CPU session
+
+
+@pytest.mark.filterwarnings("ignore:Specified provider 'CUDAExecutionProvider'")
+def test_failed_preload_is_logged_and_the_fallback_reported(monkeypatch, graph, caplog):
+    import onnxruntime as ort
+
+    def preload():
+        raise OSError("libcudnn.so.9: cannot open shared object file")
+
+    monkeypatch.setattr(ort, "preload_dlls", preload, raising=False)
+    fake_gpu(monkeypatch, True, True)
+    with caplog.at_level("WARNING", logger="models.providers"):
+        sess, info = providers.create_session(graph, threads=1)
+    assert "libcudnn.so.9" in caplog.text
+    assert info["providers"][0] == "CPUExecutionProvider" and "fell back" in info["reason"]
+    monkeypatch.delattr(ort, "preload_dlls")  # onnxruntime < 1.21
+    assert providers.preload_cuda_libraries(ort) == "onnxruntime has no preload_dlls"
