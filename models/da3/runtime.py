@@ -134,7 +134,7 @@ class OnnxDA3:
                 img = cv2.remap(
                     img, self._maps[0], self._maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT
                 )
-            out[0, i] = normalise_image(resize_image(img, self.graph_hw))
+            normalise_image(resize_image(img, self.graph_hw), out=out[0, i])
         return out
 
     def _check_frames(self, frames: Sequence[Frame]) -> int:
@@ -209,9 +209,10 @@ class OnnxDA3:
     def _to_camera(self, maps: np.ndarray) -> np.ndarray:
         """(N,h,w) graph-resolution maps -> (N,H,W) float32 at the camera resolution."""
         H, W = self.cam_hw
-        return np.stack([cv2.resize(m, (W, H), interpolation=cv2.INTER_LINEAR) for m in maps]).astype(
-            np.float32
-        )
+        out = np.empty((len(maps), H, W), dtype=np.float32)
+        for m, o in zip(maps, out, strict=True):
+            cv2.resize(np.asarray(m, dtype=np.float32), (W, H), dst=o, interpolation=cv2.INTER_LINEAR)
+        return out
 
     # ------------------------------------------------------------------ the DepthModel call
     def predict(

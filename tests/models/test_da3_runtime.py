@@ -9,7 +9,7 @@ from da3_contract_graph import build_da3_contract_graph
 
 from calib import Pinhole, PinholeRadtan
 from models.da3 import OnnxDA3
-from models.da3.preprocess import IMAGENET_MEAN, IMAGENET_STD
+from models.da3.preprocess import IMAGENET_MEAN, IMAGENET_STD, normalise_image
 from models.depth_model import DepthModel
 from runtime.errors import DataError, ModelError
 from runtime.events import Frame
@@ -232,3 +232,21 @@ def test_unconditioned_poses_are_re_anchored_on_view_0(graph, monkeypatch):
         np.testing.assert_allclose(
             pred.T_CW[i] @ np.linalg.inv(pred.T_CW[1]), T_pred[i] @ np.linalg.inv(T_pred[1]), atol=1e-5
         )
+
+
+@pytest.mark.parametrize("shape", [(7, 9), (7, 9, 3)])
+def test_normalise_image_matches_the_interleaved_formula_bit_for_bit(shape):
+    # the former implementation: an (H,W,3) RGB float32 copy, normalised, then transposed
+    img = np.random.default_rng(3).integers(0, 256, shape, dtype=np.uint8)
+    rgb = np.repeat(img[:, :, None], 3, axis=2) if img.ndim == 2 else img[:, :, ::-1]
+    want = (((rgb.astype(np.float32) / 255.0) - IMAGENET_MEAN) / IMAGENET_STD).transpose(2, 0, 1)
+    got = normalise_image(img)
+    assert got.dtype == np.float32 and got.shape == (3, 7, 9)
+    assert np.array_equal(got, want)
+    batch = np.zeros((2, 3, 7, 9), dtype=np.float32)
+    assert np.shares_memory(normalise_image(img, out=batch[1]), batch)
+    assert np.array_equal(batch[1], want) and not batch[0].any()
+    with pytest.raises(ValueError, match="out must be float32"):
+        normalise_image(img, out=np.zeros((3, 7, 9), dtype=np.float64))
+    with pytest.raises(ValueError, match="grey"):
+        normalise_image(np.zeros((7, 9, 4), dtype=np.uint8))
