@@ -13,7 +13,7 @@ import io
 import logging
 import os
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from models.onnx_file import ContractCheck, check_model_file, require_file
@@ -26,6 +26,9 @@ CPU = "CPUExecutionProvider"
 
 #: Environment variable that forces the CPU provider (e.g. to compare timings).
 FORCE_CPU_ENV = "DAVIO_FORCE_CPU"
+
+#: CUDA execution-provider options set for every CUDA session (ONNX Runtime's names; string values).
+CUDA_OPTIONS: dict[str, str] = {}
 
 
 def _available_providers() -> list[str]:
@@ -124,6 +127,7 @@ def create_session(
     providers: Sequence[str] | None = None,
     threads: int | None = None,
     contract: ContractCheck | None = None,
+    cuda_options: Mapping[str, str] | None = None,
 ):
     """Create an ONNX Runtime InferenceSession with explicit providers and thread settings.
 
@@ -136,9 +140,12 @@ def create_session(
         providers: explicit execution providers, or None for the automatic choice.
         threads: intra-op threads (None = `default_threads()`); inter-op is 1 (sequential).
         contract: signature check of the expected contract (e.g. `check_da3_signature`), or None.
+        cuda_options: CUDA execution-provider options over `CUDA_OPTIONS` (ONNX Runtime's names and
+            string values, e.g. {"gpu_mem_limit": "2147483648"}); unused on the CPU.
 
     Returns:
-        (session, info dict with 'providers' actually used, 'reason', 'threads').
+        (session, info dict with 'providers' actually used, 'reason', 'threads', and 'cuda_options':
+        the CUDA provider's effective options as ONNX Runtime reports them, when it runs).
 
     Raises:
         ModelError: the file is missing, refused by the checks, or ONNX Runtime cannot load it.
@@ -161,8 +168,12 @@ def create_session(
     so.add_session_config_entry("session.inter_op.allow_spinning", "0")
     so.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
     so.log_severity_level = 3
+    with_options: list = list(chosen)
+    if chosen[0] == CUDA:
+        given = {str(k): str(v) for k, v in (cuda_options or {}).items()}
+        with_options[0] = (CUDA, {**CUDA_OPTIONS, **given})
     try:
-        sess = ort.InferenceSession(str(path), sess_options=so, providers=chosen)
+        sess = ort.InferenceSession(str(path), sess_options=so, providers=with_options)
     except Exception as exc:
         raise ModelError(f"{path}: ONNX Runtime cannot load the model ({type(exc).__name__}: {exc})") from exc
     used = list(sess.get_providers())
@@ -173,4 +184,7 @@ def create_session(
         log.warning("%s: %s", path.name, reason)
     elif used[0] == CPU and providers is None:
         log.info("%s runs on the CPU: %s", path.name, reason)
-    return sess, {"providers": used, "reason": reason, "threads": so.intra_op_num_threads}
+    info = {"providers": used, "reason": reason, "threads": so.intra_op_num_threads}
+    if used[0] == CUDA:
+        info["cuda_options"] = dict(sess.get_provider_options().get(CUDA, {}))
+    return sess, info

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import cv2
@@ -81,13 +81,14 @@ class OnnxDA3:
         camera: CameraModel,
         providers: Sequence[str] | None = None,
         threads: int | None = None,
+        cuda_options: Mapping[str, str] | None = None,
     ) -> None:
         self.path = Path(model_path)
         require_file(self.path, missing=f"DA3 model not found: {self.path}. Export it once from the official "
                      f"checkpoint (Small or Base for commercial use) with: {export_hint(self.path, camera)}")
         # the contract is checked on the file before ONNX Runtime parses it, then on the session
         self.session, self.session_info = create_session(
-            self.path, providers, threads, contract=check_da3_signature
+            self.path, providers, threads, contract=check_da3_signature, cuda_options=cuda_options
         )
         inputs, outputs = session_signature(self.session)
         self.graph_hw = check_da3_signature(inputs, outputs, where=str(self.path))

@@ -156,3 +156,29 @@ def test_failed_preload_is_logged_and_the_fallback_reported(monkeypatch, graph, 
     assert info["providers"][0] == "CPUExecutionProvider" and "fell back" in info["reason"]
     monkeypatch.delattr(ort, "preload_dlls")  # onnxruntime < 1.21
     assert providers.preload_cuda_libraries(ort) == "onnxruntime has no preload_dlls"
+
+
+@pytest.mark.filterwarnings("ignore:Specified provider 'CUDAExecutionProvider'")
+def test_cuda_options_reach_onnxruntime_over_the_defaults(monkeypatch, graph):
+    import onnxruntime as ort
+
+    seen = []
+    real = ort.InferenceSession
+
+    def spy(path, sess_options=None, providers=None):
+        seen.append(providers)
+        return real(path, sess_options=sess_options, providers=["CPUExecutionProvider"])
+
+    monkeypatch.setattr(ort, "InferenceSession", spy)
+    monkeypatch.setattr(ort, "preload_dlls", lambda: None, raising=False)
+    defaults = {"arena_extend_strategy": "kSameAsRequested", "use_tf32": "1"}
+    monkeypatch.setattr(providers, "CUDA_OPTIONS", defaults)
+    fake_gpu(monkeypatch, True, True)
+    providers.create_session(graph, threads=1, cuda_options={"use_tf32": 0, "gpu_mem_limit": 2 << 30})
+    assert seen[-1] == [
+        ("CUDAExecutionProvider",
+         {"arena_extend_strategy": "kSameAsRequested", "use_tf32": "0", "gpu_mem_limit": str(2 << 30)}),
+        "CPUExecutionProvider",
+    ]
+    providers.create_session(graph, providers=["CPUExecutionProvider"], threads=1, cuda_options={"a": 0})
+    assert seen[-1] == ["CPUExecutionProvider"]

@@ -23,6 +23,8 @@ def test_request_validation():
         ExportRequest("small", 378, 504, "x.onnx").validate()
     with pytest.raises(ModelError, match="exactly one"):
         ExportRequest("small", 378, 504, "x.onnx", checkpoint="w.safetensors", random_init=True).validate()
+    with pytest.raises(ModelError, match="opset 17: the DA3 export offers 18, 23"):
+        ExportRequest("small", 378, 504, "x.onnx", random_init=True, opset=17).validate()
 
 
 @pytest.mark.export
@@ -116,3 +118,24 @@ def test_tiny_export_agrees_with_torch_and_runs_in_the_runtime(tmp_path, capsys,
     T_CW[:, 0, 3] = [0.0, -0.1, -0.2, -0.3]
     pred = model.predict(frames, np.tile(cam.K, (4, 1, 1)), T_CW)
     assert np.isfinite(pred.scale) and pred.scale > 0 and np.isfinite(pred.depth).all()
+
+
+@pytest.mark.export
+@pytest.mark.slow
+def test_opset_23_export_uses_onnx_attention_and_agrees_with_torch(tmp_path, capsys, monkeypatch):
+    _need_export_deps()
+    import onnx
+
+    from tools.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    rc = main(["export-da3", "--random-init", "--size", "tiny", "--res", "28x42", "--opset", "23",
+               "--out", "da3_tiny_op23.onnx", "--json"])
+    assert rc == 0
+    card = json.loads(capsys.readouterr().out)
+    assert card["opset"] == 23 and card["check"]["max_rel_error"] < 1e-4
+    graph = onnx.load(tmp_path / "da3_tiny_op23.onnx")
+    ops = [n.op_type for n in graph.graph.node]
+    # the tiny net's 4 blocks + the camera decoder attend: fused operators, no MatMul-Softmax chains
+    assert ops.count("Attention") >= 4 and "Softmax" not in ops
+    assert {o.version for o in graph.opset_import if o.domain in ("", "ai.onnx")} == {23}

@@ -57,6 +57,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--tolerance", type=float, default=1e-3, help="largest accepted relative error in the check"
     )
     p.add_argument("--threads", type=int, default=2, help="torch / ONNX Runtime threads")
+    p.add_argument(
+        "--opset",
+        type=int,
+        default=18,
+        choices=[18, 23],
+        help="ONNX opset: 23 writes attention as ONNX's Attention operator (ONNX Runtime >= 1.23; "
+        "see BENCHMARKS.md for its GPU memory and latency)",
+    )
     p.add_argument("--json", action="store_true", help="print the model card as JSON")
 
 
@@ -84,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
         check_views=args.check_views,
         tolerance=args.tolerance,
         threads=args.threads,
+        opset=args.opset,
     )
     card = export_in_subprocess(req)
     if args.json:

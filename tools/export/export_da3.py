@@ -1,6 +1,6 @@
 """Export DA3 to the DAVIO ONNX contract (models/da3/contract.py), check it against torch, write a card.
 
-One graph per size and resolution, dynamo exporter, opset 18, N views dynamic in [2, 8]. The
+One graph per size and resolution, dynamo exporter, opset 18 (or 23), N views dynamic in [2, 8]. The
 single-graph variant takes `use_pose`: cam_token = where(use_pose, cam_enc(K, E), learned tokens),
 so use_pose=false is upstream's unconditioned forward with the first view as reference and
 use_pose=true the pose-conditioned forward. The only change needed for the exporter (RoPE's
@@ -30,6 +30,9 @@ from runtime.json_out import strict_dumps
 INPUT_NAMES = ["images", "intrinsics", "extrinsics", "use_pose"]
 OUTPUT_NAMES = ["depth", "conf", "pred_extrinsics", "pred_intrinsics"]
 OPSET = 18
+#: opsets an export may ask for: 18 (the default, every ONNX Runtime since 1.14), 23 (attention as ONNX's
+#: own `Attention` and `RotaryEmbedding` operators; ONNX Runtime >= 1.23)
+OPSETS = (18, 23)
 
 
 @dataclass
@@ -45,6 +48,7 @@ class ExportRequest:
         seed: seed of the random weights and of the check inputs.
         check_views: N used for the torch-vs-ONNX Runtime check (2..8).
         tolerance: largest accepted relative error of any output in that check.
+        opset: the ONNX opset of the graph (`OPSETS`).
         threads: torch / ORT threads during the export.
     """
 
@@ -58,6 +62,7 @@ class ExportRequest:
     check_views: int = 5
     tolerance: float = 1e-3
     threads: int = 2
+    opset: int = OPSET
 
     def validate(self) -> None:
         if self.height % PATCH or self.width % PATCH or self.height <= 0 or self.width <= 0:
@@ -67,6 +72,8 @@ class ExportRequest:
             )
         if (self.checkpoint is None) == (not self.random_init):
             raise ModelError("give exactly one of --checkpoint PATH or --random-init")
+        if self.opset not in OPSETS:
+            raise ModelError(f"opset {self.opset}: the DA3 export offers {', '.join(map(str, OPSETS))}")
         if not MIN_VIEWS <= self.check_views <= MAX_VIEWS:
             raise ModelError(f"check views must be in [{MIN_VIEWS}, {MAX_VIEWS}], got {self.check_views}")
 
@@ -265,7 +272,7 @@ def export_da3(req: ExportRequest) -> dict:
             wrapper,
             args,
             dynamo=True,
-            opset_version=OPSET,
+            opset_version=req.opset,
             input_names=INPUT_NAMES,
             output_names=OUTPUT_NAMES,
             dynamic_shapes=dyn,
@@ -294,7 +301,7 @@ def export_da3(req: ExportRequest) -> dict:
         "size": req.size,
         "resolution": [req.height, req.width],
         "views": [MIN_VIEWS, MAX_VIEWS],
-        "opset": OPSET,
+        "opset": req.opset,
         "licence": LICENCES[req.size] if not req.random_init else "none (random weights)",
         "licence_note": "DA3 code is Apache-2.0 (ByteDance); checkpoint licence as given by its release",
         **ckpt,
