@@ -156,7 +156,12 @@ class OnnxDA3:
         try:
             outs = self.session.run(["depth", "conf", "pred_extrinsics", "pred_intrinsics"], feeds)
         except Exception as exc:
-            raise ModelError(f"{self.path}: inference failed ({type(exc).__name__}: {exc})") from exc
+            text = str(exc)
+            hint = ""
+            if "allocate" in text.lower() or "out of memory" in text.lower():
+                hint = (f"; out of GPU memory at {images.shape[1]} views: raise or drop --gpu-mem-limit, "
+                        "free the GPU, or use a smaller graph (DA3-Small; an --opset 23 export needs less)")
+            raise ModelError(f"{self.path}: inference failed ({type(exc).__name__}: {text}){hint}") from exc
         self._check_outputs(outs, images.shape[1])
         return outs
 

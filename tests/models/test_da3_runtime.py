@@ -250,3 +250,23 @@ def test_normalise_image_matches_the_interleaved_formula_bit_for_bit(shape):
         normalise_image(img, out=np.zeros((3, 7, 9), dtype=np.float64))
     with pytest.raises(ValueError, match="grey"):
         normalise_image(np.zeros((7, 9, 4), dtype=np.uint8))
+
+
+def test_an_allocation_failure_says_how_to_fit_the_gpu(graph):
+    model = OnnxDA3(graph, CAM, threads=1)
+
+    class Session:  # what ONNX Runtime's arena raises past gpu_mem_limit (its wording)
+        def __init__(self, message):
+            self.message = message
+
+        def run(self, names, feeds):
+            raise RuntimeError(self.message)
+
+    model.session = Session("[ONNXRuntimeError] : 6 : RUNTIME_EXCEPTION : Failed to allocate memory for "
+                            "requested buffer of size 1073741824")
+    with pytest.raises(ModelError, match=r"out of GPU memory at 3 views: raise or drop --gpu-mem-limit"):
+        model.predict(gradient_frames(3))
+    model.session = Session("shape mismatch in node /Reshape")
+    with pytest.raises(ModelError, match=r"inference failed \(RuntimeError: shape mismatch") as info:
+        model.predict(gradient_frames(3))
+    assert "GPU memory" not in str(info.value)

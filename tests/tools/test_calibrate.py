@@ -251,6 +251,8 @@ def test_covariance_std_takes_the_worst_direction():
         (["--max-rot-std-deg", "-1"], "--max-rot-std-deg must be a finite number > 0"),
         (["--min-axis-rate-dps", "nan"], "--min-axis-rate-dps must be"),
         (["--model-latency", "-2"], "--model-latency must be"),
+        (["--model", "m.onnx", "--gpu-mem-limit", "inf"], "--gpu-mem-limit inf: give megabytes"),
+        (["--gpu-mem-limit", "2048"], "--gpu-mem-limit caps the DA3 graph's GPU memory: it needs --model"),
     ],
 )
 def test_bad_option_values_are_clear_errors(tmp_path, capsys, extra, words):

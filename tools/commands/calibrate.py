@@ -7,6 +7,8 @@ import math
 import sys
 from pathlib import Path
 
+from tools.model_open import add_gpu_memory_argument
+
 NAME = "calibrate"
 HELP = "estimate the camera-IMU extrinsics and time offset of a recording; write a Kalibr camchain"
 DESCRIPTION = (
@@ -56,6 +58,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--model", metavar="ONNX", help="DA3 ONNX graph (made by `davio export-da3`)")
+    add_gpu_memory_argument(p)
     g.add_argument(
         "--emulated",
         metavar="PRESET",
@@ -136,7 +139,9 @@ def check_args(args: argparse.Namespace) -> None:
     file is read)."""
     from runtime.errors import ConfigError
     from tools.calibrate.output import paths_for
+    from tools.model_open import check_gpu_memory_args
 
+    check_gpu_memory_args(args)
     sec = args.seconds
     if sec is not None and not (math.isfinite(sec) and sec > 0):
         raise ConfigError(f"--seconds must be a finite number > 0 (got {sec!r})")
@@ -214,14 +219,12 @@ def open_live(args: argparse.Namespace) -> tuple:
             raise ConfigError(f"{args.rig}: no camera intrinsics")
     driver, rig = open_device(args, given)
     try:
-        from models.da3 import OnnxDA3
+        from tools.model_open import open_da3
 
-        model = OnnxDA3(args.model, rig.camera)
-        warm_s = model.warm_up(5)
+        model, desc = open_da3(args, rig.camera, 5)
     except BaseException:
         driver.stop()
         raise
-    desc = f"DA3 ONNX {args.model} on {model.session_info['providers'][0]} (warm-up {warm_s:.2f} s)"
     reference = {"source": None, "T_IC": None, "time_offset_s": None}
     if args.source == "oak" and given is None and rig.T_IC is not None:
         reference.update(source="the OAK's factory calibration", T_IC=rig.T_IC,
@@ -270,11 +273,9 @@ def open_inputs(args: argparse.Namespace) -> tuple:
             time_offset_s=float(cfg.get("time_offset_s") or 0.0),
         )
     if args.model:
-        from models.da3 import OnnxDA3
+        from tools.model_open import open_da3
 
-        model = OnnxDA3(args.model, rig.camera)
-        warm_s = model.warm_up(5)
-        desc = f"DA3 ONNX {args.model} on {model.session_info['providers'][0]} (warm-up {warm_s:.2f} s)"
+        model, desc = open_da3(args, rig.camera, 5)
     elif rec.kind == "simulated":
         from models.emulated_da3 import EmulatedDA3
 

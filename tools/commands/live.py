@@ -6,6 +6,8 @@ import sys
 import time
 from dataclasses import replace
 
+from tools.model_open import add_gpu_memory_argument
+
 NAME = "live"
 HELP = "run live on an OAK (depthai) or a UVC camera + serial IMU; Ctrl-C finishes and writes the run"
 DESCRIPTION = (
@@ -51,6 +53,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "calibration is used without it")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--model", metavar="ONNX", help="DA3 ONNX graph: feed-forward start-up and the map")
+    add_gpu_memory_argument(p)
     g.add_argument("--native-only", action="store_true", help="native initializer only, no map")
     p.add_argument("--no-map", action="store_true", help="do not map")
     p.add_argument("--config", metavar="TOML", help="configuration file")
@@ -100,11 +103,9 @@ def _open_model(args: argparse.Namespace, rig, config) -> tuple:
     """(model, description): the DA3 ONNX graph warmed up at the start-up window's shape, or None."""
     if not args.model:
         return None, "none (native initializer only)"
-    from models.da3 import OnnxDA3
+    from tools.model_open import open_da3
 
-    model = OnnxDA3(args.model, rig.camera)
-    warm_s = model.warm_up(config.startup.window_images)
-    return model, f"DA3 ONNX {args.model} on {model.session_info['providers'][0]} (warm-up {warm_s:.2f} s)"
+    return open_da3(args, rig.camera, config.startup.window_images)
 
 
 def check_device_args(args: argparse.Namespace, command: str) -> None:

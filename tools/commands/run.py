@@ -5,6 +5,8 @@ import argparse
 from dataclasses import replace
 from pathlib import Path
 
+from tools.model_open import add_gpu_memory_argument
+
 NAME = "run"
 HELP = "run on an EuRoC folder or a simulated recording; write odometry.tum, report.json, plots"
 DESCRIPTION = (
@@ -40,6 +42,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="replace the previous run in --out (only a folder that holds a DAVIO run)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--model", metavar="ONNX", help="DA3 ONNX graph (made by `davio export-da3`)")
+    add_gpu_memory_argument(p)
     g.add_argument("--emulated", metavar="PRESET", nargs="?", const="base", default=None,
                    choices=_emulated_presets(),
                    help="emulated DA3 (simulated recordings only): small, base or large, or <size>_upper "
@@ -85,6 +88,9 @@ def check_run_args(args: argparse.Namespace) -> None:
     sec = getattr(args, "seconds", None)
     if sec is not None and not (math.isfinite(sec) and sec > 0):
         raise ConfigError(f"--seconds must be a finite number > 0 (got {sec!r})")
+    from tools.model_open import check_gpu_memory_args
+
+    check_gpu_memory_args(args)
     speed = getattr(args, "speed", None)
     if speed is not None and not (math.isfinite(speed) and speed > 0):
         raise ConfigError(f"--speed must be > 0 (got {speed!r})")
@@ -160,13 +166,10 @@ def _open_inputs(args: argparse.Namespace, config) -> tuple:
         rig = rig.replace(T_IC=None, time_offset_s=None)
     model, model_desc = None, "none (native initializer only)"
     if args.model:
-        from models.da3 import OnnxDA3
+        from tools.model_open import open_da3
 
-        model = OnnxDA3(args.model, rig.camera)
         # one-off session costs are paid here, at the start-up window's shape, not by the first window
-        warm_s = model.warm_up(config.startup.window_images)
-        model_desc = (f"DA3 ONNX {args.model} on {model.session_info['providers'][0]} "
-                      f"(warm-up call {warm_s:.2f} s)")
+        model, model_desc = open_da3(args, rig.camera, config.startup.window_images)
     elif args.emulated or (rec.kind == "simulated" and not args.native_only):
         if rec.kind != "simulated":
             raise ConfigError("--emulated needs a recording written by `davio simulate` (it reads the "

@@ -1,0 +1,63 @@
+"""Opening the DA3 graph for `davio run`, `live` and `calibrate`: the GPU memory cap and the warm-up.
+
+ONNX Runtime's CUDA arena keeps what it once allocated and grows by powers of two by default, so a
+DA3-Base call on 5 views held 10.9 GB of an H100 with an opset-18 graph although it ran just as fast
+under a 4 GiB cap (BENCHMARKS.md, "DA3 on a GPU"). `--gpu-mem-limit MB` sets that cap (and growth
+by what is asked for), for a small GPU or one shared with other programs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from typing import Any
+
+from runtime.errors import ConfigError
+
+#: smallest cap accepted: the CUDA context alone takes about 500 MB, the smallest DA3 graph more
+MIN_GPU_MEM_LIMIT_MB = 256
+
+
+def add_gpu_memory_argument(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--gpu-mem-limit", type=float, default=None, metavar="MB",
+        help="cap ONNX Runtime's CUDA memory arena at MB megabytes (default: no cap; DA3-Base on 5 views "
+        "ran within 4096 at full speed). No effect on the CPU",
+    )
+
+
+def cuda_options(args: argparse.Namespace) -> dict[str, str]:
+    """CUDA execution-provider options of the command line (empty without --gpu-mem-limit).
+
+    Raises:
+        ConfigError: a cap that is not a finite number of at least MIN_GPU_MEM_LIMIT_MB.
+    """
+    mb = getattr(args, "gpu_mem_limit", None)
+    if mb is None:
+        return {}
+    if not (math.isfinite(mb) and mb >= MIN_GPU_MEM_LIMIT_MB):
+        raise ConfigError(f"--gpu-mem-limit {mb:g}: give megabytes, at least {MIN_GPU_MEM_LIMIT_MB}")
+    return {"gpu_mem_limit": str(int(mb * 1e6)), "arena_extend_strategy": "kSameAsRequested"}
+
+
+def check_gpu_memory_args(args: argparse.Namespace) -> None:
+    """ConfigError, before any work, for a --gpu-mem-limit that is invalid or has no --model to cap."""
+    cuda_options(args)
+    if getattr(args, "gpu_mem_limit", None) is not None and not getattr(args, "model", None):
+        raise ConfigError("--gpu-mem-limit caps the DA3 graph's GPU memory: it needs --model ONNX")
+
+
+def open_da3(args: argparse.Namespace, camera: Any, views: int) -> tuple[Any, str]:
+    """(model, description): `args.model` loaded and warmed up on `views` frames.
+
+    The warm-up pays the session's one-off costs (arena, cuDNN search) before the run and shows at
+    once that the graph runs within the memory cap.
+    """
+    from models.da3 import OnnxDA3
+
+    model = OnnxDA3(args.model, camera, cuda_options=cuda_options(args))
+    warm_s = model.warm_up(views)
+    provider = model.session_info["providers"][0]
+    cap = getattr(args, "gpu_mem_limit", None)
+    capped = f", arena capped at {cap:g} MB" if cap is not None and provider.startswith("CUDA") else ""
+    return model, f"DA3 ONNX {args.model} on {provider}{capped} (warm-up call {warm_s:.2f} s)"
