@@ -35,7 +35,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--model",
         metavar="PATH",
         default=None,
-        help="DA3 graph to time (default: CACHE/da3_SIZE_HxW_random.onnx, exported if absent)",
+        help="DA3 graph to time (default: CACHE/da3_SIZE_HxW_opOPSET_random.onnx, exported if absent)",
     )
     p.add_argument(
         "--size", default="small", choices=["tiny", "small", "base"], help="size of the default graph"
@@ -61,7 +61,9 @@ def _default_model(size: str, res: str) -> tuple[Path, float | None]:
     from tools.export.export_da3 import ExportRequest, export_in_subprocess
 
     h, w = (int(v) for v in res.lower().split("x"))
-    path = CACHE / f"da3_{size}_{h}x{w}_random.onnx"
+    from tools.export.export_da3 import OPSET
+
+    path = CACHE / f"da3_{size}_{h}x{w}_op{OPSET}_random.onnx"
     if path.is_file():
         return path, None
     t0 = time.perf_counter()
