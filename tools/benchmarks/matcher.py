@@ -237,6 +237,9 @@ def run(args: argparse.Namespace) -> int:
             "matches_per_pair": refined[1] / len(pairs),
             "precision": refined[0] / max(refined[1], 1),
             "precision_min_pair": float(np.min(per_pair)),
+            # the execution provider of the XFeat graph (ORB runs in OpenCV)
+            "provider": (m.detector.session_info["providers"][0]
+                         if hasattr(m.detector, "session_info") else "opencv"),
         }
     out = {
         "benchmark": NAME,
