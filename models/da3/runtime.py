@@ -158,7 +158,10 @@ class OnnxDA3:
         except Exception as exc:
             text = str(exc)
             hint = ""
-            if "allocate" in text.lower() or "out of memory" in text.lower():
+            # ONNX Runtime's arena past gpu_mem_limit ("Available memory of ... is smaller than requested
+            # bytes", seen on an H100), its other allocation failures, and CUDA's own
+            if any(w in text.lower() for w in ("smaller than requested bytes", "failed to allocate",
+                                                 "out of memory")):
                 hint = (f"; out of GPU memory at {images.shape[1]} views: raise or drop --gpu-mem-limit, "
                         "free the GPU, or use a smaller graph (DA3-Small; an --opset 23 export needs less)")
             raise ModelError(f"{self.path}: inference failed ({type(exc).__name__}: {text}){hint}") from exc
