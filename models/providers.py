@@ -27,9 +27,6 @@ CPU = "CPUExecutionProvider"
 #: Environment variable that forces the CPU provider (e.g. to compare timings).
 FORCE_CPU_ENV = "DAVIO_FORCE_CPU"
 
-#: CUDA execution-provider options set for every CUDA session (ONNX Runtime's names; string values).
-CUDA_OPTIONS: dict[str, str] = {}
-
 
 def _available_providers() -> list[str]:
     import onnxruntime as ort
@@ -140,8 +137,9 @@ def create_session(
         providers: explicit execution providers, or None for the automatic choice.
         threads: intra-op threads (None = `default_threads()`); inter-op is 1 (sequential).
         contract: signature check of the expected contract (e.g. `check_da3_signature`), or None.
-        cuda_options: CUDA execution-provider options over `CUDA_OPTIONS` (ONNX Runtime's names and
-            string values, e.g. {"gpu_mem_limit": "2147483648"}); unused on the CPU.
+        cuda_options: CUDA execution-provider options (ONNX Runtime's names, values as strings, e.g.
+            {"gpu_mem_limit": "2147483648"}); ONNX Runtime's defaults otherwise (measured best for the
+            opset-23 DA3 graphs, BENCHMARKS.md "DA3 on a GPU"); unused on the CPU.
 
     Returns:
         (session, info dict with 'providers' actually used, 'reason', 'threads', and 'cuda_options':
@@ -170,8 +168,7 @@ def create_session(
     so.log_severity_level = 3
     with_options: list = list(chosen)
     if chosen[0] == CUDA:
-        given = {str(k): str(v) for k, v in (cuda_options or {}).items()}
-        with_options[0] = (CUDA, {**CUDA_OPTIONS, **given})
+        with_options[0] = (CUDA, {str(k): str(v) for k, v in (cuda_options or {}).items()})
     try:
         sess = ort.InferenceSession(str(path), sess_options=so, providers=with_options)
     except Exception as exc:

@@ -159,7 +159,7 @@ def test_failed_preload_is_logged_and_the_fallback_reported(monkeypatch, graph, 
 
 
 @pytest.mark.filterwarnings("ignore:Specified provider 'CUDAExecutionProvider'")
-def test_cuda_options_reach_onnxruntime_over_the_defaults(monkeypatch, graph):
+def test_cuda_options_reach_onnxruntime_as_strings(monkeypatch, graph):
     import onnxruntime as ort
 
     seen = []
@@ -171,14 +171,11 @@ def test_cuda_options_reach_onnxruntime_over_the_defaults(monkeypatch, graph):
 
     monkeypatch.setattr(ort, "InferenceSession", spy)
     monkeypatch.setattr(ort, "preload_dlls", lambda: None, raising=False)
-    defaults = {"arena_extend_strategy": "kSameAsRequested", "use_tf32": "1"}
-    monkeypatch.setattr(providers, "CUDA_OPTIONS", defaults)
     fake_gpu(monkeypatch, True, True)
+    providers.create_session(graph, threads=1)
+    assert seen[-1] == [("CUDAExecutionProvider", {}), "CPUExecutionProvider"]  # ONNX Runtime's defaults
     providers.create_session(graph, threads=1, cuda_options={"use_tf32": 0, "gpu_mem_limit": 2 << 30})
-    assert seen[-1] == [
-        ("CUDAExecutionProvider",
-         {"arena_extend_strategy": "kSameAsRequested", "use_tf32": "0", "gpu_mem_limit": str(2 << 30)}),
-        "CPUExecutionProvider",
-    ]
+    assert seen[-1] == [("CUDAExecutionProvider", {"use_tf32": "0", "gpu_mem_limit": str(2 << 30)}),
+                        "CPUExecutionProvider"]
     providers.create_session(graph, providers=["CPUExecutionProvider"], threads=1, cuda_options={"a": 0})
     assert seen[-1] == ["CPUExecutionProvider"]
