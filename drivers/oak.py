@@ -19,7 +19,8 @@ bounded) and exposes two sources for `LiveDriver`:
   lossless; on overflow the oldest sample goes and is counted (`overflow`, `take_overflow()`). Batches the
   device's own non-blocking queue dropped before the host read them show as a gyroscope stamp step of more
   than 1.5 periods (the median of the steps seen): the samples missing are counted (`gaps`,
-  `lost_before_host`) and set on the next sample's `lost_before`.
+  `lost_before_host`) and set on the next sample's `lost_before`. The report gives the rate measured from
+  those steps (`rate_hz_measured`) and notes it when it is more than 10 % from the rate requested.
   The samples are in the DepthAI IMU frame, the frame `getImuToCameraExtrinsics` relates to the camera:
   since depthai 3's firmware the _RAW streams are the chip's native axes instead (their docstring), so
   they are not used.

@@ -27,6 +27,8 @@ GAP_FACTOR = 1.5
 GAP_MIN_STEPS = 10
 GAP_STEPS = 64
 """Steps the median period is taken over, and the most gap flags kept waiting."""
+RATE_TOLERANCE = 0.1
+"""A measured IMU rate this far (relative) from the requested one is noted in the report."""
 NEVER = 2**63 - 1
 """A stamp later than any frame (the floor of a source that will deliver nothing more)."""
 
@@ -286,6 +288,15 @@ class OakImu(_Source):
                                "gaps": self.gaps, "lost_before_host": self.lost_before_host}
         out.update(self.pairer.counts())
         notes = []
+        requested = float(self.owner.imu_rate_hz)
+        out["rate_hz_requested"] = requested
+        out["rate_hz_measured"] = None
+        if len(self._steps) >= GAP_MIN_STEPS:  # the gyroscope's median stamp step over the last GAP_STEPS
+            measured = 1e9 / float(np.median(self._steps))
+            out["rate_hz_measured"] = round(measured, 1)
+            if abs(measured / requested - 1.0) > RATE_TOLERANCE:
+                notes.append(f"the IMU runs at {measured:.0f} Hz, not the {requested:g} Hz requested (the "
+                             f"chip rounds to a rate it supports)")
         if self.gaps:
             notes.append(f"{self.gaps} gaps in the gyroscope stamps: about {self.lost_before_host} samples "
                          f"lost before reaching the host (each flagged on the sample after it)")

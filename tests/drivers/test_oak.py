@@ -309,6 +309,17 @@ def test_samples_after_batches_lost_before_the_host_are_flagged() -> None:
     assert lost == {t[34]: 4, t[51]: 1}
     assert rep["gaps"] == 2 and rep["lost_before_host"] == 5 and rep["overflow"] == 0
     assert any("5 samples lost before reaching the host" in n for n in rep["notes"])
+    # 5 ms stamp steps: the 200 Hz requested, not noted
+    assert rep["rate_hz_requested"] == 200 and rep["rate_hz_measured"] == pytest.approx(200, rel=0.02)
+    assert not any("Hz requested" in n for n in rep["notes"])
+
+
+def test_an_imu_rate_other_than_the_requested_one_is_noted() -> None:
+    dev, _, iq, _ = fake_device()                       # 200 Hz requested
+    iq.put(imu_batch([(T0 + k * 2_500_000,) * 2 for k in range(40)]))   # the chip gives 400 Hz
+    out, rep = _drain_imu(dev, batches=1)
+    assert len(out) == 40 and rep["rate_hz_measured"] == pytest.approx(400.0)
+    assert any("the IMU runs at 400 Hz, not the 200 Hz requested" in n for n in rep["notes"])
 
 
 def test_gap_detection_follows_a_rate_change_instead_of_flagging_every_sample() -> None:
