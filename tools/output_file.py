@@ -21,7 +21,7 @@ def _same_file(a: Path, b: Path) -> bool:
 
 def check_output_file(path: Path, option: str, suffixes: tuple[str, ...], *, overwrite: bool = False,
                       replaceable: bool = False, inputs: Iterable[Path] = (),
-                      protected_dirs: Iterable[Path] = ()) -> bool:
+                      protected_dirs: Iterable[Path] = (), new_folder: bool = False) -> bool:
     """ConfigError unless `path` may be written; returns True when it replaces an existing file.
 
     Args:
@@ -33,6 +33,8 @@ def check_output_file(path: Path, option: str, suffixes: tuple[str, ...], *, ove
             default output, e.g. a run folder's map.ply).
         inputs: files the command reads; none of them may be the output.
         protected_dirs: folders the output must not be written into (e.g. the map archive itself).
+        new_folder: a missing folder is fine (the command makes it): its nearest existing folder must
+            be writable instead.
     """
     path = Path(path)
     if path.suffix.lower() not in suffixes:
@@ -49,6 +51,9 @@ def check_output_file(path: Path, option: str, suffixes: tuple[str, ...], *, ove
         st = os.stat(path)
     except FileNotFoundError:
         st = None
+    except NotADirectoryError:
+        blocking = next((p for p in path.parents if p.exists() and not p.is_dir()), path.parent)
+        raise ConfigError(f"{option} {path}: {blocking} is a file, not a folder") from None
     except OSError as exc:
         raise ConfigError(f"{option} {path}: cannot check it ({exc.strerror or exc})") from None
     if st is None:
@@ -56,7 +61,13 @@ def check_output_file(path: Path, option: str, suffixes: tuple[str, ...], *, ove
             raise ConfigError(f"{option} {path}: is a broken symbolic link; remove it or choose another file")
         parent = path.parent
         if not parent.is_dir():
-            raise ConfigError(f"{option} {path}: folder {parent} does not exist")
+            if not new_folder:
+                raise ConfigError(f"{option} {path}: folder {parent} does not exist")
+            base = next(p for p in parent.parents if p.exists() or p == p.parent)
+            if not base.is_dir():
+                raise ConfigError(f"{option} {path}: {base} is a file, not a folder")
+            _probe_writable(base / path.name, option)
+            return False
         _probe_writable(path, option)
         return False
     if not stat.S_ISREG(st.st_mode):

@@ -70,7 +70,7 @@ def test_calibrate_writes_a_camchain_close_to_the_simulator_rig(aggressive_folde
     from runtime.geometry import so3_log
     from tools.run_io import open_recording
 
-    out = tmp_path / "camchain.yaml"
+    out = tmp_path / "new" / "camchain.yaml"   # the folder is made, as `davio run --out` makes its own
     # 12 s leave about 6 s to the filter: thresholds relaxed (the defaults are for >= 30 s of motion)
     rc = main(
         [
@@ -113,8 +113,8 @@ def test_calibrate_writes_a_camchain_close_to_the_simulator_rig(aggressive_folde
     # report: errors against the simulator's rig, convergence, plot
     assert report["reference"]["errors"]["rotation_deg"] == pytest.approx(rot, abs=1e-6)
     assert len(report["convergence"]["t_s"]) == report["estimate"]["states_collected"] > 10
-    assert (tmp_path / "camchain.report.json").is_file() and (tmp_path / "camchain.convergence.png").is_file()
-    assert (tmp_path / "imu.yaml").is_file()
+    for name in ("camchain.report.json", "camchain.convergence.png", "imu.yaml"):
+        assert (out.parent / name).is_file()
     # a second run does not replace the files without --overwrite
     assert main(["calibrate", str(aggressive_folder), "--out", str(out)]) == 1
     assert "--overwrite" in capsys.readouterr().err
@@ -265,8 +265,9 @@ def test_bad_outputs_and_sources_are_clear_errors(tmp_path, capsys):
     assert "is a folder" in capsys.readouterr().err
     assert main(["calibrate", str(tmp_path), "--out", str(tmp_path / "rig.txt")]) == 1
     assert "must be a .yaml file" in capsys.readouterr().err
-    assert main(["calibrate", str(tmp_path), "--out", str(tmp_path / "nope" / "rig.yaml")]) == 1
-    assert "does not exist" in capsys.readouterr().err
+    (tmp_path / "afile").write_text("x")
+    assert main(["calibrate", str(tmp_path), "--out", str(tmp_path / "afile" / "sub" / "rig.yaml")]) == 1
+    assert "afile is a file, not a folder" in capsys.readouterr().err
     (tmp_path / "rig.report.json").write_text("{}")
     assert main(["calibrate", str(tmp_path), "--out", str(tmp_path / "rig.yaml")]) == 1
     assert "pass --overwrite" in capsys.readouterr().err

@@ -164,9 +164,6 @@ def check_args(args: argparse.Namespace) -> None:
     if paths_for(out)["imu"] == out:
         raise ConfigError(f"--out {out}: the IMU calibration is written as {out.name} beside the camchain; "
                           "name the camchain itself, e.g. camchain.yaml")
-    parent = out.parent if str(out.parent) else Path(".")
-    if not parent.is_dir():
-        raise ConfigError(f"--out {out}: folder {parent} does not exist")
     if not args.overwrite:
         existing = [str(p) for p in paths_for(out).values() if p.exists()]
         if existing:
@@ -187,7 +184,7 @@ def check_args(args: argparse.Namespace) -> None:
                               "write the calibration elsewhere")
         rig_file = [rig] + [p for p in [None if rig.is_dir() else find_imu_yaml(rig)] if p is not None]
     for p in paths_for(out).values():   # never a device, a FIFO, or the --rig file it reads
-        check_output_file(p, "--out", (p.suffix.lower(),), overwrite=True, inputs=rig_file)
+        check_output_file(p, "--out", (p.suffix.lower(),), overwrite=True, inputs=rig_file, new_folder=True)
 
 
 LIVE_SOURCES = ("oak", "uvc")
@@ -354,6 +351,7 @@ def finish(
 
     verdict = judge(run_, th)
     paths = paths_for(Path(args.out))
+    paths["report"].parent.mkdir(parents=True, exist_ok=True)   # a new folder, as `davio run --out` makes
     report = build_report(run_, verdict, th, model_desc, recording, reference, paths)
     report["driver"] = driver_report
     if verdict.ok:
