@@ -11,6 +11,7 @@ resolution, whatever the graph's fixed resolution is.
 from __future__ import annotations
 
 import logging
+import re
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -42,14 +43,17 @@ MIN_CENTRE_SPREAD_M = 1e-3
 
 
 def export_hint(path: Path, camera: CameraModel | None = None) -> str:
-    """The command that produces a missing DA3 graph (named in every 'model missing' error)."""
+    """The command that produces a missing DA3 graph (named in every 'model missing' error): the size
+    the file's name says (e.g. da3_base_322x504.onnx), else Small; the resolution of the camera."""
     res = "378x504"
     if camera is not None:
         h, w = da3_resolution(camera.width, camera.height)
         res = f"{h}x{w}"
+    words = re.split(r"[^a-z]+", Path(path).name.lower())
+    size = next((s for s in ("small", "base", "large", "giant") if s in words), "small")
     return (
-        f"davio export-da3 --checkpoint PATH/TO/DA3-SMALL/model.safetensors --size small --res {res} "
-        f"--out {path}"
+        f"davio export-da3 --checkpoint PATH/TO/DA3-{size.upper()}/model.safetensors --size {size} "
+        f"--res {res} --out {path}"
     )
 
 

@@ -116,6 +116,10 @@ def test_missing_model_names_file_and_export_command(tmp_path):
     with pytest.raises(ModelError) as e:
         OnnxDA3(path, CAM)
     assert str(path) in str(e.value) and "davio export-da3" in str(e.value)
+    assert "DA3-SMALL/model.safetensors --size small" in str(e.value)
+    with pytest.raises(ModelError, match=r"DA3-BASE/model.safetensors --size base --res \d+x\d+ --out .*"
+                                         r"da3_base_322x504.onnx"):
+        OnnxDA3(tmp_path / "da3_base_322x504.onnx", CAM)   # the size the file's name says
     path.mkdir()                               # a folder named like the model: said, no export command
     with pytest.raises(ModelError, match="da3_small_378x504.onnx is a folder, not an ONNX model file$"):
         OnnxDA3(path, CAM)
