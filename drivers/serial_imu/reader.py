@@ -104,7 +104,9 @@ class SerialImu:
         queue_seconds: the queue holds `queue_seconds * max_rate_hz` samples.
         max_rate_hz: the highest sample rate expected (sizes the queue).
         configure: send GoToConfig, SetOutputConfiguration (counter, SampleTimeFine, accel, gyro at
-            `output_rate_hz`) and GoToMeasurement on start (Xsens only). Default: only listen.
+            `output_rate_hz`) and GoToMeasurement on start (Xsens only). The bytes received before the
+            device is in its configuration state (messages of its former output configuration) are
+            discarded and counted (`configure_discarded_bytes`). Default: only listen.
         output_rate_hz: the rate requested when configuring.
         open_timeout_s: `start()` gives up opening the port after this long.
         first_byte_timeout_s: not one byte within this long after the start is an error ("silent").
@@ -136,6 +138,7 @@ class SerialImu:
         self.queue_seconds = float(queue_seconds)
         self.capacity = max(1, int(round(queue_seconds * max_rate_hz)))
         self.configure = bool(configure)
+        self.configure_discarded_bytes = 0
         self.output_rate_hz = int(output_rate_hz)
         self.open_timeout_s = float(open_timeout_s)
         self.first_byte_timeout_s = float(first_byte_timeout_s)
@@ -170,9 +173,11 @@ class SerialImu:
         self._started = True
         if self.configure:
             try:
-                rate = self.output_rate_hz
-                commands = (go_to_config(), set_output_configuration(rate), go_to_measurement())
-                for cmd in commands:
+                self.send(go_to_config())
+                time.sleep(0.05)
+                # what came before GoToConfig took effect is in the former configuration's format
+                self.configure_discarded_bytes = self._discard_input()
+                for cmd in (set_output_configuration(self.output_rate_hz), go_to_measurement()):
                     self.send(cmd)
                     time.sleep(0.05)
             except DeviceError:
@@ -228,6 +233,16 @@ class SerialImu:
         except Exception as exc:  # noqa: BLE001 - pyserial raises SerialException/OSError/others
             raise device_error(self.port, "unplugged",
                                f"writing to serial port {self.port} failed: {exc}") from None
+
+    def _discard_input(self) -> int:
+        """Drop what the port has received and not yet read; returns how many bytes that was."""
+        try:
+            waiting = int(getattr(self._ser, "in_waiting", 0) or 0)
+            self._ser.reset_input_buffer()
+        except Exception as exc:  # noqa: BLE001 - pyserial raises SerialException/OSError/others
+            raise device_error(self.port, "unplugged",
+                               f"clearing the input of serial port {self.port} failed: {exc}") from None
+        return waiting
 
     def stop(self) -> None:
         """Stop the reader, join it and close the port (idempotent). Buffered samples stay readable."""
@@ -405,6 +420,7 @@ class SerialImu:
             "unknown_packets": c.unknown_packets, "missing_fields": c.missing_fields,
             "malformed_packets": c.malformed_packets, "nonfinite": c.nonfinite,
             "seq_gaps": c.seq_gaps, "missing_estimated": c.missing_estimated,
+            "configure_discarded_bytes": self.configure_discarded_bytes,
         }
         out.update(self.clock.report())
         out["error"] = None if self.error is None else str(self.error)
