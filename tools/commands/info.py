@@ -53,6 +53,10 @@ def collect() -> dict:
         out["execution"] = describe_providers()
     except ImportError:
         pass
+    from models.gpu_inventory import gpu_inventory
+
+    gpus, note = gpu_inventory()
+    out["gpus"] = {"devices": gpus, "note": note}
     return out
 
 
@@ -87,6 +91,11 @@ def run(args: argparse.Namespace) -> int:
     if "execution" in info:
         ex = info["execution"]
         t.add_row("DA3 will run on", f"{ex.get('selected')} ({ex.get('reason')})")
+    for g in info["gpus"]["devices"]:
+        t.add_row(f"GPU {g['index']}", f"{g['name']}, {g['memory_total_mib']} MiB "
+                                       f"({g['memory_used_mib']} MiB in use)")
+    if info["gpus"]["note"]:
+        t.add_row("GPUs", info["gpus"]["note"])
     nb = info["numba"]
     t.add_row("numba", nb.get("error") or f"{nb['version']}, kernels: {nb['jit']}")
     con.print(t)
