@@ -179,3 +179,12 @@ def test_cuda_options_reach_onnxruntime_as_strings(monkeypatch, graph):
                         "CPUExecutionProvider"]
     providers.create_session(graph, providers=["CPUExecutionProvider"], threads=1, cuda_options={"a": 0})
     assert seen[-1] == ["CPUExecutionProvider"]
+
+
+def test_an_opset_18_attention_graph_gets_the_memory_note(tmp_path, graph):
+    assert "note" not in inspect_model(graph)           # no attention at all: nothing to say
+    model = onnx.load(graph)
+    model.graph.node.append(helper.make_node("Softmax", ["images"], ["attn_probs"], axis=-1))
+    spelled_out = tmp_path / "da3_op18.onnx"
+    onnx.save(model, spelled_out)
+    assert "an opset-18 export" in inspect_model(spelled_out)["note"]
