@@ -163,11 +163,16 @@ class OnnxDA3:
             text = str(exc)
             hint = ""
             # ONNX Runtime's arena past gpu_mem_limit ("Available memory of ... is smaller than requested
-            # bytes", seen on an H100), its other allocation failures, and CUDA's own
+            # bytes", seen on an H100), its other allocation failures (on the CPU too), and CUDA's own
             if any(w in text.lower() for w in ("smaller than requested bytes", "failed to allocate",
                                                  "out of memory")):
-                hint = (f"; out of GPU memory at {images.shape[1]} views: raise or drop --gpu-mem-limit, "
-                        "free the GPU, or use a smaller graph (DA3-Small; an --opset 23 export needs less)")
+                n = images.shape[1]
+                if self.session_info["providers"][0] == "CUDAExecutionProvider":
+                    hint = (f"; out of GPU memory at {n} views: raise or drop --gpu-mem-limit, free the "
+                            "GPU, or use a smaller graph (DA3-Small; an --opset 23 export needs less)")
+                else:
+                    hint = (f"; out of memory at {n} views on the CPU: free memory, or use a smaller graph "
+                            "(DA3-Small; an --opset 23 export needs about half)")
             raise ModelError(f"{self.path}: inference failed ({type(exc).__name__}: {text}){hint}") from exc
         self._check_outputs(outs, images.shape[1])
         return outs

@@ -275,8 +275,13 @@ def test_an_allocation_failure_says_how_to_fit_the_gpu(graph):
         "size 1024",
     ):
         model.session = Session(message)
+        model.session_info["providers"] = ["CUDAExecutionProvider", "CPUExecutionProvider"]
         with pytest.raises(ModelError, match=r"out of GPU memory at 3 views: raise or drop --gpu-mem-limit"):
             model.predict(gradient_frames(3))
+        model.session_info["providers"] = ["CPUExecutionProvider"]   # the CPU's pool fails the same way
+        with pytest.raises(ModelError, match=r"out of memory at 3 views on the CPU: free memory") as info:
+            model.predict(gradient_frames(3))
+        assert "GPU" not in str(info.value)
     model.session = Session("shape mismatch in node /Reshape")
     with pytest.raises(ModelError, match=r"inference failed \(RuntimeError: shape mismatch") as info:
         model.predict(gradient_frames(3))
