@@ -59,7 +59,7 @@ def inspect_model(path: str | Path, load_session: bool = True) -> dict:
     info["opset"] = {o.domain or "ai.onnx": o.version for o in model.opset_import}
     ops = {n.op_type for n in model.graph.node}
     if info["contract"] == "davio.da3" and "Softmax" in ops and "Attention" not in ops:
-        # measured on an H100: 10.9 GB for DA3-Base on 5 views against 3.8 GB (BENCHMARKS.md, DA3 on a GPU)
+        # measured on an H100: 10.7 GiB for DA3-Base on 5 views against 3.7 GiB (BENCHMARKS.md, DA3 on a GPU)
         info["note"] = ("attention is spelled out in MatMul and Softmax (an opset-18 export): on a GPU it "
                         "holds about three times the memory of an opset-23 export (davio export-da3's "
                         "default); re-export it, or cap it with --gpu-mem-limit")

@@ -34,6 +34,25 @@ def _available_providers() -> list[str]:
     return list(ort.get_available_providers())
 
 
+def _installed_onnxruntime_wheels() -> set[str]:
+    """Which ONNX Runtime distributions pip installed (they share the import package `onnxruntime`)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    found = set()
+    for name in ("onnxruntime", "onnxruntime-gpu"):
+        try:
+            version(name)
+        except PackageNotFoundError:
+            continue
+        found.add(name)
+    return found
+
+
+#: how to get the CUDA provider when the CPU wheel is (also) installed
+GPU_REINSTALL = ("pip uninstall -y onnxruntime onnxruntime-gpu && "
+                 "pip install 'onnxruntime-gpu[cuda,cudnn]>=1.27'")
+
+
 def _cuda_device_visible() -> tuple[bool, str]:
     """Whether a CUDA device looks usable, with the reason when it does not."""
     if os.environ.get("CUDA_VISIBLE_DEVICES", None) in ("", "-1"):
@@ -71,6 +90,9 @@ def choose_providers(requested: Sequence[str] | None = None) -> tuple[list[str],
     if os.environ.get(FORCE_CPU_ENV, "") not in ("", "0"):
         return [CPU], f"{FORCE_CPU_ENV} is set"
     if CUDA not in available:
+        if "onnxruntime-gpu" in _installed_onnxruntime_wheels():   # the CPU wheel's files won
+            return [CPU], ("onnxruntime-gpu is installed but the CPU package onnxruntime shares its files "
+                           f"and hides the CUDA provider: {GPU_REINSTALL}")
         return [CPU], "CUDAExecutionProvider not offered by this ONNX Runtime (install onnxruntime-gpu)"
     visible, why = _cuda_device_visible()
     if not visible:
@@ -85,7 +107,11 @@ def describe_providers() -> dict:
         available = _available_providers()
     except Exception as exc:  # a broken install is reported, not raised
         return {"selected": None, "reason": f"{type(exc).__name__}: {exc}", "available": []}
-    return {"selected": providers[0], "reason": reason, "available": available}
+    out = {"selected": providers[0], "reason": reason, "available": available}
+    if _installed_onnxruntime_wheels() == {"onnxruntime", "onnxruntime-gpu"}:
+        out["warning"] = ("both onnxruntime and onnxruntime-gpu are installed; they share the import package "
+                          f"and either may be the one that loads: {GPU_REINSTALL}")
+    return out
 
 
 def preload_cuda_libraries(ort) -> str:

@@ -188,3 +188,20 @@ def test_an_opset_18_attention_graph_gets_the_memory_note(tmp_path, graph):
     spelled_out = tmp_path / "da3_op18.onnx"
     onnx.save(model, spelled_out)
     assert "an opset-18 export" in inspect_model(spelled_out)["note"]
+
+
+def test_the_cpu_wheel_hiding_onnxruntime_gpu_is_named_with_the_fix(monkeypatch):
+    # pip puts both wheels' files in one `onnxruntime` folder: whichever was written last loads
+    fake_gpu(monkeypatch, False, True)
+    both = {"onnxruntime", "onnxruntime-gpu"}
+    monkeypatch.setattr(providers, "_installed_onnxruntime_wheels", lambda: both)
+    chosen, reason = providers.choose_providers()
+    assert chosen == ["CPUExecutionProvider"] and "hides the CUDA provider" in reason
+    assert providers.GPU_REINSTALL in reason
+    d = providers.describe_providers()
+    assert "both onnxruntime and onnxruntime-gpu are installed" in d["warning"]
+    monkeypatch.setattr(providers, "_installed_onnxruntime_wheels", lambda: {"onnxruntime"})
+    assert "install onnxruntime-gpu" in providers.choose_providers()[1]
+    assert "warning" not in providers.describe_providers()
+    monkeypatch.undo()
+    assert "onnxruntime" in providers._installed_onnxruntime_wheels()   # this machine's CPU wheel

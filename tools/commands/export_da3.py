@@ -63,7 +63,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default=23,
         choices=[18, 23],
         help="ONNX opset (default 23): 23 writes attention as ONNX's own Attention operator (ONNX Runtime "
-        ">= 1.23), which held a third of the GPU memory of 18 at the same speed (BENCHMARKS.md); 18 "
+        ">= 1.23), which held a third of the GPU memory of 18 and ran a few %% faster (BENCHMARKS.md); 18 "
         "spells it out in MatMul and Softmax, for older runtimes",
     )
     p.add_argument("--json", action="store_true", help="print the model card as JSON")

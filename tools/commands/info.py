@@ -91,6 +91,8 @@ def run(args: argparse.Namespace) -> int:
     if "execution" in info:
         ex = info["execution"]
         t.add_row("DA3 will run on", f"{ex.get('selected')} ({ex.get('reason')})")
+        if ex.get("warning"):
+            t.add_row("ONNX Runtime", f"WARNING: {ex['warning']}")
     for g in info["gpus"]["devices"]:
         t.add_row(f"GPU {g['index']}", f"{g['name']}, {g['memory_total_mib']} MiB "
                                        f"({g['memory_used_mib']} MiB in use)")

@@ -30,7 +30,7 @@ from runtime.json_out import strict_dumps
 INPUT_NAMES = ["images", "intrinsics", "extrinsics", "use_pose"]
 OUTPUT_NAMES = ["depth", "conf", "pred_extrinsics", "pred_intrinsics"]
 #: the default: attention as ONNX's own `Attention` and `RotaryEmbedding` operators (ONNX Runtime >= 1.23).
-#: DA3-Base, 5 views: 3.8 GB of an H100 instead of 10.9 GB, 44 ms instead of 48; on 2 CPU cores, DA3-Small
+#: DA3-Base, 5 views: 3.7 GiB of an H100 instead of 10.7 GiB, 44 ms instead of 48; on 2 CPU cores, DA3-Small
 #: at the same speed in half the memory (BENCHMARKS.md, "DA3 on a GPU")
 OPSET = 23
 #: opsets an export may ask for: 23, or 18 (attention spelled out in MatMul and Softmax) for older runtimes
