@@ -63,6 +63,9 @@ def check_output_file(path: Path, option: str, suffixes: tuple[str, ...], *, ove
         if not parent.is_dir():
             if not new_folder:
                 raise ConfigError(f"{option} {path}: folder {parent} does not exist")
+            for folder in (parent, *parent.parents):   # what `mkdir(parents=True)` would trip on
+                if folder.is_symlink() and not folder.exists():
+                    raise ConfigError(f"{option} {path}: {folder} is a broken symbolic link")
             base = next(p for p in parent.parents if p.exists() or p == p.parent)
             if not base.is_dir():
                 raise ConfigError(f"{option} {path}: {base} is a file, not a folder")

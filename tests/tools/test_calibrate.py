@@ -268,6 +268,9 @@ def test_bad_outputs_and_sources_are_clear_errors(tmp_path, capsys):
     (tmp_path / "afile").write_text("x")
     assert main(["calibrate", str(tmp_path), "--out", str(tmp_path / "afile" / "sub" / "rig.yaml")]) == 1
     assert "afile is a file, not a folder" in capsys.readouterr().err
+    (tmp_path / "gone").symlink_to(tmp_path / "nowhere")      # a folder link whose target is missing
+    assert main(["calibrate", str(tmp_path), "--out", str(tmp_path / "gone" / "rig.yaml")]) == 1
+    assert "gone is a broken symbolic link" in capsys.readouterr().err
     (tmp_path / "rig.report.json").write_text("{}")
     assert main(["calibrate", str(tmp_path), "--out", str(tmp_path / "rig.yaml")]) == 1
     assert "pass --overwrite" in capsys.readouterr().err
