@@ -235,14 +235,15 @@ class SerialImu:
                                f"writing to serial port {self.port} failed: {exc}") from None
 
     def _discard_input(self) -> int:
-        """Drop what the port has received and not yet read; returns how many bytes that was."""
+        """Read and drop what the port has received so far; returns how many bytes that was (read, not
+        reset: what arrives meanwhile is either counted here or parsed later, never lost uncounted)."""
         try:
             waiting = int(getattr(self._ser, "in_waiting", 0) or 0)
-            self._ser.reset_input_buffer()
+            dropped = len(self._ser.read(waiting)) if waiting > 0 else 0
         except Exception as exc:  # noqa: BLE001 - pyserial raises SerialException/OSError/others
             raise device_error(self.port, "unplugged",
-                               f"clearing the input of serial port {self.port} failed: {exc}") from None
-        return waiting
+                               f"reading serial port {self.port} failed: {exc}") from None
+        return dropped
 
     def stop(self) -> None:
         """Stop the reader, join it and close the port (idempotent). Buffered samples stay readable."""
