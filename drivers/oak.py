@@ -95,7 +95,6 @@ NO_DEVICE_HINT = ("is it plugged in? USB3? udev rules: SUBSYSTEM==\"usb\", ATTRS
                   "`sudo udevadm control --reload-rules && sudo udevadm trigger`")
 
 
-
 def _import_depthai() -> Any:
     try:
         import depthai as dai
@@ -275,8 +274,9 @@ class OakDevice:
             raise DeviceError(f"OAK socket must be one of {', '.join(SOCKETS)}, not {socket!r}")
         if int(width) <= 0 or int(height) <= 0:
             raise DeviceError(f"OAK image size must be positive, not {width}x{height}")
-        if not fps > 0 or not imu_rate_hz > 0:
-            raise DeviceError(f"OAK fps and imu_rate_hz must be > 0, not {fps} and {imu_rate_hz}")
+        if not fps > 0 or not imu_rate_hz >= 1:
+            raise DeviceError(f"OAK fps must be > 0 and imu_rate_hz >= 1 (whole Hz), not {fps} and "
+                              f"{imu_rate_hz}")
         if keep_frames < 1 or not imu_queue_seconds > 0 or not stall_timeout_s > 0:
             raise DeviceError("OAK keep_frames must be >= 1, imu_queue_seconds and stall_timeout_s > 0")
         self.socket = socket

@@ -29,11 +29,13 @@ GAP_STEPS = 64
 """Steps the median period is taken over, and the most gap flags kept waiting."""
 RATE_TOLERANCE = 0.1
 """A measured IMU rate this far (relative) from the requested one is noted in the report."""
+
 NEVER = 2**63 - 1
 """A stamp later than any frame (the floor of a source that will deliver nothing more)."""
 
 _POLL_S = 0.05
 """How long one queue read waits (bounds how fast `stop()` and stalls are seen)."""
+
 
 def timedelta_ns(td: _dt.timedelta) -> int:
     """Integer nanoseconds of a timedelta (exact: days, seconds and microseconds are integers)."""
@@ -288,8 +290,7 @@ class OakImu(_Source):
                                "gaps": self.gaps, "lost_before_host": self.lost_before_host}
         out.update(self.pairer.counts())
         notes = []
-        requested = float(self.owner.imu_rate_hz)
-        out["rate_hz_requested"] = requested
+        requested = float(self.owner.imu_rate_hz)   # out["rate_hz"]
         out["rate_hz_measured"] = None
         if len(self._steps) >= GAP_MIN_STEPS:  # the gyroscope's median stamp step over the last GAP_STEPS
             measured = 1e9 / float(np.median(self._steps))

@@ -310,7 +310,7 @@ def test_samples_after_batches_lost_before_the_host_are_flagged() -> None:
     assert rep["gaps"] == 2 and rep["lost_before_host"] == 5 and rep["overflow"] == 0
     assert any("5 samples lost before reaching the host" in n for n in rep["notes"])
     # 5 ms stamp steps: the 200 Hz requested, not noted
-    assert rep["rate_hz_requested"] == 200 and rep["rate_hz_measured"] == pytest.approx(200, rel=0.02)
+    assert rep["rate_hz"] == 200 and rep["rate_hz_measured"] == pytest.approx(200, rel=0.02)
     assert not any("Hz requested" in n for n in rep["notes"])
 
 
@@ -461,6 +461,9 @@ def test_factory_failure_is_one_line_device_error() -> None:
         OakDevice(pipeline_factory=boom).start()
     with pytest.raises(DeviceError, match="socket"):
         OakDevice(socket="CAM_Z")
+    for rate in (0.5, float("nan"), 0):   # int(0.5) would have been a rate of 0 Hz
+        with pytest.raises(DeviceError, match=r"imu_rate_hz >= 1 \(whole Hz\)"):
+            OakDevice(imu_rate_hz=rate)
 
 
 def test_start_without_device_fails_fast_and_clearly() -> None:
