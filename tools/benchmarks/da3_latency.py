@@ -58,11 +58,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def _default_model(size: str, res: str) -> tuple[Path, float | None]:
     from runtime.errors import ModelError
-    from tools.export.export_da3 import ExportRequest, export_in_subprocess
+    from tools.export.export_da3 import OPSET, ExportRequest, export_in_subprocess
 
     h, w = (int(v) for v in res.lower().split("x"))
-    from tools.export.export_da3 import OPSET
-
     path = CACHE / f"da3_{size}_{h}x{w}_op{OPSET}_random.onnx"
     if path.is_file():
         return path, None
@@ -91,6 +89,9 @@ def run(args: argparse.Namespace) -> int:
     from models.da3 import OnnxDA3
     from runtime.events import Frame
 
+    if args.repeats < 1 or not 2 <= args.views <= 8:
+        raise SystemExit("da3-latency: --repeats must be >= 1 and --views in 2..8")
+    cuda_options = _cuda_options(args.cuda_option)   # checked before any export
     export_s = None
     if args.model:
         path = Path(args.model)
@@ -100,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
     cam = Pinhole(640, 480, 458.0, 457.0, 319.5, 239.5)
     t0 = time.perf_counter()
     model = OnnxDA3(path, cam, providers=["CPUExecutionProvider"] if args.cpu else None, threads=args.threads,
-                    cuda_options=_cuda_options(args.cuda_option))
+                    cuda_options=cuda_options)
     load_s = time.perf_counter() - t0
     rng = np.random.default_rng(0)
     n = args.views
