@@ -86,6 +86,20 @@ def test_plot_naming_a_file_is_a_one_line_error(tum_pair, capsys, metric: str) -
     assert err == f"davio eval: error: --plot {ref}: is a file; --plot takes a folder for the PNG plots\n"
 
 
+@pytest.mark.parametrize("metric", ["ate", "rpe"])
+def test_the_plot_folder_is_made_only_when_plots_are_written(tum_pair, tmp_path, capsys, metric: str) -> None:
+    est, _, ref = tum_pair
+    plots = tmp_path / "new" / "plots"
+    empty = tmp_path / "empty.tum"
+    empty.write_text("")
+    assert main(["eval", metric, str(empty), str(ref), "--plot", str(plots)]) == 1   # fails: no folder left
+    capsys.readouterr()
+    assert not (tmp_path / "new").exists()
+    assert main(["eval", metric, str(est), str(ref), "--plot", str(plots), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["plots"] and all(Path(p).is_file() and Path(p).parent == plots for p in out["plots"])
+
+
 @pytest.mark.parametrize("argv, message", [
     (["--offset", "nan"], "--offset must be a finite number in [-9.2e+09, 9.2e+09], got nan"),
     (["--offset", "1e300"], "--offset must be a finite number"),

@@ -110,19 +110,32 @@ def _read_pair(args: argparse.Namespace) -> tuple:
 
 
 def _plot_dir(args: argparse.Namespace) -> Path | None:
-    """The --plot folder, created before the evaluation; ConfigError when it names an existing file or
-    cannot be created or written."""
+    """The --plot folder, checked before the evaluation and made only when the plots are written (a failed
+    evaluation leaves no empty folder); ConfigError when it names an existing file or cannot be made or
+    written."""
     if not args.plot:
         return None
     d = Path(args.plot)
     if d.exists() and not d.is_dir():
         raise ConfigError(f"--plot {d}: is a file; --plot takes a folder for the PNG plots")
+    base = next(p for p in (d, *d.parents) if p.exists() or p == p.parent)
+    if not base.is_dir():
+        raise ConfigError(f"--plot {d}: {base} is a file, not a folder")
+    import tempfile
+
+    try:   # a probe, not os.access: root passes that on read-only and pseudo file systems (/proc)
+        os.rmdir(tempfile.mkdtemp(dir=base, prefix=".davio-plot-probe."))
+    except OSError as exc:
+        what = "create the folder" if base != d else "write in the folder"
+        raise ConfigError(f"--plot {d}: cannot {what} ({exc.strerror or exc})") from None
+    return d
+
+
+def _make_plot_dir(d: Path) -> Path:
     try:
         d.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ConfigError(f"--plot {d}: cannot create the folder ({exc.strerror or exc})") from None
-    if not os.access(d, os.W_OK):
-        raise ConfigError(f"--plot {d}: the folder is not writable")
     return d
 
 
@@ -171,7 +184,7 @@ def _run_ate(args: argparse.Namespace) -> int:
     if plot_dir is not None:
         from tools.evaluation.plots import plot_errors, plot_trajectories
 
-        d = plot_dir
+        d = _make_plot_dir(plot_dir)
         out["plots"] = [str(plot_trajectories(d / "ate_trajectories.png", res.ref, res.est_aligned,
                                               f"ATE, {args.align} alignment")),
                         str(plot_errors(d / "ate_errors.png", res.t_ns, res.trans_err_m, "m",
@@ -210,7 +223,8 @@ def _run_rpe(args: argparse.Namespace) -> int:
     if plot_dir is not None:
         from tools.evaluation.plots import plot_errors
 
-        out["plots"] = [str(plot_errors(plot_dir / "rpe_errors.png", res.t_ns, res.trans_err_m, "m",
+        png = _make_plot_dir(plot_dir) / "rpe_errors.png"
+        out["plots"] = [str(plot_errors(png, res.t_ns, res.trans_err_m, "m",
                                         f"RPE translation, delta {args.delta} {args.delta_unit}"))]
     if args.json:
         print(strict_dumps(out))
