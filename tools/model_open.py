@@ -67,3 +67,22 @@ def open_da3(args: argparse.Namespace, camera: Any, views: int) -> tuple[Any, st
     cap = getattr(args, "gpu_mem_limit", None)
     capped = f", arena capped at {cap:g} MB" if cap is not None and provider.startswith("CUDA") else ""
     return model, f"DA3 ONNX {args.model} on {provider}{capped} (warm-up call {warm_s:.2f} s)"
+
+
+MEASURED = "measured"
+
+
+def latency_arg(text: str) -> float | str:
+    """argparse type of --model-latency: seconds, or "measured" (one timed call of the graph)."""
+    if text.strip().lower() == MEASURED:
+        return MEASURED
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"seconds or '{MEASURED}', not {text!r}") from None
+
+
+def measured_latency(model: Any, views: int) -> float:
+    """Seconds of one call of the warmed-up graph on `views` frames (image preparation included): the
+    latency a replay simulates with --model-latency measured."""
+    return float(model.warm_up(views))

@@ -38,3 +38,12 @@ def test_a_cap_without_a_model_is_refused(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "--gpu-mem-limit caps the DA3 graph's GPU memory" in err and "not found" not in err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_measured_latency_needs_a_model(tmp_path, capsys):
+    assert main(["run", str(tmp_path / "absent"), "--native-only", "--model-latency", "measured",
+                 "--out", str(tmp_path / "out")]) == 1
+    assert "--model-latency measured times the --model graph: it needs --model" in capsys.readouterr().err
+    with pytest.raises(SystemExit):   # neither seconds nor 'measured': argparse's own error
+        main(["run", str(tmp_path), "--model-latency", "fast", "--out", str(tmp_path / "out")])
+    assert "seconds or 'measured', not 'fast'" in capsys.readouterr().err

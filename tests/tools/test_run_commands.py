@@ -175,9 +175,12 @@ def test_run_with_an_onnx_model_warms_it_up_and_refuses_a_broken_one(tmp_path, c
     out = tmp_path / "run"
     # 1 s of a standstill is too short for either initializer: the run says why and exits 1
     assert main(["run", str(path), "--model", str(graph), "--out", str(out), "--seconds", "1",
-                 "--gpu-mem-limit", "4096"]) == 1
+                 "--gpu-mem-limit", "4096", "--model-latency", "measured"]) == 1
     cap = capsys.readouterr()
     assert "on CPUExecutionProvider (warm-up call" in cap.out  # the cap concerns CUDA alone
+    # the replay simulates the latency of one timed call of the graph, and the report says which
+    measured = json.loads((out / "report.json").read_text())["replay"]["model_latency_s"]
+    assert 0 < measured < 5 and f"replay latency {measured:.3f} s (measured, one call)" in cap.out
     assert "no pose was published: feed-forward start-up: 1 windows tried" in cap.err
     assert json.loads((out / "run_status.json").read_text())["status"] == "failed"
     broken = build_da3_contract_graph(tmp_path / "nan.onnx", 28, 42, variant="nan_depth")

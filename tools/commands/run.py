@@ -5,7 +5,7 @@ import argparse
 from dataclasses import replace
 from pathlib import Path
 
-from tools.model_open import add_gpu_memory_argument
+from tools.model_open import add_gpu_memory_argument, latency_arg
 
 NAME = "run"
 HELP = "run on an EuRoC folder or a simulated recording; write odometry.tum, report.json, plots"
@@ -61,8 +61,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--paced", action="store_true",
                    help="replay at sensor rate instead of as fast as possible")
     p.add_argument("--speed", type=float, default=1.0, help="pacing factor with --paced (> 0)")
-    p.add_argument("--model-latency", type=float, default=0.5, metavar="S",
-                   help="simulated model latency (sensor seconds, >= 0) when not paced")
+    p.add_argument("--model-latency", type=latency_arg, default=0.5, metavar="S",
+                   help="simulated model latency (sensor seconds, >= 0) when not paced; 'measured': one "
+                   "timed call of the --model graph after its warm-up (e.g. 0.04 s on a GPU)")
     p.add_argument("--seconds", type=float, default=None, help="only the first S seconds (> 0)")
     p.add_argument("--json", action="store_true",
                    help="print the report as one JSON object on stdout (progress goes to stderr)")
@@ -81,9 +82,13 @@ def check_run_args(args: argparse.Namespace) -> None:
     import math
 
     from runtime.errors import ConfigError
+    from tools.model_open import MEASURED
 
     lat = getattr(args, "model_latency", None)
-    if lat is not None and not (math.isfinite(lat) and lat >= 0):
+    if lat == MEASURED:
+        if not getattr(args, "model", None):
+            raise ConfigError("--model-latency measured times the --model graph: it needs --model ONNX")
+    elif lat is not None and not (math.isfinite(lat) and lat >= 0):
         raise ConfigError(f"--model-latency must be a finite number of seconds >= 0 (got {lat!r})")
     sec = getattr(args, "seconds", None)
     if sec is not None and not (math.isfinite(sec) and sec > 0):
@@ -166,10 +171,13 @@ def _open_inputs(args: argparse.Namespace, config) -> tuple:
         rig = rig.replace(T_IC=None, time_offset_s=None)
     model, model_desc = None, "none (native initializer only)"
     if args.model:
-        from tools.model_open import open_da3
+        from tools.model_open import MEASURED, measured_latency, open_da3
 
         # one-off session costs are paid here, at the start-up window's shape, not by the first window
         model, model_desc = open_da3(args, rig.camera, config.startup.window_images)
+        if args.model_latency == MEASURED:
+            args.model_latency = round(measured_latency(model, config.startup.window_images), 4)
+            model_desc += f"; replay latency {args.model_latency:.3f} s (measured, one call)"
     elif args.emulated or (rec.kind == "simulated" and not args.native_only):
         if rec.kind != "simulated":
             raise ConfigError("--emulated needs a recording written by `davio simulate` (it reads the "
@@ -225,7 +233,9 @@ def _run(args, folder, rec, rig, model, model_desc: str, config, prior=None) -> 
                         "status_reason": res.reason, "driver": rec.driver.report(), "map": map_summary,
                         "imu_noise_defaulted": defaulted,
                         "rig": rig_summary(rig, str(args.rig) if args.rig else f"the recording ({rec.kind})"),
-                        "view": None if view is None else view.report()},
+                        "view": None if view is None else view.report(),
+                        "replay": {"paced": bool(args.paced), "speed": args.speed,
+                                   "model_latency_s": None if args.paced else args.model_latency}},
                        config)
     journal.close(remove=True)   # the run's own trajectories are written whole
     return conclude(folder, res, report, as_json=args.json, summary=_summary)
