@@ -1,4 +1,5 @@
-"""Opening the DA3 graph for `davio run`, `live` and `calibrate`: the GPU memory cap and the warm-up.
+"""Opening the DA3 graph for `davio run`, `live` and `calibrate`: the GPU memory cap, the warm-up, and
+the latency a replay simulates when asked to measure it (`--model-latency measured`).
 
 ONNX Runtime's CUDA arena keeps what it once allocated and grows by powers of two by default: an opset-18
 DA3-Base graph on 5 views held 10.7 GiB of an H100, and ran as fast under a 4 GiB cap with the options
@@ -15,6 +16,8 @@ from typing import Any
 
 from runtime.errors import ConfigError
 
+#: the --model-latency value that times one call of the graph instead of a number of seconds
+MEASURED = "measured"
 #: smallest cap accepted: the CUDA context alone takes about 500 MB, the smallest DA3 graph more
 MIN_GPU_MEM_LIMIT_MB = 256
 #: set with the cap, as measured with it: the arena grows by what is asked, cuDNN picks its algorithms by
@@ -68,8 +71,6 @@ def open_da3(args: argparse.Namespace, camera: Any, views: int) -> tuple[Any, st
     capped = f", arena capped at {cap:g} MB" if cap is not None and provider.startswith("CUDA") else ""
     return model, f"DA3 ONNX {args.model} on {provider}{capped} (warm-up call {warm_s:.2f} s)"
 
-
-MEASURED = "measured"
 
 
 def latency_arg(text: str) -> float | str:
