@@ -66,11 +66,12 @@ def open_da3(args: argparse.Namespace, camera: Any, views: int) -> tuple[Any, st
 
     model = OnnxDA3(args.model, camera, cuda_options=cuda_options(args))
     warm_s = model.warm_up(views)
+    from models.providers import CUDA
+
     provider = model.session_info["providers"][0]
     cap = getattr(args, "gpu_mem_limit", None)
-    capped = f", arena capped at {cap:g} MB" if cap is not None and provider.startswith("CUDA") else ""
+    capped = f", arena capped at {cap:g} MB" if cap is not None and provider == CUDA else ""
     return model, f"DA3 ONNX {args.model} on {provider}{capped} (warm-up call {warm_s:.2f} s)"
-
 
 
 def latency_arg(text: str) -> float | str:

@@ -63,13 +63,7 @@ def check_output_file(path: Path, option: str, suffixes: tuple[str, ...], *, ove
         if not parent.is_dir():
             if not new_folder:
                 raise ConfigError(f"{option} {path}: folder {parent} does not exist")
-            for folder in (parent, *parent.parents):   # what `mkdir(parents=True)` would trip on
-                if folder.is_symlink() and not folder.exists():
-                    raise ConfigError(f"{option} {path}: {folder} is a broken symbolic link")
-            base = next(p for p in parent.parents if p.exists() or p == p.parent)
-            if not base.is_dir():
-                raise ConfigError(f"{option} {path}: {base} is a file, not a folder")
-            _probe_writable(base / path.name, option)
+            check_folder_can_be_made(parent, option, path)
             return False
         _probe_writable(path, option)
         return False
@@ -80,6 +74,26 @@ def check_output_file(path: Path, option: str, suffixes: tuple[str, ...], *, ove
         raise ConfigError(f"{option} {path}: exists; pass --overwrite to replace it, or choose another file")
     _probe_writable(path, option)
     return True
+
+
+def check_folder_can_be_made(folder: Path, option: str, named: Path | None = None) -> None:
+    """ConfigError unless `folder` is a writable folder or `mkdir(parents=True)` can make it: no broken
+    symbolic link on the way, its nearest existing ancestor a folder a file can be created in (probed).
+    `named` is what the option named (the file to write into the folder; default the folder)."""
+    named = folder if named is None else named
+    for f in (folder, *folder.parents):   # what `mkdir(parents=True)` would trip on
+        if f.is_symlink() and not f.exists():
+            raise ConfigError(f"{option} {named}: {f} is a broken symbolic link")
+    base = next(f for f in (folder, *folder.parents) if f.exists() or f == f.parent)
+    if not base.is_dir():
+        raise ConfigError(f"{option} {named}: {base} is a file, not a folder")
+    try:
+        _probe_writable(base / ".davio-probe", option)
+    except ConfigError as exc:
+        if base == folder:
+            raise
+        raise ConfigError(f"{option} {named}: cannot create the folder {folder} (nothing can be written in "
+                          f"{base})") from exc
 
 
 def _probe_writable(path: Path, option: str) -> None:

@@ -31,7 +31,7 @@ from models.da3.preprocess import (
 from models.da3.similarity import umeyama_sim3
 from models.depth_model import DepthPrediction
 from models.onnx_file import require_file
-from models.providers import create_session
+from models.providers import CUDA, create_session
 from runtime.errors import DataError, ModelError
 from runtime.events import Frame
 
@@ -167,7 +167,7 @@ class OnnxDA3:
             if any(w in text.lower() for w in ("smaller than requested bytes", "failed to allocate",
                                                  "out of memory")):
                 n = images.shape[1]
-                if self.session_info["providers"][0] == "CUDAExecutionProvider":
+                if self.session_info["providers"][0] == CUDA:
                     hint = (f"; out of GPU memory at {n} views: raise or drop --gpu-mem-limit, free the "
                             "GPU, or use a smaller graph (DA3-Small; an --opset 23 export needs less)")
                 else:

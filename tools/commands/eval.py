@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import sys
 from pathlib import Path
 
@@ -115,19 +114,12 @@ def _plot_dir(args: argparse.Namespace) -> Path | None:
     written."""
     if not args.plot:
         return None
+    from tools.output_file import check_folder_can_be_made
+
     d = Path(args.plot)
     if d.exists() and not d.is_dir():
         raise ConfigError(f"--plot {d}: is a file; --plot takes a folder for the PNG plots")
-    base = next(p for p in (d, *d.parents) if p.exists() or p == p.parent)
-    if not base.is_dir():
-        raise ConfigError(f"--plot {d}: {base} is a file, not a folder")
-    import tempfile
-
-    try:   # a probe, not os.access: root passes that on read-only and pseudo file systems (/proc)
-        os.rmdir(tempfile.mkdtemp(dir=base, prefix=".davio-plot-probe."))
-    except OSError as exc:
-        what = "create the folder" if base != d else "write in the folder"
-        raise ConfigError(f"--plot {d}: cannot {what} ({exc.strerror or exc})") from None
+    check_folder_can_be_made(d, "--plot")   # probed: root passes os.access on /proc
     return d
 
 
