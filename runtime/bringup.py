@@ -1,7 +1,12 @@
-"""Calibration-withheld bring-up (paper Sec. IV-D): while the camera–IMU rotation is unknown, DA3
-start-up calls on early windows are aligned with preintegrated IMU rotations (hand–eye) to estimate
+"""Calibration-withheld bring-up (paper Sec. IV-D): while the camera–IMU rotation is unknown, the camera's
+relative rotations over early windows are aligned with preintegrated IMU rotations (hand–eye) to estimate
 R_IC and the gyro bias; the estimate is validated on a later window. The lever arm and the time
-offset then start at zero and the filter refines all three online."""
+offset then start at zero and the filter refines all three online.
+
+The camera's rotations come from a DA3 start-up call on each window (the paper's way) or, without a depth
+model, from the tracked features: the two-view rotation between the window's first image and each later
+one (`runtime.geometry.two_view`: an essential matrix, or a pure rotation where the parallax is too small).
+"""
 from __future__ import annotations
 
 from collections import deque
@@ -16,6 +21,7 @@ from runtime.config_checks import at_least, non_negative, positive
 from runtime.events import Frame, ImuSample
 from runtime.ffinit.handeye import HandEyeResult, RotationWindow, estimate_handeye, validate_handeye
 from runtime.ffinit.window import Rejection
+from runtime.geometry.two_view import two_view_rotation
 from runtime.imu import Preintegrator
 
 
@@ -34,17 +40,27 @@ class BringUpConfig:
     """Windows rotating less than this (gyro, end to end) carry no hand-eye information: skipped."""
     max_attempts: int = 3
     """Estimate + validation attempts before giving up (each failure drops the oldest windows)."""
+    two_view_min_tracks: int = 30
+    """Without a depth model: features tracked from a window's first image to each later one, at least."""
+    two_view_threshold_px: float = 1.0
+    """Without a depth model: the two-view fits' inlier threshold (pixels at the focal length)."""
 
     def __post_init__(self) -> None:
         s = "bringup"
         at_least(self, s, 1, "fit_windows", "max_attempts")
         at_least(self, s, 3, "window_images")
-        positive(self, s, "window_spacing_s")
+        at_least(self, s, 15, "two_view_min_tracks")
+        positive(self, s, "window_spacing_s", "two_view_threshold_px")
         non_negative(self, s, "window_gap_s", "min_rotation_deg")
 
 
 @dataclass
 class BringUpReport:
+    rotation_source: str = "model"
+    """Where the camera's rotations came from: "model" (DA3 calls) or "tracks" (two-view fits)."""
+    two_view_models: dict = field(default_factory=dict)
+    """Without a model: the windows' camera rotations by how they were found: two-view fits from the
+    window's first image ("essential", "rotation"), or "chained" frame to frame."""
     windows_used: int = 0
     windows_skipped_static: int = 0
     attempts: int = 0
@@ -57,18 +73,31 @@ class BringUpReport:
 
 
 class HandEyeBringUp:
-    """Collects windows, runs the DA3 start-up call on them in the model worker, estimates R_IC."""
+    """Collects windows, estimates their camera rotations in the model worker (a DA3 call, or two-view fits
+    of the tracked features when `model` is None), estimates R_IC.
 
-    def __init__(self, model: DepthModel, cfg: BringUpConfig | None = None) -> None:
+    Args:
+        model: the depth model, or None to take the rotations from the features fed to `on_tracks`.
+        cfg: bring-up settings.
+        focal_px: the camera's focal length (pixels): the two-view threshold's unit (needed without a
+            model).
+    """
+
+    def __init__(self, model: DepthModel | None, cfg: BringUpConfig | None = None,
+                 focal_px: float | None = None) -> None:
+        if model is None and not (focal_px is not None and focal_px > 0):
+            raise ValueError("a bring-up without a depth model needs the camera's focal length (pixels)")
         self.model = model
         self.cfg = cfg or BringUpConfig()
+        self.focal_px = focal_px
         self.frames: deque[Frame] = deque(maxlen=64)
+        self.tracks: deque[tuple[int, np.ndarray, np.ndarray]] = deque(maxlen=64)
         self.imu_t: deque[int] = deque()
         self.imu_w: deque[np.ndarray] = deque()
         self.imu_a: deque[np.ndarray] = deque()
         self.windows: list[RotationWindow] = []
         self.result: HandEyeResult | None = None
-        self.report = BringUpReport()
+        self.report = BringUpReport(rotation_source="model" if model is not None else "tracks")
         self._last_start: int | None = None
 
     @property
@@ -85,57 +114,87 @@ class HandEyeBringUp:
             self.imu_a.popleft()
 
     def on_frame(self, f: Frame) -> None:
-        self.frames.append(f)
+        """A camera frame (kept for the model's calls; not needed without a model)."""
+        if self.model is not None:
+            self.frames.append(f)
 
-    def _window(self) -> list[Frame] | None:
-        if not self.frames:
+    def on_tracks(self, t_ns: int, ids: np.ndarray, xy: np.ndarray) -> None:
+        """The tracker's features at a frame: persistent ids (M,) and undistorted normalized coordinates
+        (M, 2) (kept for the two-view fits; not needed with a model)."""
+        if self.model is None:
+            self.tracks.append((int(t_ns), np.asarray(ids), np.asarray(xy, np.float64)))
+
+    def _window(self) -> tuple[list, list] | None:
+        """(the newest window's frames (with a model) or track sets (without), every held one from its first
+        to its last), or None when none is due."""
+        held = self.frames if self.model is not None else self.tracks
+        if not held:
             return None
-        t = np.array([f.t_ns for f in self.frames], np.int64)
+        t = np.array([_stamp(x) for x in held], np.int64)
         last = int(t[-1])
         n = self.cfg.window_images
         start = last - int(round((n - 1) * self.cfg.window_spacing_s * 1e9))
         if self._last_start is not None and start - self._last_start < self.cfg.window_gap_s * 1e9:
             return None
-        picked = []
+        picked, first = [], None
         for k in range(n):
             ideal = start + int(round(k * self.cfg.window_spacing_s * 1e9))
             j = int(np.argmin(np.abs(t - ideal)))
             if abs(int(t[j]) - ideal) > 30_000_000:
                 return None
-            picked.append(self.frames[j])
-        if not self.imu_t or self.imu_t[0] > picked[0].t_ns or self.imu_t[-1] < picked[-1].t_ns:
+            picked.append(held[j])
+            first = j if first is None else first
+        if not self.imu_t or self.imu_t[0] > _stamp(picked[0]) or self.imu_t[-1] < _stamp(picked[-1]):
             return None
         self._last_start = start
-        return picked
+        return picked, list(held)[first:j + 1]
 
     def next_job(self) -> Callable[[], Any] | None:
-        """A closure for the model worker: DA3 on the newest window -> RotationWindow (or None)."""
+        """A closure for the model worker: the newest window's camera rotations (DA3, or two-view fits of
+        its tracks) -> RotationWindow; None when it barely rotates; a Rejection when its tracks cannot
+        tell. Without a model the job calls none (its `model_call` is False)."""
         if self.done:
             return None
-        frames = self._window()
-        if frames is None:
+        due = self._window()
+        if due is None:
             return None
+        picked, span = due
         t = np.fromiter(self.imu_t, np.int64, len(self.imu_t))
         w, a = np.array(self.imu_w), np.array(self.imu_a)
-        model, cfg = self.model, self.cfg
+        model, cfg, focal_px = self.model, self.cfg, self.focal_px
 
-        def job() -> RotationWindow | None:
+        def job() -> RotationWindow | Rejection | None:
             pre = Preintegrator(np.zeros(3), np.zeros(3))
-            ints = [pre.integrate(t, w, a, int(frames[0].t_ns), int(f.t_ns)) for f in frames[1:]]
+            stamps = [_stamp(x) for x in picked]
+            ints = [pre.integrate(t, w, a, stamps[0], s) for s in stamps[1:]]
             if np.degrees(np.linalg.norm(_log(ints[-1].dR))) < cfg.min_rotation_deg:
                 return None
-            pred = model.predict(list(frames))
-            return RotationWindow(np.array([pred.T_CW[k][:3, :3].T for k in range(1, len(frames))]),
-                                  np.array([p.dR for p in ints]), np.array([p.J_R_bg for p in ints]),
-                                  np.zeros(3))
+            models: tuple[str, ...] = ()
+            if model is not None:
+                pred = model.predict(list(picked))
+                R_C0Ci = np.array([pred.T_CW[k][:3, :3].T for k in range(1, len(picked))])
+            else:
+                fits = _two_view_rotations(span, [_stamp(x) for x in picked], cfg, float(focal_px))
+                if isinstance(fits, Rejection):
+                    return fits
+                R_C0Ci, models = fits
+            return RotationWindow(R_C0Ci, np.array([p.dR for p in ints]), np.array([p.J_R_bg for p in ints]),
+                                  np.zeros(3), two_view_models=models)
 
+        if model is None:
+            job.model_call = False   # type: ignore[attr-defined]  (a solve: FastClock's solve latency)
         return job
 
-    def on_result(self, rw: RotationWindow | None, t_ns: int) -> bool:
+    def on_result(self, rw: RotationWindow | Rejection | None, t_ns: int) -> bool:
         """Add a finished window; returns True once R_IC is estimated and validated."""
         if rw is None:
             self.report.windows_skipped_static += 1
             return False
+        if isinstance(rw, Rejection):
+            self.report.rejections[rw.reason] = self.report.rejections.get(rw.reason, 0) + 1
+            return False
+        for m in rw.two_view_models:
+            self.report.two_view_models[m] = self.report.two_view_models.get(m, 0) + 1
         self.windows.append(rw)
         self.report.windows_used = len(self.windows)
         if len(self.windows) < self.cfg.fit_windows + 1:
@@ -159,6 +218,56 @@ class HandEyeBringUp:
     def _reject(self, reason: str) -> None:
         self.report.rejections[reason] = self.report.rejections.get(reason, 0) + 1
         self.windows = self.windows[1:]  # slide: drop the oldest window, keep collecting
+
+
+def _stamp(x: Any) -> int:
+    """A held frame's or track set's time (ns)."""
+    return int(x.t_ns) if isinstance(x, Frame) else int(x[0])
+
+
+def _two_view_rotations(span: list, stamps: list[int], cfg: BringUpConfig,
+                        focal_px: float) -> tuple[np.ndarray, tuple[str, ...]] | Rejection:
+    """((N-1, 3, 3) R_C0Ci, how each was found) of a window's images at `stamps` (ns), from the track sets
+    [(t_ns, ids, xy)] of every frame of its `span` (the first image's to the last's). Each from the features
+    tracked from image 0 to image i (the two-view model: "essential" or "rotation") or, when too few of those
+    last (a fast turn takes them out of view), "chained": from the latest frame already placed, one frame at
+    a time. A Rejection (`two_view_too_few_tracks`, `two_view_failed`) when a frame cannot be placed."""
+    times = [int(x[0]) for x in span]
+    R_0k: dict[int, np.ndarray] = {0: np.eye(3)}      # span index -> R_C0Ck
+    out, how = [], []
+    for t in stamps[1:]:
+        k = times.index(int(t))
+        fit, n_common = _pair_rotation(span[0], span[k], cfg, focal_px)
+        if fit is not None:
+            R_0k[k] = fit.R_BA.T     # R_BA = R_CkC0
+            how.append(fit.model)
+        else:
+            q = max(j for j in R_0k if j < k)
+            for j in range(q + 1, k + 1):
+                step, n_step = _pair_rotation(span[j - 1], span[j], cfg, focal_px)
+                if step is None:
+                    if max(n_common, n_step) < cfg.two_view_min_tracks:
+                        return Rejection("two_view_too_few_tracks",
+                                         f"{max(n_common, n_step)} features tracked into a frame of the "
+                                         f"window (< {cfg.two_view_min_tracks})")
+                    return Rejection("two_view_failed",
+                                     f"no rotation explains {cfg.two_view_min_tracks // 2} of the features "
+                                     "tracked into a frame of the window")
+                R_0k[j] = R_0k[j - 1] @ step.R_BA.T
+            how.append("chained")
+        out.append(R_0k[k])
+    return np.array(out), tuple(how)
+
+
+def _pair_rotation(a: tuple, b: tuple, cfg: BringUpConfig, focal_px: float) -> tuple[Any, int]:
+    """(TwoViewRotation or None, features common to the two track sets)."""
+    _, ids_a, xy_a = a
+    _, ids_b, xy_b = b
+    _, ia, ib = np.intersect1d(ids_a, ids_b, assume_unique=True, return_indices=True)
+    if len(ia) < cfg.two_view_min_tracks:
+        return None, len(ia)
+    return two_view_rotation(xy_a[ia], xy_b[ib], cfg.two_view_threshold_px / focal_px,
+                             min_inliers=cfg.two_view_min_tracks // 2), len(ia)
 
 
 def _log(R: np.ndarray) -> np.ndarray:

@@ -56,7 +56,8 @@ class VioPipeline:
 
     Args:
         rig: calib.Rig with camera, T_IC, time offset and IMU noise. With T_IC withheld, a hand-eye
-            bring-up (runtime.bringup) first estimates R_IC from DA3 and the IMU; tracking then
+            bring-up (runtime.bringup) first estimates R_IC from the camera's rotations (DA3's, or
+            two-view fits of the tracked features without a model) and the IMU's; tracking then
             starts with zero lever arm and time offset and online calibration of all three.
         model: a DepthModel for the feed-forward start-up and the mapping, or None for the native
             initializer only (no map).
@@ -108,11 +109,8 @@ class VioPipeline:
         self._last_t = 0
         self._lost_carried = 0   # lost_before of IMU samples dropped as out of range, for the next one
         self._gyro_rates = RateQuantiles()   # the run's |gyro|: a gyroscope in deg/s reads 57.3x
-        if rig.T_IC is None:
-            if model is None:
-                raise ConfigError("the camera-IMU extrinsics are withheld: calibration-withheld bring-up "
-                                  "needs a depth model (pass a DA3 graph) or give T_IC in the rig")
-            self.bringup = HandEyeBringUp(model)
+        if rig.T_IC is None:   # without a model, the bring-up takes the camera's rotations from the tracks
+            self.bringup = HandEyeBringUp(model, focal_px=float(np.sqrt(rig.camera.fx * rig.camera.fy)))
             self.rig = rig
             self.startup = None
             self.ffinit = None
@@ -204,6 +202,7 @@ class VioPipeline:
             self.stats.frames_without_tracks += 1
         if self.startup is None:
             self.bringup.on_frame(frame)
+            self.bringup.on_tracks(res.t_ns, res.ids, res.xy)
             return []
         out = self.startup.on_tracks(int(frame.t_ns), res.ids, res.uv, frame)
         self._publish_causal(out)

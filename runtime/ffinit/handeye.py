@@ -24,16 +24,19 @@ class RotationWindow:
     """Relative rotations of one window, images 1..N-1 against image 0.
 
     Attributes:
-        R_C0Ci: (N-1, 3, 3) DA3 relative camera rotations.
+        R_C0Ci: (N-1, 3, 3) relative camera rotations (DA3's, or two-view fits of tracked features).
         R_I0Ii: (N-1, 3, 3) preintegrated IMU rotations at gyro bias `bg_bar`.
         J_R_bg: (N-1, 3, 3) their gyro-bias Jacobians (right perturbation).
         bg_bar: (3,) the gyro bias the preintegration used, rad/s.
+        two_view_models: the two-view model of each camera rotation ("essential", "rotation"); empty for
+            DA3's.
     """
 
     R_C0Ci: np.ndarray
     R_I0Ii: np.ndarray
     J_R_bg: np.ndarray
     bg_bar: np.ndarray
+    two_view_models: tuple[str, ...] = ()
 
 
 @dataclass

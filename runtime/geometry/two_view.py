@@ -1,0 +1,133 @@
+"""The relative rotation of two views from matched image points: no depth, no scale, no network.
+
+Two models are fitted to the same correspondences (undistorted normalized coordinates) and the one the
+points support is kept:
+- the essential matrix (OpenCV's five-point USAC with local optimisation), for views with parallax;
+- a pure rotation, f_b = R_BA f_a on unit bearings (a two-point Kabsch RANSAC, refined on its inliers), for
+  views whose translation is too small against the scene's depth to be seen. There every translation fits
+  the epipolar constraint, and the essential matrix's rotation may be the wrong one of its twisted pair;
+  of that pair, the one nearer the pure rotation's is taken in every case.
+The rotation model is kept when it explains at least `rotation_share` as many points as the essential
+matrix: the parallax is then within the threshold, and a rotation is all the points can tell.
+
+Used by the calibration-withheld bring-up when no depth model is given (`runtime.bringup`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from runtime.geometry.so3 import kabsch_rotation
+
+#: RANSAC iterations of the two-point rotation model (an inlier share of 0.5 needs 16 for 0.999)
+ROTATION_ITERATIONS = 128
+#: the rotation model's threshold against the essential matrix's: its error is a 2-D distance with both
+#: views' noise, the epipolar one a 1-D distance
+ROTATION_THRESHOLD_FACTOR = 2.0
+
+
+@dataclass(frozen=True)
+class TwoViewRotation:
+    """A relative rotation and what supports it.
+
+    Attributes:
+        R_BA: (3, 3) rotation taking view A's camera-frame vectors into view B's (X_B = R_BA X_A + t).
+        model: "essential" or "rotation" (the model kept).
+        inliers: correspondences the kept model explains.
+        points: correspondences offered.
+        essential_inliers: the essential matrix's RANSAC inliers (0 when it failed).
+        rotation_inliers: the pure rotation's inliers.
+    """
+
+    R_BA: np.ndarray
+    model: str
+    inliers: int
+    points: int
+    essential_inliers: int
+    rotation_inliers: int
+
+
+def bearings(xy: np.ndarray) -> np.ndarray:
+    """Unit bearing vectors (N, 3) of normalized image coordinates (N, 2)."""
+    f = np.column_stack([np.asarray(xy, np.float64), np.ones(len(xy))])
+    return f / np.linalg.norm(f, axis=1, keepdims=True)
+
+
+def rotation_ransac(f_a: np.ndarray, f_b: np.ndarray, threshold: float,
+                    iterations: int = ROTATION_ITERATIONS, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(R_BA, inlier mask) of the pure-rotation model f_b = R_BA f_a on unit bearings (N, 3): two-point
+    Kabsch hypotheses (a fixed seed: the same points give the same answer), the one with most bearings
+    within `threshold` (radians, the chord |f_b - R f_a|) refined twice on its inliers."""
+    n = len(f_a)
+    rng = np.random.default_rng(seed)
+    best_R, best_count = np.eye(3), -1
+    for _ in range(iterations):
+        i, j = rng.choice(n, 2, replace=False)
+        if abs(float(f_a[i] @ f_a[j])) > 0.99999:      # the same direction twice: no rotation
+            continue
+        R = kabsch_rotation(f_a[[i, j]], f_b[[i, j]])
+        count = int(np.count_nonzero(np.linalg.norm(f_b - f_a @ R.T, axis=1) < threshold))
+        if count > best_count:
+            best_R, best_count = R, count
+    R = best_R
+    inl = np.linalg.norm(f_b - f_a @ R.T, axis=1) < threshold
+    for _ in range(2):
+        if inl.sum() < 2:
+            break
+        R = kabsch_rotation(f_a[inl], f_b[inl])
+        inl = np.linalg.norm(f_b - f_a @ R.T, axis=1) < threshold
+    return R, inl
+
+
+def essential_rotation(xy_a: np.ndarray, xy_b: np.ndarray, threshold: float,
+                       R_near: np.ndarray) -> tuple[np.ndarray | None, int]:
+    """(R_BA, RANSAC inliers) from the essential matrix of normalized points (OpenCV's five-point USAC with
+    local optimisation at `threshold`, normalized units); (None, 0) when it fails. Of the two rotations an
+    essential matrix holds (the twisted pair, 180 deg apart about the baseline), the one nearer `R_near`
+    (the pure-rotation fit) is returned: the cheirality test that usually tells them apart
+    (`cv2.recoverPose`) picks the wrong one in about a tenth of the views with little parallax."""
+    import cv2
+
+    a = np.ascontiguousarray(xy_a, np.float64)
+    b = np.ascontiguousarray(xy_b, np.float64)
+    E, mask = cv2.findEssentialMat(a, b, np.eye(3), cv2.USAC_ACCURATE, 0.999, float(threshold))
+    if E is None or E.shape[0] < 3 or mask is None:
+        return None, 0
+    n_in = int(np.count_nonzero(mask))
+    if n_in < 5:
+        return None, 0
+    R1, R2, _ = cv2.decomposeEssentialMat(E[:3])
+    R1, R2 = np.asarray(R1, np.float64), np.asarray(R2, np.float64)
+    near = np.asarray(R_near, np.float64)
+    # trace(R_near^T R) grows as the angle between them shrinks
+    return (R1 if np.trace(near.T @ R1) >= np.trace(near.T @ R2) else R2), n_in
+
+
+def two_view_rotation(xy_a: np.ndarray, xy_b: np.ndarray, threshold: float, min_inliers: int = 15,
+                      rotation_share: float = 0.9) -> TwoViewRotation | None:
+    """The rotation between two views from matched normalized points (N, 2) each (module docstring).
+
+    Args:
+        threshold: inlier threshold in normalized units (pixels / focal length).
+        min_inliers: fewer supporting points than this for both models: None.
+        rotation_share: keep the pure rotation when its inliers reach this share of the essential
+            matrix's.
+    """
+    xy_a, xy_b = np.asarray(xy_a, np.float64), np.asarray(xy_b, np.float64)
+    if xy_a.shape != xy_b.shape or xy_a.ndim != 2 or xy_a.shape[1] != 2:
+        raise ValueError(f"two_view_rotation: point arrays (N, 2) of the same shape, got {xy_a.shape} "
+                         f"and {xy_b.shape}")
+    ok = np.all(np.isfinite(xy_a), axis=1) & np.all(np.isfinite(xy_b), axis=1)
+    xy_a, xy_b = xy_a[ok], xy_b[ok]
+    n = len(xy_a)
+    if n < max(min_inliers, 5):
+        return None
+    R_rot, inl = rotation_ransac(bearings(xy_a), bearings(xy_b), ROTATION_THRESHOLD_FACTOR * threshold)
+    n_rot = int(inl.sum())
+    R_ess, n_ess = essential_rotation(xy_a, xy_b, threshold, R_rot)
+    if max(n_rot, n_ess) < min_inliers:
+        return None
+    if R_ess is None or n_rot >= rotation_share * n_ess:
+        return TwoViewRotation(R_rot, "rotation", n_rot, n, n_ess, n_rot)
+    return TwoViewRotation(R_ess, "essential", n_ess, n, n_ess, n_rot)
