@@ -6,7 +6,9 @@ estimated by the hand-eye bring-up and the filter's online calibration, written 
 read back with calib.load_rig, and compared with the simulator's rig (sensor.yaml T_IC and the manifest's
 time offset): rotation (deg), lever arm (cm), time offset (ms, signed), the filter's 1-sigma, whether
 `davio calibrate`'s default refusal rules accept it, and when each error settled below the goal
-(< 0.3 deg, < 1 cm, < 1 ms after 60 s of motion). Uses the EMULATED DA3: not DA3 results.
+(< 0.3 deg, < 1 cm, < 1 ms after 60 s of motion). The bring-up's camera rotations come from the EMULATED
+DA3 (not DA3 results) or, with `--sources two-view`, from two-view fits of the tracked features (no model:
+what a user without DA3 gets; the pose-error factors do not apply to it).
 """
 
 from __future__ import annotations
@@ -43,12 +45,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="apply the factors other than 1 to the first folder only, or to all",
     )
     p.add_argument("--preset", default="base", help="emulated DA3 preset")
+    p.add_argument(
+        "--sources",
+        default="emulated",
+        metavar="S,S",
+        help="where the bring-up's camera rotations come from, each a row per folder: emulated (the "
+        "emulated DA3), two-view (the tracked features, no model)",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
     p.add_argument("--out", type=Path, default=None, help="also write the JSON result to this file")
 
 
-def measure(folder: Path, scale: float, seconds: float | None, preset: str = "base") -> dict:
-    """One calibration of `folder` with the pose-error factor `scale`; errors of the written file."""
+SOURCES = ("emulated", "two-view")
+
+
+def measure(folder: Path, scale: float, seconds: float | None, preset: str = "base",
+            source: str = "emulated") -> dict:
+    """One calibration of `folder` with the pose-error factor `scale` (source "emulated") or without a model
+    (source "two-view"); errors of the written file."""
     from calib import load_rig
     from models.emulated_da3 import EmulatedDA3
     from models.emulated_da3.params import POSE_ERROR_FIELDS, make_params
@@ -65,7 +79,9 @@ def measure(folder: Path, scale: float, seconds: float | None, preset: str = "ba
     base = make_params(preset)
     overrides = {k: getattr(base, k) * scale for k in POSE_ERROR_FIELDS}
     cam = rig.camera
-    model = EmulatedDA3(rec.ground_truth_source, cam.K, cam.width, cam.height, preset=preset, **overrides)
+    model = None
+    if source == "emulated":
+        model = EmulatedDA3(rec.ground_truth_source, cam.K, cam.width, cam.height, preset=preset, **overrides)
     t0 = time.perf_counter()
     run = calibrate(rec.driver.events(), rig, model, seconds=seconds)
     wall = time.perf_counter() - t0
@@ -73,7 +89,8 @@ def measure(folder: Path, scale: float, seconds: float | None, preset: str = "ba
     row: dict = {
         "folder": str(folder),
         "preset": cfg.get("preset"),
-        "pose_error_scale": scale,
+        "source": source,
+        "pose_error_scale": scale if source == "emulated" else None,
         "sensor_s": run.sensor_s,
         "wall_s": wall,
         "verdict": verdict.code,
@@ -100,7 +117,7 @@ def measure(folder: Path, scale: float, seconds: float | None, preset: str = "ba
                 run,
                 verdict,
                 Thresholds(),
-                "emulated",
+                source,
                 str(folder),
                 {"source": "simulator", "T_IC": true_T, "time_offset_s": true_dt},
                 paths,
@@ -146,17 +163,24 @@ def run(args: argparse.Namespace) -> int:
     if not scales or any(not (s >= 0) for s in scales):
         print("calibrate: --pose-error-scales must hold numbers >= 0")
         return 2
+    sources = [s.strip() for s in args.sources.split(",") if s.strip()]
+    if not sources or any(s not in SOURCES for s in sources):
+        print(f"calibrate: --sources must hold {' or '.join(SOURCES)} separated by commas, "
+              f"got {args.sources!r}")
+        return 2
     rows = []
     for i, folder in enumerate(args.folders):
-        for k in scales:
-            if k != 1.0 and args.scales_on == "first" and i > 0:
-                continue
-            rows.append(measure(folder, k, args.seconds, args.preset))
-            if not args.json:
-                _print_row(rows[-1], header=len(rows) == 1)
+        for source in sources:
+            for k in scales if source == "emulated" else [1.0]:
+                if k != 1.0 and args.scales_on == "first" and i > 0:
+                    continue
+                rows.append(measure(folder, k, args.seconds, args.preset, source))
+                if not args.json:
+                    _print_row(rows[-1], header=len(rows) == 1)
     res = {
         "goal": {"rot_deg": 0.3, "lever_cm": 1.0, "offset_ms": 1.0, "after_s": 60},
         "model": f"EMULATED DA3 ({args.preset}) -- not a real network",
+        "sources": sources,
         "rows": rows,
     }
     if args.out is not None:
@@ -168,6 +192,7 @@ def run(args: argparse.Namespace) -> int:
 
 _COLS = (
     ("preset", "preset", "{}"),
+    ("source", "rotations", "{}"),
     ("pose_error_scale", "DA3 err x", "{:g}"),
     ("sensor_s", "s", "{:.0f}"),
     ("bringup_done_s", "bring-up s", "{:.1f}"),
@@ -186,7 +211,8 @@ _COLS = (
 def _print_row(row: dict, header: bool) -> None:
     if header:
         print(
-            "davio calibrate on simulated recordings (EMULATED DA3; goal < 0.3 deg / 1 cm / 1 ms after 60 s)"
+            "davio calibrate on simulated recordings (rotations: EMULATED DA3 or two-view fits of the "
+            "tracks; goal < 0.3 deg / 1 cm / 1 ms after 60 s)"
         )
         print(" ".join(f"{h:>12}" for _, h, _ in _COLS))
     cells = []

@@ -155,21 +155,16 @@ def calibrate(
     Args:
         events: a recording's time-ordered ImuSample / Frame events (a driver's `events()`).
         rig: calib.Rig with the camera intrinsics (T_IC and time_offset_s are ignored: withheld).
-        model: a DepthModel (DA3 ONNX or emulated): the bring-up needs it.
+        model: a DepthModel (DA3 ONNX or emulated), or None: the bring-up then takes the camera's rotations
+            from two-view fits of the tracked features.
         seconds: only the first S seconds of data.
         sample_every_s: camera seconds between collected calibration states.
         progress: called with (sensor seconds, phase) about every 5 s of data.
         live: `events` come from a live driver (runtime.session.Session.run_live: real time, bounded
             queues, model results applied when ready); Ctrl-C ends the data, not the calibration.
     """
-    from runtime.errors import ConfigError
     from runtime.session import Session
 
-    if model is None:
-        raise ConfigError(
-            "calibration needs a depth model for the hand-eye bring-up: pass --model DA3.onnx "
-            "(or --emulated for a `davio simulate` recording)"
-        )
     withheld = rig.replace(T_IC=None, time_offset_s=None)
     session = Session(withheld, model, calibration_config(config))
     pipe = session.pipeline

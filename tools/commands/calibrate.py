@@ -12,9 +12,12 @@ from tools.model_open import add_gpu_memory_argument
 NAME = "calibrate"
 HELP = "estimate the camera-IMU extrinsics and time offset of a recording; write a Kalibr camchain"
 DESCRIPTION = (
-    "Calibrate the camera-IMU rig from a recording: the hand-eye bring-up (R_IC and the gyro bias from DA3 "
-    "vs preintegrated IMU rotations) and the filter's online refinement of rotation, lever arm and time "
-    "offset. SOURCE is an EuRoC folder, a `davio simulate` folder, a ROS 1 / ROS 2 bag, or a live module: "
+    "Calibrate the camera-IMU rig from a recording: the hand-eye bring-up (R_IC and the gyro bias from the "
+    "camera's vs preintegrated IMU rotations) and the filter's online refinement of rotation, lever arm and "
+    "time offset. The camera's rotations come from DA3 (--model, or --emulated on a `davio simulate` folder, "
+    "its default) or, with no model (--two-view; the default on other recordings and live modules), from "
+    "two-view fits of the tracked features: no network needed. SOURCE is an EuRoC folder, a `davio "
+    "simulate` folder, a ROS 1 / ROS 2 bag, or a live module: "
     "`oak` (depthai) or `uvc` (a UVC camera and a serial IMU, --imu-port; the options of `davio live`), "
     "moved by hand until --seconds or Ctrl-C. The intrinsics come from the recording's own calibration, "
     "an OAK's factory calibration, or --rig (its camera part is kept; its extrinsics and time offset are "
@@ -32,6 +35,8 @@ DESCRIPTION = (
 
 #: exit status of a refusal (1: an error, 2: bad arguments)
 EXIT_REFUSED = 3
+#: the model line of a calibration without a depth model
+TWO_VIEW = "none: the bring-up's camera rotations from two-view fits of the tracked features"
 
 
 def _emulated_presets() -> list[str]:
@@ -68,6 +73,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         choices=_emulated_presets(),
         help="emulated DA3 (simulated recordings only; the default there): small, base, large, "
         "or <size>_upper",
+    )
+    g.add_argument(
+        "--two-view",
+        action="store_true",
+        help="no depth model: the bring-up's camera rotations from two-view fits of the tracked features "
+        "(the default without --model on real recordings and live modules)",
     )
     p.add_argument(
         "--rig",
@@ -197,16 +208,15 @@ def is_live(source: str) -> bool:
 
 def open_live(args: argparse.Namespace) -> tuple:
     """(LiveDriver, rig with the intrinsics, model, model description, reference dict) for a live module,
-    or a DavioError. The model must be a DA3 graph: the emulated DA3 needs a simulator's ground truth."""
+    or a DavioError. The model is a DA3 graph or none (two-view rotations): the emulated DA3 needs a
+    simulator's ground truth."""
     from runtime.errors import ConfigError
     from tools.commands.live import check_device_args, open_device
 
     check_device_args(args, "davio calibrate")
     if args.emulated:
-        raise ConfigError("--emulated needs a recording written by `davio simulate`; a live module needs "
-                          "--model DA3.onnx")
-    if not args.model:
-        raise ConfigError("calibration needs a depth model for the hand-eye bring-up: pass --model DA3.onnx")
+        raise ConfigError("--emulated needs a recording written by `davio simulate`; on a live module pass "
+                          "--model DA3.onnx, or nothing for two-view rotations of the tracked features")
     given = None
     if args.rig:
         from calib import load_rig
@@ -215,13 +225,15 @@ def open_live(args: argparse.Namespace) -> tuple:
         if given.camera is None:
             raise ConfigError(f"{args.rig}: no camera intrinsics")
     driver, rig = open_device(args, given)
-    try:
-        from tools.model_open import open_da3
+    model, desc = None, TWO_VIEW
+    if args.model:
+        try:
+            from tools.model_open import open_da3
 
-        model, desc = open_da3(args, rig.camera, 5)
-    except BaseException:
-        driver.stop()
-        raise
+            model, desc = open_da3(args, rig.camera, 5)
+        except BaseException:
+            driver.stop()
+            raise
     reference = {"source": None, "T_IC": None, "time_offset_s": None}
     if args.source == "oak" and given is None and rig.T_IC is not None:
         reference.update(source="the OAK's factory calibration", T_IC=rig.T_IC,
@@ -241,7 +253,7 @@ def open_inputs(args: argparse.Namespace) -> tuple:
         given = load_rig(args.rig)
     rec = open_recording(
         args.source,
-        rebuild=not args.model,
+        rebuild=not (args.model or args.two_view),
         policy="strict" if args.strict else "drop",
         rig=given,
         image_topic=args.image_topic,
@@ -269,10 +281,13 @@ def open_inputs(args: argparse.Namespace) -> tuple:
             source="the simulator's rig (manifest.json, sensor.yaml)",
             time_offset_s=float(cfg.get("time_offset_s") or 0.0),
         )
+    model, desc = None, TWO_VIEW
     if args.model:
         from tools.model_open import open_da3
 
         model, desc = open_da3(args, rig.camera, 5)
+    elif args.two_view:
+        pass
     elif rec.kind == "simulated":
         from models.emulated_da3 import EmulatedDA3
 
@@ -283,10 +298,8 @@ def open_inputs(args: argparse.Namespace) -> tuple:
     elif args.emulated:
         raise ConfigError(
             "--emulated needs a recording written by `davio simulate` (it reads the simulator's "
-            "ground truth); for real data pass --model DA3.onnx"
+            "ground truth); for real data pass --model DA3.onnx, or nothing for two-view rotations"
         )
-    else:
-        raise ConfigError("calibration needs a depth model for the hand-eye bring-up: pass --model DA3.onnx")
     return rec, rig, model, desc, reference
 
 

@@ -56,8 +56,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="every input repair (dropped, reordered or converted rows and images) is an error "
                         "naming the file and line, instead of being counted in report.json")
     p.add_argument("--withhold-extrinsics", action="store_true",
-                   help="ignore the rig's camera-IMU extrinsics and time offset: hand-eye bring-up from "
-                        "DA3, then online calibration (needs a model)")
+                   help="ignore the rig's camera-IMU extrinsics and time offset: hand-eye bring-up from the "
+                        "camera's rotations (DA3's, or two-view fits of the tracked features without a "
+                        "model), then online calibration")
     p.add_argument("--paced", action="store_true",
                    help="replay at sensor rate instead of as fast as possible")
     p.add_argument("--speed", type=float, default=1.0, help="pacing factor with --paced (> 0)")
@@ -268,8 +269,9 @@ def _summary(report: dict, out: Path) -> None:
     if bu is not None:
         state = "done" if bu["R_IC"] else "NOT done"
         rms = bu["fit_rms_deg"] or float("nan")
-        print(f"  hand-eye bring-up: {state} after {bu['windows_used']} windows (fit RMS {rms:.2f} deg, "
-              f"rejections {bu['rejections'] or '{}'})")
+        source = "DA3" if bu.get("rotation_source", "model") == "model" else "two-view fits of the tracks"
+        print(f"  hand-eye bring-up: {state} after {bu['windows_used']} windows, rotations from {source} "
+              f"(fit RMS {rms:.2f} deg, rejections {bu['rejections'] or '{}'})")
     s = report["scheduler"]
     print(f"  tracking {s.get('tracking_ms_per_frame_median', float('nan')):.1f} ms/frame (median), "
           f"real-time factor {s.get('realtime_factor') or float('nan'):.2f}")
