@@ -59,8 +59,9 @@ class BringUpReport:
     rotation_source: str = "model"
     """Where the camera's rotations came from: "model" (DA3 calls) or "tracks" (two-view fits)."""
     two_view_models: dict = field(default_factory=dict)
-    """Without a model: the windows' camera rotations by how they were found: two-view fits from the
-    window's first image ("essential", "rotation"), or "chained" frame to frame."""
+    """Without a model: the camera rotations of every window received (also those a failed estimate later
+    dropped) by how they were found: two-view fits from the window's first image ("essential",
+    "rotation"), or "chained" frame to frame."""
     windows_used: int = 0
     windows_skipped_static: int = 0
     attempts: int = 0
@@ -90,8 +91,10 @@ class HandEyeBringUp:
         self.model = model
         self.cfg = cfg or BringUpConfig()
         self.focal_px = focal_px
-        self.frames: deque[Frame] = deque(maxlen=64)
-        self.tracks: deque[tuple[int, np.ndarray, np.ndarray]] = deque(maxlen=64)
+        self.frames: deque[Frame] = deque()
+        self.tracks: deque[tuple[int, np.ndarray, np.ndarray]] = deque()
+        # held frames or track sets reach back this far (ns): a window and its gap, at any frame rate
+        self._hold_ns = int(((self.cfg.window_images - 1) * self.cfg.window_spacing_s + 1.0) * 1e9)
         self.imu_t: deque[int] = deque()
         self.imu_w: deque[np.ndarray] = deque()
         self.imu_a: deque[np.ndarray] = deque()
@@ -117,12 +120,17 @@ class HandEyeBringUp:
         """A camera frame (kept for the model's calls; not needed without a model)."""
         if self.model is not None:
             self.frames.append(f)
+            while int(f.t_ns) - int(self.frames[0].t_ns) > self._hold_ns:
+                self.frames.popleft()
 
     def on_tracks(self, t_ns: int, ids: np.ndarray, xy: np.ndarray) -> None:
         """The tracker's features at a frame: persistent ids (M,) and undistorted normalized coordinates
-        (M, 2) (kept for the two-view fits; not needed with a model)."""
-        if self.model is None:
+        (M, 2) (kept for the two-view fits; not needed with a model). A frame the tracker gave no features
+        (dark, frozen, out of order: its tracks resume at the next good frame) is not held."""
+        if self.model is None and len(ids) and (not self.tracks or int(t_ns) > self.tracks[-1][0]):
             self.tracks.append((int(t_ns), np.asarray(ids), np.asarray(xy, np.float64)))
+            while int(t_ns) - self.tracks[0][0] > self._hold_ns:
+                self.tracks.popleft()
 
     def _window(self) -> tuple[list, list] | None:
         """(the newest window's frames (with a model) or track sets (without), every held one from its first
@@ -229,9 +237,10 @@ def _two_view_rotations(span: list, stamps: list[int], cfg: BringUpConfig,
                         focal_px: float) -> tuple[np.ndarray, tuple[str, ...]] | Rejection:
     """((N-1, 3, 3) R_C0Ci, how each was found) of a window's images at `stamps` (ns), from the track sets
     [(t_ns, ids, xy)] of every frame of its `span` (the first image's to the last's). Each from the features
-    tracked from image 0 to image i (the two-view model: "essential" or "rotation") or, when too few of those
-    last (a fast turn takes them out of view), "chained": from the latest frame already placed, one frame at
-    a time. A Rejection (`two_view_too_few_tracks`, `two_view_failed`) when a frame cannot be placed."""
+    tracked from image 0 to image i (the two-view model: "essential" or "rotation") or, when that fit fails
+    (most often too few of those features last: a fast turn takes them out of view), "chained": from the
+    latest frame already placed, one frame at a time. A Rejection (`two_view_too_few_tracks`,
+    `two_view_failed`) when a frame cannot be placed."""
     times = [int(x[0]) for x in span]
     R_0k: dict[int, np.ndarray] = {0: np.eye(3)}      # span index -> R_C0Ck
     out, how = [], []
@@ -246,9 +255,9 @@ def _two_view_rotations(span: list, stamps: list[int], cfg: BringUpConfig,
             for j in range(q + 1, k + 1):
                 step, n_step = _pair_rotation(span[j - 1], span[j], cfg, focal_px)
                 if step is None:
-                    if max(n_common, n_step) < cfg.two_view_min_tracks:
+                    if n_step < cfg.two_view_min_tracks:
                         return Rejection("two_view_too_few_tracks",
-                                         f"{max(n_common, n_step)} features tracked into a frame of the "
+                                         f"{n_step} features tracked into a frame of the "
                                          f"window (< {cfg.two_view_min_tracks})")
                     return Rejection("two_view_failed",
                                      f"no rotation explains {cfg.two_view_min_tracks // 2} of the features "

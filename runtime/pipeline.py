@@ -400,7 +400,8 @@ class VioPipeline:
                 self.stats.ff_exceptions.append(f"start-up re-solve: {type(result).__name__}: {result}")
                 self.startup.end_extension("exception")
                 return
-            self.stats.ff_exceptions.append(f"{type(result).__name__}: {result}")
+            where = "bring-up: " if self._job_kind == "bringup" else ""
+            self.stats.ff_exceptions.append(f"{where}{type(result).__name__}: {result}")
             return
         if self._job_kind == "bringup":
             if self.bringup.on_result(result, self._last_t):

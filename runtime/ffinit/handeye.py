@@ -28,8 +28,8 @@ class RotationWindow:
         R_I0Ii: (N-1, 3, 3) preintegrated IMU rotations at gyro bias `bg_bar`.
         J_R_bg: (N-1, 3, 3) their gyro-bias Jacobians (right perturbation).
         bg_bar: (3,) the gyro bias the preintegration used, rad/s.
-        two_view_models: the two-view model of each camera rotation ("essential", "rotation"); empty for
-            DA3's.
+        two_view_models: how each camera rotation was found without a model ("essential", "rotation",
+            "chained": runtime.bringup); empty for DA3's.
     """
 
     R_C0Ci: np.ndarray

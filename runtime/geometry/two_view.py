@@ -3,10 +3,11 @@
 Two models are fitted to the same correspondences (undistorted normalized coordinates) and the one the
 points support is kept:
 - the essential matrix (OpenCV's five-point USAC with local optimisation), for views with parallax;
-- a pure rotation, f_b = R_BA f_a on unit bearings (a two-point Kabsch RANSAC, refined on its inliers), for
-  views whose translation is too small against the scene's depth to be seen. There every translation fits
-  the epipolar constraint, and the essential matrix's rotation may be the wrong one of its twisted pair;
-  of that pair, the one nearer the pure rotation's is taken in every case.
+- a pure rotation, f_b = R_BA f_a on unit bearings (a two-point Kabsch RANSAC refined on its inliers, the
+  turning-start initializer's), for views whose translation is too small against the scene's depth to be
+  seen. There every translation fits the epipolar constraint, and the essential matrix's rotation may be
+  the wrong one of its twisted pair; of that pair, the one nearer the pure rotation's is taken in every
+  case.
 The rotation model is kept when it explains at least `rotation_share` as many points as the essential
 matrix: the parallax is then within the threshold, and a rotation is all the points can tell.
 
@@ -20,8 +21,6 @@ import numpy as np
 
 from runtime.geometry.so3 import kabsch_rotation
 
-#: RANSAC iterations of the two-point rotation model (an inlier share of 0.5 needs 16 for 0.999)
-ROTATION_ITERATIONS = 128
 #: the rotation model's threshold against the essential matrix's: its error is a 2-D distance with both
 #: views' noise, the epipolar one a 1-D distance
 ROTATION_THRESHOLD_FACTOR = 2.0
@@ -49,35 +48,30 @@ class TwoViewRotation:
 
 
 def bearings(xy: np.ndarray) -> np.ndarray:
-    """Unit bearing vectors (N, 3) of normalized image coordinates (N, 2)."""
-    f = np.column_stack([np.asarray(xy, np.float64), np.ones(len(xy))])
-    return f / np.linalg.norm(f, axis=1, keepdims=True)
+    """Unit bearing vectors (n, 3) of normalized camera coordinates xy (n, 2)."""
+    b = np.column_stack([xy, np.ones(xy.shape[0])])
+    return b / np.linalg.norm(b, axis=1, keepdims=True)
 
 
-def rotation_ransac(f_a: np.ndarray, f_b: np.ndarray, threshold: float,
-                    iterations: int = ROTATION_ITERATIONS, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """(R_BA, inlier mask) of the pure-rotation model f_b = R_BA f_a on unit bearings (N, 3): two-point
-    Kabsch hypotheses (a fixed seed: the same points give the same answer), the one with most bearings
-    within `threshold` (radians, the chord |f_b - R f_a|) refined twice on its inliers."""
-    n = len(f_a)
-    rng = np.random.default_rng(seed)
-    best_R, best_count = np.eye(3), -1
+def rotation_ransac(a: np.ndarray, b: np.ndarray, threshold_rad: float, rng: np.random.Generator,
+                    iterations: int = 64) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation R with b ~ R a for bearings a, b (n, 3): 2-point RANSAC, Kabsch refit on the inliers.
+
+    Returns R and the inlier mask (angle between R a_i and b_i below threshold_rad); the identity and the
+    best mask when fewer than 3 bearings agree."""
+    n = a.shape[0]
+    best = np.zeros(n, dtype=bool)
+    cos_thr = np.cos(threshold_rad)
     for _ in range(iterations):
         i, j = rng.choice(n, 2, replace=False)
-        if abs(float(f_a[i] @ f_a[j])) > 0.99999:      # the same direction twice: no rotation
-            continue
-        R = kabsch_rotation(f_a[[i, j]], f_b[[i, j]])
-        count = int(np.count_nonzero(np.linalg.norm(f_b - f_a @ R.T, axis=1) < threshold))
-        if count > best_count:
-            best_R, best_count = R, count
-    R = best_R
-    inl = np.linalg.norm(f_b - f_a @ R.T, axis=1) < threshold
-    for _ in range(2):
-        if inl.sum() < 2:
-            break
-        R = kabsch_rotation(f_a[inl], f_b[inl])
-        inl = np.linalg.norm(f_b - f_a @ R.T, axis=1) < threshold
-    return R, inl
+        R = kabsch_rotation(a[[i, j]], b[[i, j]])
+        inl = np.einsum("ij,ij->i", a @ R.T, b) > cos_thr
+        if inl.sum() > best.sum():
+            best = inl
+    if best.sum() < 3:
+        return np.eye(3), best
+    R = kabsch_rotation(a[best], b[best])
+    return R, np.einsum("ij,ij->i", a @ R.T, b) > cos_thr
 
 
 def essential_rotation(xy_a: np.ndarray, xy_b: np.ndarray, threshold: float,
@@ -123,11 +117,13 @@ def two_view_rotation(xy_a: np.ndarray, xy_b: np.ndarray, threshold: float, min_
     n = len(xy_a)
     if n < max(min_inliers, 5):
         return None
-    R_rot, inl = rotation_ransac(bearings(xy_a), bearings(xy_b), ROTATION_THRESHOLD_FACTOR * threshold)
+    # a fixed seed: the same points give the same rotation model
+    R_rot, inl = rotation_ransac(bearings(xy_a), bearings(xy_b), ROTATION_THRESHOLD_FACTOR * threshold,
+                                 np.random.default_rng(0), iterations=128)
     n_rot = int(inl.sum())
     R_ess, n_ess = essential_rotation(xy_a, xy_b, threshold, R_rot)
-    if max(n_rot, n_ess) < min_inliers:
-        return None
-    if R_ess is None or n_rot >= rotation_share * n_ess:
+    if n_rot >= min_inliers and (R_ess is None or n_rot >= rotation_share * n_ess):
         return TwoViewRotation(R_rot, "rotation", n_rot, n, n_ess, n_rot)
+    if R_ess is None or n_ess < min_inliers:
+        return None
     return TwoViewRotation(R_ess, "essential", n_ess, n, n_ess, n_rot)

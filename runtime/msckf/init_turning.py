@@ -33,6 +33,7 @@ import numpy as np
 
 from runtime.errors import ConfigError
 from runtime.geometry.so3 import so3_log
+from runtime.geometry.two_view import bearings, rotation_ransac
 from runtime.msckf.init_common import (
     BufferedInitializer,
     InitResult,
@@ -42,7 +43,6 @@ from runtime.msckf.init_common import (
 )
 from runtime.msckf.init_dynamic_excitation import gyro_rotation_deg
 from runtime.msckf.init_turning_imu import gravity_and_accel_bias, gyro_orientations
-from runtime.msckf.init_turning_rotation import bearings, rotation_ransac
 
 
 @dataclass

@@ -21,7 +21,7 @@ from runtime.scheduler import FastClock, Scheduler
 
 def test_without_a_model_the_bringup_takes_its_rotations_from_the_tracked_features():
     """No depth model: two-view fits of the KLT tracks replace DA3's rotations; R_IC against the simulator's
-    (measured 0.48 deg at 20 Hz over 16 s, against 0.36 deg with the emulated DA3-Base)."""
+    (measured 0.26 deg on this recording; 0.06 deg with the emulated DA3-Base)."""
     rec = SimRecording.from_preset(SimConfig(preset="aggressive", seconds=12.0, seed=4, camera_rate_hz=10.0))
     withheld = rec.rig.replace(T_IC=None, time_offset_s=None)
     cfg = DavioConfig()
@@ -29,7 +29,8 @@ def test_without_a_model_the_bringup_takes_its_rotations_from_the_tracked_featur
     Scheduler(FastClock(0.5)).run(rec.events(), pipe)
     rep = pipe.report()["bringup"]
     assert rep["rotation_source"] == "tracks" and rep["R_IC"] is not None, rep
-    assert sum(rep["two_view_models"].values()) == 4 * rep["windows_used"]
+    n_rot = sum(rep["two_view_models"].values())    # every window received, 4 rotations each
+    assert n_rot % 4 == 0 and n_rot >= 4 * rep["windows_used"]
     err = np.degrees(Rotation.from_matrix(np.array(rep["R_IC"]).T @ rec.rig.T_IC[:3, :3]).magnitude())
     assert err < 1.5, err
     assert len(pipe.published) > 5
@@ -40,6 +41,38 @@ def test_a_bringup_without_a_model_needs_the_focal_length_and_sane_settings():
         HandEyeBringUp(None)
     with pytest.raises(ConfigError, match="bringup.two_view_min_tracks"):
         BringUpConfig(two_view_min_tracks=10)
+
+
+def test_images_whose_features_left_the_view_are_chained_frame_to_frame():
+    """A turn about two axes (40 and 50 deg/s: steps that do not commute) for 0.8 s at 20 Hz, each feature
+    tracked for 0.35 s (its id then changes): the
+    window's later images share no feature with its first one and are placed by chaining; one frame without
+    features (dark) is not held. Against the true rotations of a pure rotation (points 5 m away)."""
+    rng = np.random.default_rng(4)
+    d = rng.normal(size=(3000, 3))
+    X = 5.0 * d / np.linalg.norm(d, axis=1, keepdims=True)
+    bu = HandEyeBringUp(None, BringUpConfig(), focal_px=458.0)
+    truth = {}
+    for k in range(17):
+        t_ns = 10**9 + k * 50_000_000
+        s_k = k * 0.05
+        R_C0Ck = (Rotation.from_rotvec([np.radians(40.0) * s_k, 0, 0])
+                  * Rotation.from_rotvec([0, np.radians(50.0) * s_k, 0])).as_matrix()
+        truth[t_ns] = R_C0Ck
+        Xc = X @ R_C0Ck          # points in camera k: R_CkC0 X = R_C0Ck^T X
+        vis = np.flatnonzero((Xc[:, 2] > 0.5) & (np.abs(Xc[:, 0]) < 0.8 * Xc[:, 2])
+                             & (np.abs(Xc[:, 1]) < 0.6 * Xc[:, 2]))
+        xy = Xc[vis, :2] / Xc[vis, 2:] + rng.normal(0, 0.3 / 458.0, (len(vis), 2))
+        ids = vis * 100 + (k + vis) // 7        # a feature's id lasts 7 frames
+        bu.on_tracks(t_ns, ids if k != 9 else ids[:0], xy if k != 9 else xy[:0])
+    assert len(bu.tracks) == 16
+    span = list(bu.tracks)
+    stamps = [10**9 + i * 200_000_000 for i in range(5)]
+    R, how = _two_view_rotations(span, stamps, BringUpConfig(), 458.0)
+    assert how[-1] == "chained" and how[0] != "chained"
+    for R_est, t in zip(R, stamps[1:], strict=True):
+        err = np.degrees(Rotation.from_matrix(R_est.T @ truth[t]).magnitude())
+        assert err < 0.1, (t, err, how)
 
 
 def test_a_window_whose_tracks_do_not_last_is_refused_by_reason():

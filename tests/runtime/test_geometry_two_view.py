@@ -44,7 +44,7 @@ def test_the_rotation_is_recovered_with_the_model_the_motion_supports(translatio
         fit = two_view_rotation(*_scene(rng, R, t), 1.0 / FOCAL_PX)
         errors.append(_error_deg(fit.R_BA, R))
         models.add(fit.model)
-        assert fit.points >= 140 and fit.inliers >= 0.8 * fit.points
+        assert fit.points >= 140 and fit.inliers >= 0.7 * fit.points
     assert models == {model}
     assert max(errors) < bound_deg, errors
 
@@ -66,7 +66,7 @@ def test_the_rotation_ransac_refuses_outliers_alone():
     rng = np.random.default_rng(1)
     R = so3_exp(np.array([0.1, -0.05, 0.02]))
     a, b = _scene(rng, R, np.zeros(3), outliers=0.4)
-    R_fit, inliers = rotation_ransac(bearings(a), bearings(b), 2.0 / FOCAL_PX)
+    R_fit, inliers = rotation_ransac(bearings(a), bearings(b), 2.0 / FOCAL_PX, np.random.default_rng(0))
     m = int(0.4 * len(a))
     assert not inliers[:m].any() and inliers[m:].mean() > 0.9
     assert _error_deg(R_fit, R) < 0.05

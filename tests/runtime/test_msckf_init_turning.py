@@ -10,9 +10,9 @@ from runtime.errors import ConfigError
 from runtime.events import ImuSample
 from runtime.geometry import so3_exp, so3_right_jacobian
 from runtime.geometry.so3 import kabsch_rotation
+from runtime.geometry.two_view import rotation_ransac
 from runtime.msckf.init_common import gravity_angle_deg
 from runtime.msckf.init_turning import TurningInitConfig, TurningInitializer
-from runtime.msckf.init_turning_rotation import rotation_ransac
 
 G0 = 9.81
 CAM = Pinhole(640, 480, 400.0, 400.0, 319.5, 239.5)

@@ -8,7 +8,8 @@ time offset): rotation (deg), lever arm (cm), time offset (ms, signed), the filt
 `davio calibrate`'s default refusal rules accept it, and when each error settled below the goal
 (< 0.3 deg, < 1 cm, < 1 ms after 60 s of motion). The bring-up's camera rotations come from the EMULATED
 DA3 (not DA3 results) or, with `--sources two-view`, from two-view fits of the tracked features (no model:
-what a user without DA3 gets; the pose-error factors do not apply to it).
+what a user without DA3 gets; the pose-error factors do not apply to it, and after the bring-up the
+start-up is the native initializer's alone, as in any run without a model).
 """
 
 from __future__ import annotations
@@ -179,7 +180,7 @@ def run(args: argparse.Namespace) -> int:
                     _print_row(rows[-1], header=len(rows) == 1)
     res = {
         "goal": {"rot_deg": 0.3, "lever_cm": 1.0, "offset_ms": 1.0, "after_s": 60},
-        "model": f"EMULATED DA3 ({args.preset}) -- not a real network",
+        "model": f"EMULATED DA3 ({args.preset}) -- not a real network" if "emulated" in sources else None,
         "sources": sources,
         "rows": rows,
     }

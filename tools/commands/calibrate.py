@@ -96,7 +96,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=float,
         default=0.5,
         metavar="S",
-        help="simulated model latency (sensor seconds, >= 0)",
+        help="simulated model latency (sensor seconds, >= 0; without a model the bring-up's fits take "
+        "the replay's 0.1 s solve latency)",
     )
     p.add_argument(
         "--min-axis-rate-dps",
@@ -286,9 +287,7 @@ def open_inputs(args: argparse.Namespace) -> tuple:
         from tools.model_open import open_da3
 
         model, desc = open_da3(args, rig.camera, 5)
-    elif args.two_view:
-        pass
-    elif rec.kind == "simulated":
+    elif rec.kind == "simulated" and not args.two_view:
         from models.emulated_da3 import EmulatedDA3
 
         preset = args.emulated or "base"
