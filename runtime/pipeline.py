@@ -29,6 +29,7 @@ from runtime.msckf.init_static import StaticInitializer
 from runtime.msckf.init_turning import TurningInitializer
 from runtime.msckf.tracker import KltTracker
 from runtime.pose_history import CausalView, PoseHistory, PublishedView
+from runtime.rig_check import TwoViewRigCheck
 from runtime.startup import Published, StartupManager
 
 
@@ -109,6 +110,9 @@ class VioPipeline:
         self._last_t = 0
         self._lost_carried = 0   # lost_before of IMU samples dropped as out of range, for the next one
         self._gyro_rates = RateQuantiles()   # the run's |gyro|: a gyroscope in deg/s reads 57.3x
+        #: without a model: the gyro's scale and the camera-IMU rotation checked from the tracks (none with
+        #: a model: the start-up's DA3 windows check both)
+        self.rig_check: TwoViewRigCheck | None = None
         if rig.T_IC is None:   # without a model, the bring-up takes the camera's rotations from the tracks
             self.bringup = HandEyeBringUp(model, focal_px=float(np.sqrt(rig.camera.fx * rig.camera.fy)))
             self.rig = rig
@@ -116,6 +120,10 @@ class VioPipeline:
             self.ffinit = None
         else:
             self._start_tracking(rig, self.config)
+            if model is None:
+                self.rig_check = TwoViewRigCheck(self.T_IC[:3, :3], self.time_offset_s,
+                                                 float(np.sqrt(rig.camera.fx * rig.camera.fy)),
+                                                 ffcfg=self.config.ffinit)
 
     def _start_tracking(self, rig: Any, cfg: DavioConfig, bg_prior: np.ndarray | None = None) -> None:
         """Build the filters (native initializers armed) and the feed-forward start-up for `rig`."""
@@ -188,6 +196,8 @@ class VioPipeline:
         if self.startup is None:
             self.bringup.on_imu(sample)
             return []
+        if self.rig_check is not None and not self.rig_check.done:
+            self.rig_check.on_imu(sample.t_ns, g)
         out = self.startup.on_imu(sample)
         self._publish_causal(out)
         if self.windows is not None and out:
@@ -204,6 +214,8 @@ class VioPipeline:
             self.bringup.on_frame(frame)
             self.bringup.on_tracks(res.t_ns, res.ids, res.xy)
             return []
+        if self.rig_check is not None and not self.rig_check.done:
+            self.rig_check.on_tracks(res.t_ns, res.ids, res.xy)
         out = self.startup.on_tracks(int(frame.t_ns), res.ids, res.uv, frame)
         self._publish_causal(out)
         if self.windows is not None:
@@ -416,6 +428,8 @@ class VioPipeline:
         rep = {"tracking": asdict(self.stats)}
         if self.bringup is not None:
             rep["bringup"] = asdict(self.bringup.report)
+        if self.rig_check is not None:
+            rep["rig_check"] = {k: v for k, v in asdict(self.rig_check.report).items() if k != "ratios"}
         if self.startup is not None:
             rep["startup"] = asdict(self.startup.report)
             rep["filter"] = (self.startup.publisher or self.startup.native).report()

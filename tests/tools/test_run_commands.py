@@ -245,6 +245,14 @@ def test_recovery_lines_name_every_counted_recovery():
     report["pipeline"]["startup"]["ff_rejections"]["extrinsics_rotation"] = 2
     line = [x for x in _recovery_lines(report) if x.startswith("CAMERA-IMU ROTATION: 2 windows refused")]
     assert len(line) == 1 and "inverted" in line[0] and "--withhold-extrinsics" in line[0]
+    # without a model the tracked features' checks speak for themselves
+    report["pipeline"]["rig_check"] = {"gyro_scale": "the gyroscope turns 57.9x as far",
+                                       "extrinsics_rotation": None}
+    gyro = [x for x in _recovery_lines(report) if x.startswith("GYROSCOPE SCALE (tracked features): ")]
+    assert len(gyro) == 1 and "57.9x" in gyro[0]
+    assert not any(x.startswith("CAMERA-IMU ROTATION (tracked") for x in _recovery_lines(report))
+    report["pipeline"]["rig_check"]["extrinsics_rotation"] = "178.1 deg ... inverted"
+    assert any(x.startswith("CAMERA-IMU ROTATION (tracked features): 178.1") for x in _recovery_lines(report))
 
 
 def test_the_time_offset_line_says_what_the_start_up_did_with_its_finding():

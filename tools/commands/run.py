@@ -442,6 +442,13 @@ def _recovery_lines(report: dict) -> list[str]:
             lines.append(f"CAMERA-IMU ROTATION: {startup['ff_rejections']['extrinsics_rotation']} windows "
                          f"refused, the first: {first.get('extrinsics_rotation', '')}. Check the rig file's "
                          "T_cam_imu / T_imu_cam, or run with --withhold-extrinsics to estimate it")
+    check = report["pipeline"].get("rig_check") or {}     # without a model: from the tracked features
+    if check.get("gyro_scale"):
+        lines.append(f"GYROSCOPE SCALE (tracked features): {check['gyro_scale']}. Fix the IMU's units or "
+                     "scale; the filter integrates them")
+    if check.get("extrinsics_rotation"):
+        lines.append(f"CAMERA-IMU ROTATION (tracked features): {check['extrinsics_rotation']}. Check the rig "
+                     "file's T_cam_imu / T_imu_cam, or run with --withhold-extrinsics to estimate it")
     rig_offset_s = (report.get("rig") or {}).get("time_offset_s")
     for line in (_time_offset_line(startup, rig_offset_s),
                  _estimated_offset_line(report["pipeline"].get("filter") or {}, startup, rig_offset_s)):
