@@ -110,8 +110,8 @@ class VioPipeline:
         self._last_t = 0
         self._lost_carried = 0   # lost_before of IMU samples dropped as out of range, for the next one
         self._gyro_rates = RateQuantiles()   # the run's |gyro|: a gyroscope in deg/s reads 57.3x
-        #: without a model: the gyro's scale and the camera-IMU rotation checked from the tracks (none with
-        #: a model: the start-up's DA3 windows check both)
+        #: without the feed-forward start-up (no model): the gyro's scale and the camera-IMU rotation checked
+        #: from the tracks (with it, the start-up's DA3 windows check both)
         self.rig_check: TwoViewRigCheck | None = None
         if rig.T_IC is None:   # without a model, the bring-up takes the camera's rotations from the tracks
             self.bringup = HandEyeBringUp(model, focal_px=float(np.sqrt(rig.camera.fx * rig.camera.fy)))
@@ -120,7 +120,7 @@ class VioPipeline:
             self.ffinit = None
         else:
             self._start_tracking(rig, self.config)
-            if model is None:
+            if self.ffinit is None:     # no DA3 windows to check the rig: the tracked features do
                 self.rig_check = TwoViewRigCheck(self.T_IC[:3, :3], self.time_offset_s,
                                                  float(np.sqrt(rig.camera.fx * rig.camera.fy)),
                                                  ffcfg=self.config.ffinit)
@@ -197,7 +197,7 @@ class VioPipeline:
             self.bringup.on_imu(sample)
             return []
         if self.rig_check is not None and not self.rig_check.done:
-            self.rig_check.on_imu(sample.t_ns, g)
+            self.rig_check.on_imu(sample.t_ns, g, a)
         out = self.startup.on_imu(sample)
         self._publish_causal(out)
         if self.windows is not None and out:

@@ -7,16 +7,20 @@ model had neither: its native filter starts at rest with either mistake and dive
 for reasons that do not name the cause. Here, once a second (`RigCheckConfig.every_s`), the camera's rotation
 over the last half second is fitted from the features tracked across it (`runtime.geometry.two_view`) and
 set beside the gyro's over the same span (IMU clock: camera stamps + the rig's time offset, raw gyro):
-- the gyroscope's scale: the gyro's path angle over the span against the camera's rotation angle, a ratio no
-  extrinsic rotation changes, is about 1 with the right units (the path is at least the chord: more when
-  the rig vibrates) and about 57 with a gyro in deg/s; a median ratio above
-  `FFInitConfig.max_gyro_rate_ratio` (15) over the judged spans is a finding;
+- the gyroscope's scale: the gyro's rotation angle over the span against the camera's, a ratio no extrinsic
+  rotation changes, is about 1 with the right units and about 57 with a gyro in deg/s; where the gyro's
+  path over the span exceeds `wrap_deg` (150 deg: its net rotation may have wrapped past 180 deg, as a deg/s
+  gyro's does) the path stands in for the angle. A median ratio above `FFInitConfig.max_gyro_rate_ratio`
+  (15) over the judged spans is a finding;
 - the camera–IMU rotation: the spans' rotation pairs are hand–eye fitted (`runtime.ffinit.handeye`, with a
   gyro bias), as the DA3 check does on one window; a fit at least `extrinsics_check_deg` from the rig's
   rotation that explains the spans `extrinsics_check_ratio` times better than the rig's rotation (with its
-  own best bias) is a finding, named as the rig's rotation inverted when it is.
-Spans that turn less than `min_camera_deg` are not judged; the check stops after `max_pairs` judged spans
-(the rig does not change during a run). Findings are reported (report.json `pipeline.rig_check`, the
+  own best bias) is a finding, named as the rig's rotation inverted when it is. Unlike the DA3 check, the
+  fit's RMS is not bounded: two-view rotations over half a second are noisier than DA3's (fit RMS up to 2
+  deg on the aggressive preset), and the ratio alone separates (`davio bench rig-checks-two-view`).
+Spans that turn less than `min_camera_deg` are not judged; the check stops after `max_pairs` judged spans or
+`max_spans` spans tried (the rig does not change during a run). The last verdict stands: a later span may
+clear a finding an earlier median made. Findings are reported (report.json `pipeline.rig_check`, the
 console's end-of-run lines), not acted on: the filter still runs on the rig it was given.
 """
 from __future__ import annotations
@@ -28,10 +32,13 @@ import numpy as np
 
 from runtime.ffinit.config import FFInitConfig
 from runtime.ffinit.extrinsics_check import rotation_angle_deg
+from runtime.ffinit.gyro_scale import gyro_unit_hint
 from runtime.ffinit.handeye import HandEyeResult, RotationWindow, estimate_handeye, residuals
 from runtime.geometry import so3_log
 from runtime.geometry.two_view import two_view_rotation
 from runtime.imu import Preintegrator
+from runtime.imu.samples import imu_segment
+from runtime.msckf.init_common import ImuWindow
 
 
 @dataclass(frozen=True)
@@ -54,15 +61,30 @@ class RigCheckConfig:
     """Judged spans before each hand-eye fit of the camera-IMU rotation (again every as many spans)."""
     max_pairs: int = 40
     """Judged spans after which the check stops."""
+    max_spans: int = 120
+    """Spans tried (judged or not) after which the check stops: a rig that stands or barely turns."""
+    wrap_deg: float = 150.0
+    """A gyro path longer than this over a span: the path stands in for the net rotation angle."""
 
 
 @dataclass
 class RigCheckReport:
+    """What the checks saw: span counts, the gyro/camera rotation ratios (dimensionless), the hand-eye fit
+    (degrees) and the findings (one line each, or None)."""
+
     spans_judged: int = 0
     spans_still: int = 0
     """Spans turning less than `min_camera_deg`."""
     spans_without_tracks: int = 0
     """Spans with too few features tracked across, or no two-view fit."""
+    spans_without_imu: int = 0
+    """Spans the IMU samples held did not cover (a gap, or a stream far behind the camera's)."""
+    spans_without_frame: int = 0
+    """Spans with no frame within 0.1 s of their start (a slow or stalled camera)."""
+    spans_overwritten: int = 0
+    """Spans due while an earlier one still waited for its IMU (the oldest waiting is dropped)."""
+    imu_dropped: int = 0
+    """IMU samples not kept: non-finite or not after the previous stamp."""
     gyro_ratio_median: float | None = None
     gyro_ratio_max: float | None = None
     gyro_scale: str | None = None
@@ -78,7 +100,7 @@ class RigCheckReport:
     done: bool = False
     error: str | None = None
     """Why the check ended early (an exception), or None."""
-    ratios: list = field(default_factory=list, repr=False)
+    ratios: list[float] = field(default_factory=list, repr=False)
 
 
 class TwoViewRigCheck:
@@ -98,11 +120,12 @@ class TwoViewRigCheck:
         self.cfg = cfg or RigCheckConfig()
         self.ffcfg = ffcfg or FFInitConfig()
         self.report = RigCheckReport()
-        self._imu_t: deque[int] = deque()
-        self._imu_w: deque[tuple[float, float, float]] = deque()
+        # reaches back over a span, the offset and a second of delivery lag
+        self._imu = ImuWindow(int((self.cfg.span_s + abs(float(time_offset_s)) + 3.0) * 1e9))
         self._tracks: deque[tuple[int, np.ndarray, np.ndarray]] = deque()
         self._next_ns: int | None = None
-        self._pending: tuple | None = None     # a span due, waiting for the IMU to reach its end
+        self._pending: deque[tuple] = deque()    # spans due, waiting for the IMU to reach their ends
+        self._spans = 0
         self._windows: list[RotationWindow] = []
         self._residuals: list[float] = []
 
@@ -110,26 +133,26 @@ class TwoViewRigCheck:
     def done(self) -> bool:
         return self.report.done
 
-    def on_imu(self, t_ns: int, gyro) -> None:
-        """One IMU sample (IMU clock, rad/s as the driver gives it)."""
+    def on_imu(self, t_ns: int, gyro, accel=(0.0, 0.0, 0.0)) -> None:
+        """One IMU sample (IMU clock; rad/s as the driver gives it). Non-finite and out-of-order samples are
+        dropped and counted; a span due is judged once the IMU reaches its end."""
         if self.report.done:
             return
-        self._imu_t.append(int(t_ns))
-        self._imu_w.append((float(gyro[0]), float(gyro[1]), float(gyro[2])))
-        horizon = int(t_ns) - int(3e9)
-        while self._imu_t and self._imu_t[0] < horizon:
-            self._imu_t.popleft()
-            self._imu_w.popleft()
-        if self._pending is not None and int(t_ns) >= self._pending[1][0] + self.offset_ns:
-            pending, self._pending = self._pending, None
+        if not self._imu.add(int(t_ns), gyro, accel):
+            self.report.imu_dropped += 1
+            return
+        while self._pending and int(t_ns) >= self._pending[0][1][0] + self.offset_ns:
+            a, b = self._pending.popleft()
             try:
-                self._judge(*pending)
+                self._judge(a, b)
             except Exception as e:      # a check must never stop the run: it ends, saying why
                 self.report.error = f"{type(e).__name__}: {e}"
-                self.report.done = True
+                self._finish()
+                return
 
     def on_tracks(self, t_ns: int, ids: np.ndarray, xy: np.ndarray) -> None:
-        """A frame's features (persistent ids, undistorted normalized coordinates); judges a span when due."""
+        """A frame's features (persistent ids, undistorted normalized coordinates); schedules a span when one
+        is due (judged when the IMU reaches its end). Frames without features or out of order are ignored."""
         if self.report.done or not len(ids) or (self._tracks and int(t_ns) <= self._tracks[-1][0]):
             return
         cfg = self.cfg
@@ -142,14 +165,33 @@ class TwoViewRigCheck:
         if t_ns < self._next_ns:
             return
         self._next_ns = t_ns + int(cfg.every_s * 1e9)
+        self._spans += 1
+        if self._spans > cfg.max_spans:
+            self._finish()
+            return
         start = t_ns - int(cfg.span_s * 1e9)
         first = min(self._tracks, key=lambda s: abs(s[0] - start))
         if abs(first[0] - start) > int(0.1 * cfg.span_s * 1e9) + 50_000_000:
+            self.report.spans_without_frame += 1
             return
-        self._pending = (first, self._tracks[-1])     # judged once the IMU covers its end
+        if len(self._pending) >= 4:
+            self._pending.popleft()
+            self.report.spans_overwritten += 1
+        self._pending.append((first, self._tracks[-1]))
+
+    def _finish(self) -> None:
+        self.report.done = True
+        self._tracks.clear()
+        self._pending.clear()
+        self._imu.clear()
 
     def _judge(self, a: tuple, b: tuple) -> None:
         cfg, rep = self.cfg, self.report
+        t0, t1 = a[0] + self.offset_ns, b[0] + self.offset_ns
+        t, w, _ = self._imu.arrays()
+        if len(t) < 2 or t[0] > t0 or t[-1] < t1:
+            rep.spans_without_imu += 1
+            return
         _, ia, ib = np.intersect1d(a[1], b[1], assume_unique=True, return_indices=True)
         fit = None
         if len(ia) >= cfg.min_tracks:
@@ -163,19 +205,13 @@ class TwoViewRigCheck:
         if cam_deg < cfg.min_camera_deg:
             rep.spans_still += 1
             return
-        t0, t1 = a[0] + self.offset_ns, b[0] + self.offset_ns
-        t = np.fromiter(self._imu_t, np.int64, len(self._imu_t))
-        if len(t) < 2 or t[0] > t0 or t[-1] < t1:
-            rep.spans_without_tracks += 1
-            return
-        w = np.array(self._imu_w)
         pre = Preintegrator(np.zeros(3), np.zeros(3)).integrate(t, w, np.zeros_like(w), t0, t1)
-        inside = (t >= t0) & (t <= t1)
-        rate = np.linalg.norm(w[inside], axis=1)
-        dt = np.diff(t[inside]) * 1e-9
-        # the gyro's path (not its net rotation, which wraps past 180 deg at 57x): at least the chord
-        gyro_deg = float(np.degrees(np.sum(0.5 * (rate[1:] + rate[:-1]) * dt) * (t1 - t0) * 1e-9
-                                    / max(float(np.sum(dt)), 1e-9)))
+        dts, g, _ = imu_segment(t, w, np.zeros_like(w), t0, t1)
+        rate = np.linalg.norm(g, axis=1)
+        path_deg = float(np.degrees(np.sum(0.5 * (rate[1:] + rate[:-1]) * dts)))
+        # the net rotation compares with the camera's whatever the rig does within the span (an oscillation
+        # lengthens the path alone); past wrap_deg it may have wrapped, and the path stands in
+        gyro_deg = path_deg if path_deg > cfg.wrap_deg else float(np.degrees(np.linalg.norm(so3_log(pre.dR))))
         rep.spans_judged += 1
         rep.ratios.append(gyro_deg / cam_deg)
         rep.gyro_ratio_median = float(np.median(rep.ratios))
@@ -190,21 +226,16 @@ class TwoViewRigCheck:
                 and rep.spans_judged % cfg.min_pairs_extrinsics == 0):
             self._judge_extrinsics()
         if rep.spans_judged >= cfg.max_pairs:
-            rep.done = True
-            self._tracks.clear()
-            self._imu_t.clear()
-            self._imu_w.clear()
+            self._finish()
 
     def _judge_gyro(self) -> None:
         rep, ratio = self.report, self.report.gyro_ratio_median
         if ratio is None or ratio <= self.ffcfg.max_gyro_rate_ratio:
             rep.gyro_scale = None
             return
-        deg = float(np.degrees(1.0))
-        hint = (" - a gyroscope logging deg/s? DAVIO reads rad/s" if deg / 2 <= ratio <= deg * 2
-                else " - a wrong gyroscope scale or unit")
         rep.gyro_scale = (f"the gyroscope turns {ratio:.1f}x as far as the tracked features see the camera "
-                          f"turn (median of {rep.spans_judged} spans of {self.cfg.span_s:g} s){hint}")
+                          f"turn (median of {rep.spans_judged} spans of {self.cfg.span_s:g} s)"
+                          f"{gyro_unit_hint(ratio)}")
 
     def _judge_extrinsics(self) -> None:
         rep, ff = self.report, self.ffcfg
@@ -213,6 +244,9 @@ class TwoViewRigCheck:
             return
         rig_rms = _rms_deg(self._windows, self.R_IC, _bias_for(self._windows, self.R_IC))
         off = rotation_angle_deg(self.R_IC, fit.R_IC)
+        if np.linalg.norm(fit.bg) > ff.max_gyro_bias_change:     # no calibrated MEMS gyro is that far off
+            rep.extrinsics_rotation = None
+            return
         rep.extrinsics_fit_deg, rep.extrinsics_fit_rms_deg = off, fit.rms_deg
         rep.extrinsics_rig_rms_deg = rig_rms
         if not (off >= ff.extrinsics_check_deg and rig_rms >= ff.extrinsics_check_ratio * fit.rms_deg):

@@ -52,7 +52,12 @@ def check_gyro_scale(t_cam_ns: Sequence[int], observations: Sequence[ImageObserv
     ratio = gyro_rate / da3_rate
     if ratio <= cfg.max_gyro_rate_ratio:
         return None
-    hint = (" - a gyroscope logging deg/s? DAVIO reads rad/s" if DEG_PER_RAD / 2 <= ratio <= DEG_PER_RAD * 2
-            else " - a wrong gyroscope scale or unit")
     return Rejection("gyro_scale", f"the gyroscope turns {ratio:.1f}x as fast as DA3 sees the camera turn "
-                                   f"({gyro_rate:.3f} against {da3_rate:.3f} rad/s){hint}")
+                                   f"({gyro_rate:.3f} against {da3_rate:.3f} rad/s){gyro_unit_hint(ratio)}")
+
+
+def gyro_unit_hint(ratio: float) -> str:
+    """What a gyroscope turning `ratio` times the camera most likely is (a clause for a message)."""
+    if DEG_PER_RAD / 2 <= ratio <= DEG_PER_RAD * 2:
+        return " - a gyroscope logging deg/s? DAVIO reads rad/s"
+    return " - a wrong gyroscope scale or unit"

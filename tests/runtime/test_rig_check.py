@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from drivers.sim import SimConfig, SimRecording
 from runtime.rig_check import RigCheckConfig, TwoViewRigCheck
@@ -24,7 +25,7 @@ def test_the_right_rig_raises_nothing(reports):
     r = reports["right"]
     assert r["spans_judged"] >= 8 and r["error"] is None
     assert 0.8 < r["gyro_ratio_median"] < 1.3 and r["gyro_scale"] is None
-    assert r["extrinsics_rotation"] is None and r["extrinsics_fit_deg"] < 2.0
+    assert r["extrinsics_rotation"] is None and r["extrinsics_fit_deg"] < 5.0
     assert r["rig_residual_median_deg"] < 1.0
 
 
@@ -44,20 +45,70 @@ def test_an_inverted_camera_imu_rotation_is_named(reports):
     assert r["extrinsics_rig_rms_deg"] > 10 * r["extrinsics_fit_rms_deg"]
 
 
-def test_the_check_stops_after_its_spans_and_waits_for_the_imu():
+def _synthetic(R_IC, w_C, seconds=12.0, cam_hz=20, imu_hz=200, nan_at_s=None, imu_from_s=0.0):
+    """Events (time order) of a camera turning at w_C(t) (rad/s, camera frame) in place among 400 far
+    points, and its gyro R_IC w_C(t): ("imu", t_ns, gyro) and ("tracks", t_ns, ids, xy)."""
+    from runtime.geometry import so3_exp
+
     rng = np.random.default_rng(0)
-    check = TwoViewRigCheck(np.eye(3), 0.0, 458.0, RigCheckConfig(span_s=0.5, every_s=1.0))
-    xy = rng.uniform(-0.4, 0.4, (60, 2))
-    ids = np.arange(60)
-    check.on_tracks(0, ids, xy)
-    check.on_tracks(500_000_000, ids, xy)        # due, but no IMU yet: pending, not judged
-    assert check.report.spans_judged == 0 and check._pending is not None
-    for k in range(0, 60):                          # the IMU arrives: a still camera, not judged as turning
-        check.on_imu(k * 10_000_000, (0.0, 0.0, 0.0))
-    assert check._pending is None and check.report.spans_still == 1
-    check.on_tracks(400_000_000, ids, xy)          # out of order: ignored
-    check.on_tracks(600_000_000, ids[:0], xy[:0])  # no features: ignored
-    assert [t for t, _, _ in check._tracks] == [0, 500_000_000]
+    X = rng.normal(size=(400, 3))
+    X /= np.linalg.norm(X, axis=1, keepdims=True)
+    step = 1e-3
+    R, Rs = np.eye(3), []
+    for k in range(int(seconds / step) + 1):      # R_C0C(t), integrated finely
+        Rs.append(R)
+        R = R @ so3_exp(w_C(k * step) * step)
+    ev = []
+    for k in range(int(seconds * cam_hz)):
+        t = k / cam_hz
+        p = X @ Rs[int(round(t / step))]          # R_CC0 X
+        vis = np.flatnonzero(p[:, 2] > 0.3)
+        ev.append((t, 1, "tracks", int(round(t * 1e9)), vis, p[vis, :2] / p[vis, 2:]))
+    for k in range(int(seconds * imu_hz)):
+        t = k / imu_hz
+        g = np.array([np.nan, 0, 0]) if nan_at_s is not None and abs(t - nan_at_s) < 1e-9 else R_IC @ w_C(t)
+        if t >= imu_from_s:
+            ev.append((t, 0, "imu", int(round(t * 1e9)), g))
+    return [e[2:] for e in sorted(ev, key=lambda e: (e[0], e[1]))]
+
+
+def _feed(check, events):
+    for e in events:
+        if e[0] == "imu":
+            check.on_imu(e[1], e[2])
+        else:
+            check.on_tracks(e[1], e[2], e[3])
+    return check.report
+
+
+R_IC_SYN = Rotation.from_rotvec([0.3, -1.2, 0.5]).as_matrix()
+
+
+def _turning(t):
+    return np.array([0.4 * np.sin(1.3 * t), 0.5 * np.cos(0.9 * t), 0.3])
+
+
+def test_the_check_stops_after_its_spans_and_counts_what_it_could_not_judge():
+    check = TwoViewRigCheck(R_IC_SYN, 0.0, 458.0, RigCheckConfig(max_pairs=5))
+    rep = _feed(check, _synthetic(R_IC_SYN, _turning))
+    assert rep.done and rep.spans_judged == 5 and rep.gyro_scale is None
+    assert 0.95 < rep.gyro_ratio_median < 1.05
+    # a NaN sample is dropped and counted, not an error; an IMU that starts late leaves spans uncovered
+    rep = _feed(TwoViewRigCheck(R_IC_SYN, 0.0, 458.0),
+                _synthetic(R_IC_SYN, _turning, nan_at_s=3.0, imu_from_s=2.2))
+    assert rep.error is None and rep.imu_dropped == 1
+    assert rep.spans_without_imu >= 1 and rep.spans_judged >= 8
+    assert rep.extrinsics_rotation is None and rep.extrinsics_fit_deg < 0.5
+
+
+def test_an_oscillating_rig_is_not_taken_for_a_deg_per_second_gyro():
+    """A 2 Hz, +-10 deg oscillation on a slow turn: the gyro's path over half a second is many times the
+    camera's net rotation, the gyro's net rotation is not."""
+    def wobble(t):
+        return np.array([np.radians(10) * 2 * np.pi * 2 * np.cos(2 * np.pi * 2 * t), 0.05, 0.08])
+
+    rep = _feed(TwoViewRigCheck(R_IC_SYN, 0.0, 458.0), _synthetic(R_IC_SYN, wobble))
+    assert rep.spans_judged >= 5 and rep.gyro_scale is None and rep.gyro_ratio_median < 1.5
 
 
 def test_the_pipeline_checks_the_rig_only_without_a_model():
@@ -65,8 +116,10 @@ def test_the_pipeline_checks_the_rig_only_without_a_model():
     from runtime.pipeline import VioPipeline
 
     rec = SimRecording.from_preset(SimConfig(preset="euroc", seconds=2.0))
-    assert VioPipeline(rec.rig, None).rig_check is not None
+    without = VioPipeline(rec.rig, None)
+    assert without.rig_check is not None and "rig_check" in without.report()
     cam = rec.rig.camera
     model = EmulatedDA3(rec.gt_source, cam.K, cam.width, cam.height, preset="base")
-    assert VioPipeline(rec.rig, model).rig_check is None
-    assert "rig_check" not in VioPipeline(rec.rig, model).report()
+    with_model = VioPipeline(rec.rig, model)
+    assert with_model.rig_check is None and "rig_check" not in with_model.report()
+    assert VioPipeline(rec.rig.replace(T_IC=None), None).rig_check is None   # a bring-up has no rig to check

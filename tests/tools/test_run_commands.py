@@ -253,6 +253,8 @@ def test_recovery_lines_name_every_counted_recovery():
     assert not any(x.startswith("CAMERA-IMU ROTATION (tracked") for x in _recovery_lines(report))
     report["pipeline"]["rig_check"]["extrinsics_rotation"] = "178.1 deg ... inverted"
     assert any(x.startswith("CAMERA-IMU ROTATION (tracked features): 178.1") for x in _recovery_lines(report))
+    report["pipeline"]["rig_check"]["error"] = "DataError: ..."
+    assert "rig check from the tracked features ended early: DataError: ..." in _recovery_lines(report)
 
 
 def test_the_time_offset_line_says_what_the_start_up_did_with_its_finding():

@@ -446,6 +446,8 @@ def _recovery_lines(report: dict) -> list[str]:
     if check.get("gyro_scale"):
         lines.append(f"GYROSCOPE SCALE (tracked features): {check['gyro_scale']}. Fix the IMU's units or "
                      "scale; the filter integrates them")
+    if check.get("error"):
+        lines.append(f"rig check from the tracked features ended early: {check['error']}")
     if check.get("extrinsics_rotation"):
         lines.append(f"CAMERA-IMU ROTATION (tracked features): {check['extrinsics_rotation']}. Check the rig "
                      "file's T_cam_imu / T_imu_cam, or run with --withhold-extrinsics to estimate it")
