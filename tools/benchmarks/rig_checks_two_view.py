@@ -83,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     result: dict = {"recordings": {}}
     f = (lambda v, d=2: "     -" if v is None else f"{v:6.{d}f}")  # noqa: E731
     if not args.json:
-        print("model-free rig checks: gyro path / camera rotation per 0.5 s span, hand-eye fit of the spans")
+        print("model-free rig checks: gyro / camera rotation angle per 0.5 s span, hand-eye fit of the spans")
         print(f"  {'recording':24s} {'variant':8s} {'judged':>6s} {'still':>5s} {'untr.':>5s} {'ratio':>6s} "
               f"{'max':>6s} {'gyro named':>10s} {'fit deg':>7s} {'fit rms':>7s} {'rig rms':>7s} "
               f"{'rot. named':>10s}")
