@@ -35,13 +35,18 @@ PRESETS = ("aggressive", "constant-velocity", "euroc", "handheld", "hover", "rot
 SEQUENCES = ("V1_02_medium", "MH_03_medium")
 
 
-def add_arguments(p: argparse.ArgumentParser) -> None:
+def add_recording_arguments(p: argparse.ArgumentParser, seconds: float) -> None:
+    """--preset, --sequence and --seconds (the recordings `_recordings` builds)."""
     p.add_argument("--preset", action="append", default=None, choices=PRESETS,
                    help=f"motion preset (repeatable; default: all of {', '.join(PRESETS)})")
     p.add_argument("--sequence", action="append", default=None, metavar="DIR",
                    help="a euroc_imu_gt folder or its name under ../shared/data/euroc_imu_gt (repeatable; "
                         f"default: {', '.join(SEQUENCES)} when ../shared is there)")
-    p.add_argument("--seconds", type=float, default=30.0, help="preset recording length, s")
+    p.add_argument("--seconds", type=float, default=seconds, help="preset recording length, s")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    add_recording_arguments(p, 30.0)
     p.add_argument("--every", type=float, default=0.5, help="a window starts every S seconds")
     p.add_argument("--k", default="0.05,0.1,0.25,1", help="comma-separated pose-error factors on base_upper")
     p.add_argument("--time-offset-error", default="-0.05,0.05", metavar="S,...",

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.benchmarks.rig_checks import PRESETS, SEQUENCES
+from tools.benchmarks.rig_checks import add_recording_arguments
 
 NAME = "rig-checks-two-view"
 HELP = "the model-free rig checks (gyroscope scale, camera-IMU rotation from the tracks): right vs wrong"
@@ -25,12 +25,7 @@ VARIANTS = ("right", "deg/s", "inverted")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--preset", action="append", default=None, choices=PRESETS,
-                   help=f"motion preset (repeatable; default: all of {', '.join(PRESETS)})")
-    p.add_argument("--sequence", action="append", default=None, metavar="DIR",
-                   help="a euroc_imu_gt folder or its name under ../shared/data/euroc_imu_gt (repeatable; "
-                        f"default: {', '.join(SEQUENCES)} when ../shared is there)")
-    p.add_argument("--seconds", type=float, default=60.0, help="preset recording length, s")
+    add_recording_arguments(p, 60.0)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", metavar="FILE.json", help="also write the JSON here")
