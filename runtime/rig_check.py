@@ -120,7 +120,7 @@ class TwoViewRigCheck:
         self.cfg = cfg or RigCheckConfig()
         self.ffcfg = ffcfg or FFInitConfig()
         self.report = RigCheckReport()
-        # reaches back over a span, the offset and a second of delivery lag
+        # reaches back over a span, the time offset and 3 s of delivery lag
         self._imu = ImuWindow(int((self.cfg.span_s + abs(float(time_offset_s)) + 3.0) * 1e9))
         self._tracks: deque[tuple[int, np.ndarray, np.ndarray]] = deque()
         self._next_ns: int | None = None
