@@ -19,6 +19,7 @@ import numpy as np
 from models.depth_model import DepthModel
 from runtime.config_checks import at_least, non_negative, positive
 from runtime.events import Frame, ImuSample
+from runtime.ffinit.gyro_scale import gyro_turn_deg, gyro_unit_hint
 from runtime.ffinit.handeye import HandEyeResult, RotationWindow, estimate_handeye, validate_handeye
 from runtime.ffinit.window import Rejection
 from runtime.geometry.two_view import two_view_rotation
@@ -44,13 +45,21 @@ class BringUpConfig:
     """Without a depth model: features tracked from a window's first image to each later one, at least."""
     two_view_threshold_px: float = 1.0
     """Without a depth model: the two-view fits' inlier threshold (pixels at the focal length)."""
+    max_gyro_ratio: float = 15.0
+    """A window whose gyro turns more than this many times as far as its camera (over the window) is
+    refused as `gyro_scale` (a gyroscope logging deg/s turns 57 times as far; as
+    `ffinit.max_gyro_rate_ratio`)."""
+    max_fit_rms_deg: float = 10.0
+    """A hand-eye fit leaving more RMS than this (deg) is refused as `handeye_poor_fit`: no rotation fits
+    the windows (measured fits: 0.1-3.5 deg, BENCHMARKS.md "Calibration-withheld bring-up without a depth
+    model"; without the bound a deg/s gyro's 99 deg fit passed its validation at 126 deg)."""
 
     def __post_init__(self) -> None:
         s = "bringup"
         at_least(self, s, 1, "fit_windows", "max_attempts")
         at_least(self, s, 3, "window_images")
         at_least(self, s, 15, "two_view_min_tracks")
-        positive(self, s, "window_spacing_s", "two_view_threshold_px")
+        positive(self, s, "window_spacing_s", "two_view_threshold_px", "max_gyro_ratio", "max_fit_rms_deg")
         non_negative(self, s, "window_gap_s", "min_rotation_deg")
 
 
@@ -66,6 +75,8 @@ class BringUpReport:
     windows_skipped_static: int = 0
     attempts: int = 0
     rejections: dict = field(default_factory=dict)
+    rejection_first: dict = field(default_factory=dict)
+    """The first message of each window rejection reason that has one."""
     R_IC: list | None = None
     bg: list | None = None
     fit_rms_deg: float | None = None
@@ -186,6 +197,9 @@ class HandEyeBringUp:
                 if isinstance(fits, Rejection):
                     return fits
                 R_C0Ci, models = fits
+            scale = _gyro_scale(t, w, stamps[0], stamps[-1], ints[-1].dR, R_C0Ci[-1], cfg)
+            if scale is not None:
+                return scale
             return RotationWindow(R_C0Ci, np.array([p.dR for p in ints]), np.array([p.J_R_bg for p in ints]),
                                   np.zeros(3), two_view_models=models)
 
@@ -200,6 +214,8 @@ class HandEyeBringUp:
             return False
         if isinstance(rw, Rejection):
             self.report.rejections[rw.reason] = self.report.rejections.get(rw.reason, 0) + 1
+            if rw.detail:
+                self.report.rejection_first.setdefault(rw.reason, rw.detail)
             return False
         for m in rw.two_view_models:
             self.report.two_view_models[m] = self.report.two_view_models.get(m, 0) + 1
@@ -215,6 +231,9 @@ class HandEyeBringUp:
             return False
         ok, rms = validate_handeye(res, val)
         self.report.fit_rms_deg, self.report.validation_rms_deg = res.rms_deg, rms
+        if res.rms_deg > self.cfg.max_fit_rms_deg:
+            self._reject("handeye_poor_fit")
+            return False
         if not ok:
             self._reject("handeye_validation_failed")
             return False
@@ -226,6 +245,20 @@ class HandEyeBringUp:
     def _reject(self, reason: str) -> None:
         self.report.rejections[reason] = self.report.rejections.get(reason, 0) + 1
         self.windows = self.windows[1:]  # slide: drop the oldest window, keep collecting
+
+
+def _gyro_scale(t: np.ndarray, w: np.ndarray, t0_ns: int, t1_ns: int, dR: np.ndarray, R_C0C1: np.ndarray,
+                cfg: BringUpConfig) -> Rejection | None:
+    """A `gyro_scale` Rejection when the gyro turns more than `cfg.max_gyro_ratio` times as far as the camera
+    over a window (judged when the camera turns at least 2 deg; camera stamps, the offset being unknown)."""
+    cam_deg = float(np.degrees(np.linalg.norm(_log(R_C0C1))))
+    if cam_deg < 2.0:
+        return None
+    ratio = gyro_turn_deg(t, w, t0_ns, t1_ns, dR) / cam_deg
+    if ratio <= cfg.max_gyro_ratio:
+        return None
+    return Rejection("gyro_scale", f"the gyroscope turns {ratio:.1f}x as far as the camera over a window"
+                                   f"{gyro_unit_hint(ratio)}")
 
 
 def _stamp(x: Any) -> int:

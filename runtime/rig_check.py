@@ -32,12 +32,11 @@ import numpy as np
 
 from runtime.ffinit.config import FFInitConfig
 from runtime.ffinit.extrinsics_check import rotation_angle_deg
-from runtime.ffinit.gyro_scale import gyro_unit_hint
+from runtime.ffinit.gyro_scale import gyro_turn_deg, gyro_unit_hint
 from runtime.ffinit.handeye import HandEyeResult, RotationWindow, estimate_handeye, residuals
 from runtime.geometry import so3_log
 from runtime.geometry.two_view import two_view_rotation
 from runtime.imu import Preintegrator
-from runtime.imu.samples import imu_segment
 from runtime.msckf.init_common import ImuWindow
 
 
@@ -206,12 +205,7 @@ class TwoViewRigCheck:
             rep.spans_still += 1
             return
         pre = Preintegrator(np.zeros(3), np.zeros(3)).integrate(t, w, np.zeros_like(w), t0, t1)
-        dts, g, _ = imu_segment(t, w, np.zeros_like(w), t0, t1)
-        rate = np.linalg.norm(g, axis=1)
-        path_deg = float(np.degrees(np.sum(0.5 * (rate[1:] + rate[:-1]) * dts)))
-        # the net rotation compares with the camera's whatever the rig does within the span (an oscillation
-        # lengthens the path alone); past wrap_deg it may have wrapped, and the path stands in
-        gyro_deg = path_deg if path_deg > cfg.wrap_deg else float(np.degrees(np.linalg.norm(so3_log(pre.dR))))
+        gyro_deg = gyro_turn_deg(t, w, t0, t1, pre.dR, cfg.wrap_deg)
         rep.spans_judged += 1
         rep.ratios.append(gyro_deg / cam_deg)
         rep.gyro_ratio_median = float(np.median(rep.ratios))

@@ -56,6 +56,22 @@ def check_gyro_scale(t_cam_ns: Sequence[int], observations: Sequence[ImageObserv
                                    f"({gyro_rate:.3f} against {da3_rate:.3f} rad/s){gyro_unit_hint(ratio)}")
 
 
+def gyro_turn_deg(t_ns: np.ndarray, gyro: np.ndarray, t0_ns: int, t1_ns: int, dR: np.ndarray,
+                  wrap_deg: float = 150.0) -> float:
+    """The gyro's rotation angle (deg) from t0 to t1 (IMU clock): the angle of its net rotation `dR` (its
+    preintegration over the span) or, where its path is longer than `wrap_deg` (the net rotation may have
+    wrapped past 180 deg, as a gyroscope logging deg/s makes it), the path. The net rotation, not the
+    path, compares with a camera's rotation over the same span: an oscillation within it lengthens the
+    path alone."""
+    from runtime.imu.samples import imu_segment
+
+    w = np.asarray(gyro, np.float64)
+    dts, g, _ = imu_segment(np.asarray(t_ns, np.int64), w, np.zeros_like(w), int(t0_ns), int(t1_ns))
+    rate = np.linalg.norm(g, axis=1)
+    path_deg = float(np.degrees(np.sum(0.5 * (rate[1:] + rate[:-1]) * dts)))
+    return path_deg if path_deg > wrap_deg else float(np.degrees(np.linalg.norm(so3_log(dR))))
+
+
 def gyro_unit_hint(ratio: float) -> str:
     """What a gyroscope turning `ratio` times the camera most likely is (a clause for a message)."""
     if DEG_PER_RAD / 2 <= ratio <= DEG_PER_RAD * 2:

@@ -108,3 +108,47 @@ def test_handeye_bringup_then_tracking_with_online_calibration():
     assert pipe.config.msckf.calib_extrinsics and pipe.config.msckf.calib_time_offset
     assert np.allclose(pipe.rig.T_IC[:3, 3], 0.0) and pipe.rig.time_offset_s == 0.0
     assert len(pipe.published) > 20
+
+
+def _bring_up(events, gyro_scale=1.0) -> HandEyeBringUp:
+    """Drive a model-free bring-up with synthetic rig events (runtime.bringup's own loop, no pipeline)."""
+    from runtime.events import ImuSample
+
+    bu = HandEyeBringUp(None, BringUpConfig(), focal_px=458.0)
+    for e in events:
+        if e[0] == "imu":
+            bu.on_imu(ImuSample(e[1], np.asarray(e[2]) * gyro_scale, np.array([0.0, 0.0, 9.81])))
+        else:
+            bu.on_tracks(e[1], e[2], e[3])
+            job = bu.next_job()
+            if job is not None and bu.on_result(job(), e[1]):
+                break
+    return bu
+
+
+def test_a_model_free_bringup_recovers_a_known_rotation_and_names_a_deg_per_second_gyro():
+    from rig_synth import R_IC_SYN, synthetic_rig_events, turning
+
+    events = synthetic_rig_events(R_IC_SYN, turning, seconds=9.0)
+    bu = _bring_up(events)
+    assert bu.done, bu.report
+    err = np.degrees(Rotation.from_matrix(bu.result.R_IC.T @ R_IC_SYN).magnitude())
+    assert err < 0.1, err
+    bu = _bring_up(events, gyro_scale=np.degrees(1.0))
+    assert not bu.done and bu.report.rejections.get("gyro_scale", 0) >= 5
+    assert "deg/s" in bu.report.rejection_first["gyro_scale"]
+
+
+def test_a_hand_eye_fit_that_explains_nothing_is_refused():
+    """Camera and IMU rotations drawn independently: no rotation fits them; without the RMS bound the
+    validation (2.5x the fit's own RMS) passed such a fit."""
+    from runtime.ffinit.handeye import RotationWindow
+
+    rng = np.random.default_rng(3)
+    bu = HandEyeBringUp(None, BringUpConfig(), focal_px=458.0)
+    for _ in range(9):
+        R_c = Rotation.from_rotvec(rng.normal(0, 0.3, (4, 3))).as_matrix()
+        R_i = Rotation.from_rotvec(rng.normal(0, 0.3, (4, 3))).as_matrix()
+        done = bu.on_result(RotationWindow(R_c, R_i, np.repeat(np.eye(3)[None], 4, 0), np.zeros(3)), 0)
+    assert not done and bu.report.rejections == {"handeye_poor_fit": 1}
+    assert bu.report.fit_rms_deg > BringUpConfig().max_fit_rms_deg

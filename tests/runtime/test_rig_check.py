@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
+from rig_synth import R_IC_SYN, synthetic_rig_events, turning
 
 from drivers.sim import SimConfig, SimRecording
 from runtime.rig_check import RigCheckConfig, TwoViewRigCheck
@@ -45,33 +45,6 @@ def test_an_inverted_camera_imu_rotation_is_named(reports):
     assert r["extrinsics_rig_rms_deg"] > 10 * r["extrinsics_fit_rms_deg"]
 
 
-def _synthetic(R_IC, w_C, seconds=12.0, cam_hz=20, imu_hz=200, nan_at_s=None, imu_from_s=0.0):
-    """Events (time order) of a camera turning at w_C(t) (rad/s, camera frame) in place among 400 far
-    points, and its gyro R_IC w_C(t): ("imu", t_ns, gyro) and ("tracks", t_ns, ids, xy)."""
-    from runtime.geometry import so3_exp
-
-    rng = np.random.default_rng(0)
-    X = rng.normal(size=(400, 3))
-    X /= np.linalg.norm(X, axis=1, keepdims=True)
-    step = 1e-3
-    R, Rs = np.eye(3), []
-    for k in range(int(seconds / step) + 1):      # R_C0C(t), integrated finely
-        Rs.append(R)
-        R = R @ so3_exp(w_C(k * step) * step)
-    ev = []
-    for k in range(int(seconds * cam_hz)):
-        t = k / cam_hz
-        p = X @ Rs[int(round(t / step))]          # R_CC0 X
-        vis = np.flatnonzero(p[:, 2] > 0.3)
-        ev.append((t, 1, "tracks", int(round(t * 1e9)), vis, p[vis, :2] / p[vis, 2:]))
-    for k in range(int(seconds * imu_hz)):
-        t = k / imu_hz
-        g = np.array([np.nan, 0, 0]) if nan_at_s is not None and abs(t - nan_at_s) < 1e-9 else R_IC @ w_C(t)
-        if t >= imu_from_s:
-            ev.append((t, 0, "imu", int(round(t * 1e9)), g))
-    return [e[2:] for e in sorted(ev, key=lambda e: (e[0], e[1]))]
-
-
 def _feed(check, events):
     for e in events:
         if e[0] == "imu":
@@ -81,21 +54,14 @@ def _feed(check, events):
     return check.report
 
 
-R_IC_SYN = Rotation.from_rotvec([0.3, -1.2, 0.5]).as_matrix()
-
-
-def _turning(t):
-    return np.array([0.4 * np.sin(1.3 * t), 0.5 * np.cos(0.9 * t), 0.3])
-
-
 def test_the_check_stops_after_its_spans_and_counts_what_it_could_not_judge():
     check = TwoViewRigCheck(R_IC_SYN, 0.0, 458.0, RigCheckConfig(max_pairs=5))
-    rep = _feed(check, _synthetic(R_IC_SYN, _turning))
+    rep = _feed(check, synthetic_rig_events(R_IC_SYN, turning))
     assert rep.done and rep.spans_judged == 5 and rep.gyro_scale is None
     assert 0.95 < rep.gyro_ratio_median < 1.05
     # a NaN sample is dropped and counted, not an error; an IMU that starts late leaves spans uncovered
     rep = _feed(TwoViewRigCheck(R_IC_SYN, 0.0, 458.0),
-                _synthetic(R_IC_SYN, _turning, nan_at_s=3.0, imu_from_s=2.2))
+                synthetic_rig_events(R_IC_SYN, turning, nan_at_s=3.0, imu_from_s=2.2))
     assert rep.error is None and rep.imu_dropped == 1
     assert rep.spans_without_imu >= 1 and rep.spans_judged >= 8
     assert rep.extrinsics_rotation is None and rep.extrinsics_fit_deg < 0.5
@@ -107,7 +73,7 @@ def test_an_oscillating_rig_is_not_taken_for_a_deg_per_second_gyro():
     def wobble(t):
         return np.array([np.radians(10) * 2 * np.pi * 2 * np.cos(2 * np.pi * 2 * t), 0.05, 0.08])
 
-    rep = _feed(TwoViewRigCheck(R_IC_SYN, 0.0, 458.0), _synthetic(R_IC_SYN, wobble))
+    rep = _feed(TwoViewRigCheck(R_IC_SYN, 0.0, 458.0), synthetic_rig_events(R_IC_SYN, wobble))
     assert rep.spans_judged >= 5 and rep.gyro_scale is None and rep.gyro_ratio_median < 1.5
 
 

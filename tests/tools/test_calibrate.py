@@ -252,6 +252,15 @@ def test_judge_refusals_name_what_was_observed(kwargs, code, words):
     assert words in v.message and "\n" not in v.message
 
 
+def test_a_bringup_refused_for_the_gyroscope_scale_says_so():
+    run = _run(bringup_done=False)
+    run.bringup["rejections"] = {"gyro_scale": 12}
+    run.bringup["rejection_first"] = {"gyro_scale": "the gyroscope turns 57.1x as far as the camera"}
+    v = judge(run, Thresholds())
+    assert v.code == "bringup_incomplete"
+    assert "GYROSCOPE SCALE: the gyroscope turns 57.1x" in v.message and "record longer" not in v.message
+
+
 def test_excitation_counts_rotation_axes():
     one, two = ExcitationMeter(), ExcitationMeter()
     for k in range(2000):

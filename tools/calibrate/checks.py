@@ -91,11 +91,14 @@ def judge(run: CalibrationRun, th: Thresholds) -> Verdict:
     if short:
         return too_little
     if not bu.get("R_IC"):
+        gyro = (bu.get("rejection_first") or {}).get("gyro_scale")
         return Verdict(
             False,
             "bringup_incomplete",
             f"the hand-eye bring-up never completed: {_bringup_text(bu)} (principal-axis RMS rates "
-            f"{_fmt_rates(rates)} deg/s) - record longer, or with more rotation per second",
+            f"{_fmt_rates(rates)} deg/s) - "
+            + (f"GYROSCOPE SCALE: {gyro}; fix the IMU's units or scale" if gyro
+               else "record longer, or with more rotation per second"),
         )
     final = run.final
     std = None if final is None else final.std()

@@ -272,6 +272,10 @@ def _summary(report: dict, out: Path) -> None:
         source = "DA3" if bu.get("rotation_source", "model") == "model" else "two-view fits of the tracks"
         print(f"  hand-eye bring-up: {state} after {bu['windows_used']} windows, rotations from {source} "
               f"(fit RMS {rms:.2f} deg, rejections {bu['rejections'] or '{}'})")
+        gyro = (bu.get("rejection_first") or {}).get("gyro_scale")
+        if gyro:
+            print(f"  GYROSCOPE SCALE: {bu['rejections']['gyro_scale']} bring-up windows refused, the first: "
+                  f"{gyro}. Fix the IMU's units or scale")
     s = report["scheduler"]
     print(f"  tracking {s.get('tracking_ms_per_frame_median', float('nan')):.1f} ms/frame (median), "
           f"real-time factor {s.get('realtime_factor') or float('nan'):.2f}")
