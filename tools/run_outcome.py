@@ -47,6 +47,13 @@ def why_nothing_published(pipeline_report: dict, driver_report: dict | None, sch
     tracking = pipeline_report.get("tracking") or {}
     if sched.frames and tracking.get("frames_without_tracks", 0) >= sched.frames:
         parts.append("no frame had trackable features (dark, blank or unfocused images?)")
+    check = pipeline_report.get("rig_check") or {}      # a wrong rig the tracked features named
+    parts.extend(f"{name}: {check[key]}" for key, name in (("gyro_scale", "GYROSCOPE SCALE"),
+                                                          ("extrinsics_rotation", "CAMERA-IMU ROTATION"))
+                 if check.get(key))
+    gyro = ((pipeline_report.get("bringup") or {}).get("rejection_first") or {}).get("gyro_scale")
+    if gyro:
+        parts.append(f"GYROSCOPE SCALE: {gyro}")
     st = pipeline_report.get("startup") or {}
     if st.get("ff_requests"):
         rej = ", ".join(f"{k} x{v}" for k, v in sorted((st.get("ff_rejections") or {}).items())) or "none"

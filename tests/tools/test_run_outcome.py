@@ -29,3 +29,11 @@ def test_a_started_but_unconfirmed_candidate_is_named() -> None:
     assert "1 feed-forward candidate(s) started, none confirmed" in why and "abandoned" not in why
     report["startup"]["candidates_diverged"] = 1
     assert "(1 diverged)" in why_nothing_published(report, None, SCHED)
+
+
+def test_a_wrong_rig_named_by_the_checks_is_part_of_the_reason() -> None:
+    report = {"tracking": {}, "rig_check": {"gyro_scale": "the gyroscope turns 57.9x as far",
+                                            "extrinsics_rotation": None}}
+    assert why_nothing_published(report, None, SCHED) == "GYROSCOPE SCALE: the gyroscope turns 57.9x as far"
+    report = {"tracking": {}, "bringup": {"rejection_first": {"gyro_scale": "57.1x as far as the camera"}}}
+    assert why_nothing_published(report, None, SCHED) == "GYROSCOPE SCALE: 57.1x as far as the camera"
