@@ -19,7 +19,7 @@ import numpy as np
 from models.depth_model import DepthModel
 from runtime.config_checks import at_least, non_negative, positive
 from runtime.events import Frame, ImuSample
-from runtime.ffinit.gyro_scale import gyro_turn_deg, gyro_unit_hint
+from runtime.ffinit.gyro_scale import gyro_camera_ratio, gyro_unit_hint
 from runtime.ffinit.handeye import HandEyeResult, RotationWindow, estimate_handeye, validate_handeye
 from runtime.ffinit.window import Rejection
 from runtime.geometry.two_view import two_view_rotation
@@ -49,10 +49,12 @@ class BringUpConfig:
     """A window whose gyro turns more than this many times as far as its camera (over the window) is
     refused as `gyro_scale` (a gyroscope logging deg/s turns 57 times as far; as
     `ffinit.max_gyro_rate_ratio`)."""
-    max_fit_rms_deg: float = 10.0
+    max_fit_rms_deg: float = 30.0
     """A hand-eye fit leaving more RMS than this (deg) is refused as `handeye_poor_fit`: no rotation fits
-    the windows (measured fits: 0.1-3.5 deg, BENCHMARKS.md "Calibration-withheld bring-up without a depth
-    model"; without the bound a deg/s gyro's 99 deg fit passed its validation at 126 deg)."""
+    the windows (without the bound a deg/s gyro's 99 deg fit passed its validation at 126 deg). Accepted
+    fits measured 0.1-3.5 deg (BENCHMARKS.md "Calibration-withheld bring-up without a depth model"); a
+    review's shaken rig with an 80 ms time offset fitted at 11 deg and still started within 2.4 deg, so
+    the bound is set well above that (a fit's RMS is unweighted, its solve Huber-weighted)."""
 
     def __post_init__(self) -> None:
         s = "bringup"
@@ -254,7 +256,7 @@ def _gyro_scale(t: np.ndarray, w: np.ndarray, t0_ns: int, t1_ns: int, dR: np.nda
     cam_deg = float(np.degrees(np.linalg.norm(_log(R_C0C1))))
     if cam_deg < 2.0:
         return None
-    ratio = gyro_turn_deg(t, w, t0_ns, t1_ns, dR) / cam_deg
+    ratio = gyro_camera_ratio(t, w, t0_ns, t1_ns, dR, cam_deg)
     if ratio <= cfg.max_gyro_ratio:
         return None
     return Rejection("gyro_scale", f"the gyroscope turns {ratio:.1f}x as far as the camera over a window"
@@ -316,3 +318,16 @@ def _log(R: np.ndarray) -> np.ndarray:
     from runtime.geometry import so3_log
 
     return so3_log(R)
+
+
+def gyro_blamed(report: dict) -> str | None:
+    """The first `gyro_scale` message of a bring-up report (a dict) that never completed and refused at
+    least three windows, and most of those it saw, for the gyroscope's scale; else None."""
+    if not report or report.get("R_IC"):
+        return None
+    rejections = report.get("rejections") or {}
+    n_gyro = int(rejections.get("gyro_scale", 0))
+    seen = int(report.get("windows_used", 0)) + sum(int(v) for v in rejections.values())
+    if n_gyro < 3 or n_gyro * 2 < seen:
+        return None
+    return (report.get("rejection_first") or {}).get("gyro_scale")

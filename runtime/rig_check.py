@@ -10,7 +10,8 @@ set beside the gyro's over the same span (IMU clock: camera stamps + the rig's t
 - the gyroscope's scale: the gyro's rotation angle over the span against the camera's, a ratio no extrinsic
   rotation changes, is about 1 with the right units and about 57 with a gyro in deg/s; where the gyro's
   path over the span exceeds `wrap_deg` (150 deg: its net rotation may have wrapped past 180 deg, as a deg/s
-  gyro's does) the path stands in for the angle. A median ratio above `FFInitConfig.max_gyro_rate_ratio`
+  gyro's does) the path stands in for the angle when its ratio lies in the deg/s band
+  (`runtime.ffinit.gyro_scale.gyro_camera_ratio`). A median ratio above `FFInitConfig.max_gyro_rate_ratio`
   (15) over the judged spans is a finding;
 - the camera–IMU rotation: the spans' rotation pairs are hand–eye fitted (`runtime.ffinit.handeye`, with a
   gyro bias), as the DA3 check does on one window; a fit at least `extrinsics_check_deg` from the rig's
@@ -32,7 +33,7 @@ import numpy as np
 
 from runtime.ffinit.config import FFInitConfig
 from runtime.ffinit.extrinsics_check import rotation_angle_deg
-from runtime.ffinit.gyro_scale import gyro_turn_deg, gyro_unit_hint
+from runtime.ffinit.gyro_scale import gyro_camera_ratio, gyro_unit_hint
 from runtime.ffinit.handeye import HandEyeResult, RotationWindow, estimate_handeye, residuals
 from runtime.geometry import so3_log
 from runtime.geometry.two_view import two_view_rotation
@@ -205,9 +206,8 @@ class TwoViewRigCheck:
             rep.spans_still += 1
             return
         pre = Preintegrator(np.zeros(3), np.zeros(3)).integrate(t, w, np.zeros_like(w), t0, t1)
-        gyro_deg = gyro_turn_deg(t, w, t0, t1, pre.dR, cfg.wrap_deg)
         rep.spans_judged += 1
-        rep.ratios.append(gyro_deg / cam_deg)
+        rep.ratios.append(gyro_camera_ratio(t, w, t0, t1, pre.dR, cam_deg, cfg.wrap_deg))
         rep.gyro_ratio_median = float(np.median(rep.ratios))
         rep.gyro_ratio_max = float(np.max(rep.ratios))
         window = RotationWindow(R_C0C1[None], pre.dR[None], pre.J_R_bg[None], np.zeros(3))

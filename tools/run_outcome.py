@@ -51,9 +51,17 @@ def why_nothing_published(pipeline_report: dict, driver_report: dict | None, sch
     parts.extend(f"{name}: {check[key]}" for key, name in (("gyro_scale", "GYROSCOPE SCALE"),
                                                           ("extrinsics_rotation", "CAMERA-IMU ROTATION"))
                  if check.get(key))
-    gyro = ((pipeline_report.get("bringup") or {}).get("rejection_first") or {}).get("gyro_scale")
-    if gyro:
-        parts.append(f"GYROSCOPE SCALE: {gyro}")
+    bu = pipeline_report.get("bringup") or {}
+    if bu and not bu.get("R_IC"):
+        from runtime.bringup import gyro_blamed
+
+        rej = ", ".join(f"{k} x{v}" for k, v in sorted((bu.get("rejections") or {}).items())) or "none"
+        gyro = gyro_blamed(bu)
+        parts.append(f"GYROSCOPE SCALE: {gyro}" if gyro else
+                     f"the hand-eye bring-up never completed ({bu.get('windows_used', 0)} windows held, "
+                     f"rejections: {rej}): the camera-IMU rotation stayed unknown"
+                     + ("; windows no rotation fits point at the gyroscope's scale or a large camera-IMU "
+                        "time offset" if (bu.get("rejections") or {}).get("handeye_poor_fit") else ""))
     st = pipeline_report.get("startup") or {}
     if st.get("ff_requests"):
         rej = ", ".join(f"{k} x{v}" for k, v in sorted((st.get("ff_rejections") or {}).items())) or "none"

@@ -56,20 +56,23 @@ def check_gyro_scale(t_cam_ns: Sequence[int], observations: Sequence[ImageObserv
                                    f"({gyro_rate:.3f} against {da3_rate:.3f} rad/s){gyro_unit_hint(ratio)}")
 
 
-def gyro_turn_deg(t_ns: np.ndarray, gyro: np.ndarray, t0_ns: int, t1_ns: int, dR: np.ndarray,
-                  wrap_deg: float = 150.0) -> float:
-    """The gyro's rotation angle (deg) from t0 to t1 (IMU clock): the angle of its net rotation `dR` (its
-    preintegration over the span) or, where its path is longer than `wrap_deg` (the net rotation may have
-    wrapped past 180 deg, as a gyroscope logging deg/s makes it), the path. The net rotation, not the
-    path, compares with a camera's rotation over the same span: an oscillation within it lengthens the
-    path alone."""
+def gyro_camera_ratio(t_ns: np.ndarray, gyro: np.ndarray, t0_ns: int, t1_ns: int, dR: np.ndarray,
+                      camera_deg: float, wrap_deg: float = 150.0) -> float:
+    """How many times as far the gyro turns as the camera (`camera_deg`, its rotation angle) from t0 to t1
+    (IMU clock). The gyro's angle is that of its net rotation `dR` (its preintegration over the span): the
+    net rotation, not the path, compares with a camera's, since an oscillation within the span lengthens
+    the path alone. Where the path is longer than `wrap_deg` the net rotation may have wrapped past 180 deg,
+    as a gyroscope logging deg/s makes it: the path's ratio is taken then, if it lies in the deg/s band
+    (at least 57.3 / 2; a shake on a right gyro lengthens its path a few times, not 30)."""
     from runtime.imu.samples import imu_segment
 
     w = np.asarray(gyro, np.float64)
     dts, g, _ = imu_segment(np.asarray(t_ns, np.int64), w, np.zeros_like(w), int(t0_ns), int(t1_ns))
     rate = np.linalg.norm(g, axis=1)
     path_deg = float(np.degrees(np.sum(0.5 * (rate[1:] + rate[:-1]) * dts)))
-    return path_deg if path_deg > wrap_deg else float(np.degrees(np.linalg.norm(so3_log(dR))))
+    net = float(np.degrees(np.linalg.norm(so3_log(dR)))) / camera_deg
+    path = path_deg / camera_deg
+    return path if path_deg > wrap_deg and path >= DEG_PER_RAD / 2 else net
 
 
 def gyro_unit_hint(ratio: float) -> str:

@@ -152,3 +152,17 @@ def test_a_hand_eye_fit_that_explains_nothing_is_refused():
         done = bu.on_result(RotationWindow(R_c, R_i, np.repeat(np.eye(3)[None], 4, 0), np.zeros(3)), 0)
     assert not done and bu.report.rejections == {"handeye_poor_fit": 1}
     assert bu.report.fit_rms_deg > BringUpConfig().max_fit_rms_deg
+
+
+def test_a_shaken_rig_is_not_taken_for_a_deg_per_second_gyro():
+    """A 20 deg, 2.5 Hz shake on a slow turn: the gyro's path over a 0.8 s window passes 150 deg, about 20x
+    the camera's rotation; the net rotation decides (the path alone refused these windows as gyro_scale)."""
+    from rig_synth import R_IC_SYN, synthetic_rig_events
+
+    def shaken(t):
+        shake = np.radians(20) * 2 * np.pi * 2.5 * np.cos(2 * np.pi * 2.5 * t)
+        return np.array([shake, 0.1 + 0.05 * np.sin(0.7 * t), 0.12])
+
+    bu = _bring_up(synthetic_rig_events(R_IC_SYN, shaken, seconds=9.0))
+    assert "gyro_scale" not in bu.report.rejections, bu.report
+    assert bu.done

@@ -259,6 +259,9 @@ def test_a_bringup_refused_for_the_gyroscope_scale_says_so():
     v = judge(run, Thresholds())
     assert v.code == "bringup_incomplete"
     assert "GYROSCOPE SCALE: the gyroscope turns 57.1x" in v.message and "record longer" not in v.message
+    run.bringup["rejections"] = {"gyro_scale": 1, "handeye_validation_failed": 4}    # one window: not blamed
+    v = judge(run, Thresholds())
+    assert "GYROSCOPE" not in v.message and "record longer" in v.message
 
 
 def test_excitation_counts_rotation_axes():

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 from types import SimpleNamespace
 
+import numpy as np
+
 from tools.run_outcome import why_nothing_published
 
 SCHED = SimpleNamespace(imu_samples=800, frames=40, sensor_s=4.0)
@@ -35,5 +37,15 @@ def test_a_wrong_rig_named_by_the_checks_is_part_of_the_reason() -> None:
     report = {"tracking": {}, "rig_check": {"gyro_scale": "the gyroscope turns 57.9x as far",
                                             "extrinsics_rotation": None}}
     assert why_nothing_published(report, None, SCHED) == "GYROSCOPE SCALE: the gyroscope turns 57.9x as far"
-    report = {"tracking": {}, "bringup": {"rejection_first": {"gyro_scale": "57.1x as far as the camera"}}}
+    bu = {"R_IC": None, "windows_used": 2, "rejections": {"gyro_scale": 19, "two_view_too_few_tracks": 2},
+          "rejection_first": {"gyro_scale": "57.1x as far as the camera"}}
+    report = {"tracking": {}, "bringup": bu}
     assert why_nothing_published(report, None, SCHED) == "GYROSCOPE SCALE: 57.1x as far as the camera"
+    # a few gyro_scale windows among many others, or a completed bring-up: the gyro is not blamed
+    bu["rejections"]["gyro_scale"] = 2
+    why = why_nothing_published(report, None, SCHED)
+    assert why.startswith("the hand-eye bring-up never completed (2 windows held, rejections: gyro_scale x2")
+    bu["rejections"] = {"handeye_poor_fit": 9}
+    assert "point at the gyroscope's scale or a large" in why_nothing_published(report, None, SCHED)
+    bu["R_IC"] = np.eye(3).tolist()
+    assert why_nothing_published(report, None, SCHED) == "no reason recorded"

@@ -91,7 +91,9 @@ def judge(run: CalibrationRun, th: Thresholds) -> Verdict:
     if short:
         return too_little
     if not bu.get("R_IC"):
-        gyro = (bu.get("rejection_first") or {}).get("gyro_scale")
+        from runtime.bringup import gyro_blamed
+
+        gyro = gyro_blamed(bu)
         return Verdict(
             False,
             "bringup_incomplete",

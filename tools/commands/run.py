@@ -272,7 +272,9 @@ def _summary(report: dict, out: Path) -> None:
         source = "DA3" if bu.get("rotation_source", "model") == "model" else "two-view fits of the tracks"
         print(f"  hand-eye bring-up: {state} after {bu['windows_used']} windows, rotations from {source} "
               f"(fit RMS {rms:.2f} deg, rejections {bu['rejections'] or '{}'})")
-        gyro = (bu.get("rejection_first") or {}).get("gyro_scale")
+        from runtime.bringup import gyro_blamed
+
+        gyro = gyro_blamed(bu)
         if gyro:
             print(f"  GYROSCOPE SCALE: {bu['rejections']['gyro_scale']} bring-up windows refused, the first: "
                   f"{gyro}. Fix the IMU's units or scale")
