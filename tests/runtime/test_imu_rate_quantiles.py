@@ -36,7 +36,7 @@ def test_a_run_mostly_at_rest_in_deg_s_is_flagged_by_its_90th_percentile() -> No
 
 
 def test_the_console_says_a_likely_deg_s_gyroscope() -> None:
-    from tools.commands.run import _recovery_lines
+    from tools.run_summary import recovery_lines as _recovery_lines
 
     report = {"pipeline": {"tracking": {"gyro_rate_p90_rad_s": 27.3}}}
     assert any(line.startswith("GYROSCOPE UNITS? a tenth of the run turns faster than 27.3 rad/s")

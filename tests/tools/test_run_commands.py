@@ -215,7 +215,7 @@ def test_odometry_file_round_trips_published_states(tmp_path):
 
 
 def test_recovery_lines_name_every_counted_recovery():
-    from tools.commands.run import _recovery_lines
+    from tools.run_summary import recovery_lines as _recovery_lines
 
     clean = {"driver": {"streams": {"imu0": {"dropped_nonfinite": 0, "emitted": 10}}},
              "pipeline": {"startup": {"ff_rejections": {}, "restarts_after_divergence": 0}}}
@@ -258,7 +258,7 @@ def test_recovery_lines_name_every_counted_recovery():
 
 
 def test_the_time_offset_line_says_what_the_start_up_did_with_its_finding():
-    from tools.commands.run import _recovery_lines
+    from tools.run_summary import recovery_lines as _recovery_lines
 
     def lines(startup: dict, rig_offset=None) -> list[str]:
         report = {"rig": {"time_offset_s": rig_offset},
@@ -284,7 +284,8 @@ def test_the_time_offset_line_says_what_the_start_up_did_with_its_finding():
 
 
 def test_the_filter_s_estimate_of_the_time_offset_is_named_when_it_ends_far_from_the_offset_in_use():
-    from tools.commands.run import ESTIMATED_OFFSET_NOTE_S, _recovery_lines
+    from tools.run_summary import ESTIMATED_OFFSET_NOTE_S
+    from tools.run_summary import recovery_lines as _recovery_lines
 
     def lines(filt: dict, rig_offset=0.01, adopted=None) -> list[str]:
         report = {"rig": {"time_offset_s": rig_offset},
@@ -363,7 +364,7 @@ def test_imu_values_beyond_any_imu_are_dropped_and_said(tmp_path, capsys):
 
 
 def test_the_summary_names_who_published_first_even_after_a_reset():
-    from tools.commands.run import _first_published_line as line
+    from tools.run_summary import first_published_line as line
 
     base = {"T_f_s": 2.03, "published_poses": 16}
     assert line({**base, "first_published_by": "native:static", "published_by": None}) == (

@@ -10,9 +10,9 @@ from types import SimpleNamespace
 from test_map_archive import make_submap
 
 from runtime.mapping.mapper import MappingStats
-from tools.commands.run import _mapping_line
 from tools.map_archive import check_integrity, read_manifest
 from tools.run_map import MIN_FREE_MB, MapOutput
+from tools.run_summary import mapping_line as _mapping_line
 
 Usage = namedtuple("Usage", "total used free")
 MP = {"windows_accepted": 5, "windows_offered": 5, "windows_dropped_queue": 0, "windows_rejected": {},

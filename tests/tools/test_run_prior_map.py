@@ -97,7 +97,7 @@ def test_prior_map_needs_a_map_and_views(two_sessions, tmp_path, capsys):
 
 
 def test_the_console_line_says_when_a_wrong_lock_was_replaced():
-    from tools.commands.run import _prior_line
+    from tools.run_summary import prior_line as _prior_line
 
     pm = {"localized": True, "t": [1.0, 2.0, 0.0], "localized_after_s": 3.5, "yaw_deg": 12.0, "agreeing": 9,
           "poses_in_prior_frame": 40, "switches": 0}

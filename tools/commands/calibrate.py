@@ -384,7 +384,7 @@ def finish(
         print(strict_dumps(report))
     else:
         from tools.calibrate.report import summary_lines
-        from tools.commands.run import input_lines
+        from tools.run_summary import input_lines
 
         for line in [*input_lines(driver_report), *summary_lines(report)]:
             print(f"  {line}", file=log)

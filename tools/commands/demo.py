@@ -54,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
     from models.emulated_da3 import EmulatedDA3
     from runtime.config import DavioConfig
     from runtime.errors import ConfigError
-    from tools.commands.run import _summary, check_run_args
+    from tools.commands.run import check_run_args
     from tools.commands.simulate import check_sim_seconds
     from tools.evaluation import write_tum
     from tools.run_folder import RunFolder
@@ -62,6 +62,7 @@ def run(args: argparse.Namespace) -> int:
     from tools.run_map import MapOutput
     from tools.run_outcome import conclude, interruptible, judge
     from tools.run_session import run_pipeline
+    from tools.run_summary import summary
 
     check_run_args(args)
     check_sim_seconds(args.seconds)
@@ -106,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
                             "status_reason": res.reason,
                             "map": None if map_out is None else map_out.finish()},
                            config)
-        code = conclude(folder, res, report, as_json=args.json, summary=_summary)
+        code = conclude(folder, res, report, as_json=args.json, summary=summary)
     st = report["pipeline"].get("startup")
     if st is not None and not args.json:
         print(f"  start-up: {st['ff_requests']} feed-forward windows, {st['ff_accepted']} accepted, "

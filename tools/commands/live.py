@@ -177,13 +177,13 @@ def _open_driver(args: argparse.Namespace, rig):
 
 def _run(args, folder, driver, rig, model, model_desc: str, config, prior=None) -> int:
     from runtime.session import Session
-    from tools.commands.run import _summary
     from tools.live_view import open_view
     from tools.pose_journal import PoseJournal, chain_poses
     from tools.run_io import imu_noise_note, rig_summary, write_run
     from tools.run_map import MapOutput
     from tools.run_outcome import conclude, judge
     from tools.run_session import _first_seconds
+    from tools.run_summary import summary
 
     map_out = MapOutput.create(folder.path, rig, model_desc, model, config)
     where = describe_device(args)
@@ -225,7 +225,7 @@ def _run(args, folder, driver, rig, model, model_desc: str, config, prior=None) 
                                            else "the device's factory calibration")},
                        config)
     journal.close(remove=True)   # the run's own trajectories are written whole
-    return conclude(folder, res, report, as_json=args.json, summary=_summary)
+    return conclude(folder, res, report, as_json=args.json, summary=summary)
 
 
 class _StatusLine:

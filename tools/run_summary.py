@@ -1,0 +1,240 @@
+"""The console summary of a finished `davio run` / `davio live` (and the demo): the first published state,
+the ATE, every recovery the run made (input repairs, rig findings, initializer rejections, resets), the
+bring-up, timings, the map and the prior map; one line each."""
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def first_published_line(report: dict) -> str:
+    """When the first state was published and by whom (and who publishes at the end, when another)."""
+    tf = report.get("T_f_s")
+    first, now = report.get("first_published_by"), report.get("published_by")
+    at_end = "" if first is None or now == first else f" (at the end: {now or 'nobody, after a reset'})"
+    return (f"first published state: {'none' if tf is None else f'{tf:.2f} s'} by {first or now or '-'}"
+            f"{at_end}; {report['published_poses']} poses")
+
+
+def summary(report: dict, out: Path) -> None:
+    m = report.get("metrics", {})
+    print("  " + first_published_line(report))
+    if m and "ate_se3_m" not in m and m.get("ate_se3_error"):
+        print(f"  ATE: not computed: {m['ate_se3_error']}")
+    elif m:
+        nan = float("nan")
+        print(f"  ATE: {m.get('ate_se3_m', nan):.3f} m (se3), {m.get('ate_posyaw_m', nan):.3f} m (posyaw)")
+        mc, mf = report.get("metrics_causal") or {}, report.get("metrics_final") or {}
+        if report["pipeline"].get("mapping") is not None and mc:
+            print(f"  ATE map frame: causal {mc.get('ate_se3_m', nan):.3f} m, "
+                  f"final {mf.get('ate_se3_m', nan):.3f} m (se3)")
+    for line in recovery_lines(report):
+        print(f"  {line}")
+    bu = report["pipeline"].get("bringup")
+    if bu is not None:
+        state = "done" if bu["R_IC"] else "NOT done"
+        rms = bu["fit_rms_deg"] or float("nan")
+        source = "DA3" if bu.get("rotation_source", "model") == "model" else "two-view fits of the tracks"
+        print(f"  hand-eye bring-up: {state} after {bu['windows_used']} windows, rotations from {source} "
+              f"(fit RMS {rms:.2f} deg, rejections {bu['rejections'] or '{}'})")
+        from runtime.bringup import gyro_blamed
+
+        gyro = gyro_blamed(bu)
+        if gyro:
+            print(f"  GYROSCOPE SCALE: {bu['rejections']['gyro_scale']} bring-up windows refused, the first: "
+                  f"{gyro}. Fix the IMU's units or scale")
+    s = report["scheduler"]
+    print(f"  tracking {s.get('tracking_ms_per_frame_median', float('nan')):.1f} ms/frame (median), "
+          f"real-time factor {s.get('realtime_factor') or float('nan'):.2f}")
+    mp = report["pipeline"].get("mapping")
+    if mp is not None:
+        print("  " + mapping_line(mp, report.get("map") or {}))
+    if report.get("prior_map") is not None:
+        print("  " + prior_line(report["prior_map"]))
+    print(f"  outputs: {out}/odometry.tum, causal.tum, final.tum, poses.csv, report.json, config.toml"
+          + (", plots" if m else "")
+          + (", map/, map.ply" if (report.get("map") or {}).get("ply") else ""))
+
+
+def prior_line(pm: dict) -> str:
+    """One console line: localised in the prior map or not, and why."""
+    if pm["localized"]:
+        t = pm["t"]
+        after = pm["localized_after_s"]
+        return (f"prior map: localised {'' if after is None else f'{after:.1f} s into the run '}(yaw "
+                f"{pm['yaw_deg']:.2f} deg, t = ({t[0]:.3f}, {t[1]:.3f}, {t[2]:.3f}) m; {pm['agreeing']} "
+                f"verified pairs agree); {pm['poses_in_prior_frame']} poses published in its frame -> "
+                "causal.prior.tum, final.prior.tum"
+                + (f"; a wrong lock was replaced {pm['switches']}x (a look-alike place outvoted; "
+                   "causal.prior.tum holds the poses published before)" if pm.get("switches") else ""))
+    return (f"prior map: NOT localised ({pm['reason']}; {pm['attempts']} candidate pairs tried, "
+            f"{pm['verified']} verified)")
+
+
+def mapping_line(mp: dict, summary: dict) -> str:
+    """One console line: windows mapped / offered, drops, rejections by reason, retained points."""
+    rej = ", ".join(f"{k} x{v}" for k, v in sorted(mp["windows_rejected"].items())) or "none"
+    sampled = max(mp["points_sampled"], 1)
+    return (f"map: {mp['windows_accepted']}/{mp['windows_offered']} windows mapped, "
+            f"{mp['windows_dropped_queue']} dropped (queue full), rejected: {rej}; "
+            f"{mp['points_retained']} points kept ({100 * mp['rejected_confidence'] / sampled:.0f} % low "
+            f"confidence, {100 * mp['rejected_multiview'] / sampled:.0f} % failed the multi-view test, "
+            f"{100 * mp.get('points_unverified', 0) / sampled:.0f} % kept seen by one image only); "
+            f"{summary.get('voxels', 0)} voxels in map.ply" + _graph_text(mp.get("graph"))
+            + _archive_stopped_text(summary.get("archive_stopped")))
+
+
+def _archive_stopped_text(stopped: dict | None) -> str:
+    if not stopped:
+        return ""
+    return (f"\n  WARNING: the map archive stopped at map version {stopped['map_version']} "
+            f"({stopped['reason']}: {stopped['free_mb']:g} MB); {stopped['commits_skipped']} later commits "
+            "were not archived, and map.ply holds the map up to then")
+
+
+def _graph_text(g: dict | None) -> str:
+    if not g:
+        return ""
+    rv = g.get("revisits") or {}
+    rej = ", ".join(f"{k} x{v}" for k, v in sorted((rv.get("rejected") or {}).items()) if v) or "none"
+    return (f"; graph: {g['solves']} solves ({g['solve_s_max']:.2f} s max), revisits {rv.get('accepted', 0)}"
+            f"/{rv.get('attempts', 0)} verified (refused: {rej}), {rv.get('point_groups', 0)} past the "
+            "drift gate")
+
+
+_DRIVER_COUNTERS = {
+    "truncated_lines": "truncated lines", "malformed_lines": "malformed lines",
+    "dropped_nonfinite": "non-finite samples dropped", "dropped_nonmonotonic": "corrupt stamps dropped",
+    "dropped_duplicate": "duplicates dropped", "reordered": "out-of-order rows sorted",
+    "converted": "converted", "missing_images": "missing images", "repeated_images": "repeated images",
+    "unreadable_images": "unreadable images", "gaps": "gaps",
+}
+
+
+EXTRINSICS_WARNING_WINDOWS = 2
+"""Windows refused as extrinsics_rotation before the console blames the rig's rotation: one window is one
+hand-eye fit of four rotations (`davio bench rig-checks` saw no such window with the right rotation, and
+several per recording with it inverted wherever the rig turns about two axes: BENCHMARKS.md "Start-up
+checks of the rig")."""
+
+
+def _time_offset_line(startup: dict, rig_offset_s: float | None) -> str | None:
+    """The console's word on a camera-IMU time offset the start-up found far from the rig's: adopted,
+    solved at, or only found (runtime.ffinit.time_offset_check); None when it found none."""
+    found = startup.get("time_offset_findings") or 0
+    if not found:
+        return None
+    rig_ms = (rig_offset_s or 0.0) * 1e3
+    adopted = startup.get("time_offset_adopted_s")
+    first = startup.get("time_offset_first") or startup.get("ff_time_offset_first") or \
+        (startup.get("ff_rejection_first") or {}).get("time_offset", "") or "-"
+    rig = f"(the rig says {rig_ms:+.1f} ms)"
+    if adopted is not None:
+        what = f"adopted {adopted * 1e3:+.1f} ms {rig}"
+    elif startup.get("ff_time_offset_s") is not None:
+        what = f"a window was solved at {startup['ff_time_offset_s'] * 1e3:+.1f} ms {rig}"
+    else:
+        what = "not adopted"
+    windows = "1 window fits" if found == 1 else f"{found} windows fit"
+    return (f"CAMERA-IMU TIME OFFSET: {windows} another offset, {what}; the first: {first}. Put "
+            "the offset in the rig file (Kalibr timeshift_cam_imu: t_imu = t_cam + shift)")
+
+
+ESTIMATED_OFFSET_NOTE_S = 0.005
+"""The console names the filter's estimate of the camera-IMU time offset when it ends at least this far (s),
+and three of its standard deviations, from the offset in use (the rig's, or the one the start-up adopted):
+about a sample period of a 200 Hz IMU, and five times the estimate's spread on a right rig (BENCHMARKS
+"The camera-IMU time offset in the filter's state")."""
+
+
+def _estimated_offset_line(filter_rep: dict, startup: dict, rig_offset_s: float | None) -> str | None:
+    """The console's word on the publishing filter's estimate of the camera-IMU time offset (msckf.
+    calib_time_offset) when it ends far from the offset in use; None otherwise."""
+    est, std = filter_rep.get("time_offset_s"), filter_rep.get("time_offset_std_s")
+    if not filter_rep.get("time_offset_estimated") or est is None or std is None:
+        return None
+    rig = rig_offset_s or 0.0
+    adopted = startup.get("time_offset_adopted_s")
+    ref = rig if adopted is None else adopted
+    if abs(est - ref) < max(ESTIMATED_OFFSET_NOTE_S, 3.0 * std):
+        return None
+    said = f"the rig says {rig * 1e3:+.1f} ms" + ("" if adopted is None else
+                                                  f", the start-up adopted {adopted * 1e3:+.1f} ms")
+    return (f"CAMERA-IMU TIME OFFSET: the filter estimated {est * 1e3:+.1f} +- {std * 1e3:.1f} ms at the end "
+            f"({said}; t_imu = t_cam + offset). If the rig file is yours, put the estimate in it "
+            "(Kalibr timeshift_cam_imu)")
+
+
+def input_lines(driver_report: dict | None) -> list[str]:
+    """One console line per input stream the driver repaired (its counters), then its notes."""
+    lines = []
+    for name, counts in ((driver_report or {}).get("streams") or {}).items():
+        parts = [f"{label} {counts[k]}" for k, label in _DRIVER_COUNTERS.items() if counts.get(k)]
+        if parts:
+            lines.append(f"input {name}: " + ", ".join(parts))
+    lines.extend(f"input note: {n}" for n in (driver_report or {}).get("notes") or [])
+    return lines
+
+
+def recovery_lines(report: dict) -> list[str]:
+    """One console line per kind of recovery the run made (input repairs, initializer rejections,
+    filter resets), so that nothing counted in report.json goes unnoticed on the console."""
+    lines = input_lines(report.get("driver"))
+    out_of_range = (report["pipeline"].get("tracking") or {}).get("imu_out_of_range") or 0
+    if out_of_range:
+        from runtime.pipeline import MAX_ACCEL_M_S2, MAX_GYRO_RAD_S
+
+        lines.append(f"IMU samples beyond any IMU's range dropped: {out_of_range} (|gyro| > "
+                     f"{MAX_GYRO_RAD_S:g} rad/s or |accel| > {MAX_ACCEL_M_S2:g} m/s^2 on an axis: corrupt "
+                     "values, or a gyroscope in deg/s?)")
+    from runtime.imu.rate_quantiles import GYRO_UNITS_P90_RAD_S
+
+    p90 = (report["pipeline"].get("tracking") or {}).get("gyro_rate_p90_rad_s")
+    if p90 is not None and p90 > GYRO_UNITS_P90_RAD_S:
+        lines.append(f"GYROSCOPE UNITS? a tenth of the run turns faster than {p90:.1f} rad/s (EuRoC's "
+                     "flights: 0.6-1.0 rad/s); a gyroscope logging deg/s reads 57.3 times too high: check "
+                     "its unit (rad/s)")
+    errors = (report["pipeline"].get("tracking") or {}).get("ff_exceptions") or []
+    if errors:
+        lines.append(f"feed-forward model calls failed: {len(errors)} (first: {errors[0]})")
+    map_errors = (report["pipeline"].get("mapping") or {}).get("model_errors") or []
+    if map_errors:
+        lines.append(f"mapping model calls failed: {len(map_errors)} (first: {map_errors[0]})")
+    startup = report["pipeline"].get("startup") or {}
+    if startup.get("ff_rejections"):
+        reasons = ", ".join(f"{k} x{v}" for k, v in sorted(startup["ff_rejections"].items()))
+        lines.append(f"feed-forward windows rejected: {reasons}")
+        first = startup.get("ff_rejection_first") or {}
+        if startup["ff_rejections"].get("gyro_scale"):
+            lines.append(f"GYROSCOPE SCALE: {startup['ff_rejections']['gyro_scale']} windows refused, the "
+                         f"first: {first.get('gyro_scale', '')}. Fix the IMU's units or scale; every filter "
+                         "integrates them too")
+        if startup["ff_rejections"].get("extrinsics_rotation", 0) >= EXTRINSICS_WARNING_WINDOWS:
+            lines.append(f"CAMERA-IMU ROTATION: {startup['ff_rejections']['extrinsics_rotation']} windows "
+                         f"refused, the first: {first.get('extrinsics_rotation', '')}. Check the rig file's "
+                         "T_cam_imu / T_imu_cam, or run with --withhold-extrinsics to estimate it")
+    check = report["pipeline"].get("rig_check") or {}     # without a model: from the tracked features
+    if check.get("gyro_scale"):
+        lines.append(f"GYROSCOPE SCALE (tracked features): {check['gyro_scale']}. Fix the IMU's units or "
+                     "scale; the filter integrates them")
+    if check.get("error"):
+        lines.append(f"rig check from the tracked features ended early: {check['error']}")
+    if check.get("extrinsics_rotation"):
+        lines.append(f"CAMERA-IMU ROTATION (tracked features): {check['extrinsics_rotation']}. Check the rig "
+                     "file's T_cam_imu / T_imu_cam, or run with --withhold-extrinsics to estimate it")
+    rig_offset_s = (report.get("rig") or {}).get("time_offset_s")
+    for line in (_time_offset_line(startup, rig_offset_s),
+                 _estimated_offset_line(report["pipeline"].get("filter") or {}, startup, rig_offset_s)):
+        if line:
+            lines.append(line)
+    if startup.get("ff_extensions"):
+        ext_rej = startup.get("ff_extension_rejections") or {}
+        reasons = ", ".join(f"{k} x{v}" for k, v in sorted(ext_rej.items()))
+        lines.append(f"refused windows re-solved over a longer span: {startup['ff_extensions']}, "
+                     f"{startup.get('ff_extension_accepted', 0)} accepted"
+                     + (f" (rejected: {reasons})" if reasons else ""))
+    # every diverged filter sends start-up back to both initializers (the filter counters only know their own)
+    resets = startup.get("restarts_after_divergence") or 0
+    if resets:
+        segments = len(report.get("segments") or [])
+        lines.append(f"filter resets after divergence: {resets} ({segments} segments)")
+    return lines
