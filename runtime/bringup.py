@@ -195,7 +195,7 @@ class HandEyeBringUp:
                 pred = model.predict(list(picked))
                 R_C0Ci = np.array([pred.T_CW[k][:3, :3].T for k in range(1, len(picked))])
             else:
-                fits = _two_view_rotations(span, [_stamp(x) for x in picked], cfg, float(focal_px))
+                fits = _two_view_rotations(span, stamps, cfg, float(focal_px))
                 if isinstance(fits, Rejection):
                     return fits
                 R_C0Ci, models = fits
