@@ -28,7 +28,9 @@ from runtime.imu import Preintegrator
 
 @dataclass
 class BringUpConfig:
-    """Hand–eye bring-up parameters."""
+    """Hand–eye bring-up parameters (`[bringup]` of a run's config.toml). A failed estimate or validation
+    drops the oldest window and waits for the next one: the bring-up keeps trying until the recording ends
+    (or the live run is stopped), and the report counts each attempt and rejection."""
 
     fit_windows: int = 8
     """Early windows the rotation is estimated from."""
@@ -39,8 +41,6 @@ class BringUpConfig:
     """At least this much sensor time between the starts of consecutive windows."""
     min_rotation_deg: float = 5.0
     """Windows rotating less than this (gyro, end to end) carry no hand-eye information: skipped."""
-    max_attempts: int = 3
-    """Estimate + validation attempts before giving up (each failure drops the oldest windows)."""
     two_view_min_tracks: int = 30
     """Without a depth model: features tracked from a window's first image to each later one, at least."""
     two_view_threshold_px: float = 1.0
@@ -58,7 +58,7 @@ class BringUpConfig:
 
     def __post_init__(self) -> None:
         s = "bringup"
-        at_least(self, s, 1, "fit_windows", "max_attempts")
+        at_least(self, s, 1, "fit_windows")
         at_least(self, s, 3, "window_images")
         at_least(self, s, 15, "two_view_min_tracks")
         positive(self, s, "window_spacing_s", "two_view_threshold_px", "max_gyro_ratio", "max_fit_rms_deg")
@@ -75,6 +75,8 @@ class BringUpReport:
     "rotation"), or "chained" frame to frame."""
     windows_used: int = 0
     windows_skipped_static: int = 0
+    min_rotation_deg: float = 5.0
+    """The bound below which a window was skipped as static (`BringUpConfig.min_rotation_deg`)."""
     attempts: int = 0
     rejections: dict = field(default_factory=dict)
     rejection_first: dict = field(default_factory=dict)
@@ -113,7 +115,8 @@ class HandEyeBringUp:
         self.imu_a: deque[np.ndarray] = deque()
         self.windows: list[RotationWindow] = []
         self.result: HandEyeResult | None = None
-        self.report = BringUpReport(rotation_source="model" if model is not None else "tracks")
+        self.report = BringUpReport(rotation_source="model" if model is not None else "tracks",
+                                    min_rotation_deg=self.cfg.min_rotation_deg)
         self._last_start: int | None = None
 
     @property

@@ -7,6 +7,7 @@ from collections.abc import Callable
 from dataclasses import MISSING, dataclass, field, fields
 from pathlib import Path
 
+from runtime.bringup import BringUpConfig
 from runtime.config_io import config_from_toml_dict, config_to_dict, read_toml, toml_value
 from runtime.ffinit.config import FFInitConfig
 from runtime.graph.config import GraphConfig, RevisitConfig
@@ -16,6 +17,7 @@ from runtime.msckf.init_dynamic import DynamicInitConfig
 from runtime.msckf.init_static import StaticInitConfig
 from runtime.msckf.init_turning import TurningInitConfig
 from runtime.msckf.tracker import TrackerConfig
+from runtime.rig_check import RigCheckConfig
 from runtime.startup import StartupConfig
 
 
@@ -49,6 +51,11 @@ class DavioConfig:
     """The submap graph (drift model, point covariance, scale prior, Huber, LM iterations)."""
     revisits: RevisitConfig = field(default_factory=RevisitConfig)
     """Revisit candidates and their verification gates."""
+    bringup: BringUpConfig = field(default_factory=BringUpConfig)
+    """Calibration-withheld bring-up (hand-eye windows, their gates; runs only while T_IC is unknown)."""
+    rig_check: RigCheckConfig = field(default_factory=RigCheckConfig)
+    """Model-free rig checks from the tracked features (gyro scale, camera-IMU rotation; runs without the
+    feed-forward start-up)."""
 
 
 NEWER_OPTIONS: dict[str, object] = {

@@ -114,16 +114,17 @@ class VioPipeline:
         #: from the tracks (with it, the start-up's DA3 windows check both)
         self.rig_check: TwoViewRigCheck | None = None
         if rig.T_IC is None:   # without a model, the bring-up takes the camera's rotations from the tracks
-            self.bringup = HandEyeBringUp(model, focal_px=float(np.sqrt(rig.camera.fx * rig.camera.fy)))
+            self.bringup = HandEyeBringUp(model, self.config.bringup,
+                                          focal_px=float(np.sqrt(rig.camera.fx * rig.camera.fy)))
             self.rig = rig
             self.startup = None
             self.ffinit = None
         else:
             self._start_tracking(rig, self.config)
-            if self.ffinit is None:     # no DA3 windows to check the rig: the tracked features do
+            if self.ffinit is None and self.config.rig_check.enabled:   # no DA3 windows: the tracks check
                 self.rig_check = TwoViewRigCheck(self.T_IC[:3, :3], self.time_offset_s,
                                                  float(np.sqrt(rig.camera.fx * rig.camera.fy)),
-                                                 ffcfg=self.config.ffinit)
+                                                 self.config.rig_check, ffcfg=self.config.ffinit)
 
     def _start_tracking(self, rig: Any, cfg: DavioConfig, bg_prior: np.ndarray | None = None) -> None:
         """Build the filters (native initializers armed) and the feed-forward start-up for `rig`."""

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from runtime.config_checks import at_least, non_negative, positive
 from runtime.ffinit.config import FFInitConfig
 from runtime.ffinit.extrinsics_check import rotation_angle_deg
 from runtime.ffinit.gyro_scale import gyro_camera_ratio, gyro_unit_hint
@@ -43,8 +44,11 @@ from runtime.msckf.init_common import ImuWindow
 
 @dataclass(frozen=True)
 class RigCheckConfig:
-    """When and how the model-free rig checks judge."""
+    """When and how the model-free rig checks judge (`[rig_check]` of a run's config.toml)."""
 
+    enabled: bool = True
+    """Run the checks in a run without the feed-forward start-up (they only report; off saves their two-view
+    fits, one a second)."""
     span_s: float = 0.5
     """Camera seconds between the two frames of a judged span."""
     every_s: float = 1.0
@@ -65,6 +69,13 @@ class RigCheckConfig:
     """Spans tried (judged or not) after which the check stops: a rig that stands or barely turns."""
     wrap_deg: float = 150.0
     """A gyro path longer than this over a span: the path stands in for the net rotation angle."""
+
+    def __post_init__(self) -> None:
+        s = "rig_check"
+        positive(self, s, "span_s", "every_s", "threshold_px", "wrap_deg")
+        non_negative(self, s, "min_camera_deg")
+        at_least(self, s, 15, "min_tracks")
+        at_least(self, s, 1, "min_pairs_gyro", "min_pairs_extrinsics", "max_pairs", "max_spans")
 
 
 @dataclass

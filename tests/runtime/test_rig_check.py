@@ -89,3 +89,25 @@ def test_the_pipeline_checks_the_rig_only_without_a_model():
     with_model = VioPipeline(rec.rig, model)
     assert with_model.rig_check is None and "rig_check" not in with_model.report()
     assert VioPipeline(rec.rig.replace(T_IC=None), None).rig_check is None   # a bring-up has no rig to check
+
+
+def test_the_rig_check_and_bring_up_sections_of_a_config_file_reach_the_pipeline(tmp_path):
+    """`[rig_check]` and `[bringup]` of a config.toml are read, checked (the key named) and used."""
+    from runtime.config import load_davio_config
+    from runtime.errors import ConfigError
+    from runtime.pipeline import VioPipeline
+
+    rec = SimRecording.from_preset(SimConfig(preset="euroc", seconds=2.0))
+    path = tmp_path / "config.toml"
+    path.write_text("[rig_check]\nenabled = false\n\n[bringup]\nmin_rotation_deg = 7.5\nfit_windows = 4\n")
+    cfg = load_davio_config(path)
+    assert VioPipeline(rec.rig, None, config=cfg).rig_check is None
+    bring_up = VioPipeline(rec.rig.replace(T_IC=None), None, config=cfg).bringup
+    assert bring_up.cfg.min_rotation_deg == 7.5 and bring_up.cfg.fit_windows == 4
+    assert bring_up.report.min_rotation_deg == 7.5        # the report says which bound skipped a window
+    path.write_text("[rig_check]\nspan_s = 1.0\nmin_pairs_extrinsics = 3\n")
+    check = VioPipeline(rec.rig, None, config=load_davio_config(path)).rig_check
+    assert check.cfg.span_s == 1.0 and check.cfg.min_pairs_extrinsics == 3
+    path.write_text("[rig_check]\nspan_s = 0.0\n")
+    with pytest.raises(ConfigError, match="rig_check.span_s"):
+        load_davio_config(path)

@@ -138,11 +138,9 @@ def _bringup_text(bu: dict) -> str:
     if not bu:
         return "not run"
     rej = ", ".join(f"{k} x{v}" for k, v in sorted((bu.get("rejections") or {}).items())) or "none"
-    from runtime.bringup import BringUpConfig
-
     state = "done" if bu.get("R_IC") else "not done"
     return (
         f"{state}, {bu.get('windows_used', 0)} windows used, {bu.get('windows_skipped_static', 0)} skipped "
-        f"(rotating < {BringUpConfig().min_rotation_deg:g} deg), {bu.get('attempts', 0)} estimates, "
+        f"(rotating < {bu.get('min_rotation_deg', 5.0):g} deg), {bu.get('attempts', 0)} estimates, "
         f"rejections: {rej}"
     )
