@@ -32,12 +32,14 @@ def run_pipeline(driver: Any, model: Any, config: DavioConfig, paced: bool = Fal
         events = _first_seconds(events, seconds)
     progress = None
     bar = None
+    say = None
     if show_progress and sys.stderr.isatty():
         from rich.progress import Progress
 
         bar = Progress(transient=True)
         task = bar.add_task("running", total=seconds)
         bar.start()
+        say = bar.console.print
 
         def progress(s: float) -> None:
             who = _status(pipe)
@@ -45,11 +47,18 @@ def run_pipeline(driver: Any, model: Any, config: DavioConfig, paced: bool = Fal
     elif show_progress:
         last = [-1]
 
+        def say(line: str) -> None:
+            print(line, file=sys.stderr, flush=True)
+
         def progress(s: float) -> None:
             if int(s) // 5 != last[0]:
                 last[0] = int(s) // 5
                 print(f"  t = {s:6.1f} s  published {len(pipe.published):5d} poses"
                       f"  ({_status(pipe)})", file=sys.stderr, flush=True)
+    if say is not None:    # rig findings said as found (and again in the summary)
+        from tools.rig_alerts import RigAlerts, chain
+
+        progress = chain(progress, RigAlerts(pipe, lambda line: say(f"  {line}"), pipe.rig.time_offset_s))
     try:
         res = session.replay(events, paced=paced, speed=speed, model_latency_s=model_latency_s,
                              progress=progress, keep_partial=keep_partial)

@@ -36,12 +36,6 @@ def summary(report: dict, out: Path) -> None:
         source = "DA3" if bu.get("rotation_source", "model") == "model" else "two-view fits of the tracks"
         print(f"  hand-eye bring-up: {state} after {bu['windows_used']} windows, rotations from {source} "
               f"(fit RMS {rms:.2f} deg, rejections {bu['rejections'] or '{}'})")
-        from runtime.bringup import gyro_blamed
-
-        gyro = gyro_blamed(bu)
-        if gyro:
-            print(f"  GYROSCOPE SCALE: {bu['rejections']['gyro_scale']} bring-up windows refused, the first: "
-                  f"{gyro}. Fix the IMU's units or scale")
     s = report["scheduler"]
     print(f"  tracking {s.get('tracking_ms_per_frame_median', float('nan')):.1f} ms/frame (median), "
           f"real-time factor {s.get('realtime_factor') or float('nan'):.2f}")
@@ -175,6 +169,47 @@ def input_lines(driver_report: dict | None) -> list[str]:
     return lines
 
 
+def rig_lines(pipeline_report: dict, rig_offset_s: float | None) -> list[str]:
+    """The rig findings so far, one console line each, from a pipeline report (or the part of one holding
+    `startup`, `rig_check` and `bringup`): a gyroscope's scale and the camera-IMU rotation as the start-up's
+    DA3 windows, the tracked features or the bring-up's windows judged them, and a camera-IMU time offset
+    the start-up found. At the end of a run (`recovery_lines`) and, as they are found, during one
+    (tools.rig_alerts)."""
+    lines = []
+    startup = pipeline_report.get("startup") or {}
+    refused = startup.get("ff_rejections") or {}
+    first = startup.get("ff_rejection_first") or {}
+    if refused.get("gyro_scale"):
+        lines.append(f"GYROSCOPE SCALE: {refused['gyro_scale']} windows refused, the first: "
+                     f"{first.get('gyro_scale', '')}. Fix the IMU's units or scale; every filter integrates "
+                     "them too")
+    if refused.get("extrinsics_rotation", 0) >= EXTRINSICS_WARNING_WINDOWS:
+        lines.append(f"CAMERA-IMU ROTATION: {refused['extrinsics_rotation']} windows refused, the first: "
+                     f"{first.get('extrinsics_rotation', '')}. Check the rig file's T_cam_imu / T_imu_cam, "
+                     "or run with --withhold-extrinsics to estimate it")
+    check = pipeline_report.get("rig_check") or {}     # without a model: from the tracked features
+    if check.get("gyro_scale"):
+        lines.append(f"GYROSCOPE SCALE (tracked features): {check['gyro_scale']}. Fix the IMU's units or "
+                     "scale; the filter integrates them")
+    if check.get("error"):
+        lines.append(f"rig check from the tracked features ended early: {check['error']}")
+    if check.get("extrinsics_rotation"):
+        lines.append(f"CAMERA-IMU ROTATION (tracked features): {check['extrinsics_rotation']}. Check the rig "
+                     "file's T_cam_imu / T_imu_cam, or run with --withhold-extrinsics to estimate it")
+    line = _time_offset_line(startup, rig_offset_s)
+    if line:
+        lines.append(line)
+    bu = pipeline_report.get("bringup")
+    if bu:
+        from runtime.bringup import gyro_blamed
+
+        gyro = gyro_blamed(bu)
+        if gyro:
+            lines.append(f"GYROSCOPE SCALE (bring-up): {bu['rejections']['gyro_scale']} windows refused, the "
+                         f"first: {gyro}. Fix the IMU's units or scale")
+    return lines
+
+
 def recovery_lines(report: dict) -> list[str]:
     """One console line per kind of recovery the run made (input repairs, initializer rejections,
     filter resets), so that nothing counted in report.json goes unnoticed on the console."""
@@ -203,29 +238,11 @@ def recovery_lines(report: dict) -> list[str]:
     if startup.get("ff_rejections"):
         reasons = ", ".join(f"{k} x{v}" for k, v in sorted(startup["ff_rejections"].items()))
         lines.append(f"feed-forward windows rejected: {reasons}")
-        first = startup.get("ff_rejection_first") or {}
-        if startup["ff_rejections"].get("gyro_scale"):
-            lines.append(f"GYROSCOPE SCALE: {startup['ff_rejections']['gyro_scale']} windows refused, the "
-                         f"first: {first.get('gyro_scale', '')}. Fix the IMU's units or scale; every filter "
-                         "integrates them too")
-        if startup["ff_rejections"].get("extrinsics_rotation", 0) >= EXTRINSICS_WARNING_WINDOWS:
-            lines.append(f"CAMERA-IMU ROTATION: {startup['ff_rejections']['extrinsics_rotation']} windows "
-                         f"refused, the first: {first.get('extrinsics_rotation', '')}. Check the rig file's "
-                         "T_cam_imu / T_imu_cam, or run with --withhold-extrinsics to estimate it")
-    check = report["pipeline"].get("rig_check") or {}     # without a model: from the tracked features
-    if check.get("gyro_scale"):
-        lines.append(f"GYROSCOPE SCALE (tracked features): {check['gyro_scale']}. Fix the IMU's units or "
-                     "scale; the filter integrates them")
-    if check.get("error"):
-        lines.append(f"rig check from the tracked features ended early: {check['error']}")
-    if check.get("extrinsics_rotation"):
-        lines.append(f"CAMERA-IMU ROTATION (tracked features): {check['extrinsics_rotation']}. Check the rig "
-                     "file's T_cam_imu / T_imu_cam, or run with --withhold-extrinsics to estimate it")
     rig_offset_s = (report.get("rig") or {}).get("time_offset_s")
-    for line in (_time_offset_line(startup, rig_offset_s),
-                 _estimated_offset_line(report["pipeline"].get("filter") or {}, startup, rig_offset_s)):
-        if line:
-            lines.append(line)
+    lines.extend(rig_lines(report["pipeline"], rig_offset_s))
+    line = _estimated_offset_line(report["pipeline"].get("filter") or {}, startup, rig_offset_s)
+    if line:
+        lines.append(line)
     if startup.get("ff_extensions"):
         ext_rej = startup.get("ff_extension_rejections") or {}
         reasons = ", ".join(f"{k} x{v}" for k, v in sorted(ext_rej.items()))

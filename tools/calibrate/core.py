@@ -147,6 +147,7 @@ def calibrate(
     model_latency_s: float = 0.5,
     sample_every_s: float = 0.1,
     progress: Callable[[float, str], None] | None = None,
+    alert: Callable[[str], None] | None = None,
     live: bool = False,
 ) -> CalibrationRun:
     """Replay `events` through DAVIO with `rig`'s extrinsics and time offset withheld; collect the filter's
@@ -160,6 +161,8 @@ def calibrate(
         seconds: only the first S seconds of data.
         sample_every_s: camera seconds between collected calibration states.
         progress: called with (sensor seconds, phase) about every 5 s of data.
+        alert: called with each kind of rig finding (tools.rig_alerts) as the run finds it, e.g. a gyroscope
+            in deg/s refused by the bring-up.
         live: `events` come from a live driver (runtime.session.Session.run_live: real time, bounded
             queues, model results applied when ready); Ctrl-C ends the data, not the calibration.
     """
@@ -216,10 +219,15 @@ def calibrate(
                 )
             yield ev
 
+    alerts = None
+    if alert is not None:
+        from tools.rig_alerts import RigAlerts
+
+        alerts = RigAlerts(pipe, alert)
     if live:
-        res = session.run_live(feed(), keep_partial=True)
+        res = session.run_live(feed(), progress=alerts, keep_partial=True)
     else:
-        res = session.replay(feed(), model_latency_s=model_latency_s, keep_partial=True)
+        res = session.replay(feed(), model_latency_s=model_latency_s, progress=alerts, keep_partial=True)
     take(force=True)
     rep = pipe.report()
     return CalibrationRun(
@@ -237,6 +245,10 @@ def calibrate(
 
 def stderr_progress(rel_s: float, phase: str) -> None:
     print(f"  t = {rel_s:6.1f} s  ({phase})", file=sys.stderr, flush=True)
+
+
+def stderr_alert(line: str) -> None:
+    print(f"  {line}", file=sys.stderr, flush=True)
 
 
 def as_dict(x: Any) -> dict:

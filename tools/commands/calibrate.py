@@ -305,7 +305,7 @@ def open_inputs(args: argparse.Namespace) -> tuple:
 def run(args: argparse.Namespace) -> int:
     from runtime.config import DavioConfig, load_davio_config
     from tools.calibrate.checks import Thresholds
-    from tools.calibrate.core import calibrate, stderr_progress
+    from tools.calibrate.core import calibrate, stderr_alert, stderr_progress
     from tools.run_outcome import interruptible
 
     check_args(args)
@@ -341,6 +341,7 @@ def run(args: argparse.Namespace) -> int:
                 seconds=args.seconds,
                 model_latency_s=args.model_latency,
                 progress=stderr_progress,
+                alert=stderr_alert,
                 live=live,
             )
         finally:

@@ -201,7 +201,7 @@ def _run(args, folder, driver, rig, model, model_desc: str, config, prior=None) 
         events = driver.events()
         if args.seconds is not None:
             events = _first_seconds(events, args.seconds)
-        status = _StatusLine(session, driver)
+        status = _StatusLine(session, driver, rig.time_offset_s)
         res = session.run_live(events, progress=status, keep_partial=True)
         status.done()
         driver.stop()
@@ -231,13 +231,21 @@ def _run(args, folder, driver, rig, model, model_desc: str, config, prior=None) 
 class _StatusLine:
     """One live line on stderr, refreshed once a second: data time, frame rate, tracks, state, drops."""
 
-    def __init__(self, session, driver) -> None:
+    def __init__(self, session, driver, rig_offset_s: float | None = None) -> None:
+        from tools.rig_alerts import RigAlerts
+
         self.session, self.driver = session, driver
         self.last = 0.0
         self.frames0 = 0
         self.tty = sys.stderr.isatty()
+        # a rig finding on its own line as soon as found (the operator has the rig in hand)
+        self.alerts = RigAlerts(session.pipeline, self._say, rig_offset_s)
+
+    def _say(self, line: str) -> None:
+        print(("\r\033[K" if self.tty else "") + f"  {line}", file=sys.stderr, flush=True)
 
     def __call__(self, sensor_s: float) -> None:
+        self.alerts(sensor_s)
         now = time.monotonic()
         if now - self.last < 1.0:
             return
