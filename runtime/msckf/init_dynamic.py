@@ -8,8 +8,10 @@ Following the idea of OpenVINS' ``DynamicInitializer`` (Dong-Si & Mourikis, ICRA
    (init_dynamic_window). Codes: no_frames, few_frames, short_window, few_features, imu_gap.
 2. Excitation: integrated gyro rotation and median rotation-compensated parallax
    (init_dynamic_excitation). Codes: insufficient_rotation, insufficient_parallax.
-3. Rotations from gyro preintegration (init_dynamic_preintegration) at the bias prior, or at the
-   bias that aligns them with essential-matrix rotations (init_dynamic_gyro_bias).
+3. Rotations from gyro preintegration (init_dynamic_preintegration) at the bias prior, checked against the
+   camera's two-view rotations between keyframes (init_dynamic_rotation_check; not in OpenVINS; code:
+   rotation_mismatch, after which attempts wait `rotation_mismatch_retry_s`), then at the bias that aligns
+   them with essential-matrix rotations (init_dynamic_gyro_bias).
 4. Linear solve for features, v0 and g with |g| = g0 in the first keyframe's IMU frame I0, then
    the gravity-aligned frame O: I0 rotated so that g = (0, 0, -g0), yaw fixed by Gram-Schmidt,
    origin at I0 (init_dynamic_linear). Codes: degenerate, bad_linear_solution.
@@ -40,6 +42,7 @@ from runtime.msckf.init_dynamic_linear import (
 )
 from runtime.msckf.init_dynamic_preintegration import preintegrate_keyframes
 from runtime.msckf.init_dynamic_refinement import WindowRefinement
+from runtime.msckf.init_dynamic_rotation_check import rotation_agreement
 from runtime.msckf.init_dynamic_window import (
     Frame,
     frames_in_window,
@@ -99,6 +102,12 @@ class DynamicInitializer(BufferedInitializer):
         self.time_offset_ns = int(round(float(time_offset_s) * 1e9))
         self._init_buffers(self.config.window_ns + 500_000_000, camera)
         self.focal = 0.5 * (float(camera.fx) + float(camera.fy))
+        self._retry_after_ns: int | None = None    # camera t_ns before which no attempt is made
+
+    def reset(self) -> None:
+        """Forget buffered IMU and tracks and any wait after a rotation_mismatch (counts are kept)."""
+        super().reset()
+        self._retry_after_ns = None
 
     # ------------------------------------------------------------------ main entry
     def try_initialize(self) -> InitResult | None:
@@ -107,6 +116,8 @@ class DynamicInitializer(BufferedInitializer):
         if not frames:
             return self.log.reject(-1, "no_frames", "no tracks fed")
         frames = frames_in_window(frames, self.imu.newest_ns(), self.time_offset_ns, self.config.window_ns)
+        if frames and self._retry_after_ns is not None and frames[-1][0] < self._retry_after_ns:
+            return None      # after a rotation_mismatch: the window slides first (last_reason kept)
         try:
             return self._initialize(frames)
         except _Rejected as why:
@@ -151,6 +162,7 @@ class DynamicInitializer(BufferedInitializer):
         )
         try:
             imu = preintegrate(bg=bg0)
+            self._check_rotations(keyframes, imu.between)
             bg_visual = None
             if cfg.estimate_gyro_bias:
                 bg_visual = visual_gyro_bias(
@@ -218,6 +230,29 @@ class DynamicInitializer(BufferedInitializer):
         return InitResult(
             t_ns=int(t_imu[-1]), R_OI=refined.R_OI[-1], p_OI=refined.p_OI[-1], v_OI=refined.v_OI[-1],
             bg=refined.bg, ba=refined.ba, cov=refined.cov, source=self.source, info=info,
+        )
+
+
+    def _check_rotations(self, keyframes: list[Frame], between: list) -> None:
+        """Raise rotation_mismatch when the camera's keyframe rotations contradict the gyro's
+        (runtime.msckf.init_dynamic_rotation_check)."""
+        cfg = self.config
+        if cfg.max_rotation_mismatch_fraction >= 1.0:
+            return
+        agree = rotation_agreement(keyframes, between, self.R_IC, self.focal, 2 * cfg.min_features,
+                                   cfg.max_visual_gyro_residual_rad, cfg.rotation_check_max_ratio,
+                                   np.radians(cfg.rotation_check_min_gyro_deg))
+        if agree.measured < cfg.min_rotation_check_pairs or \
+                agree.disagreeing <= cfg.max_rotation_mismatch_fraction * agree.measured:
+            return
+        self._retry_after_ns = int(keyframes[-1][0]) + int(round(cfg.rotation_mismatch_retry_s * 1e9))
+        raise _Rejected(
+            "rotation_mismatch",
+            f"in {agree.disagreeing} of {agree.measured} keyframe pairs the camera's rotation differs from "
+            f"the gyro's by more than {np.degrees(cfg.max_visual_gyro_residual_rad):.1f} deg or is under "
+            f"1/{cfg.rotation_check_max_ratio:g} of it (median difference "
+            f"{np.degrees(agree.median_rad):.1f} deg): a gyroscope not in rad/s, or a camera-IMU rotation "
+            "that is not the rig's?",
         )
 
 

@@ -33,6 +33,24 @@ class DynamicInitConfig:
     """Estimate the gyro bias from essential-matrix rotations between keyframes before the linear solve."""
     max_visual_gyro_residual_rad: float = 0.2
     """A keyframe pair whose visual and gyro rotations differ by more is left out of that estimate, rad."""
+    max_rotation_mismatch_fraction: float = 0.5
+    """Before any solve: when more than this fraction of the keyframe pairs measured (at least
+    `min_rotation_check_pairs`) turn by more than `max_visual_gyro_residual_rad` away from the gyro's
+    rotation (two-view fits of their common tracks, through the rig's R_IC), the window is refused as
+    `rotation_mismatch`: a gyroscope in deg/s or a camera-IMU rotation that is not the rig's, on which the
+    solves cost 0.3-1.5 s a frame and fail (BENCHMARKS.md "The dynamic initializer on a wrong rig").
+    1.0 turns the check off. Not in OpenVINS."""
+    rotation_check_max_ratio: float = 15.0
+    """A keyframe pair whose gyro turns more than this many times as far as its camera also disagrees (a
+    gyroscope in deg/s over a pair that barely turns stays within `max_visual_gyro_residual_rad`); as
+    `ffinit.max_gyro_rate_ratio`."""
+    rotation_check_min_gyro_deg: float = 5.0
+    """Pairs whose gyro turns less are not judged by that ratio: a 0.1 rad/s gyro bias alone turns 2.3 deg
+    between keyframes 0.4 s apart while the camera stands (EuRoC's gyro bias reaches 0.08 rad/s)."""
+    min_rotation_check_pairs: int = 3
+    """Keyframe pairs with a two-view rotation needed before `rotation_mismatch` is judged."""
+    rotation_mismatch_retry_s: float = 0.5
+    """After a `rotation_mismatch`, the next attempt waits this long (camera seconds; the window slides)."""
     max_condition: float = 1e10
     """Eigenvalue ratio of the reduced velocity block above which the linear system is degenerate."""
     max_feature_condition: float = 1e8
@@ -85,6 +103,19 @@ class DynamicInitConfig:
             raise ConfigError(f"gravity_mag must be > 0, got {self.gravity_mag}")
         if not self.sigma_px > 0:
             raise ConfigError(f"sigma_px must be > 0, got {self.sigma_px}")
+        if not 0.0 <= self.max_rotation_mismatch_fraction <= 1.0:
+            raise ConfigError("dynamic_init.max_rotation_mismatch_fraction must be in [0, 1], got "
+                              f"{self.max_rotation_mismatch_fraction}")
+        if not (self.rotation_check_max_ratio > 1.0 and self.rotation_check_min_gyro_deg >= 0.0):
+            raise ConfigError("dynamic_init.rotation_check_max_ratio must be > 1 and "
+                              "rotation_check_min_gyro_deg >= 0, got "
+                              f"{self.rotation_check_max_ratio}, {self.rotation_check_min_gyro_deg}")
+        if self.min_rotation_check_pairs < 1:
+            raise ConfigError(f"dynamic_init.min_rotation_check_pairs must be >= 1, got "
+                              f"{self.min_rotation_check_pairs}")
+        if not self.rotation_mismatch_retry_s >= 0:
+            raise ConfigError(f"dynamic_init.rotation_mismatch_retry_s must be >= 0, got "
+                              f"{self.rotation_mismatch_retry_s}")
 
     @property
     def window_ns(self) -> int:

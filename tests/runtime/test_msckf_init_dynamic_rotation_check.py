@@ -1,0 +1,96 @@
+"""The dynamic initializer's rotation check (runtime.msckf.init_dynamic_rotation_check): the camera's keyframe
+rotations against the gyro's. A right rig agrees; a gyroscope in deg/s or an inverted camera-IMU rotation is
+refused before any solve, once per retry interval."""
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from runtime.errors import ConfigError
+from runtime.events import ImuSample
+from runtime.geometry import so3_exp, so3_log
+from runtime.msckf.init_dynamic import DynamicInitializer
+from runtime.msckf.init_dynamic_config import DynamicInitConfig
+from runtime.msckf.init_dynamic_preintegration import preintegrate_keyframes
+from runtime.msckf.init_dynamic_rotation_check import rotation_agreement
+from tests.runtime.test_msckf_init_dynamic import CAM, R_IC, T_IC, Motion, feed
+from tests.runtime.test_msckf_init_dynamic_window import biased_window
+
+
+def _between(gyro_scale: float = 1.0):
+    keyframes, (ti, gyro, accel), t_kf, _ = biased_window(np.zeros(3))
+    imu = preintegrate_keyframes(ti, gyro * gyro_scale, accel, t_kf, np.zeros(3), np.zeros(3), 1.7e-4, 2e-3)
+    return keyframes, imu.between
+
+
+def test_a_right_rig_agrees_and_a_wrong_one_does_not():
+    keyframes, between = _between()
+    right = rotation_agreement(keyframes, between, R_IC, CAM.fx, 16, 0.2)
+    assert right.measured == 5 and right.disagreeing == 0
+    assert np.degrees(right.median_rad) < 0.05            # noise-free: the fits' own error
+    keyframes, between = _between(np.degrees(1.0))
+    deg = rotation_agreement(keyframes, between, R_IC, CAM.fx, 16, 0.2)
+    assert deg.measured == 5 and deg.disagreeing == 5
+    keyframes, between = _between()
+    # an inverted rotation turns each pair's axis: a residual of up to twice the pair's rotation (here
+    # 5-10 deg between keyframes, so below the 0.2 rad bound in most pairs: caught on livelier motion)
+    inverted = rotation_agreement(keyframes, between, R_IC.T, CAM.fx, 16, 0.05)
+    assert inverted.measured == 5 and inverted.disagreeing == 5, inverted
+    assert inverted.median_rad > 50 * right.median_rad
+
+
+def test_a_pair_whose_gyro_turns_far_more_than_its_camera_disagrees_within_the_angle_bound():
+    """The ratio rule alone (the angle bound at pi never trips): each pair's gyro rotation made 18x as far
+    about the same axis (5-10 deg pairs: 90-180 deg, below the wrap a deg/s gyro's 57x reaches here)."""
+    keyframes, between = _between()
+    assert rotation_agreement(keyframes, between, R_IC, CAM.fx, 16, np.pi).disagreeing == 0
+    far = [SimpleNamespace(dR=so3_exp(18.0 * so3_log(b.dR))) for b in between]
+    assert rotation_agreement(keyframes, far, R_IC, CAM.fx, 16, np.pi).disagreeing == 5
+    assert rotation_agreement(keyframes, far, R_IC, CAM.fx, 16, np.pi, max_ratio=20.0).disagreeing == 0
+    assert rotation_agreement(keyframes, far, R_IC, CAM.fx, 16, np.pi, min_gyro_rad=np.pi).disagreeing == 0
+
+
+class _DegPerSecond:
+    """Feeds an initializer the gyro in deg/s."""
+
+    def __init__(self, init: DynamicInitializer) -> None:
+        self.init = init
+
+    def feed_imu(self, s: ImuSample) -> None:
+        self.init.feed_imu(ImuSample(s.t_ns, np.degrees(np.asarray(s.gyro)), s.accel))
+
+    def feed_tracks(self, *args) -> None:
+        self.init.feed_tracks(*args)
+
+
+def test_the_initializer_refuses_a_deg_per_second_gyro_before_solving_and_waits():
+    init = DynamicInitializer(CAM, T_IC, DynamicInitConfig())
+    feed(_DegPerSecond(init), Motion("general"), imu_hz=200.0)
+    assert init.try_initialize() is None
+    assert init.log.last.code == "rotation_mismatch", init.last_reason
+    assert "in 5 of 5 keyframe pairs" in init.last_reason and "rad/s" in init.last_reason
+    assert init.try_initialize() is None                  # the same window: waits, counted once
+    assert init.report()["rejections"] == {"rotation_mismatch": 1}
+    assert init.last_reason.startswith("rotation_mismatch")
+    # the wait ends with the window (here: a reset forgets it with the data)
+    init.reset()
+    feed(_DegPerSecond(init), Motion("general"), imu_hz=200.0)
+    assert init.try_initialize() is None and init.report()["rejections"] == {"rotation_mismatch": 2}
+
+
+def test_with_the_check_off_the_solves_refuse_the_deg_per_second_window_later():
+    init = DynamicInitializer(CAM, T_IC, DynamicInitConfig(max_rotation_mismatch_fraction=1.0))
+    feed(_DegPerSecond(init), Motion("general"), imu_hz=200.0)
+    assert init.try_initialize() is None
+    assert init.log.last.code not in ("rotation_mismatch", "few_frames", "short_window"), init.last_reason
+
+
+@pytest.mark.parametrize("bad", [dict(max_rotation_mismatch_fraction=1.5),
+                                 dict(max_rotation_mismatch_fraction=-0.1),
+                                 dict(min_rotation_check_pairs=0), dict(rotation_mismatch_retry_s=-1.0),
+                                 dict(rotation_check_max_ratio=1.0), dict(rotation_check_min_gyro_deg=-1.0)])
+def test_the_check_settings_are_bounded(bad):
+    with pytest.raises(ConfigError, match="dynamic_init"):
+        DynamicInitConfig(**bad)
