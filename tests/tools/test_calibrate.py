@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tools.calibrate.checks import Thresholds, judge
+from tools.calibrate.checks import Thresholds, judge, settling
 from tools.calibrate.core import CalibrationRun, CalibSample, ExcitationMeter, covariance_std
 from tools.cli import main
 
@@ -84,12 +84,16 @@ def test_calibrate_writes_a_camchain_close_to_the_simulator_rig(aggressive_folde
             "0.05",
             "--max-offset-std-ms",
             "2",
+            "--max-lever-drift-m",
+            "0.1",
             "--json",
         ]
     )
     captured = capsys.readouterr()
     report = json.loads(captured.out)
     assert rc == 0, (report["message"], captured.err)
+    # the lever arm was still converging (the default --max-lever-drift-m refuses that)
+    assert report["estimate"]["settling"]["lever_arm_m"] > Thresholds().max_lever_drift_m
     assert report["status"] == "ok" and report["bringup"]["R_IC"] is not None
     rig = load_rig(out)
     truth = open_recording(aggressive_folder, rebuild=False).driver.rig
@@ -132,7 +136,8 @@ def test_calibrate_without_a_model_from_the_tracked_features(aggressive_folder, 
 
     out = tmp_path / "camchain.yaml"
     rc = main(["calibrate", str(aggressive_folder), "--two-view", "--out", str(out), "--max-rot-std-deg", "1",
-               "--max-lever-std-m", "0.05", "--max-offset-std-ms", "2", "--no-plots", "--json"])
+               "--max-lever-std-m", "0.05", "--max-offset-std-ms", "2", "--max-lever-drift-m", "0.1",
+               "--no-plots", "--json"])
     captured = capsys.readouterr()
     report = json.loads(captured.out)
     assert rc == 0, (report["message"], captured.err)
@@ -250,6 +255,28 @@ def test_judge_refusals_name_what_was_observed(kwargs, code, words):
     v = judge(_run(**kwargs), Thresholds())
     assert v.ok == (code == "ok") and v.code == code
     assert words in v.message and "\n" not in v.message
+
+
+def test_a_lever_arm_still_moving_is_refused_and_its_bound_decides():
+    """The last 15 s of the final segment: 0.5 cm from the final value refuses, 0.3 cm passes; samples
+    before the window or of an earlier segment do not count."""
+    run = _run()
+    final = run.samples[-1]
+    cov = final.calib_covariance
+
+    def at(t_s, dx_m, segment=0):
+        return CalibSample(int(t_s * 1e9), np.eye(3), np.array([dx_m, 0.0, 0.0]), 0.0, cov, segment)
+
+    run.samples[:] = [at(30.0, 0.05), at(44.0, 0.02, 0), at(50.0, 0.005), at(60.0, 0.0)]
+    v = judge(run, Thresholds())
+    assert v.code == "unsettled" and "0.50 cm from its final value over the last 10 s" in v.message
+    run.samples[2] = at(50.0, 0.003)
+    assert judge(run, Thresholds()).ok
+    assert not judge(run, Thresholds(max_lever_drift_m=0.002)).ok
+    run.samples[:] = [at(50.0, 0.02, 0), at(55.0, 0.001, 1), at(60.0, 0.0, 1)]     # a reset at 52 s
+    assert judge(run, Thresholds()).ok
+    moved = settling(run, 15.0)
+    assert moved["samples"] == 2 and moved["lever_arm_m"] == pytest.approx(0.001)
 
 
 def test_a_bringup_refused_for_the_gyroscope_scale_says_so():

@@ -14,12 +14,17 @@ In this order (the first that applies is the refusal; each names what was observ
    rejected: the rejections are named);
 6. the filter never published a calibrated state (no covariance of the calibration);
 7. the final 1-sigma (worst direction of each block of the filter's covariance) exceeds
-   `max_rot_std_deg`, `max_lever_std_m` or `max_offset_std_ms`.
+   `max_rot_std_deg`, `max_lever_std_m` or `max_offset_std_ms`;
+8. the lever arm is still moving: over the last `settle_window_s` of the final segment it came farther than
+   `max_lever_drift_m` from its final value (the filter's 1-sigma does not show it).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
 
 from tools.calibrate.core import CalibrationRun
 
@@ -46,6 +51,13 @@ class Thresholds:
     max_offset_std_ms: float = 0.3
     """The 1-sigma limits are a third to a half of the goals (0.3 deg, 1 cm, 1 ms): on simulated recordings
     the filter's final 1-sigma was 1-6x smaller than its actual error (lever arm worst)."""
+    max_lever_drift_m: float = 0.004
+    settle_window_s: float = 15.0
+    """The lever arm must have stayed within 0.4 cm of its final value over the last 15 s. Measured
+    (BENCHMARKS.md "A lever arm still moving"): the 60 s recordings turning at 34-47 deg/s RMS moved 0.06-0.24
+    cm over their last 15 s and ended 0.23-0.48 cm off; the 'slow' ones (3.5-6.5 deg/s) moved 0.49-0.59 cm
+    and one ended 1.39 cm off with a 1-sigma of 0.29 cm; 'slow' over 120 s moved 0.20-0.22 cm and ended
+    0.59-0.83 cm off. The lever arm is seen only through rotation, so a slow rig needs a longer recording."""
 
 
 @dataclass
@@ -53,12 +65,29 @@ class Verdict:
     ok: bool
     code: str
     """"ok" or the refusal: "replay_failed", "too_little_data", "insufficient_rotation", "bringup_incomplete",
-    "no_calibrated_state", "uncertain"."""
+    "no_calibrated_state", "uncertain", "unsettled"."""
     message: str
 
 
 def _fmt_rates(rates: list) -> str:
     return ", ".join(f"{r:.1f}" for r in rates)
+
+
+def settling(run: CalibrationRun, window_s: float) -> dict | None:
+    """How far each estimate came from its final value over the last `window_s` of camera time in the final
+    segment: {"window_s", "lever_arm_m", "rotation_deg", "time_offset_ms", "samples"}; None without
+    samples."""
+    final = run.final
+    if final is None:
+        return None
+    start = final.t_cam_ns - int(round(window_s * 1e9))
+    last = [s for s in run.samples if s.segment == final.segment and s.t_cam_ns >= start]
+    lever = max(float(np.linalg.norm(s.p_IC - final.p_IC)) for s in last)
+    rot = max(float(np.degrees(np.linalg.norm(Rotation.from_matrix(s.R_IC.T @ final.R_IC).as_rotvec())))
+              for s in last)
+    offset = max(abs(s.time_offset_s - final.time_offset_s) for s in last)
+    return {"window_s": (final.t_cam_ns - last[0].t_cam_ns) * 1e-9, "lever_arm_m": lever,
+            "rotation_deg": rot, "time_offset_ms": 1e3 * offset, "samples": len(last)}
 
 
 def judge(run: CalibrationRun, th: Thresholds) -> Verdict:
@@ -126,6 +155,17 @@ def judge(run: CalibrationRun, th: Thresholds) -> Verdict:
             "the calibration is too uncertain after "
             f"{run.sensor_s:.1f} s (1-sigma {'; '.join(over)}) - record longer or with more motion, "
             "or relax --max-rot-std-deg / --max-lever-std-m / --max-offset-std-ms",
+        )
+    moved = settling(run, th.settle_window_s)
+    if moved is not None and not moved["lever_arm_m"] <= th.max_lever_drift_m:
+        return Verdict(
+            False,
+            "unsettled",
+            f"the lever arm is still moving after {run.sensor_s:.1f} s: it came "
+            f"{100 * moved['lever_arm_m']:.2f} cm from its final value over the last "
+            f"{moved['window_s']:.0f} s (allowed "
+            f"{100 * th.max_lever_drift_m:g} cm; its 1-sigma says {100 * lev:.2f} cm) - record longer, or "
+            "with more rotation (the lever arm is seen only through rotation), or relax --max-lever-drift-m",
         )
     return Verdict(
         True,

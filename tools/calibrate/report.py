@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from tools.calibrate.checks import Thresholds, Verdict
+from tools.calibrate.checks import Thresholds, Verdict, settling
 from tools.calibrate.core import CalibrationRun
 from tools.calibrate.output import convergence, errors_against, estimated_rig, settle_time
 
@@ -67,6 +67,8 @@ def build_report(
             "t_s": (final.t_cam_ns - run.t0_ns) * 1e-9,
             "filter_segments": final.segment + 1,
             "states_collected": len(run.samples),
+            # how far each estimate came from its final value over the last settle_window_s (refusal 8)
+            "settling": settling(run, th.settle_window_s),
         }
         conv = convergence(run, T_ref, off_ref)
         rep["convergence"] = conv
@@ -152,6 +154,13 @@ def summary_lines(report: dict) -> list[str]:
             f"{100 * std.get('lever_arm_m', float('nan')):.2f} cm, time offset "
             f"{std.get('time_offset_ms', float('nan')):.3f} ms"
         )
+        moved = est.get("settling")
+        if moved:
+            lines.append(
+                f"over the last {moved['window_s']:.0f} s the estimate came within "
+                f"{100 * moved['lever_arm_m']:.2f} cm, {moved['rotation_deg']:.3f} deg and "
+                f"{moved['time_offset_ms']:.3f} ms of its final value"
+            )
     ref = report.get("reference")
     if ref:
         e = ref["errors"]

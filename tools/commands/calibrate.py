@@ -29,8 +29,9 @@ DESCRIPTION = (
     "estimate with its 1-sigma, convergence over time) and <out stem>.convergence.png. Refuses (exit 3, one "
     "line saying what was observed, no rig file written; the report is still written) when the rotation "
     "excitation is insufficient (fewer than two principal axes at --min-axis-rate-dps), the data is too "
-    "short for the bring-up (under --min-seconds), the bring-up never completes, or the final 1-sigma "
-    "exceeds --max-rot-std-deg / --max-lever-std-m / --max-offset-std-ms."
+    "short for the bring-up (under --min-seconds), the bring-up never completes, the final 1-sigma "
+    "exceeds --max-rot-std-deg / --max-lever-std-m / --max-offset-std-ms, or the lever arm is still moving "
+    "(--max-lever-drift-m over the last 15 s)."
 )
 
 #: exit status of a refusal (1: an error, 2: bad arguments)
@@ -134,6 +135,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         metavar="MS",
         help="refuse when the final time-offset 1-sigma exceeds this",
     )
+    p.add_argument(
+        "--max-lever-drift-m",
+        type=float,
+        default=th.max_lever_drift_m,
+        metavar="M",
+        help=f"refuse when the lever arm came farther than this from its final value over the last "
+        f"{th.settle_window_s:g} s (still converging)",
+    )
     p.add_argument("--no-plots", action="store_true", help="do not draw the convergence plots")
     from tools.commands.live import add_device_arguments
 
@@ -162,7 +171,7 @@ def check_args(args: argparse.Namespace) -> None:
             f"--model-latency must be a finite number of seconds >= 0 (got {args.model_latency!r})"
         )
     for opt in ("min_axis_rate_dps", "min_seconds", "max_rot_std_deg", "max_lever_std_m",
-                "max_offset_std_ms"):
+                "max_offset_std_ms", "max_lever_drift_m"):
         v = getattr(args, opt)
         if not (math.isfinite(v) and v > 0):
             raise ConfigError(f"--{opt.replace('_', '-')} must be a finite number > 0 (got {v!r})")
@@ -312,7 +321,7 @@ def run(args: argparse.Namespace) -> int:
     config = load_davio_config(args.config) if args.config else DavioConfig()
     th = Thresholds(min_axis_rate_dps=args.min_axis_rate_dps, min_seconds=args.min_seconds,
                     max_rot_std_deg=args.max_rot_std_deg, max_lever_std_m=args.max_lever_std_m,
-                    max_offset_std_ms=args.max_offset_std_ms)
+                    max_offset_std_ms=args.max_offset_std_ms, max_lever_drift_m=args.max_lever_drift_m)
     log = sys.stderr if args.json else sys.stdout
     live = is_live(args.source)
     with interruptible():
