@@ -103,11 +103,19 @@ class DynamicInitializer(BufferedInitializer):
         self._init_buffers(self.config.window_ns + 500_000_000, camera)
         self.focal = 0.5 * (float(camera.fx) + float(camera.fy))
         self._retry_after_ns: int | None = None    # camera t_ns before which no attempt is made
+        #: the rotation checks so far: how many, refused, the largest share of disagreeing pairs and the
+        #: largest median camera-gyro difference (deg) of a check (how close a rig came to the bound)
+        self.rotation_check = {"checks": 0, "refused": 0, "max_disagreeing_share": 0.0,
+                               "max_median_deg": 0.0}
 
     def reset(self) -> None:
         """Forget buffered IMU and tracks and any wait after a rotation_mismatch (counts are kept)."""
         super().reset()
         self._retry_after_ns = None
+
+    def report(self) -> dict:
+        """Counters for the run report, with the rotation checks'."""
+        return {**super().report(), "rotation_check": dict(self.rotation_check)}
 
     # ------------------------------------------------------------------ main entry
     def try_initialize(self) -> InitResult | None:
@@ -162,7 +170,7 @@ class DynamicInitializer(BufferedInitializer):
         )
         try:
             imu = preintegrate(bg=bg0)
-            self._check_rotations(keyframes, imu.between)
+            self._check_rotations(keyframes, imu.between, ti, gyro)
             bg_visual = None
             if cfg.estimate_gyro_bias:
                 bg_visual = visual_gyro_bias(
@@ -233,27 +241,37 @@ class DynamicInitializer(BufferedInitializer):
         )
 
 
-    def _check_rotations(self, keyframes: list[Frame], between: list) -> None:
+    def _check_rotations(self, keyframes: list[Frame], between: list, imu_t_ns: np.ndarray,
+                         gyro: np.ndarray) -> None:
         """Raise rotation_mismatch when the camera's keyframe rotations contradict the gyro's
         (runtime.msckf.init_dynamic_rotation_check)."""
         cfg = self.config
         if cfg.max_rotation_mismatch_fraction >= 1.0:
             return
-        agree = rotation_agreement(keyframes, between, self.R_IC, self.focal, 2 * cfg.min_features,
+        agree = rotation_agreement(keyframes, between, imu_t_ns, gyro, self.R_IC, self.focal,
+                                   2 * cfg.min_features,
                                    cfg.max_visual_gyro_residual_rad, cfg.rotation_check_max_ratio,
                                    np.radians(cfg.rotation_check_min_gyro_deg))
-        if agree.measured < cfg.min_rotation_check_pairs or \
-                agree.disagreeing <= cfg.max_rotation_mismatch_fraction * agree.measured:
+        if agree.measured < cfg.min_rotation_check_pairs:
             return
+        rc = self.rotation_check
+        rc["checks"] += 1
+        rc["max_disagreeing_share"] = max(rc["max_disagreeing_share"], agree.disagreeing / agree.measured)
+        rc["max_median_deg"] = max(rc["max_median_deg"], float(np.degrees(agree.median_rad)))
+        if agree.disagreeing <= cfg.max_rotation_mismatch_fraction * agree.measured:
+            return
+        rc["refused"] += 1
         self._retry_after_ns = int(keyframes[-1][0]) + int(round(cfg.rotation_mismatch_retry_s * 1e9))
-        raise _Rejected(
-            "rotation_mismatch",
-            f"in {agree.disagreeing} of {agree.measured} keyframe pairs the camera's rotation differs from "
-            f"the gyro's by more than {np.degrees(cfg.max_visual_gyro_residual_rad):.1f} deg or is under "
-            f"1/{cfg.rotation_check_max_ratio:g} of it (median difference "
-            f"{np.degrees(agree.median_rad):.1f} deg): a gyroscope not in rad/s, or a camera-IMU rotation "
-            "that is not the rig's?",
-        )
+        pairs = f"in {agree.disagreeing} of {agree.measured} keyframe pairs"
+        if agree.gyro_scale >= agree.axis:
+            why = (f"{pairs} the gyro turns more than {cfg.rotation_check_max_ratio:g}x as far as the "
+                   "camera: a gyroscope logging deg/s (DAVIO reads rad/s) or at a wrong full scale?")
+        else:
+            why = (f"{pairs} the camera turns as far as the gyro about another axis (more than "
+                   f"{np.degrees(cfg.max_visual_gyro_residual_rad):.1f} deg apart; median "
+                   f"{np.degrees(agree.median_rad):.1f} deg): a camera-IMU rotation that is not the rig's "
+                   "(T_cam_imu given as T_imu_cam?)")
+        raise _Rejected("rotation_mismatch", why)
 
 
 class _Rejected(Exception):

@@ -35,15 +35,16 @@ class DynamicInitConfig:
     """A keyframe pair whose visual and gyro rotations differ by more is left out of that estimate, rad."""
     max_rotation_mismatch_fraction: float = 0.5
     """Before any solve: when more than this fraction of the keyframe pairs measured (at least
-    `min_rotation_check_pairs`) turn by more than `max_visual_gyro_residual_rad` away from the gyro's
-    rotation (two-view fits of their common tracks, through the rig's R_IC), the window is refused as
-    `rotation_mismatch`: a gyroscope in deg/s or a camera-IMU rotation that is not the rig's, on which the
-    solves cost 0.3-1.5 s a frame and fail (BENCHMARKS.md "The dynamic initializer on a wrong rig").
-    1.0 turns the check off. Not in OpenVINS."""
+    `min_rotation_check_pairs`; two-view fits of their common tracks, through the rig's R_IC) show a rig
+    mistake, the window is refused as `rotation_mismatch`: the gyro turning more than
+    `rotation_check_max_ratio` times as far as the camera (a gyroscope in deg/s), or the camera turning as
+    far as the gyro about an axis more than `max_visual_gyro_residual_rad` away (a camera-IMU rotation that
+    is not the rig's). On such a rig the solves cost 0.3-1.5 s a frame and fail (BENCHMARKS.md "The dynamic
+    initializer on a wrong rig"; runtime.msckf.init_dynamic_rotation_check). 1.0 turns the check off. Not
+    in OpenVINS."""
     rotation_check_max_ratio: float = 15.0
-    """A keyframe pair whose gyro turns more than this many times as far as its camera also disagrees (a
-    gyroscope in deg/s over a pair that barely turns stays within `max_visual_gyro_residual_rad`); as
-    `ffinit.max_gyro_rate_ratio`."""
+    """A keyframe pair whose gyro turns more than this many times as far as its camera shows a scale mistake
+    (a gyroscope in deg/s: 57x; as `ffinit.max_gyro_rate_ratio` and `bringup.max_gyro_ratio`)."""
     rotation_check_min_gyro_deg: float = 5.0
     """Pairs whose gyro turns less are not judged by that ratio: a 0.1 rad/s gyro bias alone turns 2.3 deg
     between keyframes 0.4 s apart while the camera stands (EuRoC's gyro bias reaches 0.08 rad/s)."""

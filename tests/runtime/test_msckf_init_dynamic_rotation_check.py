@@ -19,37 +19,45 @@ from tests.runtime.test_msckf_init_dynamic import CAM, R_IC, T_IC, Motion, feed
 from tests.runtime.test_msckf_init_dynamic_window import biased_window
 
 
-def _between(gyro_scale: float = 1.0):
+def _window(gyro_scale: float = 1.0):
+    """A noise-free window (keyframes, preintegrations, IMU stamps, gyro) with its gyro scaled."""
     keyframes, (ti, gyro, accel), t_kf, _ = biased_window(np.zeros(3))
-    imu = preintegrate_keyframes(ti, gyro * gyro_scale, accel, t_kf, np.zeros(3), np.zeros(3), 1.7e-4, 2e-3)
-    return keyframes, imu.between
+    gyro = gyro * gyro_scale
+    imu = preintegrate_keyframes(ti, gyro, accel, t_kf, np.zeros(3), np.zeros(3), 1.7e-4, 2e-3)
+    return keyframes, imu.between, ti, gyro
 
 
 def test_a_right_rig_agrees_and_a_wrong_one_does_not():
-    keyframes, between = _between()
-    right = rotation_agreement(keyframes, between, R_IC, CAM.fx, 16, 0.2)
+    keyframes, between, ti, gyro = _window()
+    right = rotation_agreement(keyframes, between, ti, gyro, R_IC, CAM.fx, 16, 0.2)
     assert right.measured == 5 and right.disagreeing == 0
     assert np.degrees(right.median_rad) < 0.05            # noise-free: the fits' own error
-    keyframes, between = _between(np.degrees(1.0))
-    deg = rotation_agreement(keyframes, between, R_IC, CAM.fx, 16, 0.2)
-    assert deg.measured == 5 and deg.disagreeing == 5
-    keyframes, between = _between()
-    # an inverted rotation turns each pair's axis: a residual of up to twice the pair's rotation (here
-    # 5-10 deg between keyframes, so below the 0.2 rad bound in most pairs: caught on livelier motion)
-    inverted = rotation_agreement(keyframes, between, R_IC.T, CAM.fx, 16, 0.05)
-    assert inverted.measured == 5 and inverted.disagreeing == 5, inverted
+    # deg/s: 5-10 deg pairs turn 285-570 deg, wrapped; the gyro's path tells
+    deg = rotation_agreement(*_window(np.degrees(1.0)), R_IC, CAM.fx, 16, 0.2)
+    assert deg.measured == 5 and deg.gyro_scale == 5 and deg.axis == 0
+    # an inverted rotation turns each pair as far about another axis: a difference of up to twice the
+    # pair's rotation (5-10 deg here, so below the 0.2 rad bound in most pairs: caught on livelier motion)
+    inverted = rotation_agreement(keyframes, between, ti, gyro, R_IC.T, CAM.fx, 16, 0.05)
+    assert inverted.measured == 5 and inverted.axis == 5 and inverted.gyro_scale == 0, inverted
     assert inverted.median_rad > 50 * right.median_rad
+    assert rotation_agreement(keyframes, between, ti, gyro, R_IC.T, CAM.fx, 16, 0.2).axis < 5
 
 
-def test_a_pair_whose_gyro_turns_far_more_than_its_camera_disagrees_within_the_angle_bound():
-    """The ratio rule alone (the angle bound at pi never trips): each pair's gyro rotation made 18x as far
-    about the same axis (5-10 deg pairs: 90-180 deg, below the wrap a deg/s gyro's 57x reaches here)."""
-    keyframes, between = _between()
-    assert rotation_agreement(keyframes, between, R_IC, CAM.fx, 16, np.pi).disagreeing == 0
-    far = [SimpleNamespace(dR=so3_exp(18.0 * so3_log(b.dR))) for b in between]
-    assert rotation_agreement(keyframes, far, R_IC, CAM.fx, 16, np.pi).disagreeing == 5
-    assert rotation_agreement(keyframes, far, R_IC, CAM.fx, 16, np.pi, max_ratio=20.0).disagreeing == 0
-    assert rotation_agreement(keyframes, far, R_IC, CAM.fx, 16, np.pi, min_gyro_rad=np.pi).disagreeing == 0
+def test_the_scale_rule_and_its_bounds():
+    """A gyro turning 18x as far (90-180 deg pairs, no wrap): the ratio decides, not the angle bound."""
+    window = _window(18.0)
+    assert rotation_agreement(*window, R_IC, CAM.fx, 16, np.pi).gyro_scale == 5
+    assert rotation_agreement(*window, R_IC, CAM.fx, 16, np.pi, max_ratio=20.0).disagreeing == 0
+    assert rotation_agreement(*window, R_IC, CAM.fx, 16, np.pi, min_gyro_rad=4.0).disagreeing == 0
+
+
+def test_a_camera_fit_turning_farther_than_the_gyro_is_not_a_rig_mistake():
+    """A two-view fit that takes translation for rotation turns farther than the gyro: neither mistake does
+    that (a deg/s gyro turns farther, an axis mistake as far), so the pair is not counted."""
+    keyframes, between, ti, gyro = _window()
+    slow = [SimpleNamespace(dR=so3_exp(0.3 * so3_log(b.dR)), t0_ns=b.t0_ns, t1_ns=b.t1_ns) for b in between]
+    agree = rotation_agreement(keyframes, slow, ti, gyro / 3.0, R_IC, CAM.fx, 16, 0.01)
+    assert agree.measured == 5 and agree.disagreeing == 0 and agree.median_rad > 0.01
 
 
 class _DegPerSecond:
@@ -70,7 +78,8 @@ def test_the_initializer_refuses_a_deg_per_second_gyro_before_solving_and_waits(
     feed(_DegPerSecond(init), Motion("general"), imu_hz=200.0)
     assert init.try_initialize() is None
     assert init.log.last.code == "rotation_mismatch", init.last_reason
-    assert "in 5 of 5 keyframe pairs" in init.last_reason and "rad/s" in init.last_reason
+    assert "in 5 of 5 keyframe pairs the gyro turns more than 15x" in init.last_reason
+    assert "deg/s" in init.last_reason
     assert init.try_initialize() is None                  # the same window: waits, counted once
     assert init.report()["rejections"] == {"rotation_mismatch": 1}
     assert init.last_reason.startswith("rotation_mismatch")
