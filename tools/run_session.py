@@ -39,7 +39,9 @@ def run_pipeline(driver: Any, model: Any, config: DavioConfig, paced: bool = Fal
         bar = Progress(transient=True)
         task = bar.add_task("running", total=seconds)
         bar.start()
-        say = bar.console.print
+
+        def say(line: str) -> None:     # above the bar; a finding's text is not rich markup
+            bar.console.print(line, markup=False, highlight=False)
 
         def progress(s: float) -> None:
             who = _status(pipe)
