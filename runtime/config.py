@@ -64,13 +64,14 @@ NEWER_OPTIONS: dict[str, object] = {
     "graph.gauge_lambda_free": False,
     "revisits.view_scales": [1.0],
     "turning_init.enabled": False,
+    "dynamic_init.max_rotation_mismatch_fraction": 1.0,
 }
 """Options whose default differs from what DAVIO did before the option existed, with that earlier
 behaviour's value: a run's saved config.toml written before one of them was added takes today's default
 when it is read back, and `load_davio_config` says so (with the line that reproduces the old run)."""
 
 
-NEWER_SECTIONS = {"turning_init"}
+NEWER_SECTIONS = {"turning_init", "bringup", "rig_check"}
 """Sections added after runs were first saved: a saved config.toml without them is still a whole one."""
 
 

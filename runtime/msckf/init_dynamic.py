@@ -8,10 +8,12 @@ Following the idea of OpenVINS' ``DynamicInitializer`` (Dong-Si & Mourikis, ICRA
    (init_dynamic_window). Codes: no_frames, few_frames, short_window, few_features, imu_gap.
 2. Excitation: integrated gyro rotation and median rotation-compensated parallax
    (init_dynamic_excitation). Codes: insufficient_rotation, insufficient_parallax.
-3. Rotations from gyro preintegration (init_dynamic_preintegration) at the bias prior, checked against the
-   camera's two-view rotations between keyframes (init_dynamic_rotation_check; not in OpenVINS; code:
-   rotation_mismatch, after which attempts wait `rotation_mismatch_retry_s`), then at the bias that aligns
-   them with essential-matrix rotations (init_dynamic_gyro_bias).
+3. Rotations from gyro preintegration (init_dynamic_preintegration) at the bias prior, or at the
+   bias that aligns them with essential-matrix rotations (init_dynamic_gyro_bias). After the
+   parallax check (2), the rotations at the bias prior are checked against the camera's two-view
+   rotations between keyframes, after a clean check only every `rotation_check_interval_s`
+   (init_dynamic_rotation_check; not in OpenVINS; code: rotation_mismatch, after which attempts wait
+   `rotation_mismatch_retry_s`).
 4. Linear solve for features, v0 and g with |g| = g0 in the first keyframe's IMU frame I0, then
    the gravity-aligned frame O: I0 rotated so that g = (0, 0, -g0), yaw fixed by Gram-Schmidt,
    origin at I0 (init_dynamic_linear). Codes: degenerate, bad_linear_solution.
@@ -103,6 +105,7 @@ class DynamicInitializer(BufferedInitializer):
         self._init_buffers(self.config.window_ns + 500_000_000, camera)
         self.focal = 0.5 * (float(camera.fx) + float(camera.fy))
         self._retry_after_ns: int | None = None    # camera t_ns before which no attempt is made
+        self._clean_ns: int | None = None          # camera t_ns of the last check no pair disagreed with
         #: the rotation checks so far: how many, refused, the largest share of disagreeing pairs and the
         #: largest median camera-gyro difference (deg) of a check (how close a rig came to the bound)
         self.rotation_check = {"checks": 0, "refused": 0, "max_disagreeing_share": 0.0,
@@ -111,7 +114,7 @@ class DynamicInitializer(BufferedInitializer):
     def reset(self) -> None:
         """Forget buffered IMU and tracks and any wait after a rotation_mismatch (counts are kept)."""
         super().reset()
-        self._retry_after_ns = None
+        self._retry_after_ns = self._clean_ns = None
 
     def report(self) -> dict:
         """Counters for the run report, with the rotation checks'."""
@@ -169,8 +172,7 @@ class DynamicInitializer(BufferedInitializer):
             gyro_density=self.gyro_density, accel_density=self.accel_density,
         )
         try:
-            imu = preintegrate(bg=bg0)
-            self._check_rotations(keyframes, imu.between, ti, gyro)
+            imu = at_prior = preintegrate(bg=bg0)
             bg_visual = None
             if cfg.estimate_gyro_bias:
                 bg_visual = visual_gyro_bias(
@@ -189,6 +191,8 @@ class DynamicInitializer(BufferedInitializer):
                 "insufficient_parallax",
                 f"median rotation-compensated parallax {parallax:.3f} deg < {cfg.min_parallax_deg} deg",
             )
+        # past the parallax check (a wrong rig's rotation compensation leaves parallax) and at the bias prior
+        self._check_rotations(keyframes, at_prior.between, ti, gyro)
         lin = solve_linear(
             obs, feat_ids.size, imu.R_0k, imu.dt_0k, imu.dp_0k, self.R_IC, self.p_IC,
             cfg.gravity_mag, cfg.min_features, cfg.max_feature_condition,
@@ -246,7 +250,10 @@ class DynamicInitializer(BufferedInitializer):
         """Raise rotation_mismatch when the camera's keyframe rotations contradict the gyro's
         (runtime.msckf.init_dynamic_rotation_check)."""
         cfg = self.config
-        if cfg.max_rotation_mismatch_fraction >= 1.0:
+        t_ns = int(keyframes[-1][0])
+        interval_ns = cfg.rotation_check_interval_s * 1e9
+        if cfg.max_rotation_mismatch_fraction >= 1.0 or (
+                self._clean_ns is not None and t_ns - self._clean_ns < interval_ns):
             return
         agree = rotation_agreement(keyframes, between, imu_t_ns, gyro, self.R_IC, self.focal,
                                    2 * cfg.min_features,
@@ -254,6 +261,8 @@ class DynamicInitializer(BufferedInitializer):
                                    np.radians(cfg.rotation_check_min_gyro_deg))
         if agree.measured < cfg.min_rotation_check_pairs:
             return
+        if agree.disagreeing == 0:
+            self._clean_ns = t_ns
         rc = self.rotation_check
         rc["checks"] += 1
         rc["max_disagreeing_share"] = max(rc["max_disagreeing_share"], agree.disagreeing / agree.measured)
@@ -261,16 +270,16 @@ class DynamicInitializer(BufferedInitializer):
         if agree.disagreeing <= cfg.max_rotation_mismatch_fraction * agree.measured:
             return
         rc["refused"] += 1
-        self._retry_after_ns = int(keyframes[-1][0]) + int(round(cfg.rotation_mismatch_retry_s * 1e9))
+        self._retry_after_ns = t_ns + int(round(cfg.rotation_mismatch_retry_s * 1e9))
         pairs = f"in {agree.disagreeing} of {agree.measured} keyframe pairs"
         if agree.gyro_scale >= agree.axis:
             why = (f"{pairs} the gyro turns more than {cfg.rotation_check_max_ratio:g}x as far as the "
                    "camera: a gyroscope logging deg/s (DAVIO reads rad/s) or at a wrong full scale?")
         else:
-            why = (f"{pairs} the camera turns as far as the gyro about another axis (more than "
-                   f"{np.degrees(cfg.max_visual_gyro_residual_rad):.1f} deg apart; median "
+            why = (f"{pairs} the camera turns as far as the gyro but the two rotations differ by more than "
+                   f"{np.degrees(cfg.max_visual_gyro_residual_rad):.1f} deg (median "
                    f"{np.degrees(agree.median_rad):.1f} deg): a camera-IMU rotation that is not the rig's "
-                   "(T_cam_imu given as T_imu_cam?)")
+                   "(T_cam_imu given as T_imu_cam?), or a camera-IMU time offset far from the rig's")
         raise _Rejected("rotation_mismatch", why)
 
 

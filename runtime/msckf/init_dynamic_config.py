@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from runtime.errors import ConfigError
@@ -34,14 +35,15 @@ class DynamicInitConfig:
     max_visual_gyro_residual_rad: float = 0.2
     """A keyframe pair whose visual and gyro rotations differ by more is left out of that estimate, rad."""
     max_rotation_mismatch_fraction: float = 0.5
-    """Before any solve: when more than this fraction of the keyframe pairs measured (at least
+    """Before the solves: when more than this fraction of the keyframe pairs measured (at least
     `min_rotation_check_pairs`; two-view fits of their common tracks, through the rig's R_IC) show a rig
     mistake, the window is refused as `rotation_mismatch`: the gyro turning more than
     `rotation_check_max_ratio` times as far as the camera (a gyroscope in deg/s), or the camera turning as
-    far as the gyro about an axis more than `max_visual_gyro_residual_rad` away (a camera-IMU rotation that
-    is not the rig's). On such a rig the solves cost 0.3-1.5 s a frame and fail (BENCHMARKS.md "The dynamic
-    initializer on a wrong rig"; runtime.msckf.init_dynamic_rotation_check). 1.0 turns the check off. Not
-    in OpenVINS."""
+    far as the gyro with the two rotations more than `max_visual_gyro_residual_rad` apart (a camera-IMU
+    rotation that is not the rig's, seen on pairs turning more than about 6 deg; a large unmodelled time
+    offset does the same). On such a rig the solves cost 0.3-1.5 s a frame and fail (BENCHMARKS.md "The
+    dynamic initializer on a wrong rig"; runtime.msckf.init_dynamic_rotation_check). 1.0 turns the check
+    off. Not in OpenVINS."""
     rotation_check_max_ratio: float = 15.0
     """A keyframe pair whose gyro turns more than this many times as far as its camera shows a scale mistake
     (a gyroscope in deg/s: 57x; as `ffinit.max_gyro_rate_ratio` and `bringup.max_gyro_ratio`)."""
@@ -52,6 +54,10 @@ class DynamicInitConfig:
     """Keyframe pairs with a two-view rotation needed before `rotation_mismatch` is judged."""
     rotation_mismatch_retry_s: float = 0.5
     """After a `rotation_mismatch`, the next attempt waits this long (camera seconds; the window slides)."""
+    rotation_check_interval_s: float = 0.5
+    """After a check in which no pair showed a mistake, the next check waits this long (camera seconds):
+    five two-view fits, about 40 ms, on attempts that passed the parallax check; attempts in between go on
+    to the solves unchecked. A check with some pairs showing a mistake is repeated at the next attempt."""
     max_condition: float = 1e10
     """Eigenvalue ratio of the reduced velocity block above which the linear system is degenerate."""
     max_feature_condition: float = 1e8
@@ -114,9 +120,17 @@ class DynamicInitConfig:
         if self.min_rotation_check_pairs < 1:
             raise ConfigError(f"dynamic_init.min_rotation_check_pairs must be >= 1, got "
                               f"{self.min_rotation_check_pairs}")
-        if not self.rotation_mismatch_retry_s >= 0:
-            raise ConfigError(f"dynamic_init.rotation_mismatch_retry_s must be >= 0, got "
-                              f"{self.rotation_mismatch_retry_s}")
+        for name in ("rotation_mismatch_retry_s", "rotation_check_interval_s"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ConfigError(f"dynamic_init.{name} must be a finite number >= 0, got {v}")
+        if not (math.isfinite(self.max_visual_gyro_residual_rad) and self.max_visual_gyro_residual_rad > 0):
+            raise ConfigError("dynamic_init.max_visual_gyro_residual_rad must be a finite number > 0, got "
+                              f"{self.max_visual_gyro_residual_rad}")
+        if self.min_rotation_check_pairs > self.num_pose - 1:
+            raise ConfigError(f"dynamic_init.min_rotation_check_pairs must be at most num_pose - 1 = "
+                              f"{self.num_pose - 1} (the keyframe pairs), got "
+                              f"{self.min_rotation_check_pairs}")
 
     @property
     def window_ns(self) -> int:

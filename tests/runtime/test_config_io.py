@@ -187,3 +187,26 @@ def test_a_saved_config_without_the_turning_initializer_section_is_whole_and_get
     notes: list[str] = []
     assert load_davio_config(path, warn=notes.append) == DavioConfig()
     assert len(notes) == 1 and "[turning_init] enabled = false" in notes[0]
+
+
+def test_a_config_saved_before_the_bring_up_sections_and_the_rotation_check_is_whole_and_gets_its_note(
+        tmp_path):
+    """Runs saved before the twenty-ninth session have no [bringup] / [rig_check] sections and no rotation
+    check in [dynamic_init]: still a whole saved configuration, and the note says how the run behaved."""
+    from runtime.config import DavioConfig, load_davio_config
+
+    lines, skip = [], False
+    for line in dump_toml(DavioConfig()).splitlines():
+        if line.startswith("["):
+            skip = line in ("[bringup]", "[rig_check]")
+        if skip or line.split(" = ")[0] in ("max_rotation_mismatch_fraction", "rotation_check_max_ratio",
+                                            "rotation_check_min_gyro_deg", "min_rotation_check_pairs",
+                                            "rotation_mismatch_retry_s"):
+            continue
+        lines.append(line)
+    path = tmp_path / "config.toml"
+    path.write_text("\n".join(lines) + "\n")
+    assert "[bringup]" not in path.read_text() and "max_rotation_mismatch_fraction" not in path.read_text()
+    notes: list[str] = []
+    assert load_davio_config(path, warn=notes.append) == DavioConfig()
+    assert len(notes) == 1 and "[dynamic_init] max_rotation_mismatch_fraction = 1.0" in notes[0]

@@ -68,9 +68,9 @@ def feed(
     duration: float = 2.5,
     imu_hz: float = 1000.0,
     cam_hz: float = 20.0,
+    t0: float = 1.0,
 ) -> float:
-    """Feed IMU and camera; returns the last camera time (s)."""
-    t0 = 1.0
+    """Feed IMU and camera from t0 (s) on; returns the last camera time (s)."""
     L = landmarks()
     n_imu = int(duration * imu_hz) + 1
     for i in range(n_imu):

@@ -83,10 +83,31 @@ def test_the_initializer_refuses_a_deg_per_second_gyro_before_solving_and_waits(
     assert init.try_initialize() is None                  # the same window: waits, counted once
     assert init.report()["rejections"] == {"rotation_mismatch": 1}
     assert init.last_reason.startswith("rotation_mismatch")
-    # the wait ends with the window (here: a reset forgets it with the data)
-    init.reset()
-    feed(_DegPerSecond(init), Motion("general"), imu_hz=200.0)
+    # the wait ends 0.5 s of camera time after the refused window's newest keyframe (3.45 s)
+    feed(_DegPerSecond(init), Motion("general"), duration=0.3, imu_hz=200.0, t0=3.5)     # to 3.8 s
+    assert init.try_initialize() is None and init.report()["rejections"] == {"rotation_mismatch": 1}
+    feed(_DegPerSecond(init), Motion("general"), duration=0.3, imu_hz=200.0, t0=3.85)    # to 4.15 s
     assert init.try_initialize() is None and init.report()["rejections"] == {"rotation_mismatch": 2}
+    # a reset forgets the wait with the data
+    init.reset()
+    feed(_DegPerSecond(init), Motion("general"), imu_hz=200.0, t0=5.0)
+    assert init.try_initialize() is None and init.report()["rejections"] == {"rotation_mismatch": 3}
+    assert init.report()["rotation_check"]["refused"] == 3
+
+
+def test_the_check_runs_past_the_parallax_check_and_at_most_every_interval():
+    """Turning in place (a right rig): refused for parallax before the check, which costs nothing there;
+    a right rig with parallax is checked once per interval, never refused."""
+    init = DynamicInitializer(CAM, T_IC, DynamicInitConfig())
+    feed(init, Motion("rotation"), imu_hz=200.0)
+    assert init.try_initialize() is None and init.log.last.code == "insufficient_parallax"
+    assert init.report()["rotation_check"]["checks"] == 0
+    init = DynamicInitializer(CAM, T_IC, DynamicInitConfig(mle_max_iterations=0))
+    feed(init, Motion("general"), imu_hz=200.0)
+    init.try_initialize()
+    init.try_initialize()                                   # the same window: within the interval
+    rc = init.report()["rotation_check"]
+    assert rc["checks"] == 1 and rc["refused"] == 0 and rc["max_disagreeing_share"] == 0.0
 
 
 def test_with_the_check_off_the_solves_refuse_the_deg_per_second_window_later():
@@ -99,7 +120,11 @@ def test_with_the_check_off_the_solves_refuse_the_deg_per_second_window_later():
 @pytest.mark.parametrize("bad", [dict(max_rotation_mismatch_fraction=1.5),
                                  dict(max_rotation_mismatch_fraction=-0.1),
                                  dict(min_rotation_check_pairs=0), dict(rotation_mismatch_retry_s=-1.0),
-                                 dict(rotation_check_max_ratio=1.0), dict(rotation_check_min_gyro_deg=-1.0)])
+                                 dict(rotation_check_max_ratio=1.0), dict(rotation_check_min_gyro_deg=-1.0),
+                                 dict(rotation_mismatch_retry_s=float("inf")),
+                                 dict(rotation_check_interval_s=-0.1), dict(max_visual_gyro_residual_rad=0.0),
+                                 dict(max_visual_gyro_residual_rad=float("nan")),
+                                 dict(num_pose=3, min_rotation_check_pairs=3)])
 def test_the_check_settings_are_bounded(bad):
     with pytest.raises(ConfigError, match="dynamic_init"):
         DynamicInitConfig(**bad)
