@@ -17,7 +17,8 @@ def _kind(line: str) -> str:
 class RigAlerts:
     """Call with the data time (s) after each frame, on the pipeline's thread; at most once a data second it
     reads the pipeline's start-up, rig-check and bring-up counters and passes each new kind of finding,
-    prefixed with the data time, to `say`.
+    prefixed with the data time, to `say`. An error in doing so (a closed stderr, say) stops the alerts, not
+    the run: `error` holds it.
 
     Args:
         pipeline: the run's runtime.pipeline.VioPipeline.
@@ -30,11 +31,18 @@ class RigAlerts:
         self.said: list[str] = []
         self._kinds: set[str] = set()
         self._next_s = 0.0
+        self.error: str | None = None
 
     def __call__(self, sensor_s: float) -> None:
-        if sensor_s < self._next_s:
+        if self.error is not None or sensor_s < self._next_s:
             return
         self._next_s = sensor_s + 1.0
+        try:
+            self._look(sensor_s)
+        except Exception as exc:    # a reporting aid: it never ends the run (the summary still says all)
+            self.error = f"{type(exc).__name__}: {exc}"
+
+    def _look(self, sensor_s: float) -> None:
         from tools.run_summary import rig_lines
 
         for line in rig_lines(self._state(), self.rig_offset_s):

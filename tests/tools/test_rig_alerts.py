@@ -127,3 +127,18 @@ def test_the_live_status_line_says_a_finding_on_its_own_line(capsys):
     assert "100 tracks" in lines[1]            # the status line follows
     status(3.5)
     assert "GYROSCOPE" not in capsys.readouterr().err
+
+
+def test_an_error_in_saying_a_finding_stops_the_alerts_not_the_run():
+    rc = RigCheckReport(gyro_scale="the gyroscope turns 57.9x as far")
+
+    def broken(line: str) -> None:
+        raise BrokenPipeError("stderr closed")
+
+    alerts = RigAlerts(_pipe(StartupReport(), rc), broken)
+    alerts(1.0)
+    assert alerts.error == "BrokenPipeError: stderr closed"
+    assert len(alerts.said) == 1
+    rc.extrinsics_rotation = "178.1 deg from the rig's: inverted"
+    alerts(5.0)                                   # no longer looks, raises nothing
+    assert len(alerts.said) == 1

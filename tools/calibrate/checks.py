@@ -16,7 +16,8 @@ In this order (the first that applies is the refusal; each names what was observ
 7. the final 1-sigma (worst direction of each block of the filter's covariance) exceeds
    `max_rot_std_deg`, `max_lever_std_m` or `max_offset_std_ms`;
 8. the lever arm is still moving: over the last `settle_window_s` of the final segment it came farther than
-   `max_lever_drift_m` from its final value (the filter's 1-sigma does not show it).
+   `max_lever_drift_m` from its final value (the filter's 1-sigma does not show it), or the final segment
+   (after the bring-up, or after a filter reset) is shorter than `settle_window_s`, so that it cannot tell.
 """
 
 from __future__ import annotations
@@ -27,6 +28,10 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from tools.calibrate.core import CalibrationRun
+
+SAMPLE_SLACK_S = 0.2
+"""The calibrated states are collected every 0.1 s of camera time: a final segment this much shorter than
+the settling window still covers it."""
 
 MIN_RATE_SECONDS = 1.0
 """Below a second of gyro data the principal-axis RMS rates do not describe the motion: a run that short is
@@ -75,18 +80,20 @@ def _fmt_rates(rates: list) -> str:
 
 def settling(run: CalibrationRun, window_s: float) -> dict | None:
     """How far each estimate came from its final value over the last `window_s` of camera time in the final
-    segment: {"window_s", "lever_arm_m", "rotation_deg", "time_offset_ms", "samples"}; None without
-    samples."""
+    segment: {"window_s" (the states' span within it), "segment_s" (the final segment's span),
+    "lever_arm_m", "rotation_deg", "time_offset_ms", "samples"}; None without samples."""
     final = run.final
     if final is None:
         return None
     start = final.t_cam_ns - int(round(window_s * 1e9))
-    last = [s for s in run.samples if s.segment == final.segment and s.t_cam_ns >= start]
+    segment = [s for s in run.samples if s.segment == final.segment]
+    last = [s for s in segment if s.t_cam_ns >= start]
     lever = max(float(np.linalg.norm(s.p_IC - final.p_IC)) for s in last)
     rot = max(float(np.degrees(np.linalg.norm(Rotation.from_matrix(s.R_IC.T @ final.R_IC).as_rotvec())))
               for s in last)
     offset = max(abs(s.time_offset_s - final.time_offset_s) for s in last)
-    return {"window_s": (final.t_cam_ns - last[0].t_cam_ns) * 1e-9, "lever_arm_m": lever,
+    return {"window_s": (final.t_cam_ns - last[0].t_cam_ns) * 1e-9,
+            "segment_s": (final.t_cam_ns - segment[0].t_cam_ns) * 1e-9, "lever_arm_m": lever,
             "rotation_deg": rot, "time_offset_ms": 1e3 * offset, "samples": len(last)}
 
 
@@ -157,6 +164,15 @@ def judge(run: CalibrationRun, th: Thresholds) -> Verdict:
             "or relax --max-rot-std-deg / --max-lever-std-m / --max-offset-std-ms",
         )
     moved = settling(run, th.settle_window_s)
+    if moved is not None and moved["segment_s"] < th.settle_window_s - SAMPLE_SLACK_S:
+        return Verdict(
+            False,
+            "unsettled",
+            f"the filter's final segment covers only {moved['segment_s']:.1f} s of calibrated states (the "
+            f"lever arm's settling is judged over the last {th.settle_window_s:g} s; "
+            f"{'a filter reset' if final.segment else 'the bring-up'} came before) - record longer, or "
+            "relax --settle-window-s",
+        )
     if moved is not None and not moved["lever_arm_m"] <= th.max_lever_drift_m:
         return Verdict(
             False,

@@ -31,7 +31,8 @@ DESCRIPTION = (
     "excitation is insufficient (fewer than two principal axes at --min-axis-rate-dps), the data is too "
     "short for the bring-up (under --min-seconds), the bring-up never completes, the final 1-sigma "
     "exceeds --max-rot-std-deg / --max-lever-std-m / --max-offset-std-ms, or the lever arm is still moving "
-    "(--max-lever-drift-m over the last 15 s)."
+    "(--max-lever-drift-m over the last --settle-window-s of the final filter segment, which must be that "
+    "long)."
 )
 
 #: exit status of a refusal (1: an error, 2: bad arguments)
@@ -140,8 +141,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=float,
         default=th.max_lever_drift_m,
         metavar="M",
-        help=f"refuse when the lever arm came farther than this from its final value over the last "
-        f"{th.settle_window_s:g} s (still converging)",
+        help="refuse when the lever arm came farther than this from its final value over the last "
+        "--settle-window-s (still converging)",
+    )
+    p.add_argument(
+        "--settle-window-s",
+        type=float,
+        default=th.settle_window_s,
+        metavar="S",
+        help="the span of the final filter segment over which the lever arm must have settled (a shorter "
+        "final segment is refused)",
     )
     p.add_argument("--no-plots", action="store_true", help="do not draw the convergence plots")
     from tools.commands.live import add_device_arguments
@@ -171,7 +180,7 @@ def check_args(args: argparse.Namespace) -> None:
             f"--model-latency must be a finite number of seconds >= 0 (got {args.model_latency!r})"
         )
     for opt in ("min_axis_rate_dps", "min_seconds", "max_rot_std_deg", "max_lever_std_m",
-                "max_offset_std_ms", "max_lever_drift_m"):
+                "max_offset_std_ms", "max_lever_drift_m", "settle_window_s"):
         v = getattr(args, opt)
         if not (math.isfinite(v) and v > 0):
             raise ConfigError(f"--{opt.replace('_', '-')} must be a finite number > 0 (got {v!r})")
@@ -321,7 +330,8 @@ def run(args: argparse.Namespace) -> int:
     config = load_davio_config(args.config) if args.config else DavioConfig()
     th = Thresholds(min_axis_rate_dps=args.min_axis_rate_dps, min_seconds=args.min_seconds,
                     max_rot_std_deg=args.max_rot_std_deg, max_lever_std_m=args.max_lever_std_m,
-                    max_offset_std_ms=args.max_offset_std_ms, max_lever_drift_m=args.max_lever_drift_m)
+                    max_offset_std_ms=args.max_offset_std_ms, max_lever_drift_m=args.max_lever_drift_m,
+                    settle_window_s=args.settle_window_s)
     log = sys.stderr if args.json else sys.stdout
     live = is_live(args.source)
     with interruptible():
