@@ -171,7 +171,7 @@ def run(args: argparse.Namespace) -> int:
         rec = SimRecording.from_preset(SimConfig(preset=preset, seconds=args.seconds, seed=args.seed))
         rows = []
         for variant in VARIANTS:
-            for check in ((True,) if variant == "right" else (True, False)):
+            for check in (True, False):
                 r = measure(rec, variant, check)
                 rows.append(r)
                 if not args.json:
