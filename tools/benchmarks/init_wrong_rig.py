@@ -150,16 +150,18 @@ def _run_sweep(args: argparse.Namespace) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    from drivers.sim import SimConfig, SimRecording
     from runtime.json_out import strict_dumps
 
-    if args.sweep:
-        result = _run_sweep(args)
-        if args.out:
-            Path(args.out).write_text(strict_dumps(result, indent=1))
-        if args.json:
-            print(strict_dumps(result))
-        return 0
+    result = _run_sweep(args) if args.sweep else _run_rows(args)
+    if args.out:
+        Path(args.out).write_text(strict_dumps(result, indent=1))
+    if args.json:
+        print(strict_dumps(result))
+    return 0
+
+
+def _run_rows(args: argparse.Namespace) -> dict:
+    from drivers.sim import SimConfig, SimRecording
 
     result: dict = {"seconds": args.seconds, "seed": args.seed, "rows": {}}
     if not args.json:
@@ -180,8 +182,4 @@ def run(args: argparse.Namespace) -> int:
                           f"{r['realtime_factor']:6.2f} {r['ms_median']:6.1f} {r['ms_p90']:6.0f} "
                           f"{r['ms_max']:6.0f} {r['published']:5d}  {refused}", flush=True)
         result["rows"][preset] = rows
-    if args.out:
-        Path(args.out).write_text(strict_dumps(result, indent=1))
-    if args.json:
-        print(strict_dumps(result))
-    return 0
+    return result
