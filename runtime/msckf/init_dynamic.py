@@ -244,7 +244,6 @@ class DynamicInitializer(BufferedInitializer):
             bg=refined.bg, ba=refined.ba, cov=refined.cov, source=self.source, info=info,
         )
 
-
     def _check_rotations(self, keyframes: list[Frame], between: list, imu_t_ns: np.ndarray,
                          gyro: np.ndarray) -> None:
         """Raise rotation_mismatch when the camera's keyframe rotations contradict the gyro's
