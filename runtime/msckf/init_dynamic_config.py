@@ -127,7 +127,7 @@ class DynamicInitConfig:
         if not (math.isfinite(self.max_visual_gyro_residual_rad) and self.max_visual_gyro_residual_rad > 0):
             raise ConfigError("dynamic_init.max_visual_gyro_residual_rad must be a finite number > 0, got "
                               f"{self.max_visual_gyro_residual_rad}")
-        if self.min_rotation_check_pairs > self.num_pose - 1:
+        if self.max_rotation_mismatch_fraction < 1.0 and self.min_rotation_check_pairs > self.num_pose - 1:
             raise ConfigError(f"dynamic_init.min_rotation_check_pairs must be at most num_pose - 1 = "
                               f"{self.num_pose - 1} (the keyframe pairs), got "
                               f"{self.min_rotation_check_pairs}")

@@ -128,3 +128,5 @@ def test_with_the_check_off_the_solves_refuse_the_deg_per_second_window_later():
 def test_the_check_settings_are_bounded(bad):
     with pytest.raises(ConfigError, match="dynamic_init"):
         DynamicInitConfig(**bad)
+    # the keyframe pairs bound only with the check on: num_pose 3 works with the check off, as before it
+    DynamicInitConfig(num_pose=3, max_rotation_mismatch_fraction=1.0)

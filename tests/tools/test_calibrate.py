@@ -272,7 +272,7 @@ def test_a_lever_arm_still_moving_is_refused_and_its_bound_decides():
 
     run.samples[:] = [at(30.0, 0.05), at(44.0, 0.02, 0), at(50.0, 0.005), at(60.0, 0.0)]
     v = judge(run, Thresholds())
-    assert v.code == "unsettled" and "0.50 cm from its final value over the last 10 s" in v.message
+    assert v.code == "unsettled" and "0.50 cm from its final value over the last 10.0 s" in v.message
     run.samples[2] = at(50.0, 0.003)
     assert judge(run, Thresholds()).ok
     assert not judge(run, Thresholds(max_lever_drift_m=0.002)).ok

@@ -179,7 +179,7 @@ def judge(run: CalibrationRun, th: Thresholds) -> Verdict:
             "unsettled",
             f"the lever arm is still moving after {run.sensor_s:.1f} s: it came "
             f"{100 * moved['lever_arm_m']:.2f} cm from its final value over the last "
-            f"{moved['window_s']:.0f} s (allowed "
+            f"{moved['window_s']:.1f} s (allowed "
             f"{100 * th.max_lever_drift_m:g} cm; its 1-sigma says {100 * lev:.2f} cm) - record longer, or "
             "with more rotation (the lever arm is seen only through rotation), or relax --max-lever-drift-m",
         )
