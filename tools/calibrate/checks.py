@@ -25,9 +25,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from tools.calibrate.core import CalibrationRun
+from tools.calibrate.output import rotation_deg
 
 SAMPLE_SLACK_S = 0.2
 """The calibrated states are collected every 0.1 s of camera time: a final segment this much shorter than
@@ -89,8 +89,7 @@ def settling(run: CalibrationRun, window_s: float) -> dict | None:
     segment = [s for s in run.samples if s.segment == final.segment]
     last = [s for s in segment if s.t_cam_ns >= start]
     lever = max(float(np.linalg.norm(s.p_IC - final.p_IC)) for s in last)
-    rot = max(float(np.degrees(np.linalg.norm(Rotation.from_matrix(s.R_IC.T @ final.R_IC).as_rotvec())))
-              for s in last)
+    rot = max(rotation_deg(s.R_IC, final.R_IC) for s in last)
     offset = max(abs(s.time_offset_s - final.time_offset_s) for s in last)
     return {"window_s": (final.t_cam_ns - last[0].t_cam_ns) * 1e-9,
             "segment_s": (final.t_cam_ns - segment[0].t_cam_ns) * 1e-9, "lever_arm_m": lever,
