@@ -4,7 +4,7 @@ runtime.scheduler: one model worker serves start-up and mapping, start-up window
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -30,6 +30,7 @@ from runtime.msckf.init_turning import TurningInitializer
 from runtime.msckf.tracker import KltTracker
 from runtime.pose_history import CausalView, PoseHistory, PublishedView
 from runtime.rig_check import TwoViewRigCheck
+from runtime.run_events import RunEvent, RunEvents
 from runtime.startup import Published, StartupManager
 
 
@@ -67,12 +68,18 @@ class VioPipeline:
         prior_map: a `runtime.graph.relocalize.PriorMapLocalizer` over an earlier run's map: each
             committed submap is localised in it, and published poses get their pose in its frame
             (`prior_pose`, runtime.graph.prior_frame). Needs mapping (a model, mapping on).
+        on_event: called with each runtime.run_events.RunEvent (a new publisher, a reset, a rig finding,
+            the bring-up's estimate, a prior-map localisation) on the pipeline's thread; `events.log`
+            keeps them either way.
     """
 
     def __init__(self, rig: Any, model: DepthModel | None = None, config: DavioConfig | None = None,
                  map_sink: Callable[[MapCommit, MappingStats], None] | None = None,
-                 mapper_factory: Callable[..., Mapper] | None = None, prior_map: Any = None) -> None:
+                 mapper_factory: Callable[..., Mapper] | None = None, prior_map: Any = None,
+                 on_event: Callable[[RunEvent], None] | None = None) -> None:
         self.config = config or DavioConfig()
+        #: the run's events (runtime.run_events): a new publisher, a reset, a rig finding, ...
+        self.events = RunEvents(self, on_event, rig.time_offset_s)
         self.model = model
         self.map_sink = map_sink
         self._mapper_factory = mapper_factory or Mapper
@@ -181,9 +188,12 @@ class VioPipeline:
                                                  calib_time_offset=True))
         self.config = cfg
         self._start_tracking(rig, cfg, bg_prior=res.bg)
+        self.events.calibration_estimated(self._last_t, self.bringup.report)
 
     def on_imu(self, sample: ImuSample) -> list[Published]:
         self._last_t = int(sample.t_ns)
+        if self.events.start_ns is None:
+            self.events.start_ns = self._last_t
         g, a = sample.gyro, sample.accel   # NaN compares False: the filter counts those itself
         if (abs(g[0]) > MAX_GYRO_RAD_S or abs(g[1]) > MAX_GYRO_RAD_S or abs(g[2]) > MAX_GYRO_RAD_S
                 or abs(a[0]) > MAX_ACCEL_M_S2 or abs(a[1]) > MAX_ACCEL_M_S2 or abs(a[2]) > MAX_ACCEL_M_S2):
@@ -211,9 +221,12 @@ class VioPipeline:
         self.stats.tracks_total += len(res.ids)
         if len(res.ids) == 0:
             self.stats.frames_without_tracks += 1
+        if self.events.start_ns is None:
+            self.events.start_ns = int(frame.t_ns)
         if self.startup is None:
             self.bringup.on_frame(frame)
             self.bringup.on_tracks(res.t_ns, res.ids, res.xy)
+            self.events.after_frame(int(frame.t_ns))
             return []
         if self.rig_check is not None and not self.rig_check.done:
             self.rig_check.on_tracks(res.t_ns, res.ids, res.xy)
@@ -225,7 +238,24 @@ class VioPipeline:
                 self._frames_waiting.pop(next(iter(self._frames_waiting)))
             if out:
                 self._offer_keyframes(out)
+        self.events.after_frame(int(frame.t_ns))
         return out
+
+    def rig_state(self) -> dict:
+        """The parts of `report()` rig findings are read from (runtime.rig_findings), cheaply: the start-up's,
+        the tracked-feature check's and a bring-up's not done yet."""
+        state: dict = {}
+        if self.startup is not None:
+            rep = self.startup.report
+            state["startup"] = {k: getattr(rep, k) for k in (
+                "ff_rejections", "ff_rejection_first", "time_offset_findings", "time_offset_adopted_s",
+                "time_offset_first", "ff_time_offset_first", "ff_time_offset_s")}
+        if self.rig_check is not None:
+            rep = self.rig_check.report
+            state["rig_check"] = {k: getattr(rep, k) for k in ("gyro_scale", "extrinsics_rotation", "error")}
+        if self.bringup is not None and not self.bringup.done:
+            state["bringup"] = asdict(self.bringup.report)
+        return state
 
     # ------------------------------------------------------------------ live map-frame poses
     def _publish_causal(self, out: list[Published]) -> None:
@@ -238,6 +268,8 @@ class VioPipeline:
             else:
                 c = tl.apply(int(p.t_ns), T_OI)
                 self.history.append(p, c.T_MI, c.version, c.fraction)
+        if out:
+            self.events.on_published(out)
 
     def _apply_commit(self, commit: MapCommit) -> None:
         """A map commit defines a new correction from the sensor time it is applied at."""
@@ -424,8 +456,6 @@ class VioPipeline:
 
     def report(self) -> dict:
         """Counters of the tracker, the start-up and the publishing filter."""
-        from dataclasses import asdict
-
         rep = {"tracking": asdict(self.stats)}
         if self.bringup is not None:
             rep["bringup"] = asdict(self.bringup.report)
@@ -446,5 +476,6 @@ class VioPipeline:
         # the run's |gyro| (runtime.imu.rate_quantiles; a p90 above GYRO_UNITS_P90_RAD_S: deg/s?)
         rep["tracking"]["gyro_rate_median_rad_s"] = self._gyro_rates.quantile(0.5)
         rep["tracking"]["gyro_rate_p90_rad_s"] = self._gyro_rates.quantile(0.9)
+        rep["events"] = self.events.report()
         return rep
 

@@ -17,8 +17,9 @@ through `on_pose` (called on the session's thread) and through `poses()`; each c
 pose T_OI, the map-frame pose T_MI with the live map correction, and the 6x6 covariance of
 [rotation (body frame), position]. `poses()` holds at most `max_unread_poses` poses not read yet: beyond
 that the oldest unread pose is dropped and counted (`unread_poses_dropped`), so a caller that uses only
-`on_pose`, or never reads, does not grow memory over a long run. `davio run` replays recordings through
-`Session.replay`.
+`on_pose`, or never reads, does not grow memory over a long run. The moments a supervisor must hear of (a
+filter began publishing, it diverged and was reset, the rig given is wrong) arrive through `on_event`
+(runtime.run_events). `davio run` replays recordings through `Session.replay`.
 """
 from __future__ import annotations
 
@@ -96,11 +97,16 @@ class Session:
         prior_map: an earlier run's map to localise this one in (`tools.map_archive.align.
             prior_map_localizer(path)`, or a `runtime.graph.relocalize.PriorMapLocalizer`): poses then
             carry T_PI once localised. Needs a model and mapping.
+        on_event: called with each runtime.run_events.RunEvent (on the session's scheduler thread): a
+            filter began publishing, the publishing filter diverged and was reset, a rig finding (a
+            gyroscope in deg/s, a wrong camera-IMU rotation or time offset), the bring-up's estimate, a
+            prior-map localisation; `pipeline.events.log` keeps them too.
     """
 
     def __init__(self, rig: Any, model: Any = None, config: DavioConfig | None = None,
                  on_pose: Callable[[Pose], None] | None = None, map_sink: Any = None,
-                 max_pending_frames: int = 2, max_unread_poses: int = 12_000, prior_map: Any = None) -> None:
+                 max_pending_frames: int = 2, max_unread_poses: int = 12_000, prior_map: Any = None,
+                 on_event: Callable[[Any], None] | None = None) -> None:
         if rig is None or getattr(rig, "camera", None) is None:
             raise ConfigError("a session needs the camera intrinsics (rig.camera); see calib.load_rig")
         whole = isinstance(max_unread_poses, (int, np.integer)) and not isinstance(max_unread_poses, bool)
@@ -108,7 +114,8 @@ class Session:
             raise ConfigError(f"max_unread_poses must be a whole number >= 1, got {max_unread_poses!r}")
         self.rig = rig
         self.config = config or DavioConfig()
-        self.pipeline = VioPipeline(rig, model, self.config, map_sink=map_sink, prior_map=prior_map)
+        self.pipeline = VioPipeline(rig, model, self.config, map_sink=map_sink, prior_map=prior_map,
+                                    on_event=on_event)
         self.on_pose = on_pose
         self.max_pending_frames = max_pending_frames
         self._poses: queue.Queue[Pose] = queue.Queue(maxsize=int(max_unread_poses))

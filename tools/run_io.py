@@ -320,9 +320,10 @@ def rig_summary(rig: Any, source: str) -> dict:
 
 
 RUN_OUTPUTS = re.compile(r"^(odometry(_segment\d+)?\.tum|causal\.tum|final\.tum|groundtruth\.tum|poses\.csv|"
-                         r"causal\.prior\.tum|final\.prior\.tum|alignment\.json|"
+                         r"causal\.prior\.tum|final\.prior\.tum|alignment\.json|events\.jsonl|"
                          r"config\.toml|report\.json|trajectory\.png|position_error\.png)$")
-"""Names of the files `write_run` (and `davio demo`'s groundtruth.tum) put in a run folder."""
+"""Names of the files `write_run` (and `davio demo`'s groundtruth.tum, the run's events.jsonl) put in a run
+folder."""
 
 
 def write_run(out_dir: Path, pipeline: Any, sched_report: Any, gt: PoseTrajectory | None,

@@ -15,7 +15,7 @@ RunResult = SessionResult
 def run_pipeline(driver: Any, model: Any, config: DavioConfig, paced: bool = False, speed: float = 1.0,
                  model_latency_s: float = 0.5, show_progress: bool = True, seconds: float | None = None,
                  rig: Any = None, map_sink: Any = None, keep_partial: bool = False,
-                 on_pose: Any = None, prior_map: Any = None) -> RunResult:
+                 on_pose: Any = None, prior_map: Any = None, on_event: Any = None) -> RunResult:
     """Run `driver` (events, rig) through a VioPipeline; returns the pipeline and scheduler report.
 
     With a model and mapping enabled, the windows still queued when the recording ends are mapped
@@ -23,13 +23,10 @@ def run_pipeline(driver: Any, model: Any, config: DavioConfig, paced: bool = Fal
     (KeyboardInterrupt) and a DavioError during the run end it early and the result says so
     (`status`, `reason`) with everything computed until then; without, they propagate. `on_pose` gets
     every published runtime.session.Pose (e.g. the live view's); `prior_map` (a PriorMapLocalizer) an
-    earlier run's map to localise this one in."""
-    session = Session(rig if rig is not None else driver.rig, model, config, map_sink=map_sink,
-                      on_pose=on_pose, prior_map=prior_map)
-    pipe = session.pipeline
-    events = driver.events()
-    if seconds is not None:
-        events = _first_seconds(events, seconds)
+    earlier run's map to localise this one in; `on_event` every runtime.run_events.RunEvent (with
+    `show_progress` they are also said on stderr as they happen, e.g. a rig finding)."""
+    from tools.event_output import EventConsole, chain_events
+
     progress = None
     bar = None
     say = None
@@ -38,9 +35,8 @@ def run_pipeline(driver: Any, model: Any, config: DavioConfig, paced: bool = Fal
 
         bar = Progress(transient=True)
         task = bar.add_task("running", total=seconds)
-        bar.start()
 
-        def say(line: str) -> None:     # above the bar; a finding's text is not rich markup
+        def say(line: str) -> None:     # above the bar; an event's text is not rich markup
             bar.console.print(line, markup=False, highlight=False)
 
         def progress(s: float) -> None:
@@ -57,10 +53,16 @@ def run_pipeline(driver: Any, model: Any, config: DavioConfig, paced: bool = Fal
                 last[0] = int(s) // 5
                 print(f"  t = {s:6.1f} s  published {len(pipe.published):5d} poses"
                       f"  ({_status(pipe)})", file=sys.stderr, flush=True)
-    if say is not None:    # rig findings said as found (and again in the summary)
-        from tools.rig_alerts import RigAlerts, chain
-
-        progress = chain(progress, RigAlerts(pipe, lambda line: say(f"  {line}"), pipe.rig.time_offset_s))
+    # events said as they happen (rig findings again in the summary)
+    console = EventConsole(lambda line: say(f"  {line}")) if say is not None else None
+    session = Session(rig if rig is not None else driver.rig, model, config, map_sink=map_sink,
+                      on_pose=on_pose, prior_map=prior_map, on_event=chain_events(console, on_event))
+    pipe = session.pipeline
+    events = driver.events()
+    if seconds is not None:
+        events = _first_seconds(events, seconds)
+    if bar is not None:
+        bar.start()
     try:
         res = session.replay(events, paced=paced, speed=speed, model_latency_s=model_latency_s,
                              progress=progress, keep_partial=keep_partial)

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from runtime.rig_findings import rig_lines
+
 
 def first_published_line(report: dict) -> str:
     """When the first state was published and by whom (and who publishes at the end, when another)."""
@@ -104,35 +106,6 @@ _DRIVER_COUNTERS = {
 }
 
 
-EXTRINSICS_WARNING_WINDOWS = 2
-"""Windows refused as extrinsics_rotation before the console blames the rig's rotation: one window is one
-hand-eye fit of four rotations (`davio bench rig-checks` saw no such window with the right rotation, and
-several per recording with it inverted wherever the rig turns about two axes: BENCHMARKS.md "Start-up
-checks of the rig")."""
-
-
-def _time_offset_line(startup: dict, rig_offset_s: float | None) -> str | None:
-    """The console's word on a camera-IMU time offset the start-up found far from the rig's: adopted,
-    solved at, or only found (runtime.ffinit.time_offset_check); None when it found none."""
-    found = startup.get("time_offset_findings") or 0
-    if not found:
-        return None
-    rig_ms = (rig_offset_s or 0.0) * 1e3
-    adopted = startup.get("time_offset_adopted_s")
-    first = startup.get("time_offset_first") or startup.get("ff_time_offset_first") or \
-        (startup.get("ff_rejection_first") or {}).get("time_offset", "") or "-"
-    rig = f"(the rig says {rig_ms:+.1f} ms)"
-    if adopted is not None:
-        what = f"adopted {adopted * 1e3:+.1f} ms {rig}"
-    elif startup.get("ff_time_offset_s") is not None:
-        what = f"a window was solved at {startup['ff_time_offset_s'] * 1e3:+.1f} ms {rig}"
-    else:
-        what = "not adopted"
-    windows = "1 window fits" if found == 1 else f"{found} windows fit"
-    return (f"CAMERA-IMU TIME OFFSET: {windows} another offset, {what}; the first: {first}. Put "
-            "the offset in the rig file (Kalibr timeshift_cam_imu: t_imu = t_cam + shift)")
-
-
 ESTIMATED_OFFSET_NOTE_S = 0.005
 """The console names the filter's estimate of the camera-IMU time offset when it ends at least this far (s),
 and three of its standard deviations, from the offset in use (the rig's, or the one the start-up adopted):
@@ -166,47 +139,6 @@ def input_lines(driver_report: dict | None) -> list[str]:
         if parts:
             lines.append(f"input {name}: " + ", ".join(parts))
     lines.extend(f"input note: {n}" for n in (driver_report or {}).get("notes") or [])
-    return lines
-
-
-def rig_lines(pipeline_report: dict, rig_offset_s: float | None) -> list[str]:
-    """The rig findings so far, one console line each, from a pipeline report (or the part of one holding
-    `startup`, `rig_check` and `bringup`): a gyroscope's scale and the camera-IMU rotation as the start-up's
-    DA3 windows, the tracked features or the bring-up's windows judged them, and a camera-IMU time offset
-    the start-up found. At the end of a run (`recovery_lines`) and, as they are found, during one
-    (tools.rig_alerts)."""
-    lines = []
-    startup = pipeline_report.get("startup") or {}
-    refused = startup.get("ff_rejections") or {}
-    first = startup.get("ff_rejection_first") or {}
-    if refused.get("gyro_scale"):
-        lines.append(f"GYROSCOPE SCALE: {refused['gyro_scale']} windows refused, the first: "
-                     f"{first.get('gyro_scale', '')}. Fix the IMU's units or scale; every filter integrates "
-                     "them too")
-    if refused.get("extrinsics_rotation", 0) >= EXTRINSICS_WARNING_WINDOWS:
-        lines.append(f"CAMERA-IMU ROTATION: {refused['extrinsics_rotation']} windows refused, the first: "
-                     f"{first.get('extrinsics_rotation', '')}. Check the rig file's T_cam_imu / T_imu_cam, "
-                     "or run with --withhold-extrinsics to estimate it")
-    check = pipeline_report.get("rig_check") or {}     # without a model: from the tracked features
-    if check.get("gyro_scale"):
-        lines.append(f"GYROSCOPE SCALE (tracked features): {check['gyro_scale']}. Fix the IMU's units or "
-                     "scale; the filter integrates them")
-    if check.get("error"):
-        lines.append(f"rig check from the tracked features ended early: {check['error']}")
-    if check.get("extrinsics_rotation"):
-        lines.append(f"CAMERA-IMU ROTATION (tracked features): {check['extrinsics_rotation']}. Check the rig "
-                     "file's T_cam_imu / T_imu_cam, or run with --withhold-extrinsics to estimate it")
-    line = _time_offset_line(startup, rig_offset_s)
-    if line:
-        lines.append(line)
-    bu = pipeline_report.get("bringup")
-    if bu:
-        from runtime.bringup import gyro_blamed
-
-        gyro = gyro_blamed(bu)
-        if gyro:
-            lines.append(f"GYROSCOPE SCALE (bring-up): {bu['rejections']['gyro_scale']} windows refused, the "
-                         f"first: {gyro}. Fix the IMU's units or scale")
     return lines
 
 

@@ -32,6 +32,12 @@ def test_live_uvc_with_a_serial_imu_publishes_and_writes_a_complete_run(small_si
     assert streams["cam0"]["emitted"] > 60 and streams["imu0"]["emitted"] > 600
     rows = [ln for ln in (out / "odometry.tum").read_text().splitlines() if not ln.startswith("#")]
     assert len(rows) == report["published_poses"]
+    # the events were said on the console as they happened, and written to events.jsonl
+    events = [json.loads(x) for x in (out / "events.jsonl").read_text().splitlines()]
+    assert events[0]["kind"] == "publishing" and events[0]["source"] == report["published_by"]
+    said = [ln.strip() for ln in err.splitlines() if "publishing metric poses" in ln]
+    assert said[0].endswith(f" s: publishing metric poses ({report['published_by']})"), err
+    assert float(said[0].split()[1]) == pytest.approx(events[0]["t_s"], abs=0.051)
 
 
 def test_live_without_devices_or_calibration_is_a_clear_error(tmp_path: Path, capsys) -> None:

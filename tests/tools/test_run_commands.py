@@ -54,6 +54,8 @@ def test_demo_publishes_metric_trajectory_matching_ground_truth(tmp_path, capsys
     nat = report["native_only"]
     assert nat["T_f_s"] is None or nat["T_f_s"] > report["T_f_s"]
     assert "start-up race: feedforward published first" in text and "native initializer alone" in text
+    first = json.loads((out / "events.jsonl").read_text().splitlines()[0])
+    assert (first["kind"], first["source"]) == ("publishing", "feedforward")
     assert (out / "groundtruth.tum").exists() and report["reproduce"][0].startswith("davio simulate --preset")
     for name in ("causal.tum", "final.tum"):   # map-frame trajectories, one pose per published state
         assert len(read_tum(out / name)) == report["published_poses"]
@@ -86,6 +88,13 @@ def test_run_on_real_euroc_head_writes_outputs(tmp_path, capsys):
     # the pose journal a killed run would leave is gone once the run's own trajectories are written
     assert not (out / "causal.journal.tum").exists()
     assert "causal.journal.tum" not in json.loads((out / "run_status.json").read_text())["files"]
+    # the run's events, one JSON line each: the static initializer began publishing with the first pose
+    events = [json.loads(x) for x in (out / "events.jsonl").read_text().splitlines()]
+    assert [(e["kind"], e["source"], e["segment"]) for e in events] == [("publishing", "native:static", 0)]
+    assert events[0]["t_ns"] * 1e-9 == pytest.approx(float(rows[0].split()[0]), abs=1e-6)
+    assert events[0]["t_s"] == pytest.approx(report["T_f_s"], abs=0.06)
+    assert report["pipeline"]["events"] == {"counts": {"publishing": 1}, "not_kept": 0}
+    assert "events.jsonl" in json.loads((out / "run_status.json").read_text())["files"]
 
 
 def _euroc_copy(tmp_path: Path, imu_lines=None, gt_text: str | None = None, imu_yaml: bool = True) -> Path:

@@ -161,15 +161,19 @@ def calibrate(
         seconds: only the first S seconds of data.
         sample_every_s: camera seconds between collected calibration states.
         progress: called with (sensor seconds, phase) about every 5 s of data.
-        alert: called with each kind of rig finding (tools.rig_alerts) as the run finds it, e.g. a gyroscope
-            in deg/s refused by the bring-up.
+        alert: called with each run event's line (runtime.run_events, tools.event_output.EventConsole) as
+            the run finds it: the bring-up's estimate, a rig finding such as a gyroscope in deg/s refused by
+            the bring-up, a filter reset.
         live: `events` come from a live driver (runtime.session.Session.run_live: real time, bounded
             queues, model results applied when ready); Ctrl-C ends the data, not the calibration.
     """
     from runtime.session import Session
 
     withheld = rig.replace(T_IC=None, time_offset_s=None)
-    session = Session(withheld, model, calibration_config(config))
+    from tools.event_output import EventConsole
+
+    session = Session(withheld, model, calibration_config(config),
+                      on_event=None if alert is None else EventConsole(alert))
     pipe = session.pipeline
     samples: list[CalibSample] = []
     step_ns = int(sample_every_s * 1e9)
@@ -219,15 +223,10 @@ def calibrate(
                 )
             yield ev
 
-    alerts = None
-    if alert is not None:
-        from tools.rig_alerts import RigAlerts
-
-        alerts = RigAlerts(pipe, alert)
     if live:
-        res = session.run_live(feed(), progress=alerts, keep_partial=True)
+        res = session.run_live(feed(), keep_partial=True)
     else:
-        res = session.replay(feed(), model_latency_s=model_latency_s, progress=alerts, keep_partial=True)
+        res = session.replay(feed(), model_latency_s=model_latency_s, keep_partial=True)
     take(force=True)
     rep = pipe.report()
     return CalibrationRun(

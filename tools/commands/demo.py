@@ -57,6 +57,7 @@ def run(args: argparse.Namespace) -> int:
     from tools.commands.run import check_run_args
     from tools.commands.simulate import check_sim_seconds
     from tools.evaluation import write_tum
+    from tools.event_output import EventFile
     from tools.run_folder import RunFolder
     from tools.run_io import write_run
     from tools.run_map import MapOutput
@@ -92,8 +93,13 @@ def run(args: argparse.Namespace) -> int:
         model_desc = ("none (native only)" if model is None else
                       f"EMULATED DA3 ({args.da3}) -- simulator ground truth, not a real network")
         map_out = MapOutput.create(folder.path, rec.rig, model_desc, model, config)
-        res = run_pipeline(rec, model, config, model_latency_s=args.model_latency,
-                           map_sink=None if map_out is None else map_out.sink, keep_partial=True)
+        event_file = EventFile(folder.path)
+        try:
+            res = run_pipeline(rec, model, config, model_latency_s=args.model_latency,
+                               map_sink=None if map_out is None else map_out.sink, keep_partial=True,
+                               on_event=event_file)
+        finally:
+            event_file.close()
         judge(res, None)
         native = None if model is None or args.no_race or res.status != "complete" else \
             _native_only(rec, config, args)

@@ -177,6 +177,7 @@ def _open_driver(args: argparse.Namespace, rig):
 
 def _run(args, folder, driver, rig, model, model_desc: str, config, prior=None) -> int:
     from runtime.session import Session
+    from tools.event_output import EVENTS_NAME, EventFile, chain_events
     from tools.live_view import open_view
     from tools.pose_journal import PoseJournal, chain_poses
     from tools.run_io import imu_noise_note, rig_summary, write_run
@@ -194,14 +195,16 @@ def _run(args, folder, driver, rig, model, model_desc: str, config, prior=None) 
     view = open_view(args.view)
     sink = None if map_out is None else map_out.sink
     journal = PoseJournal(folder.path)
+    event_file = EventFile(folder.path)
+    status = _StatusLine(driver)
     try:
         session = Session(rig, model, config, map_sink=view.chain(sink) if view is not None else sink,
                           on_pose=journal if view is None else chain_poses(journal, view.on_pose),
-                          prior_map=prior)
+                          prior_map=prior, on_event=chain_events(event_file, status.events))
+        status.session = session
         events = driver.events()
         if args.seconds is not None:
             events = _first_seconds(events, args.seconds)
-        status = _StatusLine(session, driver, rig.time_offset_s)
         res = session.run_live(events, progress=status, keep_partial=True)
         status.done()
         driver.stop()
@@ -212,9 +215,10 @@ def _run(args, folder, driver, rig, model, model_desc: str, config, prior=None) 
         if view is not None:
             view.close()
         journal.close()
-    if journal.failed:
-        print(f"davio live: warning: the pose journal stopped ({journal.failed}); the run went on",
-              file=sys.stderr)
+        event_file.close()
+    for what, failed in (("pose journal", journal.failed), (EVENTS_NAME, event_file.failed)):
+        if failed:
+            print(f"davio live: warning: the {what} stopped ({failed}); the run went on", file=sys.stderr)
     judge(res, driver.report())
     map_summary = map_out.finish() if map_out is not None else None
     report = write_run(folder.path, res.pipeline, res.scheduler, None,
@@ -229,25 +233,25 @@ def _run(args, folder, driver, rig, model, model_desc: str, config, prior=None) 
 
 
 class _StatusLine:
-    """One live line on stderr, refreshed once a second: data time, frame rate, tracks, state, drops."""
+    """One live line on stderr, refreshed once a second: data time, frame rate, tracks, state, drops; and
+    each run event on its own line as it happens (`events`: the session's on_event; the operator has the rig
+    in hand). `session` is set once the session exists."""
 
-    def __init__(self, session, driver, rig_offset_s: float | None = None) -> None:
-        from tools.rig_alerts import RigAlerts
+    def __init__(self, driver) -> None:
+        from tools.event_output import EventConsole
 
-        self.session, self.driver = session, driver
+        self.session, self.driver = None, driver
         self.last = 0.0
         self.frames0 = 0
         self.tty = sys.stderr.isatty()
-        # a rig finding on its own line as soon as found (the operator has the rig in hand)
-        self.alerts = RigAlerts(session.pipeline, self._say, rig_offset_s)
+        self.events = EventConsole(self._say)
 
     def _say(self, line: str) -> None:
         print(("\r\033[K" if self.tty else "") + f"  {line}", file=sys.stderr, flush=True)
 
     def __call__(self, sensor_s: float) -> None:
-        self.alerts(sensor_s)
         now = time.monotonic()
-        if now - self.last < 1.0:
+        if self.session is None or now - self.last < 1.0:
             return
         pipe = self.session.pipeline
         rep = self.session._scheduler.report if self.session._scheduler is not None else None

@@ -195,6 +195,7 @@ def _open_inputs(args: argparse.Namespace, config) -> tuple:
 def _run(args, folder, rec, rig, model, model_desc: str, config, prior=None) -> int:
     import sys
 
+    from tools.event_output import EVENTS_NAME, EventFile
     from tools.live_view import open_view
     from tools.pose_journal import PoseJournal, chain_poses
     from tools.run_io import imu_noise_note, rig_summary, write_run
@@ -214,19 +215,21 @@ def _run(args, folder, rec, rig, model, model_desc: str, config, prior=None) -> 
     view = open_view(args.view)
     sink = None if map_out is None else map_out.sink
     journal = PoseJournal(folder.path)
+    event_file = EventFile(folder.path)
     try:
         res = run_pipeline(rec.driver, model, config, paced=args.paced, speed=args.speed,
                            model_latency_s=args.model_latency, seconds=args.seconds, rig=rig,
                            map_sink=view.chain(sink) if view is not None else sink, keep_partial=True,
                            on_pose=journal if view is None else chain_poses(journal, view.on_pose),
-                           prior_map=prior)
+                           prior_map=prior, on_event=event_file)
     finally:
         if view is not None:
             view.close()
         journal.close()
-    if journal.failed:
-        print(f"davio run: warning: the pose journal stopped ({journal.failed}); the run went on",
-              file=sys.stderr)
+        event_file.close()
+    for what, failed in (("pose journal", journal.failed), (EVENTS_NAME, event_file.failed)):
+        if failed:
+            print(f"davio run: warning: the {what} stopped ({failed}); the run went on", file=sys.stderr)
     judge(res, rec.driver.report())
     gt = rec.driver.groundtruth()
     map_summary = map_out.finish() if map_out is not None else None

@@ -1,0 +1,145 @@
+"""The run's events: the moments a robot's supervisor, or the operator of a live module, must hear of while
+a run goes, as they happen, each once:
+
+- "publishing": a filter began publishing metric poses (the run's first, or the first after a reset);
+- "reset": the publishing filter diverged and was reset: no poses until an initializer publishes again;
+- "rig_finding": something is wrong with the rig given (runtime.rig_findings: a gyroscope in deg/s, a wrong
+  camera-IMU rotation or time offset), said once per kind;
+- "calibration_estimated": the calibration bring-up estimated the camera-IMU rotation and tracking began;
+- "prior_localised": a segment of the run was localised in the prior map (poses then carry T_PI).
+
+`RunEvents` watches a `runtime.pipeline.VioPipeline` from the pipeline's own thread (the pipeline calls it)
+and hands each event to `on_event` (`runtime.session.Session(on_event=...)`; `davio run|live` write them to
+`events.jsonl` in the run folder and say them on the console). The counters behind each event stay in the
+run report; an event is the moment one of them changed, with its data time.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+from runtime.rig_findings import rig_findings
+
+KINDS = ("publishing", "reset", "rig_finding", "calibration_estimated", "prior_localised")
+MAX_KEPT = 1000
+"""Events `RunEvents.log` keeps (a run has a handful; one that resets again and again is bounded)."""
+
+
+@dataclass(frozen=True)
+class RunEvent:
+    """One event.
+
+    Attributes:
+        t_ns: sensor-clock time (ns) of the measurement the event was found at.
+        t_s: seconds of data since the run's first measurement.
+        kind: one of KINDS.
+        message: one line for a console.
+        detail: the specifics, JSON-ready (per kind: see the module docstring and `RunEvents`).
+    """
+
+    t_ns: int
+    t_s: float
+    kind: str
+    message: str
+    detail: dict = field(default_factory=dict)
+
+    def to_json(self) -> dict:
+        """A flat dict: t_ns, t_s, kind, message and the detail's keys (one line of events.jsonl)."""
+        return {"t_ns": self.t_ns, "t_s": round(self.t_s, 3), "kind": self.kind, "message": self.message,
+                **self.detail}
+
+
+class RunEvents:
+    """The events of one pipeline (see the module docstring).
+
+    Details: "publishing": source (e.g. "feedforward", "native:static"), segment (filter restarts before
+    it); "reset": segment (the one that ended), reason (the filter's), resets (so far); "rig_finding": key,
+    evidence (runtime.rig_findings.RigFinding); "calibration_estimated": windows_used, R_IC (3x3 rows);
+    "prior_localised": segment, source (the prior map).
+
+    Args:
+        pipeline: the VioPipeline watched (read: startup, rig_check, bringup, prior, rig_state()).
+        on_event: called with each RunEvent on the pipeline's thread, or None (the log only).
+        rig_offset_s: the rig file's camera-IMU time offset (s; None: none given), for the time-offset
+            finding's line.
+        look_every_s: how often (data seconds) the rig findings are looked for.
+    """
+
+    def __init__(self, pipeline: Any, on_event: Callable[[RunEvent], None] | None = None,
+                 rig_offset_s: float | None = None, look_every_s: float = 1.0) -> None:
+        self.pipeline, self.on_event, self.rig_offset_s = pipeline, on_event, rig_offset_s
+        self.look_every_s = float(look_every_s)
+        self.start_ns: int | None = None
+        """The run's first measurement (set by the pipeline)."""
+        self.log: list[RunEvent] = []
+        """The first MAX_KEPT events."""
+        self.counts: dict[str, int] = {}
+        self._publishing: tuple[int, str] | None = None
+        self._resets = 0
+        self._finding_kinds: set[str] = set()
+        self._localised: set[int] = set()
+        self._next_look_ns: int | None = None
+
+    # -- what the pipeline calls --------------------------------------------------------------
+    def on_published(self, out: list) -> None:
+        """After states were published (each with .t_ns, .segment, .source): a new publisher is an event."""
+        for p in out:
+            if (p.segment, p.source) != self._publishing:
+                self._check_reset(int(p.t_ns))      # a reset is said before what publishes after it
+                self._publishing = (p.segment, p.source)
+                again = "" if self.counts.get("publishing", 0) == 0 else "again "
+                self._emit(int(p.t_ns), "publishing", f"publishing metric poses {again}({p.source})"
+                           + (f", segment {p.segment}" if p.segment else ""),
+                           source=str(p.source), segment=int(p.segment))
+
+    def after_frame(self, t_ns: int) -> None:
+        """After each frame: resets and prior-map localisations at once, rig findings every look_every_s."""
+        self._check_reset(t_ns)
+        prior = self.pipeline.prior
+        if prior is not None and len(prior.localized_at_ns) > len(self._localised):
+            for seg in sorted(set(prior.localized_at_ns) - self._localised):
+                self._localised.add(seg)
+                self._emit(t_ns, "prior_localised", f"localised in the prior map {prior.source}"
+                           + (f" (segment {seg})" if seg else "") + ": poses now also in its frame",
+                           segment=int(seg), source=str(prior.source))
+        if self._next_look_ns is None or t_ns >= self._next_look_ns:
+            self._next_look_ns = t_ns + int(self.look_every_s * 1e9)
+            for finding in rig_findings(self.pipeline.rig_state(), self.rig_offset_s):
+                if finding.kind not in self._finding_kinds:
+                    self._finding_kinds.add(finding.kind)
+                    self._emit(t_ns, "rig_finding", finding.line, key=finding.key, evidence=finding.evidence)
+
+    def calibration_estimated(self, t_ns: int, report: Any) -> None:
+        """The bring-up finished (its runtime.bringup.BringUpReport): tracking starts on the estimate."""
+        rep = asdict(report)
+        self._emit(t_ns, "calibration_estimated", (
+            f"calibration bring-up done: the camera-IMU rotation estimated from {rep['windows_used']} "
+            f"windows (fit {rep['fit_rms_deg'] or 0.0:.2f} deg rms); tracking starts, the lever arm and time "
+            "offset estimated online"), windows_used=int(rep["windows_used"]), R_IC=rep["R_IC"])
+
+    def report(self) -> dict:
+        """Counts by kind, and how many events the log did not keep."""
+        return {"counts": dict(self.counts), "not_kept": max(0, sum(self.counts.values()) - len(self.log))}
+
+    # -- inside ------------------------------------------------------------------------------
+    def _check_reset(self, t_ns: int) -> None:
+        startup = self.pipeline.startup
+        if startup is None or startup.report.restarts_after_divergence == self._resets:
+            return
+        self._resets = startup.report.restarts_after_divergence
+        segment = self._publishing[0] if self._publishing is not None else 0
+        reason = getattr(startup.native, "last_reset_reason", None) or "unknown"
+        self._publishing = None
+        self._emit(t_ns, "reset", f"the filter publishing poses diverged ({reason}) and was reset: no poses "
+                   "until an initializer publishes again", segment=int(segment), reason=str(reason),
+                   resets=int(self._resets))
+
+    def _emit(self, t_ns: int, kind: str, message: str, **detail: Any) -> None:
+        start = self.start_ns if self.start_ns is not None else t_ns
+        event = RunEvent(int(t_ns), max(0.0, (int(t_ns) - start) / 1e9), kind, message, detail)
+        self.counts[kind] = self.counts.get(kind, 0) + 1
+        if len(self.log) < MAX_KEPT:
+            self.log.append(event)
+        if self.on_event is not None:
+            self.on_event(event)

@@ -1,0 +1,179 @@
+"""The run's events (runtime.run_events): a new publisher, a reset said before what publishes after it, each
+kind of rig finding once with its data time and the end-of-run summary's line, the bring-up's estimate, a
+prior-map localisation; a bounded log."""
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from runtime.bringup import BringUpReport
+from runtime.pipeline import VioPipeline
+from runtime.rig_check import RigCheckReport
+from runtime.rig_findings import rig_findings, rig_lines
+from runtime.run_events import MAX_KEPT, RunEvents
+from runtime.startup import StartupReport
+
+T0 = 1_403_636_579_763_555_584      # a EuRoC-like sensor clock (ns)
+
+
+def _s(seconds: float) -> int:
+    return T0 + int(round(seconds * 1e9))
+
+
+def _pipe(startup=None, rig_check=None, bringup=None, prior=None):
+    pipe = SimpleNamespace(
+        startup=None if startup is None else SimpleNamespace(report=startup, native=SimpleNamespace(
+            last_reset_reason=None)),
+        rig_check=None if rig_check is None else SimpleNamespace(report=rig_check), bringup=bringup,
+        prior=prior)
+    pipe.rig_state = lambda: VioPipeline.rig_state(pipe)     # the pipeline's own reading of its reports
+    return pipe
+
+
+def _events(pipe, rig_offset_s=None) -> tuple[RunEvents, list]:
+    got: list = []
+    ev = RunEvents(pipe, got.append, rig_offset_s)
+    ev.start_ns = T0
+    return ev, got
+
+
+def test_each_kind_of_rig_finding_is_an_event_once_with_its_data_time_and_the_summary_s_line():
+    st, rc = StartupReport(), RigCheckReport()
+    events, got = _events(_pipe(st, rc))
+    events.after_frame(_s(0.0))
+    assert got == []
+    st.ff_rejections = {"gyro_scale": 1}
+    st.ff_rejection_first = {"gyro_scale": "the gyroscope turns 57.1x as far"}
+    events.after_frame(_s(0.5))                  # within the data second of the last look: not read
+    assert got == []
+    events.after_frame(_s(1.2))
+    assert [(e.kind, e.t_s, e.detail) for e in got] == [
+        ("rig_finding", 1.2, {"key": "gyro_scale", "evidence": "feedforward"})]
+    assert got[0].message == ("GYROSCOPE SCALE: 1 windows refused, the first: the gyroscope turns 57.1x as "
+                              "far. Fix the IMU's units or scale; every filter integrates them too")
+    assert got[0].t_ns == _s(1.2)
+    st.ff_rejections["gyro_scale"] = 5             # the same finding again, with a new count: not said again
+    st.ff_rejections["extrinsics_rotation"] = 1    # one window: not yet a finding (as the summary)
+    events.after_frame(_s(2.5))
+    assert len(got) == 1
+    st.ff_rejections["extrinsics_rotation"] = 2
+    rc.gyro_scale = "the gyroscope turns 57.9x as far as the tracked features see"
+    events.after_frame(_s(3.6))
+    assert [(e.detail["key"], e.detail["evidence"], e.t_s) for e in got[1:]] == [
+        ("extrinsics_rotation", "feedforward", 3.6), ("gyro_scale", "tracks", 3.6)]
+    assert got[1].message.startswith("CAMERA-IMU ROTATION: 2 windows refused")
+    assert got[2].message.startswith("GYROSCOPE SCALE (tracked features): the gyroscope turns 57.9x")
+    # the kinds said are the end-of-run summary's, which reads the whole report
+    report = {"startup": {"ff_rejections": st.ff_rejections, "ff_rejection_first": st.ff_rejection_first},
+              "rig_check": {"gyro_scale": rc.gyro_scale}}
+    assert [x.split(":")[0] for x in rig_lines(report, None)] == [e.message.split(":")[0] for e in got]
+    assert events.report() == {"counts": {"rig_finding": 3}, "not_kept": 0}
+    assert events.log == got
+
+
+def test_a_time_offset_finding_and_a_bring_up_refused_for_the_gyro_are_events():
+    st = StartupReport()
+    bringup = SimpleNamespace(done=False, report=BringUpReport(rotation_source="tracks"))
+    events, got = _events(_pipe(st, None, bringup), rig_offset_s=0.0)
+    bringup.report.rejections = {"gyro_scale": 2}
+    bringup.report.rejection_first = {"gyro_scale": "the gyroscope turns 57.3x as far as the camera"}
+    events.after_frame(_s(1.0))
+    assert got == []                          # two windows: not yet blamed (runtime.bringup.gyro_blamed)
+    bringup.report.rejections["gyro_scale"] = 3
+    events.after_frame(_s(2.0))
+    assert [(e.message, e.detail) for e in got] == [(
+        "GYROSCOPE SCALE (bring-up): 3 windows refused, the first: the gyroscope turns 57.3x as far as the "
+        "camera. Fix the IMU's units or scale", {"key": "gyro_scale", "evidence": "bringup"})]
+    st.time_offset_findings = 1
+    st.time_offset_first = "a window fits +60 ms"
+    events.after_frame(_s(3.0))
+    assert got[-1].message.startswith("CAMERA-IMU TIME OFFSET: 1 window fits another offset, not adopted; "
+                                      "the first: a window fits +60 ms")
+    assert got[-1].detail == {"key": "time_offset", "evidence": "feedforward"}
+    bringup.done = True                       # a bring-up that completed is not read again
+    bringup.report = None
+    events.after_frame(_s(4.0))
+    assert len(got) == 2
+
+
+def test_each_finding_has_a_key_and_evidence_and_the_console_line_of_the_summary():
+    report = {"startup": {"ff_rejections": {"gyro_scale": 2, "extrinsics_rotation": 3},
+                          "ff_rejection_first": {}, "time_offset_findings": 1},
+              "rig_check": {"gyro_scale": "g", "extrinsics_rotation": "r", "error": "DataError: x"},
+              "bringup": {"rejections": {"gyro_scale": 4}, "rejection_first": {"gyro_scale": "b"}}}
+    found = rig_findings(report, 0.01)
+    assert [(f.key, f.evidence) for f in found] == [
+        ("gyro_scale", "feedforward"), ("extrinsics_rotation", "feedforward"), ("gyro_scale", "tracks"),
+        ("rig_check_error", "tracks"), ("extrinsics_rotation", "tracks"), ("time_offset", "feedforward"),
+        ("gyro_scale", "bringup")]
+    assert len({f.kind for f in found}) == len(found)          # one kind per key and evidence
+    assert [f.line for f in found] == rig_lines(report, 0.01)
+
+
+def _published(t_s: float, segment: int, source: str):
+    return SimpleNamespace(t_ns=_s(t_s), segment=segment, source=source)
+
+
+def test_a_new_publisher_is_an_event_and_a_reset_is_said_before_what_publishes_after_it():
+    st = StartupReport()
+    pipe = _pipe(st)
+    events, got = _events(pipe)
+    events.on_published([_published(2.0, 0, "native:static"), _published(2.005, 0, "native:static")])
+    events.on_published([_published(2.01, 0, "native:static")])
+    events.after_frame(_s(2.05))
+    assert [(e.kind, e.t_s, e.message, e.detail) for e in got] == [
+        ("publishing", 2.0, "publishing metric poses (native:static)",
+         {"source": "native:static", "segment": 0})]
+    # the filter diverges and resets: said at the next look, with the filter's reason
+    st.restarts_after_divergence = 1
+    pipe.startup.native.last_reset_reason = "no update for 3.0 s"
+    events.after_frame(_s(7.3))
+    assert (got[-1].kind, got[-1].t_s, got[-1].detail) == (
+        "reset", 7.3, {"segment": 0, "reason": "no update for 3.0 s", "resets": 1})
+    assert "diverged (no update for 3.0 s) and was reset" in got[-1].message
+    events.on_published([_published(8.1, 1, "feedforward")])
+    assert (got[-1].kind, got[-1].message, got[-1].detail) == (
+        "publishing", "publishing metric poses again (feedforward), segment 1",
+        {"source": "feedforward", "segment": 1})
+    # a reset not yet looked for when the next publisher's poses come is said first
+    st.restarts_after_divergence = 2
+    events.on_published([_published(12.0, 2, "native:dynamic")])
+    assert [e.kind for e in got[-2:]] == ["reset", "publishing"]
+    assert got[-2].detail["segment"] == 1 and got[-2].t_ns == got[-1].t_ns == _s(12.0)
+    assert events.report()["counts"] == {"publishing": 3, "reset": 2}
+
+
+def test_the_bring_up_s_estimate_and_a_prior_map_localisation_are_events():
+    prior = SimpleNamespace(localized_at_ns={}, source="runs/rec1")
+    events, got = _events(_pipe(StartupReport(), prior=prior))
+    rep = BringUpReport(windows_used=4, fit_rms_deg=0.31, R_IC=np.eye(3).tolist())
+    events.calibration_estimated(_s(6.5), rep)
+    assert (got[0].kind, got[0].t_s, got[0].detail) == (
+        "calibration_estimated", 6.5, {"windows_used": 4, "R_IC": np.eye(3).tolist()})
+    assert got[0].message.startswith("calibration bring-up done: the camera-IMU rotation estimated from 4 "
+                                     "windows (fit 0.31 deg rms)")
+    events.after_frame(_s(9.0))
+    assert len(got) == 1
+    prior.localized_at_ns[0] = _s(9.2)
+    events.after_frame(_s(9.3))
+    prior.localized_at_ns[2] = _s(20.0)
+    events.after_frame(_s(20.1))
+    events.after_frame(_s(20.2))
+    assert [(e.kind, e.t_s, e.detail) for e in got[1:]] == [
+        ("prior_localised", 9.3, {"segment": 0, "source": "runs/rec1"}),
+        ("prior_localised", 20.1, {"segment": 2, "source": "runs/rec1"})]
+    assert got[2].message == "localised in the prior map runs/rec1 (segment 2): poses now also in its frame"
+
+
+def test_the_log_is_bounded_and_counts_what_it_did_not_keep():
+    st = StartupReport()
+    events, got = _events(_pipe(st))
+    for k in range(MAX_KEPT + 5):     # a run that resets again and again
+        events.on_published([_published(float(k), k, "native:static")])
+    assert len(got) == MAX_KEPT + 5 and len(events.log) == MAX_KEPT
+    assert events.report() == {"counts": {"publishing": MAX_KEPT + 5}, "not_kept": 5}
+    assert got[-1].to_json() == {"t_ns": _s(MAX_KEPT + 4.0), "t_s": MAX_KEPT + 4.0, "kind": "publishing",
+                                 "message": f"publishing metric poses again (native:static), segment "
+                                            f"{MAX_KEPT + 4}", "source": "native:static",
+                                 "segment": MAX_KEPT + 4}
