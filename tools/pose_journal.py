@@ -115,9 +115,11 @@ def journal_has_poses(folder: str | Path) -> bool:
         return False
 
 
-def chain_poses(*callbacks: Callable[[Any], None]) -> Callable[[Any], None]:
-    """One `on_pose` callback calling each of `callbacks` in order."""
+def chain_poses(*callbacks: Callable[[Any], None] | None) -> Callable[[Any], None]:
+    """One `on_pose` callback calling each of `callbacks` (None skipped) in order."""
+    live = [cb for cb in callbacks if cb is not None]
+
     def call(pose: Any) -> None:
-        for cb in callbacks:
+        for cb in live:
             cb(pose)
     return call

@@ -3,7 +3,9 @@ pseudo-terminal for the serial IMU (the text protocol, written at sensor rate by
 publishes metric poses and writes a complete run folder. Missing devices are one-line errors."""
 from __future__ import annotations
 
+import contextlib
 import json
+import socket
 import time
 from pathlib import Path
 
@@ -19,9 +21,14 @@ def test_live_uvc_with_a_serial_imu_publishes_and_writes_a_complete_run(small_si
                                                                        tmp_path: Path, capsys,
                                                                        monkeypatch) -> None:
     video = video_from_recording(small_sim_folder, tmp_path / "cam.avi")
+    receiver = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    receiver.bind(("127.0.0.1", 0))
+    receiver.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+    receiver.settimeout(0.5)
     code = run_live_uvc(small_sim_folder, video,
                         ["live", "uvc", "--rig", str(small_sim_folder), "--native-only", "--seconds", "5",
-                         "--out", str(tmp_path / "run")], monkeypatch)
+                         "--out", str(tmp_path / "run"), "--stream",
+                         f"udp://127.0.0.1:{receiver.getsockname()[1]}"], monkeypatch)
     err = capsys.readouterr().err
     assert code == 0, err
     out = tmp_path / "run"
@@ -38,6 +45,15 @@ def test_live_uvc_with_a_serial_imu_publishes_and_writes_a_complete_run(small_si
     said = [ln.strip() for ln in err.splitlines() if "publishing metric poses" in ln]
     assert said[0].endswith(f" s: publishing metric poses ({report['published_by']})"), err
     assert float(said[0].split()[1]) == pytest.approx(events[0]["t_s"], abs=0.051)
+    # --stream: every pose and event went out over UDP as it happened
+    got = []
+    with contextlib.suppress(TimeoutError):
+        while True:
+            got.append(json.loads(receiver.recvfrom(65536)[0]))
+    receiver.close()
+    poses_got = [m["type"] for m in got].count("pose")
+    assert poses_got == report["published_poses"] == report["stream"]["poses_sent"]
+    assert [m["kind"] for m in got if m["type"] == "event"] == [e["kind"] for e in events]
 
 
 def test_live_without_devices_or_calibration_is_a_clear_error(tmp_path: Path, capsys) -> None:

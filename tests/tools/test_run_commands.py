@@ -2,7 +2,9 @@
 matches the simulator's ground truth; `davio run` replays a real EuRoC folder and writes its outputs."""
 from __future__ import annotations
 
+import contextlib
 import json
+import socket
 from pathlib import Path
 
 import numpy as np
@@ -66,7 +68,13 @@ def test_demo_publishes_metric_trajectory_matching_ground_truth(tmp_path, capsys
 def test_run_on_real_euroc_head_writes_outputs(tmp_path, capsys):
     path = shared_path("euroc", "V1_01_easy_head")
     out = tmp_path / "run"
-    assert main(["run", str(path), "--out", str(out), "--native-only", "--seconds", "3", "--json"]) == 0
+    receiver = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)    # a robot's controller, say
+    receiver.bind(("127.0.0.1", 0))
+    receiver.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+    receiver.settimeout(0.5)
+    stream = f"udp://127.0.0.1:{receiver.getsockname()[1]}"
+    assert main(["run", str(path), "--out", str(out), "--native-only", "--seconds", "3", "--json",
+                 "--stream", stream]) == 0
     # --json: stdout holds the JSON object only, strict (no NaN / Infinity tokens)
     report = json.loads(capsys.readouterr().out, parse_constant=lambda c: pytest.fail(f"non-strict {c}"))
     assert report["status"] == "complete"
@@ -95,6 +103,23 @@ def test_run_on_real_euroc_head_writes_outputs(tmp_path, capsys):
     assert events[0]["t_s"] == pytest.approx(report["T_f_s"], abs=0.06)
     assert report["pipeline"]["events"] == {"counts": {"publishing": 1}, "not_kept": 0}
     assert "events.jsonl" in json.loads((out / "run_status.json").read_text())["files"]
+    # --stream: each pose and event went out as it happened, one UDP datagram each: the same as the files
+    got = []
+    with contextlib.suppress(TimeoutError):
+        while True:
+            got.append(json.loads(receiver.recvfrom(65536)[0]))
+    receiver.close()
+    assert [m["seq"] for m in got] == list(range(len(rows) + 1))
+    assert [m["type"] for m in got].count("event") == 1
+    sent = [m for m in got if m["type"] == "pose"]
+    tum = np.array([[float(x) for x in r.split()] for r in rows])
+    np.testing.assert_allclose([m["t_ns"] * 1e-9 for m in sent], tum[:, 0], atol=1e-6)
+    np.testing.assert_allclose([m["p_OI"] for m in sent], tum[:, 1:4], atol=1e-5)
+    event = next(m for m in got if m["type"] == "event")
+    keys = ("kind", "source", "t_ns")
+    assert {k: event[k] for k in keys} == {k: events[0][k] for k in keys}
+    assert report["stream"] == {"url": stream, "poses_sent": len(rows), "events_sent": 1, "not_sent": 0,
+                                "first_error": None}
 
 
 def _euroc_copy(tmp_path: Path, imu_lines=None, gt_text: str | None = None, imu_yaml: bool = True) -> Path:

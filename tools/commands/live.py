@@ -43,7 +43,7 @@ def add_device_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from tools.commands.run import add_prior_map_argument
+    from tools.commands.run import add_prior_map_argument, add_stream_argument
     from tools.live_view import add_view_argument
 
     p.add_argument("source", choices=["uvc", "oak"], help="the sensor module")
@@ -63,6 +63,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace the previous run in --out")
     p.add_argument("--json", action="store_true", help="print the report as one JSON object at the end")
     add_view_argument(p)
+    add_stream_argument(p)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -180,6 +181,7 @@ def _run(args, folder, driver, rig, model, model_desc: str, config, prior=None) 
     from tools.event_output import EVENTS_NAME, EventFile, chain_events
     from tools.live_view import open_view
     from tools.pose_journal import PoseJournal, chain_poses
+    from tools.pose_stream import open_stream
     from tools.run_io import imu_noise_note, rig_summary, write_run
     from tools.run_map import MapOutput
     from tools.run_outcome import conclude, judge
@@ -192,15 +194,18 @@ def _run(args, folder, driver, rig, model, model_desc: str, config, prior=None) 
     print(f"davio live: {where}\n  model: {model_desc}\n"
           + (f"  {imu_noise_note(defaulted)}\n" if defaulted else "")
           + "  Ctrl-C to finish", file=sys.stderr)
+    stream = open_stream(args.stream)
     view = open_view(args.view)
     sink = None if map_out is None else map_out.sink
     journal = PoseJournal(folder.path)
     event_file = EventFile(folder.path)
     status = _StatusLine(driver)
+    on_pose = chain_poses(journal, None if view is None else view.on_pose,
+                          None if stream is None else stream.on_pose)
+    on_event = chain_events(event_file, status.events, None if stream is None else stream.on_event)
     try:
         session = Session(rig, model, config, map_sink=view.chain(sink) if view is not None else sink,
-                          on_pose=journal if view is None else chain_poses(journal, view.on_pose),
-                          prior_map=prior, on_event=chain_events(event_file, status.events))
+                          on_pose=on_pose, prior_map=prior, on_event=on_event)
         status.session = session
         events = driver.events()
         if args.seconds is not None:
@@ -214,6 +219,8 @@ def _run(args, folder, driver, rig, model, model_desc: str, config, prior=None) 
         driver.stop()
         if view is not None:
             view.close()
+        if stream is not None:
+            stream.close()
         journal.close()
         event_file.close()
     for what, failed in (("pose journal", journal.failed), (EVENTS_NAME, event_file.failed)):
@@ -225,6 +232,7 @@ def _run(args, folder, driver, rig, model, model_desc: str, config, prior=None) 
                        {"recording": f"live {where}", "model": model_desc, "status": res.status,
                         "status_reason": res.reason, "driver": driver.report(), "map": map_summary,
                         "imu_noise_defaulted": defaulted, "view": None if view is None else view.report(),
+                        "stream": None if stream is None else stream.report(),
                         "rig": rig_summary(rig, str(args.rig) if args.rig
                                            else "the device's factory calibration")},
                        config)

@@ -69,6 +69,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true",
                    help="print the report as one JSON object on stdout (progress goes to stderr)")
     add_view_argument(p)
+    add_stream_argument(p)
+
+
+def add_stream_argument(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--stream", metavar="udp://HOST:PORT",
+                   help="send each published pose and each run event to HOST:PORT as it happens, one UDP "
+                        "datagram of JSON each (tools/pose_stream.py: odometry-, map- and prior-frame pose, "
+                        "velocity, covariance); never blocks the run")
 
 
 def add_prior_map_argument(p: argparse.ArgumentParser) -> None:
@@ -100,6 +108,10 @@ def check_run_args(args: argparse.Namespace) -> None:
     speed = getattr(args, "speed", None)
     if speed is not None and not (math.isfinite(speed) and speed > 0):
         raise ConfigError(f"--speed must be > 0 (got {speed!r})")
+    if getattr(args, "stream", None) is not None:
+        from tools.pose_stream import parse_stream_url
+
+        parse_stream_url(args.stream)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -195,9 +207,10 @@ def _open_inputs(args: argparse.Namespace, config) -> tuple:
 def _run(args, folder, rec, rig, model, model_desc: str, config, prior=None) -> int:
     import sys
 
-    from tools.event_output import EVENTS_NAME, EventFile
+    from tools.event_output import EVENTS_NAME, EventFile, chain_events
     from tools.live_view import open_view
     from tools.pose_journal import PoseJournal, chain_poses
+    from tools.pose_stream import open_stream
     from tools.run_io import imu_noise_note, rig_summary, write_run
     from tools.run_map import MapOutput
     from tools.run_outcome import conclude, judge
@@ -212,19 +225,25 @@ def _run(args, folder, rec, rig, model, model_desc: str, config, prior=None) -> 
           + (f"\n  mapping: on (archive {folder.out / 'map'})" if map_out is not None else "")
           + (f"\n  prior map: {prior.source} ({len(prior.prior)} centre views)" if prior is not None else "")
           + (f"\n  {imu_noise_note(defaulted)}" if defaulted else ""), file=log)
+    stream = open_stream(args.stream)
     view = open_view(args.view)
     sink = None if map_out is None else map_out.sink
     journal = PoseJournal(folder.path)
     event_file = EventFile(folder.path)
+    on_pose = chain_poses(journal, None if view is None else view.on_pose,
+                          None if stream is None else stream.on_pose)
+    on_event = chain_events(event_file, None if stream is None else stream.on_event)
     try:
         res = run_pipeline(rec.driver, model, config, paced=args.paced, speed=args.speed,
                            model_latency_s=args.model_latency, seconds=args.seconds, rig=rig,
                            map_sink=view.chain(sink) if view is not None else sink, keep_partial=True,
-                           on_pose=journal if view is None else chain_poses(journal, view.on_pose),
-                           prior_map=prior, on_event=event_file)
+                           on_pose=on_pose,
+                           prior_map=prior, on_event=on_event)
     finally:
         if view is not None:
             view.close()
+        if stream is not None:
+            stream.close()
         journal.close()
         event_file.close()
     for what, failed in (("pose journal", journal.failed), (EVENTS_NAME, event_file.failed)):
@@ -239,6 +258,7 @@ def _run(args, folder, rec, rig, model, model_desc: str, config, prior=None) -> 
                         "imu_noise_defaulted": defaulted,
                         "rig": rig_summary(rig, str(args.rig) if args.rig else f"the recording ({rec.kind})"),
                         "view": None if view is None else view.report(),
+                        "stream": None if stream is None else stream.report(),
                         "replay": {"paced": bool(args.paced), "speed": args.speed,
                                    "model_latency_s": None if args.paced else args.model_latency}},
                        config)

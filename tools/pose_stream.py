@@ -1,0 +1,148 @@
+"""The published poses and the run's events sent to another process as they happen, without ROS: one UDP
+datagram each, holding one JSON object (`davio run|live --stream udp://HOST:PORT`). A robot's controller,
+in any language, reads them with a UDP socket and a JSON parser.
+
+A pose datagram (`"type": "pose"`):
+    v: the message version (MESSAGE_VERSION); seq: a counter over every datagram of the run (a gap: lost);
+    t_ns: IMU-clock time (ns); t_cam_ns: the camera time of the frame it followed;
+    source: the filter publishing ("feedforward", "native:static", ...); segment: resets before it;
+    p_OI, q_OI: IMU position (m) and orientation (Hamilton x, y, z, w) in the odometry frame O (gravity
+        aligned, z up); v_OI: velocity in O (m/s);
+    p_MI, q_MI: the same pose in the map frame M with the live map correction; correction_version;
+    p_PI, q_PI: in a prior map's frame (--prior-map), or null until this segment is localised in it;
+    cov: the upper triangle, row by row, of the 6x6 covariance of [rotation error (body frame, rad),
+        position (m)] (21 numbers), or null.
+An event datagram (`"type": "event"`): v, seq and the event's fields (runtime.run_events.RunEvent.to_json:
+t_ns, t_s, kind, message and the kind's details).
+
+Sending never waits and never ends the run: the socket does not block, and a datagram the network stack
+refuses is counted (`report()`), as a UDP receiver that is not listening is not an error.
+"""
+from __future__ import annotations
+
+import socket
+from typing import Any
+from urllib.parse import urlsplit
+
+import numpy as np
+
+from runtime.errors import ConfigError
+from runtime.geometry.quaternion import rot_to_quat_xyzw
+from runtime.json_out import strict_dumps
+
+MESSAGE_VERSION = 1
+MAX_DATAGRAM_BYTES = 1400
+"""Largest datagram sent (within an Ethernet MTU, so never fragmented); a pose is about 1.1 kB."""
+_ROWS, _COLS = np.triu_indices(6)
+
+
+def parse_stream_url(url: str) -> tuple[str, int]:
+    """(host, port) of "udp://HOST:PORT" (HOST a name, an IPv4 address or a bracketed IPv6 one); ConfigError
+    naming what is wrong otherwise."""
+    try:
+        parts = urlsplit(url)
+        port = parts.port
+    except ValueError as exc:
+        raise ConfigError(f"--stream {url!r}: {exc}; expected udp://HOST:PORT") from None
+    if parts.scheme != "udp":
+        raise ConfigError(f"--stream {url!r}: only udp://HOST:PORT is supported")
+    if not parts.hostname or port is None or not 0 < port < 65536:
+        raise ConfigError(f"--stream {url!r}: expected udp://HOST:PORT with a port in 1-65535")
+    if parts.path not in ("", "/") or parts.query or parts.fragment:
+        raise ConfigError(f"--stream {url!r}: expected udp://HOST:PORT, nothing after the port")
+    return parts.hostname, port
+
+
+def _rounded(values: Any, digits: int) -> list:
+    return [round(float(x), digits) for x in np.asarray(values, dtype=np.float64).ravel()]
+
+
+def _pose_fields(prefix: str, T: np.ndarray | None) -> dict:
+    if T is None:
+        return {f"p_{prefix}": None, f"q_{prefix}": None}
+    T = np.asarray(T, dtype=np.float64)
+    return {f"p_{prefix}": _rounded(T[:3, 3], 6), f"q_{prefix}": _rounded(rot_to_quat_xyzw(T[:3, :3]), 9)}
+
+
+def pose_message(pose: Any, seq: int) -> dict:
+    """The JSON object of one runtime.session.Pose (see the module docstring)."""
+    cov = None
+    if pose.covariance is not None:
+        C = np.asarray(pose.covariance, dtype=np.float64)
+        cov = [float(f"{x:.6g}") for x in C[_ROWS, _COLS]]
+    return {"type": "pose", "v": MESSAGE_VERSION, "seq": seq, "t_ns": int(pose.t_ns),
+            "t_cam_ns": int(pose.t_cam_ns), "source": pose.source, "segment": int(pose.segment),
+            **_pose_fields("OI", pose.T_OI), "v_OI": _rounded(pose.v_OI, 6), **_pose_fields("MI", pose.T_MI),
+            "correction_version": int(pose.correction_version), **_pose_fields("PI", pose.T_PI), "cov": cov}
+
+
+class PoseStream:
+    """Sends each pose (`on_pose`) and event (`on_event`) to udp://HOST:PORT (see the module docstring).
+
+    Args:
+        url: "udp://HOST:PORT"; a broadcast address (e.g. 192.168.1.255) reaches every host of that subnet.
+    """
+
+    def __init__(self, url: str) -> None:
+        host, port = parse_stream_url(url)
+        self.url = url
+        try:
+            family, kind, proto, _, addr = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0]
+        except socket.gaierror as exc:
+            raise ConfigError(f"--stream {url!r}: cannot resolve {host!r} ({exc.strerror})") from None
+        self.address = addr
+        self._sock = socket.socket(family, kind, proto)
+        self._sock.setblocking(False)
+        if family == socket.AF_INET:
+            self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
+        self.seq = 0
+        self.sent = {"pose": 0, "event": 0}
+        self.not_sent = 0
+        self.first_error: str | None = None
+
+    def on_pose(self, pose: Any) -> None:
+        """Send one runtime.session.Pose."""
+        self._send(pose_message(pose, self.seq))
+
+    def on_event(self, event: Any) -> None:
+        """Send one runtime.run_events.RunEvent."""
+        self._send({"type": "event", "v": MESSAGE_VERSION, "seq": self.seq, **event.to_json()})
+
+    def _send(self, message: dict) -> None:
+        self.seq += 1
+        data = strict_dumps(message, separators=(",", ":")).encode()
+        text = message.get("message", "")
+        while len(data) > MAX_DATAGRAM_BYTES and text:     # an event's long line: cut, the JSON still whole
+            text = text[:len(text) // 2]
+            data = strict_dumps({**message, "message": text + "..."}, separators=(",", ":")).encode()
+        try:
+            if self._sock.fileno() < 0:
+                return
+            self._sock.sendto(data, self.address)
+        except OSError as exc:      # a full send buffer, no route, a refused port: counted, never raised
+            self.not_sent += 1
+            if self.first_error is None:
+                self.first_error = f"{type(exc).__name__}: {exc.strerror or exc}"
+            return
+        self.sent[message["type"]] += 1
+
+    def report(self) -> dict:
+        """What was sent (report.json's `stream`)."""
+        return {"url": self.url, "poses_sent": self.sent["pose"], "events_sent": self.sent["event"],
+                "not_sent": self.not_sent, "first_error": self.first_error}
+
+    def close(self) -> None:
+        """Close the socket (idempotent)."""
+        self._sock.close()
+
+
+def open_stream(url: str | None) -> PoseStream | None:
+    """The PoseStream of --stream (None without it), its address said on stderr."""
+    if url is None:
+        return None
+    import sys
+
+    stream = PoseStream(url)
+    print(f"  streaming poses and events to {url} (UDP, one JSON object a datagram)", file=sys.stderr,
+          flush=True)
+    return stream
