@@ -46,7 +46,12 @@ def summary(report: dict, out: Path) -> None:
         print("  " + mapping_line(mp, report.get("map") or {}))
     if report.get("prior_map") is not None:
         print("  " + prior_line(report["prior_map"]))
+    st = report.get("stream")
+    if st is not None:
+        print(f"  stream: {st['poses_sent']} poses and {st['events_sent']} events sent to {st['url']}"
+              + (f"; {st['not_sent']} not sent (first: {st['first_error']})" if st["not_sent"] else ""))
     print(f"  outputs: {out}/odometry.tum, causal.tum, final.tum, poses.csv, report.json, config.toml"
+          + (", events.jsonl" if (Path(out) / "events.jsonl").is_file() else "")
           + (", plots" if m else "")
           + (", map/, map.ply" if (report.get("map") or {}).get("ply") else ""))
 

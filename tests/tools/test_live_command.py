@@ -29,7 +29,8 @@ def test_live_uvc_with_a_serial_imu_publishes_and_writes_a_complete_run(small_si
                         ["live", "uvc", "--rig", str(small_sim_folder), "--native-only", "--seconds", "5",
                          "--out", str(tmp_path / "run"), "--stream",
                          f"udp://127.0.0.1:{receiver.getsockname()[1]}"], monkeypatch)
-    err = capsys.readouterr().err
+    captured = capsys.readouterr()
+    err = captured.err
     assert code == 0, err
     out = tmp_path / "run"
     assert run_status(out) == "complete"
@@ -53,6 +54,8 @@ def test_live_uvc_with_a_serial_imu_publishes_and_writes_a_complete_run(small_si
     receiver.close()
     poses_got = [m["type"] for m in got].count("pose")
     assert poses_got == report["published_poses"] == report["stream"]["poses_sent"]
+    assert f"stream: {poses_got} poses and {len(events)} events sent to udp://127.0.0.1:" in captured.out
+    assert "config.toml, events.jsonl" in captured.out
     assert [m["kind"] for m in got if m["type"] == "event"] == [e["kind"] for e in events]
 
 
