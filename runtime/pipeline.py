@@ -226,7 +226,7 @@ class VioPipeline:
         if self.startup is None:
             self.bringup.on_frame(frame)
             self.bringup.on_tracks(res.t_ns, res.ids, res.xy)
-            self.events.after_frame(int(frame.t_ns))
+            self.events.after_frame(int(frame.t_ns), len(res.ids))
             return []
         if self.rig_check is not None and not self.rig_check.done:
             self.rig_check.on_tracks(res.t_ns, res.ids, res.xy)
@@ -238,7 +238,7 @@ class VioPipeline:
                 self._frames_waiting.pop(next(iter(self._frames_waiting)))
             if out:
                 self._offer_keyframes(out)
-        self.events.after_frame(int(frame.t_ns))
+        self.events.after_frame(int(frame.t_ns), len(res.ids))
         return out
 
     def rig_state(self) -> dict:

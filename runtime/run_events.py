@@ -6,7 +6,11 @@ a run goes, as they happen, each once:
 - "rig_finding": something is wrong with the rig given (runtime.rig_findings: a gyroscope in deg/s, a wrong
   camera-IMU rotation or time offset), said once per kind;
 - "calibration_estimated": the calibration bring-up estimated the camera-IMU rotation and tracking began;
-- "prior_localised": a segment of the run was localised in the prior map (poses then carry T_PI).
+- "prior_localised": a segment of the run was localised in the prior map (poses then carry T_PI);
+- "features_lost" / "features_back": fewer than FEW_FEATURES features tracked for FEATURES_LOST_S (a covered,
+  dark or blurred camera, a blank wall), and features again;
+- "falling_behind": live, tracking fell behind the camera and images were dropped (at most once every
+  DROPS_EVERY_S data seconds, with the count since the last such event).
 
 `RunEvents` watches a `runtime.pipeline.VioPipeline` from the pipeline's own thread (the pipeline calls it)
 and hands each event to `on_event` (`runtime.session.Session(on_event=...)`; `davio run|live` write them to
@@ -21,9 +25,17 @@ from typing import Any
 
 from runtime.rig_findings import rig_findings
 
-KINDS = ("publishing", "reset", "rig_finding", "calibration_estimated", "prior_localised")
+KINDS = ("publishing", "reset", "rig_finding", "calibration_estimated", "prior_localised", "features_lost",
+         "features_back", "falling_behind")
 MAX_KEPT = 1000
 """Events `RunEvents.log` keeps (a run has a handful; one that resets again and again is bounded)."""
+FEW_FEATURES = 10
+"""Tracked features below which a frame counts as seeing nothing to track (the filter needs several)."""
+FEATURES_LOST_S = 1.0
+"""How long (camera seconds) frames must see fewer than FEW_FEATURES before "features_lost" is said: a
+single dark or blurred frame is not news."""
+DROPS_EVERY_S = 10.0
+"""At most one "falling_behind" event in this many data seconds (a slow machine drops images all along)."""
 
 
 @dataclass(frozen=True)
@@ -56,7 +68,9 @@ class RunEvents:
     Details: "publishing": source (e.g. "feedforward", "native:static"), segment (filter restarts before
     it); "reset": segment (the one that ended), reason (the filter's), resets (so far); "rig_finding": key,
     evidence (runtime.rig_findings.RigFinding); "calibration_estimated": windows_used, R_IC (3x3 rows);
-    "prior_localised": segment, source (the prior map).
+    "prior_localised": segment, source (the prior map); "features_lost": since_t_ns (the first frame with
+    too few), features (on this frame); "features_back": lost_s (how long), features; "falling_behind":
+    dropped (since the last such event), total.
 
     Args:
         pipeline: the VioPipeline watched (read: startup, rig_check, bringup, prior, rig_state()).
@@ -80,6 +94,10 @@ class RunEvents:
         self._finding_kinds: set[str] = set()
         self._localised: set[int] = set()
         self._next_look_ns: int | None = None
+        self._few_since_ns: int | None = None     # the first of the current run of frames with few features
+        self._lost = False
+        self._dropped_said = 0
+        self._next_drop_ns: int | None = None
 
     # -- what the pipeline calls --------------------------------------------------------------
     def on_published(self, out: list) -> None:
@@ -93,9 +111,12 @@ class RunEvents:
                            + (f", segment {p.segment}" if p.segment else ""),
                            source=str(p.source), segment=int(p.segment))
 
-    def after_frame(self, t_ns: int) -> None:
-        """After each frame: resets and prior-map localisations at once, rig findings every look_every_s."""
+    def after_frame(self, t_ns: int, features: int | None = None) -> None:
+        """After each frame (with its number of tracked features): resets, prior-map localisations and the
+        features seen at once, rig findings every look_every_s."""
         self._check_reset(t_ns)
+        if features is not None:
+            self._features(t_ns, int(features))
         prior = self.pipeline.prior
         if prior is not None and len(prior.localized_at_ns) > len(self._localised):
             for seg in sorted(set(prior.localized_at_ns) - self._localised):
@@ -110,6 +131,18 @@ class RunEvents:
                     self._finding_kinds.add(finding.kind)
                     self._emit(t_ns, "rig_finding", finding.line, key=finding.key, evidence=finding.evidence)
 
+    def frames_dropped(self, total: int, t_ns: int) -> None:
+        """The live queue has dropped `total` images so far (the scheduler says so after a frame)."""
+        if total <= self._dropped_said or (self._next_drop_ns is not None and t_ns < self._next_drop_ns):
+            return
+        n, first = total - self._dropped_said, self._dropped_said == 0
+        self._dropped_said = total
+        self._next_drop_ns = t_ns + int(DROPS_EVERY_S * 1e9)
+        since = "" if first else " since the last such event"
+        self._emit(t_ns, "falling_behind", (
+            f"tracking falls behind the camera: {n} images dropped{since}, {total} in all (the oldest "
+            "waiting image goes; IMU samples are all kept)"), dropped=int(n), total=int(total))
+
     def calibration_estimated(self, t_ns: int, report: Any) -> None:
         """The bring-up finished (its runtime.bringup.BringUpReport): tracking starts on the estimate."""
         rep = asdict(report)
@@ -123,6 +156,24 @@ class RunEvents:
         return {"counts": dict(self.counts), "not_kept": max(0, sum(self.counts.values()) - len(self.log))}
 
     # -- inside ------------------------------------------------------------------------------
+    def _features(self, t_ns: int, features: int) -> None:
+        if features >= FEW_FEATURES:
+            if self._lost:
+                lost_s = (t_ns - self._few_since_ns) / 1e9
+                self._emit(t_ns, "features_back", f"features tracked again ({features}) after {lost_s:.1f} s",
+                           lost_s=round(lost_s, 3), features=features)
+            self._few_since_ns, self._lost = None, False
+            return
+        if self._few_since_ns is None:
+            self._few_since_ns = t_ns
+        if not self._lost and t_ns - self._few_since_ns >= int(FEATURES_LOST_S * 1e9):
+            self._lost = True
+            lost_s = (t_ns - self._few_since_ns) / 1e9
+            self._emit(t_ns, "features_lost", (
+                f"fewer than {FEW_FEATURES} features tracked for {lost_s:.1f} s: the camera sees nothing to "
+                "track (covered, dark, blurred, a blank wall?); a running filter has only the IMU"),
+                since_t_ns=int(self._few_since_ns), features=features)
+
     def _check_reset(self, t_ns: int) -> None:
         startup = self.pipeline.startup
         if startup is None or startup.report.restarts_after_divergence == self._resets:

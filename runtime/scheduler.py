@@ -277,6 +277,8 @@ class Scheduler:
         job_id = 0
         t_first: int | None = None
         imu_ms = 0.0     # the pipeline's time in on_imu since the last frame
+        dropped_seen = 0   # images the live queue dropped, as last told to the pipeline's events
+        events = getattr(pipeline, "events", None)     # runtime.run_events.RunEvents, when it has one
         wall0 = time.perf_counter()
         try:
             while True:
@@ -312,6 +314,9 @@ class Scheduler:
                     out = pipeline.on_frame(ev)
                     rep.per_frame_ms.append(imu_ms + 1e3 * (time.perf_counter() - t0))
                     imu_ms = 0.0
+                    if q.frames_dropped != dropped_seen and events is not None:
+                        dropped_seen = q.frames_dropped
+                        events.frames_dropped(dropped_seen, t)
                     if self.progress is not None:
                         self.progress((t - t_first) * 1e-9)
                 else:

@@ -177,3 +177,77 @@ def test_the_log_is_bounded_and_counts_what_it_did_not_keep():
                                  "message": f"publishing metric poses again (native:static), segment "
                                             f"{MAX_KEPT + 4}", "source": "native:static",
                                  "segment": MAX_KEPT + 4}
+
+
+def test_features_lost_is_said_after_a_second_with_too_few_and_features_back_when_they_return():
+    from runtime.run_events import FEATURES_LOST_S, FEW_FEATURES
+
+    events, got = _events(_pipe(StartupReport()))
+    events.after_frame(_s(0.0), 150)
+    events.after_frame(_s(0.05), 0)                       # one dark frame: not news
+    events.after_frame(_s(0.10), 150)
+    for k in range(0, 21):                                # 1.0 s of frames with one feature too few
+        events.after_frame(_s(1.0 + 0.05 * k), FEW_FEATURES - 1)
+        assert len(got) == (1 if 0.05 * k >= FEATURES_LOST_S - 1e-9 else 0)
+    assert (got[0].kind, got[0].t_s, got[0].detail) == (
+        "features_lost", 2.0, {"since_t_ns": _s(1.0), "features": FEW_FEATURES - 1})
+    events.after_frame(_s(2.5), 3)                        # still lost: said once
+    events.after_frame(_s(3.2), FEW_FEATURES)
+    assert [(e.kind, e.t_s, e.detail) for e in got[1:]] == [
+        ("features_back", 3.2, {"lost_s": 2.2, "features": FEW_FEATURES})]
+    assert got[1].message == f"features tracked again ({FEW_FEATURES}) after 2.2 s"
+    events.after_frame(_s(3.3), 0)                        # a new run of few features starts afresh
+    events.after_frame(_s(4.2), 0)
+    assert len(got) == 2
+    events.after_frame(_s(4.3), 0)
+    assert got[-1].kind == "features_lost" and got[-1].detail["since_t_ns"] == _s(3.3)
+
+
+def test_images_dropped_live_are_said_at_once_then_at_most_every_ten_data_seconds():
+    from runtime.run_events import DROPS_EVERY_S
+
+    events, got = _events(_pipe(StartupReport()))
+    events.frames_dropped(0, _s(1.0))
+    assert got == []
+    events.frames_dropped(2, _s(1.0))
+    events.frames_dropped(5, _s(2.0))                     # within ten seconds: counted, not said
+    events.frames_dropped(9, _s(1.0 + DROPS_EVERY_S))
+    events.frames_dropped(9, _s(30.0))                    # nothing new
+    assert [(e.t_s, e.detail) for e in got] == [(1.0, {"dropped": 2, "total": 2}),
+                                                (11.0, {"dropped": 7, "total": 9})]
+    assert got[0].message.startswith("tracking falls behind the camera: 2 images dropped, 2 in all")
+    assert got[1].message.startswith("tracking falls behind the camera: 7 images dropped since the last such "
+                                     "event, 9 in all")
+
+
+def test_a_covered_camera_on_the_real_euroc_head_is_said_and_its_return_too():
+    """Frames 30-59 (1.5-3.0 s) of V1_01's head made black: features_lost 1 s into the dark, features_back
+    on the first frame with an image, each once."""
+    from conftest import shared_path
+
+    from drivers.euroc import EurocDriver
+    from runtime.config import DavioConfig
+    from runtime.events import Frame
+    from tools.run_session import run_pipeline
+
+    drv = EurocDriver(shared_path("euroc", "V1_01_easy_head"))
+
+    class Covered:
+        rig = drv.rig
+
+        def events(self):
+            k = 0
+            for ev in drv.events():
+                if isinstance(ev, Frame):
+                    if 30 <= k < 60:
+                        ev = Frame(ev.t_ns, np.zeros_like(ev.image), ev.camera_id)
+                    k += 1
+                yield ev
+
+    got: list = []
+    res = run_pipeline(Covered(), None, DavioConfig(), show_progress=False, seconds=3.5, on_event=got.append)
+    frames = [ev.t_ns for ev in drv.events() if isinstance(ev, Frame)]
+    lost = [e for e in got if e.kind.startswith("features")]
+    assert [(e.kind, e.t_ns) for e in lost] == [("features_lost", frames[50]), ("features_back", frames[60])]
+    assert lost[0].detail == {"since_t_ns": frames[30], "features": 0} and lost[1].detail["features"] > 100
+    assert res.pipeline.report()["events"]["counts"]["features_lost"] == 1

@@ -74,11 +74,17 @@ def test_an_error_in_the_session_thread_reaches_the_caller_at_close(recording) -
 @pytest.mark.slow
 def test_a_tracker_that_falls_behind_drops_images_not_imu_samples(recording) -> None:
     rec, events = recording
-    with Session(rec.rig, max_pending_frames=1) as s:
+    said: list = []
+    with Session(rec.rig, max_pending_frames=1, on_event=said.append) as s:
         _push(s, events)                  # pushed far faster than real time
     rep = s.result.scheduler
     n_frames = sum(isinstance(e, Frame) for e in events)
     assert rep.frames_dropped > 0 and rep.frames + rep.frames_dropped == n_frames
+    # the supervisor hears of it as it happens: at once, then at most once every ten data seconds
+    behind = [e for e in said if e.kind == "falling_behind"]
+    assert behind and behind[0].detail["total"] == behind[0].detail["dropped"] >= 1
+    assert sum(e.detail["dropped"] for e in behind) == behind[-1].detail["total"] <= rep.frames_dropped
+    assert all(b.t_s - a.t_s >= 10.0 for a, b in zip(behind, behind[1:], strict=False))
     assert rep.imu_samples == len(events) - n_frames
 
 
