@@ -94,6 +94,10 @@ def test_the_live_status_line_says_an_event_on_its_own_line(capsys):
     lines = capsys.readouterr().err.splitlines()
     assert lines[0] == "  at 2.0 s: GYROSCOPE SCALE (tracked features): x"
     assert "100 tracks" in lines[1]            # the status line follows
+    pipe.stats.frames += 20                   # a second of a covered camera: the run's mean would say 13
+    status.last -= 2.0                        # (the line is refreshed once a wall second)
+    status(3.0)
+    assert "   0 tracks" in capsys.readouterr().err
 
 
 @pytest.mark.slow

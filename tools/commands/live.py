@@ -251,6 +251,7 @@ class _StatusLine:
         self.session, self.driver = None, driver
         self.last = 0.0
         self.frames0 = 0
+        self.tracked0 = (0, 0)     # the pipeline's (tracks_total, frames) at the last line
         self.tty = sys.stderr.isatty()
         self.events = EventConsole(self._say)
 
@@ -267,7 +268,10 @@ class _StatusLine:
         rate = (frames - self.frames0) / (now - self.last) if self.last else 0.0
         self.last, self.frames0 = now, frames
         st = pipe.startup.report.published_by if pipe.startup is not None else "calibration bring-up"
-        tracks = pipe.stats.tracks_total / max(pipe.stats.frames, 1)
+        # features per frame over the last second, not the run's mean: a covered camera shows at once
+        tracked = (pipe.stats.tracks_total, pipe.stats.frames)
+        tracks = (tracked[0] - self.tracked0[0]) / max(tracked[1] - self.tracked0[1], 1)
+        self.tracked0 = tracked
         drops = rep.frames_dropped if rep is not None else 0
         line = (f"  {sensor_s:7.1f} s  {rate:5.1f} fps  {tracks:4.0f} tracks  {st or 'starting':<16} "
                 f"{len(pipe.published):6d} poses  drops {drops}")
