@@ -69,8 +69,8 @@ class VioPipeline:
             committed submap is localised in it, and published poses get their pose in its frame
             (`prior_pose`, runtime.graph.prior_frame). Needs mapping (a model, mapping on).
         on_event: called with each runtime.run_events.RunEvent (a new publisher, a reset, a rig finding,
-            the bring-up's estimate, a prior-map localisation) on the pipeline's thread; `events.log`
-            keeps them either way.
+            the bring-up's estimate, a prior-map localisation, features lost and back, images dropped live)
+            on the pipeline's thread; `events.log` keeps them either way.
     """
 
     def __init__(self, rig: Any, model: DepthModel | None = None, config: DavioConfig | None = None,
@@ -211,6 +211,7 @@ class VioPipeline:
             self.rig_check.on_imu(sample.t_ns, g, a)
         out = self.startup.on_imu(sample)
         self._publish_causal(out)
+        self.events.after_imu(self._last_t)
         if self.windows is not None and out:
             self._offer_keyframes(out)
         return out

@@ -14,8 +14,10 @@ a run goes, as they happen, each once:
 
 `RunEvents` watches a `runtime.pipeline.VioPipeline` from the pipeline's own thread (the pipeline calls it)
 and hands each event to `on_event` (`runtime.session.Session(on_event=...)`; `davio run|live` write them to
-`events.jsonl` in the run folder and say them on the console). The counters behind each event stay in the
-run report; an event is the moment one of them changed, with its data time.
+`events.jsonl` in the run folder and say them on the console). Under the scheduler, the events of a step
+(one IMU sample or frame) reach `on_event` after the poses that step published (the scheduler `flush`es
+them), so a reset comes after the last pose of the segment it ends. The counters behind each event stay in
+the run report; an event is the moment one of them changed, with its data time.
 """
 from __future__ import annotations
 
@@ -74,7 +76,8 @@ class RunEvents:
 
     Args:
         pipeline: the VioPipeline watched (read: startup, rig_check, bringup, prior, rig_state()).
-        on_event: called with each RunEvent on the pipeline's thread, or None (the log only).
+        on_event: called with each RunEvent on the pipeline's thread, or None (the log only). An exception
+            it raises goes up into the run, as one from a Session's on_pose does.
         rig_offset_s: the rig file's camera-IMU time offset (s; None: none given), for the time-offset
             finding's line.
         look_every_s: how often (data seconds) the rig findings are looked for.
@@ -98,18 +101,35 @@ class RunEvents:
         self._lost = False
         self._dropped_said = 0
         self._next_drop_ns: int | None = None
+        self.hold = False
+        """While True (the scheduler sets it), events wait in `pending` for `flush()`."""
+        self.pending: list[RunEvent] = []
+        self.look_errors = 0
+        """Looks for rig findings that failed (a reporting aid: counted, never raised into the run)..."""
+        self.look_error_first: str | None = None
+        """...and the first one's message."""
 
     # -- what the pipeline calls --------------------------------------------------------------
     def on_published(self, out: list) -> None:
         """After states were published (each with .t_ns, .segment, .source): a new publisher is an event."""
         for p in out:
             if (p.segment, p.source) != self._publishing:
-                self._check_reset(int(p.t_ns))      # a reset is said before what publishes after it
+                # the resets before this segment (its number counts them) are said before it; one after it,
+                # in the same call (its first poses diverged), after it
+                self._check_reset(int(p.t_ns), upto=int(p.segment))
                 self._publishing = (p.segment, p.source)
                 again = "" if self.counts.get("publishing", 0) == 0 else "again "
                 self._emit(int(p.t_ns), "publishing", f"publishing metric poses {again}({p.source})"
                            + (f", segment {p.segment}" if p.segment else ""),
                            source=str(p.source), segment=int(p.segment))
+        if out:
+            self._check_reset(int(out[-1].t_ns))
+
+    def after_imu(self, t_ns: int) -> None:
+        """After each IMU sample: a reset found there is said at once, not at the next frame."""
+        startup = self.pipeline.startup
+        if startup is not None and startup.report.restarts_after_divergence != self._resets:
+            self._check_reset(t_ns)
 
     def after_frame(self, t_ns: int, features: int | None = None) -> None:
         """After each frame (with its number of tracked features): resets, prior-map localisations and the
@@ -126,14 +146,23 @@ class RunEvents:
                            segment=int(seg), source=str(prior.source))
         if self._next_look_ns is None or t_ns >= self._next_look_ns:
             self._next_look_ns = t_ns + int(self.look_every_s * 1e9)
-            for finding in rig_findings(self.pipeline.rig_state(), self.rig_offset_s):
+            try:
+                found = rig_findings(self.pipeline.rig_state(), self.rig_offset_s)
+            except Exception as exc:   # noqa: BLE001 - the run report still holds every counter
+                self.look_errors += 1
+                self.look_error_first = self.look_error_first or f"{type(exc).__name__}: {exc}"
+                found = []
+            for finding in found:
                 if finding.kind not in self._finding_kinds:
                     self._finding_kinds.add(finding.kind)
                     self._emit(t_ns, "rig_finding", finding.line, key=finding.key, evidence=finding.evidence)
 
-    def frames_dropped(self, total: int, t_ns: int) -> None:
-        """The live queue has dropped `total` images so far (the scheduler says so after a frame)."""
-        if total <= self._dropped_said or (self._next_drop_ns is not None and t_ns < self._next_drop_ns):
+    def frames_dropped(self, total: int, t_ns: int, final: bool = False) -> None:
+        """The live queue has dropped `total` images so far (the scheduler says so after each frame once
+        any was dropped, and with `final` when the data ends: drops not said yet are said then)."""
+        if total <= self._dropped_said:
+            return
+        if not final and self._next_drop_ns is not None and t_ns < self._next_drop_ns:
             return
         n, first = total - self._dropped_said, self._dropped_said == 0
         self._dropped_said = total
@@ -151,9 +180,19 @@ class RunEvents:
             f"windows (fit {rep['fit_rms_deg'] or 0.0:.2f} deg rms); tracking starts, the lever arm and time "
             "offset estimated online"), windows_used=int(rep["windows_used"]), R_IC=rep["R_IC"])
 
+    def flush(self) -> None:
+        """Hand the events held back (`hold`) to on_event, in order."""
+        while self.pending:
+            event = self.pending.pop(0)
+            if self.on_event is not None:
+                self.on_event(event)
+
     def report(self) -> dict:
-        """Counts by kind, and how many events the log did not keep."""
-        return {"counts": dict(self.counts), "not_kept": max(0, sum(self.counts.values()) - len(self.log))}
+        """Counts by kind, how many events the log did not keep, failed looks for rig findings."""
+        rep = {"counts": dict(self.counts), "not_kept": max(0, sum(self.counts.values()) - len(self.log))}
+        if self.look_errors:
+            rep["look_errors"], rep["look_error_first"] = self.look_errors, self.look_error_first
+        return rep
 
     # -- inside ------------------------------------------------------------------------------
     def _features(self, t_ns: int, features: int) -> None:
@@ -174,17 +213,24 @@ class RunEvents:
                 "track (covered, dark, blurred, a blank wall?); a running filter has only the IMU"),
                 since_t_ns=int(self._few_since_ns), features=features)
 
-    def _check_reset(self, t_ns: int) -> None:
+    def _check_reset(self, t_ns: int, upto: int | None = None) -> None:
+        """Say the resets not said yet: all of them, or (`upto`) those before segment `upto` began."""
         startup = self.pipeline.startup
-        if startup is None or startup.report.restarts_after_divergence == self._resets:
+        if startup is None:
             return
-        self._resets = startup.report.restarts_after_divergence
-        segment = self._publishing[0] if self._publishing is not None else 0
-        reason = getattr(startup.native, "last_reset_reason", None) or "unknown"
-        self._publishing = None
+        now = startup.report.restarts_after_divergence
+        count = now if upto is None else min(now, upto)
+        if count <= self._resets:
+            return
+        self._resets = count
+        segment = count - 1      # segment k publishes after k resets, and the (k+1)-th ends it
+        # the filter keeps the reason of its own latest reset: the one said when no later one happened
+        reason = (getattr(startup.native, "last_reset_reason", None) if count == now else None) or "unknown"
+        if self._publishing is not None and self._publishing[0] <= segment:
+            self._publishing = None
         self._emit(t_ns, "reset", f"the filter publishing poses diverged ({reason}) and was reset: no poses "
                    "until an initializer publishes again", segment=int(segment), reason=str(reason),
-                   resets=int(self._resets))
+                   resets=int(count))
 
     def _emit(self, t_ns: int, kind: str, message: str, **detail: Any) -> None:
         start = self.start_ns if self.start_ns is not None else t_ns
@@ -192,5 +238,7 @@ class RunEvents:
         self.counts[kind] = self.counts.get(kind, 0) + 1
         if len(self.log) < MAX_KEPT:
             self.log.append(event)
-        if self.on_event is not None:
+        if self.hold:
+            self.pending.append(event)
+        elif self.on_event is not None:
             self.on_event(event)

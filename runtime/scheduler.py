@@ -277,8 +277,11 @@ class Scheduler:
         job_id = 0
         t_first: int | None = None
         imu_ms = 0.0     # the pipeline's time in on_imu since the last frame
-        dropped_seen = 0   # images the live queue dropped, as last told to the pipeline's events
-        events = getattr(pipeline, "events", None)     # runtime.run_events.RunEvents, when it has one
+        # runtime.run_events.RunEvents, when the pipeline has them: each step's events after its poses
+        run_events = getattr(pipeline, "events", None)
+        if run_events is not None:
+            run_events.hold = True
+        t = None
         wall0 = time.perf_counter()
         try:
             while True:
@@ -314,9 +317,8 @@ class Scheduler:
                     out = pipeline.on_frame(ev)
                     rep.per_frame_ms.append(imu_ms + 1e3 * (time.perf_counter() - t0))
                     imu_ms = 0.0
-                    if q.frames_dropped != dropped_seen and events is not None:
-                        dropped_seen = q.frames_dropped
-                        events.frames_dropped(dropped_seen, t)
+                    if q.frames_dropped and run_events is not None:
+                        run_events.frames_dropped(q.frames_dropped, t)
                     if self.progress is not None:
                         self.progress((t - t_first) * 1e-9)
                 else:
@@ -326,6 +328,8 @@ class Scheduler:
                     imu_ms += 1e3 * (time.perf_counter() - t0)
                 if out and self.on_output is not None:
                     self.on_output(out)
+                if run_events is not None and run_events.pending:
+                    run_events.flush()
                 if in_flight is None:
                     job = pipeline.next_model_job()
                     if job is not None:
@@ -347,6 +351,12 @@ class Scheduler:
             rep.frames_dropped = q.frames_dropped
             rep.imu_overflow = q.imu_overflow
             rep.wall_s = time.perf_counter() - wall0
+            if run_events is not None:
+                if t is not None:     # images dropped after the last one said (the data ended)
+                    run_events.frames_dropped(q.frames_dropped, t, final=True)
+                run_events.hold = False
+        if run_events is not None and run_events.pending:   # outside `finally`: a failing callback raises
+            run_events.flush()
         if rep.intake_error is not None:
             raise IntakeFailure(f"sensor intake failed after {rep.sensor_s:.1f} s of data: "
                                 f"{rep.intake_error}")

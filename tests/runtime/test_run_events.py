@@ -251,3 +251,68 @@ def test_a_covered_camera_on_the_real_euroc_head_is_said_and_its_return_too():
     assert [(e.kind, e.t_ns) for e in lost] == [("features_lost", frames[50]), ("features_back", frames[60])]
     assert lost[0].detail == {"since_t_ns": frames[30], "features": 0} and lost[1].detail["features"] > 100
     assert res.pipeline.report()["events"]["counts"]["features_lost"] == 1
+
+
+def test_a_publisher_whose_first_poses_diverge_is_said_between_the_two_resets_each_with_its_segment():
+    """Segment 0 publishes and resets; segment 1's first batch diverges within the same call (the start-up
+    publishes, then restarts): reset 1 (segment 0), publishing (segment 1), reset 2 (segment 1)."""
+    st = StartupReport()
+    pipe = _pipe(st)
+    events, got = _events(pipe)
+    events.on_published([_published(2.0, 0, "native:static")])
+    st.restarts_after_divergence = 2                      # both resets happened before we look
+    pipe.startup.native.last_reset_reason = "chi2 rejected 90% of features"
+    events.on_published([_published(6.0, 1, "feedforward"), _published(6.05, 1, "feedforward")])
+    said = [(e.kind, e.detail.get("segment"), e.detail.get("resets"), e.detail.get("reason")) for e in got]
+    assert said == [
+        ("publishing", 0, None, None), ("reset", 0, 1, "unknown"), ("publishing", 1, None, None),
+        ("reset", 1, 2, "chi2 rejected 90% of features")]
+    assert [e.t_ns for e in got[1:]] == [_s(6.0), _s(6.0), _s(6.05)]
+    events.on_published([_published(9.0, 2, "native:dynamic")])     # no reset left to say
+    assert [e.kind for e in got[4:]] == ["publishing"]
+
+
+def test_a_reset_found_on_an_imu_sample_is_said_at_that_sample():
+    st = StartupReport()
+    pipe = _pipe(st)
+    events, got = _events(pipe)
+    events.on_published([_published(2.0, 0, "native:static")])
+    events.after_imu(_s(3.0))
+    st.restarts_after_divergence = 1
+    events.after_imu(_s(3.005))
+    events.after_frame(_s(3.05), 100)
+    assert [(e.kind, e.t_s) for e in got] == [("publishing", 2.0), ("reset", 3.005)]
+
+
+def test_held_events_wait_for_flush_and_keep_their_order():
+    events, got = _events(_pipe(StartupReport()))
+    events.hold = True
+    events.on_published([_published(2.0, 0, "native:static")])
+    events.frames_dropped(3, _s(2.0))
+    assert got == [] and [e.kind for e in events.pending] == ["publishing", "falling_behind"]
+    assert len(events.log) == 2                                     # the log has them at once
+    events.flush()
+    assert [e.kind for e in got] == ["publishing", "falling_behind"] and events.pending == []
+
+
+def test_a_failing_look_for_rig_findings_is_counted_not_raised_into_the_run():
+    pipe = _pipe(StartupReport())
+
+    def broken():
+        raise KeyError("gyro_scale")
+
+    pipe.rig_state = broken
+    events, got = _events(pipe)
+    events.after_frame(_s(1.0), 100)
+    events.after_frame(_s(2.5), 100)
+    assert got == [] and events.report()["look_errors"] == 2
+    assert events.report()["look_error_first"] == "KeyError: 'gyro_scale'"
+
+
+def test_images_dropped_after_the_last_event_are_said_when_the_data_ends():
+    events, got = _events(_pipe(StartupReport()))
+    events.frames_dropped(1, _s(1.0))
+    events.frames_dropped(4, _s(3.0))                     # within ten seconds: held back
+    events.frames_dropped(4, _s(5.0), final=True)
+    assert [(e.t_s, e.detail) for e in got] == [(1.0, {"dropped": 1, "total": 1}),
+                                                (5.0, {"dropped": 3, "total": 4})]

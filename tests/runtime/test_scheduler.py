@@ -183,3 +183,38 @@ def test_per_frame_time_counts_the_imu_work_since_the_previous_frame():
     assert rep.frames == 6 and len(rep.per_frame_ms) == 6
     # every frame after the first follows 10 samples of 1.5 ms each
     assert min(rep.per_frame_ms[1:]) >= 10 * 1.5
+
+
+def test_a_step_s_events_reach_on_event_after_the_poses_that_step_published():
+    """The events a step found (here: one per frame) wait until on_output has had the step's poses, so a
+    supervisor reading both in order never gets a reset before the last pose of the segment it ends."""
+    from types import SimpleNamespace
+
+    from runtime.run_events import RunEvents
+
+    order: list = []
+
+    class EventfulPipeline(TracePipeline):
+        def __init__(self):
+            super().__init__(lambda: 0.0)
+            self.startup, self.prior = None, None
+            self.events = RunEvents(self, lambda ev: order.append(("event", ev.t_ns)))
+
+        def rig_state(self):
+            return {}
+
+        def on_frame(self, f):
+            out = super().on_frame(f)
+            self.events._emit(f.t_ns, "reset", "test")      # found while the step runs
+            assert order[-1:] != [("event", f.t_ns)]        # not handed on yet
+            return [SimpleNamespace(t_ns=t) for t in out]
+
+        def next_model_job(self):
+            return None
+
+    pipe = EventfulPipeline()
+    sched = Scheduler(FastClock(0.0), on_output=lambda out: order.extend(("pose", p.t_ns) for p in out))
+    sched.run(_events(n_imu=40), pipe)
+    frames = [t for kind, t in pipe.trace if kind == "frame"]
+    assert order == [x for t in frames for x in (("pose", t), ("event", t))]
+    assert not pipe.events.hold and pipe.events.pending == []
