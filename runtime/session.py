@@ -97,10 +97,12 @@ class Session:
         prior_map: an earlier run's map to localise this one in (`tools.map_archive.align.
             prior_map_localizer(path)`, or a `runtime.graph.relocalize.PriorMapLocalizer`): poses then
             carry T_PI once localised. Needs a model and mapping.
-        on_event: called with each runtime.run_events.RunEvent (on the session's scheduler thread): a
-            filter began publishing, the publishing filter diverged and was reset, a rig finding (a
-            gyroscope in deg/s, a wrong camera-IMU rotation or time offset), the bring-up's estimate, a
-            prior-map localisation; `pipeline.events.log` keeps them too.
+        on_event: called with each runtime.run_events.RunEvent (on the session's scheduler thread, after
+            the poses published in the same step): a filter began publishing, the publishing filter
+            diverged and was reset, a rig finding (a gyroscope in deg/s, a wrong camera-IMU rotation or time
+            offset), the bring-up's estimate, a prior-map localisation, features lost and back, images
+            dropped; `pipeline.events.log` keeps them too. An exception it raises stops the session, as one
+            from on_pose does.
     """
 
     def __init__(self, rig: Any, model: Any = None, config: DavioConfig | None = None,

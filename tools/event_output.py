@@ -1,9 +1,9 @@
-"""Where a run's events (runtime.run_events) go in `davio run`, `davio live` and `davio calibrate`: one JSON
-line each in the run folder's `events.jsonl`, written as they happen, so that a supervisor can follow the
-file (`tail -f`) and a killed run keeps them; and one console line each, "at 6.0 s: GYROSCOPE SCALE (tracked
-features): ...", so that an operator with a module in hand hears of a gyroscope in deg/s while holding it.
-Neither ever ends the run: a failing disk stops the file, a closed stderr stops the lines, and each says why
-(`failed`, `error`)."""
+"""Where a run's events (runtime.run_events) go: in `davio run`, `davio live` and `davio demo` one JSON line
+each in the run folder's `events.jsonl`, written as they happen, so that a supervisor can follow the file
+(`tail -f`) and a killed run keeps them; and one console line each, "at 6.0 s: GYROSCOPE SCALE (tracked
+features): ...", so that an operator with a module in hand hears of a gyroscope in deg/s while holding it
+(`davio calibrate` says them too). Neither ever ends the run: a failing disk stops the file, a closed stderr
+stops the lines, and each says why (`failed`, `error`)."""
 from __future__ import annotations
 
 from collections.abc import Callable

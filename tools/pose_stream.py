@@ -3,7 +3,8 @@ datagram each, holding one JSON object (`davio run|live --stream udp://HOST:PORT
 in any language, reads them with a UDP socket and a JSON parser.
 
 A pose datagram (`"type": "pose"`):
-    v: the message version (MESSAGE_VERSION); seq: a counter over every datagram of the run (a gap: lost);
+    v: the message version (MESSAGE_VERSION); run: a random id of this run (a new one: DAVIO restarted);
+    seq: a counter over every datagram of the run from 0 (a gap: lost);
     t_ns: IMU-clock time (ns); t_cam_ns: the camera time of the frame it followed;
     source: the filter publishing ("feedforward", "native:static", ...); segment: resets before it;
     p_OI, q_OI: IMU position (m) and orientation (Hamilton x, y, z, w) in the odometry frame O (gravity
@@ -12,14 +13,18 @@ A pose datagram (`"type": "pose"`):
     p_PI, q_PI: in a prior map's frame (--prior-map), or null until this segment is localised in it;
     cov: the upper triangle, row by row, of the 6x6 covariance of [rotation error (body frame, rad),
         position (m)] (21 numbers), or null.
-An event datagram (`"type": "event"`): v, seq and the event's fields (runtime.run_events.RunEvent.to_json:
-t_ns, t_s, kind, message and the kind's details).
+An event datagram (`"type": "event"`): v, run, seq and the event's fields (runtime.run_events.RunEvent.
+to_json: t_ns, t_s, kind, message and the kind's details).
+
+A HOST name with both an IPv4 and an IPv6 address (`localhost`, `robot.local`) is sent to over IPv4: a
+receiver bound to an IPv4 socket gets it; give an IPv6 address ([::1]) for IPv6.
 
 Sending never waits and never ends the run: the socket does not block, and a datagram the network stack
 refuses is counted (`report()`), as a UDP receiver that is not listening is not an error.
 """
 from __future__ import annotations
 
+import secrets
 import socket
 from typing import Any
 from urllib.parse import urlsplit
@@ -32,7 +37,8 @@ from runtime.json_out import strict_dumps
 
 MESSAGE_VERSION = 1
 MAX_DATAGRAM_BYTES = 1400
-"""Largest datagram sent (within an Ethernet MTU, so never fragmented); a pose is about 1.1 kB."""
+"""Largest datagram sent: within a 1500-byte Ethernet MTU (a pose is 650-850 bytes; an event's long line is
+cut to fit). Tunnels with a smaller MTU (WireGuard 1420, Tailscale 1280) may fragment one."""
 _ROWS, _COLS = np.triu_indices(6)
 
 
@@ -48,9 +54,22 @@ def parse_stream_url(url: str) -> tuple[str, int]:
         raise ConfigError(f"--stream {url!r}: only udp://HOST:PORT is supported")
     if not parts.hostname or port is None or not 0 < port < 65536:
         raise ConfigError(f"--stream {url!r}: expected udp://HOST:PORT with a port in 1-65535")
-    if parts.path not in ("", "/") or parts.query or parts.fragment:
-        raise ConfigError(f"--stream {url!r}: expected udp://HOST:PORT, nothing after the port")
+    if parts.path not in ("", "/") or parts.query or parts.fragment or parts.username is not None:
+        raise ConfigError(f"--stream {url!r}: expected udp://HOST:PORT, nothing before the host or after the "
+                          "port")
     return parts.hostname, port
+
+
+def resolve_stream_url(url: str) -> tuple[int, tuple]:
+    """(address family, socket address) of "udp://HOST:PORT", an IPv4 address preferred (see the module
+    docstring); ConfigError when HOST does not resolve."""
+    host, port = parse_stream_url(url)
+    try:
+        found = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)
+    except socket.gaierror as exc:
+        raise ConfigError(f"--stream {url!r}: cannot resolve {host!r} ({exc.strerror})") from None
+    family, _, _, _, addr = next((a for a in found if a[0] == socket.AF_INET), found[0])
+    return family, addr
 
 
 def _rounded(values: Any, digits: int) -> list:
@@ -64,13 +83,13 @@ def _pose_fields(prefix: str, T: np.ndarray | None) -> dict:
     return {f"p_{prefix}": _rounded(T[:3, 3], 6), f"q_{prefix}": _rounded(rot_to_quat_xyzw(T[:3, :3]), 9)}
 
 
-def pose_message(pose: Any, seq: int) -> dict:
+def pose_message(pose: Any, seq: int, run_id: str = "") -> dict:
     """The JSON object of one runtime.session.Pose (see the module docstring)."""
     cov = None
     if pose.covariance is not None:
         C = np.asarray(pose.covariance, dtype=np.float64)
         cov = [float(f"{x:.6g}") for x in C[_ROWS, _COLS]]
-    return {"type": "pose", "v": MESSAGE_VERSION, "seq": seq, "t_ns": int(pose.t_ns),
+    return {"type": "pose", "v": MESSAGE_VERSION, "run": run_id, "seq": seq, "t_ns": int(pose.t_ns),
             "t_cam_ns": int(pose.t_cam_ns), "source": pose.source, "segment": int(pose.segment),
             **_pose_fields("OI", pose.T_OI), "v_OI": _rounded(pose.v_OI, 6), **_pose_fields("MI", pose.T_MI),
             "correction_version": int(pose.correction_version), **_pose_fields("PI", pose.T_PI), "cov": cov}
@@ -84,17 +103,17 @@ class PoseStream:
     """
 
     def __init__(self, url: str) -> None:
-        host, port = parse_stream_url(url)
         self.url = url
+        family, self.address = resolve_stream_url(url)
+        self.run_id = secrets.token_hex(4)
+        self._sock = socket.socket(family, socket.SOCK_DGRAM)
         try:
-            family, kind, proto, _, addr = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0]
-        except socket.gaierror as exc:
-            raise ConfigError(f"--stream {url!r}: cannot resolve {host!r} ({exc.strerror})") from None
-        self.address = addr
-        self._sock = socket.socket(family, kind, proto)
-        self._sock.setblocking(False)
-        if family == socket.AF_INET:
-            self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
+            self._sock.setblocking(False)
+            if family == socket.AF_INET:
+                self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_BROADCAST, 1)
+        except OSError:
+            self._sock.close()
+            raise
         self.seq = 0
         self.sent = {"pose": 0, "event": 0}
         self.not_sent = 0
@@ -102,11 +121,12 @@ class PoseStream:
 
     def on_pose(self, pose: Any) -> None:
         """Send one runtime.session.Pose."""
-        self._send(pose_message(pose, self.seq))
+        self._send(pose_message(pose, self.seq, self.run_id))
 
     def on_event(self, event: Any) -> None:
         """Send one runtime.run_events.RunEvent."""
-        self._send({"type": "event", "v": MESSAGE_VERSION, "seq": self.seq, **event.to_json()})
+        self._send({"type": "event", "v": MESSAGE_VERSION, "run": self.run_id, "seq": self.seq,
+                    **event.to_json()})
 
     def _send(self, message: dict) -> None:
         self.seq += 1

@@ -174,15 +174,18 @@ class RunFolder:
     @contextlib.contextmanager
     def discard_on_error(self) -> Iterator[None]:
         """Remove the partial folder when the block fails before any run output was written (a bad
-        recording or model: nothing to keep); a failure after that (trajectories, a map commit or
-        journalled poses on disk) leaves it, as an unfinished run."""
+        recording or model: nothing to keep); a failure after that (trajectories, a map commit,
+        journalled poses or a run event on disk, e.g. the rig finding that explains the failure) leaves it,
+        as an unfinished run."""
+        from tools.event_output import EVENTS_NAME
         from tools.pose_journal import journal_has_poses
 
         try:
             yield
         except BaseException:
+            events = self.path / EVENTS_NAME
             kept = ((self.path / "odometry.tum").exists() or (self.path / "map" / "manifest.json").exists()
-                    or journal_has_poses(self.path))
+                    or journal_has_poses(self.path) or (events.is_file() and events.stat().st_size > 0))
             if self.path.is_dir() and not kept:
                 shutil.rmtree(self.path, ignore_errors=True)
             raise

@@ -76,6 +76,18 @@ def test_a_failure_mid_run_keeps_the_partial_folder_when_poses_were_journalled(t
         PoseJournal(bare.path).close()
         raise RuntimeError("a bad recording, before any pose")
     assert not bare.path.exists()
+    # a run event on disk (say, the rig finding that explains the failure) is worth keeping too
+    from runtime.run_events import RunEvent
+    from tools.event_output import EventFile
+
+    told = RunFolder.prepare(tmp_path / "told")
+    told.create()
+    with pytest.raises(RuntimeError), told.discard_on_error():
+        events = EventFile(told.path)
+        events(RunEvent(1, 0.0, "rig_finding", "GYROSCOPE SCALE (tracked features): ...", {}))
+        events.close()
+        raise RuntimeError("an unexpected failure before any pose")
+    assert (told.path / "events.jsonl").stat().st_size > 0
 
 
 @pytest.mark.slow

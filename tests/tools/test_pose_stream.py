@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 from runtime.errors import ConfigError
 from runtime.run_events import RunEvent
 from runtime.session import Pose
-from tools.pose_stream import MAX_DATAGRAM_BYTES, PoseStream, parse_stream_url
+from tools.pose_stream import MAX_DATAGRAM_BYTES, PoseStream, parse_stream_url, resolve_stream_url
 
 
 @pytest.fixture
@@ -45,11 +45,28 @@ def test_the_url_is_udp_host_port_and_anything_else_is_a_clear_error():
     assert parse_stream_url("udp://[::1]:5005") == ("::1", 5005)
     for bad, said in (("tcp://127.0.0.1:9870", "only udp://"), ("udp://127.0.0.1", "port in 1-65535"),
                       ("udp://127.0.0.1:0", "port in 1-65535"), ("udp://127.0.0.1:99999", "udp://HOST:PORT"),
-                      ("udp://:9870", "port in 1-65535"), ("udp://127.0.0.1:9870/poses", "nothing after"),
+                      ("udp://:9870", "port in 1-65535"), ("udp://127.0.0.1:9870/poses", "after the port"),
+                      ("udp://robot:pw@127.0.0.1:9870", "nothing before the host"),
                       ("127.0.0.1:9870", "only udp://")):
         with pytest.raises(ConfigError, match="--stream") as err:
             parse_stream_url(bad)
         assert said in str(err.value), bad
+
+
+def test_a_name_with_both_families_goes_over_ipv4_and_one_that_does_not_resolve_is_an_error(monkeypatch):
+    v6 = (socket.AF_INET6, socket.SOCK_DGRAM, 17, "", ("::1", 5005, 0, 0))
+    v4 = (socket.AF_INET, socket.SOCK_DGRAM, 17, "", ("127.0.0.1", 5005))
+    monkeypatch.setattr(socket, "getaddrinfo", lambda *a, **k: [v6, v4])
+    assert resolve_stream_url("udp://localhost:5005") == (socket.AF_INET, ("127.0.0.1", 5005))
+    monkeypatch.setattr(socket, "getaddrinfo", lambda *a, **k: [v6])
+    assert resolve_stream_url("udp://[::1]:5005") == (socket.AF_INET6, ("::1", 5005, 0, 0))
+
+    def unknown(*a, **k):
+        raise socket.gaierror(-2, "Name or service not known")
+
+    monkeypatch.setattr(socket, "getaddrinfo", unknown)
+    with pytest.raises(ConfigError, match="cannot resolve 'robot.local' \\(Name or service not known\\)"):
+        PoseStream("udp://robot.local:5005")
 
 
 def test_a_pose_read_back_by_a_plain_socket_is_the_pose_sent(receiver):
@@ -75,6 +92,7 @@ def test_a_pose_read_back_by_a_plain_socket_is_the_pose_sent(receiver):
         C[np.triu_indices(6)] = msg["cov"]
         C = C + np.triu(C, 1).T
         np.testing.assert_allclose(C, p.covariance, rtol=1e-5)
+        assert msg["run"] == stream.run_id and len(stream.run_id) == 8
     assert stream.report() == {"url": stream.url, "poses_sent": 2, "events_sent": 0, "not_sent": 0,
                                "first_error": None}
     stream.close()
@@ -89,12 +107,16 @@ def test_an_event_is_one_datagram_and_a_long_line_is_cut_to_fit(receiver):
     stream.on_event(RunEvent(3_000_000_000, 3.0, "rig_finding", "CAMERA-IMU ROTATION: " + "x" * 5000,
                              {"key": "extrinsics_rotation", "evidence": "tracks"}))
     first = json.loads(receiver.recvfrom(65536)[0])
-    assert first == {"type": "event", "v": 1, "seq": 0, **event.to_json()}
+    assert first == {"type": "event", "v": 1, "run": stream.run_id, "seq": 0, **event.to_json()}
     data = receiver.recvfrom(65536)[0]
     second = json.loads(data)
     assert len(data) <= MAX_DATAGRAM_BYTES and second["seq"] == 1 and second["key"] == "extrinsics_rotation"
     assert second["message"].startswith("CAMERA-IMU ROTATION: xx") and second["message"].endswith("...")
     assert stream.report()["events_sent"] == 2
+    stream.close()
+    other = PoseStream(f"udp://127.0.0.1:{receiver.getsockname()[1]}")      # another run: another id
+    assert other.run_id != stream.run_id and first["run"] == stream.run_id
+    other.close()
 
 
 def test_a_datagram_the_network_refuses_is_counted_never_raised(receiver):

@@ -178,14 +178,11 @@ def _open_driver(args: argparse.Namespace, rig):
 
 def _run(args, folder, driver, rig, model, model_desc: str, config, prior=None) -> int:
     from runtime.session import Session
-    from tools.event_output import EVENTS_NAME, EventFile, chain_events
-    from tools.live_view import open_view
-    from tools.pose_journal import PoseJournal, chain_poses
-    from tools.pose_stream import open_stream
     from tools.run_io import imu_noise_note, rig_summary, write_run
     from tools.run_map import MapOutput
     from tools.run_outcome import conclude, judge
     from tools.run_session import _first_seconds
+    from tools.run_sinks import RunSinks
     from tools.run_summary import summary
 
     map_out = MapOutput.create(folder.path, rig, model_desc, model, config)
@@ -194,18 +191,12 @@ def _run(args, folder, driver, rig, model, model_desc: str, config, prior=None) 
     print(f"davio live: {where}\n  model: {model_desc}\n"
           + (f"  {imu_noise_note(defaulted)}\n" if defaulted else "")
           + "  Ctrl-C to finish", file=sys.stderr)
-    stream = open_stream(args.stream)
-    view = open_view(args.view)
-    sink = None if map_out is None else map_out.sink
-    journal = PoseJournal(folder.path)
-    event_file = EventFile(folder.path)
     status = _StatusLine(driver)
-    on_pose = chain_poses(journal, None if view is None else view.on_pose,
-                          None if stream is None else stream.on_pose)
-    on_event = chain_events(event_file, status.events, None if stream is None else stream.on_event)
+    sinks = RunSinks(folder.path, args.view, args.stream, console=status.events)
     try:
-        session = Session(rig, model, config, map_sink=view.chain(sink) if view is not None else sink,
-                          on_pose=on_pose, prior_map=prior, on_event=on_event)
+        map_sink = sinks.map_sink(None if map_out is None else map_out.sink)
+        session = Session(rig, model, config, map_sink=map_sink, on_pose=sinks.on_pose, prior_map=prior,
+                          on_event=sinks.on_event)
         status.session = session
         events = driver.events()
         if args.seconds is not None:
@@ -217,26 +208,18 @@ def _run(args, folder, driver, rig, model, model_desc: str, config, prior=None) 
             session.pipeline.finish_mapping()
     finally:
         driver.stop()
-        if view is not None:
-            view.close()
-        if stream is not None:
-            stream.close()
-        journal.close()
-        event_file.close()
-    for what, failed in (("pose journal", journal.failed), (EVENTS_NAME, event_file.failed)):
-        if failed:
-            print(f"davio live: warning: the {what} stopped ({failed}); the run went on", file=sys.stderr)
+        sinks.close()
+    sinks.warn("davio live")
     judge(res, driver.report())
     map_summary = map_out.finish() if map_out is not None else None
     report = write_run(folder.path, res.pipeline, res.scheduler, None,
                        {"recording": f"live {where}", "model": model_desc, "status": res.status,
                         "status_reason": res.reason, "driver": driver.report(), "map": map_summary,
-                        "imu_noise_defaulted": defaulted, "view": None if view is None else view.report(),
-                        "stream": None if stream is None else stream.report(),
+                        "imu_noise_defaulted": defaulted, **sinks.report(),
                         "rig": rig_summary(rig, str(args.rig) if args.rig
                                            else "the device's factory calibration")},
                        config)
-    journal.close(remove=True)   # the run's own trajectories are written whole
+    sinks.journal.close(remove=True)   # the run's own trajectories are written whole
     return conclude(folder, res, report, as_json=args.json, summary=summary)
 
 

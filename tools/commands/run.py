@@ -108,10 +108,10 @@ def check_run_args(args: argparse.Namespace) -> None:
     speed = getattr(args, "speed", None)
     if speed is not None and not (math.isfinite(speed) and speed > 0):
         raise ConfigError(f"--speed must be > 0 (got {speed!r})")
-    if getattr(args, "stream", None) is not None:
-        from tools.pose_stream import parse_stream_url
+    if getattr(args, "stream", None) is not None:   # a host that does not resolve: before any work
+        from tools.pose_stream import resolve_stream_url
 
-        parse_stream_url(args.stream)
+        resolve_stream_url(args.stream)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -207,14 +207,11 @@ def _open_inputs(args: argparse.Namespace, config) -> tuple:
 def _run(args, folder, rec, rig, model, model_desc: str, config, prior=None) -> int:
     import sys
 
-    from tools.event_output import EVENTS_NAME, EventFile, chain_events
-    from tools.live_view import open_view
-    from tools.pose_journal import PoseJournal, chain_poses
-    from tools.pose_stream import open_stream
     from tools.run_io import imu_noise_note, rig_summary, write_run
     from tools.run_map import MapOutput
     from tools.run_outcome import conclude, judge
     from tools.run_session import run_pipeline
+    from tools.run_sinks import RunSinks
     from tools.run_summary import summary
 
     map_out = MapOutput.create(folder.path, rig, model_desc, model, config)
@@ -225,30 +222,15 @@ def _run(args, folder, rec, rig, model, model_desc: str, config, prior=None) -> 
           + (f"\n  mapping: on (archive {folder.out / 'map'})" if map_out is not None else "")
           + (f"\n  prior map: {prior.source} ({len(prior.prior)} centre views)" if prior is not None else "")
           + (f"\n  {imu_noise_note(defaulted)}" if defaulted else ""), file=log)
-    stream = open_stream(args.stream)
-    view = open_view(args.view)
-    sink = None if map_out is None else map_out.sink
-    journal = PoseJournal(folder.path)
-    event_file = EventFile(folder.path)
-    on_pose = chain_poses(journal, None if view is None else view.on_pose,
-                          None if stream is None else stream.on_pose)
-    on_event = chain_events(event_file, None if stream is None else stream.on_event)
+    sinks = RunSinks(folder.path, args.view, args.stream)
     try:
         res = run_pipeline(rec.driver, model, config, paced=args.paced, speed=args.speed,
                            model_latency_s=args.model_latency, seconds=args.seconds, rig=rig,
-                           map_sink=view.chain(sink) if view is not None else sink, keep_partial=True,
-                           on_pose=on_pose,
-                           prior_map=prior, on_event=on_event)
+                           map_sink=sinks.map_sink(None if map_out is None else map_out.sink),
+                           keep_partial=True, on_pose=sinks.on_pose, prior_map=prior, on_event=sinks.on_event)
     finally:
-        if view is not None:
-            view.close()
-        if stream is not None:
-            stream.close()
-        journal.close()
-        event_file.close()
-    for what, failed in (("pose journal", journal.failed), (EVENTS_NAME, event_file.failed)):
-        if failed:
-            print(f"davio run: warning: the {what} stopped ({failed}); the run went on", file=sys.stderr)
+        sinks.close()
+    sinks.warn("davio run")
     judge(res, rec.driver.report())
     gt = rec.driver.groundtruth()
     map_summary = map_out.finish() if map_out is not None else None
@@ -257,10 +239,9 @@ def _run(args, folder, rec, rig, model, model_desc: str, config, prior=None) -> 
                         "status_reason": res.reason, "driver": rec.driver.report(), "map": map_summary,
                         "imu_noise_defaulted": defaulted,
                         "rig": rig_summary(rig, str(args.rig) if args.rig else f"the recording ({rec.kind})"),
-                        "view": None if view is None else view.report(),
-                        "stream": None if stream is None else stream.report(),
+                        **sinks.report(),
                         "replay": {"paced": bool(args.paced), "speed": args.speed,
                                    "model_latency_s": None if args.paced else args.model_latency}},
                        config)
-    journal.close(remove=True)   # the run's own trajectories are written whole
+    sinks.journal.close(remove=True)   # the run's own trajectories are written whole
     return conclude(folder, res, report, as_json=args.json, summary=summary)
