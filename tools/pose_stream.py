@@ -76,23 +76,25 @@ def _rounded(values: Any, digits: int) -> list:
     return [round(float(x), digits) for x in np.asarray(values, dtype=np.float64).ravel()]
 
 
-def _pose_fields(prefix: str, T: np.ndarray | None) -> dict:
-    if T is None:
-        return {f"p_{prefix}": None, f"q_{prefix}": None}
-    T = np.asarray(T, dtype=np.float64)
-    return {f"p_{prefix}": _rounded(T[:3, 3], 6), f"q_{prefix}": _rounded(rot_to_quat_xyzw(T[:3, :3]), 9)}
-
-
 def pose_message(pose: Any, seq: int, run_id: str = "") -> dict:
     """The JSON object of one runtime.session.Pose (see the module docstring)."""
     cov = None
     if pose.covariance is not None:
         C = np.asarray(pose.covariance, dtype=np.float64)
         cov = [float(f"{x:.6g}") for x in C[_ROWS, _COLS]]
+    frames = {"OI": pose.T_OI, "MI": pose.T_MI, "PI": pose.T_PI}
+    given = {k: np.asarray(T, dtype=np.float64) for k, T in frames.items() if T is not None}
+    q = dict(zip(given, rot_to_quat_xyzw(np.stack([T[:3, :3] for T in given.values()])), strict=True))
+    poses = {}
+    for k in frames:
+        T = given.get(k)
+        poses[f"p_{k}"] = None if T is None else _rounded(T[:3, 3], 6)
+        poses[f"q_{k}"] = None if T is None else _rounded(q[k], 9)
     return {"type": "pose", "v": MESSAGE_VERSION, "run": run_id, "seq": seq, "t_ns": int(pose.t_ns),
             "t_cam_ns": int(pose.t_cam_ns), "source": pose.source, "segment": int(pose.segment),
-            **_pose_fields("OI", pose.T_OI), "v_OI": _rounded(pose.v_OI, 6), **_pose_fields("MI", pose.T_MI),
-            "correction_version": int(pose.correction_version), **_pose_fields("PI", pose.T_PI), "cov": cov}
+            "p_OI": poses["p_OI"], "q_OI": poses["q_OI"], "v_OI": _rounded(pose.v_OI, 6),
+            "p_MI": poses["p_MI"], "q_MI": poses["q_MI"], "correction_version": int(pose.correction_version),
+            "p_PI": poses["p_PI"], "q_PI": poses["q_PI"], "cov": cov}
 
 
 class PoseStream:
