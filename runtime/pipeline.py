@@ -115,6 +115,7 @@ class VioPipeline:
         self.bringup: HandEyeBringUp | None = None
         self._job_kind = ""
         self._last_t = 0
+        self._imu_gap_ns = int(self.config.msckf.max_imu_gap_s * 1e9)   # a longer one is an imu_gap event
         self._lost_carried = 0   # lost_before of IMU samples dropped as out of range, for the next one
         self._gyro_rates = RateQuantiles()   # the run's |gyro|: a gyroscope in deg/s reads 57.3x
         #: without the feed-forward start-up (no model): the gyro's scale and the camera-IMU rotation checked
@@ -191,9 +192,12 @@ class VioPipeline:
         self.events.calibration_estimated(self._last_t, self.bringup.report)
 
     def on_imu(self, sample: ImuSample) -> list[Published]:
-        self._last_t = int(sample.t_ns)
+        prev_t, self._last_t = self._last_t, int(sample.t_ns)
         if self.events.start_ns is None:
             self.events.start_ns = self._last_t
+        lost = int(getattr(sample, "lost_before", 0) or 0)
+        if prev_t and self._last_t > prev_t and (lost or self._last_t - prev_t > self._imu_gap_ns):
+            self.events.imu_gap(self._last_t, (self._last_t - prev_t) / 1e9, lost)
         g, a = sample.gyro, sample.accel   # NaN compares False: the filter counts those itself
         if (abs(g[0]) > MAX_GYRO_RAD_S or abs(g[1]) > MAX_GYRO_RAD_S or abs(g[2]) > MAX_GYRO_RAD_S
                 or abs(a[0]) > MAX_ACCEL_M_S2 or abs(a[1]) > MAX_ACCEL_M_S2 or abs(a[2]) > MAX_ACCEL_M_S2):

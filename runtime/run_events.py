@@ -10,7 +10,10 @@ a run goes, as they happen, each once:
 - "features_lost" / "features_back": fewer than FEW_FEATURES features tracked for FEATURES_LOST_S (a covered,
   dark or blurred camera, a blank wall), and features again;
 - "falling_behind": live, tracking fell behind the camera and images were dropped (at most once every
-  DROPS_EVERY_S data seconds, with the count since the last such event).
+  DROPS_EVERY_S data seconds, with the count since the last such event);
+- "imu_gap": the IMU stream had a gap (more than `msckf.max_imu_gap_s` between samples, or samples the
+  driver lost): the filter propagates across it on what it has (at most once every DROPS_EVERY_S, with the
+  gaps since the last such event).
 
 `RunEvents` watches a `runtime.pipeline.VioPipeline` from the pipeline's own thread (the pipeline calls it)
 and hands each event to `on_event` (`runtime.session.Session(on_event=...)`; `davio run|live` write them to
@@ -28,7 +31,7 @@ from typing import Any
 from runtime.rig_findings import rig_findings
 
 KINDS = ("publishing", "reset", "rig_finding", "calibration_estimated", "prior_localised", "features_lost",
-         "features_back", "falling_behind")
+         "features_back", "falling_behind", "imu_gap")
 MAX_KEPT = 1000
 """Events `RunEvents.log` keeps (a run has a handful; one that resets again and again is bounded)."""
 FEW_FEATURES = 10
@@ -37,7 +40,8 @@ FEATURES_LOST_S = 1.0
 """How long (camera seconds) frames must see fewer than FEW_FEATURES before "features_lost" is said: a
 single dark or blurred frame is not news."""
 DROPS_EVERY_S = 10.0
-"""At most one "falling_behind" event in this many data seconds (a slow machine drops images all along)."""
+"""At most one "falling_behind" or "imu_gap" event in this many data seconds (a slow machine drops images all
+along; a flaky IMU link loses samples again and again)."""
 
 
 @dataclass(frozen=True)
@@ -72,7 +76,8 @@ class RunEvents:
     evidence (runtime.rig_findings.RigFinding); "calibration_estimated": windows_used, R_IC (3x3 rows);
     "prior_localised": segment, source (the prior map); "features_lost": since_t_ns (the first frame with
     too few), features (on this frame); "features_back": lost_s (how long), features; "falling_behind":
-    dropped (since the last such event), total.
+    dropped (since the last such event), total; "imu_gap": gaps (since the last such event), longest_s, lost
+    (samples the driver lost in them), total (gaps so far).
 
     Args:
         pipeline: the VioPipeline watched (read: startup, rig_check, bringup, prior, rig_state()).
@@ -101,6 +106,8 @@ class RunEvents:
         self._lost = False
         self._dropped_said = 0
         self._next_drop_ns: int | None = None
+        self._gaps = [0, 0.0, 0, 0]      # since the last imu_gap event: gaps, longest (s), lost; all gaps
+        self._next_gap_ns: int | None = None
         self.hold = False
         """While True (the scheduler sets it), events wait in `pending` for `flush()`."""
         self.pending: list[RunEvent] = []
@@ -171,6 +178,30 @@ class RunEvents:
         self._emit(t_ns, "falling_behind", (
             f"tracking falls behind the camera: {n} images dropped{since}, {total} in all (the oldest "
             "waiting image goes; IMU samples are all kept)"), dropped=int(n), total=int(total))
+
+    def imu_gap(self, t_ns: int, gap_s: float, lost: int) -> None:
+        """The IMU sample at t_ns follows a gap of gap_s seconds, `lost` samples of it lost by the driver."""
+        g = self._gaps
+        g[0], g[1], g[2], g[3] = g[0] + 1, max(g[1], float(gap_s)), g[2] + int(lost), g[3] + 1
+        self._say_gaps(t_ns)
+
+    def data_ended(self, t_ns: int, frames_dropped: int = 0) -> None:
+        """The data ended at t_ns: images dropped and IMU gaps not said yet (held back by the rate bound)
+        are said now."""
+        self.frames_dropped(frames_dropped, t_ns, final=True)
+        self._say_gaps(t_ns, final=True)
+
+    def _say_gaps(self, t_ns: int, final: bool = False) -> None:
+        n, longest, lost, total = self._gaps
+        if n == 0 or (not final and self._next_gap_ns is not None and t_ns < self._next_gap_ns):
+            return
+        self._next_gap_ns = t_ns + int(DROPS_EVERY_S * 1e9)
+        self._gaps = [0, 0.0, 0, total]
+        what = f"a {longest:.3f} s gap" if n == 1 else f"{n} gaps since the last such event, the longest " \
+            f"{longest:.3f} s"
+        self._emit(t_ns, "imu_gap", f"IMU stream: {what}" + (f" ({lost} samples lost by the driver)" if lost
+                                                            else "") + "; the filter propagates across it",
+                   gaps=int(n), longest_s=round(longest, 4), lost=int(lost), total=int(total))
 
     def calibration_estimated(self, t_ns: int, report: Any) -> None:
         """The bring-up finished (its runtime.bringup.BringUpReport): tracking starts on the estimate."""

@@ -352,8 +352,8 @@ class Scheduler:
             rep.imu_overflow = q.imu_overflow
             rep.wall_s = time.perf_counter() - wall0
             if run_events is not None:
-                if t is not None:     # images dropped after the last one said (the data ended)
-                    run_events.frames_dropped(q.frames_dropped, t, final=True)
+                if t is not None:     # images dropped and IMU gaps after the last ones said
+                    run_events.data_ended(t, q.frames_dropped)
                 run_events.hold = False
         if run_events is not None and run_events.pending:   # outside `finally`: a failing callback raises
             run_events.flush()

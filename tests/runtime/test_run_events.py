@@ -6,6 +6,7 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 
 from runtime.bringup import BringUpReport
 from runtime.pipeline import VioPipeline
@@ -316,3 +317,60 @@ def test_images_dropped_after_the_last_event_are_said_when_the_data_ends():
     events.frames_dropped(4, _s(5.0), final=True)
     assert [(e.t_s, e.detail) for e in got] == [(1.0, {"dropped": 1, "total": 1}),
                                                 (5.0, {"dropped": 3, "total": 4})]
+
+
+def test_imu_gaps_are_said_at_once_then_gathered_for_ten_data_seconds_and_the_rest_at_the_end():
+    events, got = _events(_pipe(StartupReport()))
+    events.imu_gap(_s(1.0), 0.21, 0)
+    events.imu_gap(_s(2.0), 0.08, 12)
+    events.imu_gap(_s(5.0), 0.30, 40)                     # within ten seconds of the first: gathered
+    assert [(e.t_s, e.detail) for e in got] == [
+        (1.0, {"gaps": 1, "longest_s": 0.21, "lost": 0, "total": 1})]
+    assert got[0].message == "IMU stream: a 0.210 s gap; the filter propagates across it"
+    events.imu_gap(_s(11.0), 0.06, 0)
+    assert (got[-1].t_s, got[-1].detail) == (11.0, {"gaps": 3, "longest_s": 0.3, "lost": 52, "total": 4})
+    assert got[-1].message == ("IMU stream: 3 gaps since the last such event, the longest 0.300 s (52 "
+                               "samples lost by the driver); the filter propagates across it")
+    events.imu_gap(_s(12.0), 0.07, 0)
+    events.data_ended(_s(13.0))
+    assert (got[-1].t_s, got[-1].detail) == (13.0, {"gaps": 1, "longest_s": 0.07, "lost": 0, "total": 5})
+    events.data_ended(_s(14.0))                           # nothing left
+    assert len(got) == 3
+
+
+def test_an_imu_gap_and_samples_a_driver_lost_on_the_real_euroc_head_are_said_as_the_filter_counts_them():
+    """V1_01's head with its IMU samples of 1.0-1.3 s removed and one sample at 2.5 s flagged as following
+    7 lost ones: two imu_gap events (the second gathered, said at the end), as many gaps as the filter
+    counts."""
+    from conftest import shared_path
+
+    from drivers.euroc import EurocDriver
+    from runtime.config import DavioConfig
+    from runtime.events import ImuSample
+    from tools.run_session import run_pipeline
+
+    drv = EurocDriver(shared_path("euroc", "V1_01_easy_head"))
+    t0 = next(iter(drv.events())).t_ns
+
+    class Flaky:
+        rig = drv.rig
+
+        def events(self):
+            flagged = False
+            for ev in drv.events():
+                if isinstance(ev, ImuSample):
+                    rel = (ev.t_ns - t0) / 1e9
+                    if 1.0 <= rel < 1.3:
+                        continue
+                    if rel >= 2.5 and not flagged:
+                        flagged, ev = True, ImuSample(ev.t_ns, ev.gyro, ev.accel, lost_before=7)
+                yield ev
+
+    got: list = []
+    res = run_pipeline(Flaky(), None, DavioConfig(), show_progress=False, seconds=3.5, on_event=got.append)
+    gaps = [e for e in got if e.kind == "imu_gap"]
+    assert [e.detail["gaps"] for e in gaps] == [1, 1]
+    assert gaps[0].detail["longest_s"] == pytest.approx(0.3, abs=0.01)
+    assert gaps[0].t_s == pytest.approx(1.3, abs=0.01) and gaps[1].detail["lost"] == 7
+    assert gaps[1].t_s == pytest.approx(3.5, abs=0.06)          # gathered within ten seconds: said at the end
+    assert gaps[-1].detail["total"] == res.pipeline.report()["filter"]["imu_gaps"] == 2
