@@ -1,0 +1,107 @@
+"""`davio listen`: receive what `davio run|live --stream udp://HOST:PORT` sends, here or elsewhere."""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+NAME = "listen"
+HELP = "receive a --stream (poses and events over UDP): say events, count losses, record poses as TUM"
+DESCRIPTION = (
+    "Listens on udp://[HOST]:PORT for what `davio run` / `davio live --stream udp://THIS_HOST:PORT` sends "
+    "(tools/pose_stream.py): says each event as it comes, shows a status line once a second (poses a "
+    "second, the newest position, who publishes, datagrams lost by seq), and with --tum writes the poses "
+    "of one frame as they come. Ends on Ctrl-C, SIGTERM, or after --seconds; then prints what arrived "
+    "(--json: one JSON object on stdout).")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("url", metavar="udp://[HOST]:PORT",
+                   help="where to listen: udp://:5005 on every interface, udp://127.0.0.1:5005 on one")
+    p.add_argument("--tum", metavar="FILE", help="write the poses as they come (TUM; evo reads it)")
+    p.add_argument("--frame", choices=["odometry", "map", "prior"], default="map",
+                   help="the frame of the poses written and shown (default: map)")
+    p.add_argument("--seconds", type=float, default=None, help="stop after S seconds (> 0)")
+    p.add_argument("--json", action="store_true", help="print what arrived as one JSON object at the end")
+
+
+def _bind_address(url: str) -> tuple[str, int]:
+    from urllib.parse import urlsplit
+
+    from runtime.errors import ConfigError
+
+    try:
+        parts = urlsplit(url)
+        port = parts.port
+    except ValueError as exc:
+        raise ConfigError(f"{url!r}: {exc}; expected udp://[HOST]:PORT") from None
+    if parts.scheme != "udp" or port is None or not 0 < port < 65536 or parts.path not in ("", "/"):
+        raise ConfigError(f"{url!r}: expected udp://[HOST]:PORT with a port in 1-65535 (e.g. udp://:5005)")
+    return parts.hostname or "", port
+
+
+def run(args: argparse.Namespace) -> int:
+    import math
+    import socket
+
+    from runtime.errors import ConfigError
+    from runtime.json_out import strict_dumps
+    from tools.pose_listener import PoseListener
+    from tools.run_outcome import interruptible
+
+    if args.seconds is not None and not (math.isfinite(args.seconds) and args.seconds > 0):
+        raise ConfigError(f"--seconds must be a finite number > 0 (got {args.seconds!r})")
+    host, port = _bind_address(args.url)
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    sock = socket.socket(family, socket.SOCK_DGRAM)
+    try:
+        sock.bind((host, port))
+    except OSError as exc:
+        sock.close()
+        raise ConfigError(f"davio listen: cannot listen on {args.url}: {exc.strerror or exc}") from None
+    sock.settimeout(0.2)
+    tum = open(args.tum, "w", encoding="utf-8") if args.tum else None   # noqa: SIM115 - closed below
+    listener = PoseListener(args.frame, tum)
+    tty = sys.stderr.isatty()
+    print(f"davio listen: on {args.url} ({args.frame} frame)" + (f", poses to {args.tum}" if tum else "")
+          + "; Ctrl-C to finish", file=sys.stderr, flush=True)
+    t0 = last = time.monotonic()
+    poses0 = 0
+    try:
+        with interruptible():
+            while args.seconds is None or time.monotonic() - t0 < args.seconds:
+                try:
+                    data = sock.recv(65536)
+                except TimeoutError:
+                    data = None
+                for line in listener.feed(data) if data is not None else []:
+                    print(("\r\033[K" if tty else "") + f"  {line}", file=sys.stderr, flush=True)
+                now = time.monotonic()
+                if now - last >= 1.0:
+                    _status(listener, (listener.poses - poses0) / (now - last), tty)
+                    last, poses0 = now, listener.poses
+    except KeyboardInterrupt:
+        pass
+    finally:
+        sock.close()
+        if tum is not None:
+            tum.close()
+        if tty:
+            print(file=sys.stderr)
+    rep = listener.report()
+    if args.json:
+        print(strict_dumps(rep))
+    else:
+        print(f"  received {rep['poses']} poses and {rep['events']} events from {len(rep['runs'])} run(s); "
+              f"lost {rep['lost']}, out of order {rep['out_of_order']}, not DAVIO's {rep['foreign']}"
+              + (f"; {rep['poses_without_frame']} poses had no {args.frame}-frame pose" if
+                 rep["poses_without_frame"] else ""))
+    return 0
+
+
+def _status(listener, rate: float, tty: bool) -> None:
+    last = listener.last_pose()
+    where = "-" if last is None else "[" + " ".join(f"{x:+.3f}" for x in last[0]) + "] m"
+    who = "-" if listener.last is None else f"{listener.last['source']} (segment {listener.last['segment']})"
+    line = f"  {rate:5.1f} poses/s  {where}  {who}  lost {listener.lost}"
+    print(("\r" + line) if tty else line, end="" if tty else "\n", file=sys.stderr, flush=True)
