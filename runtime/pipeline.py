@@ -69,8 +69,8 @@ class VioPipeline:
             committed submap is localised in it, and published poses get their pose in its frame
             (`prior_pose`, runtime.graph.prior_frame). Needs mapping (a model, mapping on).
         on_event: called with each runtime.run_events.RunEvent (a new publisher, a reset, a rig finding,
-            the bring-up's estimate, a prior-map localisation, features lost and back, images dropped live)
-            on the pipeline's thread; `events.log` keeps them either way.
+            the bring-up's estimate, a prior-map localisation, features lost and back, images dropped live,
+            IMU gaps) on the pipeline's thread; `events.log` keeps them either way.
     """
 
     def __init__(self, rig: Any, model: DepthModel | None = None, config: DavioConfig | None = None,
@@ -116,6 +116,7 @@ class VioPipeline:
         self._job_kind = ""
         self._last_t = 0
         self._imu_gap_ns = int(self.config.msckf.max_imu_gap_s * 1e9)   # a longer one is an imu_gap event
+        self._last_imu_ns: int | None = None   # the last IMU sample that reached the filter
         self._lost_carried = 0   # lost_before of IMU samples dropped as out of range, for the next one
         self._gyro_rates = RateQuantiles()   # the run's |gyro|: a gyroscope in deg/s reads 57.3x
         #: without the feed-forward start-up (no model): the gyro's scale and the camera-IMU rotation checked
@@ -192,12 +193,9 @@ class VioPipeline:
         self.events.calibration_estimated(self._last_t, self.bringup.report)
 
     def on_imu(self, sample: ImuSample) -> list[Published]:
-        prev_t, self._last_t = self._last_t, int(sample.t_ns)
+        self._last_t = int(sample.t_ns)
         if self.events.start_ns is None:
             self.events.start_ns = self._last_t
-        lost = int(getattr(sample, "lost_before", 0) or 0)
-        if prev_t and self._last_t > prev_t and (lost or self._last_t - prev_t > self._imu_gap_ns):
-            self.events.imu_gap(self._last_t, (self._last_t - prev_t) / 1e9, lost)
         g, a = sample.gyro, sample.accel   # NaN compares False: the filter counts those itself
         if (abs(g[0]) > MAX_GYRO_RAD_S or abs(g[1]) > MAX_GYRO_RAD_S or abs(g[2]) > MAX_GYRO_RAD_S
                 or abs(a[0]) > MAX_ACCEL_M_S2 or abs(a[1]) > MAX_ACCEL_M_S2 or abs(a[2]) > MAX_ACCEL_M_S2):
@@ -208,6 +206,7 @@ class VioPipeline:
         if self._lost_carried:
             sample = replace(sample, lost_before=int(sample.lost_before) + self._lost_carried)
             self._lost_carried = 0
+        self._look_for_imu_gap(sample)
         if self.startup is None:
             self.bringup.on_imu(sample)
             return []
@@ -219,6 +218,19 @@ class VioPipeline:
         if self.windows is not None and out:
             self._offer_keyframes(out)
         return out
+
+    def _look_for_imu_gap(self, sample: ImuSample) -> None:
+        """An imu_gap event when this sample follows a gap, measured as the filter does (runtime.msckf.
+        estimator.feed_imu): between samples that reach it (finite, in range, later than the last one)."""
+        t = int(sample.t_ns)
+        if not (np.isfinite(sample.gyro).all() and np.isfinite(sample.accel).all()):
+            return
+        prev, lost = self._last_imu_ns, int(getattr(sample, "lost_before", 0) or 0)
+        if prev is not None and t <= prev:
+            return
+        self._last_imu_ns = t
+        if prev is not None and (lost or t - prev > self._imu_gap_ns):
+            self.events.imu_gap(t, (t - prev) / 1e9, lost)
 
     def on_frame(self, frame: Frame) -> list[Published]:
         res = self.tracker.track(frame)

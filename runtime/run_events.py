@@ -10,10 +10,10 @@ a run goes, as they happen, each once:
 - "features_lost" / "features_back": fewer than FEW_FEATURES features tracked for FEATURES_LOST_S (a covered,
   dark or blurred camera, a blank wall), and features again;
 - "falling_behind": live, tracking fell behind the camera and images were dropped (at most once every
-  DROPS_EVERY_S data seconds, with the count since the last such event);
+  DROPS_EVERY_S data seconds, with the count since the last such event, and once more when the data ends
+  for those not said yet);
 - "imu_gap": the IMU stream had a gap (more than `msckf.max_imu_gap_s` between samples, or samples the
-  driver lost): the filter propagates across it on what it has (at most once every DROPS_EVERY_S, with the
-  gaps since the last such event).
+  driver lost): a running filter propagates across it on what it has (paced as falling_behind).
 
 `RunEvents` watches a `runtime.pipeline.VioPipeline` from the pipeline's own thread (the pipeline calls it)
 and hands each event to `on_event` (`runtime.session.Session(on_event=...)`; `davio run|live` write them to
@@ -144,6 +144,8 @@ class RunEvents:
         self._check_reset(t_ns)
         if features is not None:
             self._features(t_ns, int(features))
+        if self._gaps[0]:        # gaps gathered: said once their ten seconds are over, not at the next gap
+            self._say_gaps(t_ns)
         prior = self.pipeline.prior
         if prior is not None and len(prior.localized_at_ns) > len(self._localised):
             for seg in sorted(set(prior.localized_at_ns) - self._localised):
@@ -199,8 +201,8 @@ class RunEvents:
         self._gaps = [0, 0.0, 0, total]
         what = f"a {longest:.3f} s gap" if n == 1 else f"{n} gaps since the last such event, the longest " \
             f"{longest:.3f} s"
-        self._emit(t_ns, "imu_gap", f"IMU stream: {what}" + (f" ({lost} samples lost by the driver)" if lost
-                                                            else "") + "; the filter propagates across it",
+        lost_text = f" ({lost} samples lost by the driver)" if lost else ""
+        self._emit(t_ns, "imu_gap", f"IMU stream: {what}{lost_text}; a running filter propagates across it",
                    gaps=int(n), longest_s=round(longest, 4), lost=int(lost), total=int(total))
 
     def calibration_estimated(self, t_ns: int, report: Any) -> None:

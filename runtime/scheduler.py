@@ -16,6 +16,7 @@ The scheduler takes the driver and pipeline through their interfaces and imports
 """
 from __future__ import annotations
 
+import contextlib
 import queue
 import threading
 import time
@@ -283,6 +284,7 @@ class Scheduler:
             run_events.hold = True
         t = None
         wall0 = time.perf_counter()
+        failed = False
         try:
             while True:
                 ev = q.get()
@@ -342,6 +344,9 @@ class Scheduler:
                 _, res = worker.results.get()
                 in_flight = None
                 pipeline.on_model_result(res)
+        except BaseException:
+            failed = True
+            raise
         finally:
             stop.set()
             q.close()
@@ -355,8 +360,15 @@ class Scheduler:
                 if t is not None:     # images dropped and IMU gaps after the last ones said
                     run_events.data_ended(t, q.frames_dropped)
                 run_events.hold = False
-        if run_events is not None and run_events.pending:   # outside `finally`: a failing callback raises
-            run_events.flush()
+                if failed:   # Ctrl-C or an error: what was found still goes out; the first error is raised
+                    with contextlib.suppress(Exception):
+                        run_events.flush()
+        if run_events is not None and run_events.pending:   # outside `finally`: a failing callback raises...
+            if rep.intake_error is not None:               # ...unless the intake's error is to be raised
+                with contextlib.suppress(Exception):
+                    run_events.flush()
+            else:
+                run_events.flush()
         if rep.intake_error is not None:
             raise IntakeFailure(f"sensor intake failed after {rep.sensor_s:.1f} s of data: "
                                 f"{rep.intake_error}")

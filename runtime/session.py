@@ -101,8 +101,8 @@ class Session:
             the poses published in the same step): a filter began publishing, the publishing filter
             diverged and was reset, a rig finding (a gyroscope in deg/s, a wrong camera-IMU rotation or time
             offset), the bring-up's estimate, a prior-map localisation, features lost and back, images
-            dropped; `pipeline.events.log` keeps them too. An exception it raises stops the session, as one
-            from on_pose does.
+            dropped, IMU gaps; `pipeline.events.log` keeps them too. An exception it raises stops the
+            session, as one from on_pose does.
     """
 
     def __init__(self, rig: Any, model: Any = None, config: DavioConfig | None = None,

@@ -326,11 +326,11 @@ def test_imu_gaps_are_said_at_once_then_gathered_for_ten_data_seconds_and_the_re
     events.imu_gap(_s(5.0), 0.30, 40)                     # within ten seconds of the first: gathered
     assert [(e.t_s, e.detail) for e in got] == [
         (1.0, {"gaps": 1, "longest_s": 0.21, "lost": 0, "total": 1})]
-    assert got[0].message == "IMU stream: a 0.210 s gap; the filter propagates across it"
+    assert got[0].message == "IMU stream: a 0.210 s gap; a running filter propagates across it"
     events.imu_gap(_s(11.0), 0.06, 0)
     assert (got[-1].t_s, got[-1].detail) == (11.0, {"gaps": 3, "longest_s": 0.3, "lost": 52, "total": 4})
     assert got[-1].message == ("IMU stream: 3 gaps since the last such event, the longest 0.300 s (52 "
-                               "samples lost by the driver); the filter propagates across it")
+                               "samples lost by the driver); a running filter propagates across it")
     events.imu_gap(_s(12.0), 0.07, 0)
     events.data_ended(_s(13.0))
     assert (got[-1].t_s, got[-1].detail) == (13.0, {"gaps": 1, "longest_s": 0.07, "lost": 0, "total": 5})
@@ -374,3 +374,58 @@ def test_an_imu_gap_and_samples_a_driver_lost_on_the_real_euroc_head_are_said_as
     assert gaps[0].t_s == pytest.approx(1.3, abs=0.01) and gaps[1].detail["lost"] == 7
     assert gaps[1].t_s == pytest.approx(3.5, abs=0.06)          # gathered within ten seconds: said at the end
     assert gaps[-1].detail["total"] == res.pipeline.report()["filter"]["imu_gaps"] == 2
+
+
+def test_imu_gaps_are_measured_between_the_samples_the_filter_keeps():
+    """A stamp 0.5 s back and 0.2 s of samples beyond any IMU's range, on the real EuRoC head: the first is
+    no gap (the filter drops it; the next sample is measured from the last kept), the second is one, as the
+    filter counts them."""
+    from conftest import shared_path
+
+    from drivers.euroc import EurocDriver
+    from runtime.config import DavioConfig
+    from runtime.events import ImuSample
+    from tools.run_session import run_pipeline
+
+    drv = EurocDriver(shared_path("euroc", "V1_01_easy_head"))
+    t0 = next(iter(drv.events())).t_ns
+
+    class Corrupt:
+        rig = drv.rig
+
+        def events(self):
+            back = False
+            for ev in drv.events():
+                if isinstance(ev, ImuSample):
+                    rel = (ev.t_ns - t0) / 1e9
+                    if rel >= 2.0 and not back:
+                        back = True
+                        yield ImuSample(ev.t_ns - 500_000_000, ev.gyro, ev.accel)
+                    if 2.6 <= rel < 2.8:
+                        ev = ImuSample(ev.t_ns, np.full(3, 1e4), ev.accel)
+                yield ev
+
+    got: list = []
+    res = run_pipeline(Corrupt(), None, DavioConfig(), show_progress=False, seconds=3.5, on_event=got.append)
+    gaps = [e for e in got if e.kind == "imu_gap"]
+    assert len(gaps) == 1 and gaps[0].detail["longest_s"] == pytest.approx(0.2, abs=0.01)
+    assert gaps[0].t_s == pytest.approx(2.8, abs=0.01)
+    rep = res.pipeline.report()
+    assert rep["filter"]["imu_gaps"] == 1 and rep["filter"]["imu_out_of_order"] == 1
+    assert rep["tracking"]["imu_out_of_range"] == 40
+
+
+def test_the_pipeline_says_a_reset_found_on_an_imu_sample_at_that_sample():
+    from conftest import shared_path
+
+    from drivers.euroc import EurocDriver
+    from runtime.events import ImuSample
+
+    drv = EurocDriver(shared_path("euroc", "V1_01_easy_head"))
+    got: list = []
+    pipe = VioPipeline(drv.rig, on_event=got.append)
+    imu = [ev for _, ev in zip(range(400), drv.events(), strict=False) if isinstance(ev, ImuSample)][:3]
+    pipe.on_imu(imu[0])
+    pipe.startup.report.restarts_after_divergence = 1      # as a divergence in that step leaves it
+    pipe.on_imu(imu[1])
+    assert [(e.kind, e.t_ns, e.detail["resets"]) for e in got] == [("reset", imu[1].t_ns, 1)]

@@ -218,3 +218,43 @@ def test_a_step_s_events_reach_on_event_after_the_poses_that_step_published():
     frames = [t for kind, t in pipe.trace if kind == "frame"]
     assert order == [x for t in frames for x in (("pose", t), ("event", t))]
     assert not pipe.events.hold and pipe.events.pending == []
+
+
+def test_events_found_before_an_error_or_ctrl_c_still_reach_on_event_and_the_error_is_raised():
+    from runtime.run_events import RunEvents
+
+    got: list = []
+
+    class FailingPipeline(TracePipeline):
+        def __init__(self):
+            super().__init__(lambda: 0.0)
+            self.startup, self.prior = None, None
+            self.events = RunEvents(self, got.append)
+
+        def rig_state(self):
+            return {}
+
+        def on_frame(self, f):
+            super().on_frame(f)
+            self.events._emit(f.t_ns, "rig_finding", "found in the failing step")
+            raise KeyboardInterrupt
+
+        def on_imu(self, s):
+            super().on_imu(s)
+            if s.t_ns == 5_000_000:
+                self.events.imu_gap(s.t_ns, 0.2, 0)       # said at once
+            if s.t_ns == 10_000_000:
+                self.events.imu_gap(s.t_ns, 0.1, 0)       # gathered: said when the data ends
+            return []
+
+        def next_model_job(self):
+            return None
+
+    pipe = FailingPipeline()
+    events = [ImuSample(k * 5_000_000, (0.0, 0.0, 0.0), (0.0, 0.0, 9.81)) for k in range(3)]
+    events.append(Frame(15_000_000, None))
+    with pytest.raises(KeyboardInterrupt):
+        Scheduler(FastClock(0.0)).run(events, pipe)
+    assert [(e.kind, e.t_ns) for e in got] == [("imu_gap", 5_000_000), ("rig_finding", 15_000_000),
+                                               ("imu_gap", 15_000_000)]
+    assert pipe.events.pending == [] and not pipe.events.hold

@@ -98,6 +98,9 @@ def test_the_live_status_line_says_an_event_on_its_own_line(capsys):
     status.last -= 2.0                        # (the line is refreshed once a wall second)
     status(3.0)
     assert "   0 tracks" in capsys.readouterr().err
+    status.last -= 2.0                        # no frame at all in the last second: a stalled camera
+    status(4.0)
+    assert "   - tracks" in capsys.readouterr().err
 
 
 @pytest.mark.slow

@@ -253,10 +253,11 @@ class _StatusLine:
         st = pipe.startup.report.published_by if pipe.startup is not None else "calibration bring-up"
         # features per frame over the last second, not the run's mean: a covered camera shows at once
         tracked = (pipe.stats.tracks_total, pipe.stats.frames)
-        tracks = (tracked[0] - self.tracked0[0]) / max(tracked[1] - self.tracked0[1], 1)
+        frames_now = tracked[1] - self.tracked0[1]    # none: the camera stalled, not a covered one
+        tracks = f"{(tracked[0] - self.tracked0[0]) / frames_now:4.0f}" if frames_now else "   -"
         self.tracked0 = tracked
         drops = rep.frames_dropped if rep is not None else 0
-        line = (f"  {sensor_s:7.1f} s  {rate:5.1f} fps  {tracks:4.0f} tracks  {st or 'starting':<16} "
+        line = (f"  {sensor_s:7.1f} s  {rate:5.1f} fps  {tracks} tracks  {st or 'starting':<16} "
                 f"{len(pipe.published):6d} poses  drops {drops}")
         if pipe.prior is not None:
             seg = pipe.published[len(pipe.published) - 1].segment if len(pipe.published) else 0
