@@ -221,9 +221,10 @@ def test_images_dropped_live_are_said_at_once_then_at_most_every_ten_data_second
                                      "event, 9 in all")
 
 
-def test_a_covered_camera_on_the_real_euroc_head_is_said_and_its_return_too():
-    """Frames 30-59 (1.5-3.0 s) of V1_01's head made black: features_lost 1 s into the dark, features_back
-    on the first frame with an image, each once."""
+def _head_replayed(edit) -> tuple[list, object, list]:
+    """The real EuRoC V1_01 head's first 3.5 s through DAVIO (native only) with `edit(k_frame, rel_s, event)`
+    giving the events to replay in place of each one (k_frame: the frame's index, None for IMU samples);
+    returns (the run events, the run, the frames' stamps)."""
     from conftest import shared_path
 
     from drivers.euroc import EurocDriver
@@ -232,22 +233,34 @@ def test_a_covered_camera_on_the_real_euroc_head_is_said_and_its_return_too():
     from tools.run_session import run_pipeline
 
     drv = EurocDriver(shared_path("euroc", "V1_01_easy_head"))
+    t0 = next(iter(drv.events())).t_ns
+    frames = [ev.t_ns for ev in drv.events() if isinstance(ev, Frame)]
 
-    class Covered:
+    class Edited:
         rig = drv.rig
 
         def events(self):
             k = 0
             for ev in drv.events():
-                if isinstance(ev, Frame):
-                    if 30 <= k < 60:
-                        ev = Frame(ev.t_ns, np.zeros_like(ev.image), ev.camera_id)
-                    k += 1
-                yield ev
+                is_frame = isinstance(ev, Frame)
+                yield from edit(k if is_frame else None, (ev.t_ns - t0) / 1e9, ev)
+                k += is_frame
 
     got: list = []
-    res = run_pipeline(Covered(), None, DavioConfig(), show_progress=False, seconds=3.5, on_event=got.append)
-    frames = [ev.t_ns for ev in drv.events() if isinstance(ev, Frame)]
+    res = run_pipeline(Edited(), None, DavioConfig(), show_progress=False, seconds=3.5, on_event=got.append)
+    return got, res, frames
+
+
+def test_a_covered_camera_on_the_real_euroc_head_is_said_and_its_return_too():
+    """Frames 30-59 (1.5-3.0 s) of V1_01's head made black: features_lost 1 s into the dark, features_back
+    on the first frame with an image, each once."""
+    from runtime.events import Frame
+
+    def covered(k, rel_s, ev):
+        black = k is not None and 30 <= k < 60
+        return [Frame(ev.t_ns, np.zeros_like(ev.image), ev.camera_id) if black else ev]
+
+    got, res, frames = _head_replayed(covered)
     lost = [e for e in got if e.kind.startswith("features")]
     assert [(e.kind, e.t_ns) for e in lost] == [("features_lost", frames[50]), ("features_back", frames[60])]
     assert lost[0].detail == {"since_t_ns": frames[30], "features": 0} and lost[1].detail["features"] > 100
@@ -342,32 +355,21 @@ def test_an_imu_gap_and_samples_a_driver_lost_on_the_real_euroc_head_are_said_as
     """V1_01's head with its IMU samples of 1.0-1.3 s removed and one sample at 2.5 s flagged as following
     7 lost ones: two imu_gap events (the second gathered, said at the end), as many gaps as the filter
     counts."""
-    from conftest import shared_path
-
-    from drivers.euroc import EurocDriver
-    from runtime.config import DavioConfig
     from runtime.events import ImuSample
-    from tools.run_session import run_pipeline
 
-    drv = EurocDriver(shared_path("euroc", "V1_01_easy_head"))
-    t0 = next(iter(drv.events())).t_ns
+    flagged: list = []
 
-    class Flaky:
-        rig = drv.rig
+    def flaky(k, rel_s, ev):
+        if k is not None:
+            return [ev]
+        if 1.0 <= rel_s < 1.3:
+            return []
+        if rel_s >= 2.5 and not flagged:
+            flagged.append(ev)
+            return [ImuSample(ev.t_ns, ev.gyro, ev.accel, lost_before=7)]
+        return [ev]
 
-        def events(self):
-            flagged = False
-            for ev in drv.events():
-                if isinstance(ev, ImuSample):
-                    rel = (ev.t_ns - t0) / 1e9
-                    if 1.0 <= rel < 1.3:
-                        continue
-                    if rel >= 2.5 and not flagged:
-                        flagged, ev = True, ImuSample(ev.t_ns, ev.gyro, ev.accel, lost_before=7)
-                yield ev
-
-    got: list = []
-    res = run_pipeline(Flaky(), None, DavioConfig(), show_progress=False, seconds=3.5, on_event=got.append)
+    got, res, _ = _head_replayed(flaky)
     gaps = [e for e in got if e.kind == "imu_gap"]
     assert [e.detail["gaps"] for e in gaps] == [1, 1]
     assert gaps[0].detail["longest_s"] == pytest.approx(0.3, abs=0.01)
@@ -380,33 +382,21 @@ def test_imu_gaps_are_measured_between_the_samples_the_filter_keeps():
     """A stamp 0.5 s back and 0.2 s of samples beyond any IMU's range, on the real EuRoC head: the first is
     no gap (the filter drops it; the next sample is measured from the last kept), the second is one, as the
     filter counts them."""
-    from conftest import shared_path
-
-    from drivers.euroc import EurocDriver
-    from runtime.config import DavioConfig
     from runtime.events import ImuSample
-    from tools.run_session import run_pipeline
 
-    drv = EurocDriver(shared_path("euroc", "V1_01_easy_head"))
-    t0 = next(iter(drv.events())).t_ns
+    back: list = []
 
-    class Corrupt:
-        rig = drv.rig
+    def corrupt(k, rel_s, ev):
+        if k is not None:
+            return [ev]
+        out = []
+        if rel_s >= 2.0 and not back:
+            back.append(ev)
+            out.append(ImuSample(ev.t_ns - 500_000_000, ev.gyro, ev.accel))
+        out.append(ImuSample(ev.t_ns, np.full(3, 1e4), ev.accel) if 2.6 <= rel_s < 2.8 else ev)
+        return out
 
-        def events(self):
-            back = False
-            for ev in drv.events():
-                if isinstance(ev, ImuSample):
-                    rel = (ev.t_ns - t0) / 1e9
-                    if rel >= 2.0 and not back:
-                        back = True
-                        yield ImuSample(ev.t_ns - 500_000_000, ev.gyro, ev.accel)
-                    if 2.6 <= rel < 2.8:
-                        ev = ImuSample(ev.t_ns, np.full(3, 1e4), ev.accel)
-                yield ev
-
-    got: list = []
-    res = run_pipeline(Corrupt(), None, DavioConfig(), show_progress=False, seconds=3.5, on_event=got.append)
+    got, res, _ = _head_replayed(corrupt)
     gaps = [e for e in got if e.kind == "imu_gap"]
     assert len(gaps) == 1 and gaps[0].detail["longest_s"] == pytest.approx(0.2, abs=0.01)
     assert gaps[0].t_s == pytest.approx(2.8, abs=0.01)
