@@ -115,3 +115,6 @@ def test_a_bad_address_or_a_port_in_use_is_a_clear_error(capsys):
         busy.bind(("127.0.0.1", 0))
         assert main(["listen", f"udp://127.0.0.1:{busy.getsockname()[1]}", "--seconds", "1"]) == 1
     assert "cannot listen on" in capsys.readouterr().err
+    assert main(["listen", f"udp://127.0.0.1:{_free_port()}", "--tum", "/nonexistent-folder/poses.tum"]) == 1
+    err = capsys.readouterr().err
+    assert "cannot write --tum /nonexistent-folder/poses.tum: No such file or directory" in err

@@ -60,7 +60,11 @@ def run(args: argparse.Namespace) -> int:
         sock.close()
         raise ConfigError(f"davio listen: cannot listen on {args.url}: {exc.strerror or exc}") from None
     sock.settimeout(0.2)
-    tum = open(args.tum, "w", encoding="utf-8") if args.tum else None   # noqa: SIM115 - closed below
+    try:
+        tum = open(args.tum, "w", encoding="utf-8") if args.tum else None   # noqa: SIM115 - closed below
+    except OSError as exc:
+        sock.close()
+        raise ConfigError(f"davio listen: cannot write --tum {args.tum}: {exc.strerror or exc}") from None
     listener = PoseListener(args.frame, tum)
     tty = sys.stderr.isatty()
     print(f"davio listen: on {args.url} ({args.frame} frame)" + (f", poses to {args.tum}" if tum else "")
