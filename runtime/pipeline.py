@@ -79,7 +79,7 @@ class VioPipeline:
                  on_event: Callable[[RunEvent], None] | None = None) -> None:
         self.config = config or DavioConfig()
         #: the run's events (runtime.run_events): a new publisher, a reset, a rig finding, ...
-        self.events = RunEvents(self, on_event, rig.time_offset_s)
+        self.events = RunEvents(self, on_event, rig.time_offset_s, self.config.msckf.max_imu_gap_s)
         self.model = model
         self.map_sink = map_sink
         self._mapper_factory = mapper_factory or Mapper
@@ -115,8 +115,6 @@ class VioPipeline:
         self.bringup: HandEyeBringUp | None = None
         self._job_kind = ""
         self._last_t = 0
-        self._imu_gap_ns = int(self.config.msckf.max_imu_gap_s * 1e9)   # a longer one is an imu_gap event
-        self._last_imu_ns: int | None = None   # the last IMU sample that reached the filter
         self._lost_carried = 0   # lost_before of IMU samples dropped as out of range, for the next one
         self._gyro_rates = RateQuantiles()   # the run's |gyro|: a gyroscope in deg/s reads 57.3x
         #: without the feed-forward start-up (no model): the gyro's scale and the camera-IMU rotation checked
@@ -206,7 +204,7 @@ class VioPipeline:
         if self._lost_carried:
             sample = replace(sample, lost_before=int(sample.lost_before) + self._lost_carried)
             self._lost_carried = 0
-        self._look_for_imu_gap(sample)
+        self.events.imu_sample(sample)
         if self.startup is None:
             self.bringup.on_imu(sample)
             return []
@@ -218,19 +216,6 @@ class VioPipeline:
         if self.windows is not None and out:
             self._offer_keyframes(out)
         return out
-
-    def _look_for_imu_gap(self, sample: ImuSample) -> None:
-        """An imu_gap event when this sample follows a gap, measured as the filter does (runtime.msckf.
-        estimator.feed_imu): between samples that reach it (finite, in range, later than the last one)."""
-        t = int(sample.t_ns)
-        if not (np.isfinite(sample.gyro).all() and np.isfinite(sample.accel).all()):
-            return
-        prev, lost = self._last_imu_ns, int(getattr(sample, "lost_before", 0) or 0)
-        if prev is not None and t <= prev:
-            return
-        self._last_imu_ns = t
-        if prev is not None and (lost or t - prev > self._imu_gap_ns):
-            self.events.imu_gap(t, (t - prev) / 1e9, lost)
 
     def on_frame(self, frame: Frame) -> list[Published]:
         res = self.tracker.track(frame)
@@ -257,22 +242,6 @@ class VioPipeline:
                 self._offer_keyframes(out)
         self.events.after_frame(int(frame.t_ns), len(res.ids))
         return out
-
-    def rig_state(self) -> dict:
-        """The parts of `report()` rig findings are read from (runtime.rig_findings), cheaply: the start-up's,
-        the tracked-feature check's and a bring-up's not done yet."""
-        state: dict = {}
-        if self.startup is not None:
-            rep = self.startup.report
-            state["startup"] = {k: getattr(rep, k) for k in (
-                "ff_rejections", "ff_rejection_first", "time_offset_findings", "time_offset_adopted_s",
-                "time_offset_first", "ff_time_offset_first", "ff_time_offset_s")}
-        if self.rig_check is not None:
-            rep = self.rig_check.report
-            state["rig_check"] = {k: getattr(rep, k) for k in ("gyro_scale", "extrinsics_rotation", "error")}
-        if self.bringup is not None and not self.bringup.done:
-            state["bringup"] = asdict(self.bringup.report)
-        return state
 
     # ------------------------------------------------------------------ live map-frame poses
     def _publish_causal(self, out: list[Published]) -> None:

@@ -6,7 +6,8 @@ runtime.run_events) and one line for a console (the end-of-run summary, tools.ru
 said during a run)."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
+from typing import Any
 
 EXTRINSICS_WARNING_WINDOWS = 2
 """Windows refused as extrinsics_rotation before the console blames the rig's rotation: one window is one
@@ -62,7 +63,7 @@ def time_offset_line(startup: dict, rig_offset_s: float | None) -> str | None:
 
 def rig_findings(pipeline_report: dict, rig_offset_s: float | None) -> list[RigFinding]:
     """The rig findings so far, from a pipeline report (or the part of one holding `startup`, `rig_check`
-    and `bringup`, as `VioPipeline.rig_state()` gives it). `rig_offset_s`: the rig file's camera-IMU time
+    and `bringup`, as `rig_state` gives it). `rig_offset_s`: the rig file's camera-IMU time
     offset (s; None: none given)."""
     out = []
     startup = pipeline_report.get("startup") or {}
@@ -103,6 +104,23 @@ def rig_findings(pipeline_report: dict, rig_offset_s: float | None) -> list[RigF
                 f"GYROSCOPE SCALE (bring-up): {bu['rejections']['gyro_scale']} windows refused, the first: "
                 f"{gyro}. Fix the IMU's units or scale")))
     return out
+
+
+def rig_state(pipeline: Any) -> dict:
+    """The parts of a runtime.pipeline.VioPipeline's `report()` the findings are read from, cheaply: the
+    start-up's, the tracked-feature check's and a bring-up's not done yet."""
+    state: dict = {}
+    if pipeline.startup is not None:
+        rep = pipeline.startup.report
+        state["startup"] = {k: getattr(rep, k) for k in (
+            "ff_rejections", "ff_rejection_first", "time_offset_findings", "time_offset_adopted_s",
+            "time_offset_first", "ff_time_offset_first", "ff_time_offset_s")}
+    if pipeline.rig_check is not None:
+        rep = pipeline.rig_check.report
+        state["rig_check"] = {k: getattr(rep, k) for k in ("gyro_scale", "extrinsics_rotation", "error")}
+    if pipeline.bringup is not None and not pipeline.bringup.done:
+        state["bringup"] = asdict(pipeline.bringup.report)
+    return state
 
 
 def rig_lines(pipeline_report: dict, rig_offset_s: float | None) -> list[str]:

@@ -28,7 +28,9 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from runtime.rig_findings import rig_findings
+import numpy as np
+
+from runtime.rig_findings import rig_findings, rig_state
 
 KINDS = ("publishing", "reset", "rig_finding", "calibration_estimated", "prior_localised", "features_lost",
          "features_back", "falling_behind", "imu_gap")
@@ -80,16 +82,19 @@ class RunEvents:
     (samples the driver lost in them), total (gaps so far).
 
     Args:
-        pipeline: the VioPipeline watched (read: startup, rig_check, bringup, prior, rig_state()).
+        pipeline: the VioPipeline watched (read: startup, rig_check, bringup, prior).
         on_event: called with each RunEvent on the pipeline's thread, or None (the log only). An exception
             it raises goes up into the run, as one from a Session's on_pose does.
         rig_offset_s: the rig file's camera-IMU time offset (s; None: none given), for the time-offset
             finding's line.
+        max_imu_gap_s: a longer time between IMU samples is an imu_gap (`msckf.max_imu_gap_s`, as the
+            filter counts gaps).
         look_every_s: how often (data seconds) the rig findings are looked for.
     """
 
     def __init__(self, pipeline: Any, on_event: Callable[[RunEvent], None] | None = None,
-                 rig_offset_s: float | None = None, look_every_s: float = 1.0) -> None:
+                 rig_offset_s: float | None = None, max_imu_gap_s: float = 0.05,
+                 look_every_s: float = 1.0) -> None:
         self.pipeline, self.on_event, self.rig_offset_s = pipeline, on_event, rig_offset_s
         self.look_every_s = float(look_every_s)
         self.start_ns: int | None = None
@@ -107,6 +112,8 @@ class RunEvents:
         self._dropped_said = 0
         self._next_drop_ns: int | None = None
         self._gaps = [0, 0.0, 0, 0]      # since the last imu_gap event: gaps, longest (s), lost; all gaps
+        self._imu_gap_ns = int(max_imu_gap_s * 1e9)
+        self._last_imu_ns: int | None = None   # the last IMU sample that reached the filter
         self._next_gap_ns: int | None = None
         self.hold = False
         """While True (the scheduler sets it), events wait in `pending` for `flush()`."""
@@ -156,7 +163,7 @@ class RunEvents:
         if self._next_look_ns is None or t_ns >= self._next_look_ns:
             self._next_look_ns = t_ns + int(self.look_every_s * 1e9)
             try:
-                found = rig_findings(self.pipeline.rig_state(), self.rig_offset_s)
+                found = rig_findings(rig_state(self.pipeline), self.rig_offset_s)
             except Exception as exc:   # noqa: BLE001 - the run report still holds every counter
                 self.look_errors += 1
                 self.look_error_first = self.look_error_first or f"{type(exc).__name__}: {exc}"
@@ -180,6 +187,19 @@ class RunEvents:
         self._emit(t_ns, "falling_behind", (
             f"tracking falls behind the camera: {n} images dropped{since}, {total} in all (the oldest "
             "waiting image goes; IMU samples are all kept)"), dropped=int(n), total=int(total))
+
+    def imu_sample(self, sample: Any) -> None:
+        """An IMU sample the pipeline passes on to the filter: a gap before it is an imu_gap, measured as the
+        filter does (runtime.msckf.estimator.feed_imu): between finite samples, each later than the last."""
+        t = int(sample.t_ns)
+        if not (np.isfinite(sample.gyro).all() and np.isfinite(sample.accel).all()):
+            return
+        prev, lost = self._last_imu_ns, int(getattr(sample, "lost_before", 0) or 0)
+        if prev is not None and t <= prev:
+            return
+        self._last_imu_ns = t
+        if prev is not None and (lost or t - prev > self._imu_gap_ns):
+            self.imu_gap(t, (t - prev) / 1e9, lost)
 
     def imu_gap(self, t_ns: int, gap_s: float, lost: int) -> None:
         """The IMU sample at t_ns follows a gap of gap_s seconds, `lost` samples of it lost by the driver."""

@@ -28,7 +28,6 @@ def _pipe(startup=None, rig_check=None, bringup=None, prior=None):
             last_reset_reason=None)),
         rig_check=None if rig_check is None else SimpleNamespace(report=rig_check), bringup=bringup,
         prior=prior)
-    pipe.rig_state = lambda: VioPipeline.rig_state(pipe)     # the pipeline's own reading of its reports
     return pipe
 
 
@@ -309,13 +308,15 @@ def test_held_events_wait_for_flush_and_keep_their_order():
     assert [e.kind for e in got] == ["publishing", "falling_behind"] and events.pending == []
 
 
-def test_a_failing_look_for_rig_findings_is_counted_not_raised_into_the_run():
+def test_a_failing_look_for_rig_findings_is_counted_not_raised_into_the_run(monkeypatch):
+    import runtime.run_events
+
     pipe = _pipe(StartupReport())
 
-    def broken():
+    def broken(pipeline):
         raise KeyError("gyro_scale")
 
-    pipe.rig_state = broken
+    monkeypatch.setattr(runtime.run_events, "rig_state", broken)
     events, got = _events(pipe)
     events.after_frame(_s(1.0), 100)
     events.after_frame(_s(2.5), 100)

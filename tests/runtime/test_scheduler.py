@@ -197,11 +197,8 @@ def test_a_step_s_events_reach_on_event_after_the_poses_that_step_published():
     class EventfulPipeline(TracePipeline):
         def __init__(self):
             super().__init__(lambda: 0.0)
-            self.startup, self.prior = None, None
+            self.startup, self.prior, self.rig_check, self.bringup = None, None, None, None
             self.events = RunEvents(self, lambda ev: order.append(("event", ev.t_ns)))
-
-        def rig_state(self):
-            return {}
 
         def on_frame(self, f):
             out = super().on_frame(f)
@@ -228,11 +225,8 @@ def test_events_found_before_an_error_or_ctrl_c_still_reach_on_event_and_the_err
     class FailingPipeline(TracePipeline):
         def __init__(self):
             super().__init__(lambda: 0.0)
-            self.startup, self.prior = None, None
+            self.startup, self.prior, self.rig_check, self.bringup = None, None, None, None
             self.events = RunEvents(self, got.append)
-
-        def rig_state(self):
-            return {}
 
         def on_frame(self, f):
             super().on_frame(f)
