@@ -67,7 +67,8 @@ class EventConsole:
 
 
 def chain_events(*callbacks: Callable[[Any], None] | None) -> Callable[[Any], None] | None:
-    """One `on_event` callback calling each given one in turn (None skipped; None when none is left)."""
+    """One callback calling each given one in turn (None skipped; None when none is left): for `on_event`,
+    and for `on_pose` (tools.pose_journal.chain_poses)."""
     live = [c for c in callbacks if c is not None]
     if not live:
         return None

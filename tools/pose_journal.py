@@ -13,12 +13,12 @@ from __future__ import annotations
 
 import os
 import threading
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from runtime.geometry.quaternion import rot_to_quat_xyzw
 from tools.evaluation.trajectory_io import TUM_HEADER, tum_line
+from tools.event_output import chain_events
 
 JOURNAL_NAME = "causal.journal.tum"
 
@@ -115,11 +115,6 @@ def journal_has_poses(folder: str | Path) -> bool:
         return False
 
 
-def chain_poses(*callbacks: Callable[[Any], None] | None) -> Callable[[Any], None]:
-    """One `on_pose` callback calling each of `callbacks` (None skipped) in order."""
-    live = [cb for cb in callbacks if cb is not None]
-
-    def call(pose: Any) -> None:
-        for cb in live:
-            cb(pose)
-    return call
+chain_poses = chain_events
+"""One `on_pose` callback calling each of `callbacks` (None skipped) in order: the events' own chaining
+(tools.event_output.chain_events), as a pose callback is called the same way."""
