@@ -42,22 +42,23 @@ cut to fit). Tunnels with a smaller MTU (WireGuard 1420, Tailscale 1280) may fra
 _ROWS, _COLS = np.triu_indices(6)
 
 
-def parse_stream_url(url: str) -> tuple[str, int]:
-    """(host, port) of "udp://HOST:PORT" (HOST a name, an IPv4 address or a bracketed IPv6 one); ConfigError
-    naming what is wrong otherwise."""
+def parse_stream_url(url: str, what: str = "--stream", host_optional: bool = False) -> tuple[str, int]:
+    """(host, port) of "udp://HOST:PORT" (HOST a name, an IPv4 address or a bracketed IPv6 one; with
+    `host_optional`, as `davio listen` takes it, "udp://:PORT" gives host ""); ConfigError naming `what`
+    and what is wrong otherwise."""
+    form = "udp://[HOST]:PORT" if host_optional else "udp://HOST:PORT"
     try:
         parts = urlsplit(url)
         port = parts.port
     except ValueError as exc:
-        raise ConfigError(f"--stream {url!r}: {exc}; expected udp://HOST:PORT") from None
+        raise ConfigError(f"{what} {url!r}: {exc}; expected {form}") from None
     if parts.scheme != "udp":
-        raise ConfigError(f"--stream {url!r}: only udp://HOST:PORT is supported")
-    if not parts.hostname or port is None or not 0 < port < 65536:
-        raise ConfigError(f"--stream {url!r}: expected udp://HOST:PORT with a port in 1-65535")
+        raise ConfigError(f"{what} {url!r}: only udp:// is supported; expected {form}")
+    if not (parts.hostname or host_optional) or port is None or not 0 < port < 65536:
+        raise ConfigError(f"{what} {url!r}: expected {form} with a port in 1-65535")
     if parts.path not in ("", "/") or parts.query or parts.fragment or parts.username is not None:
-        raise ConfigError(f"--stream {url!r}: expected udp://HOST:PORT, nothing before the host or after the "
-                          "port")
-    return parts.hostname, port
+        raise ConfigError(f"{what} {url!r}: expected {form}, nothing before the host or after the port")
+    return parts.hostname or "", port
 
 
 def resolve_stream_url(url: str) -> tuple[int, tuple]:

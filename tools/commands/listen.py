@@ -25,21 +25,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print what arrived as one JSON object at the end")
 
 
-def _bind_address(url: str) -> tuple[str, int]:
-    from urllib.parse import urlsplit
-
-    from runtime.errors import ConfigError
-
-    try:
-        parts = urlsplit(url)
-        port = parts.port
-    except ValueError as exc:
-        raise ConfigError(f"{url!r}: {exc}; expected udp://[HOST]:PORT") from None
-    if parts.scheme != "udp" or port is None or not 0 < port < 65536 or parts.path not in ("", "/"):
-        raise ConfigError(f"{url!r}: expected udp://[HOST]:PORT with a port in 1-65535 (e.g. udp://:5005)")
-    return parts.hostname or "", port
-
-
 def run(args: argparse.Namespace) -> int:
     import math
     import socket
@@ -47,11 +32,12 @@ def run(args: argparse.Namespace) -> int:
     from runtime.errors import ConfigError
     from runtime.json_out import strict_dumps
     from tools.pose_listener import PoseListener
+    from tools.pose_stream import parse_stream_url
     from tools.run_outcome import interruptible
 
     if args.seconds is not None and not (math.isfinite(args.seconds) and args.seconds > 0):
         raise ConfigError(f"--seconds must be a finite number > 0 (got {args.seconds!r})")
-    host, port = _bind_address(args.url)
+    host, port = parse_stream_url(args.url, "the address", host_optional=True)
     family = socket.AF_INET6 if ":" in host else socket.AF_INET
     sock = socket.socket(family, socket.SOCK_DGRAM)
     try:
