@@ -77,10 +77,15 @@ def so3_exp(phi: np.ndarray) -> np.ndarray:
 
 def kabsch_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The rotation R (3, 3) minimising sum |b_i - R a_i|^2 over paired vectors a, b (n, 3) (Kabsch; a
-    proper rotation, det +1, also for coplanar or collinear points)."""
-    U, _, Vt = np.linalg.svd(np.asarray(a, dtype=np.float64).T @ np.asarray(b, dtype=np.float64))
-    d = 1.0 if np.linalg.det(Vt.T @ U.T) >= 0.0 else -1.0
-    return Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
+    proper rotation, det +1, also for coplanar or collinear points); for stacks (..., n, 3) of pairs,
+    one rotation per stack element (..., 3, 3)."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    U, _, Vt = np.linalg.svd(np.swapaxes(a, -1, -2) @ b)
+    V, Ut = np.swapaxes(Vt, -1, -2), np.swapaxes(U, -1, -2)
+    flip = np.ones(V.shape[:-2] + (1, 3))
+    flip[..., 0, 2] = np.where(np.linalg.det(V @ Ut) >= 0.0, 1.0, -1.0)
+    return (V * flip) @ Ut
 
 
 def so3_log(R: np.ndarray) -> np.ndarray:

@@ -60,14 +60,11 @@ def rotation_ransac(a: np.ndarray, b: np.ndarray, threshold_rad: float, rng: np.
     Returns R and the inlier mask (angle between R a_i and b_i below threshold_rad); the identity and the
     best mask when fewer than 3 bearings agree."""
     n = a.shape[0]
-    best = np.zeros(n, dtype=bool)
     cos_thr = np.cos(threshold_rad)
-    for _ in range(iterations):
-        i, j = rng.choice(n, 2, replace=False)
-        R = kabsch_rotation(a[[i, j]], b[[i, j]])
-        inl = np.einsum("ij,ij->i", a @ R.T, b) > cos_thr
-        if inl.sum() > best.sum():
-            best = inl
+    pairs = np.array([rng.choice(n, 2, replace=False) for _ in range(iterations)])
+    R_all = kabsch_rotation(a[pairs], b[pairs])                  # every hypothesis at once
+    inliers = np.einsum("knj,nj->kn", a @ np.swapaxes(R_all, -1, -2), b) > cos_thr
+    best = inliers[np.argmax(inliers.sum(axis=1))]              # the first of the most supported
     if best.sum() < 3:
         return np.eye(3), best
     R = kabsch_rotation(a[best], b[best])

@@ -7,6 +7,9 @@ from dataclasses import dataclass
 
 from runtime.errors import ConfigError
 
+MLE_SOLVERS = ("lm", "scipy-fd")
+"""The refinement's solvers (DynamicInitConfig.mle_solver)."""
+
 
 @dataclass
 class DynamicInitConfig:
@@ -63,9 +66,15 @@ class DynamicInitConfig:
     max_feature_condition: float = 1e8
     """Eigenvalue ratio of a feature's 3x3 normal block above which it has no depth information."""
     mle_max_iterations: int = 20
-    """Nonlinear refinement iterations (scipy least_squares max_nfev); 0 disables the refinement."""
+    """Nonlinear refinement's residual evaluations at most (a rejected step counts; scipy least_squares
+    max_nfev); 0 disables the refinement."""
     mle_tolerance: float = 1e-6
     """Relative cost / step tolerance that ends the refinement (scipy ftol and xtol)."""
+    mle_solver: str = "lm"
+    """The refinement's solver: "lm" (the analytic Jacobian, Levenberg-Marquardt on the normal equations:
+    runtime.msckf.normal_lm), or "scipy-fd" (scipy least_squares "trf" with central differences over the
+    Jacobian's sparsity pattern and LSMR steps), the way used until the thirty-first session, about 15x
+    slower, kept as the reference (`davio bench init-cost`)."""
     sigma_px: float = 1.0
     """Pixel noise of the features, px."""
     sigma_bg_prior: float = 0.01
@@ -108,6 +117,9 @@ class DynamicInitConfig:
             )
         if not self.gravity_mag > 0:
             raise ConfigError(f"gravity_mag must be > 0, got {self.gravity_mag}")
+        if self.mle_solver not in MLE_SOLVERS:
+            raise ConfigError(f"dynamic_init.mle_solver must be one of {', '.join(MLE_SOLVERS)}, got "
+                              f"{self.mle_solver!r}")
         if not self.sigma_px > 0:
             raise ConfigError(f"sigma_px must be > 0, got {self.sigma_px}")
         if not 0.0 <= self.max_rotation_mismatch_fraction <= 1.0:

@@ -1,8 +1,9 @@
 """Maximum-likelihood refinement of the dynamic initializer's window, and the newest state's covariance.
 
-Unknowns (scipy least_squares, finite-difference Jacobian with its sparsity pattern), in the
-gravity-aligned frame O: per keyframe [theta (local rotation error of R_OIk), p_OIk, v_OIk], then
-shared bias corrections [dbg, dba], then the feature positions p_Of. Residuals: reprojection
+Unknowns (Levenberg-Marquardt on the normal equations with the analytic Jacobian, runtime.msckf.normal_lm;
+or with `mle_solver = "scipy-fd"` scipy least_squares with central differences over the Jacobian's sparsity
+pattern), in the gravity-aligned frame O: per keyframe [theta (local rotation error of R_OIk), p_OIk,
+v_OIk], then shared bias corrections [dbg, dba], then the feature positions p_Of. Residuals: reprojection
 errors (normalized coordinates scaled by f / sigma_px), preintegration residuals [r_R, r_v, r_p]
 whitened by their covariance, bias priors, and a gauge prior on the first position and yaw.
 Covariance: inverse Gauss-Newton information, marginal of the newest keyframe's [theta, p, v] and
@@ -18,9 +19,11 @@ import scipy.optimize
 import scipy.sparse
 
 from runtime.geometry import so3_exp, so3_log
+from runtime.geometry.so3 import skew, so3_right_jacobian, so3_right_jacobian_inv
 from runtime.imu import Preintegration
 from runtime.msckf.init_dynamic_config import DynamicInitConfig
 from runtime.msckf.init_dynamic_sparse_jacobian import sparse_fd_jacobian
+from runtime.msckf.normal_lm import levenberg_marquardt
 
 
 @dataclass
@@ -124,6 +127,82 @@ class WindowRefinement:
         out.append(np.array([(self.R_hat[0] @ x[0:3])[2] / 1e-4]))
         return np.concatenate(out)
 
+    def jacobian(self, x: np.ndarray) -> np.ndarray:
+        """Analytic Jacobian of :meth:`residuals` at x (rows: residuals, columns: parameters; dense, its
+        non-zeros within :meth:`sparsity`).
+
+        Rotations are perturbed on the right, R_k(theta + d) ~= R_k Exp(Jr(theta) d); the
+        preintegration rotation residual Log(E) moves by Jr^-1(Log E) times the perturbation of E.
+        """
+        R, p, v, dbg, dba, feats = self._unpack(x)
+        K, F = self.n_kf, self.n_feat
+        Jr = so3_right_jacobian(x[: 9 * K].reshape(K, 9)[:, 0:3])
+        Rt = np.swapaxes(R, 1, 2)
+        rows, cols, vals = [], [], []
+
+        # reprojections: d r / d p_C, then p_C = R_CI R_k^T (p_f - p_k) + p_CI
+        k, f = self.obs_k, self.obs_f
+        n_obs = k.size
+        p_I = np.einsum("nij,nj->ni", Rt[k], feats[f] - p[k])
+        p_C = p_I @ self.R_CI.T + self.p_CI
+        clamped = np.abs(p_C[:, 2]) <= 1e-6
+        z = np.where(clamped, 1e-6, p_C[:, 2])
+        D = np.zeros((n_obs, 2, 3))
+        D[:, 0, 0] = D[:, 1, 1] = 1.0 / z
+        D[:, 0, 2] = np.where(clamped, 0.0, -p_C[:, 0] / z**2)
+        D[:, 1, 2] = np.where(clamped, 0.0, -p_C[:, 1] / z**2)
+        D *= self.w_px
+        J_f = D @ (self.R_CI @ Rt[k])
+        J_theta = D @ self.R_CI @ skew(p_I) @ Jr[k]
+        vals.append(np.concatenate([J_theta, -J_f, J_f], axis=2).ravel())
+        c = np.concatenate([9 * k[:, None] + np.arange(6), (9 * K + 6 + 3 * f)[:, None] + np.arange(3)],
+                           axis=1)
+        rows.append(np.repeat(2 * np.arange(n_obs)[:, None] + np.arange(2), 9, axis=1).ravel())
+        cols.append(np.repeat(c[:, None, :], 2, axis=1).ravel())
+
+        # preintegration pairs: raw 9 x 24 block over [state j, state j+1, dbg, dba], then whitened
+        g = self.g_O
+        block_cols = np.arange(24)
+        block_cols[18:] = 9 * K + np.arange(6)
+        for j, pre in enumerate(self.between):
+            dR, _, _ = pre.corrected(dbg, dba)
+            dt = pre.dt
+            E = dR.T @ Rt[j] @ R[j + 1]
+            Jri = so3_right_jacobian_inv(so3_log(E))
+            u_v = v[j + 1] - v[j] - g * dt
+            u_p = p[j + 1] - p[j] - v[j] * dt - 0.5 * g * dt * dt
+            B = np.zeros((9, 24))
+            B[0:3, 0:3] = -Jri @ Rt[j + 1] @ R[j] @ Jr[j]
+            B[0:3, 9:12] = Jri @ Jr[j + 1]
+            B[0:3, 18:21] = -Jri @ E.T @ so3_right_jacobian(pre.J_R_bg @ dbg) @ pre.J_R_bg
+            B[3:6, 0:3] = skew(Rt[j] @ u_v) @ Jr[j]
+            B[3:6, 6:9] = -Rt[j]
+            B[3:6, 15:18] = Rt[j]
+            B[3:6, 18:21] = -pre.J_v_bg
+            B[3:6, 21:24] = -pre.J_v_ba
+            B[6:9, 0:3] = skew(Rt[j] @ u_p) @ Jr[j]
+            B[6:9, 3:6] = -Rt[j]
+            B[6:9, 6:9] = -Rt[j] * dt
+            B[6:9, 12:15] = Rt[j]
+            B[6:9, 18:21] = -pre.J_p_bg
+            B[6:9, 21:24] = -pre.J_p_ba
+            base = 2 * n_obs + 9 * j
+            vals.append((self.sqrt_info[j] @ B).ravel())
+            rows.append(np.repeat(base + np.arange(9), 24))
+            block_cols[:18] = 9 * j + np.arange(18)
+            cols.append(np.tile(block_cols, 9))
+
+        # bias priors and the gauge (first position and yaw)
+        base = 2 * n_obs + 9 * (K - 1)
+        rows.append(np.r_[base + np.arange(9), np.full(3, base + 9)])
+        cols.append(np.r_[9 * K + np.arange(6), 3, 4, 5, 0, 1, 2])
+        vals.append(np.r_[np.full(3, 1.0 / self.cfg.sigma_bg_prior),
+                          np.full(3, 1.0 / self.cfg.sigma_ba_prior), np.full(3, 1e4),
+                          self.R_hat[0][2] / 1e-4])
+        J = np.zeros((2 * n_obs + 9 * (K - 1) + 10, 9 * K + 6 + 3 * F))
+        J[np.concatenate(rows), np.concatenate(cols)] = np.concatenate(vals)    # no entry is set twice
+        return J
+
     def sparsity(self) -> scipy.sparse.lil_matrix:
         """(residuals, parameters) 0/1 pattern of the Jacobian of :meth:`residuals`."""
         K, F = self.n_kf, self.n_feat
@@ -158,20 +237,19 @@ class WindowRefinement:
         x0 = np.concatenate(
             [np.concatenate([np.zeros((K, 3)), p_k, v_k], axis=1).ravel(), np.zeros(6), p_f.ravel()]
         )
-        S = self.sparsity()
+        analytic = self.cfg.mle_solver == "lm"
         nfev = 0
         x = x0
         if self.cfg.mle_max_iterations > 0:
-            sol = scipy.optimize.least_squares(
-                self.residuals,
-                x0,
-                jac_sparsity=S,
-                method="trf",
-                max_nfev=self.cfg.mle_max_iterations,
-                x_scale="jac",
-                ftol=self.cfg.mle_tolerance,
-                xtol=self.cfg.mle_tolerance,
-            )
+            if analytic:
+                sol = levenberg_marquardt(self.residuals, self.jacobian, x0, self.cfg.mle_max_iterations,
+                                          self.cfg.mle_tolerance, self.cfg.mle_tolerance)
+            else:
+                sol = scipy.optimize.least_squares(
+                    self.residuals, x0, method="trf", jac_sparsity=self.sparsity(),
+                    max_nfev=self.cfg.mle_max_iterations, x_scale="jac",
+                    ftol=self.cfg.mle_tolerance, xtol=self.cfg.mle_tolerance,
+                )
             x, nfev = sol.x, int(sol.nfev)
             if not np.all(np.isfinite(x)):
                 return None
@@ -180,11 +258,14 @@ class WindowRefinement:
         self.R_hat = R
         xc = x.copy()
         xc[: 9 * K].reshape(K, 9)[:, 0:3] = 0.0
-        J = sparse_fd_jacobian(self.residuals, xc, S)
+        if analytic:
+            J = self.jacobian(xc)
+        else:
+            J = sparse_fd_jacobian(self.residuals, xc, self.sparsity()).toarray()
         r = self.residuals(xc)
         n_proj = 2 * self.obs_k.size
         rms_px = float(np.sqrt(np.mean((r[:n_proj] / self.w_px * self.focal_px) ** 2)))
-        cov = newest_state_covariance((J.T @ J).toarray(), K, self.cfg.inflation)
+        cov = newest_state_covariance(J.T @ J, K, self.cfg.inflation)
         if cov is None:
             return None
         return RefinedWindow(R, p, v, self.bg0 + dbg, self.ba0 + dba, cov, rms_px, nfev)

@@ -190,3 +190,23 @@ def test_rot_z_is_the_exponential_about_z_batched_and_keeps_gravity_exact():
     for yaw, Ry in zip(yaws.ravel(), R.reshape(-1, 3, 3), strict=True):
         np.testing.assert_allclose(Ry, so3_exp(np.array([0.0, 0.0, yaw])), atol=1e-12)
         assert np.array_equal(Ry[2], [0.0, 0.0, 1.0]) and np.array_equal(Ry[:, 2], [0.0, 0.0, 1.0])
+
+
+def test_kabsch_is_scipy_align_vectors_one_set_or_a_stack():
+    from runtime.geometry.so3 import kabsch_rotation
+
+    R_true = Rotation.from_rotvec(random_rotvecs(4)).as_matrix()
+    a = RNG.normal(size=(4, 12, 3))
+    b = np.einsum("kij,knj->kni", R_true, a) + RNG.normal(0.0, 0.01, (4, 12, 3))
+    stacked = kabsch_rotation(a, b)
+    assert stacked.shape == (4, 3, 3)
+    for k in range(4):
+        # scipy: the rotation taking a's vectors to b's in the least-squares sense
+        expected = Rotation.align_vectors(b[k], a[k])[0].as_matrix()
+        np.testing.assert_allclose(kabsch_rotation(a[k], b[k]), expected, atol=1e-9)
+        np.testing.assert_allclose(stacked[k], expected, atol=1e-9)
+    # two pairs only (the RANSAC's samples) and a reflected best fit: still a proper rotation
+    two = kabsch_rotation(a[:, :2], b[:, :2])
+    np.testing.assert_allclose(np.linalg.det(two), 1.0, atol=1e-12)
+    mirrored = kabsch_rotation(a[0], a[0] * np.array([1.0, 1.0, -1.0]))
+    assert np.linalg.det(mirrored) == pytest.approx(1.0)

@@ -1,0 +1,72 @@
+"""Levenberg-Marquardt on the normal equations (runtime.msckf.normal_lm) against scipy least_squares."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.optimize
+
+from runtime.msckf.normal_lm import levenberg_marquardt
+
+
+def _rosenbrock_like(n: int):
+    """Residuals of a chained Rosenbrock function (minimum 0 at x = 1), its Jacobian."""
+    def fun(x):
+        return np.concatenate([10.0 * (x[1:] - x[:-1] ** 2), 1.0 - x[:-1]])
+
+    def jac(x):
+        J = np.zeros((2 * (n - 1), n))
+        i = np.arange(n - 1)
+        J[i, i] = -20.0 * x[:-1]
+        J[i, i + 1] = 10.0
+        J[n - 1 + i, i] = -1.0
+        return J
+    return fun, jac
+
+
+def test_it_reaches_the_minimum_of_a_curved_valley_from_far_away() -> None:
+    fun, jac = _rosenbrock_like(8)
+    x0 = np.full(8, -1.2)
+    out = levenberg_marquardt(fun, jac, x0, max_nfev=200, ftol=1e-14, xtol=1e-14)
+    assert out.converged and out.nfev <= 200
+    np.testing.assert_allclose(out.x, 1.0, atol=1e-6)
+    # the same problem and start through scipy's trust-region solver: the same minimum
+    ref = scipy.optimize.least_squares(fun, x0, jac=jac, ftol=1e-14, xtol=1e-14, max_nfev=200)
+    np.testing.assert_allclose(out.x, ref.x, atol=1e-6)
+
+
+def test_a_noisy_fit_matches_scipy_and_the_linear_least_squares_optimum() -> None:
+    # an exponential decay with noise: nonlinear in its rate; at the optimum the linear sub-problem
+    # (amplitude, offset) equals the closed-form linear least-squares fit at that rate
+    rng = np.random.default_rng(4)
+    t = np.linspace(0.0, 4.0, 60)
+    y = 2.5 * np.exp(-1.3 * t) + 0.4 + rng.normal(0, 0.02, t.size)
+
+    def fun(p):
+        return p[0] * np.exp(-p[1] * t) + p[2] - y
+
+    def jac(p):
+        e = np.exp(-p[1] * t)
+        return np.column_stack([e, -p[0] * t * e, np.ones_like(t)])
+
+    out = levenberg_marquardt(fun, jac, np.array([1.0, 0.5, 0.0]), max_nfev=100, ftol=1e-12, xtol=1e-12)
+    ref = scipy.optimize.least_squares(fun, np.array([1.0, 0.5, 0.0]), jac=jac, ftol=1e-12, xtol=1e-12)
+    assert out.converged
+    np.testing.assert_allclose(out.x, ref.x, rtol=1e-6)
+    A = np.column_stack([np.exp(-out.x[1] * t), np.ones_like(t)])
+    np.testing.assert_allclose(out.x[[0, 2]], np.linalg.lstsq(A, y, rcond=None)[0], rtol=1e-6)
+    assert out.cost == pytest.approx(ref.cost, rel=1e-9)
+
+
+def test_the_evaluation_budget_and_non_finite_residuals() -> None:
+    fun, jac = _rosenbrock_like(8)
+    out = levenberg_marquardt(fun, jac, np.full(8, -1.2), max_nfev=3, ftol=1e-14, xtol=1e-14)
+    assert out.nfev == 3 and not out.converged
+    # residuals that turn non-finite away from the start: such steps are refused, the start kept finite
+    out = levenberg_marquardt(lambda x: np.array([np.sqrt(x[0]) - 3.0]) if x[0] >= 0 else np.array([np.nan]),
+                              lambda x: np.array([[0.5 / np.sqrt(max(x[0], 1e-12))]]),
+                              np.array([0.01]), max_nfev=60, ftol=1e-15, xtol=1e-15)
+    assert np.isfinite(out.cost) and out.x[0] == pytest.approx(9.0, rel=1e-6)
+    # a start whose residual is not finite: returned at once, not converged
+    nan = levenberg_marquardt(lambda x: np.array([np.nan]), lambda x: np.ones((1, 1)), np.zeros(1), 10,
+                              1e-8, 1e-8)
+    assert nan.nfev == 1 and not nan.converged
