@@ -67,3 +67,33 @@ def test_options_are_not_abbreviated_and_help_hides_none_defaults(capsys):
     for sp in sub.choices.values():
         assert "(default: None)" not in sp.format_help()
     assert "(default: davio_run)" in " ".join(sub.choices["run"].format_help().split())
+
+
+def test_building_the_options_imports_no_pipeline_model_runtime_or_simulator():
+    """`davio --help` and every command's options are built without the heavy packages (the pipeline pulls in
+    numba kernels and scipy, the simulator its renderer), so that a command starts at once; checked in a
+    fresh interpreter, where nothing was imported before."""
+    heavy = ["runtime.pipeline", "runtime.msckf.estimator", "drivers.sim.recording", "drivers.sim.render",
+             "tools.calibrate.core", "numba", "scipy.optimize", "onnxruntime", "open3d", "matplotlib"]
+    code = ("import sys; from tools.cli import build_parser; build_parser(); "
+            f"print([m for m in {heavy!r} if m in sys.modules])")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+
+
+def test_a_named_command_builds_its_own_options_only(capsys):
+    parser = build_parser(only="listen")
+    sub = next(a for a in parser._actions if a.dest == "command")
+    assert set(sub.choices) >= {"run", "listen", "bench"}       # every command can still be named
+    def options(name: str) -> set[str]:
+        return {o for a in sub.choices[name]._actions for o in a.option_strings}
+
+    assert "--tum" in options("listen")
+    assert options("run") == {"-h", "--help"}                   # listed, not built
+    # what main builds for each way of calling: the top-level help and options see every command's usage
+    with pytest.raises(SystemExit):
+        main(["--help", "run"])
+    assert "usage of each command" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        main(["run", "--help"])
+    assert "--emulated" in capsys.readouterr().out

@@ -7,7 +7,24 @@ filter's online refinement) written as a Kalibr camchain, with the evidence (rep
 - `tools.calibrate.output`: the camchain, `<out stem>.report.json` and the convergence plots.
 """
 
-from tools.calibrate.checks import Thresholds, judge
-from tools.calibrate.core import CalibrationRun, calibrate
+import importlib
+from typing import TYPE_CHECKING, Any
+
+# imported on first use (PEP 562): the `davio calibrate` options read the thresholds without the pipeline
+_EXPORTS = {"Thresholds": "tools.calibrate.checks", "judge": "tools.calibrate.checks",
+            "CalibrationRun": "tools.calibrate.core", "calibrate": "tools.calibrate.core"}
+
+if TYPE_CHECKING:
+    from tools.calibrate.checks import Thresholds, judge
+    from tools.calibrate.core import CalibrationRun, calibrate
 
 __all__ = ["CalibrationRun", "Thresholds", "calibrate", "judge"]
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'tools.calibrate' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value

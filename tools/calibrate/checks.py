@@ -23,11 +23,12 @@ In this order (the first that applies is the refusal; each names what was observ
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tools.calibrate.core import CalibrationRun
-from tools.calibrate.output import rotation_deg
+if TYPE_CHECKING:
+    from tools.calibrate.core import CalibrationRun
 
 SAMPLE_SLACK_S = 0.2
 """The calibrated states are collected every 0.1 s of camera time: a final segment this much shorter than
@@ -89,6 +90,8 @@ def settling(run: CalibrationRun, window_s: float) -> dict | None:
     segment = [s for s in run.samples if s.segment == final.segment]
     last = [s for s in segment if s.t_cam_ns >= start]
     lever = max(float(np.linalg.norm(s.p_IC - final.p_IC)) for s in last)
+    from tools.calibrate.output import rotation_deg
+
     rot = max(rotation_deg(s.R_IC, final.R_IC) for s in last)
     offset = max(abs(s.time_offset_s - final.time_offset_s) for s in last)
     return {"window_s": (final.t_cam_ns - last[0].t_cam_ns) * 1e-9,
