@@ -175,6 +175,29 @@ def test_noisy_measurements_refinement_recovers_gyro_bias_and_velocity() -> None
     assert v_err < 3.0 * np.sqrt(np.trace(res.cov[6:9, 6:9]))
 
 
+@pytest.mark.slow
+def test_both_refinement_solvers_reach_the_same_state_on_a_noisy_window() -> None:
+    """Levenberg-Marquardt with the analytic Jacobian (the default) and scipy's trust-region solver with
+    finite differences (the reference) end on the same window's solution: far closer to each other than
+    either is to the truth, and with the same covariance to a few percent."""
+    motion = Motion("general")
+    out = {}
+    for solver in ("lm", "scipy-fd"):
+        init = DynamicInitializer(CAM, T_IC, DynamicInitConfig(mle_solver=solver))
+        t_last = feed_noisy(init, motion, seed=5, bg=np.array([0.002, 0.003, -0.001]),
+                            ba=np.array([-0.04, 0.02, 0.05]))
+        out[solver] = init.try_initialize()
+        assert out[solver] is not None, init.last_reason
+    a, b = out["lm"], out["scipy-fd"]
+    R, _, v, _, _ = motion.state(t_last)
+    v_err = np.linalg.norm(a.R_OI.T @ a.v_OI - R.T @ v)
+    assert np.linalg.norm(a.v_OI - b.v_OI) < 0.1 * v_err + 1e-3
+    assert gravity_angle_deg(a.gravity_in_imu, b.gravity_in_imu) < 0.02
+    np.testing.assert_allclose(a.bg, b.bg, atol=1e-4)
+    np.testing.assert_allclose(np.sqrt(np.diag(a.cov)), np.sqrt(np.diag(b.cov)), rtol=0.05)
+    assert a.info["reprojection_rms_px"] == pytest.approx(b.info["reprojection_rms_px"], rel=0.01)
+
+
 def test_out_of_order_frames_are_counted_and_reset_clears() -> None:
     init = DynamicInitializer(CAM, T_IC)
     init.feed_tracks(100, np.arange(3), np.full((3, 2), 100.0))

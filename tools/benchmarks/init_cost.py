@@ -13,7 +13,9 @@ IMU of each simulated recording and attempt at every frame, whatever the outcome
 success), with their other settings as a run's. Per solver: the attempts that reached the refinement
 (succeeded, or refused after it) and their time (median, p90, max), and the other attempts' time; and for
 the attempts both accepted, the largest difference between the two states (newest keyframe: position,
-velocity, gravity direction) and between their covariances' standard deviations (relative).
+velocity, gravity direction) and between their covariances' standard deviations (relative); and each
+solver's median and largest error against the truth (velocity in the IMU frame, gravity direction), and
+how many accepted windows had gravity more than 1 deg off.
 
 `--live`: each recording is also pushed into a live Session at its real rate (every IMU sample kept; an
 image waiting behind two others is dropped, as `davio live` does), once per solver, native initializers
@@ -59,8 +61,9 @@ def _reached_refinement(init, result) -> bool:
     return result is not None or (last is not None and last.code in ("mle_failed", "implausible_bias"))
 
 
-def attempts(rig, events) -> dict:
-    """Both solvers' dynamic initializers on the same tracks and IMU, attempting at every frame."""
+def attempts(rig, events, motion=None) -> dict:
+    """Both solvers' dynamic initializers on the same tracks and IMU, attempting at every frame; with the
+    recording's true motion (a PoseSpline of T_WI, IMU clock, z up), each accepted state's errors."""
     from runtime.events import ImuSample
     from runtime.msckf.init_dynamic import DynamicInitializer
     from runtime.msckf.init_dynamic_config import DynamicInitConfig
@@ -73,6 +76,8 @@ def attempts(rig, events) -> dict:
     other: dict[str, list[float]] = {solver: [] for solver in MLE_SOLVERS}
     diffs = {"position_m": 0.0, "velocity_m_s": 0.0, "gravity_deg": 0.0, "sigma_relative": 0.0}
     accepted = {solver: 0 for solver in MLE_SOLVERS}
+    errors: dict[str, dict[str, list[float]]] = {solver: {"velocity_m_s": [], "gravity_deg": []}
+                                                 for solver in MLE_SOLVERS}
     both = frames = 0
     tracker = KltTracker(rig.camera)
     for ev in events:
@@ -90,6 +95,9 @@ def attempts(rig, events) -> dict:
             ms = (time.perf_counter() - t0) * 1e3
             (refined if _reached_refinement(init, out[solver]) else other)[solver].append(ms)
             accepted[solver] += out[solver] is not None
+            if motion is not None and out[solver] is not None:
+                for k, v in _errors(out[solver], motion).items():
+                    errors[solver][k].append(v)
         a, b = out["lm"], out["scipy-fd"]
         if a is not None and b is not None:
             both += 1
@@ -102,8 +110,23 @@ def attempts(rig, events) -> dict:
             diffs["sigma_relative"] = max(diffs["sigma_relative"], float(np.max(np.abs(sd_a - sd_b) / sd_b)))
     return {"frames": frames, "accepted_by_both": both,
             "by_solver": {solver: {"accepted": accepted[solver], "refined": _stats(refined[solver]),
-                                  "other": _stats(other[solver])} for solver in MLE_SOLVERS},
+                                   "other": _stats(other[solver]),
+                                   "median_error": {k: float(np.median(v)) if v else None
+                                                    for k, v in errors[solver].items()},
+                                   "max_error": {k: float(np.max(v)) if v else None
+                                                 for k, v in errors[solver].items()},
+                                   "gravity_over_1_deg": sum(e > 1.0 for e in errors[solver]["gravity_deg"])}
+                          for solver in MLE_SOLVERS},
             "largest_difference": diffs if both else None}
+
+
+def _errors(res, motion) -> dict:
+    """Velocity (IMU frame, m/s) and gravity direction (deg) errors of an InitResult against the truth."""
+    truth = motion.sample(np.array([res.t_ns], dtype=np.int64))
+    R_WI, v_W = truth.R[0], truth.v[0]
+    v_err = np.linalg.norm(res.R_OI.T @ res.v_OI - R_WI.T @ v_W)
+    up = np.clip(res.gravity_in_imu @ R_WI[2, :], -1.0, 1.0)
+    return {"velocity_m_s": float(v_err), "gravity_deg": float(np.degrees(np.arccos(up)))}
 
 
 def live(rig, events: list, solver: str) -> dict:
@@ -141,16 +164,18 @@ def run(args: argparse.Namespace) -> int:
     say = (lambda *a, **k: None) if args.json else print
     say("the dynamic initializer's attempts at every frame (ms on this thread), by the refinement's solver")
     say(f"  {'recording':10s} {'solver':9s} {'accepted':>8s} {'refined':>7s} {'median':>7s} {'p90':>7s} "
-        f"{'max':>7s} | {'other':>5s} {'median':>7s} {'max':>7s}")
+        f"{'max':>7s} | {'other':>5s} {'median':>7s} {'max':>7s} | error: velocity, gravity (median; max); "
+        "gravity > 1 deg")
     for preset in args.preset or ("handheld", "aggressive", "slow"):
         rec = SimRecording.from_preset(SimConfig(preset=preset, seconds=args.seconds, seed=args.seed))
         events = list(rec.events())
-        r = attempts(rec.rig, events)
+        r = attempts(rec.rig, events, rec.motion)
         for solver, j in r["by_solver"].items():
             f, o = j["refined"], j["other"]
             say(f"  {preset:10s} {solver:9s} {j['accepted']:8d} {f['n']:7d} {_ms(f['median_ms'])} "
                 f"{_ms(f['p90_ms'])} {_ms(f['max_ms'])} | {o['n']:5d} {_ms(o['median_ms'])} "
-                f"{_ms(o['max_ms'])}", flush=True)
+                f"{_ms(o['max_ms'])} | {_err(j['median_error'])}; {_err(j['max_error'])}; "
+                f"{j['gravity_over_1_deg']}", flush=True)
         d = r["largest_difference"]
         if d is not None:
             say(f"  {'':10s} both accepted {r['accepted_by_both']} windows; largest difference: "
@@ -169,6 +194,12 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(strict_dumps(result))
     return 0
+
+
+def _err(e: dict) -> str:
+    if e["velocity_m_s"] is None:
+        return "-"
+    return f"{e['velocity_m_s'] * 1e3:.1f} mm/s, {e['gravity_deg']:.3f} deg"
 
 
 def _ms(v: float | None) -> str:
