@@ -68,9 +68,10 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
 
 
 def _command_named(argv: list[str]) -> str | None:
-    """The subcommand `argv` runs (its first word: the top level takes no option with a value), or None."""
+    """The subcommand `argv` runs (its first word: the top level takes no option with a value), or None when
+    a top-level option comes first (`--help`, `--version` or an abbreviation: they need the full parser)."""
     first = next((a for a in argv if not a.startswith("-")), None)
-    if first is None or any(a in ("-h", "--help", "--version") for a in argv[:argv.index(first)]):
+    if first is None or argv.index(first) > 0:
         return None
     return first
 

@@ -61,10 +61,12 @@ def rotation_ransac(a: np.ndarray, b: np.ndarray, threshold_rad: float, rng: np.
     best mask when fewer than 3 bearings agree."""
     n = a.shape[0]
     cos_thr = np.cos(threshold_rad)
-    pairs = np.array([rng.choice(n, 2, replace=False) for _ in range(iterations)])
-    R_all = kabsch_rotation(a[pairs], b[pairs])                  # every hypothesis at once
-    inliers = np.einsum("knj,nj->kn", a @ np.swapaxes(R_all, -1, -2), b) > cos_thr
-    best = inliers[np.argmax(inliers.sum(axis=1))]              # the first of the most supported
+    pairs = np.array([rng.choice(n, 2, replace=False) for _ in range(iterations)], dtype=np.intp)
+    best = np.zeros(n, dtype=bool)
+    if pairs.size:
+        R_all = kabsch_rotation(a[pairs], b[pairs])              # every hypothesis at once
+        inliers = np.einsum("knj,nj->kn", a @ np.swapaxes(R_all, -1, -2), b) > cos_thr
+        best = inliers[np.argmax(inliers.sum(axis=1))]          # the first of the most supported
     if best.sum() < 3:
         return np.eye(3), best
     R = kabsch_rotation(a[best], b[best])

@@ -72,9 +72,10 @@ class DynamicInitConfig:
     """Relative cost / step tolerance that ends the refinement (scipy ftol and xtol)."""
     mle_solver: str = "lm"
     """The refinement's solver: "lm" (the analytic Jacobian, Levenberg-Marquardt on the normal equations:
-    runtime.msckf.normal_lm), or "scipy-fd" (scipy least_squares "trf" with central differences over the
-    Jacobian's sparsity pattern and LSMR steps), the way used until the thirty-first session, about 15x
-    slower, kept as the reference (`davio bench init-cost`)."""
+    runtime.msckf.normal_lm), or "scipy-fd" (scipy least_squares "trf" with forward differences over the
+    Jacobian's sparsity pattern and LSMR steps), the way used until the thirty-first session, kept as the
+    reference: an attempt that reaches the refinement is 6-10x slower with it (median, `davio bench
+    init-cost`)."""
     sigma_px: float = 1.0
     """Pixel noise of the features, px."""
     sigma_bg_prior: float = 0.01

@@ -1,7 +1,7 @@
 """Maximum-likelihood refinement of the dynamic initializer's window, and the newest state's covariance.
 
 Unknowns (Levenberg-Marquardt on the normal equations with the analytic Jacobian, runtime.msckf.normal_lm;
-or with `mle_solver = "scipy-fd"` scipy least_squares with central differences over the Jacobian's sparsity
+or with `mle_solver = "scipy-fd"` scipy least_squares with forward differences over the Jacobian's sparsity
 pattern), in the gravity-aligned frame O: per keyframe [theta (local rotation error of R_OIk), p_OIk,
 v_OIk], then shared bias corrections [dbg, dba], then the feature positions p_Of. Residuals: reprojection
 errors (normalized coordinates scaled by f / sigma_px), preintegration residuals [r_R, r_v, r_p]

@@ -6,8 +6,10 @@ trust-region solvers factor the whole (m, n) Jacobian at every step (SVD or QR: 
 (J^T J + lambda diag(J^T J)) dx = -J^T r (Marquardt's scaling, so the damping does not depend on the units
 of the parameters); lambda follows Nielsen's rule (Madsen, Nielsen & Tingleff, "Methods for non-linear
 least squares problems", 2004, Sec. 3.2): shrunk by max(1/3, 1 - (2 rho - 1)^3) on a step whose gain ratio
-rho is positive, grown by a doubling factor on one that is not. The ends are scipy least_squares's: the cost
-falls by less than ftol of itself, or the step is shorter than xtol (xtol + |x|).
+rho is positive, grown by a doubling factor on one that is not. The ends test the cost and the step as
+scipy least_squares's do: an accepted step that lowers the cost by less than ftol of itself (with a gain
+ratio above 1/4), or a step, taken or not, shorter than xtol (xtol + |x|), which also ends a start at a
+stationary point at once; scipy's gradient test is not made.
 """
 from __future__ import annotations
 
@@ -20,6 +22,8 @@ import scipy.linalg
 #: lambda of the first step: nearly the Gauss-Newton step, which a good start (the initializer's linear
 #: solve) takes at once; a failing one grows lambda 2, 4, 8 ... times per rejection
 INITIAL_DAMPING = 1e-6
+#: lambda beyond which the search stops: steps damped this much no longer move x
+MAX_DAMPING = 1e16
 
 
 @dataclass(frozen=True)
@@ -57,10 +61,12 @@ def levenberg_marquardt(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[
             L = np.linalg.cholesky(H + lam * np.diag(scale))
         except np.linalg.LinAlgError:
             lam, grow = lam * grow, grow * 2.0
-            if lam > 1e16:
+            if lam > MAX_DAMPING:
                 return LmResult(x, cost, nfev, False)
             continue
         dx = scipy.linalg.cho_solve((L, True), -g)
+        if np.linalg.norm(dx) < xtol * (xtol + np.linalg.norm(x)):
+            return LmResult(x, cost, nfev, True)
         x_new = x + dx
         r_new = fun(x_new)
         nfev += 1
@@ -68,12 +74,15 @@ def levenberg_marquardt(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[
         predicted = -float(g @ dx) - 0.5 * float(dx @ (H @ dx))
         rho = (cost - cost_new) / predicted if (predicted > 0 and np.isfinite(cost_new)) else -1.0
         if rho > 0:
-            small = (cost - cost_new) < ftol * cost or np.linalg.norm(dx) < xtol * (xtol + np.linalg.norm(x))
+            small = (cost - cost_new) < ftol * cost and rho > 0.25
             x, r, cost = x_new, r_new, cost_new
             if small:
                 return LmResult(x, cost, nfev, True)
             lam, grow = lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), 2.0
-            J = jac(x)
+            if nfev < max_nfev:
+                J = jac(x)
         else:
             lam, grow = lam * grow, grow * 2.0
+            if lam > MAX_DAMPING:       # no step lowers the cost: x is as good as it gets here
+                return LmResult(x, cost, nfev, False)
     return LmResult(x, cost, nfev, False)

@@ -84,3 +84,60 @@ def test_too_few_points_and_bad_shapes():
     assert fit is not None and fit.points == len(a) - 5
     with pytest.raises(ValueError, match="same shape"):
         two_view_rotation(a, b[:-1], 1.0 / FOCAL_PX)
+
+
+def _reference_ransac(a, b, threshold_rad, rng, iterations):
+    """The hypotheses one at a time, keeping the first with the most inliers (the loop the batched one
+    replaced)."""
+    from runtime.geometry.so3 import kabsch_rotation
+
+    best = np.zeros(a.shape[0], dtype=bool)
+    for _ in range(iterations):
+        i, j = rng.choice(a.shape[0], 2, replace=False)
+        R = kabsch_rotation(a[[i, j]], b[[i, j]])
+        inl = np.einsum("ij,ij->i", a @ R.T, b) > np.cos(threshold_rad)
+        if inl.sum() > best.sum():
+            best = inl
+    return best
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_batched_ransac_keeps_the_first_most_supported_hypothesis_as_one_at_a_time(seed):
+    rng = np.random.default_rng(seed)
+    R = so3_exp(rng.normal(0, 0.1, 3))
+    # exact points (every clean pair ties at the same count) or noisy ones, with and without outliers
+    noise = 0.0 if seed % 2 == 0 else 0.5
+    a, b = _scene(rng, R, np.zeros(3), n=40, noise_px=noise, outliers=0.3 * (seed % 3 > 0))
+    A, B = bearings(a), bearings(b)
+    thr = 2.0 / FOCAL_PX
+    expected = _reference_ransac(A, B, thr, np.random.default_rng(11), 64)
+    _, inliers = rotation_ransac(A, B, thr, np.random.default_rng(11), iterations=64)
+    # rotation_ransac refits on the best mask; the mask it refits from is the reference's
+    R_ref = rotation_ransac(A, B, thr, np.random.default_rng(11), iterations=64)[0]
+    from runtime.geometry.so3 import kabsch_rotation
+
+    np.testing.assert_allclose(R_ref, kabsch_rotation(A[expected], B[expected]), atol=1e-12)
+    assert inliers.sum() >= expected.sum() - 1
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_of_two_equally_supported_rotations_the_first_drawn_is_kept(seed):
+    """Half the bearings turn by one rotation, half by another 10 deg away: their hypotheses tie, and which
+    one is kept is the first drawn, as in the one-at-a-time loop."""
+    rng = np.random.default_rng(seed)
+    A = bearings(rng.uniform(-0.5, 0.5, (16, 2)))
+    R1, R2 = so3_exp(np.array([0.05, 0.0, 0.0])), so3_exp(np.array([0.05, 0.17, 0.0]))
+    B = np.vstack([A[:8] @ R1.T, A[8:] @ R2.T])
+    expected = _reference_ransac(A, B, 1e-3, np.random.default_rng(seed), 64)
+    assert expected.sum() == 8
+    R, inliers = rotation_ransac(A, B, 1e-3, np.random.default_rng(seed), iterations=64)
+    np.testing.assert_array_equal(inliers, expected)
+    np.testing.assert_allclose(R, R1 if expected[0] else R2, atol=1e-9)
+
+
+def test_no_hypothesis_gives_the_identity_and_no_inliers():
+    rng = np.random.default_rng(2)
+    a, b = _scene(rng, np.eye(3), np.zeros(3), n=20)
+    R, inliers = rotation_ransac(bearings(a), bearings(b), 2.0 / FOCAL_PX, rng, iterations=0)
+    np.testing.assert_array_equal(R, np.eye(3))
+    assert not inliers.any()

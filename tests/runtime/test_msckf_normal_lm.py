@@ -70,3 +70,23 @@ def test_the_evaluation_budget_and_non_finite_residuals() -> None:
     nan = levenberg_marquardt(lambda x: np.array([np.nan]), lambda x: np.ones((1, 1)), np.zeros(1), 10,
                               1e-8, 1e-8)
     assert nan.nfev == 1 and not nan.converged
+
+
+def test_a_start_at_the_minimum_ends_at_once_and_a_hopeless_search_ends_without_error() -> None:
+    # a linear problem started at its least-squares solution: the first step is (numerically) zero
+    rng = np.random.default_rng(7)
+    A, y = rng.normal(size=(30, 4)), rng.normal(size=30)
+    x_star = np.linalg.lstsq(A, y, rcond=None)[0]
+    out = levenberg_marquardt(lambda x: A @ x - y, lambda x: A, x_star, max_nfev=60, ftol=1e-15, xtol=1e-15)
+    assert out.converged and out.nfev == 1
+    np.testing.assert_array_equal(out.x, x_star)
+    # every step away from the start is refused (non-finite residuals there): the damping grows until the
+    # steps vanish, with no overflow into a non-finite factorisation, and the start is returned
+    x0 = np.array([1.0, 2.0])
+
+    def only_here(x):
+        return np.array([3.0, 4.0]) if np.array_equal(x, x0) else np.full(2, np.nan)
+
+    stuck = levenberg_marquardt(only_here, lambda x: np.eye(2), x0, max_nfev=500, ftol=1e-15, xtol=1e-15)
+    np.testing.assert_array_equal(stuck.x, x0)
+    assert stuck.cost == 12.5 and stuck.nfev <= 500

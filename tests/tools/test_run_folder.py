@@ -148,10 +148,13 @@ def test_sigint_keeps_the_outputs_and_marks_them_interrupted(small_sim_folder: P
     proc = subprocess.Popen(_run_cmd(small_sim_folder, out) + ["--paced", "--speed", "0.5"], cwd=REPO,
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     partial = out.with_name(out.name + ".partial")
+    events = partial / "events.jsonl"
     deadline = time.monotonic() + 120
-    while not partial.exists() and time.monotonic() < deadline:
+    # the signal once a filter publishes (its event is flushed to disk as it happens), whatever the time the
+    # process took to start on a loaded machine: then about 8 s of the recording's 12 s are left
+    while time.monotonic() < deadline and not (events.exists() and '"publishing"' in events.read_text()):
         time.sleep(0.2)
-    time.sleep(6.0)   # about 3 s of sensor data, past the 2 s static start, 6 s before the end
+    time.sleep(1.0)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err

@@ -4,7 +4,7 @@ refinement's solver (`dynamic_init.mle_solver`) and with the scipy one it replac
 The dynamic initializer runs on the tracking thread, at every frame until a filter publishes. An attempt
 that gets past the window checks fits two-view rotations (the rotation check), solves the linear system
 and refines the window by nonlinear least squares; until the thirty-first session the refinement was
-scipy's least_squares with central differences over the Jacobian's sparsity pattern ("scipy-fd") and cost
+scipy's least_squares with forward differences over the Jacobian's sparsity pattern ("scipy-fd") and cost
 1-2 s on 2 cores, which live means the tracking thread stalls and the images of that time are dropped; it
 is now Levenberg-Marquardt on the normal equations with the analytic Jacobian ("lm").
 
