@@ -9,8 +9,9 @@ Main entry points:
 
 from __future__ import annotations
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from runtime.lazy_exports import lazy_exports
 
 # name -> module: imported on first use (PEP 562), so that `drivers.sim.motion` and the others do not pull
 # in the renderer and the pipeline (the `davio` command reads the presets when it builds its options)
@@ -38,15 +39,7 @@ if TYPE_CHECKING:
     from drivers.sim.writer import write_euroc
 
 
-def __getattr__(name: str) -> Any:
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module 'drivers.sim' has no attribute {name!r}")
-    return getattr(importlib.import_module(module), name)     # not cached: always the submodule's own
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_EXPORTS))
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)
 
 
 __all__ = [

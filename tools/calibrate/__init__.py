@@ -7,8 +7,9 @@ filter's online refinement) written as a Kalibr camchain, with the evidence (rep
 - `tools.calibrate.output`: the camchain, `<out stem>.report.json` and the convergence plots.
 """
 
-import importlib
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
+
+from runtime.lazy_exports import lazy_exports
 
 # imported on first use (PEP 562): the `davio calibrate` options read the thresholds without the pipeline
 _EXPORTS = {"Thresholds": "tools.calibrate.checks", "judge": "tools.calibrate.checks",
@@ -21,12 +22,4 @@ if TYPE_CHECKING:
 __all__ = ["CalibrationRun", "Thresholds", "calibrate", "judge"]
 
 
-def __getattr__(name: str) -> Any:
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module 'tools.calibrate' has no attribute {name!r}")
-    return getattr(importlib.import_module(module), name)     # not cached: always the submodule's own
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_EXPORTS))
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS)

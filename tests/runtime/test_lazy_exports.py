@@ -1,0 +1,32 @@
+"""Package attributes imported on first use (runtime.lazy_exports), on the two packages that use them."""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+
+def test_a_light_submodule_does_not_import_the_packages_heavy_ones():
+    code = ("import sys, drivers.sim.motion, tools.calibrate.checks; "
+            "print([m for m in ('drivers.sim.recording', 'drivers.sim.render', 'tools.calibrate.core', "
+            "'runtime.pipeline') if m in sys.modules])")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+
+
+def test_exports_are_the_submodules_own_values_listed_and_unknown_names_raise(monkeypatch):
+    import drivers.sim
+    import drivers.sim.motion
+    import tools.calibrate
+    from tools.calibrate.checks import Thresholds
+
+    assert drivers.sim.PRESETS is drivers.sim.motion.PRESETS and tools.calibrate.Thresholds is Thresholds
+    assert {"SimRecording", "write_euroc", "PRESETS"} <= set(dir(drivers.sim))
+    assert set(drivers.sim.__all__) <= set(dir(drivers.sim))
+    with monkeypatch.context() as m:     # not cached: a patched submodule is seen, and its undoing too
+        m.setattr(drivers.sim.motion, "PRESETS", {"fake": None})
+        assert drivers.sim.PRESETS == {"fake": None}
+    assert drivers.sim.PRESETS is drivers.sim.motion.PRESETS and "euroc" in drivers.sim.PRESETS
+    with pytest.raises(AttributeError, match="module 'drivers.sim' has no attribute 'nothing'"):
+        drivers.sim.nothing  # noqa: B018
