@@ -6,10 +6,12 @@ trust-region solvers factor the whole (m, n) Jacobian at every step (SVD or QR: 
 (J^T J + lambda diag(J^T J)) dx = -J^T r (Marquardt's scaling, so the damping does not depend on the units
 of the parameters); lambda follows Nielsen's rule (Madsen, Nielsen & Tingleff, "Methods for non-linear
 least squares problems", 2004, Sec. 3.2): shrunk by max(1/3, 1 - (2 rho - 1)^3) on a step whose gain ratio
-rho is positive, grown by a doubling factor on one that is not. The ends test the cost and the step as
-scipy least_squares's do: an accepted step that lowers the cost by less than ftol of itself (with a gain
-ratio above 1/4), or a step, taken or not, shorter than xtol (xtol + |x|), which also ends a start at a
-stationary point at once; scipy's gradient test is not made.
+rho is positive, grown by a doubling factor on one that is not. The ends test the cost as scipy
+least_squares's does (an accepted step that lowers it by less than ftol of itself, with a gain ratio above
+1/4), and the step: one shorter than xtol (xtol + |x|) ends the search before it is evaluated, which also
+ends a start at a stationary point at once. scipy evaluates that last step and keeps it when it lowers the
+cost, so on badly scaled problems this ends a little higher (a review measured MGH Brown at 0.0094 against
+scipy's 2e-12; on the initializer's test window 3.9e-10 against 1.6e-10); scipy's gradient test is not made.
 """
 from __future__ import annotations
 

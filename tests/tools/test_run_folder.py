@@ -149,14 +149,21 @@ def test_sigint_keeps_the_outputs_and_marks_them_interrupted(small_sim_folder: P
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     partial = out.with_name(out.name + ".partial")
     events = partial / "events.jsonl"
-    deadline = time.monotonic() + 120
+    deadline = time.monotonic() + 300
     # the signal once a filter publishes (its event is flushed to disk as it happens), whatever the time the
     # process took to start on a loaded machine: then about 8 s of the recording's 12 s are left
-    while time.monotonic() < deadline and not (events.exists() and '"publishing"' in events.read_text()):
-        time.sleep(0.2)
-    time.sleep(1.0)
-    proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=120)
+    try:
+        while not (events.exists() and '"publishing"' in events.read_text()):
+            assert proc.poll() is None, f"the run ended before publishing: {proc.communicate()[1]}"
+            assert time.monotonic() < deadline, "no publishing event within 300 s"
+            time.sleep(0.2)
+        time.sleep(1.0)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
     assert proc.returncode == 130, err
     assert run_status(out) == "interrupted" and not partial.exists()
     rows = [ln for ln in (out / "odometry.tum").read_text().splitlines() if not ln.startswith("#")]
