@@ -14,7 +14,10 @@ def lazy_exports(package: str,
     """(`__getattr__`, `__dir__`) for `package`, whose names `exports` maps to the modules defining them.
 
     A name is looked up in its module at every access (not cached), so it is always that module's own value.
+    Called from the package's `__init__`, while the package is in sys.modules.
     """
+    namespace = vars(sys.modules[package])     # the live globals, kept if the package leaves sys.modules
+
     def __getattr__(name: str) -> Any:
         module = exports.get(name)
         if module is None:
@@ -22,6 +25,6 @@ def lazy_exports(package: str,
         return getattr(importlib.import_module(module), name)
 
     def __dir__() -> list[str]:
-        return sorted(set(vars(sys.modules[package])) | set(exports))
+        return sorted(set(namespace) | set(exports))
 
     return __getattr__, __dir__

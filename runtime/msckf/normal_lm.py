@@ -8,10 +8,9 @@ of the parameters); lambda follows Nielsen's rule (Madsen, Nielsen & Tingleff, "
 least squares problems", 2004, Sec. 3.2): shrunk by max(1/3, 1 - (2 rho - 1)^3) on a step whose gain ratio
 rho is positive, grown by a doubling factor on one that is not. The ends test the cost as scipy
 least_squares's does (an accepted step that lowers it by less than ftol of itself, with a gain ratio above
-1/4), and the step: one shorter than xtol (xtol + |x|) ends the search before it is evaluated, which also
-ends a start at a stationary point at once. scipy evaluates that last step and keeps it when it lowers the
-cost, so on badly scaled problems this ends a little higher (a review measured MGH Brown at 0.0094 against
-scipy's 2e-12; on the initializer's test window 3.9e-10 against 1.6e-10); scipy's gradient test is not made.
+1/4), and the step: one shorter than xtol (xtol + |x|) is evaluated, kept when it lowers the cost, and ends
+the search either way, as scipy's does; a zero step (a stationary point) ends it before any evaluation.
+scipy's gradient test is not made.
 """
 from __future__ import annotations
 
@@ -67,8 +66,9 @@ def levenberg_marquardt(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[
                 return LmResult(x, cost, nfev, False)
             continue
         dx = scipy.linalg.cho_solve((L, True), -g)
-        if np.linalg.norm(dx) < xtol * (xtol + np.linalg.norm(x)):
+        if not np.any(dx):              # a stationary point: no step to try
             return LmResult(x, cost, nfev, True)
+        short = np.linalg.norm(dx) < xtol * (xtol + np.linalg.norm(x))
         x_new = x + dx
         r_new = fun(x_new)
         nfev += 1
@@ -78,12 +78,15 @@ def levenberg_marquardt(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[
         if rho > 0:
             small = (cost - cost_new) < ftol * cost and rho > 0.25
             x, r, cost = x_new, r_new, cost_new
-            if small:
+            if small or short:
                 return LmResult(x, cost, nfev, True)
-            lam, grow = lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), 2.0
+            # shrunk, but kept above zero so that a later refusal can grow it again
+            lam, grow = max(lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), 1e-300), 2.0
             if nfev < max_nfev:
                 J = jac(x)
         else:
+            if short:                   # even a step this short does not lower the cost: x is the end
+                return LmResult(x, cost, nfev, True)
             lam, grow = lam * grow, grow * 2.0
             if lam > MAX_DAMPING:       # no step lowers the cost: x is as good as it gets here
                 return LmResult(x, cost, nfev, False)

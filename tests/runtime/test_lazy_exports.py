@@ -30,3 +30,6 @@ def test_exports_are_the_submodules_own_values_listed_and_unknown_names_raise(mo
     assert drivers.sim.PRESETS is drivers.sim.motion.PRESETS and "euroc" in drivers.sim.PRESETS
     with pytest.raises(AttributeError, match="module 'drivers.sim' has no attribute 'nothing'"):
         drivers.sim.nothing  # noqa: B018
+    # a package dropped from sys.modules (as reloading tools do) still lists its names
+    monkeypatch.delitem(sys.modules, "drivers.sim")
+    assert "SimRecording" in dir(drivers.sim) and "__name__" in dir(drivers.sim)
