@@ -18,7 +18,8 @@ Following the idea of OpenVINS' ``DynamicInitializer`` (Dong-Si & Mourikis, ICRA
    the gravity-aligned frame O: I0 rotated so that g = (0, 0, -g0), yaw fixed by Gram-Schmidt,
    origin at I0 (init_dynamic_linear). Codes: degenerate, bad_linear_solution.
 5. Refinement of keyframe states, biases and features, and the newest state's inflated
-   covariance (init_dynamic_refinement). Codes: mle_failed, implausible_bias.
+   covariance (init_dynamic_refinement). Codes: mle_failed (no finite solution, or the reprojection RMS
+   too high), mle_not_converged (within mle_max_iterations), implausible_bias.
 
 Re-exported for callers: :class:`DynamicInitConfig`, :class:`LinearSolution`, :func:`min_quadratic_on_sphere`.
 """
@@ -226,7 +227,16 @@ class DynamicInitializer(BufferedInitializer):
         refined = refinement.run(R_k, p_k, v_k, p_f)
         if refined is None:
             raise _Rejected("mle_failed", "refinement gave no finite solution or covariance")
-        info.update(reprojection_rms_px=refined.rms_px, mle_evaluations=refined.n_evaluations)
+        info.update(reprojection_rms_px=refined.rms_px, mle_evaluations=refined.n_evaluations,
+                    mle_converged=refined.converged)
+        if not refined.converged:
+            # as OpenVINS refuses a Ceres solve that did not end in CONVERGENCE; on fast motion such a
+            # window can sit far from the truth at a small reprojection error (BENCHMARKS.md)
+            raise _Rejected(
+                "mle_not_converged",
+                f"refinement did not converge in {refined.n_evaluations} evaluations "
+                f"(mle_max_iterations {cfg.mle_max_iterations})",
+            )
         if refined.rms_px > cfg.max_reprojection_rms_px:
             raise _Rejected(
                 "mle_failed",

@@ -67,7 +67,8 @@ class DynamicInitConfig:
     """Eigenvalue ratio of a feature's 3x3 normal block above which it has no depth information."""
     mle_max_iterations: int = 20
     """Nonlinear refinement's residual evaluations at most (a rejected step counts; scipy least_squares
-    max_nfev); 0 disables the refinement."""
+    max_nfev); a window whose refinement has not converged by then is refused (mle_not_converged), as OpenVINS
+    refuses one whose Ceres solve did not converge; 0 disables the refinement."""
     mle_tolerance: float = 1e-6
     """Relative cost / step tolerance that ends the refinement (scipy ftol and xtol)."""
     mle_solver: str = "lm"

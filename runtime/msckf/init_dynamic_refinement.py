@@ -35,6 +35,7 @@ class RefinedWindow:
         bg: (3,) gyro bias, rad/s.  ba: (3,) accelerometer bias, m/s^2.
         cov: (15, 15) inflated covariance of the newest keyframe in ERROR_STATE_ORDER (init_common).
         rms_px: RMS reprojection error, px.  n_evaluations: residual evaluations of the solver.
+        converged: the solver met an end test within its evaluations (True with the refinement disabled).
     """
 
     R_OI: np.ndarray
@@ -45,6 +46,7 @@ class RefinedWindow:
     cov: np.ndarray
     rms_px: float
     n_evaluations: int
+    converged: bool
 
 
 class WindowRefinement:
@@ -240,6 +242,7 @@ class WindowRefinement:
         analytic = self.cfg.mle_solver == "lm"
         nfev = 0
         x = x0
+        converged = True
         if self.cfg.mle_max_iterations > 0:
             if analytic:
                 sol = levenberg_marquardt(self.residuals, self.jacobian, x0, self.cfg.mle_max_iterations,
@@ -251,6 +254,8 @@ class WindowRefinement:
                     ftol=self.cfg.mle_tolerance, xtol=self.cfg.mle_tolerance,
                 )
             x, nfev = sol.x, int(sol.nfev)
+            # scipy's status 0: the evaluations ran out; -1: bad input (raised before a solve)
+            converged = bool(sol.converged) if analytic else sol.status > 0
             if not np.all(np.isfinite(x)):
                 return None
         # Jacobian at the solution, re-centred so theta is a local perturbation of the final rotations
@@ -268,7 +273,7 @@ class WindowRefinement:
         cov = newest_state_covariance(J.T @ J, K, self.cfg.inflation)
         if cov is None:
             return None
-        return RefinedWindow(R, p, v, self.bg0 + dbg, self.ba0 + dba, cov, rms_px, nfev)
+        return RefinedWindow(R, p, v, self.bg0 + dbg, self.ba0 + dba, cov, rms_px, nfev, converged)
 
 
 def newest_state_covariance(

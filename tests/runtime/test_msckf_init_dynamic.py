@@ -198,6 +198,25 @@ def test_both_refinement_solvers_reach_the_same_state_on_a_noisy_window() -> Non
     assert a.info["reprojection_rms_px"] == pytest.approx(b.info["reprojection_rms_px"], rel=0.01)
 
 
+@pytest.mark.parametrize("solver", ["lm", "scipy-fd"])
+def test_a_refinement_cut_short_by_its_budget_is_refused(solver: str) -> None:
+    """As OpenVINS refuses a window whose Ceres solve did not converge: the same window is accepted when
+    its refinement converges and refused (mle_not_converged) when mle_max_iterations stops it first."""
+    motion = Motion("general")
+    budgets = {"lm": (20, 3), "scipy-fd": (60, 3)}[solver]
+    out = []
+    for budget in budgets:
+        init = DynamicInitializer(CAM, T_IC, DynamicInitConfig(mle_solver=solver, mle_max_iterations=budget))
+        feed_noisy(init, motion, seed=2, bg=np.array([0.003, -0.002, 0.004]),
+                   ba=np.array([0.05, -0.03, 0.04]))
+        out.append((init.try_initialize(), init))
+    (full, init_full), (cut, init_cut) = out
+    assert full is not None, init_full.last_reason
+    assert full.info["mle_converged"] and full.info["mle_evaluations"] > 3
+    assert cut is None and init_cut.log.last.code == "mle_not_converged"
+    assert "did not converge in 3 evaluations (mle_max_iterations 3)" in init_cut.last_reason
+
+
 def test_out_of_order_frames_are_counted_and_reset_clears() -> None:
     init = DynamicInitializer(CAM, T_IC)
     init.feed_tracks(100, np.arange(3), np.full((3, 2), 100.0))

@@ -14,8 +14,10 @@ success), with their other settings as a run's. Per solver: the attempts that re
 (succeeded, or refused after it) and their time (median, p90, max), and the other attempts' time; and for
 the attempts both accepted, the largest difference between the two states (newest keyframe: position,
 velocity, gravity direction) and between their covariances' standard deviations (relative); and each
-solver's median and largest error against the truth (velocity in the IMU frame, gravity direction), and
-how many accepted windows had gravity more than 1 deg off.
+solver's median and largest error against the truth (velocity in the IMU frame, gravity direction), how
+many accepted windows had gravity more than 1 deg off, and more than 3 of the window's own standard
+deviations off (the tilt's, from the reported covariance); and how many windows were refused because the
+refinement did not converge within `mle_max_iterations` evaluations.
 
 `--live`: each recording is also pushed into a live Session at its real rate (every IMU sample kept; an
 image waiting behind two others is dropped, as `davio live` does), once per solver, native initializers
@@ -58,7 +60,13 @@ def _stats(ms: list[float]) -> dict:
 
 def _reached_refinement(init, result) -> bool:
     last = init.log.last
-    return result is not None or (last is not None and last.code in ("mle_failed", "implausible_bias"))
+    return result is not None or (last is not None and last.code in ("mle_failed", "mle_not_converged",
+                                                                     "implausible_bias"))
+
+
+def _not_converged(init, result) -> bool:
+    last = init.log.last
+    return result is None and last is not None and last.code == "mle_not_converged"
 
 
 def attempts(rig, events, motion=None) -> dict:
@@ -76,8 +84,9 @@ def attempts(rig, events, motion=None) -> dict:
     other: dict[str, list[float]] = {solver: [] for solver in MLE_SOLVERS}
     diffs = {"position_m": 0.0, "velocity_m_s": 0.0, "gravity_deg": 0.0, "sigma_relative": 0.0}
     accepted = {solver: 0 for solver in MLE_SOLVERS}
-    errors: dict[str, dict[str, list[float]]] = {solver: {"velocity_m_s": [], "gravity_deg": []}
-                                                 for solver in MLE_SOLVERS}
+    not_converged = {solver: 0 for solver in MLE_SOLVERS}
+    errors: dict[str, dict[str, list[float]]] = {
+        solver: {"velocity_m_s": [], "gravity_deg": [], "gravity_sigmas": []} for solver in MLE_SOLVERS}
     both = frames = 0
     tracker = KltTracker(rig.camera)
     for ev in events:
@@ -95,6 +104,7 @@ def attempts(rig, events, motion=None) -> dict:
             ms = (time.perf_counter() - t0) * 1e3
             (refined if _reached_refinement(init, out[solver]) else other)[solver].append(ms)
             accepted[solver] += out[solver] is not None
+            not_converged[solver] += _not_converged(init, out[solver])
             if motion is not None and out[solver] is not None:
                 for k, v in _errors(out[solver], motion).items():
                     errors[solver][k].append(v)
@@ -111,22 +121,37 @@ def attempts(rig, events, motion=None) -> dict:
     return {"frames": frames, "accepted_by_both": both,
             "by_solver": {solver: {"accepted": accepted[solver], "refined": _stats(refined[solver]),
                                    "other": _stats(other[solver]),
+                                   "not_converged": not_converged[solver],
                                    "median_error": {k: float(np.median(v)) if v else None
                                                     for k, v in errors[solver].items()},
                                    "max_error": {k: float(np.max(v)) if v else None
                                                  for k, v in errors[solver].items()},
-                                   "gravity_over_1_deg": sum(e > 1.0 for e in errors[solver]["gravity_deg"])}
+                                   "gravity_over_1_deg": sum(e > 1.0 for e in errors[solver]["gravity_deg"]),
+                                   "gravity_over_3_sigma": sum(e > 3.0
+                                                               for e in errors[solver]["gravity_sigmas"])}
                           for solver in MLE_SOLVERS},
             "largest_difference": diffs if both else None}
 
 
 def _errors(res, motion) -> dict:
-    """Velocity (IMU frame, m/s) and gravity direction (deg) errors of an InitResult against the truth."""
+    """Velocity (IMU frame, m/s) and gravity direction (deg) errors of an InitResult against the truth, and
+    the gravity error in the tilt's standard deviations (from the reported covariance)."""
     truth = motion.sample(np.array([res.t_ns], dtype=np.int64))
     R_WI, v_W = truth.R[0], truth.v[0]
     v_err = np.linalg.norm(res.R_OI.T @ res.v_OI - R_WI.T @ v_W)
     up = np.clip(res.gravity_in_imu @ R_WI[2, :], -1.0, 1.0)
-    return {"velocity_m_s": float(v_err), "gravity_deg": float(np.degrees(np.arccos(up)))}
+    g_deg = float(np.degrees(np.arccos(up)))
+    return {"velocity_m_s": float(v_err), "gravity_deg": g_deg, "gravity_sigmas": g_deg / tilt_sigma_deg(res)}
+
+
+def tilt_sigma_deg(res) -> float:
+    """The largest standard deviation (deg) of the gravity direction in the newest IMU frame, from the
+    covariance of its orientation error theta (R_OI Exp(theta)): g_I = Exp(-theta) R_OI^T g_O moves by
+    [g_I]x theta, whose component along g_I is zero."""
+    from runtime.geometry.so3 import skew
+
+    J = skew(res.gravity_in_imu / np.linalg.norm(res.gravity_in_imu))
+    return float(np.degrees(np.sqrt(np.linalg.eigvalsh(J @ res.cov[0:3, 0:3] @ J.T)[-1])))
 
 
 def live(rig, events: list, solver: str) -> dict:
@@ -164,8 +189,8 @@ def run(args: argparse.Namespace) -> int:
     say = (lambda *a, **k: None) if args.json else print
     say("the dynamic initializer's attempts at every frame (ms on this thread), by the refinement's solver")
     say(f"  {'recording':10s} {'solver':9s} {'accepted':>8s} {'refined':>7s} {'median':>7s} {'p90':>7s} "
-        f"{'max':>7s} | {'other':>5s} {'median':>7s} {'max':>7s} | error: velocity, gravity (median; max); "
-        "gravity > 1 deg")
+        f"{'max':>7s} | {'other':>5s} {'median':>7s} {'max':>7s} | not converged | error: velocity, gravity "
+        "(median; max); gravity > 1 deg, > 3 sigma")
     for preset in args.preset or ("handheld", "aggressive", "slow"):
         rec = SimRecording.from_preset(SimConfig(preset=preset, seconds=args.seconds, seed=args.seed))
         events = list(rec.events())
@@ -174,8 +199,8 @@ def run(args: argparse.Namespace) -> int:
             f, o = j["refined"], j["other"]
             say(f"  {preset:10s} {solver:9s} {j['accepted']:8d} {f['n']:7d} {_ms(f['median_ms'])} "
                 f"{_ms(f['p90_ms'])} {_ms(f['max_ms'])} | {o['n']:5d} {_ms(o['median_ms'])} "
-                f"{_ms(o['max_ms'])} | {_err(j['median_error'])}; {_err(j['max_error'])}; "
-                f"{j['gravity_over_1_deg']}", flush=True)
+                f"{_ms(o['max_ms'])} | {j['not_converged']:13d} | {_err(j['median_error'])}; "
+                f"{_err(j['max_error'])}; {j['gravity_over_1_deg']}, {j['gravity_over_3_sigma']}", flush=True)
         d = r["largest_difference"]
         if d is not None:
             say(f"  {'':10s} both accepted {r['accepted_by_both']} windows; largest difference: "
