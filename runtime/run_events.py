@@ -6,7 +6,8 @@ a run goes, as they happen, each once:
 - "rig_finding": something is wrong with the rig given (runtime.rig_findings: a gyroscope in deg/s, a wrong
   camera-IMU rotation or time offset), said once per kind;
 - "calibration_estimated": the calibration bring-up estimated the camera-IMU rotation and tracking began;
-- "prior_localised": a segment of the run was localised in the prior map (poses then carry T_PI);
+- "prior_localised": a segment of the run was localised in the prior map (poses then carry T_PI), also by
+  the mapping of the windows still queued when the data ended (then only the final trajectory is in it);
 - "features_lost" / "features_back": fewer than FEW_FEATURES features tracked for FEATURES_LOST_S (a covered,
   dark or blurred camera, a blank wall), and features again;
 - "falling_behind": live, tracking fell behind the camera and images were dropped (at most once every
@@ -76,10 +77,11 @@ class RunEvents:
     Details: "publishing": source (e.g. "feedforward", "native:static"), segment (filter restarts before
     it); "reset": segment (the one that ended), reason (the filter's), resets (so far); "rig_finding": key,
     evidence (runtime.rig_findings.RigFinding); "calibration_estimated": windows_used, R_IC (3x3 rows);
-    "prior_localised": segment, source (the prior map); "features_lost": since_t_ns (the first frame with
-    too few), features (on this frame); "features_back": lost_s (how long), features; "falling_behind":
-    dropped (since the last such event), total; "imu_gap": gaps (since the last such event), longest_s, lost
-    (samples the driver lost in them), total (gaps so far).
+    "prior_localised": segment, source (the prior map), after_end (only when found by the mapping after the
+    data ended: then only the final trajectory is in its frame); "features_lost": since_t_ns (the first
+    frame with too few), features (on this frame); "features_back": lost_s (how long), features;
+    "falling_behind": dropped (since the last such event), total; "imu_gap": gaps (since the last such
+    event), longest_s, lost (samples the driver lost in them), total (gaps so far).
 
     Args:
         pipeline: the VioPipeline watched (read: startup, rig_check, bringup, prior).
@@ -153,13 +155,7 @@ class RunEvents:
             self._features(t_ns, int(features))
         if self._gaps[0]:        # gaps gathered: said once their ten seconds are over, not at the next gap
             self._say_gaps(t_ns)
-        prior = self.pipeline.prior
-        if prior is not None and len(prior.localized_at_ns) > len(self._localised):
-            for seg in sorted(set(prior.localized_at_ns) - self._localised):
-                self._localised.add(seg)
-                self._emit(t_ns, "prior_localised", f"localised in the prior map {prior.source}"
-                           + (f" (segment {seg})" if seg else "") + ": poses now also in its frame",
-                           segment=int(seg), source=str(prior.source))
+        self._prior_localisations(t_ns)
         if self._next_look_ns is None or t_ns >= self._next_look_ns:
             self._next_look_ns = t_ns + int(self.look_every_s * 1e9)
             try:
@@ -172,6 +168,12 @@ class RunEvents:
                 if finding.kind not in self._finding_kinds:
                     self._finding_kinds.add(finding.kind)
                     self._emit(t_ns, "rig_finding", finding.line, key=finding.key, evidence=finding.evidence)
+
+    def after_mapping(self, t_ns: int) -> None:
+        """After the windows still queued at the data's end were mapped (`VioPipeline.finish_mapping`; t_ns:
+        the data's end): localisations in the prior map found there are said now, and handed on at once."""
+        self._prior_localisations(t_ns, after_end=True)
+        self.flush()
 
     def frames_dropped(self, total: int, t_ns: int, final: bool = False) -> None:
         """The live queue has dropped `total` images so far (the scheduler says so after each frame once
@@ -284,6 +286,19 @@ class RunEvents:
         self._emit(t_ns, "reset", f"the filter publishing poses diverged ({reason}) and was reset: no poses "
                    "until an initializer publishes again", segment=int(segment), reason=str(reason),
                    resets=int(count))
+
+    def _prior_localisations(self, t_ns: int, after_end: bool = False) -> None:
+        prior = self.pipeline.prior
+        if prior is None or len(prior.localized_at_ns) <= len(self._localised):
+            return
+        for seg in sorted(set(prior.localized_at_ns) - self._localised):
+            self._localised.add(seg)
+            where = (": the final trajectory is also in its frame (found by the mapping after the data ended)"
+                     if after_end else ": poses now also in its frame")
+            detail = {"after_end": True} if after_end else {}
+            self._emit(t_ns, "prior_localised", f"localised in the prior map {prior.source}"
+                       + (f" (segment {seg})" if seg else "") + where,
+                       segment=int(seg), source=str(prior.source), **detail)
 
     def _emit(self, t_ns: int, kind: str, message: str, **detail: Any) -> None:
         start = self.start_ns if self.start_ns is not None else t_ns

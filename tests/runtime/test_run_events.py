@@ -166,6 +166,43 @@ def test_the_bring_up_s_estimate_and_a_prior_map_localisation_are_events():
     assert got[2].message == "localised in the prior map runs/rec1 (segment 2): poses now also in its frame"
 
 
+def test_a_localisation_found_by_the_mapping_after_the_data_ended_is_said_and_handed_on_at_once():
+    prior = SimpleNamespace(localized_at_ns={0: _s(3.0)}, source="runs/rec1")
+    events, got = _events(_pipe(StartupReport(), prior=prior))
+    events.after_frame(_s(3.1))                 # segment 0 localised while running: said then
+    events.hold = True                          # as the scheduler leaves it when a run stops mid-step
+    prior.localized_at_ns[1] = _s(9.9)          # segment 1 only by the windows mapped at the end
+    events.after_mapping(_s(10.0))
+    assert [(e.kind, e.t_s, e.detail) for e in got] == [
+        ("prior_localised", 3.1, {"segment": 0, "source": "runs/rec1"}),
+        ("prior_localised", 10.0, {"segment": 1, "source": "runs/rec1", "after_end": True})]
+    assert got[1].message == ("localised in the prior map runs/rec1 (segment 1): the final trajectory is "
+                              "also in its frame (found by the mapping after the data ended)")
+    assert events.pending == []
+    events.after_mapping(_s(10.0))              # nothing new: nothing said
+    assert len(got) == 2
+
+
+def test_the_pipeline_says_what_its_end_of_data_mapping_localised():
+    from calib.io import euroc_rig
+    from runtime.config import DavioConfig
+
+    got: list = []
+    pipe = VioPipeline(euroc_rig(), None, DavioConfig(), on_event=got.append)
+    pipe._last_t = _s(12.0)
+    pipe.prior = SimpleNamespace(localized_at_ns={}, source="runs/rec1")
+    queued = ["window"]
+    pipe.map_queue = SimpleNamespace(pop=lambda: queued.pop() if queued else None)
+
+    def job(window):          # the mapping of the last window localises segment 0 (as PriorMap.on_submap)
+        return lambda: pipe.prior.localized_at_ns.setdefault(0, _s(11.5)) and None
+
+    pipe._mapping_job = job
+    assert pipe.finish_mapping() == 1
+    assert [(e.kind, e.t_ns, e.detail["after_end"]) for e in got] == [("prior_localised", _s(12.0), True)]
+    assert pipe.finish_mapping() == 0 and len(got) == 1
+
+
 def test_the_log_is_bounded_and_counts_what_it_did_not_keep():
     st = StartupReport()
     events, got = _events(_pipe(st))
