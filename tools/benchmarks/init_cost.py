@@ -10,7 +10,8 @@ is now Levenberg-Marquardt on the normal equations with the analytic Jacobian ("
 
 Attempts: two dynamic initializers, one per `dynamic_init.mle_solver`, are fed the same KLT tracks and
 IMU of each simulated recording and attempt at every frame, whatever the outcome (a run stops at the first
-success), with their other settings as a run's. Per solver: the attempts that reached the refinement
+success), with their other settings as a run's, and with the BLAS pools limited as a run's estimator
+limits them (`msckf.blas_threads`). Per solver: the attempts that reached the refinement
 (succeeded, or refused after it) and their time (median, p90, max), and the other attempts' time; and for
 the attempts both accepted, the largest difference between the two states (newest keyframe: position,
 velocity, gravity direction) and between their covariances' standard deviations (relative); and each
@@ -73,10 +74,16 @@ def attempts(rig, events, motion=None) -> dict:
     """Both solvers' dynamic initializers on the same tracks and IMU, attempting at every frame; with the
     recording's true motion (a PoseSpline of T_WI, IMU clock, z up), each accepted state's errors."""
     from runtime.events import ImuSample
+    from runtime.msckf.blas_threads import limit_blas_threads
+    from runtime.msckf.config import MsckfConfig
     from runtime.msckf.init_dynamic import DynamicInitializer
     from runtime.msckf.init_dynamic_config import DynamicInitConfig
     from runtime.msckf.tracker import KltTracker
 
+    # a run's estimator, which owns the initializers, limits the BLAS pools before they attempt; so here
+    blas_threads = MsckfConfig().blas_threads
+    if blas_threads is not None:
+        limit_blas_threads(blas_threads)
     inits = {solver: DynamicInitializer(rig.camera, rig.T_IC, DynamicInitConfig(mle_solver=solver),
                                      imu_noise=rig.imu, time_offset_s=rig.time_offset_s or 0.0)
              for solver in MLE_SOLVERS}
