@@ -34,6 +34,25 @@ IMU_COLUMNS = "t_ns, wx, wy, wz [rad/s], ax, ay, az [m/s^2]"
 CAMERA_COLUMNS = "t_ns, filename"
 
 
+class _CaseInsensitiveNames:
+    """The one file of a folder whose name equals a missing one's but for case (folders listed once)."""
+
+    def __init__(self) -> None:
+        self._folders: dict[Path, dict[str, list[str]]] = {}
+
+    def match(self, path: Path) -> Path | None:
+        names = self._folders.get(path.parent)
+        if names is None:
+            names = {}
+            if path.parent.is_dir():
+                for entry in os.scandir(path.parent):
+                    if entry.is_file():
+                        names.setdefault(entry.name.lower(), []).append(entry.name)
+            self._folders[path.parent] = names
+        found = names.get(path.name.lower(), [])
+        return path.parent / found[0] if len(found) == 1 else None
+
+
 def find_mav0(path: str | Path) -> Path:
     """The `mav0` folder of an ASL recording given the sequence folder or `mav0` itself."""
     path = Path(path)
@@ -191,11 +210,20 @@ class EurocDriver(Driver):
         files = [cam_dir / "data" / r[0] for r in rows.text]
         keep = np.ones(len(files), dtype=bool)
         first_listed: dict[Path, int] = {}
+        by_case = _CaseInsensitiveNames()
+        case_fixed: list[tuple[str, str]] = []
         for i, f in enumerate(files):
             name_parts = Path(rows.text[i][0]).parts
             if Path(rows.text[i][0]).is_absolute() or ".." in name_parts:   # symlinked files are fine
                 raise DataError(f"image file name {rows.text[i][0]!r} points outside {name}/data/",
                                 csv, int(rows.line[i]))
+            if not f.is_file() and (other := by_case.match(f)) is not None:
+                # a folder written on a case-insensitive file system (Windows, macOS): the file is there
+                if self.policy == "strict":
+                    raise DataError(f"image file {rows.text[i][0]} does not exist; {other.name} does (the "
+                                    "names differ in case)", csv, int(rows.line[i]))
+                case_fixed.append((rows.text[i][0], other.name))
+                f = files[i] = other
             earlier = first_listed.setdefault(Path(os.path.normpath(f)), i)
             if earlier != i:     # one picture at two times: the second would be a frame of no motion
                 listed = rows.text[i][0]
@@ -214,6 +242,10 @@ class EurocDriver(Driver):
                     raise DataError(f"image file {f} does not exist", csv, int(rows.line[i]))
                 counts.missing_images += 1
                 keep[i] = False
+        if case_fixed:
+            self._report.note(f"{name}: {len(case_fixed)} image names in data.csv differ in case from their "
+                              f"files (the first: {case_fixed[0][0]} is {case_fixed[0][1]}); the files were "
+                              "read (policy strict refuses this)")
         if not keep.any():
             raise DataError(f"none of the {len(files)} images it lists exists in {cam_dir / 'data'} "
                             f"(first: {files[0].name})", csv)

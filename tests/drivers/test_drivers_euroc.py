@@ -297,6 +297,29 @@ def test_an_image_listed_at_two_stamps_is_kept_once(tmp_path: Path) -> None:
         EurocDriver(seq, policy="strict")
 
 
+def test_image_names_that_differ_in_case_from_their_files_are_read_and_noted(tmp_path: Path) -> None:
+    """A folder written on a case-insensitive file system (data.csv says .png, the files are .PNG): the files
+    are read, with a note; strict refuses it naming both; an image truly missing is still missing."""
+    cams = cam_rows(6)
+    seq = write_asl(tmp_path, imu_rows(80), {"cam0": cams})
+    data = seq / "mav0" / "cam0" / "data"
+    for k in (1, 2, 4):
+        (data / cams[k][1]).rename(data / cams[k][1].replace(".png", ".PNG"))
+    (data / cams[5][1]).unlink()
+    drv = EurocDriver(seq)
+    _, frames = split(list(drv.events()))
+    rep = drv.report()
+    assert [f.t_ns for f in frames] == [t for t, _ in cams[:5]]
+    assert [int(f.image[0, 1]) for f in frames] == [10 * k for k in range(5)]     # each frame its own file
+    assert rep["streams"]["cam0"]["missing_images"] == 1
+    assert any(f"cam0: 3 image names in data.csv differ in case from their files (the first: {cams[1][1]} "
+               f"is {cams[1][1][:-4]}.PNG)" in n for n in rep["notes"])
+    assert_accounted(rep)
+    with pytest.raises(DataError, match=rf"data.csv:3: image file {cams[1][1]} does not exist; "
+                                        rf"{cams[1][1][:-4]}.PNG does \(the names differ in case\)"):
+        EurocDriver(seq, policy="strict")
+
+
 def test_a_wrong_size_first_image_is_skipped_against_the_calibration(tmp_path: Path) -> None:
     """With the calibrated size given, a wrong-size image is skipped and counted wherever it lies; without
     it the stream's first image sets the size (and the right ones after it would all be skipped)."""
