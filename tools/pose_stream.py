@@ -27,7 +27,7 @@ from __future__ import annotations
 import secrets
 import socket
 from typing import Any
-from urllib.parse import urlsplit
+from urllib.parse import unquote, urlsplit
 
 import numpy as np
 
@@ -43,7 +43,8 @@ _ROWS, _COLS = np.triu_indices(6)
 
 
 def parse_stream_url(url: str, what: str = "--stream", host_optional: bool = False) -> tuple[str, int]:
-    """(host, port) of "udp://HOST:PORT" (HOST a name, an IPv4 address or a bracketed IPv6 one; with
+    """(host, port) of "udp://HOST:PORT" (HOST a name, an IPv4 address or a bracketed IPv6 one, a link-local
+    one with its zone as RFC 6874 writes it, "[fe80::1%25eth0]", or plainly "[fe80::1%eth0]"; with
     `host_optional`, as `davio listen` takes it, "udp://:PORT" gives host ""); ConfigError naming `what`
     and what is wrong otherwise."""
     form = "udp://[HOST]:PORT" if host_optional else "udp://HOST:PORT"
@@ -58,7 +59,8 @@ def parse_stream_url(url: str, what: str = "--stream", host_optional: bool = Fal
         raise ConfigError(f"{what} {url!r}: expected {form} with a port in 1-65535")
     if parts.path not in ("", "/") or parts.query or parts.fragment or parts.username is not None:
         raise ConfigError(f"{what} {url!r}: expected {form}, nothing before the host or after the port")
-    return parts.hostname or "", port
+    host = parts.hostname or ""
+    return (unquote(host) if ":" in host else host), port      # an IPv6 zone's "%25" is "%"
 
 
 def resolve_stream_url(url: str) -> tuple[int, tuple]:

@@ -53,6 +53,16 @@ def test_the_url_is_udp_host_port_and_anything_else_is_a_clear_error():
         assert said in str(err.value), bad
 
 
+@pytest.mark.skipif(not socket.has_ipv6, reason="this Python was built without IPv6")
+def test_a_link_local_ipv6_address_with_its_zone_resolves_to_that_interface():
+    # RFC 6874 writes the zone's "%" as "%25" inside a URL; both spellings name the interface
+    assert parse_stream_url("udp://[fe80::1%25eth0]:5005") == ("fe80::1%eth0", 5005)
+    assert parse_stream_url("udp://[fe80::1%eth0]:5005") == ("fe80::1%eth0", 5005)
+    lo = socket.if_nameindex()[0]          # an interface this machine has, with the kernel's index
+    for url in (f"udp://[fe80::1%25{lo[1]}]:5005", f"udp://[fe80::1%{lo[1]}]:5005"):
+        assert resolve_stream_url(url) == (socket.AF_INET6, ("fe80::1", 5005, 0, lo[0]))
+
+
 def test_a_name_with_both_families_goes_over_ipv4_and_one_that_does_not_resolve_is_an_error(monkeypatch):
     v6 = (socket.AF_INET6, socket.SOCK_DGRAM, 17, "", ("::1", 5005, 0, 0))
     v4 = (socket.AF_INET, socket.SOCK_DGRAM, 17, "", ("127.0.0.1", 5005))
