@@ -344,8 +344,7 @@ class VioPipeline:
             if isinstance(result, MapCommit):   # after the last pose: only the final trajectory sees it
                 self._record_nodes(result)
             done += 1
-        if done:
-            self.events.after_mapping(self._last_t)
+        self.events.after_mapping(self._last_t)
         return done
 
     def next_model_job(self) -> Callable[[], Any] | None:

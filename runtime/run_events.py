@@ -108,6 +108,7 @@ class RunEvents:
         self._resets = 0
         self._finding_kinds: set[str] = set()
         self._localised: set[int] = set()
+        self._latest_ns = 0                       # the latest frame or data-end time seen
         self._next_look_ns: int | None = None
         self._few_since_ns: int | None = None     # the first of the current run of frames with few features
         self._lost = False
@@ -150,6 +151,7 @@ class RunEvents:
     def after_frame(self, t_ns: int, features: int | None = None) -> None:
         """After each frame (with its number of tracked features): resets, prior-map localisations and the
         features seen at once, rig findings every look_every_s."""
+        self._latest_ns = max(self._latest_ns, int(t_ns))
         self._check_reset(t_ns)
         if features is not None:
             self._features(t_ns, int(features))
@@ -170,9 +172,10 @@ class RunEvents:
                     self._emit(t_ns, "rig_finding", finding.line, key=finding.key, evidence=finding.evidence)
 
     def after_mapping(self, t_ns: int) -> None:
-        """After the windows still queued at the data's end were mapped (`VioPipeline.finish_mapping`; t_ns:
-        the data's end): localisations in the prior map found there are said now, and handed on at once."""
-        self._prior_localisations(t_ns, after_end=True)
+        """After the windows still queued at the data's end were mapped (`VioPipeline.finish_mapping`):
+        localisations in the prior map found there are said now, at the data's last time (t_ns or a later
+        one seen), and handed on at once."""
+        self._prior_localisations(max(int(t_ns), self._latest_ns), after_end=True)
         self.flush()
 
     def frames_dropped(self, total: int, t_ns: int, final: bool = False) -> None:
@@ -211,9 +214,11 @@ class RunEvents:
 
     def data_ended(self, t_ns: int, frames_dropped: int = 0) -> None:
         """The data ended at t_ns: images dropped and IMU gaps not said yet (held back by the rate bound)
-        are said now."""
+        are said now, and a prior-map localisation taken up after the last frame."""
+        self._latest_ns = max(self._latest_ns, int(t_ns))
         self.frames_dropped(frames_dropped, t_ns, final=True)
         self._say_gaps(t_ns, final=True)
+        self._prior_localisations(t_ns)
 
     def _say_gaps(self, t_ns: int, final: bool = False) -> None:
         n, longest, lost, total = self._gaps
@@ -288,14 +293,22 @@ class RunEvents:
                    resets=int(count))
 
     def _prior_localisations(self, t_ns: int, after_end: bool = False) -> None:
+        """Segments newly localised: those whose transform the tracking thread took up (poses published in
+        the prior frame from then on), and after the end those the localizer found without one taken up
+        (the final trajectory's prior-frame poses use the localizer's newest transform)."""
         prior = self.pipeline.prior
-        if prior is None or len(prior.localized_at_ns) <= len(self._localised):
+        if prior is None:
             return
-        for seg in sorted(set(prior.localized_at_ns) - self._localised):
+        found = set(prior.localized_at_ns)
+        if after_end:
+            loc = prior.localizer
+            found |= {seg for seg in loc.segments() if loc.T_PN(seg) is not None}
+        for seg in sorted(found - self._localised):
             self._localised.add(seg)
+            late = after_end and seg not in prior.localized_at_ns
             where = (": the final trajectory is also in its frame (found by the mapping after the data ended)"
-                     if after_end else ": poses now also in its frame")
-            detail = {"after_end": True} if after_end else {}
+                     if late else ": poses now also in its frame")
+            detail = {"after_end": True} if late else {}
             self._emit(t_ns, "prior_localised", f"localised in the prior map {prior.source}"
                        + (f" (segment {seg})" if seg else "") + where,
                        segment=int(seg), source=str(prior.source), **detail)

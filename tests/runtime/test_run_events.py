@@ -166,38 +166,70 @@ def test_the_bring_up_s_estimate_and_a_prior_map_localisation_are_events():
     assert got[2].message == "localised in the prior map runs/rec1 (segment 2): poses now also in its frame"
 
 
-def test_a_localisation_found_by_the_mapping_after_the_data_ended_is_said_and_handed_on_at_once():
-    prior = SimpleNamespace(localized_at_ns={0: _s(3.0)}, source="runs/rec1")
+class _Localizer:
+    """A PriorMapLocalizer's interface as PriorFrame uses it: every view it is given localises its segment."""
+
+    def __init__(self) -> None:
+        self.T: dict[int, np.ndarray] = {}
+
+    def add_view(self, view, segment: int = 0) -> bool:
+        self.T[int(segment)] = np.eye(4)
+        return True
+
+    def segments(self) -> list[int]:
+        return sorted(self.T)
+
+    def T_PN(self, segment: int = 0):
+        return self.T.get(int(segment))
+
+    def segment_versions(self) -> dict[int, int]:
+        return {seg: 1 for seg in self.T}
+
+    def state(self, segment: int):
+        return 1, self.T.get(int(segment)), 0
+
+
+def _submap(segment: int) -> SimpleNamespace:
+    return SimpleNamespace(index=7, T_MS=np.eye(4), view=("features", "view"), segment=segment)
+
+
+def test_localisations_taken_up_after_the_last_frame_or_found_by_the_mapping_after_the_end_are_said():
+    from runtime.graph.prior_frame import PriorFrame
+
+    prior = PriorFrame(_Localizer(), "runs/rec1")
     events, got = _events(_pipe(StartupReport(), prior=prior))
-    events.after_frame(_s(3.1))                 # segment 0 localised while running: said then
-    events.hold = True                          # as the scheduler leaves it when a run stops mid-step
-    prior.localized_at_ns[1] = _s(9.9)          # segment 1 only by the windows mapped at the end
-    events.after_mapping(_s(10.0))
+    prior.on_submap(_submap(0))
+    prior.update(_s(3.0))                       # taken up by the tracking thread while running
+    events.after_frame(_s(3.1))
+    prior.on_submap(_submap(2))
+    prior.update(_s(9.95))                      # a commit taken up after the last frame
+    events.data_ended(_s(10.0))
+    prior.on_submap(_submap(1))                 # the mapping after the data ended: never taken up
+    events.after_mapping(_s(9.98))              # the last IMU time, before the data's end
     assert [(e.kind, e.t_s, e.detail) for e in got] == [
         ("prior_localised", 3.1, {"segment": 0, "source": "runs/rec1"}),
+        ("prior_localised", 10.0, {"segment": 2, "source": "runs/rec1"}),
         ("prior_localised", 10.0, {"segment": 1, "source": "runs/rec1", "after_end": True})]
-    assert got[1].message == ("localised in the prior map runs/rec1 (segment 1): the final trajectory is "
+    assert got[2].message == ("localised in the prior map runs/rec1 (segment 1): the final trajectory is "
                               "also in its frame (found by the mapping after the data ended)")
-    assert events.pending == []
+    assert prior.localized_at_ns.keys() == {0, 2}     # saying it took nothing up
     events.after_mapping(_s(10.0))              # nothing new: nothing said
-    assert len(got) == 2
+    assert len(got) == 3
 
 
 def test_the_pipeline_says_what_its_end_of_data_mapping_localised():
     from calib.io import euroc_rig
     from runtime.config import DavioConfig
+    from runtime.graph.prior_frame import PriorFrame
 
     got: list = []
     pipe = VioPipeline(euroc_rig(), None, DavioConfig(), on_event=got.append)
     pipe._last_t = _s(12.0)
-    pipe.prior = SimpleNamespace(localized_at_ns={}, source="runs/rec1")
+    pipe.prior = PriorFrame(_Localizer(), "runs/rec1")
     queued = ["window"]
     pipe.map_queue = SimpleNamespace(pop=lambda: queued.pop() if queued else None)
-
-    def job(window):          # the mapping of the last window localises segment 0 (as PriorMap.on_submap)
-        return lambda: pipe.prior.localized_at_ns.setdefault(0, _s(11.5)) and None
-
-    pipe._mapping_job = job
+    # the last window's submap localises segment 0 (the mapping job hands it to the prior frame)
+    pipe._mapping_job = lambda window: (lambda: pipe.prior.on_submap(_submap(0)))
     assert pipe.finish_mapping() == 1
     assert [(e.kind, e.t_ns, e.detail["after_end"]) for e in got] == [("prior_localised", _s(12.0), True)]
     assert pipe.finish_mapping() == 0 and len(got) == 1
