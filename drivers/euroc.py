@@ -35,7 +35,8 @@ CAMERA_COLUMNS = "t_ns, filename"
 
 
 class _CaseInsensitiveNames:
-    """The one file of a folder whose name equals a missing one's but for case (folders listed once)."""
+    """The one file of a folder whose name equals a missing one's but for case (the file name only, not its
+    folders; each folder listed once)."""
 
     def __init__(self) -> None:
         self._folders: dict[Path, dict[str, list[str]]] = {}
@@ -44,10 +45,13 @@ class _CaseInsensitiveNames:
         names = self._folders.get(path.parent)
         if names is None:
             names = {}
-            if path.parent.is_dir():
-                for entry in os.scandir(path.parent):
-                    if entry.is_file():
-                        names.setdefault(entry.name.lower(), []).append(entry.name)
+            try:
+                with os.scandir(path.parent) as entries:
+                    for entry in entries:
+                        if entry.is_file():
+                            names.setdefault(entry.name.lower(), []).append(entry.name)
+            except OSError:         # no such folder, or one that cannot be listed: the image stays missing
+                names = {}
             self._folders[path.parent] = names
         found = names.get(path.name.lower(), [])
         return path.parent / found[0] if len(found) == 1 else None
@@ -217,12 +221,14 @@ class EurocDriver(Driver):
             if Path(rows.text[i][0]).is_absolute() or ".." in name_parts:   # symlinked files are fine
                 raise DataError(f"image file name {rows.text[i][0]!r} points outside {name}/data/",
                                 csv, int(rows.line[i]))
-            if not f.is_file() and (other := by_case.match(f)) is not None:
+            present = f.is_file()
+            fixed = None
+            if not present and (other := by_case.match(f)) is not None:
                 # a folder written on a case-insensitive file system (Windows, macOS): the file is there
                 if self.policy == "strict":
                     raise DataError(f"image file {rows.text[i][0]} does not exist; {other.name} does (the "
                                     "names differ in case)", csv, int(rows.line[i]))
-                case_fixed.append((rows.text[i][0], other.name))
+                fixed, present = (rows.text[i][0], other.name), True
                 f = files[i] = other
             earlier = first_listed.setdefault(Path(os.path.normpath(f)), i)
             if earlier != i:     # one picture at two times: the second would be a frame of no motion
@@ -237,11 +243,13 @@ class EurocDriver(Driver):
                 counts.repeated_images += 1
                 keep[i] = False
                 continue
-            if not f.is_file():
+            if not present:
                 if self.policy == "strict":
                     raise DataError(f"image file {f} does not exist", csv, int(rows.line[i]))
                 counts.missing_images += 1
                 keep[i] = False
+            elif fixed is not None:
+                case_fixed.append(fixed)
         if case_fixed:
             self._report.note(f"{name}: {len(case_fixed)} image names in data.csv differ in case from their "
                               f"files (the first: {case_fixed[0][0]} is {case_fixed[0][1]}); the files were "

@@ -27,7 +27,7 @@ from __future__ import annotations
 import secrets
 import socket
 from typing import Any
-from urllib.parse import unquote, urlsplit
+from urllib.parse import urlsplit
 
 import numpy as np
 
@@ -60,7 +60,8 @@ def parse_stream_url(url: str, what: str = "--stream", host_optional: bool = Fal
     if parts.path not in ("", "/") or parts.query or parts.fragment or parts.username is not None:
         raise ConfigError(f"{what} {url!r}: expected {form}, nothing before the host or after the port")
     host = parts.hostname or ""
-    return (unquote(host) if ":" in host else host), port      # an IPv6 zone's "%25" is "%"
+    address, pct, zone = host.partition("%25")      # RFC 6874: an IPv6 zone's "%" is written "%25"
+    return (f"{address}%{zone}" if ":" in address and pct and zone else host), port
 
 
 def resolve_stream_url(url: str) -> tuple[int, tuple]:

@@ -301,7 +301,9 @@ def test_image_names_that_differ_in_case_from_their_files_are_read_and_noted(tmp
     """A folder written on a case-insensitive file system (data.csv says .png, the files are .PNG): the files
     are read, with a note; strict refuses it naming both; an image truly missing is still missing."""
     cams = cam_rows(6)
-    seq = write_asl(tmp_path, imu_rows(80), {"cam0": cams})
+    # the file of frame 2 listed again at a later stamp, in a third spelling: a repeat of the same file
+    seq = write_asl(tmp_path, imu_rows(80), {"cam0": cams},
+                    extra_cam_lines={"cam0": [f"{cams[-1][0] + 50_000_000},{cams[2][1][:-4]}.Png"]})
     data = seq / "mav0" / "cam0" / "data"
     for k in (1, 2, 4):
         (data / cams[k][1]).rename(data / cams[k][1].replace(".png", ".PNG"))
@@ -311,7 +313,7 @@ def test_image_names_that_differ_in_case_from_their_files_are_read_and_noted(tmp
     rep = drv.report()
     assert [f.t_ns for f in frames] == [t for t, _ in cams[:5]]
     assert [int(f.image[0, 1]) for f in frames] == [10 * k for k in range(5)]     # each frame its own file
-    assert rep["streams"]["cam0"]["missing_images"] == 1
+    assert rep["streams"]["cam0"]["missing_images"] == 1 and rep["streams"]["cam0"]["repeated_images"] == 1
     assert any(f"cam0: 3 image names in data.csv differ in case from their files (the first: {cams[1][1]} "
                f"is {cams[1][1][:-4]}.PNG)" in n for n in rep["notes"])
     assert_accounted(rep)

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from runtime.errors import ConfigError
 from runtime.run_events import RunEvent
 from runtime.session import Pose
 from tools.cli import main
@@ -118,3 +119,30 @@ def test_a_bad_address_or_a_port_in_use_is_a_clear_error(capsys):
     assert main(["listen", f"udp://127.0.0.1:{_free_port()}", "--tum", "/nonexistent-folder/poses.tum"]) == 1
     err = capsys.readouterr().err
     assert "cannot write --tum /nonexistent-folder/poses.tum: No such file or directory" in err
+
+
+def _link_local_address() -> tuple[str, str, int] | None:
+    """(address, interface, index) of a link-local IPv6 address of this machine, or None (Linux only)."""
+    try:
+        lines = open("/proc/net/if_inet6").read().split("\n")
+    except OSError:
+        return None
+    for line in lines:
+        f = line.split()
+        if len(f) == 6 and f[0].startswith("fe80"):
+            return ":".join(f[0][i:i + 4] for i in range(0, 32, 4)), f[5], int(f[1], 16)
+    return None
+
+
+@pytest.mark.skipif(_link_local_address() is None, reason="this machine has no link-local IPv6 address")
+def test_a_link_local_address_is_bound_on_the_interface_its_zone_names():
+    from tools.commands.listen import bind_listener
+
+    address, interface, index = _link_local_address()
+    for zone in (f"%25{interface}", f"%{interface}"):
+        port = _free_port()
+        with bind_listener(f"udp://[{address}{zone}]:{port}") as sock:
+            bound = sock.getsockname()
+            assert bound[1] == port and bound[3] == index
+    with pytest.raises(ConfigError, match="cannot resolve"):
+        bind_listener(f"udp://[{address}%25no-such-interface]:{_free_port()}")

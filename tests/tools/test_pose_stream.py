@@ -58,6 +58,10 @@ def test_a_link_local_ipv6_address_with_its_zone_resolves_to_that_interface():
     # RFC 6874 writes the zone's "%" as "%25" inside a URL; both spellings name the interface
     assert parse_stream_url("udp://[fe80::1%25eth0]:5005") == ("fe80::1%eth0", 5005)
     assert parse_stream_url("udp://[fe80::1%eth0]:5005") == ("fe80::1%eth0", 5005)
+    # only "%25" is an escape: a zone by number or beginning with hex digits is taken as written
+    assert parse_stream_url("udp://[fe80::1%12]:5005") == ("fe80::1%12", 5005)
+    assert parse_stream_url("udp://[fe80::1%ab0]:5005") == ("fe80::1%ab0", 5005)
+    assert parse_stream_url("udp://[fe80::1%2512]:5005") == ("fe80::1%12", 5005)
     lo = socket.if_nameindex()[0]          # an interface this machine has, with the kernel's index
     for url in (f"udp://[fe80::1%25{lo[1]}]:5005", f"udp://[fe80::1%{lo[1]}]:5005"):
         assert resolve_stream_url(url) == (socket.AF_INET6, ("fe80::1", 5005, 0, lo[0]))

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import socket
 import sys
 import time
 
@@ -25,26 +26,41 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print what arrived as one JSON object at the end")
 
 
+def bind_listener(url: str) -> socket.socket:
+    """A UDP socket bound to "udp://[HOST]:PORT" (an IPv6 host's zone, "%eth0" or "%25eth0", picks the
+    interface: the address is resolved with its scope id, which a bare (host, port) pair would leave 0);
+    ConfigError when it cannot be bound."""
+    from runtime.errors import ConfigError
+    from tools.pose_stream import parse_stream_url
+
+    host, port = parse_stream_url(url, "the address", host_optional=True)
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    address: tuple = (host, port)
+    if "%" in host:
+        try:
+            address = socket.getaddrinfo(host, port, family, socket.SOCK_DGRAM, 0, socket.AI_PASSIVE)[0][4]
+        except socket.gaierror as exc:
+            raise ConfigError(f"davio listen: cannot resolve {host!r} ({exc.strerror})") from None
+    sock = socket.socket(family, socket.SOCK_DGRAM)
+    try:
+        sock.bind(address)
+    except OSError as exc:
+        sock.close()
+        raise ConfigError(f"davio listen: cannot listen on {url}: {exc.strerror or exc}") from None
+    return sock
+
+
 def run(args: argparse.Namespace) -> int:
     import math
-    import socket
 
     from runtime.errors import ConfigError
     from runtime.json_out import strict_dumps
     from tools.pose_listener import PoseListener
-    from tools.pose_stream import parse_stream_url
     from tools.run_outcome import interruptible
 
     if args.seconds is not None and not (math.isfinite(args.seconds) and args.seconds > 0):
         raise ConfigError(f"--seconds must be a finite number > 0 (got {args.seconds!r})")
-    host, port = parse_stream_url(args.url, "the address", host_optional=True)
-    family = socket.AF_INET6 if ":" in host else socket.AF_INET
-    sock = socket.socket(family, socket.SOCK_DGRAM)
-    try:
-        sock.bind((host, port))
-    except OSError as exc:
-        sock.close()
-        raise ConfigError(f"davio listen: cannot listen on {args.url}: {exc.strerror or exc}") from None
+    sock = bind_listener(args.url)
     sock.settimeout(0.2)
     try:
         tum = open(args.tum, "w", encoding="utf-8") if args.tum else None   # noqa: SIM115 - closed below
