@@ -232,11 +232,12 @@ class DynamicInitializer(BufferedInitializer):
         if not refined.converged:
             # as OpenVINS refuses a Ceres solve that did not end in CONVERGENCE; on fast motion such a
             # window can sit far from the truth at a small reprojection error (BENCHMARKS.md)
-            raise _Rejected(
-                "mle_not_converged",
-                f"refinement did not converge in {refined.n_evaluations} evaluations "
-                f"(mle_max_iterations {cfg.mle_max_iterations})",
-            )
+            n = refined.n_evaluations
+            why = (f"did not converge in {n} evaluations (mle_max_iterations {cfg.mle_max_iterations})"
+                   if n >= cfg.mle_max_iterations else
+                   f"stopped without converging after {n} evaluations (no step lowered the cost, or the "
+                   "Jacobian was not finite)")
+            raise _Rejected("mle_not_converged", f"refinement {why}")
         if refined.rms_px > cfg.max_reprojection_rms_px:
             raise _Rejected(
                 "mle_failed",

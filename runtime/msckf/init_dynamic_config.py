@@ -68,7 +68,9 @@ class DynamicInitConfig:
     mle_max_iterations: int = 20
     """Nonlinear refinement's residual evaluations at most (a rejected step counts; scipy least_squares
     max_nfev); a window whose refinement has not converged by then is refused (mle_not_converged), as OpenVINS
-    refuses one whose Ceres solve did not converge; 0 disables the refinement."""
+    refuses one whose Ceres solve did not converge (its init_dyn_mle_max_iter 20 counts Ceres iterations,
+    up to 21 evaluations: this budget is one evaluation tighter; accepted windows of the simulated
+    recordings needed at most 18); 0 disables the refinement, 1 would refuse every window."""
     mle_tolerance: float = 1e-6
     """Relative cost / step tolerance that ends the refinement (scipy ftol and xtol)."""
     mle_solver: str = "lm"
@@ -124,6 +126,10 @@ class DynamicInitConfig:
                               f"{self.mle_solver!r}")
         if not self.sigma_px > 0:
             raise ConfigError(f"sigma_px must be > 0, got {self.sigma_px}")
+        if self.mle_max_iterations != 0 and self.mle_max_iterations < 2:
+            raise ConfigError("dynamic_init.mle_max_iterations must be 0 (no refinement) or >= 2 (1 "
+                              "evaluates only the start, which never converges), got "
+                              f"{self.mle_max_iterations}")
         if not 0.0 <= self.max_rotation_mismatch_fraction <= 1.0:
             raise ConfigError("dynamic_init.max_rotation_mismatch_fraction must be in [0, 1], got "
                               f"{self.max_rotation_mismatch_fraction}")

@@ -254,8 +254,8 @@ class WindowRefinement:
                     ftol=self.cfg.mle_tolerance, xtol=self.cfg.mle_tolerance,
                 )
             x, nfev = sol.x, int(sol.nfev)
-            # scipy's status 0: the evaluations ran out; -1: bad input (raised before a solve)
-            converged = bool(sol.converged) if analytic else sol.status > 0
+            # scipy's status <= 0: the evaluations ran out (0) or a callback stopped it (-2)
+            converged = bool(sol.converged) if analytic else bool(sol.success)
             if not np.all(np.isfinite(x)):
                 return None
         # Jacobian at the solution, re-centred so theta is a local perturbation of the final rotations

@@ -80,12 +80,13 @@ def levenberg_marquardt(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[
             x, r, cost = x_new, r_new, cost_new
             if small or short:
                 return LmResult(x, cost, nfev, True)
-            # shrunk, but kept above zero so that a later refusal can grow it again
+            # shrunk, but kept above zero so that a later refusal can grow it again (a safety net: from
+            # INITIAL_DAMPING it takes hundreds of accepted steps to get there)
             lam, grow = max(lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), 1e-300), 2.0
             if nfev < max_nfev:
                 J = jac(x)
         else:
-            if short:                   # even a step this short does not lower the cost: x is the end
+            if short and np.isfinite(cost_new):   # a step this short does not lower the cost: x is the end
                 return LmResult(x, cost, nfev, True)
             lam, grow = lam * grow, grow * 2.0
             if lam > MAX_DAMPING:       # no step lowers the cost: x is as good as it gets here

@@ -245,6 +245,9 @@ def test_rejects_without_enough_data() -> None:
     assert init.try_initialize() is None and init.log.last.code == "few_frames"
     with pytest.raises(ConfigError):
         DynamicInitConfig(num_pose=2)
+    with pytest.raises(ConfigError, match="mle_max_iterations must be 0 .* or >= 2"):
+        DynamicInitConfig(mle_max_iterations=1)
+    assert DynamicInitConfig(mle_max_iterations=0).mle_max_iterations == 0
     with pytest.raises(ConfigError):
         DynamicInitializer(CAM, np.eye(3))
 

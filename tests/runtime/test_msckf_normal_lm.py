@@ -94,6 +94,10 @@ def test_a_start_at_the_minimum_ends_at_once_and_a_hopeless_search_ends_without_
     stuck = levenberg_marquardt(only_here, lambda x: np.eye(2), x0, max_nfev=500, ftol=1e-15, xtol=1e-15)
     np.testing.assert_array_equal(stuck.x, x0)
     assert stuck.cost == 12.5 and stuck.nfev <= 500
+    # every step short (xtol 1) and non-finite where it lands: not an end at a minimum, so not converged
+    short = levenberg_marquardt(only_here, lambda x: np.eye(2), x0, max_nfev=500, ftol=1e-15, xtol=1.0)
+    np.testing.assert_array_equal(short.x, x0)
+    assert not short.converged
 
 
 def test_the_last_short_step_is_kept_when_it_lowers_the_cost() -> None:

@@ -1,6 +1,8 @@
 """A body that turns on the spot from the first frame (the simulator's 'rotation' preset, rendered images,
 synthetic IMU): the turning-in-place initializer starts the filter once its 2 s window has turned enough;
-without it the static initializer refuses (its images move) and the dynamic one starts later."""
+without it the static initializer refuses (its images move) and so does the dynamic one: its refinement
+does not converge on windows with no translation (until the thirty-second session it accepted one at
+2.98 s, whose poses then moved 0.32 m on a body that never translates)."""
 from __future__ import annotations
 
 from dataclasses import replace
@@ -40,4 +42,5 @@ def test_turning_on_the_spot_starts_at_rest_and_holds_the_position() -> None:
     assert np.linalg.norm(np.array(inits["turning"]["accepted"]["bg_visual"]) - truth.bg[0]) < 0.005  # 0.0040
     off_pub, off_by, off_inits = runs[False]
     assert "turning" not in off_inits and off_inits["static"]["rejections"]["moving"] > 0
-    assert off_by == "native:dynamic" and off_pub[0].t_ns > pub[0].t_ns      # measured 2.98 s
+    assert off_by is None and len(off_pub) == 0
+    assert off_inits["dynamic"]["rejections"]["mle_not_converged"] > 0          # measured 13

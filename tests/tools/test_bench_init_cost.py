@@ -8,7 +8,7 @@ import pytest
 
 from runtime.geometry import so3_exp
 from runtime.msckf.init_common import InitResult
-from tools.benchmarks.init_cost import _errors, _stats, tilt_sigma_deg
+from tools.benchmarks.init_cost import _errors, _not_converged, _reached_refinement, _stats, tilt_sigma_deg
 
 
 def test_errors_are_the_gravity_tilt_and_the_body_frame_velocity_difference():
@@ -56,3 +56,20 @@ def test_stats_of_no_attempt_and_of_some():
     s = _stats([1.0, 2.0, 3.0, 10.0])
     assert s["n"] == 4 and s["median_ms"] == 2.5 and s["max_ms"] == 10.0
     assert s["p90_ms"] == pytest.approx(np.percentile([1, 2, 3, 10], 90))
+
+
+def test_a_state_without_covariance_has_no_error_in_sigmas_and_refusals_are_told_apart():
+    R_WI = so3_exp(np.array([0.2, -0.1, 1.3]))
+    truth = SimpleNamespace(sample=lambda t: SimpleNamespace(R=R_WI[None], v=np.zeros((1, 3))))
+    bare = InitResult(0, R_WI, np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), None, "dynamic")
+    assert _errors(bare, truth)["gravity_sigmas"] is None
+
+    def init(code):
+        return SimpleNamespace(log=SimpleNamespace(last=None if code is None else SimpleNamespace(code=code)))
+
+    refused = init("mle_not_converged")
+    assert _not_converged(refused, None) and _reached_refinement(refused, None)
+    assert not _not_converged(init("mle_failed"), None) and _reached_refinement(init("mle_failed"), None)
+    assert not _not_converged(init("insufficient_parallax"), None)
+    assert not _reached_refinement(init("insufficient_parallax"), None)
+    assert not _not_converged(init("mle_not_converged"), bare)   # an accepted attempt is not a refusal

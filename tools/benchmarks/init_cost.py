@@ -17,8 +17,8 @@ the attempts both accepted, the largest difference between the two states (newes
 velocity, gravity direction) and between their covariances' standard deviations (relative); and each
 solver's median and largest error against the truth (velocity in the IMU frame, gravity direction), how
 many accepted windows had gravity more than 1 deg off, and more than 3 of the window's own standard
-deviations off (the tilt's, from the reported covariance); and how many windows were refused because the
-refinement did not converge within `mle_max_iterations` evaluations.
+deviations off (the tilt's largest, from the reported covariance); and how many windows were refused
+because the refinement did not converge within `mle_max_iterations` evaluations.
 
 `--live`: each recording is also pushed into a live Session at its real rate (every IMU sample kept; an
 image waiting behind two others is dropped, as `davio live` does), once per solver, native initializers
@@ -114,7 +114,8 @@ def attempts(rig, events, motion=None) -> dict:
             not_converged[solver] += _not_converged(init, out[solver])
             if motion is not None and out[solver] is not None:
                 for k, v in _errors(out[solver], motion).items():
-                    errors[solver][k].append(v)
+                    if v is not None:
+                        errors[solver][k].append(v)
         a, b = out["lm"], out["scipy-fd"]
         if a is not None and b is not None:
             both += 1
@@ -148,7 +149,8 @@ def _errors(res, motion) -> dict:
     v_err = np.linalg.norm(res.R_OI.T @ res.v_OI - R_WI.T @ v_W)
     up = np.clip(res.gravity_in_imu @ R_WI[2, :], -1.0, 1.0)
     g_deg = float(np.degrees(np.arccos(up)))
-    return {"velocity_m_s": float(v_err), "gravity_deg": g_deg, "gravity_sigmas": g_deg / tilt_sigma_deg(res)}
+    sigmas = None if res.cov is None else g_deg / tilt_sigma_deg(res)
+    return {"velocity_m_s": float(v_err), "gravity_deg": g_deg, "gravity_sigmas": sigmas}
 
 
 def tilt_sigma_deg(res) -> float:
