@@ -1,12 +1,20 @@
 """Shared fixtures: the path to ../shared/data (skip with a reason when absent)."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO.parent / "shared" / "data"
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """The simulator's parallel kernels run on numba's workqueue layer, as under the `davio` command
+    (OpenMP's spinning idle threads would take the CPU the tracked pipeline needs; results are the same:
+    every parallel kernel is per pixel). A layer chosen in the environment stands."""
+    os.environ.setdefault("NUMBA_THREADING_LAYER", "workqueue")
 
 
 def shared_path(*parts: str) -> Path:

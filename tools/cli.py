@@ -108,6 +108,10 @@ def main(argv: list[str] | None = None) -> int:
     # numba's default OpenMP layer busy-waits its idle threads, which halves throughput on the
     # small shared CPUs DAVIO runs on; the workqueue layer does not (override with the variable).
     os.environ.setdefault("NUMBA_THREADING_LAYER", "workqueue")
+    if "numba" in sys.modules:   # imported before (main called in-process): numba read the variable then
+        from drivers.sim.threads import prefer_workqueue_layer
+
+        prefer_workqueue_layer()
     given = sys.argv[1:] if argv is None else list(argv)
     parser = build_parser(only=_command_named(given))
     args, extra = parser.parse_known_args(given)

@@ -49,7 +49,7 @@ def _sample(tex: np.ndarray, off: int, h: int, w: int, x: float, y: float) -> fl
     return (a * (1 - ax) + b * ax) * (1 - ay) + (c * (1 - ax) + d * ax) * ay
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _trilinear(
     tex: np.ndarray,
     offset: np.ndarray,
@@ -77,7 +77,7 @@ def _trilinear(
     return a * (1 - f) + b * f
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _environment(rx: float, ry: float, rz: float) -> float:
     """Procedural surroundings seen in a mirror direction (unit vector), in [0, 1.2]."""
     v = 0.35 + 0.25 * math.sin(4.0 * rx + 1.3) * math.sin(3.0 * ry + 0.4) + 0.15 * math.sin(7.0 * rz)
@@ -132,6 +132,8 @@ def cast(
     node_order: np.ndarray,
     node_active: np.ndarray,
     group_active: np.ndarray,
+    box_active: np.ndarray,
+    tile_px: int,
     face_material: np.ndarray,
     albedo: np.ndarray,
     strength: np.ndarray,
@@ -151,14 +153,17 @@ def cast(
 
     Boxes 1.. are grouped: group g holds boxes group_start[g] .. group_start[g+1]-1 inside the
     bounding box (group_min[g], group_max[g]), tested first to skip the whole group. Groups are
-    found through a BVH (drivers.sim.bvh.GroupBvh fields node_*), traversed near child first;
-    nodes and groups whose `*_active` flag is 0 (outside the view frustum) are skipped.
+    found through a BVH (drivers.sim.bvh.GroupBvh fields node_*), traversed near child first.
+    The image is cut into square tiles of `tile_px` pixels (row-major); nodes, groups and boxes whose
+    `*_active[tile]` flag is 0 (no ray of the tile can reach them: drivers.sim.tiles) are skipped.
     """
     H, W = rays.shape[0], rays.shape[1]
+    tiles_x = (W + tile_px - 1) // tile_px
     ox, oy, oz = p_WC[0], p_WC[1], p_WC[2]
     for v in prange(H):
         stack = np.empty(64, np.int64)
         for u in range(W):
+            tile = (v // tile_px) * tiles_x + u // tile_px
             cx, cy, cz = rays[v, u, 0], rays[v, u, 1], rays[v, u, 2]
             d0 = R_WC[0, 0] * cx + R_WC[0, 1] * cy + R_WC[0, 2] * cz
             d1 = R_WC[1, 0] * cx + R_WC[1, 1] * cy + R_WC[1, 2] * cz
@@ -189,7 +194,7 @@ def cast(
             while sp > 0:
                 sp -= 1
                 node = stack[sp]
-                if node_active[node] == 0:
+                if node_active[tile, node] == 0:
                     continue
                 tn, tf, ax = _slab(node_min[node], node_max[node], ox, oy, oz, i0, i1, i2)
                 if not (tn <= tf and tf > 0.0 and tn < best):
@@ -207,7 +212,7 @@ def cast(
                     continue
                 for k in range(node_first[node], node_first[node] + node_count[node]):
                     g = node_order[k]
-                    if group_active[g] == 0:
+                    if group_active[tile, g] == 0:
                         continue
                     b0 = group_start[g]
                     b1 = group_start[g + 1]
@@ -216,6 +221,8 @@ def cast(
                         if not (tn <= tf and tf > 0.0 and tn < best):
                             continue
                     for b in range(b0, b1):
+                        if box_active[tile, b] == 0:
+                            continue
                         tn, tf, ax = _slab(box_min[b], box_max[b], ox, oy, oz, i0, i1, i2)
                         if tn <= tf and tn > 1e-9 and tn < best:
                             best = tn

@@ -14,11 +14,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from drivers.sim.bvh import build_bvh, frustum_active
+from drivers.sim.bvh import build_bvh
 from drivers.sim.expose import expose
 from drivers.sim.raycast import cast
 from drivers.sim.scene import Scene
 from drivers.sim.threads import PARALLEL_KERNELS
+from drivers.sim.tiles import TILE_PX, tile_bounds, tile_flags
 from runtime.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -109,8 +110,7 @@ class Caster:
         self.pixel_angle = float(pixel_angle_rad)
         self._gmin, self._gmax = scene.group_bounds()
         self._bvh = build_bvh(self._gmin, self._gmax)
-        self._xy_min = self.rays[..., :2].reshape(-1, 2).min(axis=0)
-        self._xy_max = self.rays[..., :2].reshape(-1, 2).max(axis=0)
+        self._tiles = tile_bounds(self.rays, TILE_PX)
 
     def cast(self, R_WC: np.ndarray, p_WC: np.ndarray, want_strength: bool = False) -> View:
         """Cast the view of a camera at pose (R_WC, p_WC)."""
@@ -122,10 +122,12 @@ class Caster:
         s, a = self.scene, self.scene.atlas
         R_WC = np.ascontiguousarray(R_WC, dtype=np.float64)
         p_WC = np.ascontiguousarray(p_WC, dtype=np.float64)
-        node_active, group_active = frustum_active(
-            self._bvh, self._gmin, self._gmax, R_WC, p_WC, self._xy_min, self._xy_max
-        )
+        b = self._bvh
         with PARALLEL_KERNELS:
+            box_active, group_active, node_active = tile_flags(
+                s.box_min, s.box_max, s.group_start, R_WC, p_WC, self._tiles, b.left, b.right, b.first,
+                b.count, b.order
+            )
             cast(
                 self.rays,
                 R_WC,
@@ -145,6 +147,8 @@ class Caster:
                 self._bvh.order,
                 node_active,
                 group_active,
+                box_active,
+                TILE_PX,
                 s.face_material,
                 a.albedo,
                 a.strength,

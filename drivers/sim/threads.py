@@ -18,11 +18,11 @@ PARALLEL_KERNELS = threading.Lock()
 
 
 def prefer_workqueue_layer() -> str:
-    """Select numba's workqueue threading layer unless NUMBA_THREADING_LAYER is set; returns the
-    layer requested. Has no effect once a parallel kernel of this process has run."""
+    """Select numba's workqueue threading layer, or the one NUMBA_THREADING_LAYER names; returns the
+    layer requested. Applies it also when numba was imported before the variable was set (numba reads
+    it at import). Has no effect once a parallel kernel of this process has run."""
     import numba
 
-    if os.environ.get("NUMBA_THREADING_LAYER"):
-        return str(numba.config.THREADING_LAYER)
-    numba.config.THREADING_LAYER = "workqueue"
-    return "workqueue"
+    layer = os.environ.get("NUMBA_THREADING_LAYER") or "workqueue"
+    numba.config.THREADING_LAYER = layer
+    return layer

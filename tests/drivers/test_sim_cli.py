@@ -161,3 +161,20 @@ def test_workqueue_layer_is_preferred_unless_the_user_chose_one(monkeypatch) -> 
     monkeypatch.setattr(numba.config, "THREADING_LAYER", "omp")
     monkeypatch.setenv("NUMBA_THREADING_LAYER", "omp")
     assert prefer_workqueue_layer() == "omp" and numba.config.THREADING_LAYER == "omp"
+    # numba imported before the variable was set (as `davio` sets it when main() is called in-process)
+    monkeypatch.setattr(numba.config, "THREADING_LAYER", "default")
+    monkeypatch.setenv("NUMBA_THREADING_LAYER", "workqueue")
+    assert prefer_workqueue_layer() == "workqueue" and numba.config.THREADING_LAYER == "workqueue"
+
+
+def test_the_davio_command_selects_the_workqueue_layer_after_numba_was_imported(monkeypatch, capsys) -> None:
+    import numba
+
+    monkeypatch.setattr(numba.config, "THREADING_LAYER", "default")
+    monkeypatch.delenv("NUMBA_THREADING_LAYER", raising=False)
+    assert main(["--version"]) == 0
+    assert numba.config.THREADING_LAYER == "workqueue"
+    monkeypatch.setattr(numba.config, "THREADING_LAYER", "default")
+    monkeypatch.setenv("NUMBA_THREADING_LAYER", "tbb")    # the user's choice stands
+    assert main(["--version"]) == 0
+    assert numba.config.THREADING_LAYER == "tbb"

@@ -138,26 +138,67 @@ def test_motion_blur_smooths_a_moving_frame(rec: SimRecording) -> None:
     assert energy(soft.image) < 0.9 * energy(sharp.image)
 
 
-def test_frustum_culling_changes_nothing_in_the_image(rec: SimRecording, monkeypatch) -> None:
+def _tiles_hit(rays_W: np.ndarray, lo: np.ndarray, hi: np.ndarray, tile: int) -> np.ndarray:
+    """(tiles,) bool, brute force: does a ray of the tile (H,W,3 world directions from 0) hit the box?"""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1, t2 = lo / rays_W, hi / rays_W
+    hit = (np.nanmax(np.minimum(t1, t2), axis=2) <= np.nanmin(np.maximum(t1, t2), axis=2)) & \
+        (np.nanmin(np.maximum(t1, t2), axis=2) > 0.0)
+    H, W = hit.shape
+    pad = np.zeros((-(-H // tile) * tile, -(-W // tile) * tile), bool)
+    pad[:H, :W] = hit
+    return pad.reshape(pad.shape[0] // tile, tile, pad.shape[1] // tile, tile).any(axis=(1, 3)).ravel()
+
+
+def test_tile_flags_keep_every_box_a_ray_of_the_tile_hits() -> None:
+    from scipy.spatial.transform import Rotation
+
+    from drivers.sim.bvh import build_bvh
+    from drivers.sim.render import pinhole_ray_grid
+    from drivers.sim.tiles import TILE_PX, tile_bounds, tile_flags
+
+    rng = np.random.default_rng(5)
+    rays = pinhole_ray_grid(np.array([[120.0, 0, 80], [0, 120, 64], [0, 0, 1]]), 160, 128)
+    centre = rng.uniform([-3, -2, -1], [3, 2, 8], (300, 3))      # some behind the camera
+    half = rng.uniform(0.02, 0.3, (300, 3))
+    box_min = np.vstack([[-20.0, -20, -20], centre - half])       # box 0: the room shell
+    box_max = np.vstack([[20.0, 20, 20], centre + half])
+    group_start = np.r_[1, 1 + np.cumsum(rng.integers(1, 6, 120))]
+    group_start = np.r_[group_start[group_start < 301], 301]
+    spans = list(zip(group_start[:-1], group_start[1:], strict=True))
+    gmin = np.array([box_min[a:b].min(axis=0) for a, b in spans])
+    gmax = np.array([box_max[a:b].max(axis=0) for a, b in spans])
+    bvh = build_bvh(gmin, gmax)
+    R_WC = Rotation.from_rotvec([0.1, -0.2, 0.05]).as_matrix()   # camera at the origin
+    box_on, group_on, node_on = tile_flags(box_min, box_max, group_start, R_WC, np.zeros(3),
+                                           tile_bounds(rays), bvh.left, bvh.right, bvh.first, bvh.count,
+                                           bvh.order)
+    assert box_on.shape == (80, 301) and np.all(box_on[:, 0] == 1)
+    rays_W = rays @ R_WC.T
+    extra = []
+    for b in range(1, 301):
+        hit = _tiles_hit(rays_W, box_min[b], box_max[b], TILE_PX)
+        assert not np.any(hit & (box_on[:, b] == 0)), b       # never culled where a ray of the tile hits it
+        extra.append(np.sum(box_on[:, b] & ~hit) / max(1, np.sum(box_on[:, b])))
+    assert 0.0 < box_on[:, 1:].mean() < 0.2 and np.mean(extra) < 0.3   # and culled in most other tiles
+    for g in range(group_on.shape[1]):
+        assert np.array_equal(group_on[:, g], box_on[:, group_start[g]:group_start[g + 1]].any(axis=1))
+    assert np.array_equal(node_on[:, 0], group_on.any(axis=1))
+
+
+def test_tile_culling_changes_nothing_in_the_image(rec: SimRecording, monkeypatch) -> None:
     import drivers.sim.render as render_module
-    from drivers.sim.bvh import frustum_active
 
     caster = rec.renderer.caster
     poses = [_pose_WC(rec, k) for k in (3, 25, 50)]
-    culled = [caster.cast(T[:3, :3], T[:3, 3]) for T in poses]
-    flags = [
-        frustum_active(
-            caster._bvh, caster._gmin, caster._gmax, T[:3, :3], T[:3, 3], caster._xy_min, caster._xy_max
-        )[1]
-        for T in poses
-    ]
-    assert min(f.mean() for f in flags) < 1.0  # some groups are out of view and skipped
+    culled = [caster.cast(T[:3, :3], T[:3, 3], want_strength=True) for T in poses]
+    real_flags = render_module.tile_flags
 
-    def everything_active(bvh, group_min, *_):
-        return np.ones(bvh.left.shape[0], np.uint8), np.ones(group_min.shape[0], np.uint8)
+    def everything_active(*args):
+        return tuple(np.ones_like(f) for f in real_flags(*args))
 
-    monkeypatch.setattr(render_module, "frustum_active", everything_active)
+    monkeypatch.setattr(render_module, "tile_flags", everything_active)
     for T, a in zip(poses, culled, strict=True):
-        b = caster.cast(T[:3, :3], T[:3, 3])
-        np.testing.assert_array_equal(a.face, b.face)
-        np.testing.assert_array_equal(a.depth, b.depth)
+        b = caster.cast(T[:3, :3], T[:3, 3], want_strength=True)
+        for name in ("face", "depth", "radiance", "strength"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
