@@ -13,6 +13,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from runtime.errors import ConfigError
+
 TILE_PX = 16
 """Tile side, pixels."""
 MARGIN = 1e-6
@@ -21,6 +23,8 @@ MARGIN = 1e-6
 
 def tile_bounds(rays: np.ndarray, tile_px: int = TILE_PX) -> np.ndarray:
     """(T, 4) [x0, x1, y0, y1] bounds of each tile's rays (H, W, 3 with z = 1), row-major tiles."""
+    if not np.allclose(rays[..., 2], 1.0, rtol=0.0, atol=1e-12):
+        raise ConfigError("tile culling needs camera-frame rays with z = 1 (divide each ray by its z)")
     H, W = rays.shape[:2]
     ty, tx = -(-H // tile_px), -(-W // tile_px)
     pad = np.full((ty * tile_px, tx * tile_px, 2), np.nan)
@@ -49,7 +53,8 @@ def tile_flags(
     hit the box (box 0, the room shell, is always 1), a box of the group, a group below the BVH node.
 
     Groups: group g holds boxes group_start[g] .. group_start[g+1]-1 (box 0 is in none);
-    node_*: the flattened BVH over the groups (drivers.sim.bvh.GroupBvh)."""
+    node_*: the flattened BVH over the groups (drivers.sim.bvh.GroupBvh). R_WC must be a rotation
+    (the culling inverts it by its transpose; orthogonal to ~MARGIN suffices)."""
     B = box_min.shape[0]
     G = group_start.shape[0] - 1
     M = node_left.shape[0]
@@ -72,7 +77,7 @@ def tile_flags(
             behind = right = left = below = above = True
             for c in range(8):
                 x, y, z = corners[b, c, 0], corners[b, c, 1], corners[b, c, 2]
-                behind = behind and not z > 0.0
+                behind = behind and z <= 0.0     # a NaN corner culls nothing
                 right = right and x > x1 * z
                 left = left and x < x0 * z
                 below = below and y > y1 * z

@@ -13,6 +13,7 @@ from drivers.sim.recording import SimConfig, SimRecording
 from drivers.sim.render import ImageOptions
 from drivers.sim.rig import euroc_default_rig
 from drivers.sim.texture import REFLECTIVE
+from runtime.errors import ConfigError
 
 
 @pytest.fixture(scope="module")
@@ -138,12 +139,12 @@ def test_motion_blur_smooths_a_moving_frame(rec: SimRecording) -> None:
     assert energy(soft.image) < 0.9 * energy(sharp.image)
 
 
-def _tiles_hit(rays_W: np.ndarray, lo: np.ndarray, hi: np.ndarray, tile: int) -> np.ndarray:
-    """(tiles,) bool, brute force: does a ray of the tile (H,W,3 world directions from 0) hit the box?"""
+def _tiles_hit(rays_W: np.ndarray, p_WC: np.ndarray, lo: np.ndarray, hi: np.ndarray, tile: int) -> np.ndarray:
+    """(tiles,) bool, brute force: does a ray of the tile (H,W,3 world directions from p_WC) hit the box?"""
     with np.errstate(divide="ignore", invalid="ignore"):
-        t1, t2 = lo / rays_W, hi / rays_W
-    hit = (np.nanmax(np.minimum(t1, t2), axis=2) <= np.nanmin(np.maximum(t1, t2), axis=2)) & \
-        (np.nanmin(np.maximum(t1, t2), axis=2) > 0.0)
+        t1, t2 = (lo - p_WC) / rays_W, (hi - p_WC) / rays_W
+    tn, tf = np.nanmax(np.minimum(t1, t2), axis=2), np.nanmin(np.maximum(t1, t2), axis=2)
+    hit = (tn <= tf) & (tf > 0.0)
     H, W = hit.shape
     pad = np.zeros((-(-H // tile) * tile, -(-W // tile) * tile), bool)
     pad[:H, :W] = hit
@@ -155,35 +156,42 @@ def test_tile_flags_keep_every_box_a_ray_of_the_tile_hits() -> None:
 
     from drivers.sim.bvh import build_bvh
     from drivers.sim.render import pinhole_ray_grid
+    from drivers.sim.threads import PARALLEL_KERNELS
     from drivers.sim.tiles import TILE_PX, tile_bounds, tile_flags
 
     rng = np.random.default_rng(5)
-    rays = pinhole_ray_grid(np.array([[120.0, 0, 80], [0, 120, 64], [0, 0, 1]]), 160, 128)
-    centre = rng.uniform([-3, -2, -1], [3, 2, 8], (300, 3))      # some behind the camera
+    rays = pinhole_ray_grid(np.array([[110.0, 0, 74], [0, 110, 58], [0, 0, 1]]), 150, 118)  # partial tiles
+    R_WC = Rotation.from_rotvec([0.1, -0.2, 0.05]).as_matrix()
+    p_WC = np.array([0.7, -0.4, 1.3])
+    centre = p_WC + rng.uniform([-3, -2, -1], [3, 2, 8], (300, 3)) @ R_WC.T   # some behind the camera
     half = rng.uniform(0.02, 0.3, (300, 3))
+    centre[:3] = p_WC + np.array([[0.0, 0, 0], [0.1, 0, 0.05], [0, 0, -1.0]]) @ R_WC.T
+    # boxes 1-3: one holds the camera, one straddles z = 0, one lies wholly behind it
+    half[:3] = [[0.5, 0.5, 0.5], [0.2, 0.2, 0.3], [0.4, 0.4, 0.4]]
     box_min = np.vstack([[-20.0, -20, -20], centre - half])       # box 0: the room shell
     box_max = np.vstack([[20.0, 20, 20], centre + half])
     group_start = np.r_[1, 1 + np.cumsum(rng.integers(1, 6, 120))]
     group_start = np.r_[group_start[group_start < 301], 301]
     spans = list(zip(group_start[:-1], group_start[1:], strict=True))
-    gmin = np.array([box_min[a:b].min(axis=0) for a, b in spans])
-    gmax = np.array([box_max[a:b].max(axis=0) for a, b in spans])
-    bvh = build_bvh(gmin, gmax)
-    R_WC = Rotation.from_rotvec([0.1, -0.2, 0.05]).as_matrix()   # camera at the origin
-    box_on, group_on, node_on = tile_flags(box_min, box_max, group_start, R_WC, np.zeros(3),
-                                           tile_bounds(rays), bvh.left, bvh.right, bvh.first, bvh.count,
-                                           bvh.order)
-    assert box_on.shape == (80, 301) and np.all(box_on[:, 0] == 1)
+    bvh = build_bvh(np.array([box_min[a:b].min(axis=0) for a, b in spans]),
+                    np.array([box_max[a:b].max(axis=0) for a, b in spans]))
+    with PARALLEL_KERNELS:
+        box_on, group_on, node_on = tile_flags(box_min, box_max, group_start, R_WC, p_WC, tile_bounds(rays),
+                                               bvh.left, bvh.right, bvh.first, bvh.count, bvh.order)
+    assert box_on.shape == (10 * 8, 301) and np.all(box_on[:, 0] == 1)
+    assert np.all(box_on[:, 1] == 1) and np.all(box_on[:, 3] == 0)   # around the camera; wholly behind it
     rays_W = rays @ R_WC.T
     extra = []
     for b in range(1, 301):
-        hit = _tiles_hit(rays_W, box_min[b], box_max[b], TILE_PX)
+        hit = _tiles_hit(rays_W, p_WC, box_min[b], box_max[b], TILE_PX)
         assert not np.any(hit & (box_on[:, b] == 0)), b       # never culled where a ray of the tile hits it
         extra.append(np.sum(box_on[:, b] & ~hit) / max(1, np.sum(box_on[:, b])))
     assert 0.0 < box_on[:, 1:].mean() < 0.2 and np.mean(extra) < 0.3   # and culled in most other tiles
     for g in range(group_on.shape[1]):
         assert np.array_equal(group_on[:, g], box_on[:, group_start[g]:group_start[g + 1]].any(axis=1))
     assert np.array_equal(node_on[:, 0], group_on.any(axis=1))
+    with pytest.raises(ConfigError, match="z = 1"):
+        tile_bounds(rays / np.linalg.norm(rays, axis=2, keepdims=True))
 
 
 def test_tile_culling_changes_nothing_in_the_image(rec: SimRecording, monkeypatch) -> None:
