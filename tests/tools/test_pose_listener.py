@@ -8,6 +8,7 @@ import json
 import socket
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -83,6 +84,21 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+def _wait_until_bound(port: int, timeout_s: float = 20.0) -> None:
+    """Wait until a UDP socket is bound on 127.0.0.1:port (Linux: /proc/net/udp; elsewhere 0.5 s)."""
+    table = Path("/proc/net/udp")
+    if not table.exists():
+        time.sleep(0.5)
+        return
+    local = {f"0100007F:{port:04X}", f"7F000001:{port:04X}"}   # the address in host byte order
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if any(line.split()[1] in local for line in table.read_text().splitlines()[1:]):
+            return
+        time.sleep(0.02)
+    raise AssertionError(f"nothing bound 127.0.0.1:{port} in {timeout_s} s")
+
+
 def test_davio_listen_receives_a_stream_and_reports_it(tmp_path, capsys):
     from tools.pose_stream import PoseStream
 
@@ -92,7 +108,7 @@ def test_davio_listen_receives_a_stream_and_reports_it(tmp_path, capsys):
     listening = threading.Thread(target=lambda: result.append(main(
         ["listen", f"udp://127.0.0.1:{port}", "--seconds", "1.5", "--tum", str(out), "--json"])))
     listening.start()
-    time.sleep(0.5)                                      # bound by then
+    _wait_until_bound(port)
     stream = PoseStream(f"udp://127.0.0.1:{port}")
     for k in range(10):
         stream.on_pose(_pose(k))
