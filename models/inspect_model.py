@@ -29,7 +29,7 @@ def inspect_model(path: str | Path, load_session: bool = True) -> dict:
         ModelError: the file is missing, is not a readable ONNX model, reads external data from
             outside its folder, or matches no contract.
     """
-    from models.da3.contract import check_da3_signature
+    from models.da3.contract import PRECISION_KEY, check_da3_signature
     from models.matcher.contract import check_lighterglue_signature, check_xfeat_signature
 
     path = Path(path)
@@ -65,6 +65,15 @@ def inspect_model(path: str | Path, load_session: bool = True) -> dict:
                         "default); re-export it, or cap it with --gpu-mem-limit")
     info["producer"] = f"{model.producer_name} {model.producer_version}".strip()
     info["metadata"] = {p.key: p.value for p in model.metadata_props}
+    if info["contract"] == "davio.da3":
+        info["precision"] = info["metadata"].get(PRECISION_KEY, "fp32")
+        if info["precision"] == "fp16":
+            # measured (BENCHMARKS.md, DA3 on a GPU): on an H200 0.56x the fp32 session time (Base, 5 views);
+            # on 16 CPU cores 2.1x the fp32 time (Small)
+            note = ("fp16 graph (backbone in float16, inputs and outputs float32): for the CUDA provider, "
+                    "where it ran in about 0.5-0.6x the fp32 time; the CPU provider runs it at about half "
+                    "the fp32 speed")
+            info["note"] = f"{info['note']}; {note}" if "note" in info else note
     card = model_card_path(path)
     if card.is_file():
         try:

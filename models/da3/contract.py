@@ -24,6 +24,9 @@ from runtime.errors import ModelError
 
 CONTRACT = "davio.da3"
 CONTRACT_VERSION = 1
+#: graph metadata key a DAVIO export writes: "fp32", or "fp16" (the backbone computes in float16; the
+#: inputs and outputs are float32 all the same). Absent = fp32.
+PRECISION_KEY = "davio.precision"
 PATCH = 14
 MIN_VIEWS, MAX_VIEWS = 2, 8
 

@@ -20,7 +20,13 @@ import cv2
 import numpy as np
 
 from calib import CameraModel
-from models.da3.contract import MAX_VIEWS, MIN_VIEWS, check_da3_signature, da3_resolution
+from models.da3.contract import (
+    MAX_VIEWS,
+    MIN_VIEWS,
+    PRECISION_KEY,
+    check_da3_signature,
+    da3_resolution,
+)
 from models.da3.preprocess import (
     camera_centres,
     normalise_image,
@@ -96,6 +102,16 @@ class OnnxDA3:
         )
         inputs, outputs = session_signature(self.session)
         self.graph_hw = check_da3_signature(inputs, outputs, where=str(self.path))
+        #: "fp16" for a graph exported with --precision fp16 (its backbone computes in float16), else "fp32"
+        self.precision: str = self.session.get_modelmeta().custom_metadata_map.get(PRECISION_KEY, "fp32")
+        self.session_info["precision"] = self.precision
+        if self.precision == "fp16" and self.session_info["providers"][0] != CUDA:
+            # measured on 16 CPU cores: DA3-Small fp16 1.91 s a 5-view call, fp32 0.89 s (BENCHMARKS.md)
+            log.warning(
+                "%s is an fp16 graph for GPUs; ONNX Runtime's CPU provider runs it at about half the "
+                "speed of the fp32 graph: export `davio export-da3 --precision fp32` for CPU use",
+                self.path.name,
+            )
         n_dim = inputs[[name for name, _, _ in inputs].index("images")][2][1]
         #: the graph's fixed view count, or None when N is dynamic (the exported graphs: 2..8)
         self.graph_views: int | None = n_dim if isinstance(n_dim, int) and n_dim > 0 else None
@@ -277,6 +293,7 @@ class OnnxDA3:
             "graph_hw": list(self.graph_hw),
             "latency_s": latency,
             "providers": self.session_info["providers"],
+            "precision": self.precision,
             "conditioned": conditioned,
             "aspect_distortion": self.aspect_distortion,
         }

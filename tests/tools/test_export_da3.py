@@ -25,6 +25,8 @@ def test_request_validation():
         ExportRequest("small", 378, 504, "x.onnx", checkpoint="w.safetensors", random_init=True).validate()
     with pytest.raises(ModelError, match="opset 17: the DA3 export offers 18, 23"):
         ExportRequest("small", 378, 504, "x.onnx", random_init=True, opset=17).validate()
+    with pytest.raises(ModelError, match="precision 'fp8': choose one of fp32, fp16"):
+        ExportRequest("small", 378, 504, "x.onnx", random_init=True, precision="fp8").validate()
 
 
 @pytest.mark.export
@@ -143,3 +145,48 @@ def test_opset_18_export_spells_attention_out_and_agrees_with_torch(tmp_path, ca
     # the tiny net's 4 blocks + the camera decoder attend, as MatMul-Softmax chains in opset 18
     assert "Attention" not in ops and ops.count("Softmax") >= 4
     assert {o.version for o in graph.opset_import if o.domain in ("", "ai.onnx")} == {18}
+
+
+@pytest.mark.export
+@pytest.mark.slow
+def test_fp16_export_puts_the_backbone_in_fp16_and_agrees_with_torch(tmp_path, capsys, monkeypatch):
+    _need_export_deps()
+    import onnx
+
+    from calib import Pinhole
+    from models.da3 import OnnxDA3
+    from runtime.events import Frame
+    from tools.cli import main
+    from tools.export.fp16 import in_scope
+
+    monkeypatch.chdir(tmp_path)
+    rc = main(["export-da3", "--random-init", "--size", "tiny", "--res", "28x42", "--precision", "fp16",
+               "--json"])
+    assert rc == 0
+    card = json.loads(capsys.readouterr().out)
+    out = tmp_path / "da3_tiny_28x42_fp16.onnx"
+    assert card["precision"] == "fp16" and card["file"] == out.name
+    assert card["fp32_check"]["max_rel_error"] < 1e-4   # the graph before the rewrite
+    assert card["check"]["max_rel_error"] < 5e-2 and card["check"]["tolerance"] == 0.1
+    assert card["fp16"]["fp16_nodes"] > 100 and card["fp16"]["fp32_nodes"] > 100
+    graph = onnx.load(out)
+    meta = {p.key: p.value for p in graph.metadata_props}
+    assert meta["davio.precision"] == "fp16"
+    # every backbone weight matrix is fp16, every head and camera-decoder weight fp32
+    f16 = {t.name for t in graph.graph.initializer if t.data_type == onnx.TensorProto.FLOAT16}
+    consumers = {}
+    for n in graph.graph.node:
+        for name in n.input:
+            consumers.setdefault(name, []).append(n)
+    mats = [n for n in graph.graph.node if n.op_type in ("MatMul", "Gemm", "Conv") and len(n.input) > 1]
+    assert mats
+    for n in mats:
+        weight_is_f16 = n.input[1] in f16 or n.input[1].endswith("__to_fp16")
+        assert weight_is_f16 == in_scope(n, "net.backbone"), (n.name, n.input[1])
+    assert all(n.op_type != "Exp" or not n.output[0].endswith("__fp16") for n in graph.graph.node)
+    cam = Pinhole(84, 56, 60.0, 60.0, 41.5, 27.5)
+    model = OnnxDA3(out, cam, threads=1)
+    rng = np.random.default_rng(0)
+    frames = [Frame(i, rng.integers(0, 255, (56, 84), dtype=np.uint8)) for i in range(4)]
+    pred = model.predict(frames)
+    assert np.isfinite(pred.depth).all() and (pred.depth > 0).all() and (pred.conf >= 1).all()

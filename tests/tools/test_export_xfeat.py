@@ -44,7 +44,18 @@ def test_da3_latency_benchmark_json_on_contract_graph(tmp_path, capsys, monkeypa
     out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert out["graph_hw"] == [28, 42] and out["views"] == 3
     assert out["latency_s"]["cond_predict"]["median"] > 0 and out["peak_rss_mb"] > 0
-    assert out["first_call_s"] > 0
+    assert out["first_call_s"] > 0 and out["precision"] == "fp32"
+
+
+def test_da3_latency_default_graph_is_cached_per_precision(tmp_path, monkeypatch):
+    from tools.benchmarks import da3_latency
+
+    monkeypatch.setattr(da3_latency, "CACHE", tmp_path)
+    cached = tmp_path / "da3_small_378x504_op23_fp16_random.onnx"
+    cached.write_bytes(b"graph")
+    assert da3_latency._default_model("small", "378x504", "fp16") == (cached, None)   # no export
+    (tmp_path / "da3_small_378x504_op23_random.onnx").write_bytes(b"graph")
+    assert da3_latency._default_model("small", "378x504")[0].name == "da3_small_378x504_op23_random.onnx"
 
 
 @pytest.mark.export

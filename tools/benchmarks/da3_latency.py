@@ -35,12 +35,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--model",
         metavar="PATH",
         default=None,
-        help="DA3 graph to time (default: CACHE/da3_SIZE_HxW_opOPSET_random.onnx, exported if absent)",
+        help="DA3 graph to time (default: CACHE/da3_SIZE_HxW_opOPSET[_fp16]_random.onnx, exported if absent)",
     )
     p.add_argument(
         "--size", default="small", choices=["tiny", "small", "base"], help="size of the default graph"
     )
     p.add_argument("--res", default="378x504", help="resolution HxW of the default graph")
+    p.add_argument("--precision", default="fp32", choices=["fp32", "fp16"],
+                   help="precision of the default graph (fp16: backbone in float16, `davio export-da3`)")
     p.add_argument("--views", type=int, default=5, help="frames per call (N)")
     p.add_argument("--threads", type=int, default=2, help="ONNX Runtime intra-op threads")
     p.add_argument("--repeats", type=int, default=5, help="timed calls per mode (after one warm-up)")
@@ -56,17 +58,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object")
 
 
-def _default_model(size: str, res: str) -> tuple[Path, float | None]:
+def _default_model(size: str, res: str, precision: str = "fp32") -> tuple[Path, float | None]:
     from runtime.errors import ModelError
     from tools.export.export_da3 import OPSET, ExportRequest, export_in_subprocess
 
     h, w = (int(v) for v in res.lower().split("x"))
-    path = CACHE / f"da3_{size}_{h}x{w}_op{OPSET}_random.onnx"
+    suffix = "" if precision == "fp32" else f"_{precision}"
+    path = CACHE / f"da3_{size}_{h}x{w}_op{OPSET}{suffix}_random.onnx"
     if path.is_file():
         return path, None
     t0 = time.perf_counter()
     try:
-        export_in_subprocess(ExportRequest(size=size, height=h, width=w, out=str(path), random_init=True))
+        export_in_subprocess(ExportRequest(size=size, height=h, width=w, out=str(path), random_init=True,
+                                           precision=precision))
     except ModelError as exc:
         raise SystemExit(
             f"da3-latency: cannot export the benchmark graph ({exc}); pass --model PATH"
@@ -96,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
     if args.model:
         path = Path(args.model)
     else:
-        path, export_s = _default_model(args.size, args.res)
+        path, export_s = _default_model(args.size, args.res, args.precision)
     rss0 = _rss_mb()
     cam = Pinhole(640, 480, 458.0, 457.0, 319.5, 239.5)
     t0 = time.perf_counter()
@@ -141,6 +145,7 @@ def run(args: argparse.Namespace) -> int:
         "benchmark": NAME,
         "model": str(path),
         "size": card.get("size"),
+        "precision": model.session.get_modelmeta().custom_metadata_map.get("davio.precision", "fp32"),
         "graph_hw": list(model.graph_hw),
         "views": n,
         "threads": args.threads,
@@ -162,7 +167,8 @@ def run(args: argparse.Namespace) -> int:
         print(strict_dumps(out))
         return 0
     print(
-        f"DA3 {out['size'] or '?'} {model.graph_hw[0]}x{model.graph_hw[1]}, N={n}, {args.threads} threads, "
+        f"DA3 {out['size'] or '?'} {out['precision']} {model.graph_hw[0]}x{model.graph_hw[1]}, N={n}, "
+        f"{args.threads} threads, "
         f"{out['providers'][0]} ({out['model_mb']} MB graph, load {out['load_s']} s, "
         f"first call {out['first_call_s']:.3f} s)"
     )

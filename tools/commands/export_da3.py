@@ -54,7 +54,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of random weights and check inputs")
     p.add_argument("--check-views", type=int, default=5, help="views N of the torch vs ONNX Runtime check")
     p.add_argument(
-        "--tolerance", type=float, default=1e-3, help="largest accepted relative error in the check"
+        "--tolerance",
+        type=float,
+        default=None,
+        help="largest accepted relative error in the check (default 1e-3 for fp32, 0.1 for fp16)",
+    )
+    p.add_argument(
+        "--precision",
+        default="fp32",
+        choices=["fp32", "fp16"],
+        help="fp16: the ViT backbone in float16, the heads and camera encoder/decoder in float32 (as "
+        "upstream's autocast), inputs and outputs float32; for GPUs (half the weights; BENCHMARKS.md, "
+        "'DA3 on a GPU'). The fp32 graph is checked first, the fp16 one on the CUDA provider where "
+        "there is one",
     )
     p.add_argument("--threads", type=int, default=2, help="torch / ONNX Runtime threads")
     p.add_argument(
@@ -81,7 +93,8 @@ def run(args: argparse.Namespace) -> int:
     from tools.export.export_da3 import ExportRequest, export_in_subprocess
 
     h, w = args.res
-    out = args.out or f"da3_{args.size}_{h}x{w}.onnx"
+    suffix = "_fp16" if args.precision == "fp16" else ""
+    out = args.out or f"da3_{args.size}_{h}x{w}{suffix}.onnx"
     req = ExportRequest(
         size=args.size,
         height=h,
@@ -94,6 +107,7 @@ def run(args: argparse.Namespace) -> int:
         tolerance=args.tolerance,
         threads=args.threads,
         opset=args.opset,
+        precision=args.precision,
     )
     card = export_in_subprocess(req)
     if args.json:
@@ -102,11 +116,16 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"wrote {out} ({card['parameters'] / 1e6:.1f}M parameters, "
         f"{card['resolution'][0]}x{card['resolution'][1]}, "
-        f"opset {card['opset']}, licence: {card['licence']})"
+        f"opset {card['opset']}, {card['precision']}, licence: {card['licence']})"
     )
+    if "fp32_check" in card:
+        fp16 = card["fp16"]
+        print(f"fp32 graph: ONNX Runtime vs torch, max relative error "
+              f"{card['fp32_check']['max_rel_error']:.2e}; {fp16['fp16_nodes']} of "
+              f"{fp16['fp16_nodes'] + fp16['fp32_nodes']} nodes now in fp16")
     print(
-        f"ONNX Runtime vs torch on {card['check']['views']} views: max relative error "
-        f"{card['check']['max_rel_error']:.2e} (tolerance {card['check']['tolerance']:g})"
+        f"ONNX Runtime ({card['check']['provider']}) vs torch on {card['check']['views']} views: max "
+        f"relative error {card['check']['max_rel_error']:.2e} (tolerance {card['check']['tolerance']:g})"
     )
     for key, e in card["check"]["errors"].items():
         print(f"  {key:<24} max abs {e['max_abs']:.2e}  max rel {e['max_rel']:.2e}")
