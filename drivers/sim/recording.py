@@ -154,6 +154,10 @@ def _trajectory_positions(traj: PoseTrajectory, T_IC: np.ndarray) -> np.ndarray:
     return np.concatenate([p, p + R @ T_IC[:3, 3]])
 
 
+KEEP_FRAMES_LIMIT_BYTES = 512 * 2**20
+"""`SimRecording.keep_frames`' default limit: about 1400 EuRoC-sized frames (70 s at 20 Hz)."""
+
+
 class SimRecording(Driver):
     """A simulated recording: scene, motion, IMU stream and lazily rendered frames.
 
@@ -183,6 +187,8 @@ class SimRecording(Driver):
         self.info = dict(info)
         self.time_offset_ns = int(round((rig.time_offset_s or 0.0) * 1e9))
         self._renderer: Renderer | None = None
+        self._kept: dict[int, Frame] | None = None   # keep_frames(): rendered frames by index
+        self._kept_bytes = self._keep_limit_bytes = 0
         self.gt_source = GroundTruthSource(scene, motion, rig.T_IC, self.time_offset_ns)
         self._report = IntakeReport("sim", self.info.get("source", "simulator"))
         self._report.note(
@@ -389,6 +395,30 @@ class SimRecording(Driver):
         meta = {"simulated": True, "exposure_gain": self.renderer.exposure_gain(t_s)}
         return Frame(t_cam, image, 0, meta=meta), view
 
+    def keep_frames(self, limit_bytes: int = KEEP_FRAMES_LIMIT_BYTES) -> None:
+        """Keep the frames `events()` renders, up to `limit_bytes` of images, so that a later pass over the
+        recording (the demo's native-only race) replays them instead of rendering them again."""
+        if limit_bytes < 0:
+            raise ValueError(f"limit_bytes must be >= 0, got {limit_bytes}")
+        self._kept, self._kept_bytes, self._keep_limit_bytes = {}, 0, int(limit_bytes)
+
+    @property
+    def kept_frames(self) -> int:
+        """How many rendered frames `keep_frames` holds."""
+        return 0 if self._kept is None else len(self._kept)
+
+    def _frame(self, index: int) -> Frame:
+        """Frame `index`: a copy of the kept one, else rendered (and kept while the limit allows)."""
+        kept = self._kept
+        if kept is not None and index in kept:
+            f = kept[index]
+            return Frame(f.t_ns, f.image.copy(), f.camera_id, meta=dict(f.meta))
+        frame, _ = self.render(index)
+        if kept is not None and self._kept_bytes + frame.image.nbytes <= self._keep_limit_bytes:
+            kept[index] = Frame(frame.t_ns, frame.image.copy(), frame.camera_id, meta=dict(frame.meta))
+            self._kept_bytes += frame.image.nbytes
+        return frame
+
     def events(self) -> Iterator[ImuSample | Frame]:
         """IMU samples and lazily rendered frames in stamp order (IMU first at equal stamps)."""
         cam = self._report.stream("cam0")
@@ -404,7 +434,7 @@ class SimRecording(Driver):
                 yield ImuSample(int(ti[i]), self.imu.gyro[i].copy(), self.imu.accel[i].copy())
                 i += 1
             else:
-                frame, _ = self.render(f)
+                frame = self._frame(f)
                 cam.emitted += 1
                 yield frame
                 f += 1

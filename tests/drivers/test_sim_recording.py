@@ -141,3 +141,38 @@ def test_a_gap_in_the_trajectory_is_noted() -> None:
     (note,) = trajectory_gap_notes(gappy)
     assert "1 gap(s) longer than 0.2 s (the longest 2.01 s, 1.00 s after its first pose)" in note
     assert "makes up the motion" in note
+
+
+def test_kept_frames_replay_without_rendering_again(small_rig, monkeypatch) -> None:
+    """keep_frames: the second pass yields the same frames (stamps, pixels, meta) with no render call; a
+    consumer changing a frame in place does not change the kept copy; the byte limit is honoured."""
+    rec = SimRecording.from_preset(SimConfig(seconds=1.0, seed=3), rig=small_rig)
+    renders = []
+    original = SimRecording.render
+
+    def counting(self, index):
+        renders.append(index)
+        return original(self, index)
+
+    monkeypatch.setattr(SimRecording, "render", counting)
+    fresh = [e for e in rec.events() if isinstance(e, Frame)]   # before keep_frames: nothing kept
+    assert rec.kept_frames == 0 and len(renders) == len(rec)
+    rec.keep_frames()
+    first = [e for e in rec.events() if isinstance(e, Frame)]
+    assert rec.kept_frames == len(rec) and len(renders) == 2 * len(rec)
+    for f in first:
+        f.image[:] = 0          # a consumer writing into its frame
+    second = [e for e in rec.events() if isinstance(e, Frame)]
+    assert len(renders) == 2 * len(rec)          # replayed, not rendered
+    assert rec.report()["streams"]["cam0"]["emitted"] == len(rec)
+    for a, b in zip(fresh, second, strict=True):
+        assert a.t_ns == b.t_ns and a.meta == b.meta and a.camera_id == b.camera_id
+        np.testing.assert_array_equal(a.image, b.image)
+    # a limit of three images keeps the first three frames only; the others are rendered each pass
+    rec.keep_frames(limit_bytes=3 * fresh[0].image.nbytes)
+    renders.clear()
+    list(rec.events())
+    list(rec.events())
+    assert rec.kept_frames == 3 and len(renders) == 2 * len(rec) - 3
+    with pytest.raises(ValueError, match="limit_bytes"):
+        rec.keep_frames(limit_bytes=-1)

@@ -83,6 +83,8 @@ def run(args: argparse.Namespace) -> int:
     folder.create()
     with folder.discard_on_error(), interruptible():
         rec = SimRecording.from_preset(SimConfig(preset=args.preset, seconds=args.seconds, seed=args.seed))
+        if not (args.native_only or args.no_race):
+            rec.keep_frames()   # the native-only race replays the frames instead of rendering them again
         cam = rec.rig.camera
         model = None
         if not args.native_only:
