@@ -71,8 +71,8 @@ def inspect_model(path: str | Path, load_session: bool = True) -> dict:
             # measured (BENCHMARKS.md, DA3 on a GPU): on an H200 0.56x the fp32 session time (Base, 5 views);
             # on 16 CPU cores 2.1x the fp32 time (Small)
             note = ("fp16 graph (backbone in float16, inputs and outputs float32): for the CUDA provider, "
-                    "where it ran in about 0.5-0.6x the fp32 time; the CPU provider runs it at about half "
-                    "the fp32 speed")
+                    "where its session took 0.46-0.63x the fp32 time (a whole call 0.57-0.76x); the CPU "
+                    "provider runs it at about half the fp32 speed")
             info["note"] = f"{info['note']}; {note}" if "note" in info else note
     card = model_card_path(path)
     if card.is_file():

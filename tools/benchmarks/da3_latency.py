@@ -145,7 +145,7 @@ def run(args: argparse.Namespace) -> int:
         "benchmark": NAME,
         "model": str(path),
         "size": card.get("size"),
-        "precision": model.session.get_modelmeta().custom_metadata_map.get("davio.precision", "fp32"),
+        "precision": model.precision,
         "graph_hw": list(model.graph_hw),
         "views": n,
         "threads": args.threads,

@@ -28,7 +28,9 @@ F32, F16 = TensorProto.FLOAT, TensorProto.FLOAT16
 SCOPE_KEY = "pkg.torch.onnx.name_scopes"
 #: the module (in the export wrapper `SingleGraph`) whose nodes run in fp16
 FP16_SCOPE = "net.backbone"
-#: ops kept in fp32 wherever they sit: exp overflows fp16 above ~11, trigonometry loses its digits
+#: ops computed in fp32 wherever they sit (trigonometry and powers lose digits in fp16). Their outputs are
+#: cast back to fp16 for region nodes that read them: what keeps the heads' `exp` (which overflows fp16
+#: above ~11) in fp32 is that the heads lie outside the region, not this list.
 KEEP_FP32_OPS = ("Exp", "Log", "Pow", "Sin", "Cos", "Tan", "Atan", "Acos", "Asin", "Reciprocal", "Range",
                  "CumSum", "RandomNormal", "RandomUniform", "RandomNormalLike", "RandomUniformLike")
 #: inputs (by index) that ONNX types as float32 whatever the data's type (Resize's roi and scales)
@@ -96,11 +98,19 @@ def to_mixed_fp16(model, scope: str = FP16_SCOPE, where: str = "graph"):
     summary: {"fp16_nodes", "fp32_nodes", "unscoped_nodes", "fp16_ops": {op: count}, "casts"}; unscoped
     nodes (no exporter metadata, e.g. made by the optimiser) stay fp32.
 
+    Nodes stay fp32, too, when a float input or output has no type ONNX can tell, and when their float
+    outputs feed only inputs ONNX types as float32 (e.g. Resize's scales), so such values are not rounded.
+
     Raises:
-        ModelError: no node carries the exporter's scope metadata, or none lies inside `scope`.
+        ModelError: no node carries the exporter's scope metadata, none lies inside `scope`, or the graph
+            holds subgraphs (If, Loop, Scan: not rewritten).
     """
     g = model.graph
     nodes = list(g.node)
+    graphs = (onnx.AttributeProto.GRAPH, onnx.AttributeProto.GRAPHS)
+    if any(a.type in graphs for n in nodes for a in n.attribute):
+        raise ModelError(f"{where}: the graph holds subgraphs (If/Loop/Scan); the fp16 rewrite does not "
+                         "handle them: use the fp32 graph")
     scoped = [n for n in nodes if node_scopes(n) is not None]
     if not scoped:
         raise ModelError(
@@ -110,22 +120,55 @@ def to_mixed_fp16(model, scope: str = FP16_SCOPE, where: str = "graph"):
     types = _elem_types(model)
 
     def eligible(n) -> bool:
-        graphs = (onnx.AttributeProto.GRAPH, onnx.AttributeProto.GRAPHS)
-        if any(a.type in graphs for a in n.attribute) or n.domain not in ("", "ai.onnx"):
+        if n.domain not in ("", "ai.onnx") or not in_scope(n, scope) or n.op_type in KEEP_FP32_OPS:
             return False
-        return in_scope(n, scope) and n.op_type not in KEEP_FP32_OPS
+        return all(name in types for name in list(n.input) + list(n.output) if name)
 
     half_ids = {id(n) for n in nodes if eligible(n)}
+    # nodes whose float outputs go only into float32-only inputs (and nodes feeding only those) stay fp32
+    readers: dict[str, list[tuple[object, int]]] = {}
+    for n in nodes:
+        for i, name in enumerate(n.input):
+            readers.setdefault(name, []).append((n, i))
+    outputs = {o.name for o in g.output}
+    keep_f32: set[int] = set()
+    changed = True
+    while changed:
+        changed = False
+        for n in nodes:
+            if id(n) not in half_ids or id(n) in keep_f32:
+                continue
+            floats = [o for o in n.output if o and types.get(o) == F32]
+            if floats and not any(o in outputs for o in floats) and all(
+                readers.get(o) and all(id(r) in keep_f32 or i in FLOAT32_INPUTS.get(r.op_type, ())
+                                       for r, i in readers[o])
+                for o in floats
+            ):
+                keep_f32.add(id(n))
+                changed = True
+    half_ids -= keep_f32
     if not half_ids:
         raise ModelError(f"{where}: no node lies inside module {scope!r}; nothing to run in fp16")
+    taken = {name for n in nodes for name in list(n.input) + list(n.output)}
+    taken |= {t.name for t in g.initializer} | {i.name for i in g.input} | outputs
+
+    def fresh(base: str) -> str:
+        name, k = base, 1
+        while name in taken:
+            name, k = f"{base}_{k}", k + 1
+        taken.add(name)
+        return name
+
     is_half = {o: id(n) in half_ids for n in nodes for o in n.output if o}
-    renamed = {o: f"{o}__fp16" for n in nodes if id(n) in half_ids for o in n.output if types.get(o) == F32}
+    renamed = {o: fresh(f"{o}__fp16") for n in nodes if id(n) in half_ids for o in n.output
+               if types.get(o) == F32}
     needs_f32 = {o.name for o in g.output}
     for n in nodes:
         for i, name in enumerate(n.input):
             if id(n) not in half_ids or i in FLOAT32_INPUTS.get(n.op_type, ()):
                 needs_f32.add(name)
-    inits = {t.name: t for t in g.initializer}
+    graph_inputs = {i.name for i in g.input}   # an initializer that is also an input is fed at run time
+    inits = {t.name: t for t in g.initializer if t.name not in graph_inputs}
     to_half: dict[str, str] = {}  # fp32 tensor from outside the region -> its fp16 twin
     new_inits, out_nodes, casts = [], [], 0
     for n in nodes:
@@ -137,13 +180,13 @@ def to_mixed_fp16(model, scope: str = FP16_SCOPE, where: str = "graph"):
                     n.input[i] = renamed[name]
                 elif types.get(name) == F32 and not is_half.get(name, False):
                     if name not in to_half:
-                        to_half[name] = f"{name}__to_fp16"
+                        to_half[name] = fresh(f"{name}__to_fp16")
                         if name in inits:
                             arr = numpy_helper.to_array(inits[name]).astype(np.float16)
                             new_inits.append(numpy_helper.from_array(arr, to_half[name]))
                         else:
                             out_nodes.append(helper.make_node("Cast", [name], [to_half[name]], to=F16,
-                                                              name=f"{to_half[name]}_cast"))
+                                                              name=fresh(f"{to_half[name]}_cast")))
                             casts += 1
                     n.input[i] = to_half[name]
             _attrs_to_fp16(n)
@@ -153,7 +196,7 @@ def to_mixed_fp16(model, scope: str = FP16_SCOPE, where: str = "graph"):
                     n.output[i] = renamed[name]
                     if name in needs_f32:
                         out_nodes.append(helper.make_node("Cast", [renamed[name]], [name], to=F32,
-                                                          name=f"{name}__to_fp32_cast"))
+                                                          name=fresh(f"{name}__to_fp32_cast")))
                         casts += 1
         else:
             out_nodes.append(n)
