@@ -402,6 +402,10 @@ class SimRecording(Driver):
             raise ValueError(f"limit_bytes must be >= 0, got {limit_bytes}")
         self._kept, self._kept_bytes, self._keep_limit_bytes = {}, 0, int(limit_bytes)
 
+    def release_frames(self) -> None:
+        """Drop the kept frames (and stop keeping): later passes render again."""
+        self._kept, self._kept_bytes = None, 0
+
     @property
     def kept_frames(self) -> int:
         """How many rendered frames `keep_frames` holds."""

@@ -168,6 +168,17 @@ def test_kept_frames_replay_without_rendering_again(small_rig, monkeypatch) -> N
     for a, b in zip(fresh, second, strict=True):
         assert a.t_ns == b.t_ns and a.meta == b.meta and a.camera_id == b.camera_id
         np.testing.assert_array_equal(a.image, b.image)
+    for f in second:            # a consumer writing into replayed frames does not reach the kept ones
+        f.image[:] = 0
+        f.meta["written"] = True
+    third = [e for e in rec.events() if isinstance(e, Frame)]
+    for a, b in zip(fresh, third, strict=True):
+        assert a.meta == b.meta
+        np.testing.assert_array_equal(a.image, b.image)
+    rec.release_frames()
+    assert rec.kept_frames == 0
+    list(rec.events())
+    assert len(renders) == 3 * len(rec)        # released: rendered again
     # a limit of three images keeps the first three frames only; the others are rendered each pass
     rec.keep_frames(limit_bytes=3 * fresh[0].image.nbytes)
     renders.clear()

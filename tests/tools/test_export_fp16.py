@@ -17,14 +17,14 @@ from tools.export.fp16 import SCOPE_KEY, graph_precision, to_mixed_fp16
 F32, F16 = TensorProto.FLOAT, TensorProto.FLOAT16
 
 
-def build_da3_contract_graph(path: Path) -> Path:
+def build_da3_contract_graph(path: Path, variant: str = "ok") -> Path:
     """tests/models/da3_contract_graph.py's contract graph (that folder is not on this file's path)."""
     spec = importlib.util.spec_from_file_location(
         "da3_contract_graph", Path(__file__).resolve().parents[1] / "models" / "da3_contract_graph.py"
     )
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
-    return module.build_da3_contract_graph(path)
+    return module.build_da3_contract_graph(path, variant=variant)
 
 
 def _scope(node, module: str) -> None:
@@ -207,7 +207,7 @@ def _region_model(nodes, inputs, outputs, inits=(), opset: int = 23):
 
 
 def test_values_that_feed_float32_only_inputs_are_not_rounded():
-    """Resize scales computed in the region (0.57 = 0.3 + 0.27): through fp16 they would round to 0.5698 and
+    """Resize scales computed in the region (0.57 = 0.5 + 0.07): through fp16 they would round to 0.5698 and
     the output width of 100 pixels would be 56, not 57; the scale chain stays fp32."""
     x = helper.make_tensor_value_info("x", F32, [1, 1, 1, 100])
     y = helper.make_tensor_value_info("y", F32, None)
@@ -217,8 +217,8 @@ def test_values_that_feed_float32_only_inputs_are_not_rounded():
         helper.make_node("Mul", ["x", "two"], ["x2"], name="mul"),
         helper.make_node("Resize", ["x2", "", "scales"], ["y"], mode="linear", name="resize"),
     ]
-    inits = [numpy_helper.from_array(np.array([0.3], np.float32), "a"),
-             numpy_helper.from_array(np.array([0.27], np.float32), "b"),
+    inits = [numpy_helper.from_array(np.array([0.5], np.float32), "a"),
+             numpy_helper.from_array(np.array([0.07], np.float32), "b"),
              numpy_helper.from_array(np.ones(3, np.float32), "ones"),
              numpy_helper.from_array(np.array(2.0, np.float32), "two")]
     model = _region_model(nodes, [x], [y], inits)
@@ -270,6 +270,15 @@ def test_names_stay_unique_and_fed_initializers_are_cast():
     x_val = np.arange(4, dtype=np.float32)
     np.testing.assert_array_equal(_run(half, {"x": x_val})[0], 2 * x_val)              # the default w = 1
     np.testing.assert_array_equal(_run(half, {"x": x_val, "w": np.full(4, 3.0, np.float32)})[0], 6 * x_val)
+    # a graph *input* named `a__fp16` keeps its name: the fp16 twin of `a` must be called otherwise
+    taken = helper.make_tensor_value_info("a__fp16", F32, [4])
+    nodes = [helper.make_node("Mul", ["x", "w"], ["a"], name="mul"),
+             helper.make_node("Sub", ["a", "a__fp16"], ["y"], name="sub")]
+    ones = numpy_helper.from_array(np.ones(4, np.float32), "w")
+    model = _region_model(nodes, [x, w_in, taken], [y], [ones])
+    half, _ = to_mixed_fp16(model)
+    onnx.checker.check_model(half, full_check=True)
+    np.testing.assert_array_equal(_run(half, {"x": x_val, "a__fp16": np.ones(4, np.float32)})[0], x_val - 1)
     branch = helper.make_graph([helper.make_node("Identity", ["x"], ["z"])], "b", [],
                                [helper.make_tensor_value_info("z", F32, [4])])
     cond = helper.make_node("If", ["c"], ["y"], then_branch=branch, else_branch=branch, name="if")
@@ -296,15 +305,14 @@ def test_the_export_checks_count_non_finite_outputs_and_remove_a_failed_rewrite(
     ok = build_da3_contract_graph(tmp_path / "ok.onnx")
     refs = run_graph(ok, inputs, threads=1)
     assert worst_error(compare_with_onnxruntime(ok, inputs, refs, threads=1)) == 0.0
-    spec = importlib.util.spec_from_file_location(
-        "da3_contract_graph", Path(__file__).resolve().parents[1] / "models" / "da3_contract_graph.py"
-    )
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    nan = module.build_da3_contract_graph(tmp_path / "nan.onnx", variant="nan_depth")
+    nan = build_da3_contract_graph(tmp_path / "nan.onnx", variant="nan_depth")
     errors = compare_with_onnxruntime(nan, inputs, refs, threads=1)
     assert errors["cond.depth"]["nonfinite"] > 0 and errors["cond.conf"]["nonfinite"] == 0
     assert worst_error(errors) == float("inf")
+    # a NaN in the reference (the fp32 graph's outputs in the fp16-against-fp32 check) counts as well
+    nan_refs = run_graph(nan, inputs, threads=1)
+    errors = compare_with_onnxruntime(ok, inputs, nan_refs, threads=1)
+    assert errors["uncond.depth"]["nonfinite"] > 0 and worst_error(errors) == float("inf")
 
     scoped = tmp_path / "scoped_fp16.onnx"
     onnx.save(_contract_model(tmp_path), scoped)

@@ -105,6 +105,7 @@ def run(args: argparse.Namespace) -> int:
         judge(res, None)
         native = None if model is None or args.no_race or res.status != "complete" else \
             _native_only(rec, config, args)
+        rec.release_frames()   # the race is over (or skipped): the images need not outlive it
         gt = rec.groundtruth()
         write_tum(folder.path / "groundtruth.tum", gt)   # evo_ape tum groundtruth.tum odometry.tum -a
         report = write_run(folder.path, res.pipeline, res.scheduler, gt,

@@ -237,7 +237,7 @@ def run_graph(path: Path, inputs: dict, threads: int, providers: list[str] | Non
 
 def output_errors(got: dict, refs: dict, where: Path) -> dict:
     """Per mode and output: max_abs, max_rel (max_abs over the reference's largest magnitude) and the count
-    of non-finite values; any non-finite value makes max_rel infinite (written as null)."""
+    of non-finite values in the output or its reference; any makes max_rel infinite (written as null)."""
     import numpy as np
 
     errors = {}
@@ -245,11 +245,11 @@ def output_errors(got: dict, refs: dict, where: Path) -> dict:
         for name, g, r in zip(OUTPUT_NAMES, got[mode], ref, strict=True):
             if g.shape != r.shape:
                 raise ModelError(f"{where}: output {name} has shape {g.shape}, the reference {r.shape}")
-            bad = int(g.size - np.count_nonzero(np.isfinite(g)))
+            bad = int(g.size - np.count_nonzero(np.isfinite(g)) + r.size - np.count_nonzero(np.isfinite(r)))
             abs_err = float(np.abs(g - r).max()) if not bad else float("inf")
             errors[f"{mode}.{name}"] = {
                 "max_abs": abs_err,
-                "max_rel": abs_err / max(float(np.abs(r).max()), 1e-12),
+                "max_rel": abs_err / max(float(np.abs(r).max()), 1e-12) if not bad else float("inf"),
                 "nonfinite": bad,
             }
     return errors
