@@ -231,6 +231,33 @@ def test_values_that_feed_float32_only_inputs_are_not_rounded():
     np.testing.assert_allclose(got, ref, atol=2e-3)
 
 
+def test_a_scale_chain_through_an_fp32_op_is_not_rounded():
+    """Scales 1 / (1000 + 0.3) built in the region with a Reciprocal (an op kept fp32 wherever it sits): in
+    fp16 the sum rounds to 1000.5 and 5002 pixels would give floor(4.9995) = 4, not floor(5.0005) = 5. The
+    Add feeds the float32-only input only through the Reciprocal: it stays fp32 as well."""
+    x = helper.make_tensor_value_info("x", F32, [1, 1, 1, 5002])
+    y = helper.make_tensor_value_info("y", F32, None)
+    nodes = [
+        helper.make_node("Add", ["a", "b"], ["s"], name="sum"),
+        helper.make_node("Reciprocal", ["s"], ["rs"], name="reciprocal"),
+        helper.make_node("Concat", ["ones", "rs"], ["scales"], axis=0, name="scales"),
+        helper.make_node("Mul", ["x", "two"], ["x2"], name="mul"),
+        helper.make_node("Resize", ["x2", "", "scales"], ["y"], mode="nearest", name="resize"),
+    ]
+    inits = [numpy_helper.from_array(np.array([1000.0], np.float32), "a"),
+             numpy_helper.from_array(np.array([0.3], np.float32), "b"),
+             numpy_helper.from_array(np.ones(3, np.float32), "ones"),
+             numpy_helper.from_array(np.array(2.0, np.float32), "two")]
+    model = _region_model(nodes, [x], [y], inits)
+    feeds = {"x": np.linspace(0, 1, 5002, dtype=np.float32).reshape(1, 1, 1, 5002)}
+    ref = _run(model, feeds)[0]
+    half, summary = to_mixed_fp16(model)
+    assert summary["fp16_ops"] == {"Mul": 1, "Resize": 1}
+    got = _run(half, feeds)[0]
+    assert got.shape == ref.shape == (1, 1, 1, 5)
+    np.testing.assert_allclose(got, ref, atol=2e-3)
+
+
 def test_untyped_tensors_keep_their_nodes_in_fp32():
     """A custom-domain node's output has no type ONNX can infer: the node reading it stays fp32 (it was
     given an fp16 weight beside an fp32 activation before, which ONNX Runtime refused)."""
@@ -259,7 +286,7 @@ def test_names_stay_unique_and_fed_initializers_are_cast():
     y = helper.make_tensor_value_info("y", F32, [4])
     nodes = [
         helper.make_node("Mul", ["x", "w"], ["a"], name="mul"),
-        helper.make_node("Neg", ["a"], ["a__fp16"], name="neg"),
+        helper.make_node("Neg", ["a"], ["a__fp16"], name="x__to_fp16_cast"),   # a name the rewrite would use
         helper.make_node("Sub", ["a", "a__fp16"], ["y"], name="sub"),      # y = 2 x w
     ]
     model = _region_model(nodes, [x, w_in], [y], [numpy_helper.from_array(np.ones(4, np.float32), "w")])
@@ -267,6 +294,8 @@ def test_names_stay_unique_and_fed_initializers_are_cast():
     onnx.checker.check_model(half, full_check=True)
     produced = [o for n in half.graph.node for o in n.output]
     assert len(produced) == len(set(produced))
+    names = [n.name for n in half.graph.node]
+    assert len(names) == len(set(names)) and "x__to_fp16_cast" in names
     x_val = np.arange(4, dtype=np.float32)
     np.testing.assert_array_equal(_run(half, {"x": x_val})[0], 2 * x_val)              # the default w = 1
     np.testing.assert_array_equal(_run(half, {"x": x_val, "w": np.full(4, 3.0, np.float32)})[0], 6 * x_val)
@@ -292,26 +321,21 @@ def test_the_export_checks_count_non_finite_outputs_and_remove_a_failed_rewrite(
     a NaN through); the fp16 stage on a scoped graph checks against the references and the fp32 graph on the
     same provider; a rewrite that fails removes the file and its card instead of leaving an fp32 graph under
     the fp16 name."""
-    from tools.export.export_da3 import (
-        ExportRequest,
-        _to_fp16_and_check,
-        check_inputs,
-        compare_with_onnxruntime,
-        run_graph,
-        worst_error,
-    )
+    from tools.export.da3_check import check_inputs, compare_with_onnxruntime, run_graph, worst_error
+    from tools.export.export_da3 import ExportRequest, _to_fp16_and_check
 
     inputs = check_inputs(3, 28, 42, seed=1)
     ok = build_da3_contract_graph(tmp_path / "ok.onnx")
-    refs = run_graph(ok, inputs, threads=1)
-    assert worst_error(compare_with_onnxruntime(ok, inputs, refs, threads=1)) == 0.0
+    refs, provider = run_graph(ok, inputs, threads=1)
+    assert provider == "CPUExecutionProvider"
+    assert worst_error(compare_with_onnxruntime(ok, inputs, refs, threads=1)[0]) == 0.0
     nan = build_da3_contract_graph(tmp_path / "nan.onnx", variant="nan_depth")
-    errors = compare_with_onnxruntime(nan, inputs, refs, threads=1)
+    errors, _ = compare_with_onnxruntime(nan, inputs, refs, threads=1)
     assert errors["cond.depth"]["nonfinite"] > 0 and errors["cond.conf"]["nonfinite"] == 0
     assert worst_error(errors) == float("inf")
     # a NaN in the reference (the fp32 graph's outputs in the fp16-against-fp32 check) counts as well
-    nan_refs = run_graph(nan, inputs, threads=1)
-    errors = compare_with_onnxruntime(ok, inputs, nan_refs, threads=1)
+    nan_refs, _ = run_graph(nan, inputs, threads=1)
+    errors, _ = compare_with_onnxruntime(ok, inputs, nan_refs, threads=1)
     assert errors["uncond.depth"]["nonfinite"] > 0 and worst_error(errors) == float("inf")
 
     scoped = tmp_path / "scoped_fp16.onnx"
@@ -319,6 +343,7 @@ def test_the_export_checks_count_non_finite_outputs_and_remove_a_failed_rewrite(
     req = ExportRequest("tiny", 28, 42, str(scoped), random_init=True, threads=1, precision="fp16")
     summary, check = _to_fp16_and_check(scoped, inputs, refs, req, n_params=10)
     assert summary["fp16_nodes"] == 4 and check["provider"] == "CPUExecutionProvider"
+    assert check["vs_fp32"]["fp32_provider"] == "CPUExecutionProvider"
     assert 0 < check["vs_fp32"]["max_rel_error"] < 1e-3 and check["tolerance"] == 0.1
     assert check["errors"]["uncond.conf"]["max_abs"] == 0.0      # outside the region: exact
     assert graph_precision(onnx.load(scoped)) == "fp16"

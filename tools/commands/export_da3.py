@@ -120,6 +120,8 @@ def run(args: argparse.Namespace) -> int:
         f"{card['resolution'][0]}x{card['resolution'][1]}, "
         f"opset {card['opset']}, {card['precision']}, licence: {card['licence']})"
     )
+    if card.get("data_file"):
+        print(f"its weights are in {card['data_file']} beside it (over 2 GiB): keep the two together")
     if "fp32_check" in card:
         fp16 = card["fp16"]
         print(f"fp32 graph: ONNX Runtime vs torch, max relative error "

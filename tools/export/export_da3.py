@@ -26,9 +26,24 @@ from models.da3.contract import CONTRACT, CONTRACT_VERSION, MAX_VIEWS, MIN_VIEWS
 from runtime.errors import ModelError
 from runtime.files import sha256_file
 from runtime.json_out import strict_dumps
+from tools.export.da3_check import (
+    INPUT_NAMES,
+    OUTPUT_NAMES,
+    check_inputs,
+    compare_with_onnxruntime,
+    output_errors,
+    run_graph,
+    worst_error,
+)
+from tools.export.graph_files import (
+    EXTERNAL_DATA_BYTES,
+    data_path,
+    move_into_place,
+    remove_graph,
+    save_graph,
+    temporary_path,
+)
 
-INPUT_NAMES = ["images", "intrinsics", "extrinsics", "use_pose"]
-OUTPUT_NAMES = ["depth", "conf", "pred_extrinsics", "pred_intrinsics"]
 #: the default: attention as ONNX's own `Attention` and `RotaryEmbedding` operators (ONNX Runtime >= 1.23).
 #: DA3-Base, 5 views: 3.7 GiB of an H100 instead of 10.7 GiB, 44 ms instead of 48; on 2 CPU cores, DA3-Small
 #: at the same speed in half the memory (BENCHMARKS.md, "DA3 on a GPU")
@@ -172,25 +187,6 @@ def single_graph(net):
     return SingleGraph(net).eval()
 
 
-def check_inputs(n: int, height: int, width: int, seed: int) -> dict:
-    """Random contract inputs: images ~ N(0,1), plausible K, normalised poses (view 0 = I)."""
-    import numpy as np
-
-    rng = np.random.default_rng(seed)
-    images = rng.normal(size=(1, n, 3, height, width)).astype(np.float32)
-    K = np.tile(
-        np.array([[0.8 * width, 0, width / 2], [0, 0.8 * width, height / 2], [0, 0, 1]]), (1, n, 1, 1)
-    )
-    E = np.tile(np.eye(4), (1, n, 1, 1))
-    for i in range(1, n):
-        w = rng.normal(scale=0.1, size=3)
-        th = np.linalg.norm(w)
-        k = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]]) / th
-        E[0, i, :3, :3] = np.eye(3) + np.sin(th) * k + (1 - np.cos(th)) * k @ k
-        E[0, i, :3, 3] = rng.normal(scale=0.5, size=3)
-    return {"images": images, "intrinsics": K.astype(np.float32), "extrinsics": E.astype(np.float32)}
-
-
 def torch_reference(net, inputs: dict) -> dict:
     """Upstream eager forward (unpatched): unconditioned with the first view as reference, and
     conditioned on (K, E). Returns {mode: [depth, conf, w2c(3x4), K]} as numpy."""
@@ -215,57 +211,6 @@ def torch_reference(net, inputs: dict) -> dict:
             ]
     _clear_caches(net)
     return refs
-
-
-def run_graph(path: Path, inputs: dict, threads: int, providers: list[str] | None = None) -> dict:
-    """The graph's outputs on the check `inputs` (the CPU provider unless `providers` says otherwise):
-    {"uncond" | "cond": [depth, conf, pred_extrinsics, pred_intrinsics]}, after checking that it takes
-    the smallest window (N = 2) too."""
-    import numpy as np
-
-    from models.providers import CPU, create_session
-
-    sess, _ = create_session(path, providers=providers or [CPU], threads=threads)
-    got = {mode: sess.run(OUTPUT_NAMES, dict(inputs, use_pose=np.array([mode == "cond"])))
-           for mode in ("uncond", "cond")}
-    n2 = {k: v[:, :2] for k, v in inputs.items()}  # dynamic N: the smallest window runs too
-    small = sess.run(OUTPUT_NAMES, dict(n2, use_pose=np.array([True])))
-    if small[0].shape[1] != 2:
-        raise ModelError(f"{path}: the graph does not accept N=2 views (output {small[0].shape})")
-    return got
-
-
-def output_errors(got: dict, refs: dict, where: Path) -> dict:
-    """Per mode and output: max_abs, max_rel (max_abs over the reference's largest magnitude) and the count
-    of non-finite values in the output or its reference; any makes max_rel infinite (written as null)."""
-    import numpy as np
-
-    errors = {}
-    for mode, ref in refs.items():
-        for name, g, r in zip(OUTPUT_NAMES, got[mode], ref, strict=True):
-            if g.shape != r.shape:
-                raise ModelError(f"{where}: output {name} has shape {g.shape}, the reference {r.shape}")
-            bad = int(g.size - np.count_nonzero(np.isfinite(g)) + r.size - np.count_nonzero(np.isfinite(r)))
-            abs_err = float(np.abs(g - r).max()) if not bad else float("inf")
-            errors[f"{mode}.{name}"] = {
-                "max_abs": abs_err,
-                "max_rel": abs_err / max(float(np.abs(r).max()), 1e-12) if not bad else float("inf"),
-                "nonfinite": bad,
-            }
-    return errors
-
-
-def worst_error(errors: dict) -> float:
-    """The largest max_rel of `errors` (infinite when any output held a non-finite value)."""
-    return max((float("inf") if v["nonfinite"] else v["max_rel"]) for v in errors.values())
-
-
-def compare_with_onnxruntime(
-    path: Path, inputs: dict, refs: dict, threads: int, providers: list[str] | None = None
-) -> dict:
-    """`output_errors` of ORT (the CPU provider unless `providers` says otherwise) against the torch
-    references."""
-    return output_errors(run_graph(path, inputs, threads, providers), refs, path)
 
 
 def _versions() -> dict:
@@ -329,23 +274,11 @@ def export_da3(req: ExportRequest) -> dict:
     }
     program.model.metadata_props.update(meta)
     n_params = sum(p.numel() for p in net.parameters())
-    tmp = out.with_name(out.name + ".tmp")
-    program.save(str(tmp), external_data=n_params * 4 > 1.8e9)
-    os.replace(tmp, out)
+    tmp = temporary_path(out)
+    data_path(tmp).unlink(missing_ok=True)   # a left-over data file would be appended to
+    program.save(str(tmp), external_data=n_params * 4 > EXTERNAL_DATA_BYTES)
+    move_into_place(tmp, out)   # the exporter names the data after `tmp`: it becomes `<out>.data`
     export_s = time.perf_counter() - t1
-    # --tolerance is the fp16 graph's under --precision fp16; the fp32 graph before it is held to 1e-3
-    fp32_tolerance = TOLERANCE["fp32"]
-    if req.precision == "fp32" and req.tolerance is not None:
-        fp32_tolerance = req.tolerance
-    errors = compare_with_onnxruntime(out, inputs, refs, req.threads)
-    check = {
-        "views": req.check_views,
-        "seed": req.seed + 1,
-        "provider": "CPUExecutionProvider",
-        "errors": errors,
-        "max_rel_error": worst_error(errors),
-        "tolerance": fp32_tolerance,
-    }
     card = {
         "contract": CONTRACT,
         "contract_version": CONTRACT_VERSION,
@@ -360,27 +293,55 @@ def export_da3(req: ExportRequest) -> dict:
         **ckpt,
         "parameters": n_params,
         "file": out.name,
-        "sha256": sha256_file(out),
-        "check": check,
         "export_versions": _versions(),
         "export_seconds": round(export_s, 2),
         "total_seconds": None,
         "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }
+    return check_and_write_card(out, inputs, refs, req, card, started=t0)
+
+
+def check_and_write_card(out: Path, inputs: dict, refs: dict, req: ExportRequest, card: dict,
+                         started: float | None = None) -> dict:
+    """Check the fp32 graph at `out` against `refs` (torch's outputs) on the CPU provider, make and check
+    its fp16 rewrite under `req.precision` fp16, and write `card` (completed with the checks, hashes, data
+    file and, from `started` (a time.perf_counter()), total_seconds) beside `out`; returns the card.
+
+    Raises:
+        ModelError: a check failed. A failed fp32 graph is kept for inspection under `--precision fp32`;
+            under fp16 it is removed (no fp32 graph under the name asked for an fp16 one), the card stays.
+    """
+    # --tolerance is the fp16 graph's under --precision fp16; the fp32 graph before it is held to 1e-3
+    fp32_tolerance = TOLERANCE["fp32"]
+    if req.precision == "fp32" and req.tolerance is not None:
+        fp32_tolerance = req.tolerance
+    errors, provider = compare_with_onnxruntime(out, inputs, refs, req.threads)
+    check = {
+        "views": req.check_views,
+        "seed": req.seed + 1,
+        "provider": provider,
+        "errors": errors,
+        "max_rel_error": worst_error(errors),
+        "tolerance": fp32_tolerance,
+    }
+    card = dict(card, sha256=sha256_file(out), **_data_file(out), check=check)
     fp32_ok = check["max_rel_error"] <= fp32_tolerance
-    if not fp32_ok:
-        card["precision"] = "fp32"   # what the file holds: the fp16 rewrite was not made
+    if not fp32_ok and req.precision == "fp16":
+        remove_graph(out)
+        card.update(file=None, sha256=None, removed="the fp32 graph failed its check: no fp16 rewrite made")
     elif req.precision == "fp16":
         card["fp32_check"] = check
-        card["fp16"], card["check"] = _to_fp16_and_check(out, inputs, refs, req, n_params)
-        card["sha256"] = sha256_file(out)
-    card["total_seconds"] = round(time.perf_counter() - t0, 2)
+        card["fp16"], card["check"] = _to_fp16_and_check(out, inputs, refs, req, card["parameters"])
+        card.update(sha256=sha256_file(out), **_data_file(out))
+    if started is not None:
+        card["total_seconds"] = round(time.perf_counter() - started, 2)
     out.with_suffix(".json").write_text(strict_dumps(card, indent=2) + "\n")
     worst, tolerance = card["check"]["max_rel_error"], card["check"]["tolerance"]
     if not fp32_ok or not worst <= tolerance:
         which = "the fp32 graph" if not fp32_ok or req.precision == "fp32" else "the fp16 graph"
+        removed = " (removed: no fp16 rewrite was made)" if card["file"] is None else ""
         raise ModelError(
-            f"{out}: ONNX Runtime ({card['check']['provider']}) disagrees with torch on {which} "
+            f"{out}: ONNX Runtime ({card['check']['provider']}) disagrees with torch on {which}{removed} "
             f"(max relative error {worst:.3g} > {tolerance:g}); see {out.with_suffix('.json')}"
         )
     vs_fp32 = card["check"].get("vs_fp32")
@@ -393,14 +354,20 @@ def export_da3(req: ExportRequest) -> dict:
     return card
 
 
+def _data_file(out: Path) -> dict:
+    """The card's entries for the graph's external data file (graphs over 2 GiB), none without one."""
+    data = data_path(out)
+    return {"data_file": data.name, "data_sha256": sha256_file(data)} if data.exists() else {}
+
+
 def _to_fp16_and_check(out: Path, inputs: dict, refs: dict, req: ExportRequest, n_params: int):
     """Rewrite the checked fp32 graph at `out` with its backbone in fp16 (tools/export/fp16.py) and check
     it on the best provider here (CUDA where available) against torch and against the fp32 graph on the
-    same provider. Returns (summary, check).
+    same provider. Returns (summary, check); the check names the providers that actually ran.
 
     Raises:
-        ModelError: the rewrite, or the rewritten graph's session or run, failed; `out` and its card are
-            removed then (the file would hold an fp32 or a broken graph under the fp16 name).
+        ModelError: the rewrite, or the rewritten graph's session or run, failed; `out`, its data file and
+            its card are removed then (the file would hold an fp32 or a broken graph under the fp16 name).
     """
     import onnx
 
@@ -410,16 +377,12 @@ def _to_fp16_and_check(out: Path, inputs: dict, refs: dict, req: ExportRequest, 
     providers, _ = choose_providers()
     provider = providers[0]
     try:
-        fp32_outputs = run_graph(out, inputs, req.threads, providers)
+        fp32_outputs, fp32_provider = run_graph(out, inputs, req.threads, providers)
         model, summary = to_mixed_fp16(onnx.load(str(out)), where=str(out))
-        tmp = out.with_name(out.name + ".tmp")
-        big = n_params * 2 > 1.8e9
-        onnx.save(model, str(tmp), save_as_external_data=big, location=out.name + ".data" if big else None)
-        os.replace(tmp, out)
-        got = run_graph(out, inputs, req.threads, providers)
+        save_graph(model, out, external=n_params * 2 > EXTERNAL_DATA_BYTES)
+        got, provider = run_graph(out, inputs, req.threads, providers)
     except Exception as exc:
-        for stale in (out, out.with_suffix(".json")):
-            stale.unlink(missing_ok=True)
+        remove_graph(out)
         raise ModelError(
             f"{out}: the fp16 rewrite failed on {provider} ({type(exc).__name__}: {str(exc)[:300]}); "
             "nothing was written: the fp32 graph (--precision fp32) is unaffected"
@@ -433,7 +396,8 @@ def _to_fp16_and_check(out: Path, inputs: dict, refs: dict, req: ExportRequest, 
         "errors": errors,
         "max_rel_error": worst_error(errors),
         "tolerance": req.tolerance if req.tolerance is not None else TOLERANCE["fp16"],
-        "vs_fp32": {"errors": vs_fp32, "max_rel_error": worst_error(vs_fp32), "tolerance": FP16_VS_FP32},
+        "vs_fp32": {"errors": vs_fp32, "max_rel_error": worst_error(vs_fp32), "tolerance": FP16_VS_FP32,
+                    "fp32_provider": fp32_provider},
     }
     return summary, check
 

@@ -125,7 +125,8 @@ def to_mixed_fp16(model, scope: str = FP16_SCOPE, where: str = "graph"):
         return all(name in types for name in list(n.input) + list(n.output) if name)
 
     half_ids = {id(n) for n in nodes if eligible(n)}
-    # nodes whose float outputs go only into float32-only inputs (and nodes feeding only those) stay fp32
+    # nodes whose float outputs go only into float32-only inputs, directly or through other such nodes of
+    # any kind (a Reciprocal outside the region's ops, too), stay fp32
     readers: dict[str, list[tuple[object, int]]] = {}
     for n in nodes:
         for i, name in enumerate(n.input):
@@ -136,7 +137,7 @@ def to_mixed_fp16(model, scope: str = FP16_SCOPE, where: str = "graph"):
     while changed:
         changed = False
         for n in nodes:
-            if id(n) not in half_ids or id(n) in keep_f32:
+            if id(n) in keep_f32:
                 continue
             floats = [o for o in n.output if o and types.get(o) == F32]
             if floats and not any(o in outputs for o in floats) and all(
@@ -151,6 +152,7 @@ def to_mixed_fp16(model, scope: str = FP16_SCOPE, where: str = "graph"):
         raise ModelError(f"{where}: no node lies inside module {scope!r}; nothing to run in fp16")
     taken = {name for n in nodes for name in list(n.input) + list(n.output)}
     taken |= {t.name for t in g.initializer} | {i.name for i in g.input} | outputs
+    taken |= {n.name for n in nodes if n.name}    # the Casts' node names are fresh, too
 
     def fresh(base: str) -> str:
         name, k = base, 1
