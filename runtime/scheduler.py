@@ -115,6 +115,8 @@ class SchedulerReport:
     model_busy_s: float = 0.0
     imu_overflow: int = 0
     intake_error: str | None = None
+    stopped_early: bool = False
+    """`Scheduler.request_stop` ended the run before the events did."""
     wall_s: float = 0.0
     sensor_s: float = 0.0
     first_t_ns: int | None = None
@@ -246,6 +248,12 @@ class Scheduler:
         self.on_output = on_output
         self.progress = progress
         self.report = SchedulerReport()
+        self._stop_requested = threading.Event()
+
+    def request_stop(self) -> None:
+        """End `run` before the next event (from any thread, e.g. an `on_output` callback); a model job in
+        flight still finishes and counts. The report says so (`stopped_early`)."""
+        self._stop_requested.set()
 
     def _intake(self, events: Iterable[Any], q: EventQueue, stop: threading.Event) -> None:
         try:
@@ -289,6 +297,9 @@ class Scheduler:
             while True:
                 ev = q.get()
                 if ev is _END:
+                    break
+                if self._stop_requested.is_set():
+                    rep.stopped_early = True
                     break
                 t = int(ev.t_ns)
                 if t_first is None:

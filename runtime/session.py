@@ -179,6 +179,12 @@ class Session:
         self._scheduler = Scheduler(clock, progress=progress, on_output=self._emit)
         return self._run_scheduled(events, keep_partial)
 
+    def stop_replay(self) -> None:
+        """End a running `replay` or `run_live` before its next event (e.g. from `on_pose`): what was
+        processed counts, the result's scheduler report says `stopped_early`."""
+        if self._scheduler is not None:
+            self._scheduler.request_stop()
+
     def run_live(self, events: Iterable[ImuSample | Frame], progress: Callable[[float], None] | None = None,
                  keep_partial: bool = True) -> SessionResult:
         """Run a live driver's events on this thread as they arrive (bounded queue: the oldest waiting

@@ -74,6 +74,27 @@ def test_fast_clock_is_deterministic_and_lossless():
     assert sensor == sorted(sensor) and len(sensor) == 440
 
 
+def test_request_stop_ends_the_run_after_the_event_being_processed():
+    """Stopped from on_output at the frame of t = 0.5 s: nothing after it is processed, though the intake had
+    queued more; the model job in flight (requested at 0.45 s, due at 0.7 s) still finishes and counts."""
+    pipe = TracePipeline(lambda: 0.0)
+    sched = Scheduler(FastClock(model_latency_s=0.25), queue_size=64)
+
+    def on_output(out):
+        if out[0] >= 500_000_000:
+            sched.request_stop()
+
+    sched.on_output = on_output
+    rep = sched.run(_events(), pipe)
+    sensor = [e for e in pipe.trace if e[0] != "model"]
+    assert sensor[-1] == ("frame", 500_000_000) and rep.frames == 11 and rep.imu_samples == 101
+    assert rep.stopped_early and rep.sensor_s == 0.5
+    assert [e for e in pipe.trace if e[0] == "model"][-1] == ("model", 450_000_000, 500_000_000)
+    full = Scheduler(FastClock(model_latency_s=0.25), queue_size=64).run(
+        _events(), TracePipeline(lambda: 0.0))
+    assert not full.stopped_early and full.frames == 40
+
+
 class SolvePipeline(TracePipeline):
     """Alternates model jobs and jobs that call no model (a start-up re-solve: job.model_call False)."""
 

@@ -65,6 +65,26 @@ def test_demo_publishes_metric_trajectory_matching_ground_truth(tmp_path, capsys
     assert rows[0].startswith("t_ns,") and len(rows) == report["published_poses"] + 1
 
 
+def test_the_demo_race_stops_at_the_native_initializers_first_pose():
+    """The native-only replay ends at its first published pose, with the same publication time and source
+    as the same replay run to the end of the recording."""
+    import argparse
+
+    from drivers.sim import SimConfig, SimRecording
+    from runtime.config import DavioConfig
+    from tools.commands.demo import _native_only
+    from tools.run_session import run_pipeline
+
+    rec = SimRecording.from_preset(SimConfig(preset="handheld", seconds=6, seed=0))
+    race = _native_only(rec, DavioConfig(), argparse.Namespace(seconds=6))
+    full = run_pipeline(rec, None, DavioConfig(), show_progress=False)
+    st = full.pipeline.startup.report
+    assert race["published_by"] == st.first_published_by is not None
+    t_f = (st.first_publish_t_ns - full.scheduler.first_t_ns) * 1e-9
+    assert race["T_f_s"] == pytest.approx(t_f, abs=1e-9)
+    assert race["replayed_s"] == pytest.approx(race["T_f_s"], abs=0.06) and full.scheduler.sensor_s > 5.5
+
+
 def test_run_on_real_euroc_head_writes_outputs(tmp_path, capsys):
     path = shared_path("euroc", "V1_01_easy_head")
     out = tmp_path / "run"

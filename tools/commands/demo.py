@@ -129,15 +129,18 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _native_only(rec, config, args: argparse.Namespace) -> dict:
-    """The native initializer alone on the same recording: when (and how) it first published."""
-    from tools.run_session import run_pipeline
+    """The native initializer alone on the same recording: when (and how) it first published. The replay
+    stops at that first pose (replays are deterministic: what follows cannot change it)."""
+    from runtime.session import Session
 
     cfg = replace(config, mapping=replace(config.mapping, enabled=False))
-    res = run_pipeline(rec, None, cfg, show_progress=False)
+    session = Session(rec.rig, None, cfg, on_pose=lambda _pose: session.stop_replay())
+    res = session.replay(rec.events())
     st = res.pipeline.startup.report
     t0 = res.scheduler.first_t_ns
     t_f = None if st.first_publish_t_ns is None or t0 is None else (st.first_publish_t_ns - t0) * 1e-9
-    return {"T_f_s": t_f, "published_by": st.first_published_by, "seconds": args.seconds}
+    return {"T_f_s": t_f, "published_by": st.first_published_by, "seconds": args.seconds,
+            "replayed_s": res.scheduler.sensor_s}
 
 
 def _race_line(report: dict) -> str:
