@@ -74,7 +74,7 @@ class MapOutput:
         paths are relative to the run folder (the run is written in `<out>.partial/` and renamed)."""
         from tools.map_archive import export_map
 
-        n_sub = len(self.archive.entries)
+        n_sub = self.archive.n_submaps
         summary = {"archive": "map", "submaps": n_sub, "map_version": self.archive.map_version,
                    "ply": None, "voxels": 0, "archive_stopped": self.stopped, "archive_journal_left": None}
         try:

@@ -14,7 +14,7 @@ from tools.cli import main
 def test_long_run_bench_measures_both_costs(tmp_path, capsys) -> None:
     out = tmp_path / "long.json"
     assert main(["bench", "long-run", "--hours", "0.05,0.1", "--poses", "8192", "--moved", "20",
-                 "--track-seconds", "0", "--out", str(out)]) == 0
+                 "--writer-submaps", "300", "--track-seconds", "0", "--out", str(out)]) == 0
     table = capsys.readouterr().out
     assert "| 0.05 h | 120 |" in table and "| 0.1 h | 240 |" in table
     res = json.loads(out.read_text())
@@ -34,6 +34,12 @@ def test_long_run_bench_measures_both_costs(tmp_path, capsys) -> None:
     # 8192 poses fill two whole chunks of 254-byte rows; the objects were about 1.4 kB a pose
     assert 254 <= p["columns_bytes_per_pose"] < 300 and p["objects_bytes_per_pose"] > 1000
     assert p["columns_mb_per_hour"] == pytest.approx(p["columns_bytes_per_pose"] * 72000 / 1e6)
+    # the writer keeps each entry as its encoded text only (with the dicts beside them it held 3.4x the
+    # texts, 4.9 kB a submap): what it holds a submap is the texts and their bookkeeping
+    w = res["writer"]
+    assert w["submaps"] == 300 and 1000 < w["text_bytes_per_submap"] < w["traced_bytes_per_submap"]
+    assert w["traced_bytes_per_submap"] < 2.5 * w["text_bytes_per_submap"]
+    assert "map archive writer (300 submaps" in table
     assert res["tracking"] is None                     # --track-seconds 0: the whole-pipeline run skipped
 
 
@@ -43,6 +49,7 @@ def test_long_run_bench_measures_both_costs(tmp_path, capsys) -> None:
     (["--camera-hz", "nan"], "--camera-hz must be positive"),
     (["--poses", "5"], "--poses must be >= 100"),
     (["--moved", "-1"], "--moved >= 0"),
+    (["--writer-submaps", "10"], "--writer-submaps must be in"),
     (["--track-seconds", "5"], "--track-seconds must be 0 or in [10, 3600]"),
 ])
 def test_long_run_bench_refuses_bad_arguments(argv, message) -> None:

@@ -132,6 +132,22 @@ def test_round_trip_and_export_equals_brute_force(tmp_path):
     assert_fusion_equals(fuse_archive(folder, VOXEL), brute_force_fusion(subs, VOXEL), VOXEL)
 
 
+def _expected_entry(folder: Path, sm: Submap) -> dict:
+    """A submap's manifest entry built from the submap and its file (not from the writer's state)."""
+    import hashlib
+
+    from tools.map_archive.format import jsonable
+
+    name = f"submap_{sm.index:06d}.npz"
+    data = (folder / name).read_bytes()
+    return {"index": sm.index, "file": name, "sha256": hashlib.sha256(data).hexdigest(),
+            "bytes": len(data), "n_points": sm.n_points, "frame_t_ns": [int(t) for t in sm.frame_t_ns],
+            "centre": int(sm.centre), "T_MS": jsonable(np.asarray(sm.T_MS, np.float64)),
+            "T_OS": jsonable(np.asarray(sm.T_OS, np.float64)), "lam": float(sm.lam),
+            "scale_s_hat": float(sm.s_hat), "version": int(sm.version), "segment": int(sm.segment),
+            "fit": jsonable(dict(sm.fit))}
+
+
 @pytest.mark.parametrize("whole_every_commit", [False, True])
 def test_manifest_equals_encoding_the_whole_manifest_after_every_commit(tmp_path, whole_every_commit):
     """Commit after commit, manifest.json and its journal read back as the whole manifest; when written
@@ -147,9 +163,10 @@ def test_manifest_equals_encoding_the_whole_manifest_after_every_commit(tmp_path
     # (submaps committed: new ones, then ones whose state moved; pair records added)
     plan = [([0, 1], 1), ([2, 0], 2), ([], 0), ([3, 1, 2], 1), ([0], 0)]
     most_lines = 0
+    archived: set[int] = set()
     for version, (committed, n_pairs) in enumerate(plan, start=1):
         for k in committed:
-            if k in w._entries:                        # already archived: its graph state moves
+            if k in archived:                          # already archived: its graph state moves
                 subs[k].T_MS, subs[k].lam = _pose(rng, 0.3), float(rng.normal(0, 0.05))
                 subs[k].version = version
         for _ in range(n_pairs):
@@ -159,11 +176,14 @@ def test_manifest_equals_encoding_the_whole_manifest_after_every_commit(tmp_path
             pairs[0] = {"a": 0, "b": 9, "method": "revisit"}     # a record replaced by another object
         stats = {"windows": version, "rmse": float("inf") if version == 2 else 0.1}
         w.commit([subs[k] for k in committed], pairs, version, stats)
+        archived.update(committed)
         if whole_every_commit:
             w.compact()
+        entries = [_expected_entry(folder, subs[k]) for k in sorted(archived)]
+        assert w.entries == entries and w.n_submaps == len(archived)
         expected = {"format": FORMAT, "schema_version": SCHEMA_VERSION, "created_by": davio_version(),
                     **{k: jsonable(HEADER[k]) for k in ("rig", "model", "config")}, "map_version": version,
-                    "journal_generation": w.generation, "submaps": w.entries, "pairs": jsonable(list(pairs)),
+                    "journal_generation": w.generation, "submaps": entries, "pairs": jsonable(list(pairs)),
                     "stats": jsonable(stats)}
         info = read_manifest(folder)
         lines = len(_journal_lines(folder))

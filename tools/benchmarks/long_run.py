@@ -9,7 +9,8 @@ What grows with time however bounded the map and the graph are:
     3600 / 1.5 (a submap every 1.5 s): one journal cycle, from manifest.json written whole through commits
     (one new submap, --moved others moved, one pair record), each a journal line, to the next whole write:
     time a commit and bytes written a commit on average, against writing the whole manifest at every
-    commit (what the writer did before the journal).
+    commit (what the writer did before the journal); and the writer's memory a submap (tracemalloc over
+    --writer-submaps submaps committed 50 at a time), against the encoded texts it must keep;
   * the whole tracking pipeline (`--track-seconds S`, 0 = skip): a simulated `euroc` preset recording
     through `runtime.pipeline.VioPipeline` (native start-up, no model, so no map) with tracemalloc on; the
     least-squares slope of the traced bytes against the poses published, over the second half of the run.
@@ -45,6 +46,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--moved", type=int, default=63,
                    help="submaps a commit moves besides the new one (default: the graph's other nodes, "
                    "graph.max_resident_nodes - 1)")
+    p.add_argument("--writer-submaps", type=int, default=1000,
+                   help="submaps archived for the writer's memory a submap")
     p.add_argument("--track-seconds", type=float, default=300.0,
                    help="length of the simulated tracking run measured whole (0 = skip)")
     p.add_argument("--seed", type=int, default=0, help="seed of that recording")
@@ -178,6 +181,37 @@ def _whole_manifest(w: Any, pairs: list, version: int, stats: dict) -> dict:
             "pairs": jsonable(list(pairs)), "stats": jsonable(dict(stats))}
 
 
+def writer_bytes(n_submaps: int, header: dict) -> dict:
+    """The map archive writer's traced memory a submap over commits of 50 submaps (one pair record a submap)
+    after the first, `n_submaps` in all, against the bytes of the entry and pair texts a whole write joins
+    (what it must keep)."""
+    from tools.map_archive import MapArchiveWriter
+
+    rng = np.random.default_rng(1)
+    subs = [_submap(k, rng) for k in range(n_submaps)]
+    pairs = [_pair(k, rng) for k in range(n_submaps)]
+    with tempfile.TemporaryDirectory(prefix="davio-long-run-") as tmp:
+        tracemalloc.start()
+        try:
+            w = MapArchiveWriter(Path(tmp) / "map", header)
+            w.commit(subs[:50], pairs[:50], 1, {})     # the first commit's imports and caches not counted
+            base = tracemalloc.get_traced_memory()[0]
+            texts0 = _texts(w)
+            for k0 in range(50, n_submaps, 50):
+                w.commit(subs[k0:k0 + 50], pairs[:k0 + 50], k0 + 1, {})
+            traced = tracemalloc.get_traced_memory()[0] - base
+        finally:
+            tracemalloc.stop()
+        n = n_submaps - 50
+    return {"submaps": n_submaps, "traced_bytes_per_submap": traced / n,
+            "text_bytes_per_submap": (_texts(w) - texts0) / n}
+
+
+def _texts(w: Any) -> int:
+    """Characters of the encoded entry and pair texts writer `w` holds."""
+    return sum(len(t) for t in w._entry_text.values()) + sum(len(t) for t in w._pair_text)
+
+
 def manifest_cycle(n_submaps: int, moved: int, header: dict, progress: bool,
                    max_commits: int = 20000) -> dict:
     """One journal cycle of the map archive with n_submaps archived: from a manifest.json just written
@@ -240,6 +274,9 @@ def run(args: argparse.Namespace) -> int:
         raise SystemExit(f"davio bench long-run: --camera-hz must be positive, got {args.camera_hz}")
     if args.poses < 100 or args.moved < 0:
         raise SystemExit("davio bench long-run: --poses must be >= 100 and --moved >= 0")
+    if not 50 <= args.writer_submaps <= 100_000:
+        raise SystemExit(f"davio bench long-run: --writer-submaps must be in [50, 100000], got "
+                         f"{args.writer_submaps}")
     track_s = args.track_seconds
     if not (math.isfinite(track_s) and (track_s == 0 or 10 <= track_s <= 3600)):
         raise SystemExit(f"davio bench long-run: --track-seconds must be 0 or in [10, 3600], got "
@@ -260,8 +297,10 @@ def run(args: argparse.Namespace) -> int:
         if progress:
             print(f"  manifest with {n} submaps ({h:g} h)", flush=True)
         rows.append({"hours": h, **manifest_cycle(n, args.moved, header, progress)})
+    writer = writer_bytes(args.writer_submaps, header)
+    writer["mb_per_hour"] = writer["traced_bytes_per_submap"] * 3600 / SUBMAP_PERIOD_S / 1e6
     tracking = tracking_growth(args.track_seconds, args.seed, progress) if args.track_seconds else None
-    out = {"camera_hz": args.camera_hz, "poses": poses, "manifest": rows,
+    out = {"camera_hz": args.camera_hz, "poses": poses, "manifest": rows, "writer": writer,
            "submap_period_s": SUBMAP_PERIOD_S, "tracking": tracking}
     if args.out:
         Path(args.out).write_text(json.dumps(out, indent=1))
@@ -278,6 +317,9 @@ def run(args: argparse.Namespace) -> int:
               f"{tracking['poses_second_half']} poses): {b:.0f} +- {tracking['stderr_bytes_per_pose']:.0f} B "
               f"traced per published pose ({b * per_hour / 1e6:.1f} MB/h at {args.camera_hz:g} Hz)")
     per_h = 3600 / SUBMAP_PERIOD_S / 1e6
+    print(f"map archive writer ({writer['submaps']} submaps, tracemalloc): "
+          f"{writer['traced_bytes_per_submap']:.0f} B/submap ({writer['mb_per_hour']:.1f} MB/h at a submap "
+          f"every {SUBMAP_PERIOD_S:g} s), of which the encoded texts {writer['text_bytes_per_submap']:.0f} B")
     print(f"map manifest: one journal cycle a size (a commit adds a submap and moves {args.moved}); "
           f"MB written an hour at a commit every {SUBMAP_PERIOD_S:g} s")
     print("| run length | submaps | manifest MB | commits a cycle | commit ms median / mean | "
