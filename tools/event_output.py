@@ -1,9 +1,10 @@
 """Where a run's events (runtime.run_events) go: in `davio run`, `davio live` and `davio demo` one JSON line
-each in the run folder's `events.jsonl`, written as they happen, so that a supervisor can follow the file
-(`tail -f`) and a killed run keeps them; and one console line each, "at 6.0 s: GYROSCOPE SCALE (tracked
-features): ...", so that an operator with a module in hand hears of a gyroscope in deg/s while holding it
-(`davio calibrate` says them too). Neither ever ends the run: a failing disk stops the file, a closed stderr
-stops the lines, and each says why (`failed`, `error`)."""
+each in the run folder's `events.jsonl` (`davio calibrate`: `<out stem>.events.jsonl`), written as they
+happen, so that a supervisor can follow the file (`tail -f`) and a killed run keeps them; and one console
+line each, "at 6.0 s: GYROSCOPE SCALE (tracked features): ...", so that an operator with a module in hand
+hears of a gyroscope in deg/s while holding it (`davio calibrate` says them too). Neither ever ends the
+run: a failing disk stops the file, a closed stderr stops the lines, and each says why (`failed`,
+`error`)."""
 from __future__ import annotations
 
 from collections.abc import Callable
@@ -19,8 +20,8 @@ class EventFile:
     """Appends each event to `folder / EVENTS_NAME` as one JSON object (RunEvent.to_json) and flushes it:
     events are a handful a run, so each costs one write on the pipeline's thread, never a disk sync."""
 
-    def __init__(self, folder: str | Path) -> None:
-        self.path = Path(folder) / EVENTS_NAME
+    def __init__(self, folder: str | Path, name: str = EVENTS_NAME) -> None:
+        self.path = Path(folder) / name
         self.written = 0
         self.failed: str | None = None
         """Why the file stopped (a full or failing disk), or None: the run goes on without it."""

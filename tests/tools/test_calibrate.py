@@ -11,6 +11,7 @@ bound still tells the sign apart (a flipped sign would be 10 ms off, a withheld 
 
 from __future__ import annotations
 
+import collections
 import json
 import os
 from pathlib import Path
@@ -121,6 +122,11 @@ def test_calibrate_writes_a_camchain_close_to_the_simulator_rig(aggressive_folde
     assert len(report["convergence"]["t_s"]) == report["estimate"]["states_collected"] > 10
     for name in ("camchain.report.json", "camchain.convergence.png", "imu.yaml"):
         assert (out.parent / name).is_file()
+    # the run's events, one JSON line each as they happened: the pipeline's counts by kind
+    lines = [json.loads(ln) for ln in (out.parent / "camchain.events.jsonl").read_text().splitlines()]
+    kinds = collections.Counter(e["kind"] for e in lines)
+    assert kinds == report["pipeline"]["events"]["counts"] and kinds["publishing"] >= 1
+    assert report["files"]["events"] == str(out.parent / "camchain.events.jsonl")
     # a second run does not replace the files without --overwrite
     assert main(["calibrate", str(aggressive_folder), "--out", str(out)]) == 1
     assert "--overwrite" in capsys.readouterr().err
@@ -187,6 +193,25 @@ def test_a_fraction_of_a_second_is_refused_as_too_little_data(translation_folder
     report = json.loads((tmp_path / "rig.report.json").read_text())
     assert report["refusal"] == "too_little_data"
     assert "refused below 3 s" in capsys.readouterr().err
+
+
+def test_a_calibration_that_fails_leaves_no_events_file_behind(translation_folder, tmp_path, capsys,
+                                                              monkeypatch):
+    """An error during the run (here after one event was written) writes no report; the events file goes
+    too, so that a second run needs no --overwrite. A judged run keeps it (the test above)."""
+    import tools.calibrate.core as core
+    from runtime.errors import DataError
+    from runtime.run_events import RunEvent
+
+    def failing(events, *args, on_event=None, **kwargs):
+        on_event(RunEvent(10**9, 1.0, "reset", "filter reset", {"segment": 0}))
+        assert (tmp_path / "rig.events.jsonl").read_text().count("\n") == 1     # written as it happened
+        raise DataError("the IMU stream stopped")
+
+    monkeypatch.setattr(core, "calibrate", failing)
+    assert main(["calibrate", str(translation_folder), "--out", str(tmp_path / "rig.yaml")]) == 1
+    assert "the IMU stream stopped" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
 
 
 def test_input_repairs_are_said_and_kept_in_the_report(translation_folder, tmp_path, capsys):

@@ -149,6 +149,7 @@ def calibrate(
     progress: Callable[[float, str], None] | None = None,
     alert: Callable[[str], None] | None = None,
     live: bool = False,
+    on_event: Callable[[Any], None] | None = None,
 ) -> CalibrationRun:
     """Replay `events` through DAVIO with `rig`'s extrinsics and time offset withheld; collect the filter's
     calibration states and the rotation excitation.
@@ -166,14 +167,16 @@ def calibrate(
             the bring-up, a filter reset.
         live: `events` come from a live driver (runtime.session.Session.run_live: real time, bounded
             queues, model results applied when ready); Ctrl-C ends the data, not the calibration.
+        on_event: called with each runtime.run_events.RunEvent as it happens (e.g. a
+            tools.event_output.EventFile), after `alert`.
     """
     from runtime.session import Session
 
     withheld = rig.replace(T_IC=None, time_offset_s=None)
-    from tools.event_output import EventConsole
+    from tools.event_output import EventConsole, chain_events
 
-    session = Session(withheld, model, calibration_config(config),
-                      on_event=None if alert is None else EventConsole(alert))
+    console = None if alert is None else EventConsole(alert)
+    session = Session(withheld, model, calibration_config(config), on_event=chain_events(console, on_event))
     pipe = session.pipeline
     samples: list[CalibSample] = []
     step_ns = int(sample_every_s * 1e9)

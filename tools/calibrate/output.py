@@ -19,7 +19,7 @@ from tools.calibrate.core import CalibrationRun, CalibSample
 
 def paths_for(out: Path) -> dict[str, Path]:
     """The files written for camchain `out`: the IMU YAML (named so that calib.load_rig finds it beside the
-    camchain), the report and the plot."""
+    camchain), the report, the plot and the run's events (one JSON line each, written as they happen)."""
     out = Path(out)
     if "camchain" in out.name:
         imu = out.with_name(out.name.replace("camchain-imucam", "imu").replace("camchain", "imu"))
@@ -31,6 +31,7 @@ def paths_for(out: Path) -> dict[str, Path]:
         "imu": imu,
         "report": Path(f"{stem}.report.json"),
         "plot": Path(f"{stem}.convergence.png"),
+        "events": Path(f"{stem}.events.jsonl"),
     }
 
 

@@ -48,8 +48,9 @@ def build_report(
         "estimate": None,
         "reference": None,
         "convergence": None,
-        "pipeline": {k: run.pipeline.get(k) for k in ("startup", "filter", "tracking")},
-        "files": {"camchain": None, "imu": None, "report": str(paths["report"]), "plot": None},
+        "pipeline": {k: run.pipeline.get(k) for k in ("startup", "filter", "tracking", "events")},
+        "files": {"camchain": None, "imu": None, "report": str(paths["report"]), "plot": None,
+                  "events": str(paths["events"]) if paths["events"].exists() else None},
         "versions": versions(),
     }
     if final is not None:
@@ -171,7 +172,8 @@ def summary_lines(report: dict) -> list[str]:
             parts.append(f"time offset {e['time_offset_ms']:+.3f} ms")
         lines.append(f"against {ref['source']}: " + ", ".join(parts))
     f = report["files"]
-    written = [v for v in (f.get("camchain"), f.get("imu"), f.get("report"), f.get("plot")) if v]
+    written = [v for v in (f.get("camchain"), f.get("imu"), f.get("report"), f.get("plot"), f.get("events"))
+               if v]
     lines.append(f"{'accepted' if report['status'] == 'ok' else 'REFUSED'}: {report['message']}")
     lines.append("outputs: " + ", ".join(written))
     return lines

@@ -12,27 +12,27 @@ from tools.model_open import add_gpu_memory_argument
 NAME = "calibrate"
 HELP = "estimate the camera-IMU extrinsics and time offset of a recording; write a Kalibr camchain"
 DESCRIPTION = (
-    "Calibrate the camera-IMU rig from a recording: the hand-eye bring-up (R_IC and the gyro bias from the "
-    "camera's vs preintegrated IMU rotations) and the filter's online refinement of rotation, lever arm and "
-    "time offset. The camera's rotations come from DA3 (--model, or --emulated on a `davio simulate` folder, "
-    "its default) or, with no model (--two-view; the default on other recordings and live modules), from "
-    "two-view fits of the tracked features: no network needed. SOURCE is an EuRoC folder, a `davio "
-    "simulate` folder, a ROS 1 / ROS 2 bag, or a live module: "
-    "`oak` (depthai) or `uvc` (a UVC camera and a serial IMU, --imu-port; the options of `davio live`), "
-    "moved by hand until --seconds or Ctrl-C. The intrinsics come from the recording's own calibration, "
-    "an OAK's factory calibration, or --rig (its camera part is kept; its extrinsics and time offset are "
-    "withheld and estimated; an OAK's factory extrinsics are shown beside the estimate). Writes --out "
-    "(a Kalibr camchain: "
-    "cam0 intrinsics, T_cam_imu, timeshift_cam_imu with t_imu = t_cam + shift), the IMU noise YAML beside it "
-    "(imu.yaml, or the camchain's name with 'camchain' -> 'imu', so that calib.load_rig finds it), "
-    "<out stem>.report.json (bring-up windows, residuals and rejections, rotation excitation, the final "
-    "estimate with its 1-sigma, convergence over time) and <out stem>.convergence.png. Refuses (exit 3, one "
-    "line saying what was observed, no rig file written; the report is still written) when the rotation "
-    "excitation is insufficient (fewer than two principal axes at --min-axis-rate-dps), the data is too "
-    "short for the bring-up (under --min-seconds), the bring-up never completes, the final 1-sigma "
-    "exceeds --max-rot-std-deg / --max-lever-std-m / --max-offset-std-ms, or the lever arm is still moving "
-    "(--max-lever-drift-m over the last --settle-window-s of the final filter segment, which must be that "
-    "long)."
+    "Calibrate the camera-IMU rig from a recording: the hand-eye bring-up (R_IC and the gyro bias from "
+    "the camera's vs preintegrated IMU rotations) and the filter's online refinement of rotation, lever "
+    "arm and time offset. The camera's rotations come from DA3 (--model, or --emulated on a `davio "
+    "simulate` folder, its default) or, with no model (--two-view; the default on other recordings and "
+    "live modules), from two-view fits of the tracked features: no network needed. SOURCE is an EuRoC "
+    "folder, a `davio simulate` folder, a ROS 1 / ROS 2 bag, or a live module: `oak` (depthai) or `uvc` "
+    "(a UVC camera and a serial IMU, --imu-port; the options of `davio live`), moved by hand until "
+    "--seconds or Ctrl-C. The intrinsics come from the recording's own calibration, an OAK's factory "
+    "calibration, or --rig (its camera part is kept; its extrinsics and time offset are withheld and "
+    "estimated; an OAK's factory extrinsics are shown beside the estimate). Writes --out (a Kalibr "
+    "camchain: cam0 intrinsics, T_cam_imu, timeshift_cam_imu with t_imu = t_cam + shift), the IMU noise "
+    "YAML beside it (imu.yaml, or the camchain's name with 'camchain' -> 'imu', so that calib.load_rig "
+    "finds it), <out stem>.report.json (bring-up windows, residuals and rejections, rotation excitation, "
+    "the final estimate with its 1-sigma, convergence over time), <out stem>.convergence.png and <out "
+    "stem>.events.jsonl (the run's events as they happen: a reset, a rig finding, ...). Refuses (exit 3, "
+    "one line saying what was observed, no rig file written; the report is still written) when the "
+    "rotation excitation is insufficient (fewer than two principal axes at --min-axis-rate-dps), the data"
+    " is too short for the bring-up (under --min-seconds), the bring-up never completes, the final "
+    "1-sigma exceeds --max-rot-std-deg / --max-lever-std-m / --max-offset-std-ms, or the lever arm is "
+    "still moving (--max-lever-drift-m over the last --settle-window-s of the final filter segment, which"
+    " must be that long)."
 )
 
 #: exit status of a refusal (1: an error, 2: bad arguments)
@@ -332,8 +332,12 @@ def run(args: argparse.Namespace) -> int:
                     max_rot_std_deg=args.max_rot_std_deg, max_lever_std_m=args.max_lever_std_m,
                     max_offset_std_ms=args.max_offset_std_ms, max_lever_drift_m=args.max_lever_drift_m,
                     settle_window_s=args.settle_window_s)
+    from tools.calibrate.output import paths_for
+    from tools.event_output import EventFile
+
     log = sys.stderr if args.json else sys.stdout
     live = is_live(args.source)
+    events_path = paths_for(Path(args.out))["events"]
     with interruptible():
         if live:
             from tools.commands.live import describe_device
@@ -351,6 +355,8 @@ def run(args: argparse.Namespace) -> int:
             file=log,
             flush=True,
         )
+        events_path.parent.mkdir(parents=True, exist_ok=True)   # a new folder, as `davio run --out` makes
+        event_file = EventFile(events_path.parent, name=events_path.name)
         try:
             run_ = calibrate(
                 driver.events(),
@@ -362,8 +368,14 @@ def run(args: argparse.Namespace) -> int:
                 progress=stderr_progress,
                 alert=stderr_alert,
                 live=live,
+                on_event=event_file,
             )
+        except BaseException:
+            event_file.close()      # no report follows: the events file would be left alone, blocking a rerun
+            events_path.unlink(missing_ok=True)
+            raise
         finally:
+            event_file.close()
             if live:
                 driver.stop()
     return finish(args, run_, rig, th, desc, what, reference, log, driver_report=driver.report())
