@@ -50,16 +50,18 @@ MIN_CENTRE_SPREAD_M = 1e-3
 
 def export_hint(path: Path, camera: CameraModel | None = None) -> str:
     """The command that produces a missing DA3 graph (named in every 'model missing' error): the size
-    the file's name says (e.g. da3_base_322x504.onnx), else Small; the resolution of the camera."""
+    the file's name says (e.g. da3_base_322x504.onnx), else Small; the resolution of the camera; fp16 when
+    the name says so (da3_base_322x504_fp16.onnx, `davio export-da3 --precision fp16`'s default name)."""
     res = "378x504"
     if camera is not None:
         h, w = da3_resolution(camera.width, camera.height)
         res = f"{h}x{w}"
     words = re.split(r"[^a-z]+", Path(path).name.lower())
     size = next((s for s in ("small", "base", "large", "giant") if s in words), "small")
+    precision = " --precision fp16" if "fp16" in re.split(r"[^a-z0-9]+", Path(path).name.lower()) else ""
     return (
         f"davio export-da3 --checkpoint PATH/TO/DA3-{size.upper()}/model.safetensors --size {size} "
-        f"--res {res} --out {path}"
+        f"--res {res}{precision} --out {path}"
     )
 
 

@@ -120,6 +120,8 @@ def test_missing_model_names_file_and_export_command(tmp_path):
     with pytest.raises(ModelError, match=r"DA3-BASE/model.safetensors --size base --res \d+x\d+ --out .*"
                                          r"da3_base_322x504.onnx"):
         OnnxDA3(tmp_path / "da3_base_322x504.onnx", CAM)   # the size the file's name says
+    with pytest.raises(ModelError, match=r"--size base --res \d+x\d+ --precision fp16 --out .*_fp16.onnx"):
+        OnnxDA3(tmp_path / "da3_base_322x504_fp16.onnx", CAM)   # and its precision
     path.mkdir()                               # a folder named like the model: said, no export command
     with pytest.raises(ModelError, match="da3_small_378x504.onnx is a folder, not an ONNX model file$"):
         OnnxDA3(path, CAM)
