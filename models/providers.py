@@ -145,6 +145,16 @@ def default_threads() -> int:
     return max(1, min(4, n - 1 if n > 2 else n))
 
 
+def quiet_run_options():
+    """ONNX Runtime RunOptions under which a failing run is not also logged on stderr: the caller raises the
+    failure as a ModelError carrying the same text (it was said twice, the log's copy in colour codes)."""
+    import onnxruntime as ort
+
+    options = ort.RunOptions()
+    options.log_severity_level = 4     # fatal only
+    return options
+
+
 def create_session(
     path: str | Path,
     providers: Sequence[str] | None = None,

@@ -37,7 +37,7 @@ from models.da3.preprocess import (
 from models.da3.similarity import umeyama_sim3
 from models.depth_model import DepthPrediction
 from models.onnx_file import require_file
-from models.providers import CUDA, create_session
+from models.providers import CUDA, create_session, quiet_run_options
 from runtime.errors import DataError, ModelError
 from runtime.events import Frame
 
@@ -176,7 +176,8 @@ class OnnxDA3:
             "use_pose": np.array([use_pose], dtype=bool),
         }
         try:
-            outs = self.session.run(["depth", "conf", "pred_extrinsics", "pred_intrinsics"], feeds)
+            outs = self.session.run(["depth", "conf", "pred_extrinsics", "pred_intrinsics"], feeds,
+                                    quiet_run_options())
         except Exception as exc:
             text = str(exc)
             hint = ""

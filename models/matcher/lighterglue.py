@@ -14,7 +14,7 @@ import numpy as np
 from models.matcher.contract import check_lighterglue_signature
 from models.matcher.features import Features
 from models.onnx_file import require_file
-from models.providers import create_session
+from models.providers import create_session, quiet_run_options
 from runtime.errors import ModelError
 
 
@@ -83,7 +83,7 @@ class LighterGlue:
             "desc1": fb.desc.astype(np.float32)[None],
         }
         try:
-            (scores,) = self.session.run(["log_assignment"], feeds)
+            (scores,) = self.session.run(["log_assignment"], feeds, quiet_run_options())
         except Exception as exc:
             raise ModelError(f"{self.path}: inference failed ({type(exc).__name__}: {exc})") from exc
         return assignment_matches(scores[0], self.min_conf)

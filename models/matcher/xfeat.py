@@ -19,7 +19,7 @@ import numpy as np
 from models.matcher.contract import CELL, check_xfeat_signature
 from models.matcher.features import Features, pyramid_scales
 from models.onnx_file import require_file
-from models.providers import create_session
+from models.providers import create_session, quiet_run_options
 from runtime.errors import DataError, ModelError
 
 #: the backbone graph committed with DAVIO (Apache-2.0, see models/onnx/NOTICE)
@@ -125,7 +125,10 @@ class XFeatDetector:
         x = img.astype(np.float32) / 255.0
         if (H32, W32) != (H, W):
             x = cv2.resize(x, (W32, H32), interpolation=cv2.INTER_LINEAR)
-        feats, logits, rel = self.session.run(None, {"image": x[None, None]})
+        try:
+            feats, logits, rel = self.session.run(None, {"image": x[None, None]}, quiet_run_options())
+        except Exception as exc:
+            raise ModelError(f"{self.path}: inference failed ({type(exc).__name__}: {exc})") from exc
         return feats[0], logits[0], rel[0], W / W32, H / H32
 
     def detect(self, image: np.ndarray) -> Features:

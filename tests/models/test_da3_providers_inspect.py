@@ -207,3 +207,23 @@ def test_the_cpu_wheel_hiding_onnxruntime_gpu_is_named_with_the_fix(monkeypatch)
     assert "warning" not in providers.describe_providers()
     monkeypatch.undo()
     assert "onnxruntime" in providers._installed_onnxruntime_wheels()   # this machine's CPU wheel
+
+
+def test_a_failing_run_is_said_once_through_the_exception(tmp_path, capfd):
+    """ONNX Runtime logs a failing run on stderr (in colour) besides raising it; under quiet_run_options only
+    the exception, which the models turn into a ModelError, carries the message."""
+    x = helper.make_tensor_value_info("x", TensorProto.FLOAT, None)
+    shape = helper.make_tensor_value_info("s", TensorProto.INT64, [2])
+    y = helper.make_tensor_value_info("y", TensorProto.FLOAT, None)
+    graph = helper.make_graph([helper.make_node("Reshape", ["x", "s"], ["y"])], "g", [x, shape], [y])
+    path = tmp_path / "reshape.onnx"
+    onnx.save(helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)]), path)
+    sess, _ = providers.create_session(path, providers=[providers.CPU], threads=1)
+    feeds = {"x": np.ones(6, np.float32), "s": np.array([4, 4])}
+    capfd.readouterr()
+    with pytest.raises(Exception, match="cannot be reshaped"):
+        sess.run(None, feeds)
+    assert "cannot be reshaped" in capfd.readouterr().err          # said twice without the options
+    with pytest.raises(Exception, match="cannot be reshaped"):
+        sess.run(None, feeds, providers.quiet_run_options())
+    assert capfd.readouterr().err == ""

@@ -154,7 +154,8 @@ def test_warm_up_runs_the_graph_once_at_the_start_up_window_size(graph):
     model = OnnxDA3(graph, CAM, threads=1)
     calls = []
     run = model.session.run
-    model.session.run = lambda names, feeds: calls.append(feeds["images"].shape) or run(names, feeds)
+    model.session.run = (lambda names, feeds, options=None:
+                         calls.append(feeds["images"].shape) or run(names, feeds, options))
     assert model.warm_up() > 0.0
     assert calls == [(1, 5, 3, 28, 42)]
 
@@ -182,7 +183,7 @@ def test_outputs_of_the_wrong_run_time_shape_are_a_model_error(graph):
     model = OnnxDA3(graph, CAM, threads=1)
     run = model.session.run
 
-    def short_depth(names, feeds):
+    def short_depth(names, feeds, options=None):
         outs = run(names, feeds)
         return [outs[0][..., :-1], *outs[1:]]
 
@@ -265,7 +266,7 @@ def test_an_allocation_failure_says_how_to_fit_the_gpu(graph):
         def __init__(self, message):
             self.message = message
 
-        def run(self, names, feeds):
+        def run(self, names, feeds, options=None):
             raise RuntimeError(self.message)
 
     for message in (  # what ONNX Runtime 1.31 raised on an H100 past gpu_mem_limit; its other arena failure
