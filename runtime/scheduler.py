@@ -188,10 +188,11 @@ class EventQueue:
             self._frames += is_frame
             self._cv.notify_all()
 
-    def get(self) -> Any:
+    def get(self, stop: threading.Event | None = None) -> Any:
+        """The next event, or _END once the queue is closed and empty or `stop` is set while it is empty."""
         with self._cv:
             while not self._items:
-                if self._closed:
+                if self._closed or (stop is not None and stop.is_set()):
                     return _END
                 self._cv.wait(0.1)
             ev = self._items.popleft()
@@ -251,8 +252,10 @@ class Scheduler:
         self._stop_requested = threading.Event()
 
     def request_stop(self) -> None:
-        """End `run` before the next event (from any thread, e.g. an `on_output` callback); a model job in
-        flight still finishes and counts. The report says so (`stopped_early`)."""
+        """End `run` before its next event, or within 0.1 s when none comes (from any thread, e.g. an
+        `on_output` callback): no model job is started after it, one in flight still finishes and counts.
+        The report says so (`stopped_early`). A request made before `run` applies to it; `run` clears the
+        request when it returns."""
         self._stop_requested.set()
 
     def _intake(self, events: Iterable[Any], q: EventQueue, stop: threading.Event) -> None:
@@ -273,8 +276,8 @@ class Scheduler:
             q.close()
 
     def run(self, events: Iterable[Any], pipeline: Pipeline) -> SchedulerReport:
-        """Process every event; returns the report (the pipeline holds the estimates)."""
-        rep = self.report
+        """Process every event; returns the report (the pipeline holds the estimates), a new one each run."""
+        rep = self.report = SchedulerReport()
         q = EventQueue(self.queue_size, self.max_pending_frames if self.live else None)
         stop = threading.Event()
         intake = threading.Thread(target=self._intake, args=(events, q, stop), name="davio-intake",
@@ -295,11 +298,11 @@ class Scheduler:
         failed = False
         try:
             while True:
-                ev = q.get()
-                if ev is _END:
-                    break
+                ev = q.get(self._stop_requested)
                 if self._stop_requested.is_set():
                     rep.stopped_early = True
+                    break
+                if ev is _END:
                     break
                 t = int(ev.t_ns)
                 if t_first is None:
@@ -343,7 +346,7 @@ class Scheduler:
                     self.on_output(out)
                 if run_events is not None and run_events.pending:
                     run_events.flush()
-                if in_flight is None:
+                if in_flight is None and not self._stop_requested.is_set():
                     job = pipeline.next_model_job()
                     if job is not None:
                         job_id += 1
@@ -359,6 +362,7 @@ class Scheduler:
             failed = True
             raise
         finally:
+            self._stop_requested.clear()
             stop.set()
             q.close()
             intake.join(timeout=5)

@@ -130,6 +130,7 @@ class Session:
         self._error_raised = False
         self._closed = False
         self._last_imu_ns: int | None = None
+        self._scheduled_running = False    # a replay or run_live is running (stop_replay acts on it)
         self.result: SessionResult | None = None
 
     # -- outputs -------------------------------------------------------------------------------
@@ -179,11 +180,15 @@ class Session:
         self._scheduler = Scheduler(clock, progress=progress, on_output=self._emit)
         return self._run_scheduled(events, keep_partial)
 
-    def stop_replay(self) -> None:
-        """End a running `replay` or `run_live` before its next event (e.g. from `on_pose`): what was
-        processed counts, the result's scheduler report says `stopped_early`."""
-        if self._scheduler is not None:
-            self._scheduler.request_stop()
+    def stop_replay(self) -> bool:
+        """End the `replay` or `run_live` running on this session before its next event, or within 0.1 s
+        when none comes (e.g. from `on_pose`): what was processed counts, the result's scheduler report
+        says `stopped_early`. Returns False, doing nothing, when neither is running (a session fed by
+        `add_*` ends with `close()`)."""
+        if not self._scheduled_running or self._scheduler is None:
+            return False
+        self._scheduler.request_stop()
+        return True
 
     def run_live(self, events: Iterable[ImuSample | Frame], progress: Callable[[float], None] | None = None,
                  keep_partial: bool = True) -> SessionResult:
@@ -195,6 +200,7 @@ class Session:
 
     def _run_scheduled(self, events: Iterable[ImuSample | Frame], keep_partial: bool) -> SessionResult:
         status, reason = "complete", None
+        self._scheduled_running = True
         try:
             rep = self._scheduler.run(events, self.pipeline)
         except DavioError as exc:
@@ -206,6 +212,8 @@ class Session:
                 raise
             rep, status = self._scheduler.report, "interrupted"
             reason = f"interrupted after {rep.sensor_s:.1f} s of data"
+        finally:
+            self._scheduled_running = False
         self.result = SessionResult(self.pipeline, rep, status, reason)
         return self.result
 

@@ -95,6 +95,39 @@ def test_request_stop_ends_the_run_after_the_event_being_processed():
     assert not full.stopped_early and full.frames == 40
 
 
+def test_a_stop_starts_no_model_job_and_ends_a_quiet_source_and_is_cleared_after_the_run():
+    """Stopped at the step that would request the first model job: none is started (a DA3 inference after
+    the stop). A source that stops sending (a quiet live camera) does not hold the stop up. The request is
+    cleared when the run returns: the same scheduler runs again to the end."""
+    import threading
+
+    class FrameStepJobs(TracePipeline):        # asks for its model jobs on the frames' steps only
+        def next_model_job(self):
+            return super().next_model_job() if self.trace and self.trace[-1][0] == "frame" else None
+
+    pipe = FrameStepJobs(lambda: 0.0)
+    sched = Scheduler(FastClock(model_latency_s=0.25), queue_size=64)
+    sched.on_output = lambda out: out[0] >= 200_000_000 and sched.request_stop()
+    rep = sched.run(_events(), pipe)
+    assert rep.stopped_early and rep.model_jobs == 0 and pipe.requests == 0 and rep.frames == 5
+
+    release, finished = threading.Event(), []
+
+    def quiet():
+        yield from _events(n_imu=50)
+        release.wait(30)        # the source goes quiet; a stop must not wait for it
+        finished.append(True)
+
+    sched = Scheduler(FastClock(model_latency_s=0.25), queue_size=64)
+    sched.on_output = lambda out: out[0] >= 200_000_000 and sched.request_stop()
+    rep = sched.run(quiet(), TracePipeline(lambda: 0.0))
+    assert rep.stopped_early and not finished
+    release.set()
+    sched.on_output = None
+    again = sched.run(_events(), TracePipeline(lambda: 0.0))
+    assert not again.stopped_early and again.frames >= 40
+
+
 class SolvePipeline(TracePipeline):
     """Alternates model jobs and jobs that call no model (a start-up re-solve: job.model_call False)."""
 

@@ -181,3 +181,24 @@ def test_other_extension_errors_are_not_taken_for_an_interrupt(recording) -> Non
     except KeyboardInterrupt as ki:
         assert caused_by_interrupt(ki)
     assert not caused_by_interrupt(ValueError("x"))
+
+
+def test_stop_replay_ends_a_replay_at_the_first_pose_and_touches_nothing_else(recording) -> None:
+    """From on_pose, a replay ends at its first pose (the same pose a whole replay publishes first); outside
+    a replay, and on a session fed by add_*, stop_replay does nothing and says so."""
+    rec, events = recording
+    whole = Session(rec.rig).replay(iter(events))
+    s = Session(rec.rig)
+    assert s.stop_replay() is False
+    s.on_pose = lambda _pose: s.stop_replay()
+    first = s.replay(iter(events))
+    assert first.scheduler.stopped_early and not whole.scheduler.stopped_early
+    assert len(first.pipeline.published) == 1
+    assert first.pipeline.published[0].t_ns == whole.pipeline.published[0].t_ns
+    assert first.scheduler.events < whole.scheduler.events and s.stop_replay() is False
+    with Session(rec.rig, max_pending_frames=10_000) as pushed:
+        _push(pushed, events[:50])
+        assert pushed.stop_replay() is False
+        _push(pushed, events[50:])
+    assert pushed.result.status == "complete" and not pushed.result.scheduler.stopped_early
+    assert pushed.result.scheduler.events == whole.scheduler.events

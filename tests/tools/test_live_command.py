@@ -41,11 +41,14 @@ def test_live_uvc_with_a_serial_imu_publishes_and_writes_a_complete_run(small_si
     rows = [ln for ln in (out / "odometry.tum").read_text().splitlines() if not ln.startswith("#")]
     assert len(rows) == report["published_poses"]
     # the events were said on the console as they happened, and written to events.jsonl
+    # (on a loaded machine a live run may fall behind first: a `falling_behind` event, images dropped,
+    # or an IMU gap)
     events = [json.loads(x) for x in (out / "events.jsonl").read_text().splitlines()]
-    assert events[0]["kind"] == "publishing" and events[0]["source"] == report["published_by"]
+    publishing = [e for e in events if e["kind"] == "publishing"]
+    assert publishing[0]["source"] == report["published_by"]
     said = [ln.strip() for ln in err.splitlines() if "publishing metric poses" in ln]
     assert said[0].endswith(f" s: publishing metric poses ({report['published_by']})"), err
-    assert float(said[0].split()[1]) == pytest.approx(events[0]["t_s"], abs=0.051)
+    assert float(said[0].split()[1]) == pytest.approx(publishing[0]["t_s"], abs=0.051)
     # --stream: every pose and event went out over UDP as it happened
     got = []
     with contextlib.suppress(TimeoutError):

@@ -69,6 +69,7 @@ def test_the_demo_race_stops_at_the_native_initializers_first_pose():
     """The native-only replay ends at its first published pose, with the same publication time and source
     as the same replay run to the end of the recording."""
     import argparse
+    from dataclasses import replace
 
     from drivers.sim import SimConfig, SimRecording
     from runtime.config import DavioConfig
@@ -77,7 +78,9 @@ def test_the_demo_race_stops_at_the_native_initializers_first_pose():
 
     rec = SimRecording.from_preset(SimConfig(preset="handheld", seconds=6, seed=0))
     race = _native_only(rec, DavioConfig(), argparse.Namespace(seconds=6))
-    full = run_pipeline(rec, None, DavioConfig(), show_progress=False)
+    config = DavioConfig()
+    config = replace(config, mapping=replace(config.mapping, enabled=False))    # as the race runs
+    full = run_pipeline(rec, None, config, show_progress=False)
     st = full.pipeline.startup.report
     assert race["published_by"] == st.first_published_by is not None
     t_f = (st.first_publish_t_ns - full.scheduler.first_t_ns) * 1e-9
