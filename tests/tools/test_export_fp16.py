@@ -341,7 +341,7 @@ def test_the_export_checks_count_non_finite_outputs_and_remove_a_failed_rewrite(
     scoped = tmp_path / "scoped_fp16.onnx"
     onnx.save(_contract_model(tmp_path), scoped)
     req = ExportRequest("tiny", 28, 42, str(scoped), random_init=True, threads=1, precision="fp16")
-    summary, check = _to_fp16_and_check(scoped, inputs, refs, req, n_params=10)
+    summary, check = _to_fp16_and_check(scoped, inputs, refs, req)
     assert summary["fp16_nodes"] == 4 and check["provider"] == "CPUExecutionProvider"
     assert check["vs_fp32"]["fp32_provider"] == "CPUExecutionProvider"
     assert 0 < check["vs_fp32"]["max_rel_error"] < 1e-3 and check["tolerance"] == 0.1
@@ -352,5 +352,5 @@ def test_the_export_checks_count_non_finite_outputs_and_remove_a_failed_rewrite(
     bare.with_suffix(".json").write_text("{}")    # a card from an earlier export at this path
     req = ExportRequest("tiny", 28, 42, str(bare), random_init=True, threads=1, precision="fp16")
     with pytest.raises(ModelError, match="fp16 rewrite failed on CPUExecutionProvider.*nothing was written"):
-        _to_fp16_and_check(bare, inputs, refs, req, n_params=10)
+        _to_fp16_and_check(bare, inputs, refs, req)
     assert not bare.exists() and not bare.with_suffix(".json").exists()

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -54,7 +55,9 @@ def test_external_data_is_written_once_under_the_graphs_name_and_removed_when_un
 
 
 def test_a_graph_written_with_data_under_another_name_is_moved_with_it(tmp_path):
-    """torch's exporter names the data after the file it writes (`<out>.tmp.data` here, `w.bin` below)."""
+    """Whatever name the writer gave the data (torch's exporter: `<out>.tmp.data`; `w.bin` here), it moves
+    with the graph to `<out>.data`; data spread over files, outside the graph's folder or missing is
+    refused."""
     out, tmp = tmp_path / "g.onnx", temporary_path(tmp_path / "g.onnx")
     onnx.save(_model(np.arange(1000.0)), str(tmp), save_as_external_data=True, location="w.bin")
     move_into_place(tmp, out)
@@ -66,9 +69,24 @@ def test_a_graph_written_with_data_under_another_name_is_moved_with_it(tmp_path)
     onnx.save(model, str(tmp), save_as_external_data=True, all_tensors_to_one_file=False)
     with pytest.raises(ModelError, match="spread over 2 files"):
         move_into_place(tmp, out)
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    onnx.save(_model(np.arange(1000.0)), str(tmp), save_as_external_data=True, location="w2.bin")
+    os.replace(tmp_path / "w2.bin", elsewhere / "w2.bin")
+    model = onnx.load(str(tmp), load_external_data=False)
+    for entry in model.graph.initializer[0].external_data:
+        if entry.key == "location":
+            entry.value = "elsewhere/../elsewhere/w2.bin"
+    onnx.save(model, str(tmp))
+    with pytest.raises(ModelError, match="not beside it"):
+        move_into_place(tmp, out)
+    onnx.save(_model(np.arange(1000.0)), str(tmp), save_as_external_data=True, location="w3.bin")
+    (tmp_path / "w3.bin").unlink()
+    with pytest.raises(ModelError, match="w3.bin, is missing"):
+        move_into_place(tmp, out)
     out.with_suffix(".json").write_text("{}")
     remove_graph(out)
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["unused", "w"]   # only the per-tensor files
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["elsewhere", "unused", "w"]   # not ours
 
 
 def _contract_graph(path: Path, variant: str = "ok") -> Path:
@@ -101,3 +119,44 @@ def test_a_failed_fp32_check_keeps_the_graph_only_when_fp32_was_asked(tmp_path, 
         assert out.exists() and written["file"] == out.name and len(written["sha256"]) == 64
     else:
         assert not out.exists() and written["file"] is None and "removed" in str(err.value)
+
+
+def _external_graph(model, out: Path) -> None:
+    """`model` written at `out` with its weights in `<out>.data` (a Giant-sized graph in miniature)."""
+    tmp = temporary_path(out)
+    onnx.save(model, str(tmp), save_as_external_data=True, location=tmp.name + ".data", size_threshold=60)
+    move_into_place(tmp, out)
+    assert data_path(out).exists()
+
+
+@pytest.mark.parametrize("fp32_fails", [True, False])
+def test_the_card_names_a_data_file_only_while_it_exists(tmp_path, fp32_fails):
+    """An fp32 graph whose weights lie in `<out>.data`: removed after a failed check under --precision fp16,
+    or rewritten to an fp16 graph small enough to hold its weights, it leaves no data file, and the card
+    names none."""
+    import sys
+
+    from tools.export.da3_check import check_inputs, run_graph
+    from tools.export.export_da3 import ExportRequest, check_and_write_card
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_export_fp16 import _contract_model
+
+    inputs = check_inputs(3, 28, 42, seed=1)
+    out = tmp_path / "da3_fp16.onnx"
+    if fp32_fails:
+        refs, _ = run_graph(_contract_graph(tmp_path / "ref.onnx"), inputs, threads=1)
+        _external_graph(onnx.load(_contract_graph(tmp_path / "nan.onnx", variant="nan_depth")), out)
+    else:
+        _external_graph(_contract_model(tmp_path), out)
+        refs, _ = run_graph(out, inputs, threads=1)
+    req = ExportRequest("tiny", 28, 42, str(out), random_init=True, threads=1, precision="fp16")
+    card = {"precision": "fp16", "file": out.name, "parameters": 10}
+    if fp32_fails:
+        with pytest.raises(ModelError, match="removed: no fp16 rewrite"):
+            check_and_write_card(out, inputs, refs, req, card)
+    else:
+        assert check_and_write_card(out, inputs, refs, req, card)["fp16"]["fp16_nodes"] == 4
+    written = json.loads(out.with_suffix(".json").read_text())
+    assert not data_path(out).exists() and "data_file" not in written and "data_sha256" not in written
+    assert out.exists() != fp32_fails

@@ -121,7 +121,8 @@ def run(args: argparse.Namespace) -> int:
         f"opset {card['opset']}, {card['precision']}, licence: {card['licence']})"
     )
     if card.get("data_file"):
-        print(f"its weights are in {card['data_file']} beside it (over 2 GiB): keep the two together")
+        print(f"its weights are in {card['data_file']} beside it (too large for one ONNX file): "
+              "keep the two together")
     if "fp32_check" in card:
         fp16 = card["fp16"]
         print(f"fp32 graph: ONNX Runtime vs torch, max relative error "

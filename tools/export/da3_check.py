@@ -31,7 +31,6 @@ def check_inputs(n: int, height: int, width: int, seed: int) -> dict:
     return {"images": images, "intrinsics": K.astype(np.float32), "extrinsics": E.astype(np.float32)}
 
 
-
 def run_graph(path: Path, inputs: dict, threads: int, providers: list[str] | None = None) -> tuple[dict, str]:
     """The graph's outputs on the check `inputs` (the CPU provider unless `providers` says otherwise), after
     checking that it takes the smallest window (N = 2) too.

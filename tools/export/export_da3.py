@@ -40,6 +40,7 @@ from tools.export.graph_files import (
     data_path,
     move_into_place,
     remove_graph,
+    remove_temporary,
     save_graph,
     temporary_path,
 )
@@ -274,10 +275,13 @@ def export_da3(req: ExportRequest) -> dict:
     }
     program.model.metadata_props.update(meta)
     n_params = sum(p.numel() for p in net.parameters())
-    tmp = temporary_path(out)
-    data_path(tmp).unlink(missing_ok=True)   # a left-over data file would be appended to
-    program.save(str(tmp), external_data=n_params * 4 > EXTERNAL_DATA_BYTES)
-    move_into_place(tmp, out)   # the exporter names the data after `tmp`: it becomes `<out>.data`
+    remove_temporary(out)   # a left-over data file would be appended to
+    try:
+        program.save(str(temporary_path(out)), external_data=n_params * 4 > EXTERNAL_DATA_BYTES)
+        move_into_place(temporary_path(out), out)   # the exporter names the data after its file
+    except BaseException:
+        remove_temporary(out)
+        raise
     export_s = time.perf_counter() - t1
     card = {
         "contract": CONTRACT,
@@ -328,10 +332,12 @@ def check_and_write_card(out: Path, inputs: dict, refs: dict, req: ExportRequest
     fp32_ok = check["max_rel_error"] <= fp32_tolerance
     if not fp32_ok and req.precision == "fp16":
         remove_graph(out)
+        _drop_data_file(card)
         card.update(file=None, sha256=None, removed="the fp32 graph failed its check: no fp16 rewrite made")
     elif req.precision == "fp16":
         card["fp32_check"] = check
-        card["fp16"], card["check"] = _to_fp16_and_check(out, inputs, refs, req, card["parameters"])
+        card["fp16"], card["check"] = _to_fp16_and_check(out, inputs, refs, req)
+        _drop_data_file(card)       # the fp32 graph's; the fp16 graph may keep its weights in itself
         card.update(sha256=sha256_file(out), **_data_file(out))
     if started is not None:
         card["total_seconds"] = round(time.perf_counter() - started, 2)
@@ -360,7 +366,12 @@ def _data_file(out: Path) -> dict:
     return {"data_file": data.name, "data_sha256": sha256_file(data)} if data.exists() else {}
 
 
-def _to_fp16_and_check(out: Path, inputs: dict, refs: dict, req: ExportRequest, n_params: int):
+def _drop_data_file(card: dict) -> None:
+    for key in ("data_file", "data_sha256"):
+        card.pop(key, None)
+
+
+def _to_fp16_and_check(out: Path, inputs: dict, refs: dict, req: ExportRequest):
     """Rewrite the checked fp32 graph at `out` with its backbone in fp16 (tools/export/fp16.py) and check
     it on the best provider here (CUDA where available) against torch and against the fp32 graph on the
     same provider. Returns (summary, check); the check names the providers that actually ran.
@@ -378,8 +389,9 @@ def _to_fp16_and_check(out: Path, inputs: dict, refs: dict, req: ExportRequest, 
     provider = providers[0]
     try:
         fp32_outputs, fp32_provider = run_graph(out, inputs, req.threads, providers)
+        provider = fp32_provider      # what ONNX Runtime ran (it falls back to the CPU)
         model, summary = to_mixed_fp16(onnx.load(str(out)), where=str(out))
-        save_graph(model, out, external=n_params * 2 > EXTERNAL_DATA_BYTES)
+        save_graph(model, out)        # its weights in `<out>.data` when they exceed one protobuf
         got, provider = run_graph(out, inputs, req.threads, providers)
     except Exception as exc:
         remove_graph(out)

@@ -136,7 +136,7 @@ def to_mixed_fp16(model, scope: str = FP16_SCOPE, where: str = "graph"):
     changed = True
     while changed:
         changed = False
-        for n in nodes:
+        for n in reversed(nodes):      # readers first (the exporter's order is topological): one pass
             if id(n) in keep_f32:
                 continue
             floats = [o for o in n.output if o and types.get(o) == F32]
