@@ -77,3 +77,37 @@ def test_live_without_devices_or_calibration_is_a_clear_error(tmp_path: Path, ca
     err = capsys.readouterr().err
     assert "davio live: error:" in err and time.monotonic() - t0 < 10
     assert not (tmp_path / "c").exists() and not (tmp_path / "c.partial").exists()
+
+
+@pytest.mark.parametrize("command", ["live", "calibrate"])
+def test_the_model_is_loaded_before_the_camera_starts_when_the_rig_is_given(tmp_path: Path, capsys,
+                                                                             monkeypatch, command) -> None:
+    """A started camera drops its images until the run reads them: with --rig the model (whose warm-up
+    takes seconds) is opened first, and a model that fails leaves the devices unopened. Without --rig (an
+    OAK's factory calibration) the device comes first, as the model needs its intrinsics."""
+    import tools.commands.live as live
+    import tools.model_open as model_open
+    from runtime.errors import DeviceError, ModelError
+
+    calls: list[str] = []
+
+    def fake_open_device(args, rig):
+        calls.append("device")
+        raise DeviceError("no such device (test)")
+
+    def fake_open_da3(*args, **kwargs):
+        calls.append("model")
+        raise ModelError("bad model (test)")
+
+    monkeypatch.setattr(live, "open_device", fake_open_device)
+    monkeypatch.setattr(model_open, "open_da3", fake_open_da3)
+    rig_file = Path(__file__).resolve().parents[2] / "calib" / "rigs" / "euroc_camchain.yaml"
+    model = tmp_path / "da3.onnx"
+    model.write_bytes(b"not read")
+    out = ["--out", str(tmp_path / ("run" if command == "live" else "rig.yaml"))]
+    assert main([command, "uvc", "--imu-port", str(tmp_path / "tty"), "--rig", str(rig_file),
+                 "--model", str(model), *out]) == 1
+    assert "bad model (test)" in capsys.readouterr().err and calls == ["model"]
+    calls.clear()
+    assert main([command, "oak", "--model", str(model), *out]) == 1
+    assert "no such device (test)" in capsys.readouterr().err and calls == ["device"]

@@ -243,9 +243,13 @@ def open_live(args: argparse.Namespace) -> tuple:
         given = load_rig(args.rig)
         if given.camera is None:
             raise ConfigError(f"{args.rig}: no camera intrinsics")
-    driver, rig = open_device(args, given)
     model, desc = None, TWO_VIEW
-    if args.model:
+    if args.model and given is not None:   # the model's warm-up before the camera starts (`davio live`)
+        from tools.model_open import open_da3
+
+        model, desc = open_da3(args, given.camera, 5)
+    driver, rig = open_device(args, given)
+    if args.model and given is None:        # the intrinsics are the device's factory calibration
         try:
             from tools.model_open import open_da3
 

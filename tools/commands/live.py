@@ -85,13 +85,20 @@ def run(args: argparse.Namespace) -> int:
     if rig is not None and rig.camera is None:
         raise ConfigError(f"{args.rig}: no camera intrinsics")
     with interruptible():
-        driver, rig = open_device(args, rig)
-        try:
+        if rig is not None:
+            # the model (a DA3 warm-up takes seconds) before the device: a started camera's images would be
+            # dropped by its newest-frames buffer until the run reads them, and the start-up would lose them
             model, model_desc = _open_model(args, rig, config)
             prior = prior_map(args, model, config)
-        except BaseException:
-            driver.stop()
-            raise
+            driver, rig = open_device(args, rig)
+        else:   # the rig is the device's factory calibration: the device first
+            driver, rig = open_device(args, rig)
+            try:
+                model, model_desc = _open_model(args, rig, config)
+                prior = prior_map(args, model, config)
+            except BaseException:
+                driver.stop()
+                raise
         folder.create()
         with folder.discard_on_error():
             try:
