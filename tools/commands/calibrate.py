@@ -359,9 +359,10 @@ def run(args: argparse.Namespace) -> int:
             file=log,
             flush=True,
         )
-        events_path.parent.mkdir(parents=True, exist_ok=True)   # a new folder, as `davio run --out` makes
-        event_file = EventFile(events_path.parent, name=events_path.name)
+        event_file = None
         try:
+            events_path.parent.mkdir(parents=True, exist_ok=True)   # a new folder, as `davio run --out` makes
+            event_file = EventFile(events_path.parent, name=events_path.name)
             run_ = calibrate(
                 driver.events(),
                 rig,
@@ -375,12 +376,14 @@ def run(args: argparse.Namespace) -> int:
                 on_event=event_file,
             )
         except BaseException:
-            event_file.close()      # no report follows: the events file would be left alone, blocking a rerun
-            events_path.unlink(missing_ok=True)
+            if event_file is not None:  # no report follows: a lone events file would block a rerun
+                event_file.close()
+                events_path.unlink(missing_ok=True)
             raise
         finally:
-            event_file.close()
-            if live:
+            if event_file is not None:
+                event_file.close()
+            if live:                    # also when the events file could not be opened
                 driver.stop()
     return finish(args, run_, rig, th, desc, what, reference, log, driver_report=driver.report())
 
