@@ -50,6 +50,7 @@ def test_long_run_bench_measures_both_costs(tmp_path, capsys) -> None:
     (["--poses", "5"], "--poses must be >= 100"),
     (["--moved", "-1"], "--moved >= 0"),
     (["--writer-submaps", "10"], "--writer-submaps must be in"),
+    (["--writer-submaps", "50"], "--writer-submaps must be in [200, 100000], got 50"),
     (["--track-seconds", "5"], "--track-seconds must be 0 or in [10, 3600]"),
 ])
 def test_long_run_bench_refuses_bad_arguments(argv, message) -> None:

@@ -274,8 +274,8 @@ def run(args: argparse.Namespace) -> int:
         raise SystemExit(f"davio bench long-run: --camera-hz must be positive, got {args.camera_hz}")
     if args.poses < 100 or args.moved < 0:
         raise SystemExit("davio bench long-run: --poses must be >= 100 and --moved >= 0")
-    if not 50 <= args.writer_submaps <= 100_000:
-        raise SystemExit(f"davio bench long-run: --writer-submaps must be in [50, 100000], got "
+    if not 200 <= args.writer_submaps <= 100_000:
+        raise SystemExit(f"davio bench long-run: --writer-submaps must be in [200, 100000], got "
                          f"{args.writer_submaps}")
     track_s = args.track_seconds
     if not (math.isfinite(track_s) and (track_s == 0 or 10 <= track_s <= 3600)):
