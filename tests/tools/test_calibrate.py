@@ -195,10 +195,11 @@ def test_a_fraction_of_a_second_is_refused_as_too_little_data(translation_folder
     assert "refused below 3 s" in capsys.readouterr().err
 
 
-def test_a_calibration_that_fails_leaves_no_events_file_behind(translation_folder, tmp_path, capsys,
-                                                              monkeypatch):
-    """An error during the run (here after one event was written) writes no report; the events file goes
-    too, so that a second run needs no --overwrite. A judged run keeps it (the test above)."""
+def test_a_failed_calibration_keeps_its_events_and_a_rerun_replaces_them(translation_folder, tmp_path,
+                                                                          capsys, monkeypatch):
+    """An error during the run (here after one event was written) writes no report; the events file stays
+    (it says what happened before the error) and a second run replaces it without --overwrite. With no
+    event written, the empty file goes, and so do the folders the run made."""
     import tools.calibrate.core as core
     from runtime.errors import DataError
     from runtime.run_events import RunEvent
@@ -210,8 +211,91 @@ def test_a_calibration_that_fails_leaves_no_events_file_behind(translation_folde
 
     monkeypatch.setattr(core, "calibrate", failing)
     assert main(["calibrate", str(translation_folder), "--out", str(tmp_path / "rig.yaml")]) == 1
-    assert "the IMU stream stopped" in capsys.readouterr().err
-    assert sorted(p.name for p in tmp_path.iterdir()) == []
+    err = capsys.readouterr().err
+    assert "the IMU stream stopped" in err
+    assert f"events up to the error are in {tmp_path / 'rig.events.jsonl'}" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rig.events.jsonl"]
+    assert json.loads((tmp_path / "rig.events.jsonl").read_text())["kind"] == "reset"
+    # the rerun is not refused for the lone events file (no report beside it): it replaces it
+    monkeypatch.setattr(core, "calibrate", lambda *a, **k: _run(rates=(0.0, 0.0, 0.0)))
+    assert main(["calibrate", str(translation_folder), "--out", str(tmp_path / "rig.yaml"),
+                 "--no-plots"]) == 3
+    assert (tmp_path / "rig.events.jsonl").read_text() == ""
+    assert (tmp_path / "rig.report.json").is_file()
+    # beside a report, the events file is a judged run's: refused without --overwrite
+    assert main(["calibrate", str(translation_folder), "--out", str(tmp_path / "rig.yaml")]) == 1
+    assert "pass --overwrite" in capsys.readouterr().err
+
+    def failing_silently(*args, **kwargs):
+        raise DataError("the camera stream stopped")
+
+    monkeypatch.setattr(core, "calibrate", failing_silently)
+    out = tmp_path / "new" / "deeper" / "rig.yaml"
+    assert main(["calibrate", str(translation_folder), "--out", str(out)]) == 1
+    assert "the camera stream stopped" in capsys.readouterr().err
+    assert not (tmp_path / "new").exists()
+
+
+def test_a_refused_calibration_keeps_its_events(translation_folder, tmp_path, capsys, monkeypatch):
+    """A judged run (here refused, exit 3) writes its report; the events file stays beside it and the
+    report names it."""
+    import tools.calibrate.core as core
+    from runtime.run_events import RunEvent
+
+    def refused(events, *args, on_event=None, **kwargs):
+        on_event(RunEvent(10**9, 1.0, "reset", "filter reset", {"segment": 0}))
+        return _run(rates=(0.0, 0.0, 0.0))
+
+    monkeypatch.setattr(core, "calibrate", refused)
+    assert main(["calibrate", str(translation_folder), "--out", str(tmp_path / "rig.yaml"),
+                 "--no-plots"]) == 3
+    assert "does not excite the rotation enough" in capsys.readouterr().err
+    events = tmp_path / "rig.events.jsonl"
+    assert [json.loads(ln)["kind"] for ln in events.read_text().splitlines()] == ["reset"]
+    assert json.loads((tmp_path / "rig.report.json").read_text())["files"]["events"] == str(events)
+
+
+def test_an_events_file_that_fails_is_said_and_the_run_goes_on(translation_folder, tmp_path, capsys,
+                                                                monkeypatch):
+    """A disk that fails under the events file stops the file, not the calibration, and the run says so on
+    stderr; an events file that cannot be opened at all is a clear error before any work."""
+    import errno
+
+    import tools.calibrate.core as core
+    import tools.event_output as event_output
+    from runtime.run_events import RunEvent
+
+    class FullDisk:
+        closed = False
+
+        def write(self, text):
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+        def close(self):
+            self.closed = True
+
+    def run_with_a_full_disk(events, *args, on_event=None, **kwargs):
+        on_event._fh.close()
+        on_event._fh = FullDisk()
+        on_event(RunEvent(10**9, 1.0, "reset", "filter reset", {"segment": 0}))
+        return _run(rates=(0.0, 0.0, 0.0))
+
+    monkeypatch.setattr(core, "calibrate", run_with_a_full_disk)
+    assert main(["calibrate", str(translation_folder), "--out", str(tmp_path / "rig.yaml"),
+                 "--no-plots"]) == 3
+    err = capsys.readouterr().err
+    assert (f"warning: the events file stopped ({tmp_path / 'rig.events.jsonl'}: No space left on device); "
+            "the run went on") in err
+
+    def unopenable(self, folder, name="events.jsonl"):
+        raise OSError(errno.EROFS, "Read-only file system")
+
+    monkeypatch.setattr(event_output.EventFile, "__init__", unopenable)
+    out = tmp_path / "new" / "rig.yaml"
+    assert main(["calibrate", str(translation_folder), "--out", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert f"cannot write the events file {out.parent / 'rig.events.jsonl'}: Read-only file system" in err
+    assert "Traceback" not in err and not (tmp_path / "new").exists()
 
 
 def test_input_repairs_are_said_and_kept_in_the_report(translation_folder, tmp_path, capsys):

@@ -111,3 +111,96 @@ def test_the_model_is_loaded_before_the_camera_starts_when_the_rig_is_given(tmp_
     calls.clear()
     assert main([command, "oak", "--model", str(model), *out]) == 1
     assert "no such device (test)" in capsys.readouterr().err and calls == ["device"]
+
+
+class _StartedDriver:
+    """A started live driver that counts its stops (no device behind it)."""
+
+    def __init__(self) -> None:
+        self.stops = 0
+
+    def stop(self) -> None:
+        self.stops += 1
+
+    def events(self):
+        return iter(())
+
+    def report(self) -> dict:
+        return {}
+
+
+def _fake_devices(monkeypatch) -> list[_StartedDriver]:
+    """open_device hands out _StartedDriver with the EuRoC camchain as the device's calibration."""
+    import tools.commands.live as live
+    from calib import load_rig
+
+    rig = load_rig(Path(__file__).resolve().parents[2] / "calib" / "rigs" / "euroc_camchain.yaml")
+    drivers: list[_StartedDriver] = []
+
+    def fake_open_device(args, given):
+        drivers.append(_StartedDriver())
+        return drivers[-1], given if given is not None else rig
+
+    monkeypatch.setattr(live, "open_device", fake_open_device)
+    return drivers
+
+
+@pytest.mark.parametrize("command", ["live", "calibrate"])
+def test_a_started_device_is_stopped_when_the_model_then_fails(tmp_path: Path, capsys, monkeypatch,
+                                                               command) -> None:
+    """Without --rig the device opens first (the model needs its factory intrinsics): a model that then
+    fails stops it."""
+    import tools.model_open as model_open
+    from runtime.errors import ModelError
+
+    drivers = _fake_devices(monkeypatch)
+
+    def fake_open_da3(*args, **kwargs):
+        raise ModelError("bad model (test)")
+
+    monkeypatch.setattr(model_open, "open_da3", fake_open_da3)
+    model = tmp_path / "da3.onnx"
+    model.write_bytes(b"not read")
+    out = str(tmp_path / ("run" if command == "live" else "rig.yaml"))
+    assert main([command, "oak", "--model", str(model), "--out", out]) == 1
+    assert "bad model (test)" in capsys.readouterr().err
+    assert len(drivers) == 1 and drivers[0].stops >= 1
+
+
+def test_live_stops_the_device_when_the_run_folder_cannot_be_made(tmp_path: Path, capsys,
+                                                                   monkeypatch) -> None:
+    from runtime.errors import ConfigError
+    from tools.run_folder import RunFolder
+
+    drivers = _fake_devices(monkeypatch)
+
+    def cannot_create(self):
+        raise ConfigError(f"--out {self.out}: cannot create it (test)")
+
+    monkeypatch.setattr(RunFolder, "create", cannot_create)
+    rig_file = Path(__file__).resolve().parents[2] / "calib" / "rigs" / "euroc_camchain.yaml"
+    assert main(["live", "uvc", "--imu-port", str(tmp_path / "tty"), "--rig", str(rig_file), "--out",
+                 str(tmp_path / "run")]) == 1
+    assert "cannot create it (test)" in capsys.readouterr().err
+    assert len(drivers) == 1 and drivers[0].stops >= 1
+
+
+def test_calibrate_stops_the_device_when_its_banner_cannot_be_said(tmp_path: Path, monkeypatch) -> None:
+    """A console that fails between the device's start and the run (a closed stdout) still stops it."""
+    import errno
+    import sys
+
+    drivers = _fake_devices(monkeypatch)
+
+    class ClosedConsole:
+        def write(self, text):
+            raise OSError(errno.EPIPE, "Broken pipe")
+
+        def flush(self):
+            pass
+
+    monkeypatch.setattr(sys, "stdout", ClosedConsole())
+    with pytest.raises(OSError, match="Broken pipe"):
+        main(["calibrate", "oak", "--out", str(tmp_path / "rig.yaml")])
+    assert len(drivers) == 1 and drivers[0].stops >= 1
+    assert not any(tmp_path.iterdir())

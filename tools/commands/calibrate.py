@@ -194,8 +194,10 @@ def check_args(args: argparse.Namespace) -> None:
     if paths_for(out)["imu"] == out:
         raise ConfigError(f"--out {out}: the IMU calibration is written as {out.name} beside the camchain; "
                           "name the camchain itself, e.g. camchain.yaml")
-    if not args.overwrite:
-        existing = [str(p) for p in paths_for(out).values() if p.exists()]
+    if not args.overwrite:   # an events file with no report beside it is a failed run's: replaced
+        paths = paths_for(out)
+        left_by_error = paths["events"].exists() and not paths["report"].exists()
+        existing = [str(p) for k, p in paths.items() if p.exists() and not (k == "events" and left_by_error)]
         if existing:
             raise ConfigError(f"--out {out}: {', '.join(existing)} exist(s); pass --overwrite to replace")
     from tools.output_file import check_output_file
@@ -337,55 +339,84 @@ def run(args: argparse.Namespace) -> int:
                     max_offset_std_ms=args.max_offset_std_ms, max_lever_drift_m=args.max_lever_drift_m,
                     settle_window_s=args.settle_window_s)
     from tools.calibrate.output import paths_for
-    from tools.event_output import EventFile
 
     log = sys.stderr if args.json else sys.stdout
     live = is_live(args.source)
     events_path = paths_for(Path(args.out))["events"]
-    with interruptible():
-        if live:
-            from tools.commands.live import describe_device
+    made = [d for d in [events_path.parent, *events_path.parent.parents] if not d.exists()]
+    event_file = None
+    try:
+        with interruptible():
+            if live:
+                from tools.commands.live import describe_device
 
-            driver, rig, model, desc, reference = open_live(args)
-            what = f"live {describe_device(args)}"
-        else:
-            rec, rig, model, desc, reference = open_inputs(args)
-            driver, what = rec.driver, rec.description
-        print(
-            f"davio calibrate: {what}\n  model: {desc}\n  extrinsics and time offset withheld: "
-            "hand-eye bring-up, then online calibration"
-            + ("\n  move the module about at least two axes; Ctrl-C (or --seconds) ends the data" if live
-               else ""),
-            file=log,
-            flush=True,
-        )
-        event_file = None
-        try:
-            events_path.parent.mkdir(parents=True, exist_ok=True)   # a new folder, as `davio run --out` makes
-            event_file = EventFile(events_path.parent, name=events_path.name)
-            run_ = calibrate(
-                driver.events(),
-                rig,
-                model,
-                config,
-                seconds=args.seconds,
-                model_latency_s=args.model_latency,
-                progress=stderr_progress,
-                alert=stderr_alert,
-                live=live,
-                on_event=event_file,
-            )
-        except BaseException:
-            if event_file is not None:  # no report follows: a lone events file would block a rerun
-                event_file.close()
-                events_path.unlink(missing_ok=True)
-            raise
-        finally:
-            if event_file is not None:
-                event_file.close()
-            if live:                    # also when the events file could not be opened
-                driver.stop()
+                driver, rig, model, desc, reference = open_live(args)
+                what = f"live {describe_device(args)}"
+            else:
+                rec, rig, model, desc, reference = open_inputs(args)
+                driver, what = rec.driver, rec.description
+            try:
+                print(
+                    f"davio calibrate: {what}\n  model: {desc}\n  extrinsics and time offset withheld: "
+                    "hand-eye bring-up, then online calibration"
+                    + ("\n  move the module about at least two axes; Ctrl-C (or --seconds) ends the data"
+                       if live else ""),
+                    file=log,
+                    flush=True,
+                )
+                event_file = open_event_file(events_path)
+                run_ = calibrate(
+                    driver.events(),
+                    rig,
+                    model,
+                    config,
+                    seconds=args.seconds,
+                    model_latency_s=args.model_latency,
+                    progress=stderr_progress,
+                    alert=stderr_alert,
+                    live=live,
+                    on_event=event_file,
+                )
+            finally:
+                if event_file is not None:
+                    event_file.close()
+                if live:                # also when the banner or the events file failed
+                    driver.stop()
+    except BaseException:
+        discard_failed_events(event_file, made)
+        raise
+    if event_file.failed:
+        print(f"davio calibrate: warning: the events file stopped ({event_file.failed}); the run went on",
+              file=sys.stderr)
     return finish(args, run_, rig, th, desc, what, reference, log, driver_report=driver.report())
+
+
+def open_event_file(path: Path):
+    """tools.event_output.EventFile at `path` (its folder made as `davio run --out` makes one), or a
+    ConfigError saying why it cannot be written."""
+    from runtime.errors import ConfigError
+    from tools.event_output import EventFile
+
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        return EventFile(path.parent, name=path.name)
+    except OSError as exc:
+        raise ConfigError(f"--out: cannot write the events file {path}: {exc.strerror or exc}") from None
+
+
+def discard_failed_events(event_file, made: list[Path]) -> None:
+    """After a run that failed with an error (no report follows): an events file holding events stays (it
+    says what happened before the error; a rerun replaces it without --overwrite, check_args), an empty one
+    goes, and so do the folders this run made when they are left empty."""
+    if event_file is not None and event_file.written == 0:
+        event_file.path.unlink(missing_ok=True)
+    elif event_file is not None:
+        print(f"davio calibrate: the run's events up to the error are in {event_file.path}", file=sys.stderr)
+    for folder in made:             # deepest first
+        try:
+            folder.rmdir()
+        except OSError:             # not empty, or already gone
+            break
 
 
 def finish(

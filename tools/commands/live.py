@@ -99,12 +99,12 @@ def run(args: argparse.Namespace) -> int:
             except BaseException:
                 driver.stop()
                 raise
-        folder.create()
-        with folder.discard_on_error():
-            try:
+        try:                # the driver stops also when the run folder cannot be made
+            folder.create()
+            with folder.discard_on_error():
                 return _run(args, folder, driver, rig, model, model_desc, config, prior)
-            finally:
-                driver.stop()
+        finally:
+            driver.stop()
 
 
 def _open_model(args: argparse.Namespace, rig, config) -> tuple:
