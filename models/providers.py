@@ -9,15 +9,20 @@ off: on small CPUs shared with the filter, spinning threads double the latency (
 from __future__ import annotations
 
 import contextlib
+import functools
 import io
 import logging
 import os
 import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from models.onnx_file import ContractCheck, check_model_file, require_file
 from runtime.errors import ModelError
+
+if TYPE_CHECKING:
+    import onnxruntime as ort
 
 log = logging.getLogger(__name__)
 
@@ -145,9 +150,12 @@ def default_threads() -> int:
     return max(1, min(4, n - 1 if n > 2 else n))
 
 
-def quiet_run_options():
-    """ONNX Runtime RunOptions under which a failing run is not also logged on stderr: the caller raises the
-    failure as a ModelError carrying the same text (it was said twice, the log's copy in colour codes)."""
+@functools.cache
+def quiet_run_options() -> ort.RunOptions:
+    """ONNX Runtime RunOptions under which a run logs nothing below fatal on stderr: its warnings and its
+    error on a failing run are not said (the caller raises the failure as a ModelError carrying the same
+    text; it was said twice, the log's copy in colour codes). One instance, made on first use and shared
+    by every run (read-only: nobody sets its `terminate` flag)."""
     import onnxruntime as ort
 
     options = ort.RunOptions()

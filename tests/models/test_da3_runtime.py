@@ -43,6 +43,17 @@ def expected_red_depth(img: np.ndarray) -> np.ndarray:
     return 2.0 + 0.5 * red
 
 
+def test_the_graph_runs_quietly(graph):
+    """Every inference runs under quiet_run_options (log level 4, fatal only): a failing run is said once,
+    by the ModelError, not also by ONNX Runtime's own log on stderr."""
+    from run_spy import RunSpy
+
+    model = OnnxDA3(graph, CAM, threads=1)
+    model.session = RunSpy(model.session)
+    model.predict(gradient_frames(2))
+    assert model.session.log_levels == [4]
+
+
 def test_unconditioned_call_maps_outputs_to_camera_resolution(graph):
     model = OnnxDA3(graph, CAM, threads=1)
     assert isinstance(model, DepthModel) and model.graph_views is None

@@ -117,3 +117,22 @@ def test_real_lighterglue_export_matches_a_homography_pair(tmp_path):
     assert m.backend == "xfeat+lighterglue"
     r = match_precision(m.match(img, b), HomographyTruth(H, img.shape))
     assert r["matches"] >= 200 and r["precision"] >= 0.8, r
+
+
+def test_the_matcher_models_run_quietly(tmp_path):
+    """XFeat and LighterGlue run under quiet_run_options (log level 4, fatal only): a failing run is said
+    once, by their ModelError, not also by ONNX Runtime's own log on stderr."""
+    from run_spy import RunSpy
+
+    from models.matcher import XFeatDetector
+
+    rng = np.random.default_rng(1)
+    a = rng.normal(size=(20, 64))
+    a /= np.linalg.norm(a, axis=1, keepdims=True)
+    glue = LighterGlue(build_glue_graph(tmp_path / "g.onnx"), min_conf=0.5, threads=1)
+    glue.session = RunSpy(glue.session)
+    assert len(glue.match(features(a), features(a), (640, 480), (640, 480))[0]) == 20
+    xfeat = XFeatDetector(top_k=50, threads=1)
+    xfeat.session = RunSpy(xfeat.session)
+    xfeat.detect(rng.integers(0, 255, (64, 96), dtype=np.uint8))
+    assert glue.session.log_levels == [4] and xfeat.session.log_levels == [4]
