@@ -279,10 +279,16 @@ def test_crash_mid_commit_leaves_previous_archive(tmp_path, monkeypatch):
     assert check_integrity(w.folder) == []
 
 
-def _commit_plan(folder: Path, n_commits: int) -> tuple[MapArchiveWriter, list[dict]]:
+def _expected_submaps(folder: Path, subs: list[Submap]) -> list[dict]:
+    """The manifest's submap entries for the archived `subs`, by index, as JSON reads them back."""
+    return json.loads(json.dumps([_expected_entry(folder, sm) for sm in sorted(subs, key=lambda s: s.index)]))
+
+
+def _commit_plan(folder: Path, n_commits: int) -> tuple[MapArchiveWriter, list[dict], list[Submap]]:
     """A writer's archive after n_commits (the first one written whole, the others journal lines while
-    the journal stays smaller than manifest.json), and after each commit what the manifest must read as:
-    map_version, the submap entries, the pairs and the stats, from the writer's own arguments."""
+    the journal stays smaller than manifest.json); after each commit what the manifest must read as:
+    map_version, the submap entries, the pairs and the stats, from the writer's own arguments and the
+    submaps (not from the writer's state); and the archived submaps."""
     from tools.map_archive.format import jsonable
 
     rng = np.random.default_rng(7)
@@ -298,15 +304,15 @@ def _commit_plan(folder: Path, n_commits: int) -> tuple[MapArchiveWriter, list[d
             sm.lam, sm.version = float(rng.normal(0, 0.05)), version
         pairs.append({"a": version, "b": version + 1, "kappa": float(rng.normal())})
         w.commit([subs[version + 6], *moved], pairs, version, {"windows": version})
-        states.append({"map_version": version, "submaps": json.loads(json.dumps(w.entries)),
+        states.append({"map_version": version, "submaps": _expected_submaps(folder, subs[:version + 7]),
                        "pairs": jsonable(list(pairs)), "stats": {"windows": version}})
-    return w, states
+    return w, states, subs[:n_commits + 7]
 
 
 def test_killed_anywhere_in_a_journal_line_reloads_the_commits_before_it(tmp_path, capsys):
     """A run killed while appending a commit's line leaves a line without its newline: the archive reads as
     the commit before, whatever the cut; each complete line brings the next commit."""
-    w, states = _commit_plan(tmp_path / "map", 6)
+    w, states, _ = _commit_plan(tmp_path / "map", 6)
     assert w.whole_writes == 1 and len(_journal_lines(w.folder)) == 5     # all five after the first
     journal = (w.folder / "manifest.journal").read_bytes()
     ends = [i + 1 for i, b in enumerate(journal) if b == ord("\n")]
@@ -329,7 +335,7 @@ def test_killed_anywhere_in_a_journal_line_reloads_the_commits_before_it(tmp_pat
 def test_a_journal_from_before_the_last_whole_write_is_skipped(tmp_path):
     """A kill between writing manifest.json whole and removing the journal leaves the old journal beside the
     new manifest: its lines carry the older generation and are already in the manifest."""
-    w, states = _commit_plan(tmp_path / "map", 4)
+    w, states, _ = _commit_plan(tmp_path / "map", 4)
     old = (w.folder / "manifest.journal").read_bytes()
     w.close()
     (w.folder / "manifest.journal").write_bytes(old)
@@ -341,7 +347,7 @@ def test_a_journal_from_before_the_last_whole_write_is_skipped(tmp_path):
 def test_the_writer_never_appends_after_bytes_it_did_not_write(tmp_path):
     """Bytes appended to the journal by someone else (or a write cut short) would join the next line: the
     writer sees the journal's length differ and writes the manifest whole instead."""
-    w, states = _commit_plan(tmp_path / "map", 3)
+    w, states, _ = _commit_plan(tmp_path / "map", 3)
     with open(w.folder / "manifest.journal", "ab") as fh:
         fh.write(b'{"generation": 1, "map_ver')
     sm = make_submap(50, seed=50, n_pts=30)
@@ -362,8 +368,8 @@ def test_a_failed_commit_is_never_built_upon(tmp_path, monkeypatch):
         info = read_manifest(w.folder)
         return info["map_version"], info["submaps"], info["pairs"]
 
-    def in_memory(w: MapArchiveWriter, pairs: list) -> tuple:
-        return w.map_version, json.loads(json.dumps(w.entries)), jsonable(list(pairs))
+    def expected(w: MapArchiveWriter, version: int, submaps: list[Submap], pairs: list) -> tuple:
+        return version, _expected_submaps(w.folder, submaps), jsonable(list(pairs))
 
     real_replace = os.replace
 
@@ -373,7 +379,7 @@ def test_a_failed_commit_is_never_built_upon(tmp_path, monkeypatch):
         return real_replace(src, dst)
 
     for then_close in (False, True):
-        w, _ = _commit_plan(tmp_path / f"map{then_close}", 3)
+        w, _, archived = _commit_plan(tmp_path / f"map{then_close}", 3)
         pairs = [{"a": 0, "b": 1}]
         subs = [make_submap(k, seed=60 + k, n_pts=30) for k in (20, 21)]
         monkeypatch.setattr(w, "_append", lambda data: False)
@@ -384,26 +390,28 @@ def test_a_failed_commit_is_never_built_upon(tmp_path, monkeypatch):
         assert on_disk(w)[0] == 3
         if then_close:
             w.close()
+            assert on_disk(w) == expected(w, 4, [*archived, subs[0]], pairs)
         else:
             subs[0].T_MS = np.eye(4)
             subs[0].version = 5
-            w.commit([subs[0], subs[1]], pairs + [{"a": 1, "b": 2}], 5, {"windows": 5})
-        assert on_disk(w) == in_memory(w, w._pair_objs)
+            pairs = pairs + [{"a": 1, "b": 2}]
+            w.commit([subs[0], subs[1]], pairs, 5, {"windows": 5})
+            assert on_disk(w) == expected(w, 5, [*archived, *subs], pairs)
         assert not (w.folder / "manifest.journal").exists()
 
-    w, _ = _commit_plan(tmp_path / "points", 3)
+    w, states, archived = _commit_plan(tmp_path / "points", 3)
     moved = make_submap(2, seed=1, n_pts=31)                   # submap 2 is archived with 30 points
+    new = make_submap(30, seed=30, n_pts=30)
     with pytest.raises(ValueError, match="points changed"):
-        w.commit([make_submap(30, seed=30, n_pts=30), moved], [], 4, {})
-    w.close()
-    assert on_disk(w) == in_memory(w, w._pair_objs)
-    assert 30 in [e["index"] for e in read_manifest(w.folder)["submaps"]]
+        w.commit([new, moved], [], 4, {})
+    w.close()                                                  # submap 30 archived, 2 as it was
+    assert on_disk(w) == expected(w, 3, [*archived, new], states[-1]["pairs"])
 
 
 def test_a_reader_that_loses_the_journal_to_a_whole_write_reads_again(tmp_path, monkeypatch):
     """The writer may write manifest.json whole and remove the journal between the reader's look at the
     journal and its read: the reader reads both again instead of failing."""
-    w, states = _commit_plan(tmp_path / "map", 3)
+    w, states, _ = _commit_plan(tmp_path / "map", 3)
     journal = w.folder / "manifest.journal"
     real = Path.read_bytes
     calls = {"n": 0}
@@ -433,7 +441,7 @@ def test_a_reader_that_loses_the_journal_to_a_whole_write_reads_again(tmp_path, 
      r"A run writing it: try again\. Otherwise manifest.json is an older copy"),
 ])
 def test_a_damaged_journal_is_named_with_its_line(tmp_path, edit, message):
-    w, _ = _commit_plan(tmp_path / "map", 3)
+    w, _, _ = _commit_plan(tmp_path / "map", 3)
     path = w.folder / "manifest.journal"
     assert b'"pairs_keep":0' in path.read_bytes().splitlines()[0]
     path.write_bytes(b"\n".join(edit(path.read_bytes().splitlines())) + b"\n")
@@ -552,7 +560,7 @@ def test_a_submap_file_without_points_or_with_mismatched_rays_is_named(tmp_path)
 def test_schema_1_archives_are_read_without_a_journal(tmp_path):
     """An archive written before the journal (schema 1: no journal_generation) reads as its manifest.json,
     even beside a journal file, which only schema 2 defines."""
-    w, states = _commit_plan(tmp_path / "map", 3)
+    w, states, _ = _commit_plan(tmp_path / "map", 3)
     w.close()
     manifest = w.folder / "manifest.json"
     info = json.loads(manifest.read_text())

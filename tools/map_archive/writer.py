@@ -123,8 +123,7 @@ class MapArchiveWriter:
         self._entry_text: dict[int, str] = {}
         self._n_points: dict[int, int] = {}        # index -> points archived (they must not change)
         self._pair_objs: list = []                 # the records last committed (identity checked)
-        self._pair_data: list = []                 # ... as strict-JSON data
-        self._pair_text: list[str] = []            # ... encoded for the manifest
+        self._pair_text: list[str] = []            # ... encoded for the manifest (their only copy kept)
         self._stats: dict = {}
         self.map_version = 0
         self.generation = 0
@@ -187,11 +186,11 @@ class MapArchiveWriter:
             entry.update(state)
             self._entry_text[sm.index] = _element_text(entry)   # now, so a whole write only joins texts
             records.append(entry if new else {"index": int(sm.index), **state})
-        keep = self._take_pairs(list(pairs))
+        keep, added = self._take_pairs(list(pairs))
         self.map_version = int(version)
         self._stats = jsonable(dict(stats))
         line = json.dumps({"generation": self.generation, "map_version": self.map_version, "submaps": records,
-                           "pairs_keep": keep, "pairs": self._pair_data[keep:], "stats": self._stats},
+                           "pairs_keep": keep, "pairs": added, "stats": self._stats},
                           allow_nan=False, separators=(",", ":")) + "\n"
         data = line.encode()
         full = self.journal_bytes + len(data) > self.manifest_bytes
@@ -251,19 +250,19 @@ class MapArchiveWriter:
         self.bytes_written += len(data)
         return True
 
-    def _take_pairs(self, pairs: list) -> int:
+    def _take_pairs(self, pairs: list) -> tuple[int, list]:
         """Bring the pair records up to `pairs`; returns how many of the previous ones stay (the same
-        objects at the same places), the rest being replaced or added."""
+        objects at the same places) and the others, replaced or added, as strict-JSON data."""
         keep = 0
         for old, new in zip(self._pair_objs, pairs, strict=False):
             if old is not new:
                 break
             keep += 1
-        del self._pair_objs[keep:], self._pair_data[keep:], self._pair_text[keep:]
+        del self._pair_objs[keep:], self._pair_text[keep:]
+        added = [jsonable(rec) for rec in pairs[keep:]]
         self._pair_objs.extend(pairs[keep:])
-        self._pair_data.extend(jsonable(rec) for rec in pairs[keep:])
-        self._pair_text.extend(_element_text(rec) for rec in self._pair_data[keep:])
-        return keep
+        self._pair_text.extend(_element_text(rec) for rec in added)
+        return keep, added
 
     def _manifest_text(self, generation: int) -> str:
         """The whole manifest as `json.dumps(manifest, indent=1)` writes it, from the cached element texts."""
@@ -277,7 +276,8 @@ class MapArchiveWriter:
             middle, tail = rest.split(slots[1])
             return "".join((head, _list_text([self._entry_text[k] for k in sorted(self._entry_text)]), middle,
                             _list_text(self._pair_text), tail))
-        manifest.update(submaps=self.entries, pairs=self._pair_data)   # a value holds a slot's text
+        # a value holds a slot's text: the lists decoded again and the whole manifest encoded at once
+        manifest.update(submaps=self.entries, pairs=[json.loads(text) for text in self._pair_text])
         return json.dumps(manifest, allow_nan=False, indent=1)
 
     def _write_points(self, sm: Submap) -> dict:
