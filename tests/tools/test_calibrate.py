@@ -536,15 +536,10 @@ def test_calibrate_reads_a_live_uvc_module_and_judges_its_motion(small_sim_folde
     rate. The DA3 graph here is a contract graph without weights (its depth is a colour ramp and it returns
     the input cameras), so the hand-eye bring-up cannot complete: the run must refuse with the reason and a
     report whose rotation excitation is the one of the IMU rows fed through the serial port."""
-    import importlib.util
-
+    from da3_contract_graph import build_da3_contract_graph
     from live_sources import run_live_uvc, video_from_recording
 
-    spec = importlib.util.spec_from_file_location(
-        "da3_contract_graph", Path(__file__).resolve().parents[1] / "models" / "da3_contract_graph.py")
-    graphs = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(graphs)
-    graph = graphs.build_da3_contract_graph(tmp_path / "contract.onnx", 28, 42)
+    graph = build_da3_contract_graph(tmp_path / "contract.onnx", 28, 42)
     video = video_from_recording(small_sim_folder, tmp_path / "cam.avi")
     out = tmp_path / "rig.yaml"
     code = run_live_uvc(small_sim_folder, video,

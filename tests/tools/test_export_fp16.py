@@ -2,29 +2,19 @@
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import numpy as np
 import onnx
 import onnxruntime as ort
 import pytest
+from da3_contract_graph import build_da3_contract_graph
 from onnx import TensorProto, helper, numpy_helper
 
 from runtime.errors import ModelError
 from tools.export.fp16 import SCOPE_KEY, graph_precision, to_mixed_fp16
 
 F32, F16 = TensorProto.FLOAT, TensorProto.FLOAT16
-
-
-def build_da3_contract_graph(path: Path, variant: str = "ok") -> Path:
-    """tests/models/da3_contract_graph.py's contract graph (that folder is not on this file's path)."""
-    spec = importlib.util.spec_from_file_location(
-        "da3_contract_graph", Path(__file__).resolve().parents[1] / "models" / "da3_contract_graph.py"
-    )
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.build_da3_contract_graph(path, variant=variant)
 
 
 def _scope(node, module: str) -> None:
@@ -321,8 +311,9 @@ def test_the_export_checks_count_non_finite_outputs_and_remove_a_failed_rewrite(
     a NaN through); the fp16 stage on a scoped graph checks against the references and the fp32 graph on the
     same provider; a rewrite that fails removes the file and its card instead of leaving an fp32 graph under
     the fp16 name."""
+    from tools.export.da3_card import fp16_rewrite_and_check
     from tools.export.da3_check import check_inputs, compare_with_onnxruntime, run_graph, worst_error
-    from tools.export.export_da3 import ExportRequest, _to_fp16_and_check
+    from tools.export.export_da3 import ExportRequest
 
     inputs = check_inputs(3, 28, 42, seed=1)
     ok = build_da3_contract_graph(tmp_path / "ok.onnx")
@@ -341,7 +332,7 @@ def test_the_export_checks_count_non_finite_outputs_and_remove_a_failed_rewrite(
     scoped = tmp_path / "scoped_fp16.onnx"
     onnx.save(_contract_model(tmp_path), scoped)
     req = ExportRequest("tiny", 28, 42, str(scoped), random_init=True, threads=1, precision="fp16")
-    summary, check = _to_fp16_and_check(scoped, inputs, refs, req)
+    summary, check = fp16_rewrite_and_check(scoped, inputs, refs, req)
     assert summary["fp16_nodes"] == 4 and check["provider"] == "CPUExecutionProvider"
     assert check["vs_fp32"]["fp32_provider"] == "CPUExecutionProvider"
     assert 0 < check["vs_fp32"]["max_rel_error"] < 1e-3 and check["tolerance"] == 0.1
@@ -352,5 +343,5 @@ def test_the_export_checks_count_non_finite_outputs_and_remove_a_failed_rewrite(
     bare.with_suffix(".json").write_text("{}")    # a card from an earlier export at this path
     req = ExportRequest("tiny", 28, 42, str(bare), random_init=True, threads=1, precision="fp16")
     with pytest.raises(ModelError, match="fp16 rewrite failed on CPUExecutionProvider.*nothing was written"):
-        _to_fp16_and_check(bare, inputs, refs, req)
+        fp16_rewrite_and_check(bare, inputs, refs, req)
     assert not bare.exists() and not bare.with_suffix(".json").exists()

@@ -1,9 +1,8 @@
 """Writing exported graphs (tools/export/graph_files.py) and the export's check and card
-(tools/export/export_da3.check_and_write_card), on small graphs: no torch needed."""
+(tools/export/da3_card.check_and_write_card), on small graphs: no torch needed."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import os
 from pathlib import Path
@@ -11,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import onnx
 import pytest
+from da3_contract_graph import build_da3_contract_graph
 from onnx import TensorProto, helper, numpy_helper
 
 from models.providers import CPU, create_session
@@ -89,25 +89,17 @@ def test_a_graph_written_with_data_under_another_name_is_moved_with_it(tmp_path)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["elsewhere", "unused", "w"]   # not ours
 
 
-def _contract_graph(path: Path, variant: str = "ok") -> Path:
-    spec = importlib.util.spec_from_file_location(
-        "da3_contract_graph", Path(__file__).resolve().parents[1] / "models" / "da3_contract_graph.py"
-    )
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.build_da3_contract_graph(path, variant=variant)
-
-
 @pytest.mark.parametrize("precision", ["fp32", "fp16"])
 def test_a_failed_fp32_check_keeps_the_graph_only_when_fp32_was_asked(tmp_path, precision):
     """The fp32 graph disagrees with its references: under --precision fp32 it stays for inspection beside a
     card saying so; under fp16 no fp32 graph is left under the fp16 name, the card keeps the errors."""
+    from tools.export.da3_card import check_and_write_card
     from tools.export.da3_check import check_inputs, run_graph
-    from tools.export.export_da3 import ExportRequest, check_and_write_card
+    from tools.export.export_da3 import ExportRequest
 
     inputs = check_inputs(3, 28, 42, seed=1)
-    refs, _ = run_graph(_contract_graph(tmp_path / "ref.onnx"), inputs, threads=1)
-    out = _contract_graph(tmp_path / f"da3_{precision}.onnx", variant="nan_depth")
+    refs, _ = run_graph(build_da3_contract_graph(tmp_path / "ref.onnx"), inputs, threads=1)
+    out = build_da3_contract_graph(tmp_path / f"da3_{precision}.onnx", variant="nan_depth")
     req = ExportRequest("tiny", 28, 42, str(out), random_init=True, threads=1, precision=precision)
     card = {"precision": precision, "file": out.name, "parameters": 10}
     with pytest.raises(ModelError, match="disagrees with torch on the fp32 graph") as err:
@@ -134,19 +126,17 @@ def test_the_card_names_a_data_file_only_while_it_exists(tmp_path, fp32_fails):
     """An fp32 graph whose weights lie in `<out>.data`: removed after a failed check under --precision fp16,
     or rewritten to an fp16 graph small enough to hold its weights, it leaves no data file, and the card
     names none."""
-    import sys
-
-    from tools.export.da3_check import check_inputs, run_graph
-    from tools.export.export_da3 import ExportRequest, check_and_write_card
-
-    sys.path.insert(0, str(Path(__file__).parent))
     from test_export_fp16 import _contract_model
+
+    from tools.export.da3_card import check_and_write_card
+    from tools.export.da3_check import check_inputs, run_graph
+    from tools.export.export_da3 import ExportRequest
 
     inputs = check_inputs(3, 28, 42, seed=1)
     out = tmp_path / "da3_fp16.onnx"
     if fp32_fails:
-        refs, _ = run_graph(_contract_graph(tmp_path / "ref.onnx"), inputs, threads=1)
-        _external_graph(onnx.load(_contract_graph(tmp_path / "nan.onnx", variant="nan_depth")), out)
+        refs, _ = run_graph(build_da3_contract_graph(tmp_path / "ref.onnx"), inputs, threads=1)
+        _external_graph(onnx.load(build_da3_contract_graph(tmp_path / "nan.onnx", variant="nan_depth")), out)
     else:
         _external_graph(_contract_model(tmp_path), out)
         refs, _ = run_graph(out, inputs, threads=1)
