@@ -40,6 +40,13 @@ from drivers.sim.rig import euroc_default_rig
 from drivers.sim.sampled_motion import SampledMotion
 from drivers.sim.scene import Scene, build_scene
 from drivers.sim.spline import PoseSpline, fit_pose_spline
+from drivers.sim.timeline import (
+    crop_trajectory,
+    frame_times,
+    scene_positions,
+    trajectory_gap_notes,
+    trajectory_positions,
+)
 from drivers.trajectory_files import read_trajectory
 from runtime.errors import ConfigError, DataError
 from runtime.events import Frame, ImuSample
@@ -48,8 +55,6 @@ from runtime.geometry.trajectory import PoseTrajectory
 if TYPE_CHECKING:
     from calib import Rig
 
-FRAME_START_S = 0.025
-"""The first frame of a synthetic recording comes this long after the first IMU sample, s."""
 
 
 @dataclass(frozen=True)
@@ -120,38 +125,6 @@ GROUNDTRUTH_MODES = ("imu-consistent", "as-recorded")
 SCENE_SPANS = ("recording", "trajectory")
 MAX_SEED = 2**32
 """Seeds are integers in [0, MAX_SEED) (numpy's generators refuse negative ones)."""
-
-
-def _frame_times(t0_ns: int, t_end_ns: int, rate_hz: float, margin_ns: int) -> np.ndarray:
-    period = 1e9 / rate_hz
-    first = t0_ns + int(FRAME_START_S * 1e9)
-    n = int(np.floor((t_end_ns - margin_ns - first) / period)) + 1
-    if n < 1:
-        raise ConfigError("the recording is too short for a single camera frame")
-    return first + np.round(np.arange(n) * period).astype(np.int64)
-
-
-def scene_times(t0_ns: int, t_end_ns: int) -> np.ndarray:
-    """int64 stamps from t0_ns to t_end_ns (both included) about every 20 ms. Offsets from t0 are spaced in
-    float64, not the stamps: at 1.4e18 ns a float64 is 256 ns coarse, and a rounded end stamp fell outside
-    the motion's span (a TUM file whose first stamp rounded up)."""
-    n = max(2, int((t_end_ns - t0_ns) / 2e7))
-    span = int(t_end_ns) - int(t0_ns)
-    return int(t0_ns) + np.minimum(np.round(np.linspace(0.0, span, n)).astype(np.int64), span)
-
-
-def _scene_positions(motion, t0_ns: int, t_end_ns: int, T_IC: np.ndarray) -> np.ndarray:
-    t = scene_times(t0_ns, t_end_ns)
-    R, p = motion.pose(t)
-    return np.concatenate([p, p + R @ T_IC[:3, 3]])
-
-
-def _trajectory_positions(traj: PoseTrajectory, T_IC: np.ndarray) -> np.ndarray:
-    """Body and camera positions (world, m) of a whole trajectory, every 20 ms at most (as
-    `_scene_positions`): what a scene built around the whole trajectory file must leave free."""
-    step = max(1, int(round(2e7 / max(np.median(np.diff(traj.t_ns)), 1.0)))) if len(traj) > 1 else 1
-    p, R = traj.p[::step], traj.R[::step]
-    return np.concatenate([p, p + R @ T_IC[:3, 3]])
 
 
 KEEP_FRAMES_LIMIT_BYTES = 512 * 2**20
@@ -233,7 +206,7 @@ class SimRecording(Driver):
         """
         config = config or SimConfig(seconds=None)
         whole = read_trajectory(path, strictly_increasing=True)
-        traj = _crop(whole, config.start_s, config.seconds, Path(path))
+        traj = crop_trajectory(whole, config.start_s, config.seconds, Path(path))
         around = whole if config.scene_span == "trajectory" else None
         if imu_path is None:
             spline = fit_pose_spline(traj.t_ns, traj.p, traj.R, dt_s=0.1)
@@ -259,7 +232,7 @@ class SimRecording(Driver):
             raise DataError("no groundtruth.csv or groundtruth_tum.txt", folder)
         config = config or SimConfig(seconds=None)
         whole = read_trajectory(gt, strictly_increasing=True)
-        traj = _crop(whole, config.start_s, config.seconds, gt)
+        traj = crop_trajectory(whole, config.start_s, config.seconds, gt)
         stamps = folder / "cam0_timestamps.txt"
         return cls._replay(
             traj,
@@ -291,10 +264,10 @@ class SimRecording(Driver):
         )
         rate = config.camera_rate_hz or rig.camera_rate_hz or 20.0
         margin = int(config.image.exposure_time_s * 0.5e9) + abs(int(round(config.time_offset_s * 1e9)))
-        t_true = _frame_times(t0 + margin, t_end, rate, margin)
+        t_true = frame_times(t0 + margin, t_end, rate, margin)
         stamps = t_true - int(round(config.time_offset_s * 1e9))
-        scene = build_scene(_scene_positions(spline, t0, t_end, rig.T_IC) if scene_around is None
-                            else _trajectory_positions(scene_around, rig.T_IC), config.seed, config.style)
+        scene = build_scene(scene_positions(spline, t0, t_end, rig.T_IC) if scene_around is None
+                            else trajectory_positions(scene_around, rig.T_IC), config.seed, config.style)
         info = {**info, "seed": config.seed, "style": config.style, "seconds": (t_end - t0) * 1e-9}
         if scene_around is not None:
             info["scene_span"] = "trajectory"
@@ -330,13 +303,13 @@ class SimRecording(Driver):
             real = read_camera_timestamps(camera_stamps_path, policy="strict")
             t_true = real[(real >= t0 + margin) & (real <= t_end - margin)]
         else:
-            t_true = _frame_times(
+            t_true = frame_times(
                 t0 + margin, t_end, config.camera_rate_hz or rig.camera_rate_hz or 20.0, margin
             )
         if t_true.size == 0:
             raise DataError("no camera stamp falls inside the trajectory", camera_stamps_path or imu_path)
-        scene = build_scene(_scene_positions(motion, t0, t_end, rig.T_IC) if scene_around is None
-                            else _trajectory_positions(scene_around, rig.T_IC), config.seed, config.style)
+        scene = build_scene(scene_positions(motion, t0, t_end, rig.T_IC) if scene_around is None
+                            else trajectory_positions(scene_around, rig.T_IC), config.seed, config.style)
         info = {
             "mode": "euroc-trajectory",
             "source": source,
@@ -462,32 +435,3 @@ def _with_offset(rig: Rig, time_offset_s: float) -> Rig:
     elif rig.time_offset_s is None:
         rig = rig.replace(time_offset_s=0.0)
     return rig
-
-
-GAP_MIN_S = 0.2
-"""A step between trajectory poses longer than this and ten median steps is a gap (a tracking dropout)."""
-
-
-def trajectory_gap_notes(t_ns: np.ndarray) -> list[str]:
-    """A note when the poses have gaps (a motion-capture dropout): the spline fitted through them makes up
-    the motion there, and the IMU and images follow it."""
-    if len(t_ns) < 3:
-        return []
-    step = np.diff(np.asarray(t_ns, np.int64))
-    limit = max(GAP_MIN_S * 1e9, 10.0 * float(np.median(step)))
-    gaps = np.flatnonzero(step > limit)
-    if not len(gaps):
-        return []
-    k = int(gaps[np.argmax(step[gaps])])
-    return [f"the trajectory has {len(gaps)} gap(s) longer than {limit * 1e-9:.2g} s (the longest "
-            f"{step[k] * 1e-9:.2f} s, {(t_ns[k] - t_ns[0]) * 1e-9:.2f} s after its first pose): the spline "
-            "through the poses makes up the motion there, and the IMU and the images follow it"]
-
-
-def _crop(traj: PoseTrajectory, start_s: float, seconds: float | None, path: Path) -> PoseTrajectory:
-    t0 = int(traj.t_ns[0]) + int(round(start_s * 1e9))
-    t1 = int(traj.t_ns[-1]) if seconds is None else t0 + int(round(seconds * 1e9))
-    out = traj.subset((traj.t_ns >= t0) & (traj.t_ns <= t1))
-    if len(out) < 4:
-        raise DataError(f"fewer than 4 poses between {start_s} s and {start_s + (seconds or 0)} s", path)
-    return out

@@ -122,7 +122,7 @@ def test_preset_needs_positive_seconds() -> None:
 def test_scene_times_stay_within_the_span_of_epoch_stamps(t0_ns: int) -> None:
     """A TUM file's first stamp at 1.4e18 ns: the scene's sample times (once float64 stamps, 256 ns coarse)
     start and end exactly at the span's ends, increase, and are about 20 ms apart."""
-    from drivers.sim.recording import scene_times
+    from drivers.sim.timeline import scene_times
 
     t_end = t0_ns + 2_000_000_001
     t = scene_times(t0_ns, t_end)
@@ -133,7 +133,7 @@ def test_scene_times_stay_within_the_span_of_epoch_stamps(t0_ns: int) -> None:
 def test_a_gap_in_the_trajectory_is_noted() -> None:
     """Poses every 5 ms with a 2 s dropout: the note names the gap (the spline makes up the motion there);
     poses without a gap give none."""
-    from drivers.sim.recording import trajectory_gap_notes
+    from drivers.sim.timeline import trajectory_gap_notes
 
     t = 10**18 + np.arange(1000) * 5_000_000
     assert trajectory_gap_notes(t) == []
