@@ -32,7 +32,8 @@ from typing import Any
 import numpy as np
 
 NAME = "long-run"
-HELP = "per-hour growth: bytes per published pose, and the map manifest's commit time by archive size"
+HELP = ("per-hour growth: bytes per published pose, the map archive writer's memory per submap, and "
+        "the manifest's commit time by archive size")
 DESCRIPTION = __doc__
 SUBMAP_PERIOD_S = 1.5
 """A submap every 1.5 s: 0.5 s keyframes, five-image windows sharing two images (paper Sec. III)."""
@@ -47,7 +48,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="submaps a commit moves besides the new one (default: the graph's other nodes, "
                    "graph.max_resident_nodes - 1)")
     p.add_argument("--writer-submaps", type=int, default=1000,
-                   help="submaps archived for the writer's memory a submap")
+                   help="submaps archived for the writer's memory a submap (200 to 100000; default 1000)")
     p.add_argument("--track-seconds", type=float, default=300.0,
                    help="length of the simulated tracking run measured whole (0 = skip)")
     p.add_argument("--seed", type=int, default=0, help="seed of that recording")
