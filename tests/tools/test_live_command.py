@@ -204,3 +204,31 @@ def test_calibrate_stops_the_device_when_its_banner_cannot_be_said(tmp_path: Pat
         main(["calibrate", "oak", "--out", str(tmp_path / "rig.yaml")])
     assert len(drivers) == 1 and drivers[0].stops >= 1
     assert not any(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("command", ["live", "calibrate"])
+@pytest.mark.parametrize("source", ["uvc", "oak"])
+def test_the_filter_kernels_are_loaded_before_the_device_starts(tmp_path: Path, capsys, monkeypatch,
+                                                                 command, source) -> None:
+    """A first session loads numba's kernels (0.2 s on a 2-core machine, 1 s on a slow one) while a started
+    camera would drop its images: the filter's warm-up has run when the device opens, with --rig (uvc)
+    and with an OAK's factory calibration (a stand-in rig)."""
+    import runtime.msckf.warmup as warmup
+    import tools.commands.live as live
+    from runtime.errors import DeviceError
+
+    monkeypatch.setattr(warmup, "_WARMED", set())
+    warmed_at_open: list[int] = []
+
+    def fake_open_device(args, rig):
+        warmed_at_open.append(len(warmup._WARMED))
+        raise DeviceError("no such device (test)")
+
+    monkeypatch.setattr(live, "open_device", fake_open_device)
+    rig_file = Path(__file__).resolve().parents[2] / "calib" / "rigs" / "euroc_camchain.yaml"
+    device = (["uvc", "--imu-port", str(tmp_path / "tty"), "--rig", str(rig_file)] if source == "uvc"
+              else ["oak"])
+    out = str(tmp_path / ("run" if command == "live" else "rig.yaml"))
+    assert main([command, *device, "--out", out]) == 1
+    assert "no such device (test)" in capsys.readouterr().err
+    assert len(warmed_at_open) == 1 and warmed_at_open[0] >= 1

@@ -227,12 +227,14 @@ def is_live(source: str) -> bool:
     return source in LIVE_SOURCES and not Path(source).exists()
 
 
-def open_live(args: argparse.Namespace) -> tuple:
+def open_live(args: argparse.Namespace, config) -> tuple:
     """(LiveDriver, rig with the intrinsics, model, model description, reference dict) for a live module,
     or a DavioError. The model is a DA3 graph or none (two-view rotations): the emulated DA3 needs a
-    simulator's ground truth."""
+    simulator's ground truth. The model and the filter's kernels (under `config`, the run's DavioConfig)
+    are loaded before the device starts, where they can be (`davio live`)."""
     from runtime.errors import ConfigError
-    from tools.commands.live import check_device_args, open_device
+    from tools.calibrate.core import calibration_config
+    from tools.commands.live import check_device_args, load_kernels, open_device
 
     check_device_args(args, "davio calibrate")
     if args.emulated:
@@ -250,6 +252,7 @@ def open_live(args: argparse.Namespace) -> tuple:
         from tools.model_open import open_da3
 
         model, desc = open_da3(args, given.camera, 5)
+    load_kernels(None, calibration_config(config))   # the rig's extrinsics are withheld: a stand-in's
     driver, rig = open_device(args, given)
     if args.model and given is None:        # the intrinsics are the device's factory calibration
         try:
@@ -350,7 +353,7 @@ def run(args: argparse.Namespace) -> int:
             if live:
                 from tools.commands.live import describe_device
 
-                driver, rig, model, desc, reference = open_live(args)
+                driver, rig, model, desc, reference = open_live(args, config)
                 what = f"live {describe_device(args)}"
             else:
                 rec, rig, model, desc, reference = open_inputs(args)

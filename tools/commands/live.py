@@ -90,8 +90,10 @@ def run(args: argparse.Namespace) -> int:
             # dropped by its newest-frames buffer until the run reads them, and the start-up would lose them
             model, model_desc = _open_model(args, rig, config)
             prior = prior_map(args, model, config)
+            load_kernels(rig, config)
             driver, rig = open_device(args, rig)
         else:   # the rig is the device's factory calibration: the device first
+            load_kernels(None, config)
             driver, rig = open_device(args, rig)
             try:
                 model, model_desc = _open_model(args, rig, config)
@@ -114,6 +116,25 @@ def _open_model(args: argparse.Namespace, rig, config) -> tuple:
     from tools.model_open import open_da3
 
     return open_da3(args, rig.camera, config.startup.window_images)
+
+
+def load_kernels(rig, config) -> float:
+    """Load the tracker's and the filter's numba kernels now, before the device starts (a first session
+    takes 0.2 s on a 2-core machine, 1 s on a slow one, and a started camera's newest-frames buffer drops
+    the images the run has not read). `rig` None, or one without extrinsics (a calibration): the EuRoC rig
+    stands in, as the kernels do not depend on the camera's values. Returns the seconds it took."""
+    from calib import euroc_rig
+    from runtime.pipeline import VioPipeline
+
+    t0 = time.monotonic()
+    if rig is not None and rig.T_IC is not None:
+        VioPipeline(rig, None, config)
+    else:
+        try:
+            VioPipeline(euroc_rig(), None, config)
+        except Exception:   # a stand-in the configuration does not fit: the session loads them itself
+            pass
+    return time.monotonic() - t0
 
 
 def check_device_args(args: argparse.Namespace, command: str) -> None:
