@@ -195,12 +195,14 @@ def test_a_fraction_of_a_second_is_refused_as_too_little_data(translation_folder
     assert "refused below 3 s" in capsys.readouterr().err
 
 
-def test_a_failed_calibration_keeps_its_events_and_a_rerun_replaces_them(translation_folder, tmp_path,
-                                                                          capsys, monkeypatch):
+def test_a_failed_calibration_keeps_its_events_and_a_rerun_needs_overwrite(translation_folder, tmp_path,
+                                                                           capsys, monkeypatch):
     """An error during the run (here after one event was written) writes no report; the events file stays
-    (it says what happened before the error) and a second run replaces it without --overwrite. With no
-    event written, the empty file goes, and so do the folders the run made."""
+    (it says what happened before the error) and a rerun is refused without --overwrite, saying what the
+    lone file is (a failed `davio run` leaves its folder the same way). With no event written, the empty
+    file goes, and so do the folders the run made, also when the failure comes while writing the report."""
     import tools.calibrate.core as core
+    import tools.calibrate.report as calib_report
     from runtime.errors import DataError
     from runtime.run_events import RunEvent
 
@@ -210,29 +212,45 @@ def test_a_failed_calibration_keeps_its_events_and_a_rerun_replaces_them(transla
         raise DataError("the IMU stream stopped")
 
     monkeypatch.setattr(core, "calibrate", failing)
-    assert main(["calibrate", str(translation_folder), "--out", str(tmp_path / "rig.yaml")]) == 1
+    out = str(tmp_path / "rig.yaml")
+    assert main(["calibrate", str(translation_folder), "--out", out]) == 1
     err = capsys.readouterr().err
     assert "the IMU stream stopped" in err
-    assert f"events up to the error are in {tmp_path / 'rig.events.jsonl'}" in err
+    assert f"events up to where it stopped are in {tmp_path / 'rig.events.jsonl'}\n" in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rig.events.jsonl"]
     assert json.loads((tmp_path / "rig.events.jsonl").read_text())["kind"] == "reset"
-    # the rerun is not refused for the lone events file (no report beside it): it replaces it
+    # the rerun: refused for the lone events file, which is not touched; --overwrite replaces it
     monkeypatch.setattr(core, "calibrate", lambda *a, **k: _run(rates=(0.0, 0.0, 0.0)))
-    assert main(["calibrate", str(translation_folder), "--out", str(tmp_path / "rig.yaml"),
-                 "--no-plots"]) == 3
+    assert main(["calibrate", str(translation_folder), "--out", out, "--no-plots"]) == 1
+    assert ("rig.events.jsonl without a report beside it: the events of a calibration that failed, or of one "
+            "still running); pass --overwrite") in capsys.readouterr().err
+    assert json.loads((tmp_path / "rig.events.jsonl").read_text())["kind"] == "reset"
+    assert main(["calibrate", str(translation_folder), "--out", out, "--no-plots", "--overwrite"]) == 3
     assert (tmp_path / "rig.events.jsonl").read_text() == ""
-    assert (tmp_path / "rig.report.json").is_file()
-    # beside a report, the events file is a judged run's: refused without --overwrite
-    assert main(["calibrate", str(translation_folder), "--out", str(tmp_path / "rig.yaml")]) == 1
-    assert "pass --overwrite" in capsys.readouterr().err
+    report = json.loads((tmp_path / "rig.report.json").read_text())
+    assert report["files"]["events"] == str(tmp_path / "rig.events.jsonl")
+    assert report["files"]["events_stopped"] is None
+    # a failing rerun over a judged run: its events replace the earlier ones, and it says whose report stays
+    monkeypatch.setattr(core, "calibrate", failing)
+    assert main(["calibrate", str(translation_folder), "--out", out, "--overwrite"]) == 1
+    assert "(rig.report.json beside it is from an earlier calibration)" in capsys.readouterr().err
 
     def failing_silently(*args, **kwargs):
         raise DataError("the camera stream stopped")
 
     monkeypatch.setattr(core, "calibrate", failing_silently)
-    out = tmp_path / "new" / "deeper" / "rig.yaml"
-    assert main(["calibrate", str(translation_folder), "--out", str(out)]) == 1
+    deeper = tmp_path / "new" / "deeper" / "rig.yaml"
+    assert main(["calibrate", str(translation_folder), "--out", str(deeper)]) == 1
     assert "the camera stream stopped" in capsys.readouterr().err
+    assert not (tmp_path / "new").exists()
+
+    def report_fails(*args, **kwargs):
+        raise OSError("the report could not be built (test)")
+
+    monkeypatch.setattr(core, "calibrate", lambda *a, **k: _run(rates=(0.0, 0.0, 0.0)))
+    monkeypatch.setattr(calib_report, "build_report", report_fails)
+    with pytest.raises(OSError, match="could not be built"):
+        main(["calibrate", str(translation_folder), "--out", str(deeper)])
     assert not (tmp_path / "new").exists()
 
 
@@ -286,6 +304,8 @@ def test_an_events_file_that_fails_is_said_and_the_run_goes_on(translation_folde
     err = capsys.readouterr().err
     assert (f"warning: the events file stopped ({tmp_path / 'rig.events.jsonl'}: No space left on device); "
             "the run went on") in err
+    stopped = json.loads((tmp_path / "rig.report.json").read_text())["files"]["events_stopped"]
+    assert stopped == f"{tmp_path / 'rig.events.jsonl'}: No space left on device"
 
     def unopenable(self, folder, name="events.jsonl"):
         raise OSError(errno.EROFS, "Read-only file system")

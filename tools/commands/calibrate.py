@@ -194,12 +194,15 @@ def check_args(args: argparse.Namespace) -> None:
     if paths_for(out)["imu"] == out:
         raise ConfigError(f"--out {out}: the IMU calibration is written as {out.name} beside the camchain; "
                           "name the camchain itself, e.g. camchain.yaml")
-    if not args.overwrite:   # an events file with no report beside it is a failed run's: replaced
+    if not args.overwrite:
         paths = paths_for(out)
-        left_by_error = paths["events"].exists() and not paths["report"].exists()
-        existing = [str(p) for k, p in paths.items() if p.exists() and not (k == "events" and left_by_error)]
+        existing = [str(p) for p in paths.values() if p.exists() or p.is_symlink()]
+        lone = paths["events"].exists() and not paths["report"].exists()
         if existing:
-            raise ConfigError(f"--out {out}: {', '.join(existing)} exist(s); pass --overwrite to replace")
+            raise ConfigError(f"--out {out}: {', '.join(existing)} exist(s)"
+                              + (f" ({paths['events'].name} without a report beside it: the events of a "
+                                 "calibration that failed, or of one still running)" if lone else "")
+                              + "; pass --overwrite to replace")
     from tools.output_file import check_output_file
 
     source = Path(str(args.source))
@@ -345,8 +348,10 @@ def run(args: argparse.Namespace) -> int:
 
     log = sys.stderr if args.json else sys.stdout
     live = is_live(args.source)
-    events_path = paths_for(Path(args.out))["events"]
+    paths = paths_for(Path(args.out))
+    events_path = paths["events"]
     made = [d for d in [events_path.parent, *events_path.parent.parents] if not d.exists()]
+    report_before = _file_id(paths["report"])
     event_file = None
     try:
         with interruptible():
@@ -385,13 +390,24 @@ def run(args: argparse.Namespace) -> int:
                     event_file.close()
                 if live:                # also when the banner or the events file failed
                     driver.stop()
+        if event_file.failed:
+            print(f"davio calibrate: warning: the events file stopped ({event_file.failed}); the run went on",
+                  file=sys.stderr)
+        return finish(args, run_, rig, th, desc, what, reference, log, driver_report=driver.report(),
+                      events_stopped=event_file.failed)
     except BaseException:
-        discard_failed_events(event_file, made)
+        if _file_id(paths["report"]) == report_before:     # no report of this run follows
+            discard_failed_events(event_file, made, paths["report"])
         raise
-    if event_file.failed:
-        print(f"davio calibrate: warning: the events file stopped ({event_file.failed}); the run went on",
-              file=sys.stderr)
-    return finish(args, run_, rig, th, desc, what, reference, log, driver_report=driver.report())
+
+
+def _file_id(path: Path) -> tuple[int, int] | None:
+    """(inode, modification time in ns) of `path`, None when absent: a report written since differs."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return st.st_ino, st.st_mtime_ns
 
 
 def open_event_file(path: Path):
@@ -407,14 +423,17 @@ def open_event_file(path: Path):
         raise ConfigError(f"--out: cannot write the events file {path}: {exc.strerror or exc}") from None
 
 
-def discard_failed_events(event_file, made: list[Path]) -> None:
-    """After a run that failed with an error (no report follows): an events file holding events stays (it
-    says what happened before the error; a rerun replaces it without --overwrite, check_args), an empty one
+def discard_failed_events(event_file, made: list[Path], report: Path) -> None:
+    """After a run that stopped with an error or Ctrl-C before writing its report: an events file holding
+    events stays (it says what happened before; a rerun needs --overwrite, as after a failed `davio run`)
+    and the run says where it is, and that a `report` beside it is an earlier calibration's; an empty one
     goes, and so do the folders this run made when they are left empty."""
     if event_file is not None and event_file.written == 0:
         event_file.path.unlink(missing_ok=True)
     elif event_file is not None:
-        print(f"davio calibrate: the run's events up to the error are in {event_file.path}", file=sys.stderr)
+        earlier = f" ({report.name} beside it is from an earlier calibration)" if report.exists() else ""
+        print(f"davio calibrate: the run's events up to where it stopped are in {event_file.path}{earlier}",
+              file=sys.stderr)
     for folder in made:             # deepest first
         try:
             folder.rmdir()
@@ -424,10 +443,11 @@ def discard_failed_events(event_file, made: list[Path]) -> None:
 
 def finish(
     args: argparse.Namespace, run_, rig, th, model_desc: str, recording: str, reference: dict, log,
-    driver_report: dict | None = None,
+    driver_report: dict | None = None, events_stopped: str | None = None,
 ) -> int:
     """Judge the run, write the report (always), the camchain (only when accepted) and the plots. The
-    driver's input repairs go into the report ("driver") and on the console, as `davio run` says them."""
+    driver's input repairs go into the report ("driver") and on the console, as `davio run` says them;
+    `events_stopped` says why the events file stopped during the run (report["files"]["events_stopped"])."""
     from runtime.files import atomic_write_text
     from runtime.json_out import strict_dumps
     from tools.calibrate.checks import judge
@@ -439,6 +459,7 @@ def finish(
     paths["report"].parent.mkdir(parents=True, exist_ok=True)   # a new folder, as `davio run --out` makes
     report = build_report(run_, verdict, th, model_desc, recording, reference, paths)
     report["driver"] = driver_report
+    report["files"]["events_stopped"] = events_stopped
     if verdict.ok:
         write_outputs(run_, rig, paths, report)
     else:   # a refused run writes no rig: say so when an earlier one is left where this one would go
