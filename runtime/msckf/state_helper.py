@@ -7,17 +7,25 @@ import numpy as np
 from numba import njit
 from scipy.linalg.blas import dsyrk
 from scipy.linalg.lapack import dgeqrf, dpotrf, dtrtrs
-from scipy.stats import chi2 as _chi2
+from scipy.special import gammaincinv
 
 from runtime.msckf.measurement import givens_left_nullspace, projected_mahalanobis
 from runtime.msckf.state import Clone, Landmark, State
 
-_CHI2_95 = _chi2.ppf(0.95, np.arange(1, 2001))
+
+def _chi2_quantile_95(dof: np.ndarray | int) -> np.ndarray:
+    """95 % quantile of the chi-square distribution, 2 P^-1(dof / 2, 0.95) with P the regularised lower
+    incomplete gamma function: scipy.stats.chi2.ppf's own formula, bit for bit, without importing
+    scipy.stats (about 1 s at every command's start on a 2-core machine)."""
+    return 2.0 * gammaincinv(np.asarray(dof, np.float64) / 2.0, 0.95)
+
+
+_CHI2_95 = _chi2_quantile_95(np.arange(1, 2001))
 
 
 def chi2_95(dof: int) -> float:
     """95% quantile of the chi-square distribution with dof degrees of freedom."""
-    return float(_CHI2_95[dof - 1]) if dof <= _CHI2_95.size else float(_chi2.ppf(0.95, dof))
+    return float(_CHI2_95[dof - 1]) if dof <= _CHI2_95.size else float(_chi2_quantile_95(dof))
 
 
 def chi2_accepts(d2: float, dof: int, multiplier: float) -> bool:
