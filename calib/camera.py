@@ -281,18 +281,6 @@ class Pinhole(CameraModel):
     distortion_model = "none"
     distortion_sizes = (0,)
 
-    def __init__(
-        self,
-        width: int,
-        height: int,
-        fx: float,
-        fy: float,
-        cx: float,
-        cy: float,
-        distortion: np.ndarray | list | tuple = (),
-    ) -> None:
-        super().__init__(width, height, fx, fy, cx, cy, distortion)
-
     def _distort_normalized(self, xy: np.ndarray) -> np.ndarray:
         return xy.copy()
 

@@ -583,3 +583,20 @@ def test_calibrate_reads_a_live_uvc_module_and_judges_its_motion(small_sim_folde
     assert 4.0 < seen <= 5.05
     np.testing.assert_allclose(report["excitation"]["rms_rate_dps"], expected.rms_rate_dps, rtol=0.05,
                                atol=0.2)
+
+
+def test_every_refusal_threshold_has_its_option(tmp_path, capsys):
+    """Each field of Thresholds is an option with the field's default, and reaches judge() as given."""
+    import dataclasses
+
+    from tools.commands.calibrate import THRESHOLD_OPTIONS
+
+    assert [f for f, _, _ in THRESHOLD_OPTIONS] == [f.name for f in dataclasses.fields(Thresholds)]
+    with pytest.raises(SystemExit):
+        main(["calibrate", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    for field, _, _ in THRESHOLD_OPTIONS:
+        assert f"--{field.replace('_', '-')}" in text, field
+    assert main(["calibrate", str(tmp_path), "--out", str(tmp_path / "rig.yaml"), "--max-lever-std-m",
+                 "-1"]) == 1
+    assert "--max-lever-std-m must be a finite number > 0 (got -1.0)" in capsys.readouterr().err

@@ -37,6 +37,20 @@ DESCRIPTION = (
 
 #: exit status of a refusal (1: an error, 2: bad arguments)
 EXIT_REFUSED = 3
+#: the refusal thresholds' options: tools.calibrate.checks.Thresholds' field (--field-name), metavar, help
+THRESHOLD_OPTIONS = (
+    ("min_axis_rate_dps", "DEG_S", "refuse unless two principal rotation axes of the gyro stream reach this "
+     "RMS rate"),
+    ("min_seconds", "S", "a run whose bring-up did not complete within fewer seconds of data is refused as "
+     "too short"),
+    ("max_rot_std_deg", "DEG", "refuse when the final rotation 1-sigma (worst axis) exceeds this"),
+    ("max_lever_std_m", "M", "refuse when the final lever-arm 1-sigma (worst axis) exceeds this"),
+    ("max_offset_std_ms", "MS", "refuse when the final time-offset 1-sigma exceeds this"),
+    ("max_lever_drift_m", "M", "refuse when the lever arm came farther than this from its final value over "
+     "the last --settle-window-s (still converging)"),
+    ("settle_window_s", "S", "the span of the final filter segment over which the lever arm must have "
+     "settled (a shorter final segment is refused)"),
+)
 
 
 def _emulated_presets() -> list[str]:
@@ -99,57 +113,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="simulated model latency (sensor seconds, >= 0; without a model the bring-up's fits take "
         "the replay's 0.1 s solve latency)",
     )
-    p.add_argument(
-        "--min-axis-rate-dps",
-        type=float,
-        default=th.min_axis_rate_dps,
-        metavar="DEG_S",
-        help="refuse unless two principal rotation axes of the gyro stream reach this RMS rate",
-    )
-    p.add_argument(
-        "--min-seconds",
-        type=float,
-        default=th.min_seconds,
-        metavar="S",
-        help="a run whose bring-up did not complete within fewer seconds of data is refused as too short",
-    )
-    p.add_argument(
-        "--max-rot-std-deg",
-        type=float,
-        default=th.max_rot_std_deg,
-        metavar="DEG",
-        help="refuse when the final rotation 1-sigma (worst axis) exceeds this",
-    )
-    p.add_argument(
-        "--max-lever-std-m",
-        type=float,
-        default=th.max_lever_std_m,
-        metavar="M",
-        help="refuse when the final lever-arm 1-sigma (worst axis) exceeds this",
-    )
-    p.add_argument(
-        "--max-offset-std-ms",
-        type=float,
-        default=th.max_offset_std_ms,
-        metavar="MS",
-        help="refuse when the final time-offset 1-sigma exceeds this",
-    )
-    p.add_argument(
-        "--max-lever-drift-m",
-        type=float,
-        default=th.max_lever_drift_m,
-        metavar="M",
-        help="refuse when the lever arm came farther than this from its final value over the last "
-        "--settle-window-s (still converging)",
-    )
-    p.add_argument(
-        "--settle-window-s",
-        type=float,
-        default=th.settle_window_s,
-        metavar="S",
-        help="the span of the final filter segment over which the lever arm must have settled (a shorter "
-        "final segment is refused)",
-    )
+    for field, metavar, text in THRESHOLD_OPTIONS:
+        p.add_argument(f"--{field.replace('_', '-')}", type=float, default=getattr(th, field),
+                       metavar=metavar, help=text)
     p.add_argument("--no-plots", action="store_true", help="do not draw the convergence plots")
     from tools.commands.live import add_device_arguments
 
@@ -177,8 +143,7 @@ def check_args(args: argparse.Namespace) -> None:
         raise ConfigError(
             f"--model-latency must be a finite number of seconds >= 0 (got {args.model_latency!r})"
         )
-    for opt in ("min_axis_rate_dps", "min_seconds", "max_rot_std_deg", "max_lever_std_m",
-                "max_offset_std_ms", "max_lever_drift_m", "settle_window_s"):
+    for opt, _, _ in THRESHOLD_OPTIONS:
         v = getattr(args, opt)
         if not (math.isfinite(v) and v > 0):
             raise ConfigError(f"--{opt.replace('_', '-')} must be a finite number > 0 (got {v!r})")
@@ -228,10 +193,7 @@ def run(args: argparse.Namespace) -> int:
 
     check_args(args)
     config = load_davio_config(args.config) if args.config else DavioConfig()
-    th = Thresholds(min_axis_rate_dps=args.min_axis_rate_dps, min_seconds=args.min_seconds,
-                    max_rot_std_deg=args.max_rot_std_deg, max_lever_std_m=args.max_lever_std_m,
-                    max_offset_std_ms=args.max_offset_std_ms, max_lever_drift_m=args.max_lever_drift_m,
-                    settle_window_s=args.settle_window_s)
+    th = Thresholds(**{field: getattr(args, field) for field, _, _ in THRESHOLD_OPTIONS})
     from tools.calibrate.output import paths_for
     from tools.calibrate.sources import is_live, open_inputs, open_live
 
