@@ -18,10 +18,12 @@ class RunSinks:
         view_port: `--view` (None: no view).
         stream_url: `--stream` (None: no stream).
         console: one more on_event callback (e.g. `davio live`'s status line), or None.
+        view: a live view the caller opened and closes (`davio live` opens it before the device starts:
+            viser's import takes 0.7 s); `view_port` is not used then.
     """
 
     def __init__(self, folder: Path, view_port: int | None, stream_url: str | None,
-                 console: Callable[[Any], None] | None = None) -> None:
+                 console: Callable[[Any], None] | None = None, view: Any = None) -> None:
         from tools.event_output import EventFile, chain_events
         from tools.live_view import open_view
         from tools.pose_journal import PoseJournal, chain_poses
@@ -31,8 +33,8 @@ class RunSinks:
             self.stream = open_stream(stream_url)
             if self.stream is not None:
                 opened.callback(self.stream.close)
-            self.view = open_view(view_port)
-            if self.view is not None:
+            self.view = view if view is not None else open_view(view_port)
+            if self.view is not None and view is None:
                 opened.callback(self.view.close)
             self.journal = PoseJournal(folder)
             opened.callback(self.journal.close)

@@ -232,3 +232,42 @@ def test_the_filter_kernels_are_loaded_before_the_device_starts(tmp_path: Path, 
     assert main([command, *device, "--out", out]) == 1
     assert "no such device (test)" in capsys.readouterr().err
     assert len(warmed_at_open) == 1 and warmed_at_open[0] >= 1
+
+
+def test_the_live_view_opens_before_the_device_and_closes_after_it(tmp_path: Path, capsys,
+                                                                   monkeypatch) -> None:
+    """--view's server (viser's import: 0.7 s) starts before the camera would drop images; a device that
+    then fails closes it, and a run's sinks borrow it without closing it."""
+    import tools.commands.live as live
+    import tools.live_view as live_view
+    from runtime.errors import DeviceError
+    from tools.run_sinks import RunSinks
+
+    calls: list[str] = []
+
+    class FakeView:
+        def close(self) -> None:
+            calls.append("view closed")
+
+        def on_pose(self, pose) -> None:
+            pass
+
+    def fake_open_view(port):
+        calls.append(f"view {port}")
+        return FakeView()
+
+    def fake_open_device(args, rig):
+        calls.append("device")
+        raise DeviceError("no such device (test)")
+
+    monkeypatch.setattr(live_view, "open_view", fake_open_view)
+    monkeypatch.setattr(live, "open_device", fake_open_device)
+    rig_file = Path(__file__).resolve().parents[2] / "calib" / "rigs" / "euroc_camchain.yaml"
+    assert main(["live", "uvc", "--imu-port", str(tmp_path / "tty"), "--rig", str(rig_file), "--view", "8765",
+                 "--out", str(tmp_path / "run")]) == 1
+    assert "no such device (test)" in capsys.readouterr().err
+    assert calls == ["view 8765", "device", "view closed"]
+    calls.clear()
+    sinks = RunSinks(tmp_path, None, None, view=FakeView())
+    sinks.close()
+    assert calls == [] and sinks.view is not None

@@ -70,6 +70,7 @@ def run(args: argparse.Namespace) -> int:
     from runtime.config import DavioConfig, load_davio_config
     from runtime.errors import ConfigError
     from tools.commands.run import check_run_args, prior_map
+    from tools.live_view import open_view
     from tools.run_folder import RunFolder
     from tools.run_outcome import interruptible
 
@@ -85,28 +86,33 @@ def run(args: argparse.Namespace) -> int:
     if rig is not None and rig.camera is None:
         raise ConfigError(f"{args.rig}: no camera intrinsics")
     with interruptible():
-        if rig is not None:
-            # the model (a DA3 warm-up takes seconds) before the device: a started camera's images would be
-            # dropped by its newest-frames buffer until the run reads them, and the start-up would lose them
-            model, model_desc = _open_model(args, rig, config)
-            prior = prior_map(args, model, config)
-            load_kernels(rig, config)
-            driver, rig = open_device(args, rig)
-        else:   # the rig is the device's factory calibration: the device first
-            load_kernels(None, config)
-            driver, rig = open_device(args, rig)
-            try:
-                model, model_desc = _open_model(args, rig, config)
+        # what takes time before the device: a started camera's images would be dropped by its newest-frames
+        # buffer until the run reads them, and the start-up would lose them
+        view = open_view(args.view)          # viser's import, 0.7 s
+        try:
+            if rig is not None:
+                model, model_desc = _open_model(args, rig, config)    # a DA3 warm-up takes seconds
                 prior = prior_map(args, model, config)
-            except BaseException:
+                load_kernels(rig, config)
+                driver, rig = open_device(args, rig)
+            else:   # the rig is the device's factory calibration: the device first
+                load_kernels(None, config)
+                driver, rig = open_device(args, rig)
+                try:
+                    model, model_desc = _open_model(args, rig, config)
+                    prior = prior_map(args, model, config)
+                except BaseException:
+                    driver.stop()
+                    raise
+            try:                # the driver stops also when the run folder cannot be made
+                folder.create()
+                with folder.discard_on_error():
+                    return _run(args, folder, driver, rig, model, model_desc, config, prior, view)
+            finally:
                 driver.stop()
-                raise
-        try:                # the driver stops also when the run folder cannot be made
-            folder.create()
-            with folder.discard_on_error():
-                return _run(args, folder, driver, rig, model, model_desc, config, prior)
         finally:
-            driver.stop()
+            if view is not None:
+                view.close()
 
 
 def _open_model(args: argparse.Namespace, rig, config) -> tuple:
@@ -204,7 +210,7 @@ def _open_driver(args: argparse.Namespace, rig):
     return driver
 
 
-def _run(args, folder, driver, rig, model, model_desc: str, config, prior=None) -> int:
+def _run(args, folder, driver, rig, model, model_desc: str, config, prior=None, view=None) -> int:
     from runtime.session import Session
     from tools.run_io import imu_noise_note, rig_summary, write_run
     from tools.run_map import MapOutput
@@ -220,7 +226,7 @@ def _run(args, folder, driver, rig, model, model_desc: str, config, prior=None) 
           + (f"  {imu_noise_note(defaulted)}\n" if defaulted else "")
           + "  Ctrl-C to finish", file=sys.stderr)
     status = _StatusLine(driver)
-    sinks = RunSinks(folder.path, args.view, args.stream, console=status.events)
+    sinks = RunSinks(folder.path, None, args.stream, console=status.events, view=view)
     try:
         map_sink = sinks.map_sink(None if map_out is None else map_out.sink)
         session = Session(rig, model, config, map_sink=map_sink, on_pose=sinks.on_pose, prior_map=prior,
