@@ -281,6 +281,9 @@ def discard_failed_events(event_file, made: list[Path], report: Path) -> None:
     goes, and so do the folders this run made when they are left empty."""
     if event_file is not None and event_file.written == 0:
         event_file.path.unlink(missing_ok=True)
+        if report.exists():     # its events file was opened (emptied) by this run
+            print(f"davio calibrate: {report.name} is from an earlier calibration; its events file was "
+                  "replaced by this run's, which held no event, and removed", file=sys.stderr)
     elif event_file is not None:
         earlier = f" ({report.name} beside it is from an earlier calibration)" if report.exists() else ""
         print(f"davio calibrate: the run's events up to where it stopped are in {event_file.path}{earlier}",

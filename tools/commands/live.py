@@ -130,6 +130,7 @@ def load_kernels(rig, config) -> float:
     the images the run has not read). `rig` None, or one without extrinsics (a calibration): the EuRoC rig
     stands in, as the kernels do not depend on the camera's values. Returns the seconds it took."""
     from calib import euroc_rig
+    from runtime.errors import DavioError
     from runtime.pipeline import VioPipeline
 
     t0 = time.monotonic()
@@ -138,7 +139,7 @@ def load_kernels(rig, config) -> float:
     else:
         try:
             VioPipeline(euroc_rig(), None, config)
-        except Exception:   # a stand-in the configuration does not fit: the session loads them itself
+        except DavioError:  # a stand-in the configuration refuses: the session loads the kernels itself
             pass
     return time.monotonic() - t0
 
