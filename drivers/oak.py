@@ -165,8 +165,10 @@ class OakPipeline:
 
     `camera_queue.get(timedelta)` and `imu_queue.get(timedelta)` return a message (`dai.ImgFrame`,
     `dai.IMUData` or objects with the same methods) or None on timeout, and raise once the queue is
-    closed (device gone, pipeline stopped). `pipeline` (optional) has `stop()`; it is started by the
-    factory. `calibration` is the device's `dai.CalibrationHandler` (or None)."""
+    closed (device gone, pipeline stopped). `pipeline` (optional) has `stop()`. `calibration` is the
+    device's `dai.CalibrationHandler` (or None). `start` starts the streams when the factory left them
+    unstarted (`build_pipeline`: the device is open and its calibration read, so that a model can be loaded
+    with the factory intrinsics before images flow and are dropped); None: the factory started them."""
 
     camera_queue: Any
     imu_queue: Any
@@ -174,6 +176,7 @@ class OakPipeline:
     calibration: Any = None
     device_info: str = ""
     device: Any = None
+    start: Callable[[], None] | None = None
 
     def stop(self) -> None:
         for obj in (self.pipeline, self.device):
@@ -190,7 +193,8 @@ class OakPipeline:
 
 
 def build_pipeline(dev: OakDevice) -> OakPipeline:
-    """The default pipeline factory: probe, open the device, build and start the pipeline."""
+    """The default pipeline factory: probe, open the device, read its calibration and build the pipeline;
+    the returned `start` starts it."""
     dai = _import_depthai()
     found = oak_available(dev.probe_timeout_s)
     if not found:
@@ -230,7 +234,6 @@ def build_pipeline(dev: OakDevice) -> OakPipeline:
         imu.setBatchReportThreshold(1)
         imu.setMaxBatchReports(10)
         q_imu = imu.out.createOutputQueue(dev.imu_queue_size, False)
-        pipeline.start()
     except DavioError:
         raise
     except Exception as exc:  # noqa: BLE001
@@ -238,13 +241,22 @@ def build_pipeline(dev: OakDevice) -> OakPipeline:
             device.close()
         except Exception:  # noqa: BLE001
             pass
-        raise DeviceError(f"{what}: the pipeline could not be started ({_one_line(exc)})") from None
-    return OakPipeline(q_img, q_imu, pipeline, calibration, what, device)
+        raise DeviceError(f"{what}: the pipeline could not be built ({_one_line(exc)})") from None
+
+    def start() -> None:
+        try:
+            pipeline.start()
+        except Exception as exc:  # noqa: BLE001 - OakDevice.start closes the device
+            raise DeviceError(f"{what}: the pipeline could not be started ({_one_line(exc)})") from None
+
+    return OakPipeline(q_img, q_imu, pipeline, calibration, what, device, start)
 
 
 # -- the device ----------------------------------------------------------------------------------
 class OakDevice:
-    """An OAK camera socket and its IMU; `camera` and `imu` are the sources for `LiveDriver`.
+    """An OAK camera socket and its IMU; `camera` and `imu` are the sources for `LiveDriver`. `open()` opens
+    the device and reads its calibration (`rig()`) without starting the streams; `start()` (which the
+    sources call) starts them.
 
     Args:
         socket: "CAM_B" (left mono, default), "CAM_C" (right mono) or "CAM_A" (colour; its luma).
@@ -307,7 +319,7 @@ class OakDevice:
 
     @property
     def calibration(self) -> Any:
-        """The device's `dai.CalibrationHandler` (None before `start()` or when unreadable)."""
+        """The device's `dai.CalibrationHandler` (None before `open()` / `start()` or when unreadable)."""
         return None if self.pipe is None else self.pipe.calibration
 
     def rig(self, time_offset_s: float = 0.0) -> Rig:
@@ -319,14 +331,19 @@ class OakDevice:
         self.rig_K = np.array(rig.camera.K)
         return rig
 
-    def start(self) -> OakDevice:
-        """Open the device, start the pipeline and both readers. Idempotent (both sources call it).
-        Raises DeviceError (one line) when no device is attached or it cannot be opened."""
+    def open(self) -> OakDevice:
+        """Open the device and read its calibration (`rig()`), its streams not started yet: what takes
+        time with the factory intrinsics (a model's warm-up) comes before images flow and are dropped.
+        Idempotent; `start()` opens it when needed. Raises DeviceError (one line) when no device is
+        attached or it cannot be opened."""
         with self._lock:
-            if self._started:
-                if self._stopped:
-                    raise DeviceError(f"{self.device}: start() after stop()")
-                return self
+            self._open_locked()
+        return self
+
+    def _open_locked(self) -> OakPipeline:
+        if self._stopped:
+            raise DeviceError(f"{self.device}: opened or started after stop()")
+        if self.pipe is None:
             try:
                 pipe = self.pipeline_factory(self)
             except DavioError:
@@ -336,6 +353,25 @@ class OakDevice:
             self.pipe = pipe
             if pipe.device_info:
                 self.device = pipe.device_info
+        return self.pipe
+
+    def start(self) -> OakDevice:
+        """Open the device (unless `open()` did), start the pipeline and both readers. Idempotent (both
+        sources call it). Raises DeviceError (one line) when no device is attached, it cannot be opened or
+        its pipeline cannot be started (the device is closed then)."""
+        with self._lock:
+            if self._started:
+                if self._stopped:
+                    raise DeviceError(f"{self.device}: start() after stop()")
+                return self
+            pipe = self._open_locked()
+            if pipe.start is not None:
+                try:
+                    pipe.start()
+                except BaseException:
+                    self._stopped = True
+                    pipe.stop()
+                    raise
             self._started = True
             self.start_ns = time.monotonic_ns()
             self.camera._running = self.imu._running = True

@@ -393,7 +393,8 @@ def test_a_device_opened_by_another_program_is_named_as_such(monkeypatch) -> Non
 def test_the_pipeline_disables_reconnection_and_stops_on_device_loss(monkeypatch) -> None:
     """build_pipeline against a recording stand-in of depthai: every method it calls on the device,
     pipeline and nodes exists on the real depthai class; reconnection is off before the pipeline is
-    built, the pipeline stops on device loss, and the IMU enables the frame-aligned streams."""
+    built, the pipeline stops on device loss, and the IMU enables the frame-aligned streams. It opens the
+    device and reads its calibration; the pipeline starts only when its `start` is called."""
     import types
 
     import drivers.oak as oak
@@ -413,8 +414,11 @@ def test_the_pipeline_disables_reconnection_and_stops_on_device_loss(monkeypatch
     monkeypatch.setattr(oak, "_import_depthai", lambda: fake)
     monkeypatch.setattr(oak, "oak_available", lambda timeout: [
         {"info": None, "device_id": "X1", "name": "1.1", "state": "UNBOOTED"}])
-    oak.build_pipeline(OakDevice())
+    built = oak.build_pipeline(OakDevice())
+    assert (dai.Pipeline, "start") not in [(real, name) for real, name, _ in calls]   # opened, not started
+    built.start()
     names = [(real, name) for real, name, _ in calls]
+    assert names.index((dai.Device, "readCalibration2")) < names.index((dai.Pipeline, "start"))
     for real, name in names:
         assert hasattr(real, name), f"{real.__name__}.{name} does not exist in depthai"
     assert names.index((dai.Device, "setMaxReconnectionAttempts")) < names.index((dai.Pipeline, "start"))
@@ -464,6 +468,37 @@ def test_factory_failure_is_one_line_device_error() -> None:
     for rate in (0.5, float("nan"), 0):   # int(0.5) would have been a rate of 0 Hz
         with pytest.raises(DeviceError, match=r"imu_rate_hz >= 1 \(whole Hz\)"):
             OakDevice(imu_rate_hz=rate)
+
+
+def test_open_reads_the_calibration_before_the_streams_start(calib: dai.CalibrationHandler) -> None:
+    """open() gives the factory calibration (rig()) with the streams not started: a model can warm up with
+    its intrinsics before images flow; start() starts them once. A start that fails closes the device."""
+    cq, iq = FakeQueue(), FakeQueue()
+    pipe = FakePipe(cq, iq)
+    starts: list[int] = []
+    dev = OakDevice("CAM_B", W, H, 30.0, 200, pipeline_factory=lambda d: OakPipeline(
+        cq, iq, pipe, calib, "OAK fake", None, lambda: starts.append(1)))
+    assert dev.open() is dev and dev.open() is dev                       # idempotent
+    assert dev.rig().camera.width == W and starts == [] and not dev._threads
+    cq.put(img_frame(0, 33_333_333))
+    dev.start()
+    dev.start()
+    assert starts == [1] and len(dev._threads) == 2
+    assert dev.camera.get(2.0) is not None
+    dev.stop()
+
+    def failing_start() -> None:
+        raise DeviceError("OAK fake: the pipeline could not be started (X_LINK_ERROR)")
+
+    pipe2 = FakePipe(FakeQueue(), FakeQueue())
+    dev2 = OakDevice("CAM_B", W, H, 30.0, 200, pipeline_factory=lambda d: OakPipeline(
+        FakeQueue(), FakeQueue(), pipe2, calib, "OAK fake", None, failing_start))
+    dev2.open()
+    with pytest.raises(DeviceError, match="could not be started"):
+        dev2.start()
+    assert pipe2.stopped == 1 and not dev2._threads
+    with pytest.raises(DeviceError, match="after stop"):
+        dev2.start()
 
 
 def test_start_without_device_fails_fast_and_clearly() -> None:

@@ -91,7 +91,7 @@ def test_the_model_is_loaded_before_the_camera_starts_when_the_rig_is_given(tmp_
 
     calls: list[str] = []
 
-    def fake_open_device(args, rig):
+    def fake_open_device(args, rig, start=True):
         calls.append("device")
         raise DeviceError("no such device (test)")
 
@@ -119,6 +119,9 @@ class _StartedDriver:
     def __init__(self) -> None:
         self.stops = 0
 
+    def start(self) -> None:
+        pass
+
     def stop(self) -> None:
         self.stops += 1
 
@@ -137,7 +140,7 @@ def _fake_devices(monkeypatch) -> list[_StartedDriver]:
     rig = load_rig(Path(__file__).resolve().parents[2] / "calib" / "rigs" / "euroc_camchain.yaml")
     drivers: list[_StartedDriver] = []
 
-    def fake_open_device(args, given):
+    def fake_open_device(args, given, start=True):
         drivers.append(_StartedDriver())
         return drivers[-1], given if given is not None else rig
 
@@ -220,7 +223,7 @@ def test_the_filter_kernels_are_loaded_before_the_device_starts(tmp_path: Path, 
     monkeypatch.setattr(warmup, "_WARMED", set())
     warmed_at_open: list[int] = []
 
-    def fake_open_device(args, rig):
+    def fake_open_device(args, rig, start=True):
         warmed_at_open.append(len(warmup._WARMED))
         raise DeviceError("no such device (test)")
 
@@ -256,7 +259,7 @@ def test_the_live_view_opens_before_the_device_and_closes_after_it(tmp_path: Pat
         calls.append(f"view {port}")
         return FakeView()
 
-    def fake_open_device(args, rig):
+    def fake_open_device(args, rig, start=True):
         calls.append("device")
         raise DeviceError("no such device (test)")
 
@@ -271,3 +274,54 @@ def test_the_live_view_opens_before_the_device_and_closes_after_it(tmp_path: Pat
     sinks = RunSinks(tmp_path, None, None, view=FakeView())
     sinks.close()
     assert calls == [] and sinks.view is not None
+
+
+@pytest.mark.parametrize("command", ["live", "calibrate"])
+def test_an_oaks_factory_calibration_is_read_before_its_streams_start(tmp_path: Path, capsys, monkeypatch,
+                                                                       command) -> None:
+    """Without --rig the model needs the OAK's factory intrinsics: the device is opened and its calibration
+    read, the model loaded (a DA3 warm-up takes seconds), and only then the streams start, so that no image
+    is dropped while the model loads. A model that fails leaves the streams unstarted, the device closed."""
+    import depthai as dai
+
+    import drivers.oak as oak
+    import tools.model_open as model_open
+    from runtime.errors import DeviceError, ModelError
+
+    calls: list[str] = []
+    fixture = Path(__file__).resolve().parents[1] / "drivers" / "fixtures" / "oak_calib.json"
+
+    class Pipe:
+        def stop(self) -> None:
+            calls.append("closed")
+
+    def start() -> None:
+        calls.append("streams")
+        raise DeviceError("streams refused (test)")
+
+    def factory(dev):
+        calls.append("opened")
+        calibration = dai.CalibrationHandler(str(fixture))
+        return oak.OakPipeline(None, None, Pipe(), calibration, "OAK fake", None, start)
+
+    fail_model = [True]
+
+    def fake_open_da3(args, camera, views):
+        calls.append(f"model {camera.width}x{camera.height}")
+        if fail_model[0]:
+            raise ModelError("bad model (test)")
+        return None, "fake model"
+
+    monkeypatch.setattr(oak, "build_pipeline", factory)
+    monkeypatch.setattr(model_open, "open_da3", fake_open_da3)
+    model = tmp_path / "da3.onnx"
+    model.write_bytes(b"not read")
+    out = str(tmp_path / ("run" if command == "live" else "rig.yaml"))
+    assert main([command, "oak", "--model", str(model), "--out", out]) == 1
+    assert "bad model (test)" in capsys.readouterr().err
+    assert calls == ["opened", "model 640x400", "closed"]
+    calls.clear()
+    fail_model[0] = False
+    assert main([command, "oak", "--model", str(model), "--out", out]) == 1
+    assert "streams refused (test)" in capsys.readouterr().err
+    assert calls == ["opened", "model 640x400", "streams", "closed"]

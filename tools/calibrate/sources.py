@@ -45,12 +45,15 @@ def open_live(args: argparse.Namespace, config) -> tuple:
 
         model, desc = open_da3(args, given.camera, 5)
     load_kernels(None, calibration_config(config))   # the rig's extrinsics are withheld: a stand-in's
-    driver, rig = open_device(args, given)
-    if args.model and given is None:        # the intrinsics are the device's factory calibration
+    # an OAK's factory intrinsics are read from the opened device before its streams start
+    driver, rig = open_device(args, given, start=given is not None)
+    if given is None:
         try:
-            from tools.model_open import open_da3
+            if args.model:
+                from tools.model_open import open_da3
 
-            model, desc = open_da3(args, rig.camera, 5)
+                model, desc = open_da3(args, rig.camera, 5)
+            driver.start()
         except BaseException:
             driver.stop()
             raise

@@ -95,12 +95,13 @@ def run(args: argparse.Namespace) -> int:
                 prior = prior_map(args, model, config)
                 load_kernels(rig, config)
                 driver, rig = open_device(args, rig)
-            else:   # the rig is the device's factory calibration: the device first
+            else:   # an OAK's factory calibration: read from the opened device before its streams start
                 load_kernels(None, config)
-                driver, rig = open_device(args, rig)
+                driver, rig = open_device(args, rig, start=False)
                 try:
                     model, model_desc = _open_model(args, rig, config)
                     prior = prior_map(args, model, config)
+                    driver.start()
                 except BaseException:
                     driver.stop()
                     raise
@@ -155,12 +156,13 @@ def check_device_args(args: argparse.Namespace, command: str) -> None:
                           "EuRoC sensor.yaml or folder)")
 
 
-def open_device(args: argparse.Namespace, rig):
-    """(a started LiveDriver for args.source "oak" or "uvc", the rig: `rig`, else an OAK's factory
-    calibration)."""
+def open_device(args: argparse.Namespace, rig, start: bool = True):
+    """(a LiveDriver for args.source "oak" or "uvc", the rig: `rig`, else an OAK's factory calibration).
+    The driver is started, or with `start` False the device is open (an OAK's calibration read) and its
+    streams wait for `driver.start()`: the caller starts or stops it."""
     if args.source == "oak":
-        return _open_oak(args, rig)
-    return _open_driver(args, rig), rig
+        return _open_oak(args, rig, start)
+    return _open_driver(args, rig, start), rig
 
 
 def describe_device(args: argparse.Namespace) -> str:
@@ -169,27 +171,29 @@ def describe_device(args: argparse.Namespace) -> str:
             f"uvc camera {args.camera} + IMU {args.imu_port} ({args.imu_protocol})")
 
 
-def _open_oak(args: argparse.Namespace, rig):
-    """(LiveDriver over an OAK's camera and IMU, the rig: --rig, else the device's factory calibration)."""
+def _open_oak(args: argparse.Namespace, rig, start: bool = True):
+    """(LiveDriver over an OAK's camera and IMU, the rig: --rig, else the device's factory calibration);
+    started, or (`start` False) with the device open and its streams not started."""
     from drivers.live import LiveDriver
     from drivers.oak import OakDevice
 
     dev = OakDevice(socket=args.socket, width=args.width or 640, height=args.height or 400,
                     fps=args.fps or 30.0, imu_rate_hz=args.imu_rate, device_id=args.device_id,
                     imu_calibrated=args.imu_calibrated)
-    dev.start()
+    dev.open()
     try:
         if rig is None:
             rig = dev.rig()
         driver = LiveDriver(dev.camera, dev.imu, rig=rig, time_offset_s=rig.time_offset_s or 0.0)
-        driver.start()
+        if start:
+            driver.start()
     except BaseException:
         dev.stop()
         raise
     return driver, rig
 
 
-def _open_driver(args: argparse.Namespace, rig):
+def _open_driver(args: argparse.Namespace, rig, start: bool = True):
     from pathlib import Path
 
     from drivers.live import LiveDriver
@@ -204,7 +208,8 @@ def _open_driver(args: argparse.Namespace, rig):
     imu = SerialImu(args.imu_port, protocol=args.imu_protocol, baudrate=args.baud)
     driver = LiveDriver(camera, imu, rig=rig, time_offset_s=rig.time_offset_s or 0.0)
     try:
-        driver.start()
+        if start:
+            driver.start()
     except BaseException:
         driver.stop()
         raise
