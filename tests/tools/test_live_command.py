@@ -148,28 +148,6 @@ def _fake_devices(monkeypatch) -> list[_StartedDriver]:
     return drivers
 
 
-@pytest.mark.parametrize("command", ["live", "calibrate"])
-def test_a_started_device_is_stopped_when_the_model_then_fails(tmp_path: Path, capsys, monkeypatch,
-                                                               command) -> None:
-    """Without --rig the device opens first (the model needs its factory intrinsics): a model that then
-    fails stops it."""
-    import tools.model_open as model_open
-    from runtime.errors import ModelError
-
-    drivers = _fake_devices(monkeypatch)
-
-    def fake_open_da3(*args, **kwargs):
-        raise ModelError("bad model (test)")
-
-    monkeypatch.setattr(model_open, "open_da3", fake_open_da3)
-    model = tmp_path / "da3.onnx"
-    model.write_bytes(b"not read")
-    out = str(tmp_path / ("run" if command == "live" else "rig.yaml"))
-    assert main([command, "oak", "--model", str(model), "--out", out]) == 1
-    assert "bad model (test)" in capsys.readouterr().err
-    assert len(drivers) == 1 and drivers[0].stops >= 1
-
-
 def test_live_stops_the_device_when_the_run_folder_cannot_be_made(tmp_path: Path, capsys,
                                                                    monkeypatch) -> None:
     from runtime.errors import ConfigError
