@@ -28,7 +28,7 @@ bounded) and exposes two sources for `LiveDriver`:
 Camera and IMU share the device clock, so LiveDriver merges them without any clock mapping; the Rig's
 time offset is 0 (`read_oak_rig`). The reader threads only read, convert and enqueue.
 
-Errors are `runtime.errors.DeviceError`, one line: `start()` raises "no OAK device found (...)"
+Errors are `runtime.errors.DeviceError`, one line: `open()` / `start()` raise "no OAK device found (...)"
 within `probe_timeout_s` (2 s) when none is attached (probe: `dai.Device.getAllAvailableDevices()`),
 or why the device or the pipeline could not be opened. A queue that fails while running (the device
 was unplugged or crashed: depthai closes the queues and raises `MessageQueue.QueueException`) or that
@@ -272,7 +272,7 @@ class OakDevice:
         imu_queue_seconds: the IMU sample queue holds this long at `imu_rate_hz` (x1.5).
         stall_timeout_s: a stream silent this long after its first message is an error.
         first_message_timeout_s: a stream that delivers nothing this long after start is an error.
-        probe_timeout_s: the device probe's limit (start() fails within it when none is attached).
+        probe_timeout_s: the device probe's limit (open() / start() fail within it when none is attached).
         camera_id: the `Frame.camera_id`.
     """
 

@@ -105,7 +105,8 @@ class _Source:
 
     def _take(self, buf: deque, timeout: float | None) -> Any:
         if not self.owner._started:
-            raise DeviceError(f"{self.device}: get() before start()")
+            raise DeviceError(f"{self.device}: get() after the device was stopped (or its start failed)"
+                              if self.owner._stopped else f"{self.device}: get() before start()")
         deadline = None if timeout is None else time.monotonic() + max(0.0, float(timeout))
         with self._cond:
             while not buf:

@@ -499,6 +499,15 @@ def test_open_reads_the_calibration_before_the_streams_start(calib: dai.Calibrat
     assert pipe2.stopped == 1 and not dev2._threads
     with pytest.raises(DeviceError, match="after stop"):
         dev2.start()
+    with pytest.raises(DeviceError, match="get\\(\\) after the device was stopped"):
+        dev2.camera.get(0.1)
+    # opened, never started, then stopped: the pipeline (and with it the device) is closed, nothing started
+    pipe3 = FakePipe(FakeQueue(), FakeQueue())
+    dev3 = OakDevice("CAM_B", W, H, 30.0, 200, pipeline_factory=lambda d: OakPipeline(
+        FakeQueue(), FakeQueue(), pipe3, calib, "OAK fake", None, lambda: starts.append(3)))
+    dev3.open()
+    dev3.stop()
+    assert pipe3.stopped == 1 and 3 not in starts
 
 
 def test_start_without_device_fails_fast_and_clearly() -> None:
