@@ -61,7 +61,8 @@ t = (-7.5, 0, 0) cm, the left camera's centre in right-camera coordinates. Wheth
 IMU block was written in the same convention can be checked at rest with
 `drivers.oak_calib.check_extrinsics_direction(rig.T_IC, mean_accel_I)` while the camera is held level
 (image up = -y_C): the accelerometer reads +g along "up", so accel_I must be parallel to R_IC @ up_C.
-The calibration reading itself lives in `drivers.oak_calib`, the two sources in `drivers.oak_streams`.
+The calibration reading itself lives in `drivers.oak_calib`, the probe and the pipeline factory in
+`drivers.oak_pipeline`, the two sources in `drivers.oak_streams`.
 """
 from __future__ import annotations
 
@@ -69,12 +70,12 @@ import datetime as _dt
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from drivers.oak_calib import read_oak_rig
+from drivers.oak_pipeline import SOCKETS, OakPipeline, _one_line, build_pipeline
 from drivers.oak_streams import (  # noqa: F401 - NEVER and timedelta_ns are public here too
     _POLL_S,
     NEVER,
@@ -86,170 +87,6 @@ from runtime.errors import CalibrationError, DavioError, DeviceError
 
 if TYPE_CHECKING:
     from calib import Rig
-
-SOCKETS: tuple[str, ...] = ("CAM_A", "CAM_B", "CAM_C")
-"""Camera sockets: CAM_A = colour (its luma is used), CAM_B = left mono, CAM_C = right mono."""
-
-NO_DEVICE_HINT = ("is it plugged in? USB3? udev rules: SUBSYSTEM==\"usb\", ATTRS{idVendor}==\"03e7\", "
-                  "MODE=\"0666\" in /etc/udev/rules.d/80-movidius.rules, then "
-                  "`sudo udevadm control --reload-rules && sudo udevadm trigger`")
-
-
-def _import_depthai() -> Any:
-    try:
-        import depthai as dai
-    except ImportError:
-        raise DeviceError("the OAK driver needs depthai 3: pip install 'depthai>=3'") from None
-    return dai
-
-
-def _one_line(exc: BaseException) -> str:
-    text = str(exc).strip()
-    return text.splitlines()[0] if text else type(exc).__name__
-
-
-# -- probing -------------------------------------------------------------------------------------
-def oak_available(timeout_s: float = 2.0) -> list[dict[str, Any]]:
-    """The OAK devices depthai can see, as dicts: device_id, name, state, protocol, platform (strings),
-    info (the `dai.DeviceInfo`, to open that device) and available (False: connected but already opened by
-    another program, which `getAllAvailableDevices` leaves out); the available ones first.
-
-    `[]` when none is attached. Raises DeviceError when depthai is not installed or the probe does not
-    finish within `timeout_s`."""
-    dai = _import_depthai()
-    result: dict[str, Any] = {}
-
-    def probe() -> None:
-        try:
-            result["infos"] = list(dai.Device.getAllAvailableDevices())
-            result["connected"] = list(dai.Device.getAllConnectedDevices())
-        except BaseException as exc:  # noqa: BLE001 - reported to the caller below
-            result["exc"] = exc
-
-    t = threading.Thread(target=probe, name="davio-oak-probe", daemon=True)
-    t.start()
-    t.join(timeout_s)
-    if t.is_alive():
-        raise DeviceError(f"probing for OAK devices did not finish within {timeout_s:g} s")
-    if "exc" in result:
-        raise DeviceError(f"probing for OAK devices failed: {_one_line(result['exc'])}")
-    out, seen = [], set()
-    for available, infos in ((True, result["infos"]), (False, result["connected"])):
-        for info in infos:
-            d = {"device_id": str(getattr(info, "deviceId", "") or ""),
-                 "name": str(getattr(info, "name", "") or ""),
-                 "state": str(getattr(info, "state", "")).split(".")[-1],
-                 "protocol": str(getattr(info, "protocol", "")).split(".")[-1],
-                 "platform": str(getattr(info, "platform", "")).split(".")[-1],
-                 "info": info, "available": available}
-            key = d["device_id"] or d["name"]
-            if key not in seen:
-                seen.add(key)
-                out.append(d)
-    return out
-
-
-# -- pipeline ------------------------------------------------------------------------------------
-def imu_sensors(dai: Any, calibrated: bool = False) -> list:
-    """The accelerometer and gyroscope streams to enable: both in the DepthAI IMU frame (the frame of
-    `getImuToCameraExtrinsics`), with or without the stored affine calibration."""
-    S = dai.IMUSensor
-    if calibrated:
-        return [S.ACCELEROMETER_CALIBRATED, S.GYROSCOPE_CALIBRATED]
-    return [S.ACCELEROMETER_UNCALIBRATED, S.GYROSCOPE_UNCALIBRATED]
-
-
-@dataclass
-class OakPipeline:
-    """What a pipeline factory returns: two depthai-like output queues and what owns them.
-
-    `camera_queue.get(timedelta)` and `imu_queue.get(timedelta)` return a message (`dai.ImgFrame`,
-    `dai.IMUData` or objects with the same methods) or None on timeout, and raise once the queue is
-    closed (device gone, pipeline stopped). `pipeline` (optional) has `stop()`. `calibration` is the
-    device's `dai.CalibrationHandler` (or None). `start` starts the streams when the factory left them
-    unstarted (`build_pipeline`: the device is open and its calibration read, so that a model can be loaded
-    with the factory intrinsics before images flow and are dropped); None: the factory started them."""
-
-    camera_queue: Any
-    imu_queue: Any
-    pipeline: Any = None
-    calibration: Any = None
-    device_info: str = ""
-    device: Any = None
-    start: Callable[[], None] | None = None
-
-    def stop(self) -> None:
-        for obj in (self.pipeline, self.device):
-            if obj is None:
-                continue
-            for name in ("stop", "close"):
-                fn = getattr(obj, name, None)
-                if callable(fn):
-                    try:
-                        fn()
-                    except Exception:  # noqa: BLE001 - a dead device may fail to stop; nothing to do
-                        pass
-                    break
-
-
-def build_pipeline(dev: OakDevice) -> OakPipeline:
-    """The default pipeline factory: probe, open the device, read its calibration and build the pipeline;
-    the returned `start` starts it."""
-    dai = _import_depthai()
-    found = oak_available(dev.probe_timeout_s)
-    if not found:
-        raise DeviceError(f"no OAK device found ({NO_DEVICE_HINT})")
-    info = found[0]
-    if dev.device_id is not None:
-        match = [d for d in found if dev.device_id in (d["device_id"], d["name"])]
-        if not match:
-            listed = ", ".join(f"{d['device_id']} ({d['name']}, {d['state']})" for d in found)
-            raise DeviceError(f"OAK device {dev.device_id} not found; attached: {listed}")
-        info = match[0]
-    what = f"OAK {info['device_id'] or info['name']}"
-    if not info.get("available", True):
-        raise DeviceError(f"{what}: connected but opened by another program (state {info['state']}); close "
-                          "it, or unplug and plug in the device")
-    try:
-        device = dai.Device(info["info"])
-        device.setMaxReconnectionAttempts(0)      # a reconnected device restarts its clock: fail instead
-    except Exception as exc:  # noqa: BLE001 - any depthai failure is a device error
-        raise DeviceError(f"{what}: cannot be opened ({_one_line(exc)}; state {info['state']}: "
-                          f"in use by another program?)") from None
-    try:
-        pipeline = dai.Pipeline(device)
-        pipeline.setStopOnDeviceLoss(True)
-        try:              # readCalibration would return a default calibration when none is flashed
-            calibration = device.readCalibration2()
-        except Exception:  # noqa: BLE001 - streaming works without it; rig() says none was read
-            calibration = None
-        socket = getattr(dai.CameraBoardSocket, dev.socket)
-        cam = pipeline.create(dai.node.Camera).build(socket)
-        kind = dai.ImgFrame.Type.NV12 if dev.socket == "CAM_A" else dai.ImgFrame.Type.GRAY8
-        out = cam.requestOutput((dev.width, dev.height), kind, dai.ImgResizeMode.CROP, dev.fps, False)
-        q_img = out.createOutputQueue(dev.camera_queue_size, False)
-        imu = pipeline.create(dai.node.IMU)
-        sensors = imu_sensors(dai, dev.imu_calibrated)
-        imu.enableIMUSensor(sensors, int(dev.imu_rate_hz))
-        imu.setBatchReportThreshold(1)
-        imu.setMaxBatchReports(10)
-        q_imu = imu.out.createOutputQueue(dev.imu_queue_size, False)
-    except DavioError:
-        raise
-    except Exception as exc:  # noqa: BLE001
-        try:
-            device.close()
-        except Exception:  # noqa: BLE001
-            pass
-        raise DeviceError(f"{what}: the pipeline could not be built ({_one_line(exc)})") from None
-
-    def start() -> None:
-        try:
-            pipeline.start()
-        except Exception as exc:  # noqa: BLE001 - OakDevice.start closes the device
-            raise DeviceError(f"{what}: the pipeline could not be started ({_one_line(exc)})") from None
-
-    return OakPipeline(q_img, q_imu, pipeline, calibration, what, device, start)
 
 
 # -- the device ----------------------------------------------------------------------------------

@@ -64,7 +64,7 @@ def read_oak_rig(calib: Any, socket: str = "CAM_B", width: int = 640, height: in
     frames are stamped at mid-exposure). IMU noise: withheld (OAK calibrations do not carry it).
     """
     from calib import PinholeEquidistant, PinholeRadtan, PinholeRational, Rig
-    from drivers.oak import SOCKETS, _import_depthai, _one_line
+    from drivers.oak_pipeline import SOCKETS, _import_depthai, _one_line
 
     dai = _import_depthai()
     from calib.rig import invert_rigid

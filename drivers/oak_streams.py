@@ -180,9 +180,9 @@ class OakCamera(KeptFrames, _Source):
 
     # reader side
     def _ingest(self, msg: Any, t_host: int) -> None:
-        from drivers import oak  # at call time: the device module's depthai (patched in tests)
+        from drivers import oak_pipeline  # at call time: the factory module's depthai (patched in tests)
 
-        dai = oak._import_depthai()
+        dai = oak_pipeline._import_depthai()
         t_ns = timedelta_ns(msg.getTimestampDevice(dai.CameraExposureOffset.MIDDLE))
         seq = int(msg.getSequenceNum())
         if self.device_K is None:

@@ -37,7 +37,6 @@ from drivers.oak import (  # noqa: E402
     NEVER,
     OakDevice,
     OakPipeline,
-    imu_sensors,
     timedelta_ns,
 )
 from drivers.oak_calib import check_extrinsics_direction, read_oak_rig  # noqa: E402
@@ -337,97 +336,6 @@ def test_gap_detection_follows_a_rate_change_instead_of_flagging_every_sample() 
     assert flagged and max(flagged) < 20 + 64 and rep["gaps"] == len(flagged)
 
 
-def test_imu_streams_are_in_the_depthai_imu_frame() -> None:
-    """The streams enabled are the ones depthai documents as aligned to the DepthAI IMU frame (the frame
-    getImuToCameraExtrinsics relates to the camera), never the _RAW ones (the chip's native axes)."""
-    members = re.split(r"\n  ([A-Z_]+) : ", dai.IMUSensor.__doc__)
-    doc = {name: " ".join(text.split()) for name, text in zip(members[1::2], members[2::2], strict=True)}
-    for sensor in (*imu_sensors(dai), *imu_sensors(dai, calibrated=True)):
-        assert "aligned to the DepthAI IMU frame" in doc[sensor.name], sensor.name
-    assert "sensor-native frame" in doc["ACCELEROMETER_RAW"] and "sensor-native frame" in doc["GYROSCOPE_RAW"]
-    assert [x.name for x in imu_sensors(dai)] == ["ACCELEROMETER_UNCALIBRATED", "GYROSCOPE_UNCALIBRATED"]
-
-
-class _Recorder:
-    """Stands in for a depthai object: records every method called on it as (real class, name)."""
-
-    def __init__(self, calls: list, real: type, children: dict | None = None) -> None:
-        self._calls, self._real, self._children = calls, real, children or {}
-
-    def __getattr__(self, name: str):
-        if name in self._children:
-            return self._children[name]
-
-        def method(*args, **kwargs):
-            self._calls.append((self._real, name, args))
-            return self._children.get(f"{name}()", _Recorder(self._calls, object))
-        return method
-
-
-def test_a_device_opened_by_another_program_is_named_as_such(monkeypatch) -> None:
-    """getAllAvailableDevices leaves out a device another program opened; the probe also lists the
-    connected ones, after the available ones, so the error says it is in use, not that none is plugged in."""
-    import types
-
-    import drivers.oak as oak
-
-    busy = types.SimpleNamespace(deviceId="1844301011", name="1.3", state="XLinkDeviceState.X_LINK_BOOTED",
-                                 protocol="X_LINK_USB_VSC", platform="RVC2")
-    free = types.SimpleNamespace(deviceId="1944301022", name="1.4", state="XLinkDeviceState.X_LINK_UNBOOTED",
-                                 protocol="X_LINK_USB_VSC", platform="RVC2")
-    for available, connected in (([], [busy]), ([free], [busy, free])):
-        fake = types.SimpleNamespace(Device=types.SimpleNamespace(
-            getAllAvailableDevices=lambda a=available: a, getAllConnectedDevices=lambda c=connected: c))
-        monkeypatch.setattr(oak, "_import_depthai", lambda f=fake: f)
-        found = oak.oak_available(1.0)
-        assert [d["available"] for d in found] == [True] * len(available) + [False]
-        assert found[0]["device_id"] == (free.deviceId if available else busy.deviceId)
-    monkeypatch.setattr(oak, "oak_available", lambda timeout: [
-        {"info": busy, "device_id": busy.deviceId, "name": busy.name, "state": "X_LINK_BOOTED",
-         "available": False}])
-    with pytest.raises(DeviceError, match=r"^OAK 1844301011: connected but opened by another program "
-                                          r"\(state X_LINK_BOOTED\)"):
-        oak.build_pipeline(OakDevice())
-
-
-def test_the_pipeline_disables_reconnection_and_stops_on_device_loss(monkeypatch) -> None:
-    """build_pipeline against a recording stand-in of depthai: every method it calls on the device,
-    pipeline and nodes exists on the real depthai class; reconnection is off before the pipeline is
-    built, the pipeline stops on device loss, and the IMU enables the frame-aligned streams. It opens the
-    device and reads its calibration; the pipeline starts only when its `start` is called."""
-    import types
-
-    import drivers.oak as oak
-
-    calls: list = []
-    out = _Recorder(calls, dai.Node.Output)
-    cam = _Recorder(calls, dai.node.Camera, {"requestOutput()": out})
-    imu = _Recorder(calls, dai.node.IMU, {"out": out})
-    pipe = _Recorder(calls, dai.Pipeline)
-    device = _Recorder(calls, dai.Device)
-    creations = iter([_Recorder(calls, dai.node.Camera, {"build()": cam}), imu])
-    pipe._children["create()"] = None
-    pipe.create = lambda node: (calls.append((dai.Pipeline, "create", (node,))), next(creations))[1]
-    fake = types.SimpleNamespace(
-        Device=lambda info: device, Pipeline=lambda d: pipe, node=dai.node, IMUSensor=dai.IMUSensor,
-        CameraBoardSocket=dai.CameraBoardSocket, ImgFrame=dai.ImgFrame, ImgResizeMode=dai.ImgResizeMode)
-    monkeypatch.setattr(oak, "_import_depthai", lambda: fake)
-    monkeypatch.setattr(oak, "oak_available", lambda timeout: [
-        {"info": None, "device_id": "X1", "name": "1.1", "state": "UNBOOTED"}])
-    built = oak.build_pipeline(OakDevice())
-    assert (dai.Pipeline, "start") not in [(real, name) for real, name, _ in calls]   # opened, not started
-    built.start()
-    names = [(real, name) for real, name, _ in calls]
-    assert names.index((dai.Device, "readCalibration2")) < names.index((dai.Pipeline, "start"))
-    for real, name in names:
-        assert hasattr(real, name), f"{real.__name__}.{name} does not exist in depthai"
-    assert names.index((dai.Device, "setMaxReconnectionAttempts")) < names.index((dai.Pipeline, "start"))
-    assert [a for r, n, a in calls if n == "setMaxReconnectionAttempts"] == [(0,)]
-    assert [a for r, n, a in calls if n == "setStopOnDeviceLoss"] == [(True,)]
-    sensors = [a[0] for r, n, a in calls if n == "enableIMUSensor"][0]
-    assert sensors == imu_sensors(dai)
-
-
 # -- errors -------------------------------------------------------------------------------------
 def test_disconnect_surfaces_as_device_error_after_drain() -> None:
     dev, cq, iq, _ = fake_device(keep_frames=4)
@@ -508,18 +416,6 @@ def test_open_reads_the_calibration_before_the_streams_start(calib: dai.Calibrat
     dev3.open()
     dev3.stop()
     assert pipe3.stopped == 1 and 3 not in starts
-
-
-def test_start_without_device_fails_fast_and_clearly() -> None:
-    t0 = time.monotonic()
-    dev = OakDevice()
-    with pytest.raises(DeviceError) as info:
-        dev.start()
-    elapsed = time.monotonic() - t0
-    assert elapsed < 2.0
-    msg = str(info.value)
-    assert msg.startswith("no OAK device found (is it plugged in? USB3? udev rules:") and "\n" not in msg
-    assert "03e7" in msg
 
 
 # -- LiveDriver over the fake pipeline -----------------------------------------------------------
