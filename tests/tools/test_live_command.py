@@ -91,7 +91,7 @@ def test_the_model_is_loaded_before_the_camera_starts_when_the_rig_is_given(tmp_
 
     calls: list[str] = []
 
-    def fake_open_device(args, rig, start=True):
+    def fake_open_device(args, rig):
         calls.append("device")
         raise DeviceError("no such device (test)")
 
@@ -113,8 +113,8 @@ def test_the_model_is_loaded_before_the_camera_starts_when_the_rig_is_given(tmp_
     assert "no such device (test)" in capsys.readouterr().err and calls == ["device"]
 
 
-class _StartedDriver:
-    """A started live driver that counts its stops (no device behind it)."""
+class _FakeDriver:
+    """A live driver that counts its stops (no device behind it)."""
 
     def __init__(self) -> None:
         self.stops = 0
@@ -132,16 +132,16 @@ class _StartedDriver:
         return {}
 
 
-def _fake_devices(monkeypatch) -> list[_StartedDriver]:
-    """open_device hands out _StartedDriver with the EuRoC camchain as the device's calibration."""
+def _fake_devices(monkeypatch) -> list[_FakeDriver]:
+    """open_device hands out _FakeDriver with the EuRoC camchain as the device's calibration."""
     import tools.commands.live as live
     from calib import load_rig
 
     rig = load_rig(Path(__file__).resolve().parents[2] / "calib" / "rigs" / "euroc_camchain.yaml")
-    drivers: list[_StartedDriver] = []
+    drivers: list[_FakeDriver] = []
 
-    def fake_open_device(args, given, start=True):
-        drivers.append(_StartedDriver())
+    def fake_open_device(args, given):
+        drivers.append(_FakeDriver())
         return drivers[-1], given if given is not None else rig
 
     monkeypatch.setattr(live, "open_device", fake_open_device)
@@ -167,7 +167,7 @@ def test_live_stops_the_device_when_the_run_folder_cannot_be_made(tmp_path: Path
 
 
 def test_calibrate_stops_the_device_when_its_banner_cannot_be_said(tmp_path: Path, monkeypatch) -> None:
-    """A console that fails between the device's start and the run (a closed stdout) still stops it."""
+    """A console that fails between the device's opening and the run (a closed stdout) still stops it."""
     import errno
     import sys
 
@@ -201,7 +201,7 @@ def test_the_filter_kernels_are_loaded_before_the_device_starts(tmp_path: Path, 
     monkeypatch.setattr(warmup, "_WARMED", set())
     warmed_at_open: list[int] = []
 
-    def fake_open_device(args, rig, start=True):
+    def fake_open_device(args, rig):
         warmed_at_open.append(len(warmup._WARMED))
         raise DeviceError("no such device (test)")
 
@@ -237,7 +237,7 @@ def test_the_live_view_opens_before_the_device_and_closes_after_it(tmp_path: Pat
         calls.append(f"view {port}")
         return FakeView()
 
-    def fake_open_device(args, rig, start=True):
+    def fake_open_device(args, rig):
         calls.append("device")
         raise DeviceError("no such device (test)")
 
@@ -303,3 +303,45 @@ def test_an_oaks_factory_calibration_is_read_before_its_streams_start(tmp_path: 
     assert main([command, "oak", "--model", str(model), "--out", out]) == 1
     assert "streams refused (test)" in capsys.readouterr().err
     assert calls == ["opened", "model 640x400", "streams", "closed"]
+
+
+@pytest.mark.parametrize("command", ["live", "calibrate"])
+@pytest.mark.parametrize("source", ["uvc", "oak"])
+def test_the_streams_start_once_the_run_can_read_them(tmp_path: Path, capsys, monkeypatch, command,
+                                                      source) -> None:
+    """A started camera's newest-frames buffer drops the images the run has not read: the streams start
+    after the run's session is made, right before the first read. A start that fails is the command's
+    one-line error and leaves no run folder or events file behind."""
+    import drivers.oak as oak
+    import runtime.session as session_module
+    from drivers.serial_imu import SerialImu
+    from runtime.errors import DeviceError
+
+    calls: list[str] = []
+    init = session_module.Session.__init__
+
+    def recording_init(self, *args, **kwargs) -> None:
+        calls.append("session")
+        init(self, *args, **kwargs)
+
+    def refuse(*_args) -> None:
+        calls.append("streams")
+        raise DeviceError("streams refused (test)")
+
+    monkeypatch.setattr(session_module.Session, "__init__", recording_init)
+    if source == "oak":
+        dai = pytest.importorskip("depthai")
+        fixture = Path(__file__).resolve().parents[1] / "drivers" / "fixtures" / "oak_calib.json"
+        monkeypatch.setattr(oak, "build_pipeline", lambda dev: oak.OakPipeline(
+            None, None, None, dai.CalibrationHandler(str(fixture)), "OAK fake", None, refuse))
+        device = ["oak"]
+    else:       # LiveDriver starts the IMU first, then the camera
+        monkeypatch.setattr(SerialImu, "start", refuse)
+        rig_file = Path(__file__).resolve().parents[2] / "calib" / "rigs" / "euroc_camchain.yaml"
+        device = ["uvc", "--imu-port", str(tmp_path / "tty"), "--rig", str(rig_file)]
+    out = tmp_path / ("run" if command == "live" else "rig.yaml")
+    assert main([command, *device, "--out", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert f"davio {command}: error: " in err and "streams refused (test)" in err
+    assert calls == ["session", "streams"]
+    assert not any(tmp_path.iterdir())

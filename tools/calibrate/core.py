@@ -150,6 +150,7 @@ def calibrate(
     alert: Callable[[str], None] | None = None,
     live: bool = False,
     on_event: Callable[[Any], None] | None = None,
+    before_data: Callable[[], Any] | None = None,
 ) -> CalibrationRun:
     """Replay `events` through DAVIO with `rig`'s extrinsics and time offset withheld; collect the filter's
     calibration states and the rotation excitation.
@@ -169,6 +170,8 @@ def calibrate(
             queues, model results applied when ready); Ctrl-C ends the data, not the calibration.
         on_event: called with each runtime.run_events.RunEvent as it happens (e.g. a
             tools.event_output.EventFile), after `alert`.
+        before_data: called once the session is built, before the first event is read: a live driver's
+            `start` (a started camera drops the images the run has not read yet).
     """
     from runtime.session import Session
 
@@ -226,6 +229,8 @@ def calibrate(
                 )
             yield ev
 
+    if before_data is not None:
+        before_data()
     if live:
         res = session.run_live(feed(), keep_partial=True)
     else:

@@ -23,7 +23,8 @@ def open_live(args: argparse.Namespace, config) -> tuple:
     """(LiveDriver, rig with the intrinsics, model, model description, reference dict) for a live module,
     or a DavioError. The model is a DA3 graph or none (two-view rotations): the emulated DA3 needs a
     simulator's ground truth. The model and the filter's kernels (under `config`, the run's DavioConfig)
-    are loaded before the device starts, where they can be (`davio live`)."""
+    are loaded before the device opens, where they can be (`davio live`). The driver is not started: the
+    caller starts it once the run is ready to read, and stops it."""
     from runtime.errors import ConfigError
     from tools.calibrate.core import calibration_config
     from tools.commands.live import check_device_args, load_kernels, open_device
@@ -46,14 +47,12 @@ def open_live(args: argparse.Namespace, config) -> tuple:
         model, desc = open_da3(args, given.camera, 5)
     load_kernels(None, calibration_config(config))   # the rig's extrinsics are withheld: a stand-in's
     # an OAK's factory intrinsics are read from the opened device before its streams start
-    driver, rig = open_device(args, given, start=given is not None)
-    if given is None:
+    driver, rig = open_device(args, given)
+    if given is None and args.model:
         try:
-            if args.model:
-                from tools.model_open import open_da3
+            from tools.model_open import open_da3
 
-                model, desc = open_da3(args, rig.camera, 5)
-            driver.start()
+            model, desc = open_da3(args, rig.camera, 5)
         except BaseException:
             driver.stop()
             raise

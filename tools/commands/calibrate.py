@@ -235,6 +235,7 @@ def run(args: argparse.Namespace) -> int:
                     alert=stderr_alert,
                     live=live,
                     on_event=event_file,
+                    before_data=driver.start if live else None,
                 )
             finally:
                 if event_file is not None:

@@ -97,15 +97,14 @@ def run(args: argparse.Namespace) -> int:
                 driver, rig = open_device(args, rig)
             else:   # an OAK's factory calibration: read from the opened device before its streams start
                 load_kernels(None, config)
-                driver, rig = open_device(args, rig, start=False)
+                driver, rig = open_device(args, rig)
                 try:
                     model, model_desc = _open_model(args, rig, config)
                     prior = prior_map(args, model, config)
-                    driver.start()
                 except BaseException:
                     driver.stop()
                     raise
-            try:                # the driver stops also when the run folder cannot be made
+            try:                # the driver stops also when the run folder cannot be made; _run starts it
                 folder.create()
                 with folder.discard_on_error():
                     return _run(args, folder, driver, rig, model, model_desc, config, prior, view)
@@ -156,13 +155,14 @@ def check_device_args(args: argparse.Namespace, command: str) -> None:
                           "EuRoC sensor.yaml or folder)")
 
 
-def open_device(args: argparse.Namespace, rig, start: bool = True):
+def open_device(args: argparse.Namespace, rig):
     """(a LiveDriver for args.source "oak" or "uvc", the rig: `rig`, else an OAK's factory calibration).
-    The driver is started, or with `start` False the device is open (an OAK's calibration read) and its
-    streams wait for `driver.start()`: the caller starts or stops it."""
+    Its streams are not started: an OAK is open (its calibration read), a UVC camera and its serial IMU are
+    opened by `driver.start()`. The caller starts it once the run is ready to read (a started camera's
+    newest-frames buffer drops the images the run has not read), and stops it."""
     if args.source == "oak":
-        return _open_oak(args, rig, start)
-    return _open_driver(args, rig, start), rig
+        return _open_oak(args, rig)
+    return _open_driver(args, rig), rig
 
 
 def describe_device(args: argparse.Namespace) -> str:
@@ -171,9 +171,9 @@ def describe_device(args: argparse.Namespace) -> str:
             f"uvc camera {args.camera} + IMU {args.imu_port} ({args.imu_protocol})")
 
 
-def _open_oak(args: argparse.Namespace, rig, start: bool = True):
-    """(LiveDriver over an OAK's camera and IMU, the rig: --rig, else the device's factory calibration);
-    started, or (`start` False) with the device open and its streams not started."""
+def _open_oak(args: argparse.Namespace, rig):
+    """(LiveDriver over an OAK's camera and IMU, the rig: --rig, else the device's factory calibration),
+    the device open and its streams not started."""
     from drivers.live import LiveDriver
     from drivers.oak import OakDevice
 
@@ -185,15 +185,14 @@ def _open_oak(args: argparse.Namespace, rig, start: bool = True):
         if rig is None:
             rig = dev.rig()
         driver = LiveDriver(dev.camera, dev.imu, rig=rig, time_offset_s=rig.time_offset_s or 0.0)
-        if start:
-            driver.start()
     except BaseException:
         dev.stop()
         raise
     return driver, rig
 
 
-def _open_driver(args: argparse.Namespace, rig, start: bool = True):
+def _open_driver(args: argparse.Namespace, rig):
+    """LiveDriver over a UVC camera (or a video file, paced) and a serial IMU, neither opened yet."""
     from pathlib import Path
 
     from drivers.live import LiveDriver
@@ -206,14 +205,7 @@ def _open_driver(args: argparse.Namespace, rig, start: bool = True):
     camera = UvcCamera(device, width=args.width or cam.width, height=args.height or cam.height, fps=args.fps,
                        expected_size=(cam.width, cam.height), realtime=is_file)
     imu = SerialImu(args.imu_port, protocol=args.imu_protocol, baudrate=args.baud)
-    driver = LiveDriver(camera, imu, rig=rig, time_offset_s=rig.time_offset_s or 0.0)
-    try:
-        if start:
-            driver.start()
-    except BaseException:
-        driver.stop()
-        raise
-    return driver
+    return LiveDriver(camera, imu, rig=rig, time_offset_s=rig.time_offset_s or 0.0)
 
 
 def _run(args, folder, driver, rig, model, model_desc: str, config, prior=None, view=None) -> int:
@@ -238,6 +230,7 @@ def _run(args, folder, driver, rig, model, model_desc: str, config, prior=None, 
         session = Session(rig, model, config, map_sink=map_sink, on_pose=sinks.on_pose, prior_map=prior,
                           on_event=sinks.on_event)
         status.session = session
+        driver.start()      # last: the streams start once the run is ready to read them
         events = driver.events()
         if args.seconds is not None:
             events = _first_seconds(events, args.seconds)
