@@ -46,6 +46,32 @@ def test_nanosecond_tum_stamps_are_read_with_a_note(tum_pair, capsys, metric: st
     assert "read as nanoseconds" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("metric", ["ate", "rpe"])
+def test_repeated_stamps_are_counted_and_said(tum_pair, tmp_path: Path, capsys, metric: str) -> None:
+    """A repeated stamp is kept (as evo keeps it) but never silently: each file's count is said on stderr
+    and given in the JSON (the pair count and the statistics depend on which twin is paired)."""
+    est, _, ref = tum_pair
+    rows = est.read_text().splitlines()
+    header, body = rows[0], rows[1:]
+    repeated = [body[5].split(), body[20].split()]
+    for r in repeated:
+        r[1] = str(float(r[1]) + 0.5)            # the twin is another pose at the same stamp
+    body = body[:6] + [" ".join(repeated[0])] + body[6:21] + [" ".join(repeated[1])] + body[21:]
+    est_rep = tmp_path / "est_repeated.tum"
+    est_rep.write_text("\n".join([header, *body]) + "\n")
+    ref_rows = ref.read_text().splitlines()
+    ref_rep = tmp_path / "ref_repeated.tum"
+    ref_rep.write_text("\n".join(ref_rows[:4] + ref_rows[3:]) + "\n")
+    assert main(["eval", metric, str(est_rep), str(ref_rep), "--json"]) == 0
+    captured = capsys.readouterr()
+    assert _strict(captured.out)["repeated_stamps"] == {"est": 2, "ref": 1}
+    assert f"davio eval: note: {est_rep}: 2 poses repeat the stamp before (kept" in captured.err
+    assert f"davio eval: note: {ref_rep}: 1 pose repeats the stamp before (kept" in captured.err
+    assert main(["eval", metric, str(est), str(ref), "--json"]) == 0
+    captured = capsys.readouterr()
+    assert _strict(captured.out)["repeated_stamps"] == {"est": 0, "ref": 0} and "repeat" not in captured.err
+
+
 def test_save_aligned_into_an_existing_folder(tum_pair, tmp_path: Path, capsys) -> None:
     est, _, ref = tum_pair
     out = tmp_path / "results"

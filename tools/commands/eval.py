@@ -98,14 +98,28 @@ def _print(*renderables) -> None:
 
 
 def _read_pair(args: argparse.Namespace) -> tuple:
-    """(estimate, reference) trajectories; a note on stderr for each file read with ns stamps."""
+    """(estimate, reference) trajectories; a note on stderr for each file read with ns stamps, and for each
+    file with repeated stamps (kept, as evo keeps them: a repeated pose may go unpaired, or share its
+    partner, which changes the pair count and the statistics)."""
     from tools.evaluation import read_trajectory
 
     trajs = read_trajectory(args.est), read_trajectory(args.ref)
     for t in trajs:
         if "stamp_note" in t.meta:
             print(f"davio eval: note: {t.meta['stamp_note']}", file=sys.stderr)
+        repeats = int(t.meta.get("repeated_stamps") or 0)
+        if repeats:
+            poses = "1 pose repeats" if repeats == 1 else f"{repeats} poses repeat"
+            print(f"davio eval: note: {t.meta['source']}: {poses} the stamp before (kept, as evo keeps "
+                  "them; the association pairs each stamp of the shorter trajectory once, so a repeated pose "
+                  "may go unpaired or share its partner)", file=sys.stderr)
     return trajs
+
+
+def _repeats(est, ref) -> dict:
+    """The report's count of repeated stamps in each input file."""
+    return {"repeated_stamps": {"est": int(est.meta.get("repeated_stamps") or 0),
+                                "ref": int(ref.meta.get("repeated_stamps") or 0)}}
 
 
 def _plot_dir(args: argparse.Namespace) -> Path | None:
@@ -172,7 +186,7 @@ def _run_ate(args: argparse.Namespace) -> int:
                           inputs=[Path(args.est), Path(args.ref)])
     est, ref = _read_pair(args)
     res = ate(est, ref, args.align, args.max_diff, args.offset, args.n_align, args.one_to_one)
-    out = {**res.as_dict(), "est": str(args.est), "ref": str(args.ref)}
+    out = {**res.as_dict(), "est": str(args.est), "ref": str(args.ref), **_repeats(est, ref)}
     if plot_dir is not None:
         from tools.evaluation.plots import plot_errors, plot_trajectories
 
@@ -211,7 +225,7 @@ def _run_rpe(args: argparse.Namespace) -> int:
     est, ref = _read_pair(args)
     res = rpe(est, ref, args.delta, args.delta_unit, args.all_pairs, align_method=args.align,
               max_diff_s=args.max_diff, offset_s=args.offset, one_to_one=args.one_to_one)
-    out = {**res.as_dict(), "est": str(args.est), "ref": str(args.ref)}
+    out = {**res.as_dict(), "est": str(args.est), "ref": str(args.ref), **_repeats(est, ref)}
     if plot_dir is not None:
         from tools.evaluation.plots import plot_errors
 
