@@ -131,10 +131,11 @@ def test_a_bad_address_or_a_port_in_use_is_a_clear_error(capsys):
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as busy:
         busy.bind(("127.0.0.1", 0))
         assert main(["listen", f"udp://127.0.0.1:{busy.getsockname()[1]}", "--seconds", "1"]) == 1
-    assert "cannot listen on" in capsys.readouterr().err
+    assert capsys.readouterr().err.startswith("davio listen: error: cannot listen on udp://127.0.0.1:")
     assert main(["listen", f"udp://127.0.0.1:{_free_port()}", "--tum", "/nonexistent-folder/poses.tum"]) == 1
     err = capsys.readouterr().err
-    assert "cannot write --tum /nonexistent-folder/poses.tum: No such file or directory" in err
+    assert err == ("davio listen: error: cannot write --tum /nonexistent-folder/poses.tum: No such file or "
+                   "directory\n")
 
 
 def _link_local_address() -> tuple[str, str, int] | None:

@@ -40,13 +40,13 @@ def bind_listener(url: str) -> socket.socket:
         try:
             address = socket.getaddrinfo(host, port, family, socket.SOCK_DGRAM, 0, socket.AI_PASSIVE)[0][4]
         except socket.gaierror as exc:
-            raise ConfigError(f"davio listen: cannot resolve {host!r} ({exc.strerror})") from None
+            raise ConfigError(f"cannot resolve {host!r} ({exc.strerror})") from None
     sock = socket.socket(family, socket.SOCK_DGRAM)
     try:
         sock.bind(address)
     except OSError as exc:
         sock.close()
-        raise ConfigError(f"davio listen: cannot listen on {url}: {exc.strerror or exc}") from None
+        raise ConfigError(f"cannot listen on {url}: {exc.strerror or exc}") from None
     return sock
 
 
@@ -66,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
         tum = open(args.tum, "w", encoding="utf-8") if args.tum else None   # noqa: SIM115 - closed below
     except OSError as exc:
         sock.close()
-        raise ConfigError(f"davio listen: cannot write --tum {args.tum}: {exc.strerror or exc}") from None
+        raise ConfigError(f"cannot write --tum {args.tum}: {exc.strerror or exc}") from None
     listener = PoseListener(args.frame, tum)
     tty = sys.stderr.isatty()
     print(f"davio listen: on {args.url} ({args.frame} frame)" + (f", poses to {args.tum}" if tum else "")
