@@ -22,7 +22,8 @@ from runtime.msckf.camera_kernels import CameraParams, undistort_points
 from runtime.msckf.config import MsckfConfig
 from runtime.msckf.feature_db import FeatureDatabase
 from runtime.msckf.filter_state import FilterCounters, FilterState
-from runtime.msckf.health import divergence_reason, median_parallax_deg
+from runtime.msckf.health import WINDOW_SLACK_NS, HealthWindows, median_parallax_deg
+from runtime.msckf.initial_state import initial_state
 from runtime.msckf.propagator import propagate_interval, select_samples
 from runtime.msckf.state import State
 from runtime.msckf.state_helper import augment_clone, marginalize
@@ -30,10 +31,6 @@ from runtime.msckf.update_msckf import msckf_update
 from runtime.msckf.update_slam import SlamUpdateStats, change_anchor, delayed_init, slam_update
 from runtime.msckf.update_zupt import disparity_says_static, zupt_update
 from runtime.msckf.warmup import warm_kernels
-
-WINDOW_SLACK_NS = 1_000_000
-"""Health windows (seconds of camera time) are compared with 1 ms of slack, so that frame-time rounding and
-jitter neither add nor drop a frame at a window's edge."""
 
 
 class MsckfEstimator:
@@ -76,13 +73,7 @@ class MsckfEstimator:
         self.db = FeatureDatabase()
         self.state_: State | None = None
         self._t_init_ns = 0
-        # health windows are camera times (ns), not frame counts: they mean the same at any frame rate
-        self._last_update_ns: int | None = None  # camera time of the last frame with a feature update
-        self._chi2_window: deque = deque()  # (t_cam, tested, rejected) per frame with a visual update
-        #: (t_cam, accepted visual measurements) per frame past the update step, since the last restart
-        self._accepted_window: deque = deque()
-        self._accepted_since: int | None = None  # camera time the count restarted from
-        self._accepted_needed_s = self.config.visual_health_window_s  # s before the first judgement
+        self.health = HealthWindows(self.config)   # what divergence is judged on, over camera time
         self._last_w = np.zeros(3)
         self._last_samples: tuple | None = None
         seed = self.config.feature_order_seed
@@ -111,67 +102,16 @@ class MsckfEstimator:
         dbg, dba]; its diagonal is floored at the config's init sigmas (None: those sigmas).
         time_offset_s: t_imu = t_cam + time_offset_s from now on (and at later initialisations), e.g. the
         offset a feed-forward window was solved at; None keeps the rig's (or the last one set)."""
-        cfg = self.config
         if time_offset_s is not None and not np.isfinite(time_offset_s):
             raise EstimatorError("initialize_from_state: time_offset_s must be finite")
-        vals = [np.asarray(x, dtype=float) for x in (R_OI, p_OI, v_OI, bg, ba)]
-        shapes = [(3, 3), (3,), (3,), (3,), (3,)]
-        for x, s, n in zip(vals, shapes, ("R_OI", "p_OI", "v_OI", "bg", "ba"), strict=True):
-            if x.shape != s or not np.all(np.isfinite(x)):
-                raise EstimatorError(f"initialize_from_state: {n} must be finite with shape {s}")
-        R = vals[0]
-        if np.abs(R.T @ R - np.eye(3)).max() > 1e-6 or np.linalg.det(R) < 0:
-            raise EstimatorError("initialize_from_state: R_OI is not a rotation")
         t_d = self._t_d0 if time_offset_s is None else float(time_offset_s)
-        st = State(self._R_IC0, self._p_IC0, t_d, cfg.calib_time_offset, cfg.calib_extrinsics,
-                   self.camera.params.copy() if cfg.calib_intrinsics else None)
-        st.t_ns = int(t_ns)
-        st.R, st.p, st.v, st.bg, st.ba = (x.copy() for x in vals)
-        st.R_fej, st.p_fej, st.v_fej = st.R.copy(), st.p.copy(), st.v.copy()
-        floor = (
-            np.repeat(
-                [
-                    cfg.init_sigma_ori,
-                    cfg.init_sigma_pos,
-                    cfg.init_sigma_vel,
-                    cfg.init_sigma_bg,
-                    cfg.init_sigma_ba,
-                ],
-                3,
-            )
-            ** 2
-        )
-        if cov is None:
-            P = np.diag(floor)
-        else:
-            P = np.asarray(cov, dtype=float)
-            if P.shape != (15, 15) or not np.all(np.isfinite(P)):
-                raise EstimatorError("initialize_from_state: cov must be a finite (15, 15) matrix")
-            P = 0.5 * (P + P.T)
-            d = np.diag(P).copy()
-            scale = np.sqrt(np.maximum(floor, d) / np.maximum(d, 1e-300))
-            P = P * np.outer(scale, scale)
-        st.P[:15, :15] = P
-        if st.idx_dt >= 0:
-            st.P[st.idx_dt, st.idx_dt] = cfg.sigma_calib_dt**2
-        if st.idx_ext >= 0:
-            i = st.idx_ext
-            st.P[i : i + 3, i : i + 3] = np.eye(3) * cfg.sigma_calib_rot**2
-            st.P[i + 3 : i + 6, i + 3 : i + 6] = np.eye(3) * cfg.sigma_calib_pos**2
-        if st.idx_intr >= 0:
-            i = st.idx_intr
-            sig = [cfg.sigma_calib_focal] * 2 + [cfg.sigma_calib_center] * 2
-            # a camera without a distortion model has nothing that observes d0..d3 (zero Jacobian columns):
-            # report them with zero uncertainty rather than an unchanging prior
-            sig += [0.0 if self.camera.model == "none" else cfg.sigma_calib_distortion] * 4
-            st.P[i : i + 8, i : i + 8] = np.diag(np.square(sig))
+        st = initial_state(self.config, self.camera, self._R_IC0, self._p_IC0, t_d, t_ns,
+                           (R_OI, p_OI, v_OI, bg, ba), cov)
         if time_offset_s is not None:     # every input checked: only now does the offset change
             self.set_time_offset(time_offset_s)
         self.state_ = st
         self._t_init_ns = int(t_ns)
-        self._last_update_ns = None
-        self._chi2_window.clear()
-        self._restart_visual_count(self.config.visual_health_window_s)
+        self.health.clear()
         self.db.clear()
         self._pending = deque(f for f in self._pending if f[0] + int(round(st.t_d * 1e9)) > st.t_ns)
         self.counters.initializations += 1
@@ -439,7 +379,7 @@ class MsckfEstimator:
         if cfg.try_zupt and zupt_update(st, cfg, self.db, self._last_samples, t_cam, ids, uv):
             c.zupt_applied += 1
             # standing still: no parallax to triangulate, and no need; moving off needs time to build it
-            self._restart_visual_count(cfg.visual_health_after_zupt_s, t_cam)
+            self.health.restart(cfg.visual_health_after_zupt_s, t_cam)
             c.frames_processed += 1
             c.time_frame_s += time.perf_counter() - t0
             c.cpu_frame_s += time.thread_time() - t0_cpu
@@ -452,8 +392,7 @@ class MsckfEstimator:
         n_clones = len(st.clones)
         if n_clones < min(cfg.max_clones, 5):
             # too few clones to triangulate: wait (OpenVINS does the same); the blind count starts after
-            if not self._accepted_window:
-                self._accepted_since = t_cam
+            self.health.waiting_for_clones(t_cam)
             c.frames_processed += 1
             c.time_frame_s += time.perf_counter() - t0
             c.cpu_frame_s += time.thread_time() - t0_cpu
@@ -541,7 +480,6 @@ class MsckfEstimator:
             self.db.drop_time(thin_t)
         updated = ms.used > 0 or sst.updated > 0 or len(added) > 0
         rejected = ms.chi2_rejected + sst.chi2_rejected
-        self._chi2_window.append((t_cam, ms.used + sst.updated + rejected, rejected))
         low_parallax = (ms.used + sst.updated == 0 and parallax is not None
                         and parallax < cfg.visual_health_min_parallax_deg
                         and float(np.linalg.norm(st.v)) >= cfg.zupt_max_velocity
@@ -552,23 +490,12 @@ class MsckfEstimator:
             # about the filter, which dead-reckons as OpenVINS does; neither starvation nor the blind count
             # holds it against the filter (the blind count restarts after it). Standing still (the filter's
             # speed below zupt_max_velocity, or the disparity test) without a zero-velocity update stays blind
-            self._restart_visual_count(cfg.visual_health_window_s, t_cam)
             c.frames_low_parallax += 1
-        else:
-            if self._accepted_since is None:
-                self._accepted_since = t_cam
-            self._accepted_window.append((t_cam, ms.used + sst.updated))
+        self.health.add_update(t_cam, ms.used + sst.updated, rejected, low_parallax)
         c.frames_processed += 1
         c.time_frame_s += time.perf_counter() - t0
         c.cpu_frame_s += time.thread_time() - t0_cpu
         return self._after_frame(t_cam, updated or low_parallax)
-
-    def _restart_visual_count(self, needed_s: float, t_cam: int | None = None) -> None:
-        """Restart the blind-filter count from camera time t_cam (None: the next frame past the update step);
-        the first judgement comes `needed_s` seconds later (>= the window)."""
-        self._accepted_window.clear()
-        self._accepted_since = t_cam
-        self._accepted_needed_s = needed_s
 
     def _earliest_created(self, tracks: list, n: int) -> list:
         """The n tracks of `tracks` that entered the database first (`Track.created`).
@@ -588,29 +515,7 @@ class MsckfEstimator:
         return [tracks[i] for i in self._order_rng.permutation(len(tracks))]
 
     def _after_frame(self, t_cam: int, updated: bool) -> FilterState | None:
-        cfg = self.config
-        if updated or self._last_update_ns is None:
-            self._last_update_ns = t_cam
-        since_update = (t_cam - self._last_update_ns) * 1e-9
-        for win, span in ((self._chi2_window, cfg.chi2_health_window_s),
-                          (self._accepted_window, cfg.visual_health_window_s)):
-            start = t_cam - int(round(span * 1e9)) + WINDOW_SLACK_NS
-            while win and win[0][0] <= start:
-                win.popleft()
-        tested = sum(n for _, n, _ in self._chi2_window)
-        rejected = sum(r for _, _, r in self._chi2_window)
-        if tested >= cfg.min_chi2_health_tests:
-            self.counters.chi2_rejection_fraction_max = max(self.counters.chi2_rejection_fraction_max,
-                                                            rejected / tested)
-        accepted = None
-        needed_ns = int(round(self._accepted_needed_s * 1e9)) - WINDOW_SLACK_NS
-        if self._accepted_since is not None and t_cam - self._accepted_since >= needed_ns:
-            accepted = sum(n for _, n in self._accepted_window)
-        if accepted is not None:
-            self.counters.visual_accepted_min = (accepted if self.counters.visual_accepted_min is None
-                                                 else min(self.counters.visual_accepted_min, accepted))
-        reason = divergence_reason(self.state_, cfg, since_update - WINDOW_SLACK_NS * 1e-9, tested, rejected,
-                                   accepted)
+        reason = self.health.judge(self.state_, t_cam, updated, self.counters)
         if reason is not None:
             self.reset(reason)
             return None
@@ -623,9 +528,7 @@ class MsckfEstimator:
         self.last_reset_reason = reason
         self.state_ = None
         self.init_source = None
-        self._last_update_ns = None
-        self._chi2_window.clear()
-        self._restart_visual_count(self.config.visual_health_window_s)
+        self.health.clear()
         self.db.clear()
         self._pending.clear()
         for ini in self.initializers:

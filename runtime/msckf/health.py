@@ -1,7 +1,10 @@
 """Divergence detection: non-finite state, covariance blow-up, velocity/bias bounds, starvation, and
-sustained chi-square rejection of the visual measurements; the tracks' parallax that tells a blind filter
-from one whose scene lacks parallax."""
+sustained chi-square rejection of the visual measurements, over the camera-time windows `HealthWindows`
+keeps; the tracks' parallax that tells a blind filter from one whose scene lacks parallax."""
 from __future__ import annotations
+
+from collections import deque
+from typing import Any
 
 import numpy as np
 
@@ -9,6 +12,10 @@ from runtime.msckf.camera_kernels import CameraParams
 from runtime.msckf.config import MsckfConfig
 from runtime.msckf.state import State
 from runtime.msckf.track_linearization import WindowArrays, pack_tracks
+
+WINDOW_SLACK_NS = 1_000_000
+"""Health windows (seconds of camera time) are compared with 1 ms of slack, so that frame-time rounding and
+jitter neither add nor drop a frame at a window's edge."""
 
 
 def divergence_reason(state: State, cfg: MsckfConfig, seconds_without_update: float,
@@ -71,3 +78,78 @@ def median_parallax_deg(state: State, tracks: list, cam: CameraParams) -> float 
 
     cos = np.einsum("ni,ni->n", rays(first[two]), rays(last[two]))
     return float(np.degrees(np.median(np.arccos(np.clip(cos, -1.0, 1.0)))))
+
+
+class HealthWindows:
+    """The camera-time windows `divergence_reason` judges (camera clock, ns; windows in seconds mean the
+    same at any frame rate, compared with `WINDOW_SLACK_NS` of slack):
+
+    - the time since the last frame with a feature update (starvation);
+    - the chi-square gate's tests and rejections over `chi2_health_window_s` (sustained rejection);
+    - the visual measurements accepted over `visual_health_window_s` of frames past the update step (a blind
+      filter), judged only `needed_s` after the count (re)started: at an initialisation or a reset, after a
+      zero-velocity update (`visual_health_after_zupt_s`), and after a frame whose tracks lack parallax."""
+
+    def __init__(self, cfg: MsckfConfig) -> None:
+        self.cfg = cfg
+        self.last_update_ns: int | None = None   # camera time of the last frame with a feature update
+        self.chi2: deque = deque()     # (t_cam, tested, rejected) per frame with a visual update step
+        self.accepted: deque = deque()  # (t_cam, accepted) per frame past the update step since the restart
+        self.accepted_since: int | None = None   # camera time the count restarted from (None: the next frame)
+        self.needed_s = cfg.visual_health_window_s   # s before the count's first judgement
+
+    def clear(self) -> None:
+        """Start over (an initialisation or a reset)."""
+        self.last_update_ns = None
+        self.chi2.clear()
+        self.restart(self.cfg.visual_health_window_s)
+
+    def restart(self, needed_s: float, t_cam: int | None = None) -> None:
+        """Restart the blind-filter count from camera time t_cam (None: the next frame past the update step);
+        the first judgement comes `needed_s` seconds later (>= the window)."""
+        self.accepted.clear()
+        self.accepted_since = t_cam
+        self.needed_s = needed_s
+
+    def waiting_for_clones(self, t_cam: int) -> None:
+        """A frame before the window holds enough clones to triangulate: the blind count starts here (unless
+        it already runs)."""
+        if not self.accepted:
+            self.accepted_since = t_cam
+
+    def add_update(self, t_cam: int, used: int, rejected: int, low_parallax: bool) -> None:
+        """A frame past the update step: `used` visual measurements accepted and `rejected` by the chi-square
+        gate. A frame whose tracks lack parallax restarts the blind count instead of adding to it."""
+        self.chi2.append((t_cam, used + rejected, rejected))
+        if low_parallax:
+            self.restart(self.cfg.visual_health_window_s, t_cam)
+            return
+        if self.accepted_since is None:
+            self.accepted_since = t_cam
+        self.accepted.append((t_cam, used))
+
+    def judge(self, state: State, t_cam: int, updated: bool, counters: Any) -> str | None:
+        """After a frame (`updated`: it moved the filter, or said nothing about it): slide the windows to
+        t_cam, record the worst figures in `counters` (FilterCounters) and return `divergence_reason`'s."""
+        cfg = self.cfg
+        if updated or self.last_update_ns is None:
+            self.last_update_ns = t_cam
+        since_update = (t_cam - self.last_update_ns) * 1e-9
+        for win, span in ((self.chi2, cfg.chi2_health_window_s), (self.accepted, cfg.visual_health_window_s)):
+            start = t_cam - int(round(span * 1e9)) + WINDOW_SLACK_NS
+            while win and win[0][0] <= start:
+                win.popleft()
+        tested = sum(n for _, n, _ in self.chi2)
+        rejected = sum(r for _, _, r in self.chi2)
+        if tested >= cfg.min_chi2_health_tests:
+            counters.chi2_rejection_fraction_max = max(counters.chi2_rejection_fraction_max,
+                                                       rejected / tested)
+        accepted = None
+        needed_ns = int(round(self.needed_s * 1e9)) - WINDOW_SLACK_NS
+        if self.accepted_since is not None and t_cam - self.accepted_since >= needed_ns:
+            accepted = sum(n for _, n in self.accepted)
+        if accepted is not None:
+            counters.visual_accepted_min = (accepted if counters.visual_accepted_min is None
+                                            else min(counters.visual_accepted_min, accepted))
+        return divergence_reason(state, cfg, since_update - WINDOW_SLACK_NS * 1e-9, tested, rejected,
+                                 accepted)
