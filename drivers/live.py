@@ -117,9 +117,12 @@ class LiveDriver(Driver):
 
     def start(self) -> LiveDriver:
         """Start the IMU, then the camera (so the IMU covers the first frames). Idempotent.
-        A camera that fails to start stops the IMU and raises its error."""
+        A camera that fails to start stops the IMU and raises its error. DeviceError after `stop()` (its
+        sources would run with nothing left to stop them)."""
         if self._started:
             return self
+        if self._stop_requested:
+            raise DeviceError(f"{self._describe()}: started after stop()")
         self._started = True
         try:
             for src in (self.imu, self.camera):
@@ -148,7 +151,10 @@ class LiveDriver(Driver):
         return self.start()
 
     def events(self) -> Iterator[ImuSample | Frame]:
-        """The merged, time-ordered events (see the module docstring). Starts the sources if needed."""
+        """The merged, time-ordered events (see the module docstring). Starts the sources if needed; none
+        after `stop()` (the sources are not started then)."""
+        if self._stop_requested:
+            return
         self.start()
         self._loop_thread = threading.get_ident()
         self._in_loop = True

@@ -1,9 +1,9 @@
 """Luxonis OAK (depthai 3): one camera socket and the on-board IMU, read on threads (notes/drivers.md §1).
 
-`OakDevice` builds one depthai pipeline (a `Camera` node with one GRAY8 output at the requested size and
-rate, an `IMU` node with ACCELEROMETER_UNCALIBRATED + GYROSCOPE_UNCALIBRATED at one rate (`imu_calibrated`:
-the _CALIBRATED streams), batch threshold 1, at most 10 reports a batch; both host queues non-blocking and
-bounded) and exposes two sources for `LiveDriver`:
+`OakDevice` opens one depthai pipeline (`drivers.oak_pipeline.build_pipeline`: a `Camera` node with one
+GRAY8 output at the requested size and rate, an `IMU` node with ACCELEROMETER_UNCALIBRATED +
+GYROSCOPE_UNCALIBRATED at one rate (`imu_calibrated`: the _CALIBRATED streams), batch threshold 1, at most
+10 reports a batch; both host queues non-blocking and bounded) and exposes two sources for `LiveDriver`:
 
 - `device.camera` (`OakCamera`): `Frame`s, grey (H, W) uint8 of the requested size. Each is stamped
   with `getTimestampDevice(dai.CameraExposureOffset.MIDDLE)`: the DEVICE clock at mid-exposure, int64

@@ -1,7 +1,8 @@
 """The two sources of an OAK device: `OakCamera` (frames) and `OakImu` (samples), fed by its reader threads.
 
 What each delivers, how it is stamped and what it counts is described in `drivers.oak`'s docstring; the
-device, its pipeline and its threads live there, the calibration in `drivers.oak_calib`.
+device and its threads live there, the pipeline factory in `drivers.oak_pipeline`, the calibration in
+`drivers.oak_calib`.
 """
 from __future__ import annotations
 

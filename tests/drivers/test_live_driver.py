@@ -206,6 +206,19 @@ def test_camera_start_failure_stops_the_imu(tmp_path: Path) -> None:
     assert imu.stopped
 
 
+def test_a_driver_stopped_before_it_started_starts_nothing(video: Path) -> None:
+    """The commands hand the driver out unstarted and stop it on every way out: a stop that comes first
+    (Ctrl-C while the run is set up) leaves the sources unstarted, and nothing can start them after it."""
+    imu = FakeImu()
+    camera = UvcCamera(str(video), realtime=True)
+    drv = LiveDriver(camera, imu)
+    drv.stop()
+    assert list(drv.events()) == [] and imu.thread is None
+    with pytest.raises(DeviceError, match="started after stop"):
+        drv.start()
+    assert imu.thread is None and camera.report()["frames"] == 0
+
+
 class ListSource:
     """A source replaying a fixed list, then ended (no thread)."""
 

@@ -10,7 +10,7 @@
 - Calibration: tests/drivers/fixtures/oak_calib.json, written by `make_calibration()` below with
   `eepromToJsonFile` (regenerate: `python tests/drivers/test_oak.py`), read with
   `dai.CalibrationHandler(path)`.
-- `start()` without a device: the real depthai probe (no OAK is attached here).
+The probe and the pipeline factory (`drivers.oak_pipeline`) are tested in test_oak_pipeline.py.
 """
 from __future__ import annotations
 

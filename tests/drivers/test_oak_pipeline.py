@@ -123,7 +123,9 @@ def test_the_pipeline_disables_reconnection_and_stops_on_device_loss(monkeypatch
     assert sensors == imu_sensors(dai)
 
 
-def test_start_without_device_fails_fast_and_clearly() -> None:
+def test_start_without_a_device_is_one_line_naming_the_probe_and_the_udev_rule() -> None:
+    """The real depthai probe (no OAK is attached here): a probe that did not finish within its 2 s would
+    say so instead."""
     dev = OakDevice()
     with pytest.raises(DeviceError) as info:
         dev.start()

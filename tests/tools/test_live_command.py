@@ -311,7 +311,8 @@ def test_the_streams_start_once_the_run_can_read_them(tmp_path: Path, capsys, mo
                                                       source) -> None:
     """A started camera's newest-frames buffer drops the images the run has not read: the streams start
     after the run's session is made, right before the first read. A start that fails is the command's
-    one-line error and leaves no run folder or events file behind."""
+    one line (no banner before it), closes the device, and leaves no run folder or events file behind;
+    with --overwrite an earlier calibration's report and events stay as they were."""
     import drivers.oak as oak
     import runtime.session as session_module
     from drivers.serial_imu import SerialImu
@@ -328,12 +329,16 @@ def test_the_streams_start_once_the_run_can_read_them(tmp_path: Path, capsys, mo
         calls.append("streams")
         raise DeviceError("streams refused (test)")
 
+    class Pipe:
+        def stop(self) -> None:
+            calls.append("closed")
+
     monkeypatch.setattr(session_module.Session, "__init__", recording_init)
     if source == "oak":
         dai = pytest.importorskip("depthai")
         fixture = Path(__file__).resolve().parents[1] / "drivers" / "fixtures" / "oak_calib.json"
         monkeypatch.setattr(oak, "build_pipeline", lambda dev: oak.OakPipeline(
-            None, None, None, dai.CalibrationHandler(str(fixture)), "OAK fake", None, refuse))
+            None, None, Pipe(), dai.CalibrationHandler(str(fixture)), "OAK fake", None, refuse))
         device = ["oak"]
     else:       # LiveDriver starts the IMU first, then the camera
         monkeypatch.setattr(SerialImu, "start", refuse)
@@ -341,7 +346,15 @@ def test_the_streams_start_once_the_run_can_read_them(tmp_path: Path, capsys, mo
         device = ["uvc", "--imu-port", str(tmp_path / "tty"), "--rig", str(rig_file)]
     out = tmp_path / ("run" if command == "live" else "rig.yaml")
     assert main([command, *device, "--out", str(out)]) == 1
-    err = capsys.readouterr().err
-    assert f"davio {command}: error: " in err and "streams refused (test)" in err
-    assert calls == ["session", "streams"]
+    captured = capsys.readouterr()
+    assert captured.err == f"davio {command}: error: streams refused (test)\n" and captured.out == ""
+    assert calls == ["session", "streams", "closed"] if source == "oak" else ["session", "streams"]
     assert not any(tmp_path.iterdir())
+    if command == "calibrate":
+        earlier = {tmp_path / "rig.report.json": "{}\n", tmp_path / "rig.events.jsonl": '{"kind": "x"}\n'}
+        for path, text in earlier.items():
+            path.write_text(text)
+        assert main([command, *device, "--out", str(out), "--overwrite"]) == 1
+        assert capsys.readouterr().err == "davio calibrate: error: streams refused (test)\n"
+        assert {p: p.read_text() for p in earlier} == earlier
+        assert sorted(tmp_path.iterdir()) == sorted(earlier)

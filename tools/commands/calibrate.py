@@ -204,6 +204,26 @@ def run(args: argparse.Namespace) -> int:
     made = [d for d in [events_path.parent, *events_path.parent.parents] if not d.exists()]
     report_before = _file_id(paths["report"])
     event_file = None
+
+    def begin() -> None:
+        """Start a live module, then say what runs and open the events file: a module that fails to
+        start is one error line and leaves an earlier calibration's events file as it was."""
+        nonlocal event_file
+        if live:
+            driver.start()
+        print(
+            f"davio calibrate: {what}\n  model: {desc}\n  extrinsics and time offset withheld: "
+            "hand-eye bring-up, then online calibration"
+            + ("\n  move the module about at least two axes; Ctrl-C (or --seconds) ends the data"
+               if live else ""),
+            file=log,
+            flush=True,
+        )
+        event_file = open_event_file(events_path)
+
+    def on_event(event) -> None:   # live: the file opens once the module started
+        event_file(event)          # the session says nothing before its data: the file is open by then
+
     try:
         with interruptible():
             if live:
@@ -215,15 +235,8 @@ def run(args: argparse.Namespace) -> int:
                 rec, rig, model, desc, reference = open_inputs(args)
                 driver, what = rec.driver, rec.description
             try:
-                print(
-                    f"davio calibrate: {what}\n  model: {desc}\n  extrinsics and time offset withheld: "
-                    "hand-eye bring-up, then online calibration"
-                    + ("\n  move the module about at least two axes; Ctrl-C (or --seconds) ends the data"
-                       if live else ""),
-                    file=log,
-                    flush=True,
-                )
-                event_file = open_event_file(events_path)
+                if not live:        # a recording: said before the session's set-up
+                    begin()
                 run_ = calibrate(
                     driver.events(),
                     rig,
@@ -234,8 +247,8 @@ def run(args: argparse.Namespace) -> int:
                     progress=stderr_progress,
                     alert=stderr_alert,
                     live=live,
-                    on_event=event_file,
-                    before_data=driver.start if live else None,
+                    on_event=on_event if live else event_file,
+                    before_data=begin if live else None,   # a module starts once the session is made
                 )
             finally:
                 if event_file is not None:

@@ -220,9 +220,6 @@ def _run(args, folder, driver, rig, model, model_desc: str, config, prior=None, 
     map_out = MapOutput.create(folder.path, rig, model_desc, model, config)
     where = describe_device(args)
     defaulted = config.msckf.defaulted_imu_noise(rig.imu)
-    print(f"davio live: {where}\n  model: {model_desc}\n"
-          + (f"  {imu_noise_note(defaulted)}\n" if defaulted else "")
-          + "  Ctrl-C to finish", file=sys.stderr)
     status = _StatusLine(driver)
     sinks = RunSinks(folder.path, None, args.stream, console=status.events, view=view)
     try:
@@ -231,6 +228,9 @@ def _run(args, folder, driver, rig, model, model_desc: str, config, prior=None, 
                           on_event=sinks.on_event)
         status.session = session
         driver.start()      # last: the streams start once the run is ready to read them
+        print(f"davio live: {where}\n  model: {model_desc}\n"
+              + (f"  {imu_noise_note(defaulted)}\n" if defaulted else "")
+              + "  Ctrl-C to finish", file=sys.stderr)
         events = driver.events()
         if args.seconds is not None:
             events = _first_seconds(events, args.seconds)
