@@ -162,10 +162,12 @@ class UvcCamera(KeptFrames):
         """Open the device and start the reader; returns once the first frame arrived.
 
         Raises DeviceError (one line, naming the device) when it does not exist, cannot be opened
-        within `open_timeout_s`, delivers no frame, or delivers a size other than `expected_size`.
-        Idempotent."""
+        within `open_timeout_s`, delivers no frame, or delivers a size other than `expected_size`, or
+        after `stop()` (nothing would stop it again). Idempotent."""
         if self._thread is not None:
             return self
+        if self._stop:
+            raise DeviceError(f"camera {self.device}: started after stop()")
         self._check_exists()
         self._thread = threading.Thread(target=self._run, name=f"davio-uvc-{self.device}", daemon=True)
         self._thread.start()

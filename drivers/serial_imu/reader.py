@@ -166,9 +166,12 @@ class SerialImu:
 
     # --- lifecycle -----------------------------------------------------------------------------
     def start(self) -> SerialImu:
-        """Open the port and start the reader thread; raises DeviceError (one line) if it does not open."""
+        """Open the port and start the reader thread; raises DeviceError (one line) if it does not open, or
+        after `stop()` (nothing would close the port again). Idempotent."""
         if self._started:
             return self
+        if self._stopped:
+            raise DeviceError(f"{self.port}: started after stop()")
         self._ser = self._open()
         self._started = True
         if self.configure:

@@ -200,6 +200,12 @@ def test_missing_busy_and_bad_ports_fail_fast_with_one_line(pty_pair: Pty) -> No
         SerialImu("loop://", protocol="text", configure=True)
     with pytest.raises(DeviceError):
         SerialImu("loop://").get(0.01)           # before start
+    stopped = SerialImu(pty_pair.path)
+    stopped.stop()      # a stop first (e.g. from another thread while LiveDriver starts its sources)
+    with pytest.raises(DeviceError, match="started after stop"):
+        stopped.start()                          # would open a port that nothing closes
+    with SerialImu(pty_pair.path):               # the port was not opened: free
+        pass
     assert PROTOCOLS == ("xsens", "text")
 
 

@@ -133,6 +133,11 @@ def test_stop_is_idempotent_and_get_after_stop(video: Path) -> None:
     cam.stop()
     assert cam.get(0.1) is None
     UvcCamera(video).stop()  # never started
+    stopped = UvcCamera(video)
+    stopped.stop()           # a stop first (e.g. from another thread while LiveDriver starts its sources)
+    with pytest.raises(DeviceError, match="started after stop"):
+        stopped.start()      # would run a reader that nothing stops
+    assert stopped.report()["frames"] == 0
 
 
 # -- a fake capture device: colour/16-bit conversion, unplug and stall -------------------------------
