@@ -130,6 +130,34 @@ def test_association_matches_evo_on_jittered_stamps() -> None:
     np.testing.assert_array_equal(j2, i2)
 
 
+@pytest.mark.parametrize("n_est, n_ref", [(2, 2), (3, 2), (2, 3)])
+def test_association_walks_the_trajectory_evo_walks(n_est: int, n_ref: int) -> None:
+    """evo walks the estimate unless the reference has fewer poses (equal lengths included); walking the
+    other one pairs other poses when stamps are near each other."""
+    from evo.core.trajectory import PoseTrajectory3D
+
+    from runtime.geometry.trajectory import PoseTrajectory
+
+    est_s = np.array([1.000, 1.004, 1.0065])[:n_est]
+    ref_s = np.array([1.003, 1.010, 1.0068])[:n_ref]
+    ref_s.sort()
+
+    def ours(stamps_s):
+        n = len(stamps_s)
+        return PoseTrajectory(np.round(stamps_s * 1e9).astype(np.int64), np.arange(3 * n, dtype=float)
+                              .reshape(n, 3), np.tile(np.eye(3), (n, 1, 1)))
+
+    def evo(stamps_s):
+        n = len(stamps_s)
+        return PoseTrajectory3D(np.arange(3 * n, dtype=float).reshape(n, 3),
+                                np.tile([1.0, 0, 0, 0], (n, 1)), stamps_s)
+
+    e, r = associate(ours(est_s), ours(ref_s), max_diff_s=0.01)
+    evo_r, evo_e = evo_sync.associate_trajectories(evo(ref_s), evo(est_s), max_diff=0.01)
+    np.testing.assert_allclose(e.p, evo_e.positions_xyz)
+    np.testing.assert_allclose(r.p, evo_r.positions_xyz)
+
+
 def test_cli_table_and_plots(files, tmp_path, capsys) -> None:
     assert main(["eval", "ate", *map(str, files), "--align", "posyaw", "--plot", str(tmp_path),
                  "--save-aligned", str(tmp_path / "aligned.tum")]) == 0

@@ -1,10 +1,10 @@
 """Timestamp association of two trajectories (nearest stamp within a maximum difference).
 
-Matches evo's `sync.associate_trajectories` (nearest_time): the trajectory with fewer poses is
-walked in order and each of its stamps takes the nearest stamp of the other one when the
-difference is at most `max_diff`; at an exact tie the earlier stamp wins. As in evo, a pose of the
-longer trajectory may serve two stamps (e.g. a repeated estimate stamp); with `one_to_one=True`
-it serves only the closest one (the first on ties).
+Matches evo's `sync.associate_trajectories` (nearest_time): the trajectory with fewer poses (the
+estimate when both have as many) is walked in order and each of its stamps takes the nearest stamp of
+the other one when the difference is at most `max_diff`; at an exact tie the earlier stamp wins. As in
+evo, a pose of the longer trajectory may serve two stamps (e.g. a repeated estimate stamp); with
+`one_to_one=True` it serves only the closest one (the first on ties).
 """
 from __future__ import annotations
 
@@ -68,7 +68,7 @@ def associate(est: PoseTrajectory, ref: PoseTrajectory, max_diff_s: float = 0.01
     """
     max_diff_ns = int(round(max_diff_s * 1e9))
     t_est = est.t_ns + int(round(offset_s * 1e9))
-    if len(ref) > len(est):
+    if len(ref) >= len(est):      # as evo: the estimate is walked unless the reference has fewer poses
         i_est, i_ref = match_stamps(t_est, ref.t_ns, max_diff_ns, one_to_one)
     else:
         i_ref, i_est = match_stamps(ref.t_ns, t_est, max_diff_ns, one_to_one)
