@@ -161,3 +161,11 @@ def test_align_with_moves_the_cloud_into_the_reference_frame(tmp_path: Path, cap
     assert out["fscore"] == 1.0 and out["accuracy_m"] < 1e-6
     np.testing.assert_allclose(out["alignment"]["rotation"], R_WM, atol=1e-9)
     np.testing.assert_allclose(out["alignment"]["translation_m"], t_WM, atol=1e-9)
+    assert out["repeated_stamps"] == {"est": 0, "ref": 0}
+    # the trajectories are read as `eval ate` reads them: a repeated stamp is said, not kept silently
+    rows = (tmp_path / "final.tum").read_text().splitlines()
+    (tmp_path / "final_repeated.tum").write_text("\n".join(rows[:5] + rows[4:]) + "\n")
+    assert main(args + ["--align-with", str(tmp_path / "final_repeated.tum"), str(tmp_path / "gt.tum")]) == 0
+    captured = capsys.readouterr()
+    assert json.loads(captured.out)["repeated_stamps"] == {"est": 1, "ref": 0}
+    assert "final_repeated.tum: 1 pose repeats the stamp before" in captured.err

@@ -97,13 +97,13 @@ def _print(*renderables) -> None:
         con.print(r)
 
 
-def _read_pair(args: argparse.Namespace) -> tuple:
+def _read_pair(est: str, ref: str) -> tuple:
     """(estimate, reference) trajectories; a note on stderr for each file read with ns stamps, and for each
     file with repeated stamps (kept, as evo keeps them: a repeated pose may go unpaired, or share its
     partner, which changes the pair count and the statistics)."""
     from tools.evaluation import read_trajectory
 
-    trajs = read_trajectory(args.est), read_trajectory(args.ref)
+    trajs = read_trajectory(est), read_trajectory(ref)
     for t in trajs:
         if "stamp_note" in t.meta:
             print(f"davio eval: note: {t.meta['stamp_note']}", file=sys.stderr)
@@ -184,7 +184,7 @@ def _run_ate(args: argparse.Namespace) -> int:
         target = aligned_path(args.save_aligned, args.est)
         check_output_file(target, "--save-aligned", (".tum", ".txt"), overwrite=args.overwrite,
                           inputs=[Path(args.est), Path(args.ref)])
-    est, ref = _read_pair(args)
+    est, ref = _read_pair(args.est, args.ref)
     res = ate(est, ref, args.align, args.max_diff, args.offset, args.n_align, args.one_to_one)
     out = {**res.as_dict(), "est": str(args.est), "ref": str(args.ref), **_repeats(est, ref)}
     if plot_dir is not None:
@@ -222,7 +222,7 @@ def _run_rpe(args: argparse.Namespace) -> int:
     from tools.evaluation import rpe
 
     plot_dir = _plot_dir(args)
-    est, ref = _read_pair(args)
+    est, ref = _read_pair(args.est, args.ref)
     res = rpe(est, ref, args.delta, args.delta_unit, args.all_pairs, align_method=args.align,
               max_diff_s=args.max_diff, offset_s=args.offset, one_to_one=args.one_to_one)
     out = {**res.as_dict(), "est": str(args.est), "ref": str(args.ref), **_repeats(est, ref)}
@@ -255,9 +255,9 @@ def _run_surface(args: argparse.Namespace) -> int:
     rec = read_point_cloud(args.rec)
     alignment = None
     if args.align_with:
-        from tools.evaluation import ate, read_trajectory
+        from tools.evaluation import ate
 
-        est_traj, ref_traj = (read_trajectory(f) for f in args.align_with)
+        est_traj, ref_traj = _read_pair(*args.align_with)
         alignment = ate(est_traj, ref_traj, args.align, args.max_diff).alignment
         rec = alignment.s * np.asarray(rec, np.float64) @ alignment.R.T + alignment.t
     ref = read_point_cloud(args.ref)
@@ -270,7 +270,8 @@ def _run_surface(args: argparse.Namespace) -> int:
                   "Inf) and are left out", file=sys.stderr)
     res = surface_metrics(rec, ref, args.threshold, args.voxel)
     out = {**res.as_dict(), "rec": str(args.rec), "ref": str(args.ref), "nonfinite_points": nonfinite,
-           "alignment": None if alignment is None else alignment.as_dict()}
+           "alignment": None if alignment is None else alignment.as_dict(),
+           **(_repeats(est_traj, ref_traj) if alignment is not None else {})}
     if args.json:
         print(strict_dumps(out))
         return 0
