@@ -127,8 +127,10 @@ def _open_model(args: argparse.Namespace, rig, config) -> tuple:
 def load_kernels(rig, config) -> float:
     """Load the tracker's and the filter's numba kernels now, before the device starts (a first session
     takes 0.2 s on a 2-core machine, 1 s on a slow one, and a started camera's newest-frames buffer drops
-    the images the run has not read). `rig` None, or one without extrinsics (a calibration): the EuRoC rig
-    stands in, as the kernels do not depend on the camera's values. Returns the seconds it took."""
+    the images the run has not read). A run's session loads them too, before the streams start, but not
+    with a rig whose extrinsics are withheld (a calibration): its filter is made when the bring-up ends,
+    mid-run. `rig` None, or one without extrinsics: the EuRoC rig stands in, as the kernels do not
+    depend on the camera's values. Returns the seconds it took."""
     from calib import euroc_rig
     from runtime.errors import DavioError
     from runtime.pipeline import VioPipeline
