@@ -45,17 +45,17 @@ def open_live(args: argparse.Namespace, config) -> tuple:
         from tools.model_open import open_da3
 
         model, desc = open_da3(args, given.camera, 5)
-    load_kernels(None, calibration_config(config))   # the rig's extrinsics are withheld: a stand-in's
     # an OAK's factory intrinsics are read from the opened device before its streams start
     driver, rig = open_device(args, given)
-    if given is None and args.model:
-        try:
+    try:
+        if given is None and args.model:
             from tools.model_open import open_da3
 
             model, desc = open_da3(args, rig.camera, 5)
-        except BaseException:
-            driver.stop()
-            raise
+        load_kernels(None, calibration_config(config))   # the rig's extrinsics are withheld: a stand-in's
+    except BaseException:
+        driver.stop()
+        raise
     reference = {"source": None, "T_IC": None, "time_offset_s": None}
     if args.source == "oak" and given is None and rig.T_IC is not None:
         reference.update(source="the OAK's factory calibration", T_IC=rig.T_IC,

@@ -86,8 +86,9 @@ def run(args: argparse.Namespace) -> int:
     if rig is not None and rig.camera is None:
         raise ConfigError(f"{args.rig}: no camera intrinsics")
     with interruptible():
-        # what takes time before the device: a started camera's images would be dropped by its newest-frames
-        # buffer until the run reads them, and the start-up would lose them
+        # what takes time comes before the streams start (_run starts them once its session is made): a
+        # started camera's images would be dropped by its newest-frames buffer until the run reads them,
+        # and the start-up would lose them
         view = open_view(args.view)          # viser's import, 0.7 s
         try:
             if rig is not None:
@@ -96,11 +97,11 @@ def run(args: argparse.Namespace) -> int:
                 load_kernels(rig, config)
                 driver, rig = open_device(args, rig)
             else:   # an OAK's factory calibration: read from the opened device before its streams start
-                load_kernels(None, config)
                 driver, rig = open_device(args, rig)
                 try:
                     model, model_desc = _open_model(args, rig, config)
                     prior = prior_map(args, model, config)
+                    load_kernels(rig, config)   # after the model and map load (it limits BLAS to one thread)
                 except BaseException:
                     driver.stop()
                     raise
