@@ -22,9 +22,10 @@ def is_live(source: str) -> bool:
 def open_live(args: argparse.Namespace, config) -> tuple:
     """(LiveDriver, rig with the intrinsics, model, model description, reference dict) for a live module,
     or a DavioError. The model is a DA3 graph or none (two-view rotations): the emulated DA3 needs a
-    simulator's ground truth. The model and the filter's kernels (under `config`, the run's DavioConfig)
-    are loaded before the device opens, where they can be (`davio live`). The driver is not started: the
-    caller starts it once the run is ready to read, and stops it."""
+    simulator's ground truth. The model (before the device opens, where the intrinsics are given) and the
+    filter's kernels (under `config`, the run's DavioConfig; the session loads them only when the bring-up
+    ends) are loaded before the streams start: the driver is not started, the caller starts it once the
+    run is ready to read, and stops it."""
     from runtime.errors import ConfigError
     from tools.calibrate.core import calibration_config
     from tools.commands.live import check_device_args, load_kernels, open_device
