@@ -4,8 +4,11 @@ import. What the pipeline holds and why (reconnection off, stop on device loss, 
 `drivers.oak`'s docstring; `drivers.oak_streams` reads its queues."""
 from __future__ import annotations
 
+import contextlib
+import os
+import sys
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -23,11 +26,35 @@ NO_DEVICE_HINT = ("is it plugged in? USB3? udev rules: SUBSYSTEM==\"usb\", ATTRS
 
 
 def _import_depthai() -> Any:
+    """depthai, imported with the process's stdout sent to stderr: its logger writes to stdout (e.g. "USB
+    protocol not available" in a container), which would break a command's --json output."""
     try:
-        import depthai as dai
+        with _stdout_to_stderr():
+            import depthai as dai
     except ImportError:
         raise DeviceError("the OAK driver needs depthai 3: pip install 'depthai>=3'") from None
     return dai
+
+
+@contextlib.contextmanager
+def _stdout_to_stderr() -> Iterator[None]:
+    """File descriptor 1 points at descriptor 2 within the block (what C++ libraries print included)."""
+    try:
+        sys.stdout.flush()
+        saved = os.dup(1)
+    except (OSError, ValueError):       # no stdout to move (closed, or not a file descriptor)
+        yield
+        return
+    try:
+        os.dup2(2, 1)
+        yield
+    finally:
+        try:
+            sys.stdout.flush()
+        except (OSError, ValueError):
+            pass
+        os.dup2(saved, 1)
+        os.close(saved)
 
 
 def _one_line(exc: BaseException) -> str:

@@ -1,4 +1,5 @@
-"""`davio info`: versions, ONNX Runtime execution providers, numba status (and a model check)."""
+"""`davio info`: versions, ONNX Runtime execution providers, numba status (and a model check, and the
+camera-IMU hardware attached)."""
 from __future__ import annotations
 
 import argparse
@@ -7,7 +8,8 @@ import platform
 from runtime.json_out import strict_dumps
 
 NAME = "info"
-HELP = "report versions, ONNX Runtime providers, numba status; validate a model with --model"
+HELP = ("report versions, ONNX Runtime providers, numba status; validate a model with --model; list the "
+        "attached OAK devices, cameras and serial ports with --devices")
 
 _PACKAGES = ["davio", "numpy", "scipy", "opencv-python-headless", "onnxruntime", "onnxruntime-gpu",
              "onnx", "numba", "open3d-cpu", "open3d", "depthai", "pyserial", "rosbags"]
@@ -17,6 +19,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     p.add_argument("--model", metavar="PATH", default=None,
                    help="also load and validate this ONNX model (DA3 or XFeat contract)")
+    p.add_argument("--devices", action="store_true",
+                   help="also list the hardware `davio live` can open: OAK devices (depthai's probe, up to "
+                        "2 s), V4L2 video nodes (--camera) and serial ports (--imu-port)")
 
 
 def collect() -> dict:
@@ -75,6 +80,10 @@ def run(args: argparse.Namespace) -> int:
         from models.inspect_model import inspect_model
 
         info["model"] = inspect_model(args.model)
+    if args.devices:
+        from drivers.inventory import inventory
+
+        info["devices"] = inventory()
     if args.json:
         print(strict_dumps(info, indent=2))
         return 0
@@ -107,4 +116,32 @@ def run(args: argparse.Namespace) -> int:
         for k, v in m.items():
             mt.add_row(str(k), strict_dumps(v) if not isinstance(v, str) else v)
         con.print(mt)
+    if "devices" in info:
+        con.print(_devices_table(info["devices"]))
     return 0
+
+
+def _devices_table(devices: dict) -> object:
+    """The --devices listing: one row per device, with the option that opens it, or the note of a kind
+    with none."""
+    from rich.table import Table
+
+    t = Table(title="camera-IMU hardware (davio live)", show_header=False)
+    oaks = devices["oak"]["devices"]
+    for d in oaks:
+        busy = "" if d["available"] else ", opened by another program"
+        use = "davio live oak" + ("" if len(oaks) == 1 else f" --device-id {d['device_id'] or d['name']}")
+        t.add_row(f"OAK {d['device_id'] or d['name']}",
+                  f"{d['platform']} {d['protocol']}, {d['state']}{busy}: {use}")
+    for d in devices["video"]["devices"]:
+        role = {0: "", 1: ", metadata node: no images"}.get(d["node"], f", node {d['node']}")
+        t.add_row(d["path"], f"{d['name'] or '?'}{role}: --camera {d['number']}")
+    for d in devices["serial"]["devices"]:
+        usb = (f" [USB {d['vid']:04x}:{d['pid']:04x}]" if d["vid"] is not None and d["pid"] is not None
+               else "")
+        t.add_row(d["device"], f"{d['description'] or d['manufacturer'] or 'serial port'}{usb}: "
+                               f"--imu-port {d['device']}")
+    for kind, label in (("oak", "OAK"), ("video", "cameras"), ("serial", "serial ports")):
+        if devices[kind]["note"]:
+            t.add_row(label, devices[kind]["note"])
+    return t
