@@ -27,9 +27,13 @@ def oak_devices(timeout_s: float = 2.0) -> tuple[list[dict[str, Any]], str | Non
     return devices, None if devices else "no OAK device attached (depthai's probe found none)"
 
 
-def video_devices(root: Path | None = None) -> tuple[list[dict[str, Any]], str | None]:
+def video_devices(root: Path | None = None, dev_root: Path = Path("/dev")) -> tuple[list[dict[str, Any]],
+                                                                                    str | None]:
     """(V4L2 video nodes by number: path (/dev/videoN), number (`davio live uvc --camera N`), name (the
-    driver's), node (0: a UVC camera's image node; its metadata node, 1, delivers no images), note).
+    device's), driver (the kernel module, e.g. "uvcvideo"), node (its registration order within the
+    device: uvcvideo, since Linux 4.16, registers an image node then a metadata node for each streaming
+    interface, so a UVC camera's odd nodes deliver no images), present (its /dev node exists here: a
+    container may not pass it), note).
 
     Read from sysfs (`root`, default Linux's /sys/class/video4linux); elsewhere the list is empty and the
     note says to pass the camera's index."""
@@ -43,8 +47,11 @@ def video_devices(root: Path | None = None) -> tuple[list[dict[str, Any]], str |
         match = re.fullmatch(r"video(\d+)", entry.name)
         if match is None:
             continue
+        driver = entry / "device" / "driver"
         nodes.append({"path": f"/dev/{entry.name}", "number": int(match.group(1)),
-                      "name": _read_text(entry / "name"), "node": _read_int(entry / "index")})
+                      "name": _read_text(entry / "name"),
+                      "driver": driver.resolve().name if driver.exists() else None,
+                      "node": _read_int(entry / "index"), "present": (dev_root / entry.name).exists()})
     nodes.sort(key=lambda d: d["number"])
     return nodes, None if nodes else "no video device (no /dev/video* node)"
 

@@ -122,7 +122,7 @@ class LiveDriver(Driver):
         if self._started:
             return self
         if self._stop_requested:
-            raise DeviceError(f"{self._describe()}: started after stop()")
+            raise DeviceError(f"{self._describe()}: start() after stop()")
         self._started = True
         try:
             for src in (self.imu, self.camera):

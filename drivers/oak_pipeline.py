@@ -26,35 +26,52 @@ NO_DEVICE_HINT = ("is it plugged in? USB3? udev rules: SUBSYSTEM==\"usb\", ATTRS
 
 
 def _import_depthai() -> Any:
-    """depthai, imported with the process's stdout sent to stderr: its logger writes to stdout (e.g. "USB
-    protocol not available" in a container), which would break a command's --json output."""
-    try:
-        with _stdout_to_stderr():
-            import depthai as dai
-    except ImportError:
-        raise DeviceError("the OAK driver needs depthai 3: pip install 'depthai>=3'") from None
+    """depthai. Its first import runs with the process's stdout sent to stderr: depthai's logger writes to
+    stdout as it loads (e.g. "USB protocol not available" in a container), which would break a command's
+    --json output. Later calls (the camera reader's, a frame each) only look the module up."""
+    dai = sys.modules.get("depthai")
+    if dai is not None:
+        return dai
+    with _IMPORT_LOCK:
+        try:
+            with _stdout_to_stderr():
+                import depthai as dai
+        except ImportError:
+            raise DeviceError("the OAK driver needs depthai 3: pip install 'depthai>=3'") from None
     return dai
+
+
+_IMPORT_LOCK = threading.Lock()
 
 
 @contextlib.contextmanager
 def _stdout_to_stderr() -> Iterator[None]:
-    """File descriptor 1 points at descriptor 2 within the block (what C++ libraries print included)."""
+    """File descriptor 1 points at descriptor 2 within the block (what C++ libraries print included);
+    nothing moves when there is no stdout descriptor to move (closed, or not a file)."""
+    _flush_stdout()
     try:
-        sys.stdout.flush()
         saved = os.dup(1)
-    except (OSError, ValueError):       # no stdout to move (closed, or not a file descriptor)
+    except OSError:
+        saved = None
+    if saved is None:
         yield
         return
     try:
         os.dup2(2, 1)
-        yield
-    finally:
         try:
-            sys.stdout.flush()
-        except (OSError, ValueError):
-            pass
+            yield
+        finally:
+            _flush_stdout()
+    finally:
         os.dup2(saved, 1)
         os.close(saved)
+
+
+def _flush_stdout() -> None:
+    try:
+        sys.stdout.flush()
+    except (AttributeError, OSError, ValueError):   # None (closed at start), or closed since
+        pass
 
 
 def _one_line(exc: BaseException) -> str:

@@ -167,7 +167,7 @@ class UvcCamera(KeptFrames):
         if self._thread is not None:
             return self
         if self._stop:
-            raise DeviceError(f"camera {self.device}: started after stop()")
+            raise DeviceError(f"camera {self.device}: start() after stop()")
         self._check_exists()
         self._thread = threading.Thread(target=self._run, name=f"davio-uvc-{self.device}", daemon=True)
         self._thread.start()

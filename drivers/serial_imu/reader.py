@@ -15,7 +15,8 @@ alike (a pty ignores the baud rate). For an FTDI adapter, set its latency_timer 
 (`/sys/bus/usb-serial/devices/ttyUSB0/latency_timer`) for the best stamps.
 
 Errors are `runtime.errors.DeviceError` with one line naming the port, with `.port` and `.reason`
-attributes: `start()` raises "missing", "permission", "busy", "not_serial", "timeout" or "open";
+attributes: `start()` raises "missing", "permission", "busy", "not_serial", "timeout", "open" or "stopped"
+(after or during `stop()`);
 the reader records "unplugged" (read failed: SerialException/OSError), "silent" (not one byte within
 `first_byte_timeout_s` of the start: the device is off, not streaming, or on another port), "stall" (no
 valid sample for `stall_timeout_s` after samples had been flowing), "no_valid_data" (bytes arriving
@@ -167,13 +168,15 @@ class SerialImu:
     # --- lifecycle -----------------------------------------------------------------------------
     def start(self) -> SerialImu:
         """Open the port and start the reader thread; raises DeviceError (one line) if it does not open, or
-        after `stop()` (nothing would close the port again). Idempotent."""
+        ("stopped") after or during `stop()` (from another thread or a signal handler: nothing would close
+        the port again). Idempotent."""
         if self._started:
             return self
         if self._stopped:
-            raise DeviceError(f"{self.port}: started after stop()")
+            raise device_error(self.port, "stopped", f"serial port {self.port}: start() after stop()")
         self._ser = self._open()
         self._started = True
+        self._stopped_while_starting()
         if self.configure:
             try:
                 self.send(go_to_config())
@@ -186,10 +189,21 @@ class SerialImu:
             except DeviceError:
                 self.stop()
                 raise
+        self._stopped_while_starting()
         self._running = True
         self._thread = threading.Thread(target=self._run, name=f"serial-imu {self.port}", daemon=True)
         self._thread.start()
         return self
+
+    def _stopped_while_starting(self) -> None:
+        """A `stop()` that came while the port opened (it may not have seen the port yet) closes it here."""
+        if not self._stopped:
+            return
+        try:
+            self._ser.close()
+        except Exception:  # noqa: BLE001 - closing a dead port may fail; nothing to do
+            pass
+        raise device_error(self.port, "stopped", f"serial port {self.port}: stopped while it opened")
 
     def _open(self) -> Any:
         try:

@@ -214,7 +214,7 @@ def test_a_driver_stopped_before_it_started_starts_nothing(video: Path) -> None:
     drv = LiveDriver(camera, imu)
     drv.stop()
     assert list(drv.events()) == [] and imu.thread is None
-    with pytest.raises(DeviceError, match="started after stop"):
+    with pytest.raises(DeviceError, match=r"start\(\) after stop\(\)"):
         drv.start()
     assert imu.thread is None and camera.report()["frames"] == 0
 

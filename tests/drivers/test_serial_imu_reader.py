@@ -202,9 +202,31 @@ def test_missing_busy_and_bad_ports_fail_fast_with_one_line(pty_pair: Pty) -> No
         SerialImu("loop://").get(0.01)           # before start
     stopped = SerialImu(pty_pair.path)
     stopped.stop()      # a stop first (e.g. from another thread while LiveDriver starts its sources)
-    with pytest.raises(DeviceError, match="started after stop"):
+    with pytest.raises(DeviceError, match=r"start\(\) after stop\(\)") as ei:
         stopped.start()                          # would open a port that nothing closes
+    assert ei.value.reason == "stopped"
     with SerialImu(pty_pair.path):               # the port was not opened: free
+        pass
+
+
+def test_a_stop_while_the_port_opens_closes_it(pty_pair: Pty, monkeypatch) -> None:
+    """stop() from another thread while start() waits for the port to open finds no port to close: start()
+    closes it once opened, and says why it did not start."""
+    opened = []
+    real_open = SerialImu._open
+
+    def open_then_stopped(self):
+        port = real_open(self)
+        opened.append(port)
+        self.stop()                              # the other thread's stop, before start() took the port
+        return port
+
+    monkeypatch.setattr(SerialImu, "_open", open_then_stopped)
+    with pytest.raises(DeviceError, match="stopped while it opened") as ei:
+        SerialImu(pty_pair.path).start()
+    assert ei.value.reason == "stopped" and not opened[0].is_open
+    monkeypatch.undo()
+    with SerialImu(pty_pair.path):               # free again
         pass
     assert PROTOCOLS == ("xsens", "text")
 

@@ -135,7 +135,7 @@ def test_stop_is_idempotent_and_get_after_stop(video: Path) -> None:
     UvcCamera(video).stop()  # never started
     stopped = UvcCamera(video)
     stopped.stop()           # a stop first (e.g. from another thread while LiveDriver starts its sources)
-    with pytest.raises(DeviceError, match="started after stop"):
+    with pytest.raises(DeviceError, match=r"start\(\) after stop\(\)"):
         stopped.start()      # would run a reader that nothing stops
     assert stopped.report()["frames"] == 0
 

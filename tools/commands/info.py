@@ -134,8 +134,10 @@ def _devices_table(devices: dict) -> object:
         t.add_row(f"OAK {d['device_id'] or d['name']}",
                   f"{d['platform']} {d['protocol']}, {d['state']}{busy}: {use}")
     for d in devices["video"]["devices"]:
-        role = {0: "", 1: ", metadata node: no images"}.get(d["node"], f", node {d['node']}")
-        t.add_row(d["path"], f"{d['name'] or '?'}{role}: --camera {d['number']}")
+        metadata = d["driver"] == "uvcvideo" and d["node"] is not None and d["node"] % 2 == 1
+        role = ", metadata node: no images" if metadata else ""
+        absent = "" if d["present"] else f" (no {d['path']} here)"
+        t.add_row(d["path"], f"{d['name'] or '?'}{role}{absent}: --camera {d['number']}")
     for d in devices["serial"]["devices"]:
         usb = (f" [USB {d['vid']:04x}:{d['pid']:04x}]" if d["vid"] is not None and d["pid"] is not None
                else "")
