@@ -130,8 +130,9 @@ def test_association_matches_evo_on_jittered_stamps() -> None:
     np.testing.assert_array_equal(j2, i2)
 
 
+@pytest.mark.parametrize("offset_s", [0.0, -0.0013])
 @pytest.mark.parametrize("n_est, n_ref", [(2, 2), (3, 2), (2, 3)])
-def test_association_walks_the_trajectory_evo_walks(n_est: int, n_ref: int) -> None:
+def test_association_walks_the_trajectory_evo_walks(n_est: int, n_ref: int, offset_s: float) -> None:
     """evo walks the estimate unless the reference has fewer poses (equal lengths included); walking the
     other one pairs other poses when stamps are near each other."""
     from evo.core.trajectory import PoseTrajectory3D
@@ -152,8 +153,8 @@ def test_association_walks_the_trajectory_evo_walks(n_est: int, n_ref: int) -> N
         return PoseTrajectory3D(np.arange(3 * n, dtype=float).reshape(n, 3),
                                 np.tile([1.0, 0, 0, 0], (n, 1)), stamps_s)
 
-    e, r = associate(ours(est_s), ours(ref_s), max_diff_s=0.01)
-    evo_r, evo_e = evo_sync.associate_trajectories(evo(ref_s), evo(est_s), max_diff=0.01)
+    e, r = associate(ours(est_s), ours(ref_s), max_diff_s=0.01, offset_s=offset_s)
+    evo_r, evo_e = evo_sync.associate_trajectories(evo(ref_s), evo(est_s), max_diff=0.01, offset_2=offset_s)
     np.testing.assert_allclose(e.p, evo_e.positions_xyz)
     np.testing.assert_allclose(r.p, evo_r.positions_xyz)
 
