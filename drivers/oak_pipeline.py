@@ -4,15 +4,14 @@ import. What the pipeline holds and why (reconnection off, stop on device loss, 
 `drivers.oak`'s docstring; `drivers.oak_streams` reads its queues."""
 from __future__ import annotations
 
-import contextlib
-import os
 import sys
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from runtime.errors import DavioError, DeviceError
+from runtime.stdout_fd import stdout_to_stderr
 
 if TYPE_CHECKING:
     from drivers.oak import OakDevice
@@ -34,7 +33,7 @@ def _import_depthai() -> Any:
         return dai
     with _IMPORT_LOCK:
         try:
-            with _stdout_to_stderr():
+            with stdout_to_stderr():
                 import depthai as dai
         except ImportError:
             raise DeviceError("the OAK driver needs depthai 3: pip install 'depthai>=3'") from None
@@ -42,36 +41,6 @@ def _import_depthai() -> Any:
 
 
 _IMPORT_LOCK = threading.Lock()
-
-
-@contextlib.contextmanager
-def _stdout_to_stderr() -> Iterator[None]:
-    """File descriptor 1 points at descriptor 2 within the block (what C++ libraries print included);
-    nothing moves when there is no stdout descriptor to move (closed, or not a file)."""
-    _flush_stdout()
-    try:
-        saved = os.dup(1)
-    except OSError:
-        saved = None
-    if saved is None:
-        yield
-        return
-    try:
-        os.dup2(2, 1)
-        try:
-            yield
-        finally:
-            _flush_stdout()
-    finally:
-        os.dup2(saved, 1)
-        os.close(saved)
-
-
-def _flush_stdout() -> None:
-    try:
-        sys.stdout.flush()
-    except (AttributeError, OSError, ValueError):   # None (closed at start), or closed since
-        pass
 
 
 def _one_line(exc: BaseException) -> str:

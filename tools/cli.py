@@ -126,6 +126,11 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
+        if getattr(args, "json", False):    # stdout holds the JSON only: libraries' lines go to stderr
+            from runtime.stdout_fd import json_stdout
+
+            with json_stdout():
+                return int(args._run(args) or 0)
         return int(args._run(args) or 0)
     except DavioError as exc:
         print(f"davio {args.command}: error: {exc}", file=sys.stderr)

@@ -1,0 +1,79 @@
+"""The process's standard output at the file-descriptor level, for what C/C++ libraries print there:
+depthai's and Open3D's log lines go to descriptor 1 whatever `sys.stdout` is, and would break a command's
+--json output (one JSON object on stdout)."""
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+from collections.abc import Iterator
+
+from runtime.errors import DavioError
+
+
+@contextlib.contextmanager
+def stdout_to_stderr() -> Iterator[None]:
+    """Descriptor 1 points at descriptor 2 within the block (Python's prints to a `sys.stdout` on
+    descriptor 1 included); nothing moves when there is no stdout descriptor (closed)."""
+    _flush(sys.stdout)
+    try:
+        saved = os.dup(1)
+    except OSError:
+        saved = None
+    if saved is None:
+        yield
+        return
+    try:
+        os.dup2(2, 1)
+        try:
+            yield
+        finally:
+            _flush(sys.stdout)
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
+@contextlib.contextmanager
+def json_stdout() -> Iterator[None]:
+    """For a command's --json: within the block DAVIO's prints (`sys.stdout`) still reach the process's
+    stdout, while what libraries write to descriptor 1 goes to stderr. Nothing moves when `sys.stdout` is
+    not descriptor 1 (a test's capture, a closed stdout). DavioError when what was printed could not be
+    written (a full disk): said, not lost."""
+    old = sys.stdout
+    try:
+        fd = old.fileno()
+    except (AttributeError, OSError, ValueError):   # None, closed, or not a file (io.UnsupportedOperation)
+        fd = None
+    if fd != 1:
+        yield
+        return
+    _flush(old)
+    saved = os.dup(1)
+    out = os.fdopen(saved, "w", buffering=1 if old.line_buffering else -1, encoding=old.encoding,
+                    errors=old.errors)
+    os.dup2(2, 1)
+    sys.stdout = out
+    failed: OSError | ValueError | None = None
+    try:
+        yield
+    finally:
+        try:
+            out.flush()
+        except (OSError, ValueError) as exc:    # a full disk, a closed pipe
+            failed = exc
+        sys.stdout = old
+        os.dup2(saved, 1)
+        try:
+            out.close()      # closes `saved` (also when its flush fails again)
+        except (OSError, ValueError) as exc:
+            failed = failed or exc
+    if failed is not None:
+        raise DavioError(f"cannot write the output to stdout ({getattr(failed, 'strerror', None) or failed})")
+
+
+def _flush(stream: object) -> None:
+    try:
+        stream.flush()       # type: ignore[attr-defined]
+    except (AttributeError, OSError, ValueError):   # None (closed at start), or closed since
+        pass
