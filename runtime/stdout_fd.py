@@ -1,6 +1,6 @@
 """The process's standard output at the file-descriptor level, for what C/C++ libraries print there:
-depthai's and Open3D's log lines go to descriptor 1 whatever `sys.stdout` is, and would break a command's
---json output (one JSON object on stdout)."""
+depthai's log lines go to descriptor 1 whatever `sys.stdout` is, and would break a command's --json output
+(one JSON object on stdout)."""
 from __future__ import annotations
 
 import contextlib
@@ -37,21 +37,30 @@ def stdout_to_stderr() -> Iterator[None]:
 @contextlib.contextmanager
 def json_stdout() -> Iterator[None]:
     """For a command's --json: within the block DAVIO's prints (`sys.stdout`) still reach the process's
-    stdout, while what libraries write to descriptor 1 goes to stderr. Nothing moves when `sys.stdout` is
-    not descriptor 1 (a test's capture, a closed stdout). DavioError when what was printed could not be
-    written (a full disk): said, not lost."""
+    stdout, while what C/C++ code writes to descriptor 1 (depthai's logger) goes to stderr; the C library's
+    buffers are flushed at both ends, so nothing it held moves across. Open3D prints through Python's
+    `sys.stdout` instead: its callers send that to stderr themselves. Nothing moves when `sys.stdout` is not
+    descriptor 1 (a test's capture) or there is none. DavioError when what was printed could not be written
+    at the end (a full disk, a closed pipe): said, not lost."""
     old = sys.stdout
     try:
         fd = old.fileno()
     except (AttributeError, OSError, ValueError):   # None, closed, or not a file (io.UnsupportedOperation)
         fd = None
-    if fd != 1:
+    saved = None
+    if fd == 1:
+        _flush(old)
+        try:
+            saved = os.dup(1)
+        except OSError:                              # descriptor 1 closed under a live sys.stdout
+            saved = None
+    if saved is None:
         yield
         return
-    _flush(old)
-    saved = os.dup(1)
     out = os.fdopen(saved, "w", buffering=1 if old.line_buffering else -1, encoding=old.encoding,
                     errors=old.errors)
+    out.reconfigure(write_through=old.write_through)
+    _flush_c_stdio()
     os.dup2(2, 1)
     sys.stdout = out
     failed: OSError | ValueError | None = None
@@ -59,17 +68,31 @@ def json_stdout() -> Iterator[None]:
         yield
     finally:
         try:
-            out.flush()
-        except (OSError, ValueError) as exc:    # a full disk, a closed pipe
-            failed = exc
-        sys.stdout = old
-        os.dup2(saved, 1)
-        try:
-            out.close()      # closes `saved` (also when its flush fails again)
-        except (OSError, ValueError) as exc:
-            failed = failed or exc
+            try:
+                out.flush()
+            except (OSError, ValueError) as exc:    # a full disk, a closed pipe
+                failed = exc
+            _flush_c_stdio()
+        finally:                                     # also on Ctrl-C during the flush
+            sys.stdout = old
+            os.dup2(saved, 1)
+            try:
+                out.close()      # closes `saved` (also when its flush fails again)
+            except (OSError, ValueError) as exc:
+                failed = failed or exc
     if failed is not None:
         raise DavioError(f"cannot write the output to stdout ({getattr(failed, 'strerror', None) or failed})")
+
+
+def _flush_c_stdio() -> None:
+    """fflush(NULL): what C code printed and its library still buffers goes out to where descriptor 1 points
+    now (otherwise at exit, wherever it points then)."""
+    try:
+        import ctypes
+
+        ctypes.CDLL(None).fflush(None)
+    except (OSError, AttributeError, TypeError):     # no C library to reach (not a POSIX platform)
+        pass
 
 
 def _flush(stream: object) -> None:

@@ -85,3 +85,42 @@ def test_output_that_cannot_be_written_is_a_clear_error_not_lost() -> None:
                              stdout=full, stderr=subprocess.PIPE, text=True, timeout=120)
     assert out.returncode == 1
     assert out.stderr == "davio info: error: cannot write the output to stdout (No space left on device)\n"
+
+
+def test_what_c_code_buffers_inside_the_block_goes_to_stderr() -> None:
+    """A C printf without fflush inside the block (stdout a pipe: fully buffered) leaves on stderr, not at
+    exit on stdout after the JSON."""
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}
+    code = textwrap.dedent("""
+        import ctypes
+        from runtime.stdout_fd import json_stdout
+        with json_stdout():
+            ctypes.CDLL(None).printf(b"C printf, not flushed\\n")
+            print('{"a": 1}')
+    """)
+    out = subprocess.run([sys.executable, "-c", code], cwd=str(ROOT), capture_output=True, text=True,
+                         timeout=120, env=env)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout == '{"a": 1}\n' and out.stderr == "C printf, not flushed\n"
+
+
+def test_ctrl_c_while_the_output_is_flushed_still_restores_stdout() -> None:
+    out = _python("""
+        import os, sys
+        import runtime.stdout_fd as stdout_fd
+        calls = []
+        def interrupted():
+            calls.append(1)
+            if len(calls) == 2:          # the flush at the block's end
+                raise KeyboardInterrupt
+        stdout_fd._flush_c_stdio = interrupted
+        try:
+            with stdout_fd.json_stdout():
+                print("inside")
+        except KeyboardInterrupt:
+            pass
+        os.write(1, b"descriptor 1 back\\n")
+        print(sys.stdout is sys.__stdout__)
+    """)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout == "inside\ndescriptor 1 back\nTrue\n" and out.stderr == ""

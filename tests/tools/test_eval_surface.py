@@ -169,3 +169,14 @@ def test_align_with_moves_the_cloud_into_the_reference_frame(tmp_path: Path, cap
     captured = capsys.readouterr()
     assert json.loads(captured.out)["repeated_stamps"] == {"est": 1, "ref": 0}
     assert "final_repeated.tum: 1 pose repeats the stamp before" in captured.err
+
+
+def test_open3ds_warnings_go_to_stderr(tmp_path: Path, capsys) -> None:
+    """Open3D prints its warnings through Python's sys.stdout, which a --json command keeps for its JSON."""
+    pytest.importorskip("open3d")
+    cloud = tmp_path / "cloud.unknown"
+    cloud.write_text("not a cloud\n")
+    with pytest.raises(DataError, match="no points could be read"):
+        read_point_cloud(cloud)
+    captured = capsys.readouterr()
+    assert "Open3D" not in captured.out and "Open3D WARNING" in captured.err

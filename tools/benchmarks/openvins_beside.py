@@ -165,7 +165,7 @@ def run_davio(folder: Path, timeout: float) -> dict:
     except subprocess.TimeoutExpired:
         raise BesideError(f"DAVIO ran past {timeout:g} s") from None
     if proc.returncode != 0:
-        raise BesideError(f"bench openvins-sim exited with {proc.returncode}: {proc.stdout[-400:]}")
+        raise BesideError(f"bench openvins-sim exited with {proc.returncode}: {proc.stderr.strip()[-400:]}")
     res = json.loads(proc.stdout.strip().splitlines()[-1])
     return {k: res[k] for k in ("ms_per_frame", "cpu_ms_per_frame", "frames", "rmse_pos_m", "rmse_ori_deg")}
 

@@ -8,6 +8,8 @@ F-score = 2 P R / (P + R). Nearest neighbours come from scipy's cKDTree.
 """
 from __future__ import annotations
 
+import contextlib
+import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -116,7 +118,8 @@ def read_point_cloud(path: str | Path) -> np.ndarray:
         except (ImportError, OSError) as exc:
             raise DataError(f"reading {suffix} clouds needs open3d, which cannot be imported ({exc}); "
                             "convert the cloud to .ply or .npy", path) from exc
-        pts = np.asarray(o3d.io.read_point_cloud(str(path)).points, dtype=np.float64)
+        with contextlib.redirect_stdout(sys.stderr):    # Open3D's warnings print through sys.stdout
+            pts = np.asarray(o3d.io.read_point_cloud(str(path)).points, dtype=np.float64)
     if pts.ndim != 2 or pts.shape[1] != 3 or pts.shape[0] == 0:
         raise DataError(f"no points could be read (shape {pts.shape})", path)
     return pts
