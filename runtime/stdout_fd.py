@@ -57,9 +57,10 @@ def json_stdout() -> Iterator[None]:
     if saved is None:
         yield
         return
-    out = os.fdopen(saved, "w", buffering=1 if old.line_buffering else -1, encoding=old.encoding,
-                    errors=old.errors)
-    out.reconfigure(write_through=old.write_through)
+    # as the stream it stands in for (a stand-in for sys.stdout may lack a TextIOWrapper's attributes)
+    out = os.fdopen(saved, "w", buffering=1 if getattr(old, "line_buffering", False) else -1,
+                    encoding=getattr(old, "encoding", None), errors=getattr(old, "errors", None))
+    out.reconfigure(write_through=bool(getattr(old, "write_through", False)))
     _flush_c_stdio()
     os.dup2(2, 1)
     sys.stdout = out

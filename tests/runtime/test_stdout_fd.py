@@ -124,3 +124,27 @@ def test_ctrl_c_while_the_output_is_flushed_still_restores_stdout() -> None:
     """)
     assert out.returncode == 0, out.stderr
     assert out.stdout == "inside\ndescriptor 1 back\nTrue\n" and out.stderr == ""
+
+
+def test_a_plain_stand_in_for_stdout_on_descriptor_1_is_taken_as_it_is() -> None:
+    """A program that set sys.stdout to its own object on descriptor 1 (no TextIOWrapper attributes)."""
+    out = _python("""
+        import os, sys
+        from runtime.stdout_fd import json_stdout
+
+        class Tee:
+            def write(self, text):
+                return os.write(1, text.encode())
+            def flush(self):
+                pass
+            def fileno(self):
+                return 1
+
+        sys.stdout = Tee()
+        with json_stdout():
+            os.write(1, b"library line\\n")
+            print("json")
+        print("after")
+    """)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout == "json\nafter\n" and out.stderr == "library line\n"
