@@ -96,7 +96,9 @@ class FakeImu:
 
 
 def camera(video: Path, fps: float = FPS) -> UvcCamera:
-    return UvcCamera(video, fps=fps, realtime=True, file_stamps=True)
+    """The video paced on the host clock; its buffer holds every frame, so a consumer the machine's load
+    delays loses none (the newest-kept policy is tested in test_uvc)."""
+    return UvcCamera(video, fps=fps, realtime=True, file_stamps=True, keep_frames=N)
 
 
 def check_order(events: list) -> None:
@@ -107,13 +109,11 @@ def check_order(events: list) -> None:
 
 def test_events_ordered_and_every_frame_preceded_by_its_imu(video: Path) -> None:
     imu = FakeImu()
-    drv = LiveDriver(camera(video), imu, rig=None)
+    drv = LiveDriver(camera(video), imu, rig=None, imu_wait_s=5.0)  # no frame goes ahead on a loaded machine
     assert isinstance(drv, Driver) and drv.rig is None
-    t0 = time.monotonic()
     with drv:
         events = list(drv.events())
-    took = time.monotonic() - t0
-    assert took < 3.0 and drv.ended
+    assert drv.ended
     check_order(events)
     frames = [i for i, e in enumerate(events) if isinstance(e, Frame)]
     assert len(frames) == N
@@ -139,7 +139,7 @@ def test_events_ordered_and_every_frame_preceded_by_its_imu(video: Path) -> None
 
 def test_positive_time_offset_waits_for_imu_past_the_frame(video: Path) -> None:
     imu = FakeImu()
-    drv = LiveDriver(camera(video, fps=60.0), imu, time_offset_s=0.02)
+    drv = LiveDriver(camera(video, fps=60.0), imu, time_offset_s=0.02, imu_wait_s=5.0)
     with drv:
         events = list(drv.events())
     check_order(events)
@@ -166,19 +166,23 @@ def test_stop_from_another_thread_ends_events_promptly(video: Path) -> None:
     cam = UvcCamera(video, fps=10.0, realtime=True, file_stamps=True)  # 3 s of video
     drv = LiveDriver(cam, imu).start()
     seen: list = []
-    stopped_at: list[float] = []
+    after_stop = 0
+    stopped = threading.Event()
 
     def stopper() -> None:
         time.sleep(0.4)
-        stopped_at.append(time.monotonic())
         drv.stop()
+        stopped.set()
 
     threading.Thread(target=stopper, daemon=True).start()
     for ev in drv.events():
         seen.append(ev)
-    ended = time.monotonic()
-    assert stopped_at and ended - stopped_at[0] < 0.5
+        after_stop += stopped.is_set()
+    # events() ended on the stop, not at the video's end; at most the event already handed over when
+    # stop() returned arrives after it
+    assert stopped.is_set() and after_stop <= 1
     assert any(isinstance(e, Frame) for e in seen) and not drv.ended
+    assert sum(isinstance(e, Frame) for e in seen) < N
     check_order(seen)
     assert imu.stopped and cam.get(0.01) is None
     drv.stop()  # idempotent
@@ -188,12 +192,12 @@ def test_imu_error_surfaces_from_events(video: Path) -> None:
     imu = FakeImu(fail_after_s=0.3)
     drv = LiveDriver(camera(video), imu)
     seen: list = []
-    t0 = time.monotonic()
     with pytest.raises(DataError, match="serial read failed"), drv:
         for ev in drv.events():
             seen.append(ev)
-    assert time.monotonic() - t0 < 1.5
-    assert seen and isinstance(drv.error, DataError)
+    # the error (at 0.3 s) ended the stream before the 1 s video did
+    assert seen and isinstance(drv.error, DataError) and not drv.ended
+    assert sum(isinstance(e, Frame) for e in seen) < N
     assert "serial read failed" in drv.report()["live"]["error"]
     assert imu.stopped
 
@@ -291,21 +295,24 @@ def test_stop_from_a_signal_handler(video: Path) -> None:
     imu = FakeImu()
     cam = UvcCamera(video, fps=10.0, realtime=True, file_stamps=True)
     drv = LiveDriver(cam, imu).start()
-    fired: list[float] = []
+    fired: list[bool] = []
 
     def handler(signum, frame) -> None:
-        fired.append(time.monotonic())
         drv.stop()
+        fired.append(True)
 
     old = signal.signal(signal.SIGALRM, handler)
+    n = after_stop = 0
     try:
         signal.setitimer(signal.ITIMER_REAL, 0.3)
-        n = sum(1 for _ in drv.events())
-        ended = time.monotonic()
+        for _ in drv.events():
+            n += 1
+            after_stop += bool(fired)
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, old)
-    assert fired and ended - fired[0] < 0.5 and n > 0
+    # the handler runs between two events: the generator yields nothing once stop() returned
+    assert fired and after_stop == 0 and n > 0 and not drv.ended
     assert imu.stopped and cam.get(0.01) is None
 
 

@@ -73,7 +73,7 @@ def test_file_realtime_paced_and_fps_override(video: Path) -> None:
     took = time.monotonic() - t0
     cam.stop()
     assert len(frames) == N
-    assert 0.35 < took < 1.5  # 30 frames at 60 fps: 0.5 s
+    assert took > 0.35  # paced: 30 frames at 60 fps take 0.5 s
     assert frames[1].t_ns - frames[0].t_ns == round(1e9 / 60.0)
     # each frame is delivered no earlier than its stamp (paced on the host clock)
     assert all(f.meta["grab_ns"] >= f.t_ns for f in frames)
@@ -101,19 +101,18 @@ def test_host_stamps_increase_and_exposure_moves_them_back(video: Path) -> None:
 
 
 def test_expected_size_mismatch_names_both_sizes(video: Path) -> None:
-    t0 = time.monotonic()
-    with pytest.raises(DeviceError, match=r"64x48.*640x480"):
-        UvcCamera(video, expected_size=(640, 480)).start()
-    assert time.monotonic() - t0 < 2.0
+    # the first frame's size fails start() at once, not the wait for a first frame
+    with pytest.raises(DeviceError, match=r"delivers 64x48.*640x480"):
+        UvcCamera(video, expected_size=(640, 480), open_timeout_s=60.0).start()
     UvcCamera(video, expected_size=(W, H)).start().stop()
 
 
 @pytest.mark.parametrize("device", ["/dev/video97", "/no/such/video.avi", 97])
 def test_missing_device_fails_fast_and_clearly(device: int | str) -> None:
-    t0 = time.monotonic()
-    with pytest.raises(DeviceError, match="97|no such") as info:
-        UvcCamera(device).start()
-    assert time.monotonic() - t0 < 2.0
+    cam = UvcCamera(device, open_timeout_s=60.0)
+    with pytest.raises(DeviceError, match="no /dev/video97|no such") as info:
+        cam.start()
+    assert cam._thread is None  # refused before OpenCV opens anything (no wait for a device)
     assert "\n" not in str(info.value) and str(device) in str(info.value)
 
 
@@ -219,15 +218,11 @@ def test_fake_device_read_failure_raises_after_drain(fake_cv2: type[FakeCapture]
 def test_fake_device_stall_is_an_error(fake_cv2: type[FakeCapture]) -> None:
     fake_cv2.script = [np.zeros((H, W), np.uint8)] * 2 + ["block"]
     cam = UvcCamera("fake://cam", stall_timeout_s=0.3).start()
-    t0 = time.monotonic()
-    with pytest.raises(DeviceError, match="no frame for"):
+    with pytest.raises(DeviceError, match=r"no frame for .*stall_timeout_s 0\.3"):
         while True:
             cam.get(0.1)
-    assert time.monotonic() - t0 < 1.0
     assert isinstance(cam.error, DavioError)
-    t1 = time.monotonic()
-    cam.stop()
-    assert time.monotonic() - t1 < 1.5
+    cam.stop()  # returns although the grab stays blocked (the reader is abandoned)
 
 
 def test_fake_device_size_mismatch_and_requested_size_note(fake_cv2: type[FakeCapture]) -> None:

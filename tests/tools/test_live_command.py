@@ -6,7 +6,6 @@ from __future__ import annotations
 import contextlib
 import json
 import socket
-import time
 from pathlib import Path
 
 import pytest
@@ -63,19 +62,17 @@ def test_live_uvc_with_a_serial_imu_publishes_and_writes_a_complete_run(small_si
 
 
 def test_live_without_devices_or_calibration_is_a_clear_error(tmp_path: Path, capsys) -> None:
-    t0 = time.monotonic()
     assert main(["live", "oak", "--out", str(tmp_path / "a")]) == 1     # no OAK on this machine
-    assert "no OAK device found" in capsys.readouterr().err and time.monotonic() - t0 < 10
+    assert "no OAK device found" in capsys.readouterr().err
     assert not (tmp_path / "a").exists() and not (tmp_path / "a.partial").exists()
     assert main(["live", "uvc", "--out", str(tmp_path / "b")]) == 1
     assert "needs --imu-port" in capsys.readouterr().err
     rig = Path(__file__).resolve().parents[2] / "calib" / "rigs"
     rig_file = next(rig.glob("*.yaml"))
-    t0 = time.monotonic()
     assert main(["live", "uvc", "--camera", str(tmp_path / "no-such-video.avi"), "--imu-port",
                  str(tmp_path / "ttyUSB9"), "--rig", str(rig_file), "--out", str(tmp_path / "c")]) == 1
     err = capsys.readouterr().err
-    assert "davio live: error:" in err and time.monotonic() - t0 < 10
+    assert "davio live: error:" in err
     assert not (tmp_path / "c").exists() and not (tmp_path / "c.partial").exists()
 
 
