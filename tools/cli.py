@@ -4,7 +4,8 @@ Each module in `tools.commands` defines `NAME`, `HELP`, `add_arguments(parser)` 
 Modules must import heavy packages inside `run`, never at import time or in `add_arguments`, so that
 `davio --help` stays fast (tests/tools/test_cli.py checks that building every command's options imports
 neither the pipeline nor the simulator nor a model runtime); a command named on the command line builds
-its own options only (`davio listen` starts in about 0.2 s, `davio --help` in 0.9 s, measured 2026-11-28).
+its own options only (`davio listen` starts in about 0.2 s, `davio --help` in 0.9 s, measured 2026-11-28);
+`davio --version` builds no parser.
 """
 from __future__ import annotations
 
@@ -103,6 +104,13 @@ def _owner_parser(parser: argparse.ArgumentParser, args: argparse.Namespace, giv
         level, start = sub.choices[name], pos + 1
 
 
+def _print_version() -> int:
+    from importlib.metadata import version
+
+    print(f"davio {version('davio')}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the `davio` console script; returns the process exit code."""
     # numba's default OpenMP layer busy-waits its idle threads, which halves throughput on the
@@ -113,15 +121,14 @@ def main(argv: list[str] | None = None) -> int:
 
         prefer_workqueue_layer()
     given = sys.argv[1:] if argv is None else list(argv)
+    if given == ["--version"]:    # before any parser: building them reads every command's options
+        return _print_version()
     parser = build_parser(only=_command_named(given))
     args, extra = parser.parse_known_args(given)
     if extra:   # said by the command it was given to (with that command's usage)
         _owner_parser(parser, args, given, extra).error(f"unrecognized arguments: {' '.join(extra)}")
     if args.version:
-        from importlib.metadata import version
-
-        print(f"davio {version('davio')}")
-        return 0
+        return _print_version()
     if not getattr(args, "_run", None):
         parser.print_help()
         return 2

@@ -74,11 +74,22 @@ def test_building_the_options_imports_no_pipeline_model_runtime_or_simulator():
     numba kernels and scipy, the simulator its renderer), so that a command starts at once; checked in a
     fresh interpreter, where nothing was imported before."""
     heavy = ["runtime.pipeline", "runtime.msckf.estimator", "drivers.sim.recording", "drivers.sim.render",
-             "tools.calibrate.core", "numba", "scipy.optimize", "onnxruntime", "open3d", "matplotlib"]
+             "tools.calibrate.core", "numba", "scipy.optimize", "onnxruntime", "open3d", "matplotlib",
+             "cv2", "drivers.live", "drivers.euroc", "models.emulated_da3.emulator"]
     code = ("import sys; from tools.cli import build_parser; build_parser(); "
             f"print([m for m in {heavy!r} if m in sys.modules])")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_version_builds_no_parser():
+    """`davio --version` answers without reading any command's options (nor numpy), in a fresh interpreter."""
+    from importlib.metadata import version
+
+    code = ("import sys; from tools.cli import main; main(['--version']); "
+            "print([m for m in sys.modules if m.startswith('tools.commands.') or m == 'numpy'])")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.splitlines() == [f"davio {version('davio')}", "[]"]
 
 
 def test_a_named_command_builds_its_own_options_only(capsys):
