@@ -63,9 +63,12 @@ def _coerce(value: Any, tp: Any, key: str) -> Any:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{key}: expected a number, got {value!r}")
         try:
-            return float(value)
+            number = float(value)
         except OverflowError:
             raise ConfigError(f"{key}: {value} is too large for a number") from None
+        if number != number:     # a NaN passes or fails every comparison: no section could check it
+            raise ConfigError(f"{key} must be a number, got nan")
+        return number
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise ConfigError(f"{key}: expected an integer, got {value!r}")

@@ -158,8 +158,25 @@ class FFInitConfig:
     refine_max_iterations: int = 50
 
     def __post_init__(self) -> None:
+        from runtime.config_checks import at_least, finite_fields, in_range, positive
         from runtime.errors import ConfigError
 
+        # an upper-bound gate may be switched off with inf; nothing else may be inf, and nothing NaN
+        gates = ("max_accel_bias", "max_median_residual", "max_velocity", "max_gravity_angle_deg",
+                 "max_rotation_residual_deg", "max_gyro_bias_change", "max_gyro_rate_ratio",
+                 "max_scale_uncertainty", "max_median_depth_m")
+        finite_fields(self, "ffinit", allow_inf=gates)
+        positive(self, "ffinit", "image_spacing_s", "gravity", "inlier_sigma_factor", "sigma_u", "sigma_bg",
+                 "sigma_ba", "sigma_scale", "softplus_eps", "huber_threshold")
+        in_range(self, "ffinit", "conf_percentile", 0.0, 100.0, hi_open=True)
+        in_range(self, "ffinit", "min_inlier_fraction", 0.0, 1.0)
+        at_least(self, "ffinit", 2, "num_images", "min_images")
+        at_least(self, "ffinit", 1, "max_points_per_image", "grid_rows", "grid_cols", "lmeds_hypotheses",
+                 "points_per_image_hypothesis", "min_admissible_images")
+        at_least(self, "ffinit", 0, "gravity_refinements", "refine_max_iterations")
+        if self.min_images > self.num_images:
+            raise ConfigError(f"ffinit.min_images ({self.min_images}) must be at most ffinit.num_images "
+                              f"({self.num_images})")
         if self.point_rotations not in ("da3", "gyro"):
             raise ConfigError(f"ffinit.point_rotations must be 'da3' or 'gyro', got {self.point_rotations!r}")
         for name in ("max_gyro_rate_ratio", "gyro_scale_min_rate", "extrinsics_check_deg",

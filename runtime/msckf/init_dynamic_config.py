@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from runtime.config_checks import finite_fields, in_range, non_negative, positive
 from runtime.errors import ConfigError
 
 MLE_SOLVERS = ("lm", "scipy-fd")
@@ -109,6 +110,18 @@ class DynamicInitConfig:
     """Variance inflation of the accelerometer bias block (OpenVINS init_dyn_inflation_bias_accel)."""
 
     def __post_init__(self) -> None:
+        # an upper-bound gate may be switched off with inf; nothing else may be inf, and nothing NaN
+        gates = ("max_condition", "max_feature_condition", "max_accel_bias_change", "max_reprojection_rms_px")
+        finite_fields(self, "dynamic_init", allow_inf=gates)
+        positive(self, "dynamic_init", "mle_tolerance", "sigma_bg_prior", "sigma_ba_prior", "inflation_theta",
+                 "inflation_p", "inflation_v", "inflation_bg", "inflation_ba")
+        non_negative(self, "dynamic_init", "min_deg", "min_parallax_deg")
+        in_range(self, "dynamic_init", "min_window_fraction", 0.0, 1.0, lo_open=True)
+        in_range(self, "dynamic_init", "min_positive_depth_fraction", 0.0, 1.0)
+        positive(self, "dynamic_init", *gates, finite=False)
+        if any(not math.isfinite(float(b)) for b in (*self.bias_g_prior, *self.bias_a_prior)):
+            raise ConfigError(f"dynamic_init.bias_g_prior and bias_a_prior must be finite, got "
+                              f"{self.bias_g_prior}, {self.bias_a_prior}")
         if self.num_pose < 3:
             raise ConfigError(f"dynamic init num_pose must be >= 3, got {self.num_pose}")
         if not self.init_window_time_s > 0:

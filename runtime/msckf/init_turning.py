@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from runtime.config_checks import finite_fields, non_negative, positive
 from runtime.errors import ConfigError
 from runtime.geometry.so3 import so3_log
 from runtime.geometry.two_view import bearings, rotation_ransac
@@ -99,6 +100,9 @@ class TurningInitConfig:
     """Initial accelerometer bias std, m/s^2."""
 
     def __post_init__(self) -> None:
+        finite_fields(self, "turning_init", allow_inf=("max_disparity_px", "max_gyro_bias", "max_imu_gap_s"))
+        positive(self, "turning_init", "sigma_theta", "sigma_p", "sigma_v", "sigma_bg", "sigma_ba")
+        non_negative(self, "turning_init", "min_rotation_deg")
         if not self.window_time_s > 0:
             raise ConfigError(f"turning_init.window_time_s must be > 0 s, got {self.window_time_s}")
         for name in ("init_imu_thresh", "max_disparity_px", "max_gyro_bias", "ransac_threshold_px",

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from runtime.config_checks import finite_fields, in_range, non_negative, positive
+from runtime.config_checks import at_least, finite_fields, in_range, non_negative, positive
 from runtime.errors import ConfigError, DataError
 from runtime.msckf.corner_grid import block_neighbourhoods, choose_corners
 
@@ -121,6 +121,9 @@ class TrackerConfig:
             raise ConfigError(f"tracker.ransac_threshold_px must be > 0, got {self.ransac_threshold_px}")
         if self.ransac_min_points < 8:
             raise ConfigError(f"tracker.ransac_min_points must be >= 8, got {self.ransac_min_points}")
+        # OpenCV divides by the CLAHE grid (0 kills the process with SIGFPE) and asserts on the others
+        at_least(self, "tracker", 1, "clahe_tiles", "lk_max_iterations")
+        at_least(self, "tracker", 0, "border_px", "fast_threshold", "fast_threshold_min")
 
 
 @dataclass

@@ -35,15 +35,41 @@ from runtime.startup import StartupConfig
     ("[revisits.pnp]\nconfidence = 1.0", "revisits.pnp.confidence must be in (0, 1)"),
     ("[msckf]\nmax_clones = 1", "[msckf] max_clones must be >= 2, got 1"),   # the section is named
     ("[tracker]\nnum_ptss = 150", "unknown option(s) tracker.num_ptss (did you mean tracker.num_pts?)"),
-    ("[tracker]\nmin_px_dist = nan", "tracker.min_px_dist must be a finite number, got nan"),
+    ("[tracker]\nmin_px_dist = nan", "tracker.min_px_dist must be a number, got nan"),
     ("[tracker]\nransac_confidence = 0.0", "tracker.ransac_confidence must be in (0, 1], got 0.0"),
-    ("[msckf]\nimu_buffer_s = nan", "msckf.imu_buffer_s must be a finite number, got nan"),
+    ("[msckf]\nimu_buffer_s = nan", "msckf.imu_buffer_s must be a number, got nan"),
     ("[msckf]\nimu_buffer_s = -1.0", "msckf.imu_buffer_s must be a finite number > 0, got -1.0"),
     ("[msckf]\nmax_velocity = -1.0", "msckf.max_velocity must be a finite number > 0"),
     ("[msckf]\ninit_sigma_pos = inf", "msckf.init_sigma_pos must be a finite number, got inf"),
-    ("[static_init]\nsigma_p = nan", "static_init.sigma_p must be a finite number, got nan"),
+    ("[static_init]\nsigma_p = nan", "static_init.sigma_p must be a number, got nan"),
     ("[static_init]\nsigma_v = 0.0", "static_init.sigma_v must be a finite number > 0"),
     ("use_dynamic_int = true", "use_dynamic_int (did you mean use_dynamic_init?)"),
+    # every float of every section, also those no check names (a NaN in a list too)
+    ("[dynamic_init]\ninflation_p = nan", "dynamic_init.inflation_p must be a number, got nan"),
+    ("[dynamic_init]\nbias_g_prior = [0.0, nan, 0.0]",
+     "dynamic_init.bias_g_prior[1] must be a number, got nan"),
+    ("[turning_init]\nsigma_theta = nan", "turning_init.sigma_theta must be a number, got nan"),
+    ("[ffinit]\nmin_inlier_threshold = nan", "ffinit.min_inlier_threshold must be a number, got nan"),
+    ("[tracker]\nequalization = 'clahe'\nclahe_tiles = 0",
+     "tracker.clahe_tiles must be an integer >= 1, got 0"),
+    ("[tracker]\nlk_max_iterations = -1", "tracker.lk_max_iterations must be an integer >= 1, got -1"),
+    ("[tracker]\nborder_px = -1", "tracker.border_px must be an integer >= 0, got -1"),
+    ("[tracker]\nfast_threshold_min = -5", "tracker.fast_threshold_min must be an integer >= 0, got -5"),
+    ("[dynamic_init]\nmin_deg = -1.0", "dynamic_init.min_deg must be a finite number >= 0, got -1.0"),
+    ("[dynamic_init]\nsigma_bg_prior = 0.0",
+     "dynamic_init.sigma_bg_prior must be a finite number > 0, got 0.0"),
+    ("[dynamic_init]\ninflation_v = inf", "dynamic_init.inflation_v must be a finite number, got inf"),
+    ("[dynamic_init]\nmin_window_fraction = 0.0",
+     "dynamic_init.min_window_fraction must be in (0, 1], got 0.0"),
+    ("[turning_init]\nsigma_p = -0.05", "turning_init.sigma_p must be a finite number > 0, got -0.05"),
+    ("[turning_init]\nmin_rotation_deg = inf",
+     "turning_init.min_rotation_deg must be a finite number, got inf"),
+    ("[ffinit]\nnum_images = -1", "ffinit.num_images must be an integer >= 2, got -1"),
+    ("[ffinit]\ngrid_rows = 0", "ffinit.grid_rows must be an integer >= 1, got 0"),
+    ("[ffinit]\nmin_images = 6", "ffinit.min_images (6) must be at most ffinit.num_images (5)"),
+    ("[ffinit]\nsigma_scale = 0.0", "ffinit.sigma_scale must be a finite number > 0, got 0.0"),
+    ("[ffinit]\nconf_percentile = 100.0", "ffinit.conf_percentile must be in [0, 100)"),
+    ("[ffinit]\nmin_inlier_fraction = 1.5", "ffinit.min_inlier_fraction must be in [0, 1], got 1.5"),
 ])
 def test_out_of_range_values_name_the_key(tmp_path: Path, toml: str, message: str) -> None:
     path = tmp_path / "c.toml"
@@ -51,6 +77,22 @@ def test_out_of_range_values_name_the_key(tmp_path: Path, toml: str, message: st
     with pytest.raises(ConfigError) as err:
         load_davio_config(path)
     assert message in str(err.value)
+
+
+def test_a_nan_set_in_code_is_refused_and_an_upper_gate_may_be_switched_off_with_inf() -> None:
+    from runtime.ffinit.config import FFInitConfig
+    from runtime.msckf.init_dynamic import DynamicInitConfig
+    from runtime.msckf.init_turning import TurningInitConfig
+
+    with pytest.raises(ConfigError, match="dynamic_init.min_parallax_deg must be a finite number, got nan"):
+        DynamicInitConfig(min_parallax_deg=math.nan)    # NaN compares false: the gate was off, unsaid
+    with pytest.raises(ConfigError, match="ffinit.max_velocity must be a finite number, got nan"):
+        FFInitConfig(max_velocity=math.nan)
+    with pytest.raises(ConfigError, match="turning_init.window_time_s must be a finite number, got nan"):
+        TurningInitConfig(window_time_s=math.nan)
+    DynamicInitConfig(max_condition=math.inf, max_reprojection_rms_px=math.inf)
+    FFInitConfig(max_velocity=math.inf, max_scale_uncertainty=math.inf)
+    TurningInitConfig(max_disparity_px=math.inf)
 
 
 def test_defaults_and_the_boundaries_pass(tmp_path: Path) -> None:
