@@ -165,6 +165,8 @@ def read_stamped_csv(path: str | Path, n_values: int, counts: StreamCounts, poli
             values: list[float] = []
         else:
             try:
+                if "_" in stripped:     # float() reads '1_0' as 10: a digit group is no CSV number
+                    raise ValueError
                 values = [float(f) for f in fields[1:]]
             except ValueError:
                 reject("malformed_lines", lineno, f"unparseable number in {stripped[:80]!r}")

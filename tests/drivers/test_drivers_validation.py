@@ -85,3 +85,14 @@ def test_a_far_corrupt_stamp_is_dropped_not_sorted_in(tmp_path: Path) -> None:
     out = read_stamped_csv(f, 1, c)
     np.testing.assert_array_equal(out.t_ns, [x for i, x in enumerate(t) if i != 7])
     assert (c.dropped_nonmonotonic, c.reordered, c.parsed) == (1, 1, 39)
+
+
+def test_a_number_with_digit_groups_is_malformed_not_read_as_another_number(tmp_path: Path) -> None:
+    """Python's float() reads '1_0' as 10: an IMU row so written would have been a 10 rad/s reading."""
+    f = tmp_path / "imu.csv"
+    f.write_text("# t,wx,wy\n10,0.1,0.2\n20,1_0,0.2\n30,0.1,2_5e-1\n40,0.3,0.4\n")
+    c = StreamCounts()
+    rows = read_stamped_csv(f, 2, c)
+    np.testing.assert_array_equal(rows.t_ns, [10, 40])
+    np.testing.assert_array_equal(rows.values, [[0.1, 0.2], [0.3, 0.4]])
+    assert c.malformed_lines == 2 and c.rows_accounted()
