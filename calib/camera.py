@@ -41,6 +41,11 @@ def _positive_int(value: object, key: str, what: str) -> int:
     return int(value)
 
 
+MAX_DISTORTION = 1e4
+"""Largest distortion coefficient accepted (OpenCV's rational model fits reach tens; values near 1e300
+overflow the projection to inf inside the filter's kernels)."""
+
+
 def _finite(value: object, key: str, what: str, positive: bool = False) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise CalibrationError(f"{what} must be a number, got {value!r}", None, key)
@@ -92,6 +97,11 @@ class CameraModel(ABC):
                 "distortion",
             )
         d = np.array([_finite(c, "distortion", f"distortion coefficient {i}") for i, c in enumerate(coeffs)])
+        if np.any(np.abs(d) > MAX_DISTORTION):
+            i = int(np.argmax(np.abs(d)))
+            raise CalibrationError(f"distortion coefficient {i} is {d[i]:g}: no lens model fit gives one "
+                                   f"above {MAX_DISTORTION:g} in size (a mangled number?)", None,
+                                   "distortion")
         d.setflags(write=False)
         self.distortion = d
 

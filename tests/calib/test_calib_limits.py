@@ -142,6 +142,21 @@ def test_integer_too_large_for_a_float(tmp_path: Path) -> None:
     assert err.value.key == "cam0.intrinsics"
 
 
+@pytest.mark.parametrize("k1,ok", [("-1.0e+300", False), ("2.0e+4", False), ("-9000.0", True)])
+def test_a_distortion_coefficient_no_lens_has_is_refused(tmp_path: Path, k1: str, ok: bool) -> None:
+    """1e300 is finite but overflows the projection inside the filter's kernels (a traceback from numba)."""
+    p = tmp_path / "camchain.yaml"
+    text = CAMCHAIN.replace("-0.28340811", k1)
+    assert text != CAMCHAIN
+    p.write_text(text)
+    if ok:
+        read_kalibr(p)
+        return
+    with pytest.raises(CalibrationError, match="distortion coefficient 0 is .*a mangled number") as err:
+        read_kalibr(p)
+    assert (err.value.path, err.value.key) == (str(p), "cam0.distortion_coeffs")
+
+
 @pytest.mark.parametrize(
     "intrinsics,ok",
     [
