@@ -121,6 +121,25 @@ def test_a_long_map_is_subsampled_evenly_and_said(sessions):
     assert any("12 submaps; 4 of their views" in n for n in notes)
 
 
+@pytest.mark.parametrize("T_MS", [np.eye(3).tolist(), np.zeros((4, 4)).tolist()])
+def test_a_view_whose_state_is_not_rigid_is_left_out_not_a_crash(sessions, capsys, T_MS):
+    """A hand-edited manifest: a 3x3 T_MS raised deep inside the relocalizer (IndexError / matmul) and an
+    all-zero one raised LinAlgError."""
+    from tools.map_archive.align import load_place_views
+
+    prior, new = sessions
+    path = prior / "map" / "manifest.json"
+    info = json.loads(path.read_text())
+    info["submaps"][3]["T_MS"] = T_MS
+    path.write_text(json.dumps(info))
+    notes: list[str] = []
+    views, _, _ = load_place_views(prior / "map", notes)
+    assert 3 not in [v.index for v in views] and len(views) == 11
+    assert any("1 submap(s) whose graph state places no point" in n for n in notes)
+    assert main(["map", "align", str(new), "--to", str(prior)]) == 0
+    assert "1 submap(s) whose graph state places no point" in capsys.readouterr().err
+
+
 def test_export_in_the_prior_frame_and_merged_with_the_prior_map(tmp_path, capsys):
     from dataclasses import replace
 

@@ -89,21 +89,33 @@ def test_damaged_file_is_refused_or_left_out_and_said(run, capsys) -> None:
     assert len(notes) == 1
 
 
-def test_non_finite_state_is_a_problem_and_left_out_with_a_note(run, capsys) -> None:
+@pytest.mark.parametrize("key,value,why", [
+    ("lam", None, "lam is null"),                      # what the writer writes for a non-finite state
+    ("lam", float("nan"), "lam is nan"),               # hand-edited: JSON readers accept NaN and Infinity
+    ("lam", 1e300, "lam is 1e+300"),
+    ("T_MS", np.eye(3).tolist(), "T_MS has shape (3, 3)"),
+    ("T_MS", np.zeros((4, 4)).tolist(), "T_MS is not a rigid transform"),   # every point in one voxel
+    ("T_MS", np.diag([1.0, 1.0, -1.0, 1.0]).tolist(), "T_MS is not a rigid transform"),   # a reflection
+    ("T_MS", [[1.0, 0, 0, 1e300], [0, 1.0, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]], "not a rigid transform"),
+])
+def test_a_state_that_places_no_point_is_a_problem_and_left_out_with_a_note(run, capsys, key, value,
+                                                                          why) -> None:
     folder, subs = run
 
-    def null_lam(info: dict) -> None:
-        info["submaps"][1]["lam"] = None
+    def edit(info: dict) -> None:
+        info["submaps"][1][key] = value
 
-    _edit_manifest(folder / "map", null_lam)
+    _edit_manifest(folder / "map", edit)
     info = map_info(folder / "map")
-    assert len(info["problems"]) == 1 and "submap_000001.npz" in info["problems"][0]
+    assert len(info["problems"]) == 1 and why in info["problems"][0]
+    assert "submap_000001.npz" in info["problems"][0] or "submap 1 T_MS" in info["problems"][0]
     assert info["points_placed"] == len(subs[0].points_C) + len(subs[2].points_C)
     assert main(["map", "info", str(folder)]) == 1
     notes: list[str] = []
     fused = fuse_archive(folder / "map", VOXEL, notes=notes)
     assert_fusion_equals(fused, brute_force_fusion([subs[0], subs[2]], VOXEL), VOXEL)
-    assert notes == [f"1 submap(s) with a non-finite graph state left out ({len(subs[1].points_C)} points): "
+    assert notes == ["1 submap(s) whose graph state places no point (not finite, or not a rigid transform: "
+                     f"`davio map info` says which) left out ({len(subs[1].points_C)} points): "
                      "submap_000001.npz"]
 
 

@@ -11,7 +11,7 @@ import numpy as np
 
 from runtime.errors import DataError
 from runtime.graph.relocalize import AlignConfig, Alignment, PlaceView, PriorMapLocalizer, align_sessions
-from tools.map_archive.reader import integrity, load_view, read_manifest, state_is_finite
+from tools.map_archive.reader import integrity, load_view, read_manifest, state_is_usable
 
 MAX_VIEWS = 600
 """Views loaded from one archive at most (as many as the revisits keep archived): about 140 MB with
@@ -34,12 +34,13 @@ def load_place_views(archive: Path, notes: list[str], max_views: int = MAX_VIEWS
     if problems:
         raise DataError(f"damaged archive: {problems[0]}" + (f" (and {len(problems) - 1} more)"
                                                              if len(problems) > 1 else ""), archive)
-    entries = [e for e in info["submaps"] if state_is_finite(e)]
+    entries = [e for e in info["submaps"] if state_is_usable(e)]
     if len(entries) < len(info["submaps"]):
-        notes.append(f"{archive}: {len(info['submaps']) - len(entries)} submap(s) without a finite state "
-                     "left out")
+        notes.append(f"{archive}: {len(info['submaps']) - len(entries)} submap(s) whose graph state places "
+                     "no point (not finite, or not a rigid transform) left out")
     if not entries:
-        raise DataError("the archive holds no submap with a finite state", archive)
+        raise DataError("the archive holds no submap whose graph state places its points (finite, rigid)",
+                        archive)
     segments = Counter(int(e.get("segment", 0)) for e in entries)
     segment = max(segments, key=lambda s: (segments[s], -s))
     if len(segments) > 1:

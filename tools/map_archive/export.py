@@ -9,7 +9,7 @@ import numpy as np
 from runtime.errors import DataError
 from runtime.files import atomic_write_bytes
 from runtime.mapping.fusion import VoxelGrid
-from tools.map_archive.reader import integrity, iter_submaps, read_manifest, state_is_finite
+from tools.map_archive.reader import integrity, iter_submaps, read_manifest, state_is_usable
 
 
 def fuse_archive(folder: str | Path, voxel_m: float = 0.04,
@@ -56,13 +56,14 @@ def fuse_archive(folder: str | Path, voxel_m: float = 0.04,
         if other and notes is not None:
             notes.append(f"{folder}: {len(other)} submap(s) of other filter segments left out (segment "
                          f"{segment} is the one aligned)")
-    unplaced = [e for e in entries if not state_is_finite(e)]
-    entries = [e for e in entries if state_is_finite(e)]
+    unplaced = [e for e in entries if not state_is_usable(e)]
+    entries = [e for e in entries if state_is_usable(e)]
     if notes is not None:
         if damaged:
             notes.append(f"{len(damaged)} damaged submap file(s) left out: {', '.join(sorted(damaged))}")
         if unplaced:
-            notes.append(f"{len(unplaced)} submap(s) with a non-finite graph state left out "
+            notes.append(f"{len(unplaced)} submap(s) whose graph state places no point (not finite, or "
+                         "not a rigid transform: `davio map info` says which) left out "
                          f"({sum(int(e['n_points']) for e in unplaced)} points): "
                          f"{', '.join(e['file'] for e in unplaced)}")
     total = len(entries)

@@ -8,7 +8,7 @@ import numpy as np
 
 from runtime.errors import DataError
 from runtime.mapping.fusion import VoxelGrid
-from tools.map_archive.reader import has_view, integrity, load_submap, read_manifest, state_is_finite
+from tools.map_archive.reader import has_view, integrity, load_submap, read_manifest, state_problem
 
 
 def map_info(folder: str | Path, voxel_m: float | None = None) -> dict:
@@ -43,8 +43,9 @@ def map_info(folder: str | Path, voxel_m: float | None = None) -> dict:
             problems.append(str(exc))   # names the file
             continue
         views += has_view(folder, e)
-        if not state_is_finite(e):
-            problems.append(f"{e['file']}: its graph state in the manifest is not finite (T_MS or lam null): "
+        why = state_problem(e)
+        if why is not None:
+            problems.append(f"{e['file']}: its graph state in the manifest places no point ({why}): "
                             f"its {e['n_points']} points cannot be placed")
             continue
         pts = sm.points_M()

@@ -202,15 +202,39 @@ def _check_entries(info: dict, path: Path) -> None:
             raise DataError(f"submaps[{k}].fit is {e['fit']!r}, expected an object (or null)", path)
 
 
-def state_is_finite(entry: dict) -> bool:
-    """Whether a manifest entry's graph state (T_MS, lam) is finite, i.e. its points can be placed
-    (a non-finite state is written as null)."""
-    if entry["lam"] is None:
-        return False
+MAX_ABS_LAM = 5.0
+"""Largest |lam| (log depth scale) a usable graph state holds: a factor of 148 on depth."""
+MAX_TRANSLATION_M = 1e7
+"""Largest submap translation a usable graph state holds (ten times the Earth's radius)."""
+
+
+def state_problem(entry: dict) -> str | None:
+    """Why a manifest entry's graph state (T_MS, lam) cannot place its points, or None when it can: null
+    (the writer's non-finite state), NaN or Inf (a hand-edited file: JSON readers accept them), or a T_MS
+    that is not a 4x4 rigid transform (a collapsed map, or a failure inside the relocalizer)."""
+    lam = entry["lam"]
+    if lam is None:
+        return "lam is null (not finite when written)"
+    if not np.isfinite(lam) or abs(lam) > MAX_ABS_LAM:
+        return f"lam is {lam!r}, not a finite log scale within +-{MAX_ABS_LAM:g}"
     try:
-        return bool(np.isfinite(np.array(entry["T_MS"], dtype=np.float64)).all())
+        T = np.array(entry["T_MS"], dtype=np.float64)
     except (TypeError, ValueError):
-        return False
+        return "T_MS is not numeric"
+    if T.shape != (4, 4):
+        return f"T_MS has shape {T.shape}, not (4, 4)"
+    if not np.isfinite(T).all():
+        return "T_MS is not finite (null when written)"
+    R = T[:3, :3]
+    if (np.abs(T[3] - [0.0, 0.0, 0.0, 1.0]).max() > 1e-9 or np.abs(R.T @ R - np.eye(3)).max() > 1e-6
+            or np.linalg.det(R) < 0 or np.abs(T[:3, 3]).max() > MAX_TRANSLATION_M):
+        return "T_MS is not a rigid transform"
+    return None
+
+
+def state_is_usable(entry: dict) -> bool:
+    """Whether a manifest entry's graph state places its points (`state_problem` finds nothing)."""
+    return state_problem(entry) is None
 
 
 def integrity(folder: str | Path, manifest: dict | None = None) -> tuple[list[str], list[str]]:
