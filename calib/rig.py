@@ -43,29 +43,36 @@ def _optional_number(value: object, key: str, positive: bool = False, hint: str 
     return f
 
 
-def rigid_transform(T: object, key: str = "T_IC", tolerance: float = RIGID_TOLERANCE) -> np.ndarray:
-    """Validate a 4x4 rigid transform and return it as a read-only float64 array.
-
-    Checks shape, finiteness, last row (0, 0, 0, 1), orthonormal rotation within ``tolerance``
-    and det(R) = +1; raises CalibrationError(key=key) otherwise.
-    """
+def rigid_problem(T: object, tolerance: float = RIGID_TOLERANCE) -> str | None:
+    """Why `T` is not a 4x4 rigid transform (shape, finiteness, last row (0, 0, 0, 1), orthonormal rotation
+    within `tolerance`, det(R) = +1), or None when it is one."""
     try:
         M = np.array(T, dtype=np.float64)
     except (TypeError, ValueError) as exc:
-        raise CalibrationError(f"not a numeric 4x4 matrix ({exc})", None, key) from None
+        return f"not a numeric 4x4 matrix ({exc})"
     if M.shape != (4, 4):
-        raise CalibrationError(f"must be a 4x4 matrix, got shape {M.shape}", None, key)
+        return f"must be a 4x4 matrix, got shape {M.shape}"
     if not np.all(np.isfinite(M)):
-        raise CalibrationError("contains non-finite numbers", None, key)
+        return "contains non-finite numbers"
     if np.max(np.abs(M[3] - np.array([0.0, 0.0, 0.0, 1.0]))) > tolerance:
-        raise CalibrationError(f"last row must be [0, 0, 0, 1], got {M[3].tolist()}", None, key)
+        return f"last row must be [0, 0, 0, 1], got {M[3].tolist()}"
     R = M[:3, :3]
     err = float(np.max(np.abs(R.T @ R - np.eye(3))))
     if err > tolerance:
-        raise CalibrationError(f"rotation part is not orthonormal (max |R^T R - I| = {err:.3g})", None, key)
+        return f"rotation part is not orthonormal (max |R^T R - I| = {err:.3g})"
     det = float(np.linalg.det(R))
     if det < 0.0:
-        raise CalibrationError(f"rotation part is a reflection (det = {det:.6f})", None, key)
+        return f"rotation part is a reflection (det = {det:.6f})"
+    return None
+
+
+def rigid_transform(T: object, key: str = "T_IC", tolerance: float = RIGID_TOLERANCE) -> np.ndarray:
+    """Validate a 4x4 rigid transform (`rigid_problem`) and return it as a read-only float64 array; raises
+    CalibrationError(key=key) when it is not one."""
+    problem = rigid_problem(T, tolerance)
+    if problem is not None:
+        raise CalibrationError(problem, None, key)
+    M = np.array(T, dtype=np.float64)
     M[3] = (0.0, 0.0, 0.0, 1.0)
     M.setflags(write=False)
     return M

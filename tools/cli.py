@@ -142,6 +142,10 @@ def main(argv: list[str] | None = None) -> int:
     except DavioError as exc:
         print(f"davio {args.command}: error: {exc}", file=sys.stderr)
         return 1
+    except OSError as exc:   # the machine's (a permission, a full disk) where the command says nothing more
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"davio {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return 1
     except (KeyboardInterrupt, Exception) as exc:   # Ctrl-C, also one surfacing through a C extension
         from runtime.errors import caused_by_interrupt
 

@@ -108,3 +108,16 @@ def test_a_named_command_builds_its_own_options_only(capsys):
     with pytest.raises(SystemExit):
         main(["run", "--help"])
     assert "--emulated" in capsys.readouterr().out
+
+
+def test_an_os_error_no_command_handles_is_one_line(monkeypatch, capsys, tmp_path):
+    """The last resort: what a command did not turn into its own message (a folder it may not read, found
+    by the map-archive review) is the failing file and the system's reason, not a traceback."""
+    import tools.commands.info as info
+
+    def run(args):
+        raise PermissionError(13, "Permission denied", str(tmp_path / "d0"))
+
+    monkeypatch.setattr(info, "run", run)
+    assert main(["info"]) == 1
+    assert capsys.readouterr().err == f"davio info: error: {tmp_path / 'd0'}: Permission denied\n"

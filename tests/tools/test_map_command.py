@@ -93,10 +93,10 @@ def test_damaged_file_is_refused_or_left_out_and_said(run, capsys) -> None:
     ("lam", None, "lam is null"),                      # what the writer writes for a non-finite state
     ("lam", float("nan"), "lam is nan"),               # hand-edited: JSON readers accept NaN and Infinity
     ("lam", 1e300, "lam is 1e+300"),
-    ("T_MS", np.eye(3).tolist(), "T_MS has shape (3, 3)"),
-    ("T_MS", np.zeros((4, 4)).tolist(), "T_MS is not a rigid transform"),   # every point in one voxel
-    ("T_MS", np.diag([1.0, 1.0, -1.0, 1.0]).tolist(), "T_MS is not a rigid transform"),   # a reflection
-    ("T_MS", [[1.0, 0, 0, 1e300], [0, 1.0, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 1.0]], "not a rigid transform"),
+    ("T_MS", np.eye(3).tolist(), "T_MS has shape (3, 3)"),                 # said by load_submap
+    ("T_MS", np.zeros((4, 4)).tolist(), "T_MS: last row must be [0, 0, 0, 1]"),   # every point in one voxel
+    ("T_MS", np.diag([1.0, 1.0, -1.0, 1.0]).tolist(), "T_MS: rotation part is a reflection"),
+    ("T_MS", [[1.0, 0, 0, 1e300], [0, 1.0, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 1]], "T_MS: translation beyond"),
 ])
 def test_a_state_that_places_no_point_is_a_problem_and_left_out_with_a_note(run, capsys, key, value,
                                                                           why) -> None:

@@ -88,6 +88,8 @@ def resolve(folder: Path) -> tuple[Path, Path]:
     from tools.run_folder import RUN_MARKERS
 
     folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise DataError("not a folder: give the run folder (or its map/ archive folder)", folder)
     if (folder / "map").is_dir():
         return folder / "map", folder
     if folder.is_dir() and not (folder / MANIFEST_NAME).exists() and any((folder / m).exists()
@@ -138,6 +140,8 @@ def _prior_alignment(run_folder: Path, merge: bool) -> tuple:
 
     import numpy as np
 
+    from calib.rig import rigid_problem
+
     path = run_folder / "alignment.json"
     if not path.is_file():
         raise ConfigError(f"{path} not found: align the run first (`davio map align {run_folder} --to "
@@ -149,11 +153,27 @@ def _prior_alignment(run_folder: Path, merge: bool) -> tuple:
         segments = tuple(None if al.get(k) is None else int(al[k]) for k in ("new_segment", "prior_segment"))
     except (OSError, ValueError, KeyError, TypeError, AttributeError, RecursionError) as exc:
         raise ConfigError(f"{path}: not a davio alignment ({type(exc).__name__}: {exc})") from None
-    if not al.get("localized") or T is None or T.shape != (4, 4) or not np.isfinite(T).all():
+    if al.get("localized") is not True:
         raise ConfigError(f"{path}: the run was not localised in the prior map ({al.get('reason')})")
+    problem = "missing" if T is None else rigid_problem(T)
+    if problem is not None:
+        raise ConfigError(f"{path}: T_PN {problem} (an edited or damaged file): align the run again")
+    if any(not (v is None or (isinstance(v, int) and not isinstance(v, bool)))
+           for v in (al.get("new_segment"), al.get("prior_segment"))):
+        raise ConfigError(f"{path}: new_segment and prior_segment must be integers, got "
+                          f"{al.get('new_segment')!r}, {al.get('prior_segment')!r}")
     if merge and not (prior / "manifest.json").is_file():
         raise ConfigError(f"{path} names the prior map {prior}, which is gone (no manifest.json there)")
     return T, prior, *segments
+
+
+def _reading(exc: OSError, out: Path) -> bool:
+    """Whether an OSError of an export names a file other than the output (or the temporary beside it):
+    an input that cannot be read, not an output that cannot be written."""
+    if exc.filename is None:
+        return False
+    name = Path(exc.filename)
+    return not (name.parent.resolve() == out.parent.resolve() and out.name in name.name)
 
 
 def _check_fuse_args(voxel: float, min_points: int = 1) -> None:
@@ -243,6 +263,8 @@ def run(args: argparse.Namespace) -> int:
                                   merge_with=prior if args.merge_prior else None, segment=seg,
                                   merge_segment=prior_seg, refuse_empty=True)
         except OSError as exc:
+            if _reading(exc, out):
+                raise DataError(f"cannot read {exc.filename} ({exc.strerror or exc})") from None
             raise ConfigError(f"--out {out}: cannot write ({exc.strerror or exc})") from None
         except DataError:
             _print_notes("export", notes)        # what was left out, before why nothing was written

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calib.rig import rigid_problem
 from runtime.errors import DataError
 from runtime.files import sha256_file
 from runtime.mapping.submap import Submap
@@ -73,7 +74,11 @@ _READ_TRIES = 5
 def _read_whole(path: Path) -> dict:
     """manifest.json parsed, its format and schema checked."""
     try:
-        info = json.loads(path.read_text())
+        text = path.read_text()
+    except OSError as exc:
+        raise DataError(f"manifest unreadable: {exc.strerror or exc}", path) from exc
+    try:
+        info = json.loads(text)
     except (UnicodeDecodeError, json.JSONDecodeError, RecursionError) as exc:
         raise DataError(f"manifest is not valid JSON: {exc}", path) from exc
     if not isinstance(info, dict) or info.get("format") != FORMAT:
@@ -217,18 +222,11 @@ def state_problem(entry: dict) -> str | None:
         return "lam is null (not finite when written)"
     if not np.isfinite(lam) or abs(lam) > MAX_ABS_LAM:
         return f"lam is {lam!r}, not a finite log scale within +-{MAX_ABS_LAM:g}"
-    try:
-        T = np.array(entry["T_MS"], dtype=np.float64)
-    except (TypeError, ValueError):
-        return "T_MS is not numeric"
-    if T.shape != (4, 4):
-        return f"T_MS has shape {T.shape}, not (4, 4)"
-    if not np.isfinite(T).all():
-        return "T_MS is not finite (null when written)"
-    R = T[:3, :3]
-    if (np.abs(T[3] - [0.0, 0.0, 0.0, 1.0]).max() > 1e-9 or np.abs(R.T @ R - np.eye(3)).max() > 1e-6
-            or np.linalg.det(R) < 0 or np.abs(T[:3, 3]).max() > MAX_TRANSLATION_M):
-        return "T_MS is not a rigid transform"
+    problem = rigid_problem(entry["T_MS"])     # a null in T_MS (non-finite when written) reads as NaN
+    if problem is not None:
+        return f"T_MS: {problem}"
+    if np.abs(np.array(entry["T_MS"], np.float64)[:3, 3]).max() > MAX_TRANSLATION_M:
+        return f"T_MS: translation beyond {MAX_TRANSLATION_M:g} m"
     return None
 
 
@@ -251,13 +249,20 @@ def integrity(folder: str | Path, manifest: dict | None = None) -> tuple[list[st
         if not path.is_file():
             problems.append(f"{name}: missing (submap {e['index']})")
             continue
-        size = path.stat().st_size
-        if size != e["bytes"]:
-            problems.append(f"{name}: {size} bytes, the manifest says {e['bytes']} (truncated or replaced)")
-        elif sha256_file(path) != e["sha256"]:
-            problems.append(f"{name}: sha256 differs from the manifest (damaged or edited)")
-    stray = [p for p in sorted(folder.iterdir()) if p.name not in referenced and p.is_file()
-             and (SUBMAP_RE.match(p.name) or TEMP_RE.match(p.name))]
+        try:
+            size = path.stat().st_size
+            if size != e["bytes"]:
+                problems.append(f"{name}: {size} bytes, the manifest says {e['bytes']} (truncated or "
+                                "replaced)")
+            elif sha256_file(path) != e["sha256"]:
+                problems.append(f"{name}: sha256 differs from the manifest (damaged or edited)")
+        except OSError as exc:
+            problems.append(f"{name}: unreadable ({exc.strerror or exc})")
+    try:
+        stray = [p for p in sorted(folder.iterdir()) if p.name not in referenced and p.is_file()
+                 and (SUBMAP_RE.match(p.name) or TEMP_RE.match(p.name))]
+    except OSError as exc:
+        raise DataError(f"the archive folder cannot be listed: {exc.strerror or exc}", folder) from exc
     orphans = [f"{p.name}: orphan, not referenced by the manifest (left by an interrupted commit; harmless)"
                for p in stray]
     return problems, orphans

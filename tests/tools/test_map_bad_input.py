@@ -1,0 +1,112 @@
+"""`davio map` on inputs a user damaged or cannot read: an edited alignment.json, a file given for the run
+folder, and files the process may not read (simulated: the tests run as root, where chmod does not stop a
+read) give one clear line naming the input, not a traceback or a blame on --out."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from runtime.errors import DataError
+from tests.tools.test_map_align import T_NW, T_PW, _sessions, _write_session
+from tests.tools.test_map_command import run  # noqa: F401  (the fixture)
+from tools.cli import main
+
+
+@pytest.fixture
+def aligned(tmp_path: Path) -> Path:
+    prior_views, new_views = _sessions(T_PW, T_NW)
+    _write_session(tmp_path / "prior", prior_views)
+    _write_session(tmp_path / "new", new_views)
+    assert main(["map", "align", str(tmp_path / "new"), "--to", str(tmp_path / "prior")]) == 0
+    return tmp_path / "new"
+
+
+@pytest.mark.parametrize("key,value,message", [
+    ("localized", "no", "was not localised in the prior map"),          # a string is not true
+    ("T_PN", np.zeros((4, 4)).tolist(), "T_PN last row must be [0, 0, 0, 1]"),   # the map in one voxel
+    ("T_PN", np.diag([1.0, 1.0, -1.0, 1.0]).tolist(), "T_PN rotation part is a reflection"),
+    ("T_PN", [[float("nan")] * 4] * 4, "T_PN contains non-finite numbers"),
+    ("new_segment", 1.5, "new_segment and prior_segment must be integers, got 1.5"),
+    ("prior_segment", True, "must be integers, got 0, True"),
+])
+def test_an_edited_alignment_is_refused_naming_what_is_wrong(aligned: Path, capsys, key, value,
+                                                             message: str) -> None:
+    path = aligned / "alignment.json"
+    al = json.loads(path.read_text())
+    al[key] = value
+    path.write_text(json.dumps(al))
+    assert main(["map", "export", str(aligned), "--in-prior"]) == 1
+    err = capsys.readouterr().err
+    assert message in err and err.count("\n") == 1, err
+    assert not (aligned / "map.prior.ply").exists()
+
+
+def test_a_file_given_for_the_run_folder_is_said_to_be_one(run, capsys) -> None:  # noqa: F811
+    folder, _ = run
+    ply = folder / "map.ply"
+    assert main(["map", "export", str(folder)]) == 0
+    capsys.readouterr()
+    assert main(["map", "export", str(ply)]) == 1      # before: "--out .../map.ply: exists; pass --overwrite"
+    err = capsys.readouterr().err
+    assert f"{ply}: not a folder: give the run folder" in err and "--overwrite" not in err
+
+
+def _deny(monkeypatch, target: Path) -> None:
+    """Reading `target` fails as it does for a file the user may not read."""
+    real_open = open
+    real_read_text = Path.read_text
+
+    def guarded_open(file, *a, **k):
+        if Path(file) == target:
+            raise PermissionError(13, "Permission denied", str(file))
+        return real_open(file, *a, **k)
+
+    def guarded_read_text(self, *a, **k):
+        if self == target:
+            raise PermissionError(13, "Permission denied", str(self))
+        return real_read_text(self, *a, **k)
+
+    monkeypatch.setattr("builtins.open", guarded_open)
+    monkeypatch.setattr(Path, "read_text", guarded_read_text)
+
+
+def test_an_unreadable_manifest_is_one_line(run, capsys, monkeypatch) -> None:  # noqa: F811
+    folder, _ = run
+    _deny(monkeypatch, folder / "map" / "manifest.json")
+    for cmd in (["map", "info", str(folder)], ["map", "export", str(folder), "--out", str(folder / "x.ply")]):
+        assert main(cmd) == 1
+        err = capsys.readouterr().err
+        assert "manifest.json: manifest unreadable: Permission denied" in err and "--out" not in err, err
+    with pytest.raises(DataError, match="manifest unreadable"):
+        from tools.map_archive import read_manifest
+
+        read_manifest(folder / "map")
+
+
+def test_an_unreadable_submap_file_is_a_named_problem(run, capsys, monkeypatch) -> None:  # noqa: F811
+    folder, _ = run
+    _deny(monkeypatch, folder / "map" / "submap_000001.npz")
+    assert main(["map", "info", str(folder)]) == 1
+    assert "submap_000001.npz: unreadable (Permission denied)" in capsys.readouterr().out
+    assert main(["map", "export", str(folder), "--out", str(folder / "x.ply")]) == 1
+    err = capsys.readouterr().err
+    assert "damaged archive: submap_000001.npz: unreadable (Permission denied)" in err and "--out" not in err
+
+
+@pytest.mark.parametrize("failing,said", [
+    ("map/submap_000000.npz", "cannot read {folder}/map/submap_000000.npz (Permission denied)"),
+    (".x.ply.tmp", "--out {folder}/x.ply: cannot write (Permission denied)"),     # the atomic write's temp
+    (None, "--out {folder}/x.ply: cannot write (Permission denied)"),
+])
+def test_an_os_error_in_an_export_blames_the_file_it_names(run, capsys, monkeypatch, failing, said) -> None:  # noqa: F811
+    folder, _ = run
+
+    def export_map(*a, **k):
+        raise PermissionError(13, "Permission denied", None if failing is None else str(folder / failing))
+
+    monkeypatch.setattr("tools.map_archive.export.export_map", export_map)
+    assert main(["map", "export", str(folder), "--out", str(folder / "x.ply")]) == 1
+    assert said.format(folder=folder) in capsys.readouterr().err
