@@ -110,3 +110,34 @@ def test_an_os_error_in_an_export_blames_the_file_it_names(run, capsys, monkeypa
     monkeypatch.setattr("tools.map_archive.export.export_map", export_map)
     assert main(["map", "export", str(folder), "--out", str(folder / "x.ply")]) == 1
     assert said.format(folder=folder) in capsys.readouterr().err
+
+
+def test_non_finite_points_in_a_file_are_a_problem_and_counted_in_the_export(tmp_path: Path, capsys) -> None:
+    """The writer keeps finite points only: NaN in a file whose hash matches was a silent drop."""
+    from tests.tools.test_map_archive import HEADER, make_submap
+    from tools.map_archive import MapArchiveWriter, fuse_archive, map_info
+
+    subs = [make_submap(k, seed=k) for k in range(2)]
+    subs[1].T_SC[0, 0, 3] = np.nan                 # every point of image 0 of submap 1
+    lost = int((subs[1].image == 0).sum())
+    MapArchiveWriter(tmp_path / "map", HEADER).commit(subs, [], 1, {})
+    info = map_info(tmp_path / "map")
+    assert info["problems"] == [f"submap_000001.npz: {lost} of its 400 points are not finite (NaN or Inf "
+                                "depths, image poses or scales in the file): they are left out"]
+    assert info["points_placed"] == 800 - lost
+    notes: list[str] = []
+    fuse_archive(tmp_path / "map", 0.1, notes=notes)
+    assert notes == [f"{lost} points that are not finite left out (NaN or Inf depths, image poses or scales "
+                     "in submap_000001.npz; `davio map info` lists them)"]
+
+
+def test_a_camera_matrix_without_focal_lengths_is_refused_by_name(tmp_path: Path) -> None:
+    from tests.tools.test_map_archive import HEADER, make_submap
+    from tools.map_archive import MapArchiveWriter, map_info
+
+    sm = make_submap(0, seed=0)
+    sm.K = np.zeros((3, 3))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        MapArchiveWriter(tmp_path / "map", HEADER).commit([sm], [], 1, {})
+    info = map_info(tmp_path / "map")          # before: divide-by-zero warnings, then points dropped unsaid
+    assert len(info["problems"]) == 1 and "K is not a camera matrix" in info["problems"][0]

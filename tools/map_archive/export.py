@@ -68,14 +68,22 @@ def fuse_archive(folder: str | Path, voxel_m: float = 0.04,
                          f"{', '.join(e['file'] for e in unplaced)}")
     total = len(entries)
     grid = VoxelGrid(voxel_m) if grid is None else grid
+    not_finite: dict[str, int] = {}
+    files = {int(e["index"]): str(e["file"]) for e in entries}
     for k, sm in enumerate(iter_submaps(folder, {**info, "submaps": entries}), start=1):
         pts = sm.points_M()
         if T_out is not None:
             pts = pts @ np.asarray(T_out, np.float64)[:3, :3].T + np.asarray(T_out, np.float64)[:3, 3]
         ok = np.isfinite(pts).all(axis=1)
+        if not ok.all():
+            not_finite[files[sm.index]] = int((~ok).sum())
         grid.integrate(pts[ok], sm.grey[ok])
         if progress is not None:
             progress(k, total)
+    if not_finite and notes is not None:
+        notes.append(f"{sum(not_finite.values())} points that are not finite left out (NaN or Inf depths, "
+                     f"image poses or scales in {', '.join(sorted(not_finite))}; `davio map info` lists "
+                     "them)")
     return grid.points()
 
 

@@ -308,6 +308,9 @@ def load_submap(folder: str | Path, entry: dict) -> Submap:
     for name in _SCALAR_ARRAYS:
         if arrays[name].size != 1:
             raise DataError(f"array {name!r} holds {arrays[name].size} values, expected one", path)
+    K = arrays["K"]
+    if K.shape == (3, 3) and not (np.isfinite(K).all() and K[0, 0] > 0 and K[1, 1] > 0):
+        raise DataError(f"K is not a camera matrix (finite, positive focal lengths): {K.tolist()}", path)
     if "points_C" not in arrays:
         depth, u, v = (arrays.pop(n) for n in RAY_ARRAYS)
         if depth.ndim != 1 or u.shape != depth.shape or v.shape != depth.shape or arrays["K"].shape != (3, 3):
