@@ -89,10 +89,18 @@ def _status(pipe: VioPipeline) -> str:
 
 
 def _first_seconds(events: Any, seconds: float) -> Any:
+    """The events of the first `seconds` of data, counted from where both streams run (the later of the
+    first image and the first IMU sample): a stray early stamp in one stream (a corrupt first row, 0 ns)
+    does not use the span up before the data starts."""
+    from runtime.events import Frame
+
+    first: dict[bool, int] = {}
     t0 = None
     for ev in events:
         if t0 is None:
-            t0 = ev.t_ns
-        if (ev.t_ns - t0) * 1e-9 > seconds:
+            first.setdefault(isinstance(ev, Frame), int(ev.t_ns))
+            if len(first) == 2:
+                t0 = max(first.values())
+        if t0 is not None and (ev.t_ns - t0) * 1e-9 > seconds:
             return
         yield ev

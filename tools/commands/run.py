@@ -65,7 +65,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--model-latency", type=latency_arg, default=0.5, metavar="S",
                    help="simulated model latency (sensor seconds, >= 0) when not paced; 'measured': one "
                    "timed call of the --model graph after its warm-up (e.g. 0.04 s on a GPU)")
-    p.add_argument("--seconds", type=float, default=None, help="only the first S seconds (> 0)")
+    p.add_argument("--seconds", type=float, default=None,
+                   help="only the first S seconds (> 0), counted from where both images and IMU have begun")
     p.add_argument("--json", action="store_true",
                    help="print the report as one JSON object on stdout (progress goes to stderr)")
     add_view_argument(p)
