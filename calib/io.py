@@ -45,12 +45,17 @@ def _is_euroc_folder(folder: Path) -> bool:
 
 
 def find_camchain(folder: str | os.PathLike) -> Path | None:
-    """A Kalibr camchain in ``folder``: CAMCHAIN_NAMES, else the only ``*camchain*.yaml`` there, else None."""
+    """A Kalibr camchain in ``folder``: CAMCHAIN_NAMES, else the only ``*camchain*.yaml`` there, else None.
+
+    Raises CalibrationError when several ``*camchain*.yaml`` are there (which one is meant cannot be told)."""
     d = Path(folder)
     for name in CAMCHAIN_NAMES:
         if (d / name).is_file():
             return d / name
-    found = sorted(d.glob("*camchain*.yaml"))
+    found = sorted(f for f in d.glob("*camchain*.yaml") if f.is_file())
+    if len(found) > 1 and not _is_euroc_folder(d):
+        raise CalibrationError(f"{len(found)} camchains in this folder ({', '.join(f.name for f in found)}): "
+                               "give the one to use as the file itself", d)
     return found[0] if len(found) == 1 else None
 
 

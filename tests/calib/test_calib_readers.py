@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +23,7 @@ from calib import (
     read_kalibr,
     write_kalibr,
 )
+from runtime.errors import CalibrationError
 from tests.conftest import shared_path
 
 # The numbers printed in EuRoC's mav0/cam0/sensor.yaml and imu0/sensor.yaml (V1_01_easy).
@@ -202,3 +204,15 @@ def test_bundled_euroc_rig() -> None:
 def test_bundled_euroc_rig_matches_the_dataset_files() -> None:
     real = read_euroc_rig(shared_path("euroc", "V1_01_easy_head"))
     assert euroc_rig().isclose(real.replace(time_offset_s=0.0), rtol=0, atol=1e-15)
+
+
+def test_a_folder_with_two_camchains_names_both(tmp_path: Path) -> None:
+    """Which of two camchains is meant cannot be told: before, the folder was said not to be an EuRoC one."""
+    text = (resources.files("calib") / "rigs" / "euroc_camchain.yaml").read_text()
+    for name in ("left-camchain.yaml", "right-camchain.yaml"):
+        (tmp_path / name).write_text(text)
+    with pytest.raises(CalibrationError, match=r"2 camchains in this folder \(left-camchain.yaml, "
+                                               r"right-camchain.yaml\): give the one to use"):
+        load_rig(tmp_path)
+    (tmp_path / "right-camchain.yaml").unlink()
+    assert load_rig(tmp_path).camera is not None
