@@ -48,7 +48,7 @@ def rigid_problem(T: object, tolerance: float = RIGID_TOLERANCE) -> str | None:
     within `tolerance`, det(R) = +1), or None when it is one."""
     try:
         M = np.array(T, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:
         return f"not a numeric 4x4 matrix ({exc})"
     if M.shape != (4, 4):
         return f"must be a 4x4 matrix, got shape {M.shape}"

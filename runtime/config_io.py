@@ -48,6 +48,8 @@ def _coerce(value: Any, tp: Any, key: str) -> Any:
                 return _coerce(value, a, key)
             except ConfigError as exc:
                 errors.append(str(exc))
+        if len(errors) == 1:      # an optional value (`float | None`): that type's own message
+            raise ConfigError(errors[0])
         raise ConfigError(f"{key}: {value!r} matches none of {tp}")
     if dataclasses.is_dataclass(tp):
         if not isinstance(value, dict):

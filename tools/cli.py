@@ -104,6 +104,17 @@ def _owner_parser(parser: argparse.ArgumentParser, args: argparse.Namespace, giv
         level, start = sub.choices[name], pos + 1
 
 
+def _drop_stdout() -> None:
+    """Point descriptor 1 at /dev/null, so that the interpreter's flush at exit does not fail again on the
+    closed pipe."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError):
+        pass
+
+
 def _print_version() -> int:
     from importlib.metadata import version
 
@@ -142,18 +153,21 @@ def main(argv: list[str] | None = None) -> int:
     except DavioError as exc:
         print(f"davio {args.command}: error: {exc}", file=sys.stderr)
         return 1
-    except OSError as exc:   # the machine's (a permission, a full disk) where the command says nothing more
-        where = f"{exc.filename}: " if exc.filename else ""
-        print(f"davio {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
-        return 1
     except (KeyboardInterrupt, Exception) as exc:   # Ctrl-C, also one surfacing through a C extension
         from runtime.errors import caused_by_interrupt
 
-        if not caused_by_interrupt(exc):
-            raise
-        how = "" if isinstance(exc, KeyboardInterrupt) else f" ({type(exc).__name__})"
-        print(f"davio {args.command}: interrupted{how}", file=sys.stderr)
-        return 130
+        if caused_by_interrupt(exc):
+            how = "" if isinstance(exc, KeyboardInterrupt) else f" ({type(exc).__name__})"
+            print(f"davio {args.command}: interrupted{how}", file=sys.stderr)
+            return 130
+        if isinstance(exc, BrokenPipeError):    # `davio ... | head`: the reader has all it wanted
+            _drop_stdout()
+            return 141
+        if isinstance(exc, OSError):     # the machine's (a permission, a full disk): the command said no more
+            where = f"{exc.filename}: " if exc.filename else ""
+            print(f"davio {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
+            return 1
+        raise
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -121,7 +121,8 @@ class TrackerConfig:
             raise ConfigError(f"tracker.ransac_threshold_px must be > 0, got {self.ransac_threshold_px}")
         if self.ransac_min_points < 8:
             raise ConfigError(f"tracker.ransac_min_points must be >= 8, got {self.ransac_min_points}")
-        # OpenCV divides by the CLAHE grid (0 kills the process with SIGFPE) and asserts on the others
+        # OpenCV divides by the CLAHE grid (0 kills the process with SIGFPE); the others are counts and
+        # sizes a negative value (or no LK iteration) makes meaningless
         at_least(self, "tracker", 1, "clahe_tiles", "lk_max_iterations")
         at_least(self, "tracker", 0, "border_px", "fast_threshold", "fast_threshold_min")
 

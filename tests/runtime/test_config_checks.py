@@ -49,6 +49,7 @@ from runtime.startup import StartupConfig
     ("[dynamic_init]\nbias_g_prior = [0.0, nan, 0.0]",
      "dynamic_init.bias_g_prior[1] must be a number, got nan"),
     ("[turning_init]\nsigma_theta = nan", "turning_init.sigma_theta must be a number, got nan"),
+    ("[msckf]\ngyro_noise_density = nan", "msckf.gyro_noise_density must be a number, got nan"),  # optional
     ("[ffinit]\nmin_inlier_threshold = nan", "ffinit.min_inlier_threshold must be a number, got nan"),
     ("[tracker]\nequalization = 'clahe'\nclahe_tiles = 0",
      "tracker.clahe_tiles must be an integer >= 1, got 0"),

@@ -121,3 +121,27 @@ def test_an_os_error_no_command_handles_is_one_line(monkeypatch, capsys, tmp_pat
     monkeypatch.setattr(info, "run", run)
     assert main(["info"]) == 1
     assert capsys.readouterr().err == f"davio info: error: {tmp_path / 'd0'}: Permission denied\n"
+
+
+def test_an_os_error_while_interrupted_is_the_interruption_and_a_closed_pipe_is_quiet(monkeypatch, capsys):
+    import tools.cli as cli
+    import tools.commands.info as info
+
+    def interrupted(args):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            raise OSError(5, "Input/output error", "/dev/ttyUSB0") from None   # e.g. a close while unwinding
+
+    monkeypatch.setattr(info, "run", interrupted)
+    assert main(["info"]) == 130
+    assert capsys.readouterr().err == "davio info: interrupted (OSError)\n"
+    dropped: list[bool] = []
+    monkeypatch.setattr(cli, "_drop_stdout", lambda: dropped.append(True))
+
+    def closed_pipe(args):
+        raise BrokenPipeError(32, "Broken pipe")
+
+    monkeypatch.setattr(info, "run", closed_pipe)
+    assert main(["info"]) == 141 and dropped == [True]          # `davio info | head -1`
+    assert capsys.readouterr().err == ""

@@ -178,8 +178,7 @@ def test_calibrate_stops_the_device_when_its_banner_cannot_be_said(tmp_path: Pat
             pass
 
     monkeypatch.setattr(sys, "stdout", ClosedConsole())
-    with pytest.raises(OSError, match="Broken pipe"):
-        main(["calibrate", "oak", "--out", str(tmp_path / "rig.yaml")])
+    assert main(["calibrate", "oak", "--out", str(tmp_path / "rig.yaml")]) == 141     # a closed pipe: quiet
     assert len(drivers) == 1 and drivers[0].stops >= 1
     assert not any(tmp_path.iterdir())
 

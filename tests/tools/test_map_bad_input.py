@@ -31,6 +31,7 @@ def aligned(tmp_path: Path) -> Path:
     ("T_PN", [[float("nan")] * 4] * 4, "T_PN contains non-finite numbers"),
     ("new_segment", 1.5, "new_segment and prior_segment must be integers, got 1.5"),
     ("prior_segment", True, "must be integers, got 0, True"),
+    ("new_segment", float("inf"), "must be integers, got inf"),          # int() raised OverflowError
 ])
 def test_an_edited_alignment_is_refused_naming_what_is_wrong(aligned: Path, capsys, key, value,
                                                              message: str) -> None:

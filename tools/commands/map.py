@@ -150,7 +150,7 @@ def _prior_alignment(run_folder: Path, merge: bool) -> tuple:
         al = json.loads(path.read_text())
         T = np.array(al["T_PN"], np.float64) if al.get("T_PN") is not None else None
         prior = Path(al["prior"])
-        segments = tuple(None if al.get(k) is None else int(al[k]) for k in ("new_segment", "prior_segment"))
+        segments = (al.get("new_segment"), al.get("prior_segment"))
     except (OSError, ValueError, KeyError, TypeError, AttributeError, RecursionError) as exc:
         raise ConfigError(f"{path}: not a davio alignment ({type(exc).__name__}: {exc})") from None
     if al.get("localized") is not True:
@@ -158,10 +158,9 @@ def _prior_alignment(run_folder: Path, merge: bool) -> tuple:
     problem = "missing" if T is None else rigid_problem(T)
     if problem is not None:
         raise ConfigError(f"{path}: T_PN {problem} (an edited or damaged file): align the run again")
-    if any(not (v is None or (isinstance(v, int) and not isinstance(v, bool)))
-           for v in (al.get("new_segment"), al.get("prior_segment"))):
+    if any(not (v is None or (isinstance(v, int) and not isinstance(v, bool))) for v in segments):
         raise ConfigError(f"{path}: new_segment and prior_segment must be integers, got "
-                          f"{al.get('new_segment')!r}, {al.get('prior_segment')!r}")
+                          f"{segments[0]!r}, {segments[1]!r}")
     if merge and not (prior / "manifest.json").is_file():
         raise ConfigError(f"{path} names the prior map {prior}, which is gone (no manifest.json there)")
     return T, prior, *segments

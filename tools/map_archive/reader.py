@@ -220,7 +220,11 @@ def state_problem(entry: dict) -> str | None:
     lam = entry["lam"]
     if lam is None:
         return "lam is null (not finite when written)"
-    if not np.isfinite(lam) or abs(lam) > MAX_ABS_LAM:
+    try:
+        lam_ok = np.isfinite(float(lam)) and abs(float(lam)) <= MAX_ABS_LAM
+    except (TypeError, OverflowError):     # an integer beyond a float's range
+        lam_ok = False
+    if not lam_ok:
         return f"lam is {lam!r}, not a finite log scale within +-{MAX_ABS_LAM:g}"
     problem = rigid_problem(entry["T_MS"])     # a null in T_MS (non-finite when written) reads as NaN
     if problem is not None:
@@ -277,7 +281,7 @@ def check_integrity(folder: str | Path) -> list[str]:
 def _matrix(value: object, shape: tuple[int, ...], what: str, path: Path) -> np.ndarray:
     try:
         a = np.array(value, dtype=np.float64)  # null (non-finite when written) reads as NaN
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:
         raise DataError(f"{what} is not numeric: {exc}", path) from exc
     if a.shape != shape:
         raise DataError(f"{what} has shape {a.shape}, expected {shape}", path)
