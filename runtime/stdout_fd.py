@@ -81,6 +81,8 @@ def json_stdout() -> Iterator[None]:
                 out.close()      # closes `saved` (also when its flush fails again)
             except (OSError, ValueError) as exc:
                 failed = failed or exc
+    if isinstance(failed, BrokenPipeError):    # the reader closed it (`| head`): the caller exits quietly
+        raise failed
     if failed is not None:
         raise DavioError(f"cannot write the output to stdout ({getattr(failed, 'strerror', None) or failed})")
 

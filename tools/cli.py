@@ -133,7 +133,11 @@ def main(argv: list[str] | None = None) -> int:
         prefer_workqueue_layer()
     given = sys.argv[1:] if argv is None else list(argv)
     if given == ["--version"]:    # before any parser: building them reads every command's options
-        return _print_version()
+        try:
+            return _print_version()
+        except BrokenPipeError:
+            _drop_stdout()
+            return 141
     parser = build_parser(only=_command_named(given))
     args, extra = parser.parse_known_args(given)
     if extra:   # said by the command it was given to (with that command's usage)

@@ -5,6 +5,7 @@ import sys
 from typing import Any
 
 from runtime.config import DavioConfig
+from runtime.event_window import first_seconds
 from runtime.pipeline import VioPipeline
 from runtime.session import Session, SessionResult
 
@@ -60,7 +61,7 @@ def run_pipeline(driver: Any, model: Any, config: DavioConfig, paced: bool = Fal
     pipe = session.pipeline
     events = driver.events()
     if seconds is not None:
-        events = _first_seconds(events, seconds)
+        events = first_seconds(events, seconds)
     if bar is not None:
         bar.start()
     try:
@@ -88,19 +89,3 @@ def _status(pipe: VioPipeline) -> str:
     return f"{who}; prior map: {'localised' if pipe.prior.localized(seg) else 'searching'}"
 
 
-def _first_seconds(events: Any, seconds: float) -> Any:
-    """The events of the first `seconds` of data, counted from where both streams run (the later of the
-    first image and the first IMU sample): a stray early stamp in one stream (a corrupt first row, 0 ns)
-    does not use the span up before the data starts."""
-    from runtime.events import Frame
-
-    first: dict[bool, int] = {}
-    t0 = None
-    for ev in events:
-        if t0 is None:
-            first.setdefault(isinstance(ev, Frame), int(ev.t_ns))
-            if len(first) == 2:
-                t0 = max(first.values())
-        if t0 is not None and (ev.t_ns - t0) * 1e-9 > seconds:
-            return
-        yield ev

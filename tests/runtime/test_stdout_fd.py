@@ -148,3 +148,19 @@ def test_a_plain_stand_in_for_stdout_on_descriptor_1_is_taken_as_it_is() -> None
     """)
     assert out.returncode == 0, out.stderr
     assert out.stdout == "json\nafter\n" and out.stderr == "library line\n"
+
+
+@pytest.mark.parametrize("argv", [["info", "--json"], ["--version"], ["info"]])
+def test_a_closed_pipe_ends_the_command_quietly(argv: list[str]) -> None:
+    """`davio ... | head`: the reader closed its end before the output was written. A --json output or the
+    version line raised BrokenPipeError (a 'cannot write' error, a traceback); now nothing is said. rich's
+    console (the plain table) ends its own way, with exit 1 and nothing said."""
+    r, w = os.pipe()
+    os.close(r)                                       # the reader is gone before anything is written
+    try:
+        out = subprocess.run([sys.executable, "-m", "tools.cli", *argv], cwd=str(ROOT), stdout=w,
+                             stderr=subprocess.PIPE, text=True, timeout=120)
+    finally:
+        os.close(w)
+    assert out.stderr == ""
+    assert out.returncode == (1 if argv == ["info"] else 141)

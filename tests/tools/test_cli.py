@@ -143,5 +143,5 @@ def test_an_os_error_while_interrupted_is_the_interruption_and_a_closed_pipe_is_
         raise BrokenPipeError(32, "Broken pipe")
 
     monkeypatch.setattr(info, "run", closed_pipe)
-    assert main(["info"]) == 141 and dropped == [True]          # `davio info | head -1`
+    assert main(["info"]) == 141 and dropped == [True]          # a reader that closed the pipe
     assert capsys.readouterr().err == ""

@@ -32,6 +32,7 @@ def aligned(tmp_path: Path) -> Path:
     ("new_segment", 1.5, "new_segment and prior_segment must be integers, got 1.5"),
     ("prior_segment", True, "must be integers, got 0, True"),
     ("new_segment", float("inf"), "must be integers, got inf"),          # int() raised OverflowError
+    ("T_PN", [[10**400, 0, 0, 0]] + np.eye(4)[1:].tolist(), "not a davio alignment (OverflowError"),
 ])
 def test_an_edited_alignment_is_refused_naming_what_is_wrong(aligned: Path, capsys, key, value,
                                                              message: str) -> None:
@@ -124,12 +125,12 @@ def test_non_finite_points_in_a_file_are_a_problem_and_counted_in_the_export(tmp
     MapArchiveWriter(tmp_path / "map", HEADER).commit(subs, [], 1, {})
     info = map_info(tmp_path / "map")
     assert info["problems"] == [f"submap_000001.npz: {lost} of its 400 points are not finite (NaN or Inf "
-                                "depths, image poses or scales in the file): they are left out"]
+                                "depths or image poses in the file): they are left out"]
     assert info["points_placed"] == 800 - lost
     notes: list[str] = []
     fuse_archive(tmp_path / "map", 0.1, notes=notes)
-    assert notes == [f"{lost} points that are not finite left out (NaN or Inf depths, image poses or scales "
-                     "in submap_000001.npz; `davio map info` lists them)"]
+    assert notes == [f"{lost} points that are not finite left out (NaN or Inf depths or image poses in "
+                     "submap_000001.npz; `davio map info` lists them)"]
 
 
 def test_a_camera_matrix_without_focal_lengths_is_refused_by_name(tmp_path: Path) -> None:

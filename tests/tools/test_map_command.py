@@ -94,6 +94,7 @@ def test_damaged_file_is_refused_or_left_out_and_said(run, capsys) -> None:
     ("lam", float("nan"), "lam is nan"),               # hand-edited: JSON readers accept NaN and Infinity
     ("lam", 1e300, "lam is 1e+300"),
     ("lam", 10**30, f"lam is {10**30}"),               # an integer: np.isfinite raised TypeError
+    ("lam", 10**400, f"lam is {10**400}"),             # beyond a float: float() raised OverflowError
     ("T_MS", [[10**400, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], "T_MS is not numeric"),
     ("T_MS", np.eye(3).tolist(), "T_MS has shape (3, 3)"),                 # said by load_submap
     ("T_MS", np.zeros((4, 4)).tolist(), "T_MS: last row must be [0, 0, 0, 1]"),   # every point in one voxel

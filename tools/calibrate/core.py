@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from runtime.config import DavioConfig
+from runtime.event_window import first_seconds
 from runtime.events import ImuSample
 
 
@@ -160,7 +161,7 @@ def calibrate(
         rig: calib.Rig with the camera intrinsics (T_IC and time_offset_s are ignored: withheld).
         model: a DepthModel (DA3 ONNX or emulated), or None: the bring-up then takes the camera's rotations
             from two-view fits of the tracked features.
-        seconds: only the first S seconds of data.
+        seconds: only the first S seconds of data (`runtime.event_window.first_seconds`).
         sample_every_s: camera seconds between collected calibration states.
         progress: called with (sensor seconds, phase) about every 5 s of data.
         alert: called with each run event's line (runtime.run_events, tools.event_output.EventConsole) as
@@ -212,13 +213,11 @@ def calibrate(
 
     def feed() -> Iterator[Any]:
         last_report = -1
-        for ev in events:
+        for ev in events if seconds is None else first_seconds(events, seconds):
             t = int(ev.t_ns)
             if not first:
                 first.append(t)
             rel = (t - first[0]) * 1e-9
-            if seconds is not None and rel > seconds:
-                return
             if isinstance(ev, ImuSample):
                 meter.add(t, ev.gyro)
             if progress is not None and int(rel) // 5 != last_report:

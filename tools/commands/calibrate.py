@@ -102,7 +102,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--image-topic", metavar="TOPIC", help="bag image topic (default: auto-detected)")
     p.add_argument("--imu-topic", metavar="TOPIC", help="bag IMU topic (default: auto-detected)")
-    p.add_argument("--seconds", type=float, default=None, help="only the first S seconds (> 0)")
+    p.add_argument("--seconds", type=float, default=None,
+                   help="only the first S seconds (> 0), counted from where images and IMU have begun")
     p.add_argument("--config", metavar="TOML", help="configuration file (see config.toml of a run)")
     p.add_argument("--strict", action="store_true", help="every input repair is an error")
     p.add_argument(

@@ -58,7 +58,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-map", action="store_true", help="do not map")
     p.add_argument("--config", metavar="TOML", help="configuration file")
     add_prior_map_argument(p)
-    p.add_argument("--seconds", type=float, default=None, help="stop after S seconds of data (> 0)")
+    p.add_argument("--seconds", type=float, default=None,
+                   help="stop after S seconds of data (> 0), counted from where images and IMU have begun")
     p.add_argument("--out", default="davio_live", help="output folder (new or empty; see --overwrite)")
     p.add_argument("--overwrite", action="store_true", help="replace the previous run in --out")
     p.add_argument("--json", action="store_true", help="print the report as one JSON object at the end")
@@ -212,11 +213,11 @@ def _open_driver(args: argparse.Namespace, rig):
 
 
 def _run(args, folder, driver, rig, model, model_desc: str, config, prior=None, view=None) -> int:
+    from runtime.event_window import first_seconds
     from runtime.session import Session
     from tools.run_io import imu_noise_note, rig_summary, write_run
     from tools.run_map import MapOutput
     from tools.run_outcome import conclude, judge
-    from tools.run_session import _first_seconds
     from tools.run_sinks import RunSinks
     from tools.run_summary import summary
 
@@ -236,7 +237,7 @@ def _run(args, folder, driver, rig, model, model_desc: str, config, prior=None, 
               + "  Ctrl-C to finish", file=sys.stderr)
         events = driver.events()
         if args.seconds is not None:
-            events = _first_seconds(events, args.seconds)
+            events = first_seconds(events, args.seconds)
         res = session.run_live(events, progress=status, keep_partial=True)
         status.done()
         driver.stop()

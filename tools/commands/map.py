@@ -151,7 +151,7 @@ def _prior_alignment(run_folder: Path, merge: bool) -> tuple:
         T = np.array(al["T_PN"], np.float64) if al.get("T_PN") is not None else None
         prior = Path(al["prior"])
         segments = (al.get("new_segment"), al.get("prior_segment"))
-    except (OSError, ValueError, KeyError, TypeError, AttributeError, RecursionError) as exc:
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, RecursionError, OverflowError) as exc:
         raise ConfigError(f"{path}: not a davio alignment ({type(exc).__name__}: {exc})") from None
     if al.get("localized") is not True:
         raise ConfigError(f"{path}: the run was not localised in the prior map ({al.get('reason')})")

@@ -81,9 +81,8 @@ def fuse_archive(folder: str | Path, voxel_m: float = 0.04,
         if progress is not None:
             progress(k, total)
     if not_finite and notes is not None:
-        notes.append(f"{sum(not_finite.values())} points that are not finite left out (NaN or Inf depths, "
-                     f"image poses or scales in {', '.join(sorted(not_finite))}; `davio map info` lists "
-                     "them)")
+        notes.append(f"{sum(not_finite.values())} points that are not finite left out (NaN or Inf depths or "
+                     f"image poses in {', '.join(sorted(not_finite))}; `davio map info` lists them)")
     return grid.points()
 
 

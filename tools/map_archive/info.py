@@ -52,7 +52,7 @@ def map_info(folder: str | Path, voxel_m: float | None = None) -> dict:
         finite = np.isfinite(pts).all(axis=1)
         if not finite.all():     # the writer keeps finite points only: the file holds NaN depths or poses
             problems.append(f"{e['file']}: {int((~finite).sum())} of its {len(pts)} points are not finite "
-                            "(NaN or Inf depths, image poses or scales in the file): they are left out")
+                            "(NaN or Inf depths or image poses in the file): they are left out")
         pts = pts[finite]
         if len(pts):
             lo, hi = np.minimum(lo, pts.min(axis=0)), np.maximum(hi, pts.max(axis=0))

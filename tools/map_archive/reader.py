@@ -288,6 +288,15 @@ def _matrix(value: object, shape: tuple[int, ...], what: str, path: Path) -> np.
     return a
 
 
+def _scale(lam: object) -> float:
+    """A manifest's lam as a float: NaN for null (non-finite when written) and for an integer beyond a
+    float's range (`state_problem` names both)."""
+    try:
+        return float("nan") if lam is None else float(lam)    # type: ignore[arg-type]
+    except OverflowError:
+        return float("nan")
+
+
 def load_submap(folder: str | Path, entry: dict) -> Submap:
     """The submap of manifest entry `entry`: arrays from its npz, graph state from the entry.
 
@@ -341,7 +350,7 @@ def load_submap(folder: str | Path, entry: dict) -> Submap:
                       s_hat=float(arrays["s_hat"]),
                       frame_scales=arrays["frame_scales"], points_C=arrays["points_C"], image=arrays["image"],
                       conf=arrays["conf"], grey=arrays["grey"], T_MS=T_MS,
-                      lam=float("nan") if lam is None else float(lam), version=int(entry["version"]),
+                      lam=_scale(lam), version=int(entry["version"]),
                       segment=int(entry.get("segment", 0)), fit=dict(entry.get("fit") or {}))
     except (TypeError, ValueError) as exc:
         raise DataError(f"inconsistent submap arrays: {exc}", path) from exc
