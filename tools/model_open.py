@@ -19,6 +19,10 @@ from runtime.errors import ConfigError
 #: the --model-latency value that times one call of the graph instead of a number of seconds
 MEASURED = "measured"
 #: smallest cap accepted: the CUDA context alone takes about 500 MB, the smallest DA3 graph more
+MAX_MODEL_LATENCY_S = 3600.0
+"""Largest --model-latency (sensor seconds) a replay takes: beyond it no window would ever be mapped."""
+MAX_GPU_MEM_LIMIT_MB = 1e7
+"""Largest --gpu-mem-limit (10 TB, beyond any GPU)."""
 MIN_GPU_MEM_LIMIT_MB = 256
 #: set with the cap, as measured with it: the arena grows by what is asked, cuDNN picks its algorithms by
 #: heuristics with a small workspace (its exhaustive search can ask for gigabytes)
@@ -44,8 +48,9 @@ def cuda_options(args: argparse.Namespace) -> dict[str, str]:
     mb = getattr(args, "gpu_mem_limit", None)
     if mb is None:
         return {}
-    if not (math.isfinite(mb) and mb >= MIN_GPU_MEM_LIMIT_MB):
-        raise ConfigError(f"--gpu-mem-limit {mb:g}: give megabytes, at least {MIN_GPU_MEM_LIMIT_MB}")
+    if not (math.isfinite(mb) and MIN_GPU_MEM_LIMIT_MB <= mb <= MAX_GPU_MEM_LIMIT_MB):
+        raise ConfigError(f"--gpu-mem-limit {mb:g}: give megabytes, from {MIN_GPU_MEM_LIMIT_MB} to "
+                          f"{MAX_GPU_MEM_LIMIT_MB:g}")
     return {**CAP_OPTIONS, "gpu_mem_limit": str(int(mb * 1e6))}
 
 

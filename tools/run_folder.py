@@ -140,6 +140,8 @@ class RunFolder:
         holding only what it wrote (`not_replaceable`), or a leftover partial folder holding other files.
         """
         out = Path(out)
+        if out.name in ("", ".", ".."):     # `--out .`: the partial folder is named after the folder itself
+            out = out.resolve()
         check_writable_target(out)
         replace_existing = False
         if out.is_dir() and holds_files(out):

@@ -154,9 +154,10 @@ def test_an_epoch_offset_and_exact_stamps_are_accepted(tum_pair, capsys) -> None
 def test_surface_voxel_and_threshold_must_be_positive_numbers(tmp_path: Path, capsys) -> None:
     cloud = tmp_path / "c.npy"
     np.save(cloud, np.random.default_rng(0).uniform(0, 1, (50, 3)))
-    for flag, value in (("--voxel", "nan"), ("--threshold", "0"), ("--threshold", "inf")):
+    for flag, value, must in (("--voxel", "nan", "in [0.0001, 100]"), ("--threshold", "0", "> 0"),
+                              ("--threshold", "inf", "> 0")):
         assert main(["eval", "surface", str(cloud), str(cloud), flag, value]) == 1
-        assert f"{flag} must be a finite number > 0" in capsys.readouterr().err
+        assert f"{flag} must be a finite number {must}" in capsys.readouterr().err
 
 
 def test_surface_counts_the_points_it_leaves_out(tmp_path: Path, capsys) -> None:

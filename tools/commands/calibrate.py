@@ -140,10 +140,11 @@ def check_args(args: argparse.Namespace) -> None:
     sec = args.seconds
     if sec is not None and not (math.isfinite(sec) and sec > 0):
         raise ConfigError(f"--seconds must be a finite number > 0 (got {sec!r})")
-    if not (math.isfinite(args.model_latency) and args.model_latency >= 0):
-        raise ConfigError(
-            f"--model-latency must be a finite number of seconds >= 0 (got {args.model_latency!r})"
-        )
+    from tools.model_open import MAX_MODEL_LATENCY_S
+
+    if not (math.isfinite(args.model_latency) and 0 <= args.model_latency <= MAX_MODEL_LATENCY_S):
+        raise ConfigError(f"--model-latency must be a number of seconds from 0 to {MAX_MODEL_LATENCY_S:g} "
+                          f"(got {args.model_latency!r})")
     for opt, _, _ in THRESHOLD_OPTIONS:
         v = getattr(args, opt)
         if not (math.isfinite(v) and v > 0):

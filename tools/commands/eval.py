@@ -146,7 +146,7 @@ def _make_plot_dir(d: Path) -> Path:
 
 
 _FINITE = {"max_diff": (0.0, 9.2e9), "offset": (-9.2e9, 9.2e9), "delta": (0.0, None),
-           "threshold": (0.0, None), "voxel": (0.0, None)}
+           "threshold": (0.0, None), "voxel": (1e-4, 100.0)}
 """Numeric options checked before any file is read: (exclusive lower bound, upper bound) in their units, or
 [lower, upper] when an upper bound is given (seconds: what int64 nanoseconds hold)."""
 

@@ -5,6 +5,7 @@ import argparse
 import socket
 import sys
 import time
+from pathlib import Path
 
 NAME = "listen"
 HELP = "receive a --stream (poses and events over UDP): say events, count losses, record poses as TUM"
@@ -20,6 +21,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("url", metavar="udp://[HOST]:PORT",
                    help="where to listen: udp://:5005 on every interface, udp://127.0.0.1:5005 on one")
     p.add_argument("--tum", metavar="FILE", help="write the poses as they come (TUM; evo reads it)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --tum file")
     p.add_argument("--frame", choices=["odometry", "map", "prior"], default="map",
                    help="the frame of the poses written and shown (default: map)")
     p.add_argument("--seconds", type=float, default=None, help="stop after S seconds (> 0)")
@@ -60,6 +62,9 @@ def run(args: argparse.Namespace) -> int:
 
     if args.seconds is not None and not (math.isfinite(args.seconds) and args.seconds > 0):
         raise ConfigError(f"--seconds must be a finite number > 0 (got {args.seconds!r})")
+    if args.tum is not None and Path(args.tum).exists() and not args.overwrite:
+        raise ConfigError(f"--tum {args.tum}: exists; pass --overwrite to replace it, or choose another "
+                          "file")
     sock = bind_listener(args.url)
     sock.settimeout(0.2)
     try:

@@ -164,6 +164,14 @@ def open_device(args: argparse.Namespace, rig):
     Its streams are not started: an OAK is open (its calibration read), a UVC camera and its serial IMU are
     opened by `driver.start()`. The caller starts it once the run is ready to read (a started camera's
     newest-frames buffer drops the images the run has not read), and stops it."""
+    import math
+
+    from runtime.errors import ConfigError
+
+    for opt in ("width", "height", "fps"):
+        v = getattr(args, opt, None)
+        if v is not None and not (math.isfinite(v) and v > 0):
+            raise ConfigError(f"--{opt} must be > 0, got {v!r}")    # 0 would ask for the default unsaid
     if args.source == "oak":
         return _open_oak(args, rig)
     return _open_driver(args, rig), rig

@@ -92,14 +92,15 @@ def check_run_args(args: argparse.Namespace) -> None:
     import math
 
     from runtime.errors import ConfigError
-    from tools.model_open import MEASURED
+    from tools.model_open import MAX_MODEL_LATENCY_S, MEASURED
 
     lat = getattr(args, "model_latency", None)
     if lat == MEASURED:
         if not getattr(args, "model", None):
             raise ConfigError("--model-latency measured times the --model graph: it needs --model ONNX")
-    elif lat is not None and not (math.isfinite(lat) and lat >= 0):
-        raise ConfigError(f"--model-latency must be a finite number of seconds >= 0 (got {lat!r})")
+    elif lat is not None and not (math.isfinite(lat) and 0 <= lat <= MAX_MODEL_LATENCY_S):
+        raise ConfigError(f"--model-latency must be a number of seconds from 0 to {MAX_MODEL_LATENCY_S:g} "
+                          f"(got {lat!r})")
     sec = getattr(args, "seconds", None)
     if sec is not None and not (math.isfinite(sec) and sec > 0):
         raise ConfigError(f"--seconds must be a finite number > 0 (got {sec!r})")
