@@ -373,8 +373,8 @@ def test_the_filter_s_estimate_of_the_time_offset_is_named_when_it_ends_far_from
     (["--seconds", "0"], "--seconds must be a finite number > 0"),
     (["--seconds", "nan"], "--seconds must be a finite number > 0"),
     (["--seconds", "inf"], "--seconds must be a finite number > 0"),
-    (["--model-latency", "-1"], "--model-latency must be a finite number"),
-    (["--model-latency", "inf"], "--model-latency must be a finite number"),
+    (["--model-latency", "-1"], "--model-latency must be a number of seconds from 0 to 3600"),
+    (["--model-latency", "inf"], "--model-latency must be a number of seconds from 0 to 3600"),
     (["--paced", "--speed", "0"], "--speed must be > 0"),
 ])
 def test_run_refuses_impossible_options_before_reading_anything(tmp_path, capsys, args, message):
