@@ -445,9 +445,11 @@ def feed_live(cq: FakeQueue, iq: FakeQueue, seconds: float = 0.5, speed: float =
 
 
 def test_live_driver_over_fake_pipeline_time_ordered() -> None:
-    dev, cq, iq, _ = fake_device()
-    feeder = feed_live(cq, iq)
-    live = LiveDriver(dev.camera, dev.imu, imu_wait_s=0.2)
+    # every frame kept and a long IMU wait: a loaded machine that starves this thread must not
+    # drop frames from the newest-frames buffer or release them ahead of the IMU (CI did both)
+    dev, cq, iq, _ = fake_device(keep_frames=64)
+    feeder = feed_live(cq, iq, seconds=1.0)
+    live = LiveDriver(dev.camera, dev.imu, imu_wait_s=2.0)
     events = []
     t_end = time.monotonic() + 5.0
     for ev in live.events():
@@ -497,15 +499,15 @@ ROUND_TRIP = textwrap.dedent("""
     def factory(d):
         p = dai.Pipeline(False)
         s = p.create(Src)
-        q_img = s.img.createOutputQueue(4, False)
+        q_img = s.img.createOutputQueue(16, False)   # room for all 12 frames on a loaded machine
         q_imu = s.imu.createOutputQueue(50, False)
         p.start()
         keep.append((p, s))
         return OakPipeline(q_img, q_imu, p, dai.CalibrationHandler(str(t.FIXTURE)), "OAK host-only")
 
     out = {{}}
-    dev = OakDevice("CAM_B", t.W, t.H, 30.0, 200, pipeline_factory=factory)
-    live = LiveDriver(dev.camera, dev.imu, rig=None, imu_wait_s=0.2)
+    dev = OakDevice("CAM_B", t.W, t.H, 30.0, 200, pipeline_factory=factory, keep_frames=16)
+    live = LiveDriver(dev.camera, dev.imu, rig=None, imu_wait_s=2.0)
     evs = []
     t_end = time.monotonic() + 4
     for ev in live.events():
