@@ -18,7 +18,7 @@ import numpy as np
 
 from drivers.base import Driver, IntakeReport, Policy, StreamCounts, check_policy
 from drivers.diagnose import G_STANDARD, accel_looks_like_g, check_stamp_units, explain_unreadable
-from drivers.images import data_bit_depth, to_8bit
+from drivers.images import BitDepthScaler
 from drivers.validation import count_gaps, read_stamped_csv
 from runtime.errors import DataError
 from runtime.events import Frame, ImuSample
@@ -357,20 +357,23 @@ class EurocDriver(Driver):
         return None
 
     def _to_8bit(self, cam: int, image: np.ndarray, path: Path, i: int) -> np.ndarray:
-        """A 16-bit grey image scaled to 8 bits by the stream's bit depth (fixed by its first image:
-        8- to 16-bit data, drivers.images), counted and noted; an error when strict."""
+        """A 16-bit grey image scaled to 8 bits by the stream's bit depth (set by its first image, raised by
+        a later one holding larger values: drivers.images), counted and noted; an error when strict."""
         name = self.cameras[cam]
-        bits = self._bit_depth.get(cam)
+        scaler = self._bit_depth.setdefault(cam, BitDepthScaler())
+        bits = scaler.bits
+        out = scaler.convert(image)
         if bits is None:
-            bits = data_bit_depth(image)
-            self._bit_depth[cam] = bits
-            what = f"{name}: 16-bit images holding {bits}-bit data (first image's maximum {int(image.max())})"
+            what = (f"{name}: 16-bit images holding {scaler.bits}-bit data (first image's maximum "
+                    f"{scaler.first_peak})")
             if self.policy == "strict":
                 raise DataError(f"image {path.name}: {what}; convert the images to 8-bit grey",
                                 self.mav0 / name / "data.csv", int(self._cam_lines[cam][i]))
-            self._report.note(f"{what}: scaled to 8 bits (>> {bits - 8})")
+            self._report.note(f"{what}: scaled to 8 bits (>> {scaler.bits - 8})")
+        elif scaler.bits != bits:
+            self._report.note(scaler.raise_note(name, f"image {path.name}"))
         self._report.stream(name).converted += 1
-        return to_8bit(image, bits)
+        return out
 
     # -- Driver interface ----------------------------------------------------------------------
     @property
@@ -409,7 +412,7 @@ class EurocDriver(Driver):
             raise DataError("driver is closed", self.mav0)
         self._first_shape: dict[int, tuple[int, ...]] = {}
         self._size_mismatches = self._size_matches = 0
-        self._bit_depth: dict[int, int] = {}
+        self._bit_depth: dict[int, BitDepthScaler] = {}
         for name in self.cameras:
             self._report.stream(name).converted = 0
             self._report.stream(name).emitted = 0

@@ -214,6 +214,9 @@ class LiveDriver(Driver):
                      f"{self.imu_lost_flagged} flagged to the filter as gaps")
         if cam.converted and cam_rep.get("conversion"):
             rep.note(f"cam0: images converted ({cam_rep['conversion']})")
+        if cam_rep.get("clipped_images"):
+            rep.note(f"cam0: {int(cam_rep['clipped_images'])} 16-bit images held values above the camera's "
+                     "given bit depth: clipped to white")
         for name, sub in (("cam0", cam_rep), ("imu0", imu_rep)):
             losses = [f"{int(sub[key])} {text}" for key, text in SOURCE_LOSSES.items()
                       if isinstance(sub.get(key), int | float) and sub[key]]

@@ -23,7 +23,7 @@ import numpy as np
 
 from drivers.base import Driver, IntakeReport, Policy, StreamCounts, check_policy
 from drivers.diagnose import G_STANDARD, accel_looks_like_g, check_distinct_stamps, check_stamp_units
-from drivers.images import data_bit_depth, to_8bit
+from drivers.images import BitDepthScaler
 from drivers.validation import count_gaps, time_order_repair
 from runtime.errors import ConfigError, DataError
 from runtime.events import Frame, ImuSample
@@ -257,7 +257,7 @@ class RosbagDriver(Driver):
         except (ValueError, cv2.error) as exc:
             img, why = None, f"malformed image ({exc})"
         if img is not None and img.dtype == np.uint16:
-            img = self._to_8bit(img)
+            img = self._to_8bit(img, t_ns)
         if img is not None and self._rig is not None and self._rig.camera is not None:
             cam = self._rig.camera
             if img.shape != (cam.height, cam.width):
@@ -271,15 +271,20 @@ class RosbagDriver(Driver):
         self._report.note(f"{self.image_topic}: {why}")
         return None
 
-    def _to_8bit(self, img: np.ndarray) -> np.ndarray:
-        if self._bits is None:
-            self._bits = data_bit_depth(img)
-            what = f"cam0: 16-bit images holding {self._bits}-bit data"
+    def _to_8bit(self, img: np.ndarray, t_ns: int) -> np.ndarray:
+        """By the stream's bit depth: set by its first image, raised by a later one (drivers.images)."""
+        bits = self._bits.bits
+        out = self._bits.convert(img)
+        if bits is None:
+            what = f"cam0: 16-bit images holding {self._bits.bits}-bit data"
             if self.policy == "strict":
                 raise DataError(f"{self.image_topic}: {what}; convert to 8-bit grey", self.path)
-            self._report.note(f"{what}: scaled to 8 bits (>> {self._bits - 8})")
+            self._report.note(f"{what} (first image's maximum {self._bits.first_peak}): scaled to 8 bits "
+                              f"(>> {self._bits.bits - 8})")
+        elif self._bits.bits != bits:
+            self._report.note(self._bits.raise_note("cam0", f"the image at {t_ns} ns"))
         self._report.stream("cam0").converted += 1
-        return to_8bit(img, self._bits)
+        return out
 
     # -- Driver interface --------------------------------------------------------------------
     @property
@@ -295,7 +300,7 @@ class RosbagDriver(Driver):
         """IMU samples and frames merged by header stamp; at equal stamps the IMU sample first."""
         if self._closed:
             raise DataError("driver is closed", self.path)
-        self._bits: int | None = None
+        self._bits = BitDepthScaler()
         cam = self._report.stream("cam0")
         cam.emitted = cam.unreadable_images = cam.converted = 0
         self._report.stream("imu0").emitted = 0

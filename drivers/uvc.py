@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from drivers.images import data_bit_depth, to_8bit
+from drivers.images import BitDepthScaler
 from drivers.kept_frames import KeptFrames
 from runtime.errors import DavioError, DeviceError
 from runtime.events import Frame
@@ -83,7 +83,8 @@ class UvcCamera(KeptFrames):
             delivered size makes `start()` raise a DeviceError naming both.
         realtime: a video file is paced at its frame rate (as a live camera would deliver it).
         file_stamps: a video file's frames are stamped start + index / fps (exact, reproducible).
-        bit_depth: bits of data in 16-bit images (10, 12, 14, 16); None: fixed by the first image.
+        bit_depth: bits of data in 16-bit images (10, 12, 14, 16; larger values are clipped and counted);
+            None: set by the first image, raised by a later one holding larger values (noted).
         fourcc: a pixel format to request from a device (e.g. "MJPG"), or None for its default.
         camera_id: the `Frame.camera_id` of the frames.
         open_timeout_s: how long `start()` waits for the device to open (then for a first frame
@@ -153,6 +154,7 @@ class UvcCamera(KeptFrames):
         self.nonmonotonic = 0
         self.converted = 0
         self.conversion: str | None = None
+        self._scaler = BitDepthScaler(bit_depth)
         self.notes: list[str] = []
         self._first_t: int | None = None
         self._last_t: int | None = None
@@ -258,6 +260,7 @@ class UvcCamera(KeptFrames):
             "device": str(self.device), "kind": "file" if self.is_file else "device", "backend": self.backend,
             "frames": self.frames, "emitted": self.emitted, "dropped_old": self.dropped_old,
             "nonmonotonic": self.nonmonotonic, "converted": self.converted, "conversion": self.conversion,
+            "clipped_images": self._scaler.clipped_images,
             "host_stamped": self.host_stamped,
             "size": None if self.size is None else list(self.size),
             "requested_size": (None if self.width is None and self.height is None
@@ -517,9 +520,12 @@ class UvcCamera(KeptFrames):
         elif img.ndim != 2:
             raise DeviceError(f"camera {self.device}: unsupported image layout {img.shape} {img.dtype}")
         if img.dtype == np.uint16:
-            if self.bit_depth is None:
-                self.bit_depth = data_bit_depth(img)
-            img = to_8bit(img, self.bit_depth)
+            bits = self._scaler.bits
+            img = self._scaler.convert(img)
+            if bits is not None and self._scaler.bits != bits:
+                where = f"frame {self.frames + 1}"
+                self.notes.append(self._scaler.raise_note(f"camera {self.device}", where))
+            self.bit_depth = self._scaler.bits
             what.append(f"16-bit holding {self.bit_depth}-bit data to 8 bits (>> {self.bit_depth - 8})")
         elif img.dtype != np.uint8:
             raise DeviceError(f"camera {self.device}: unsupported pixel type {img.dtype}")

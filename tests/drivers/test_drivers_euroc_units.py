@@ -93,3 +93,19 @@ def test_twelve_bit_images_in_sixteen_bit_pngs_are_scaled(tmp_path: Path) -> Non
     assert rep["streams"]["cam0"]["converted"] == 3 and any("12-bit data" in n for n in rep["notes"])
     with pytest.raises(DataError, match="convert the images to 8-bit grey"):
         list(EurocDriver(seq, policy="strict").events())
+
+
+def test_a_dark_first_sixteen_bit_image_does_not_clip_the_rest(tmp_path: Path) -> None:
+    seq = write_asl(tmp_path, imu_rows(), {"cam0": cam_rows(3)})
+    files = sorted((seq / "mav0" / "cam0" / "data").iterdir())
+    ramp = (np.arange(48, dtype=np.uint16).reshape(6, 8) * 85)      # 0 .. 3995: 12-bit data
+    cv2.imwrite(str(files[0]), ramp // 20)                          # dim first image: 8-bit values
+    for f in files[1:]:
+        cv2.imwrite(str(f), ramp)
+    drv = EurocDriver(seq)
+    frames = [e for e in drv.events() if hasattr(e, "image")]
+    np.testing.assert_array_equal(frames[0].image, (ramp // 20).astype(np.uint8))
+    for f in frames[1:]:                # by the bits of the data, not clipped at 255 (>> 0)
+        np.testing.assert_array_equal(f.image, (ramp >> 4).astype(np.uint8))
+    notes = drv.report()["notes"]
+    assert any(f"image {files[1].name} holds 12-bit data (maximum 3995)" in n for n in notes)

@@ -129,6 +129,19 @@ def test_encodings_become_the_same_grey_image(tmp_path: Path, encoding: str, com
         assert drv.report()["streams"]["cam0"]["converted"] == len(images)
 
 
+def test_a_dark_first_mono16_image_does_not_clip_the_rest(tmp_path: Path) -> None:
+    imu_t, gyro, accel, cam_t, images = _synthetic()
+    sent = [img.astype(np.uint16) << 4 for img in images]                   # 12-bit data
+    sent[0] = images[0].astype(np.uint16) // 2                              # a dim first image
+    bag = bag_from_arrays(tmp_path / "dark", "sqlite3", imu_t, gyro, accel, cam_t, sent, encoding="mono16")
+    drv = RosbagDriver(bag)
+    frames = _frames(drv)
+    np.testing.assert_array_equal(frames[0].image, images[0] // 2)
+    for f, e in zip(frames[1:], images[1:], strict=True):
+        np.testing.assert_array_equal(f.image, e)
+    assert any(f"the image at {cam_t[1]} ns holds 12-bit data" in n for n in drv.report()["notes"])
+
+
 def test_bad_messages_are_counted_and_strict_refuses_them(tmp_path: Path) -> None:
     imu_t, gyro, accel, cam_t, images = _synthetic()
     gyro[50:53] = np.nan                       # a NaN burst

@@ -200,6 +200,19 @@ def test_fake_device_16bit_and_colour_conversion(fake_cv2: type[FakeCapture]) ->
     cam.stop()
 
 
+def test_fake_device_dark_first_16bit_frame_does_not_clip_the_next(fake_cv2: type[FakeCapture]) -> None:
+    dark = np.full((H, W), 100, np.uint16)          # auto-exposure settling: 8-bit values in the first
+    bright = np.full((H, W), 4000, np.uint16)       # then 12-bit data
+    fake_cv2.script = [dark, bright] + [None]
+    cam = UvcCamera("fake://cam", width=W, height=H, stall_timeout_s=1.0, keep_frames=4).start()
+    first, second = cam.get(1.0), cam.get(1.0)
+    assert first.image[0, 0] == 100 and second.image[0, 0] == 4000 >> 4      # not clipped to 255
+    rep = cam.report()
+    assert "12-bit" in rep["conversion"] and any("frame 2 holds 12-bit data" in n for n in rep["notes"])
+    assert rep["clipped_images"] == 0
+    cam.stop()
+
+
 def test_fake_device_read_failure_raises_after_drain(fake_cv2: type[FakeCapture]) -> None:
     colour = np.zeros((H, W, 3), np.uint8)
     fake_cv2.script = [colour] * 3 + [None]
