@@ -10,6 +10,7 @@ intrinsics (plumb_bob or equidistant) with the camera-IMU extrinsics withheld.
 
 Stamps and IMU values pass the same validation as the EuRoC CSVs: non-finite samples dropped, duplicates
 dropped, out-of-order messages sorted into place (all counted); `policy="strict"` makes each an error.
+A bag damaged part-way (a chunk or page that cannot be parsed) is read up to the damage, with a note.
 """
 from __future__ import annotations
 
@@ -74,6 +75,8 @@ class RosbagDriver(Driver):
         self._bag_path = self.path.parent if self.path.is_file() and self.path.suffix != ".bag" else self.path
         self._report = IntakeReport("rosbag", str(self.path), self.policy)
         self._closed = False
+        self.damaged: str | None = None
+        """Why the bag could not be read past some message (noted; what came before is used), or None."""
         with self._reader() as reader:
             types = {c.topic: c.msgtype for c in reader.connections}
             self.image_topic = self._choose(types, image_topic, IMAGE_TYPES, "image", "--image-topic")
@@ -98,6 +101,27 @@ class RosbagDriver(Driver):
             yield reader
         finally:
             reader.close()
+
+    def _messages(self, reader: Any, conns: list) -> Iterator[tuple[Any, int, bytes]]:
+        """`reader.messages(connections=conns)` ending where the bag is damaged (a chunk or page that
+        cannot be parsed): what came before is kept and the damage noted once (DataError when strict)."""
+        it = reader.messages(connections=conns)
+        n = 0
+        while True:
+            try:
+                item = next(it)
+            except StopIteration:
+                return
+            except Exception as exc:  # noqa: BLE001 - rosbags and its storage layers raise their own types
+                why = f"{type(exc).__name__}: {' '.join(str(exc).split())[:200]}"
+                if self.policy == "strict":
+                    raise DataError(f"the bag is damaged after {n} messages ({why})", self.path) from exc
+                if not self.damaged:
+                    self.damaged = f"the bag is damaged after {n} messages of the topics read ({why})"
+                    self._report.note(f"{self.damaged}: the data before the damage is used, none after it")
+                return
+            n += 1
+            yield item
 
     def _choose(self, types: dict[str, str], wanted: str | None, msgtypes: tuple[str, ...], what: str,
                 flag: str) -> str:
@@ -131,7 +155,7 @@ class RosbagDriver(Driver):
         imu_t: list[int] = []
         imu_v: list[tuple[float, ...]] = []
         cam_t: list[int] = []
-        for conn, _, raw in reader.messages(connections=conns):
+        for conn, _, raw in self._messages(reader, conns):
             try:
                 msg = reader.deserialize(raw, conn.msgtype)
             except Exception as exc:  # noqa: BLE001 - a corrupt message is counted, not fatal
@@ -157,8 +181,8 @@ class RosbagDriver(Driver):
         check_distinct_stamps(t, self.imu_topic, self.path)
         t, v, _ = self._order(t, v, imu_counts, self.imu_topic)
         if t.shape[0] == 0:
-            raise DataError(f"no usable IMU sample on {self.imu_topic} ({imu_counts.lines} messages)",
-                            self.path)
+            raise DataError(f"no usable IMU sample on {self.imu_topic} ({imu_counts.lines} messages)"
+                            + (f": {self.damaged}" if self.damaged else ""), self.path)
         check_stamp_units(t, "IMU", self.path)
         self._imu_t, self._gyro, self._accel = t, v[:, :3].copy(), v[:, 3:].copy()
         med = accel_looks_like_g(self._accel)
@@ -175,7 +199,8 @@ class RosbagDriver(Driver):
         check_distinct_stamps(c, self.image_topic, self.path)
         keep_t, _, kept_index = self._order(c, np.zeros((c.shape[0], 0)), cam_counts, self.image_topic)
         if keep_t.shape[0] == 0:
-            raise DataError(f"no image on {self.image_topic} ({cam_counts.lines} messages)", self.path)
+            raise DataError(f"no image on {self.image_topic} ({cam_counts.lines} messages)"
+                            + (f": {self.damaged}" if self.damaged else ""), self.path)
         check_stamp_units(keep_t, "camera", self.path)
         count_gaps(keep_t, cam_counts)
         self._cam_t = keep_t
@@ -219,8 +244,12 @@ class RosbagDriver(Driver):
             self._report.note(f"no --rig and no CameraInfo beside {self.image_topic}: calibration unknown")
             return None
         conn = next(c for c in reader.connections if c.topic == infos[0])
-        for _, _, raw in reader.messages(connections=[conn]):
-            info = reader.deserialize(raw, conn.msgtype)
+        for _, _, raw in self._messages(reader, [conn]):
+            try:
+                info = reader.deserialize(raw, conn.msgtype)
+            except Exception as exc:  # noqa: BLE001 - rosbags raises its own types for a corrupt message
+                raise DataError(f"{infos[0]}: undecodable CameraInfo ({type(exc).__name__}); give the "
+                                "calibration with --rig", self.path) from exc
             # ROS 2 names the fields k, d (and r, p); ROS 1 K, D
             K = np.asarray(getattr(info, "k", None) if hasattr(info, "k") else info.K, float).reshape(3, 3)
             d = [float(x) for x in (info.d if hasattr(info, "d") else info.D)]
@@ -329,7 +358,7 @@ class RosbagDriver(Driver):
         with self._reader() as reader:
             conns = [c for c in reader.connections if c.topic == self.image_topic]
             k = -1
-            for conn, _, raw in reader.messages(connections=conns):
+            for conn, _, raw in self._messages(reader, conns):
                 k += 1
                 if k >= self._cam_keep.shape[0] or not self._cam_keep[k]:
                     continue

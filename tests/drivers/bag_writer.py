@@ -49,8 +49,10 @@ def compressed_msg(ts, ros1: bool, t_ns: int, seq: int, image: np.ndarray):
                                                        format="png", data=buf.reshape(-1))
 
 
-def write_bag(path: Path, fmt: str, messages: Iterable[tuple[str, int, object]]) -> Path:
-    """Write (topic, record_ns, msg) tuples. fmt: "ros1" (.bag), "mcap" or "sqlite3" (ROS 2 folder)."""
+def write_bag(path: Path, fmt: str, messages: Iterable[tuple[str, int, object]],
+              chunk_bytes: int | None = None) -> Path:
+    """Write (topic, record_ns, msg) tuples. fmt: "ros1" (.bag), "mcap" or "sqlite3" (ROS 2 folder);
+    `chunk_bytes`: a ROS 1 bag's chunk size (rosbags' default 1 MiB)."""
     from rosbags.typesys import Stores, get_typestore
 
     ros1 = fmt == "ros1"
@@ -60,6 +62,8 @@ def write_bag(path: Path, fmt: str, messages: Iterable[tuple[str, int, object]])
         from rosbags.rosbag1 import Writer
 
         writer = Writer(path)
+        if chunk_bytes is not None:
+            writer.chunk_threshold = chunk_bytes
     else:
         from rosbags.rosbag2 import StoragePlugin, Writer
 
@@ -81,7 +85,7 @@ def typestore(fmt: str):
 
 
 def bag_from_arrays(path: Path, fmt: str, imu_t, gyro, accel, cam_t, images, encoding: str = "mono8",
-                    compressed: bool = False, imu_record_t=None) -> Path:
+                    compressed: bool = False, imu_record_t=None, chunk_bytes: int | None = None) -> Path:
     """A bag with /imu0 and /cam0/image_raw, messages in record-time order (record time = header stamp,
     or `imu_record_t` for the IMU: a recorder that received samples late or out of order)."""
     ts = typestore(fmt)
@@ -95,4 +99,4 @@ def bag_from_arrays(path: Path, fmt: str, imu_t, gyro, accel, cam_t, images, enc
                                                                                  encoding)
         msgs.append((int(t), 1, topic, m))
     msgs.sort(key=lambda x: (x[0], x[1]))
-    return write_bag(path, fmt, ((topic, t, m) for t, _, topic, m in msgs))
+    return write_bag(path, fmt, ((topic, t, m) for t, _, topic, m in msgs), chunk_bytes)

@@ -258,3 +258,36 @@ def test_not_a_bag_and_a_corrupt_bag_are_clear_errors(tmp_path: Path) -> None:
         RosbagDriver(tmp_path / "x.bag")
     with pytest.raises(DataError, match="not a ROS bag"):
         RosbagDriver(tmp_path)
+
+
+def _damage(path: Path, at: float, fill: int) -> None:
+    """Overwrite 512 bytes at fraction `at` of the file with `fill` (a bad sector)."""
+    data = bytearray(path.read_bytes())
+    k = int(len(data) * at)
+    data[k:k + 512] = bytes([fill]) * 512
+    path.write_bytes(bytes(data))
+
+
+def test_a_damaged_bag_keeps_what_precedes_the_damage(tmp_path: Path) -> None:
+    imu_t, gyro, accel, cam_t, images = _synthetic()
+    arrays = (imu_t, gyro, accel, cam_t, images)
+    whole = bag_from_arrays(tmp_path / "whole.bag", "ros1", *arrays, chunk_bytes=4096)   # many chunks
+    n_whole = len(list(RosbagDriver(whole).events()))
+    bag = bag_from_arrays(tmp_path / "cut.bag", "ros1", *arrays, chunk_bytes=4096)
+    _damage(bag, 0.6, 0x00)              # zeros: record headers unreadable, no value turned NaN
+    drv = RosbagDriver(bag)
+    events = list(drv.events())
+    assert 0 < len(events) < n_whole                       # a prefix, in time order
+    assert [e.t_ns for e in events] == sorted(e.t_ns for e in events)
+    assert drv.damaged and "ReaderError" in drv.damaged
+    assert any("the bag is damaged after" in n and "none after it" in n for n in drv.report()["notes"])
+    with pytest.raises(DataError, match="the bag is damaged after"):
+        RosbagDriver(bag, policy="strict")
+
+
+def test_a_bag_damaged_before_its_first_message_says_so(tmp_path: Path) -> None:
+    imu_t, gyro, accel, cam_t, images = _synthetic()
+    bag = bag_from_arrays(tmp_path / "m", "mcap", imu_t, gyro, accel, cam_t, images)
+    _damage(next(bag.glob("*.mcap")), 0.5, 0xFF)
+    with pytest.raises(DataError, match="no usable IMU sample .*the bag is damaged after 0 messages"):
+        RosbagDriver(bag)
