@@ -93,6 +93,8 @@ def read_camera_timestamps(path: str | Path, policy: Policy = "drop",
             first = next((ln for ln in fh if ln.strip() and not ln.lstrip().startswith("#")), "")
     except OSError as exc:
         raise DataError(f"cannot read file: {exc.strerror or exc}", path) from exc
+    except UnicodeDecodeError as exc:       # the reader below says the same of the whole file
+        raise DataError(f"not a UTF-8 text file (byte {exc.start})", path) from exc
     n_values = 1 if "," in first else 0
     return read_stamped_csv(path, n_values, counts, policy, text=True).t_ns
 
@@ -274,7 +276,9 @@ class EurocDriver(Driver):
             else:
                 try:
                     t = read_camera_timestamps(cam_dir / "data.csv")
-                except DataError:
+                except DataError as exc:
+                    if (cam_dir / "data.csv").exists():
+                        self._report.note(f"{name} (not read): its rate is not compared ({exc})")
                     continue
                 period = int(np.median(np.diff(t))) if t.shape[0] > 2 else 0
             if period <= 0:

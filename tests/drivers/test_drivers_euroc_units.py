@@ -71,6 +71,18 @@ def test_camera_without_rows_or_images_is_an_error(tmp_path: Path) -> None:
         EurocDriver(seq)
 
 
+@pytest.mark.parametrize("content", ["#timestamp [ns],filename \xb5s\n".encode("latin-1"),
+                                     "#timestamp [ns],filename\n".encode("utf-16")])
+def test_an_unused_camera_in_another_encoding_is_noted_not_fatal(tmp_path: Path, content: bytes) -> None:
+    seq = write_asl(tmp_path, imu_rows(), {"cam0": cam_rows(4), "cam1": cam_rows(4)})
+    (seq / "mav0" / "cam1" / "data.csv").write_bytes(content)
+    drv = EurocDriver(seq)
+    assert sum(hasattr(e, "image") for e in drv.events()) == 4
+    assert any("cam1 (not read)" in n and "not a UTF-8 text file" in n for n in drv.report()["notes"])
+    with pytest.raises(DataError, match="not a UTF-8 text file"):    # the camera read says so too
+        EurocDriver(seq, camera="cam1")
+
+
 def test_image_names_stay_inside_the_folder(tmp_path: Path) -> None:
     seq = write_asl(tmp_path, imu_rows(), {"cam0": cam_rows(4)},
                     extra_cam_lines={"cam0": [f"{T0 + 10**9},../../../imu0/data.csv"]})
