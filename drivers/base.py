@@ -38,8 +38,8 @@ class StreamCounts:
 
     The identity `lines == parsed + truncated_lines + malformed_lines + dropped_nonfinite
     + dropped_nonmonotonic + dropped_duplicate` holds after reading, and for cameras
-    `parsed == emitted + missing_images + repeated_images + unreadable_images` once every event was
-    produced.
+    `parsed == emitted + missing_images + repeated_images + unreadable_images + late_images` once every
+    event was produced.
     """
 
     lines: int = 0
@@ -64,6 +64,8 @@ class StreamCounts:
     """frames naming an image file an earlier frame already names (the earlier frame keeps it)"""
     unreadable_images: int = 0
     """frames whose image file exists but does not decode to a grey image of the stream's size"""
+    late_images: int = 0
+    """frames recorded too long after their place in time to be sorted into it (a bag's reorder window)"""
     converted: int = 0
     """rows or images converted to the expected units or bit depth (accelerometer in g, 12-bit
     images in 16-bit files); the IntakeReport's notes say which conversion"""
@@ -125,7 +127,7 @@ class IntakeReport:
         totals = {k: self.total(k) for k in ("truncated_lines", "malformed_lines", "dropped_nonfinite",
                                              "dropped_nonmonotonic", "dropped_duplicate", "reordered",
                                              "converted", "missing_images", "repeated_images",
-                                             "unreadable_images", "gaps")}
+                                             "unreadable_images", "late_images", "gaps")}
         return {"driver": self.driver, "source": self.source, "policy": self.policy,
                 "streams": {k: asdict(v) for k, v in self.streams.items()},
                 "totals": totals, "notes": list(self.notes)}
@@ -137,7 +139,7 @@ class IntakeReport:
             parts = [f"{s.parsed}/{s.lines} rows kept", f"{s.emitted} emitted"]
             for key in ("truncated_lines", "malformed_lines", "dropped_nonfinite", "dropped_nonmonotonic",
                         "dropped_duplicate", "reordered", "converted", "missing_images",
-                        "repeated_images", "unreadable_images", "gaps"):
+                        "repeated_images", "unreadable_images", "late_images", "gaps"):
                 value = getattr(s, key)
                 if value:
                     parts.append(f"{key.replace('_', ' ')} {value}")

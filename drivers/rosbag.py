@@ -331,7 +331,7 @@ class RosbagDriver(Driver):
             raise DataError("driver is closed", self.path)
         self._bits = BitDepthScaler()
         cam = self._report.stream("cam0")
-        cam.emitted = cam.unreadable_images = cam.converted = 0
+        cam.emitted = cam.unreadable_images = cam.converted = cam.late_images = 0
         self._report.stream("imu0").emitted = 0
         imu_i = 0
         for t, image in self._frames_in_time_order():
@@ -351,10 +351,32 @@ class RosbagDriver(Driver):
 
     def _frames_in_time_order(self) -> Iterator[tuple[int, np.ndarray | None]]:
         """(stamp, image or None) of the kept images in stamp order, read in bag order through a small
-        reorder buffer (an image recorded more than REORDER_WINDOW images late is counted and skipped)."""
+        reorder buffer: an image that has not come when REORDER_WINDOW later-stamped ones wait behind it
+        is counted (`late_images`) and skipped, and so is its message when it comes."""
         expected = iter(self._cam_t.tolist())
+        counts = self._report.stream("cam0")
         nxt = next(expected, None)
         heap: list[tuple[int, int, np.ndarray | None]] = []
+
+        def ready(window: int) -> Iterator[tuple[int, np.ndarray | None]]:
+            nonlocal nxt
+            while heap and nxt is not None:
+                if heap[0][0] < nxt:              # its place was passed: given up on, counted then
+                    heapq.heappop(heap)
+                elif heap[0][0] == nxt:
+                    t0, _, img = heapq.heappop(heap)
+                    yield t0, img
+                    nxt = next(expected, None)
+                elif len(heap) > window:          # `nxt` has not come within the window: recorded late
+                    if not counts.late_images:
+                        self._report.note(f"{self.image_topic}: images recorded more than {REORDER_WINDOW} "
+                                          f"images after their place in time are skipped (late_images; the "
+                                          f"first stamped {nxt})")
+                    counts.late_images += 1
+                    nxt = next(expected, None)
+                else:
+                    return
+
         with self._reader() as reader:
             conns = [c for c in reader.connections if c.topic == self.image_topic]
             k = -1
@@ -367,18 +389,11 @@ class RosbagDriver(Driver):
                 except Exception:  # noqa: BLE001 - counted in pass 1 already
                     continue
                 t = _stamp_ns(msg)
+                if nxt is not None and t < nxt:    # an image given up on comes at last: skipped
+                    continue
                 heapq.heappush(heap, (t, k, self._image(msg, t)))
-                while heap and (heap[0][0] == nxt or len(heap) > REORDER_WINDOW):
-                    t0, _, img = heapq.heappop(heap)
-                    if t0 != nxt:
-                        self._report.stream("cam0").unreadable_images += 1
-                        self._report.note(f"{self.image_topic}: image at {t0} recorded too late to reorder")
-                        continue
-                    yield t0, img
-                    nxt = next(expected, None)
-        while heap:
-            t0, _, img = heapq.heappop(heap)
-            yield t0, img
+                yield from ready(REORDER_WINDOW)
+        yield from ready(0)
 
     def groundtruth(self) -> None:
         """Bags carry no ground truth DAVIO reads."""

@@ -40,7 +40,8 @@ def why_nothing_published(pipeline_report: dict, driver_report: dict | None, sch
         parts.append("no camera frame reached the tracker")
     streams = (driver_report or {}).get("streams") or {}
     for name, c in streams.items():
-        bad = {k: c.get(k, 0) for k in ("missing_images", "repeated_images", "unreadable_images") if c.get(k)}
+        lost = ("missing_images", "repeated_images", "unreadable_images", "late_images")
+        bad = {k: c.get(k, 0) for k in lost if c.get(k)}
         if bad:
             parts.append(f"{name}: " + ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in bad.items()))
     parts.extend((driver_report or {}).get("notes") or [])

@@ -107,7 +107,7 @@ _DRIVER_COUNTERS = {
     "dropped_nonfinite": "non-finite samples dropped", "dropped_nonmonotonic": "corrupt stamps dropped",
     "dropped_duplicate": "duplicates dropped", "reordered": "out-of-order rows sorted",
     "converted": "converted", "missing_images": "missing images", "repeated_images": "repeated images",
-    "unreadable_images": "unreadable images", "gaps": "gaps",
+    "unreadable_images": "unreadable images", "late_images": "images recorded too late", "gaps": "gaps",
 }
 
 

@@ -85,18 +85,20 @@ def typestore(fmt: str):
 
 
 def bag_from_arrays(path: Path, fmt: str, imu_t, gyro, accel, cam_t, images, encoding: str = "mono8",
-                    compressed: bool = False, imu_record_t=None, chunk_bytes: int | None = None) -> Path:
+                    compressed: bool = False, imu_record_t=None, chunk_bytes: int | None = None,
+                    cam_record_t=None) -> Path:
     """A bag with /imu0 and /cam0/image_raw, messages in record-time order (record time = header stamp,
-    or `imu_record_t` for the IMU: a recorder that received samples late or out of order)."""
+    or `imu_record_t` / `cam_record_t`: a recorder that received messages late or out of order)."""
     ts = typestore(fmt)
     ros1 = fmt == "ros1"
     rec = imu_t if imu_record_t is None else imu_record_t
     msgs = [(int(rec[k]), 0, "/imu0", imu_msg(ts, ros1, int(t), k, gyro[k], accel[k]))
             for k, t in enumerate(imu_t)]
     topic = "/cam0/image_raw/compressed" if compressed else "/cam0/image_raw"
+    cam_rec = cam_t if cam_record_t is None else cam_record_t
     for k, (t, img) in enumerate(zip(cam_t, images, strict=True)):
         m = compressed_msg(ts, ros1, int(t), k, img) if compressed else image_msg(ts, ros1, int(t), k, img,
                                                                                  encoding)
-        msgs.append((int(t), 1, topic, m))
+        msgs.append((int(cam_rec[k]), 1, topic, m))
     msgs.sort(key=lambda x: (x[0], x[1]))
     return write_bag(path, fmt, ((topic, t, m) for t, _, topic, m in msgs), chunk_bytes)

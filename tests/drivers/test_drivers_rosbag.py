@@ -291,3 +291,24 @@ def test_a_bag_damaged_before_its_first_message_says_so(tmp_path: Path) -> None:
     _damage(next(bag.glob("*.mcap")), 0.5, 0xFF)
     with pytest.raises(DataError, match="no usable IMU sample .*the bag is damaged after 0 messages"):
         RosbagDriver(bag)
+
+
+def test_an_image_recorded_past_the_reorder_window_alone_is_skipped(tmp_path: Path) -> None:
+    from drivers.rosbag import REORDER_WINDOW
+
+    imu_t, gyro, accel, cam_t, images = _synthetic(n_imu=1000, n_cam=REORDER_WINDOW + 20)
+    rec_t = cam_t.copy()
+    rec_t[5] = cam_t[-1] + 1_000_000                    # image 5 reaches the recorder after all others
+    rec_t[9] = cam_t[30]                                # image 9: late, but within the window
+    bag = bag_from_arrays(tmp_path / "late", "sqlite3", imu_t, gyro, accel, cam_t, images, cam_record_t=rec_t)
+    drv = RosbagDriver(bag)
+    frames = _frames(drv)
+    assert [f.t_ns for f in frames] == [int(t) for k, t in enumerate(cam_t) if k != 5]
+    for f in frames:                                    # every other image is its own, none lost
+        np.testing.assert_array_equal(f.image, images[int(np.flatnonzero(cam_t == f.t_ns)[0])])
+    c = drv.report()["streams"]["cam0"]
+    assert c["late_images"] == 1 and c["unreadable_images"] == 0
+    assert c["parsed"] == c["emitted"] + c["late_images"]
+    assert sum("recorded more than" in n for n in drv.report()["notes"]) == 1
+    with pytest.raises(DataError, match="has stamp .* not after"):      # strict refuses any reordering
+        RosbagDriver(bag, policy="strict")
