@@ -34,6 +34,10 @@ IMU_COLUMNS = "t_ns, wx, wy, wz [rad/s], ax, ay, az [m/s^2]"
 CAMERA_COLUMNS = "t_ns, filename"
 
 
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".pgm", ".ppm", ".bmp", ".tif", ".tiff")
+"""File names in a camera's data folder taken for images (to note those data.csv does not list)."""
+
+
 class _CaseInsensitiveNames:
     """The one file of a folder whose name equals a missing one's but for case (the file name only, not its
     folders; each folder listed once)."""
@@ -204,6 +208,21 @@ class EurocDriver(Driver):
         counts.converted += int(self._accel.shape[0])
         self._report.note(f"imu0: {what}; converted to m/s^2 (x {G_STANDARD})")
 
+    def _note_unlisted(self, name: str, listed: set[Path]) -> None:
+        """Note the image files in `name`/data that no row of data.csv names (a data.csv cut short by a
+        crash, images copied in): they are never read."""
+        folder = self.mav0 / name / "data"
+        try:
+            with os.scandir(folder) as entries:
+                images = [Path(os.path.normpath(folder / e.name)) for e in entries
+                          if e.name.lower().endswith(IMAGE_SUFFIXES) and e.is_file()]
+        except OSError:
+            return
+        unlisted = sorted(p for p in images if p not in listed)
+        if unlisted:
+            self._report.note(f"{name}: {len(unlisted)} images in {name}/data are not listed in data.csv and "
+                              f"are not read (the first: {unlisted[0].name}); is data.csv cut short?")
+
     def _load_camera(self, name: str) -> None:
         cam_dir = self.mav0 / name
         csv = cam_dir / "data.csv"
@@ -256,6 +275,7 @@ class EurocDriver(Driver):
             self._report.note(f"{name}: {len(case_fixed)} image names in data.csv differ in case from their "
                               f"files (the first: {case_fixed[0][0]} is {case_fixed[0][1]}); the files were "
                               "read (policy strict refuses this)")
+        self._note_unlisted(name, set(first_listed))
         if not keep.any():
             raise DataError(f"none of the {len(files)} images it lists exists in {cam_dir / 'data'} "
                             f"(first: {files[0].name})", csv)

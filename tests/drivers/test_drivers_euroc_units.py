@@ -121,3 +121,18 @@ def test_a_dark_first_sixteen_bit_image_does_not_clip_the_rest(tmp_path: Path) -
         np.testing.assert_array_equal(f.image, (ramp >> 4).astype(np.uint8))
     notes = drv.report()["notes"]
     assert any(f"image {files[1].name} holds 12-bit data (maximum 3995)" in n for n in notes)
+
+
+def test_images_that_data_csv_does_not_list_are_noted(tmp_path: Path) -> None:
+    seq = write_asl(tmp_path, imu_rows(), {"cam0": cam_rows(4)})
+    data = seq / "mav0" / "cam0" / "data"
+    first = sorted(data.iterdir())[0]
+    for extra in ("1000000009000000000.png", "1000000009500000000.png"):   # a data.csv cut short
+        (data / extra).write_bytes(first.read_bytes())
+    (data / "notes.txt").write_text("not an image")
+    drv = EurocDriver(seq)
+    assert sum(hasattr(e, "image") for e in drv.events()) == 4
+    notes = [n for n in drv.report()["notes"] if "not listed in data.csv" in n]
+    assert len(notes) == 1 and "2 images" in notes[0] and "1000000009000000000.png" in notes[0]
+    clean = write_asl(tmp_path / "clean", imu_rows(), {"cam0": cam_rows(4)})
+    assert not any("not listed" in n for n in EurocDriver(clean).report()["notes"])
