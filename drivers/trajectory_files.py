@@ -13,6 +13,7 @@ Quaternions are Hamilton; TUM orders them x,y,z,w, EuRoC w,x,y,z.
 from __future__ import annotations
 
 import math
+import re
 from decimal import ROUND_HALF_EVEN, Decimal, InvalidOperation
 from pathlib import Path
 
@@ -64,19 +65,40 @@ def ns_to_seconds_text(t_ns: int) -> str:
     return f"{sign}{a // 1_000_000_000}.{a % 1_000_000_000:09d}"
 
 
-def _data_lines(path: Path) -> list[tuple[int, str]]:
+def _lines(path: Path) -> list[tuple[int, str]]:
+    """(1-based line number, stripped text) of every non-blank line, comments included."""
     try:
         text = path.read_text(encoding="utf-8-sig")
     except OSError as exc:
         raise TrajectoryError(f"cannot read trajectory file: {exc.strerror or exc}", path) from exc
     except UnicodeDecodeError as exc:
         raise TrajectoryError("not a text file", path) from exc
-    out = []
-    for lineno, line in enumerate(text.splitlines(), start=1):
-        s = line.strip()
-        if s and not s.startswith("#"):
-            out.append((lineno, s))
-    return out
+    return [(lineno, s) for lineno, line in enumerate(text.splitlines(), start=1) if (s := line.strip())]
+
+
+def _data_lines(path: Path) -> list[tuple[int, str]]:
+    return [(lineno, s) for lineno, s in _lines(path) if not s.startswith("#")]
+
+
+def _is_number(field: str) -> bool:
+    """True for what float() reads ('-1', '+2.5e3'): such a first field starts a data row, not a header."""
+    try:
+        float(field)
+    except ValueError:
+        return False
+    return True
+
+
+def _header_quaternion_order(header: str) -> str | None:
+    """'wxyz' or 'xyzw' where a header line names columns 5 to 8 (`q_RS_w [], q_RS_x [] ...`,
+    `qx qy qz qw`) by their last letters, else None."""
+    text = header.lstrip("#").strip()
+    names = text.split(",") if "," in text else text.split()
+    cols = [re.sub(r"\[.*?\]", "", c).strip().lower() for c in names]
+    if len(cols) < 8:
+        return None
+    ends = "".join(c[-1:] for c in cols[4:8])
+    return ends if ends in ("wxyz", "xyzw") else None
 
 
 def _fields(line: str) -> list[str]:
@@ -180,7 +202,7 @@ def read_euroc_csv(path: str | Path, strictly_increasing: bool = False) -> PoseT
     width = None
     for k, (lineno, line) in enumerate(_data_lines(path)):
         f = [x.strip() for x in line.split(",")]
-        if k == 0 and not f[0][:1].isdigit():
+        if k == 0 and not _is_number(f[0]):
             continue  # text header without '#'
         if len(f) not in (8, 17):
             raise TrajectoryError(f"{len(f)} fields, expected 8 (t,p,q) or 17 (t,p,q,v,bg,ba)", path, lineno)
@@ -200,15 +222,27 @@ def read_euroc_csv(path: str | Path, strictly_increasing: bool = False) -> PoseT
 
 
 def detect_format(path: str | Path) -> str:
-    """'euroc' (comma-separated, integer-ns stamps, 8 or 17 columns) or 'tum' (8 columns)."""
+    """'euroc' (comma-separated, integer-ns stamps, 8 or 17 columns) or 'tum' (8 columns).
+
+    A comma-separated file of 8 columns whose stamps are not integers is TUM, unless the header line
+    above its first row orders the quaternion w, x, y, z (EuRoC's order): then it is a TrajectoryError
+    naming the fix, as reading it either way would be a guess (its stamps, or its quaternions, wrong).
+    """
     path = Path(path)
-    for _, line in _data_lines(path):
+    header = ""
+    for lineno, line in _lines(path):
         f = [x.strip() for x in line.split(",")]
-        if not f[0][:1].isdigit() and len(f) > 1:
-            continue  # header line
+        if line.startswith("#") or (not _is_number(f[0]) and len(f) > 1):
+            header = line  # a comment or a header line
+            continue
         if len(f) in (8, 17) and f[0].isascii() and f[0].isdigit():
             return "euroc"
         if len(_fields(line)) == 8:
+            if len(f) == 8 and _header_quaternion_order(header) == "wxyz":
+                raise TrajectoryError(
+                    f"comma-separated with the quaternion w, x, y, z (EuRoC's order, by the header) but the "
+                    f"stamp {f[0][:40]!r} is not integer nanoseconds: write the stamps in integer ns (an "
+                    "EuRoC state CSV), or the file as TUM (t[s] x y z qx qy qz qw)", path, lineno)
             return "tum"
         raise TrajectoryError("cannot tell the trajectory format (neither TUM nor EuRoC CSV)", path)
     raise TrajectoryError("no poses in file", path)
