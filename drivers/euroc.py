@@ -111,18 +111,30 @@ def _quaternion_check(values: list[float]) -> str | None:
 
 def read_euroc_groundtruth(path: str | Path, policy: Policy = "drop",
                            counts: StreamCounts | None = None) -> PoseTrajectory:
-    """Read an EuRoC state ground-truth CSV (t, p, q_wxyz, v, bg, ba) into a PoseTrajectory T_WI.
+    """Read an EuRoC state ground-truth CSV (t, p, q_wxyz, v, bg, ba; or t, p, q_wxyz alone, as `davio
+    eval` reads it, when the first row has 8 fields) into a PoseTrajectory T_WI.
 
     Rows whose quaternion is not of unit norm (within 1 %) are counted as malformed.
     """
     from runtime.geometry import quat_wxyz_to_rot
 
     counts = StreamCounts() if counts is None else counts
-    rows = read_stamped_csv(path, 16, counts, policy, row_check=_quaternion_check)
+    n_values = 7 if _first_row_fields(Path(path)) == 8 else 16
+    rows = read_stamped_csv(path, n_values, counts, policy, row_check=_quaternion_check)
     v = rows.values
     R = quat_wxyz_to_rot(v[:, 3:7]) if len(v) else np.zeros((0, 3, 3))
-    return PoseTrajectory(rows.t_ns, v[:, 0:3], R, v=v[:, 7:10], bg=v[:, 10:13], ba=v[:, 13:16],
-                          meta={"source": str(path)})
+    extra = {} if n_values == 7 else {"v": v[:, 7:10], "bg": v[:, 10:13], "ba": v[:, 13:16]}
+    return PoseTrajectory(rows.t_ns, v[:, 0:3], R, meta={"source": str(path)}, **extra)
+
+
+def _first_row_fields(path: Path) -> int | None:
+    """Comma-separated fields of the first data row (None when unreadable: the reader says why)."""
+    try:
+        with path.open("r", encoding="utf-8-sig") as fh:
+            first = next((ln for ln in fh if ln.strip() and not ln.lstrip().startswith("#")), "")
+    except (OSError, UnicodeDecodeError):
+        return None
+    return len(first.split(",")) if first else None
 
 
 def _declared_rate_hz(sensor_yaml: Path) -> float | None:

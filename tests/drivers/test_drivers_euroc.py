@@ -471,6 +471,21 @@ def test_groundtruth_rows_validated(tmp_path: Path) -> None:
     assert info.value.line == 4
 
 
+def test_groundtruth_of_pose_columns_alone_is_read(tmp_path: Path) -> None:
+    seq = write_asl(tmp_path, imu_rows(5), {"cam0": cam_rows(2)})
+    gt_dir = seq / "mav0" / "state_groundtruth_estimate0"
+    gt_dir.mkdir()
+    rows = [f"{T0 + k},{0.5 * k},1,2,1,0,0,0" for k in range(5)]       # t, p, q_wxyz (as davio eval reads)
+    rows[3] = f"{T0 + 3},0.5,1,2,1,0,0"                                  # one cut short
+    (gt_dir / "data.csv").write_text("#t,p,q\n" + "\n".join(rows) + "\n")
+    drv = EurocDriver(seq)
+    gt = drv.groundtruth()
+    np.testing.assert_array_equal(gt.t_ns - T0, [0, 1, 2, 4])
+    np.testing.assert_allclose(gt.p[:, 0], [0.0, 0.5, 1.0, 2.0])
+    assert gt.v is None and gt.bg is None
+    assert drv.report()["streams"]["groundtruth"]["truncated_lines"] == 1
+
+
 def test_a_first_camera_row_with_a_flipped_stamp_is_not_a_header(tmp_path: Path) -> None:
     cams = cam_rows(4)
     seq = write_asl(tmp_path, imu_rows(80), {"cam0": cams})
