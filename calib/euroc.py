@@ -15,6 +15,7 @@ import numpy as np
 from calib.fields import Fields, read_camera, read_yaml, rekeyed
 from calib.rig import ImuNoise, Rig, invert_rigid, rigid_transform
 from runtime.errors import CalibrationError
+from runtime.file_kind import MISSING, file_problem
 
 
 def locate(path: Path, camera: str = "cam0") -> tuple[Path, Path, str]:
@@ -94,8 +95,11 @@ def euroc_rig_from(f: Fields, imu_yaml: Path, name: str) -> Rig:
             T_BC = rigid_transform(T_BC, "T")
     imu: ImuNoise | None = None
     T_BI: np.ndarray | None = np.eye(4)
-    if imu_yaml.is_file():
+    why = file_problem(imu_yaml)
+    if why not in (None, MISSING):      # a folder, a broken link: not withheld calibration
+        raise CalibrationError(why, imu_yaml, None)
+    if why is None:
         imu, T_BI = read_euroc_imu(imu_yaml)
     T_IC = None if T_BC is None or T_BI is None else invert_rigid(T_BI) @ T_BC
-    with rekeyed(cam_yaml, {"T_IC": "T_BS"}):
+    with rekeyed(cam_yaml, {"T_IC": "T_BS", "camera_rate_hz": "rate_hz"}):
         return Rig(camera=camera, T_IC=T_IC, time_offset_s=None, imu=imu, camera_rate_hz=rate_hz, name=name)

@@ -118,7 +118,8 @@ def kalibr_rig(top: Fields, imu_yaml: str | os.PathLike | None = None, camera: s
         raise f.error("rig_name", f"expected a string, got {name!r}")
     imu = None if imu_yaml is None else read_kalibr_imu(imu_yaml)
     ext_key = next((k for k in ("T_imu_cam", "T_cam_imu") if f.has(k)), "T_imu_cam")
-    with rekeyed(f.path, {"time_offset_s": f.key("timeshift_cam_imu"), "T_IC": f.key(ext_key)}):
+    with rekeyed(f.path, {"time_offset_s": f.key("timeshift_cam_imu"), "T_IC": f.key(ext_key),
+                          "camera_rate_hz": f.key("rate_hz")}):
         return Rig(
             camera=cam,
             T_IC=T_IC,

@@ -27,10 +27,19 @@ MAX_TIME_OFFSET_S = 1.0
 error or two unsynchronised clocks, which the filter's online time-offset estimate cannot absorb."""
 MAX_LEVER_ARM_M = 5.0
 """Largest camera-IMU distance accepted, m: a translation in mm or cm reads as tens of metres or more."""
+MAX_NOISE = 100.0
+"""Largest IMU noise density or random walk accepted (SI units): datasheet values are 1e-6 to 1e-1; a
+larger one is a unit error (deg for rad, mg for m/s^2, variance for density) and from about 1e154 its
+square overflows the filter."""
+MAX_IMU_RATE_HZ = 1e5
+"""Highest IMU sample rate accepted, Hz (IMUs sample at up to a few kHz)."""
+MAX_CAMERA_RATE_HZ = 1e4
+"""Highest camera frame rate accepted, Hz."""
 RIG_FIELDS = ("camera", "T_IC", "time_offset_s", "camera_rate_hz") + tuple(f"imu.{f}" for f in IMU_FIELDS)
 
 
-def _optional_number(value: object, key: str, positive: bool = False, hint: str = "") -> float | None:
+def _optional_number(value: object, key: str, positive: bool = False, hint: str = "",
+                     maximum: float | None = None) -> float | None:
     if value is None:
         return None
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
@@ -40,6 +49,8 @@ def _optional_number(value: object, key: str, positive: bool = False, hint: str 
         raise CalibrationError(f"must be finite, got {f}", None, key)
     if positive and f <= 0.0:
         raise CalibrationError(f"must be positive, got {f}{hint}", None, key)
+    if maximum is not None and f > maximum:
+        raise CalibrationError(f"{f:g} is implausible (above {maximum:g}){hint}", None, key)
     return f
 
 
@@ -112,7 +123,8 @@ class ImuNoise:
 
     def __post_init__(self) -> None:
         for name in IMU_FIELDS:
-            value = _optional_number(getattr(self, name), f"imu.{name}", positive=True, hint=_IMU_HINT)
+            value = _optional_number(getattr(self, name), f"imu.{name}", positive=True, hint=_IMU_HINT,
+                                     maximum=MAX_IMU_RATE_HZ if name == "rate_hz" else MAX_NOISE)
             object.__setattr__(self, name, value)
 
     def missing(self) -> list[str]:
@@ -163,7 +175,8 @@ class Rig:
                 f"{MAX_TIME_OFFSET_S:g} s; it is in seconds, not milliseconds); a larger offset between two "
                 "clocks must be removed from the stamps", None, "time_offset_s")
         object.__setattr__(
-            self, "camera_rate_hz", _optional_number(self.camera_rate_hz, "camera_rate_hz", positive=True)
+            self, "camera_rate_hz", _optional_number(self.camera_rate_hz, "camera_rate_hz", positive=True,
+                                                     maximum=MAX_CAMERA_RATE_HZ)
         )
         object.__setattr__(self, "name", str(self.name))
 

@@ -22,6 +22,7 @@ from drivers.images import BitDepthScaler
 from drivers.validation import count_gaps, read_stamped_csv
 from runtime.errors import DataError
 from runtime.events import Frame, ImuSample
+from runtime.file_kind import MISSING, file_problem
 from runtime.geometry.trajectory import PoseTrajectory
 
 if TYPE_CHECKING:
@@ -187,8 +188,9 @@ class EurocDriver(Driver):
         self._closed = False
 
         imu_csv = self.mav0 / "imu0" / "data.csv"
-        if not imu_csv.is_file():
-            raise DataError("missing IMU file imu0/data.csv", imu_csv)
+        if (why := file_problem(imu_csv)) is not None:
+            raise DataError("missing IMU file imu0/data.csv" if why == MISSING else f"imu0/data.csv {why}",
+                            imu_csv)
         counts = self._report.stream("imu0")
         self._imu_t, self._gyro, self._accel = read_euroc_imu_csv(imu_csv, self.policy, counts, self._report)
         if self._imu_t.shape[0] == 0:
@@ -238,8 +240,9 @@ class EurocDriver(Driver):
     def _load_camera(self, name: str) -> None:
         cam_dir = self.mav0 / name
         csv = cam_dir / "data.csv"
-        if not csv.is_file():
-            raise DataError(f"missing camera file {name}/data.csv", csv)
+        if (why := file_problem(csv)) is not None:
+            raise DataError(f"missing camera file {name}/data.csv" if why == MISSING
+                            else f"{name}/data.csv {why}", csv)
         counts = self._report.stream(name)
         rows = read_stamped_csv(csv, 1, counts, self.policy, text=True, report=self._report)
         if rows.t_ns.shape[0] == 0:
@@ -420,7 +423,12 @@ class EurocDriver(Driver):
         CalibrationError.
         """
         if not self._rig_loaded:
-            if not (self.mav0 / self.cameras[0] / "sensor.yaml").is_file():
+            yaml = self.mav0 / self.cameras[0] / "sensor.yaml"
+            if (why := file_problem(yaml)) not in (None, MISSING):
+                from runtime.errors import CalibrationError
+
+                raise CalibrationError(why, yaml, None)
+            if why == MISSING:
                 self._report.note(f"{self.cameras[0]}/sensor.yaml is absent: rig calibration unknown")
             else:
                 from calib import read_euroc_rig

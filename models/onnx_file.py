@@ -20,6 +20,7 @@ from pathlib import Path, PurePosixPath, PureWindowsPath
 from typing import TYPE_CHECKING
 
 from runtime.errors import ModelError
+from runtime.file_kind import FOLDER, MISSING, file_problem
 
 if TYPE_CHECKING:
     import onnx
@@ -44,13 +45,17 @@ _ELEM = {
 
 
 def require_file(path: Path, hint: str = "", missing: str | None = None) -> None:
-    """Raise ModelError unless `path` is a file: "is a folder" for a directory, else `missing` (default
-    "model file not found: PATH"); `hint` ends either message."""
-    if path.is_file():
+    """Raise ModelError unless `path` is a regular file: "is a folder" for a directory, `missing` (default
+    "model file not found: PATH") where nothing is, else what it is (a device, a broken link: see
+    `runtime.file_kind`); `hint` ends each message."""
+    why = file_problem(path)
+    if why is None:
         return
-    if path.is_dir():
+    if why == FOLDER:
         raise ModelError(f"{path} is a folder, not an ONNX model file{hint}")
-    raise ModelError((missing or f"model file not found: {path}") + hint)
+    if why == MISSING:
+        raise ModelError((missing or f"model file not found: {path}") + hint)
+    raise ModelError(f"{path} {why}{hint}")
 
 
 def read_model(path: str | Path) -> onnx.ModelProto:

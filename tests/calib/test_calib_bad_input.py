@@ -127,6 +127,12 @@ def test_missing_files(tmp_path: Path) -> None:
     (tmp_path / "empty").mkdir()
     _raises(lambda: read_euroc_rig(tmp_path / "empty"), tmp_path / "empty", None)
     _raises(lambda: load_rig(tmp_path / "nope.yaml"), tmp_path / "nope.yaml", None)
+    mav0 = tmp_path / "seq" / "mav0"
+    _write(mav0 / "cam0" / "sensor.yaml", EUROC_CAM, True)
+    assert read_euroc_rig(tmp_path / "seq").imu is None          # imu0/sensor.yaml absent: withheld
+    (mav0 / "imu0" / "sensor.yaml").mkdir(parents=True)         # a folder is not withheld calibration
+    err = _raises(lambda: read_euroc_rig(tmp_path / "seq"), mav0 / "imu0" / "sensor.yaml", None)
+    assert "is a folder" in str(err)
 
 
 KALIBR_CASES = [
@@ -251,6 +257,11 @@ EUROC_CASES = [
     ("imu", "NaN accel noise", "accelerometer_noise_density", NAN, "accelerometer_noise_density"),
     ("imu", "negative accel walk", "accelerometer_random_walk", -1.0, "accelerometer_random_walk"),
     ("imu", "imu T_BS reflection", "T_BS.data", np.diag([1.0, 1, -1, 1]).ravel().tolist(), "T_BS"),
+    # 1e300 is finite and positive, but its square overflowed the filter's preintegration mid-run
+    ("imu", "gyro noise 1e300", "gyroscope_noise_density", 1e300, "gyroscope_noise_density"),
+    ("imu", "accel walk in the wrong unit", "accelerometer_random_walk", 3000.0, "accelerometer_random_walk"),
+    ("imu", "imu rate 1e300", "rate_hz", 1e300, "rate_hz"),
+    ("cam", "camera rate 1e300", "rate_hz", 1e300, "rate_hz"),
 ]
 
 

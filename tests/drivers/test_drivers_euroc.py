@@ -471,6 +471,24 @@ def test_groundtruth_rows_validated(tmp_path: Path) -> None:
     assert info.value.line == 4
 
 
+def test_a_folder_where_a_file_belongs_is_named(tmp_path: Path) -> None:
+    from runtime.errors import CalibrationError
+
+    seq = write_asl(tmp_path, imu_rows(5), {"cam0": cam_rows(2)})
+    mav0 = seq / "mav0"
+    (mav0 / "cam0" / "sensor.yaml").unlink()
+    (mav0 / "cam0" / "sensor.yaml").mkdir()           # not "absent: calibration unknown"
+    with pytest.raises(CalibrationError, match="sensor.yaml: is a folder, not a file"):
+        _ = EurocDriver(seq).rig
+    (mav0 / "imu0" / "data.csv").rename(mav0 / "imu0" / "kept.csv")
+    (mav0 / "imu0" / "data.csv").symlink_to("data.csv")      # a link to itself
+    with pytest.raises(DataError, match="imu0/data.csv is a symbolic link loop"):
+        EurocDriver(seq)
+    (mav0 / "imu0" / "data.csv").unlink()
+    with pytest.raises(DataError, match="missing IMU file imu0/data.csv"):
+        EurocDriver(seq)
+
+
 def test_groundtruth_of_pose_columns_alone_is_read(tmp_path: Path) -> None:
     seq = write_asl(tmp_path, imu_rows(5), {"cam0": cam_rows(2)})
     gt_dir = seq / "mav0" / "state_groundtruth_estimate0"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import onnx
@@ -97,6 +98,11 @@ def test_inspect_model_errors(tmp_path, graph):
         inspect_model(tmp_path / "folder.onnx")
     with pytest.raises(ModelError, match="is a folder, not an ONNX model file"):
         providers.create_session(tmp_path / "folder.onnx")
+    (tmp_path / "link.onnx").symlink_to("absent.onnx")     # not "not found": the link is there
+    with pytest.raises(ModelError, match="link.onnx is a broken symbolic link"):
+        inspect_model(tmp_path / "link.onnx")
+    with pytest.raises(ModelError, match="/dev/null is not a regular file"):
+        inspect_model(Path("/dev/null"))
     bad = tmp_path / "bad.onnx"
     bad.write_bytes(np.random.default_rng(1).integers(0, 255, 999, dtype=np.uint8).tobytes())
     with pytest.raises(ModelError, match="not a readable ONNX model"):
