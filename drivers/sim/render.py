@@ -28,6 +28,9 @@ if TYPE_CHECKING:
 DN_PER_RADIANCE = 260.0
 """Digital numbers per unit radiance at exposure gain 1 (mean image level ~110-120 DN, like EuRoC)."""
 
+MAX_MOTION_BLUR_SAMPLES = 64
+"""Most renders averaged per frame: each is a full render, so 64 already costs 64 times the time."""
+
 
 @dataclass(frozen=True)
 class ImageOptions:
@@ -57,8 +60,9 @@ class ImageOptions:
         return ImageOptions(0.0, 0.0, 0.0, 7.0, 1, 0.0, 0.0)
 
     def __post_init__(self) -> None:
-        if self.motion_blur_samples < 1:
-            raise ConfigError(f"motion_blur_samples must be >= 1, got {self.motion_blur_samples}")
+        if not 1 <= self.motion_blur_samples <= MAX_MOTION_BLUR_SAMPLES:
+            raise ConfigError(f"motion_blur_samples (--motion-blur) must be from 1 to "
+                              f"{MAX_MOTION_BLUR_SAMPLES} renders per frame, got {self.motion_blur_samples}")
         for name in (
             "read_noise_dn",
             "shot_noise_dn2_per_dn",

@@ -94,6 +94,20 @@ def test_simulate_rejects_imu_without_trajectory(tmp_path, capsys) -> None:
     assert "--imu needs --trajectory" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("argv, said", [
+    (["--start", "nan", "--trajectory", "t.tum"], "--start must be a number of seconds from 0"),
+    (["--start", "1e308", "--trajectory", "t.tum"], "--start must be a number of seconds from 0"),
+    (["--start", "-2", "--trajectory", "t.tum"], "--start must be a number of seconds from 0"),
+    (["--start", "5"], "--start applies to --trajectory"),          # was ignored without a word
+    (["--motion-blur", "100000"], "must be from 1 to 64 renders per frame"),   # rendered for hours
+    (["--motion-blur", "0"], "must be from 1 to 64 renders per frame"),
+])
+def test_simulate_start_and_motion_blur_are_checked_first(tmp_path, capsys, argv: list[str],
+                                                          said: str) -> None:
+    assert main(["simulate", *argv, "--out", str(tmp_path / "o")]) == 1
+    assert said in capsys.readouterr().err and not (tmp_path / "o").exists()
+
+
 def test_simulate_refuses_groundtruth_mode_without_a_real_imu(tmp_path, capsys) -> None:
     assert main(["simulate", "--groundtruth", "as-recorded", "--out", str(tmp_path / "o")]) == 1
     assert "--groundtruth applies to EuRoC-trajectory mode" in capsys.readouterr().err

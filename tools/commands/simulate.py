@@ -118,7 +118,12 @@ def check_sim_seconds(seconds: float) -> None:
                           f"for a simulated recording (got {seconds!r})")
 
 
+MAX_START_S = 1e7
+"""Largest --start (s; 116 days): beyond it the crop of the trajectory's stamps leaves int64 ns."""
+
+
 def run(args: argparse.Namespace) -> int:
+    import math
     from dataclasses import replace
     from pathlib import Path
 
@@ -140,6 +145,12 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--out {out} is not empty; choose a new or empty folder")
     if args.seconds is not None:
         check_sim_seconds(args.seconds)
+    if args.start != 0.0 and not args.trajectory:
+        raise ConfigError("--start applies to --trajectory (the seconds of the file skipped); a preset "
+                          "starts at its beginning")
+    if not (math.isfinite(args.start) and 0 <= args.start <= MAX_START_S):
+        raise ConfigError(f"--start must be a number of seconds from 0 to {MAX_START_S:g} "
+                          f"(got {args.start!r})")
     prefer_workqueue_layer()  # idle OpenMP threads spin: costly on a shared 2-core machine
     con = Console(stderr=True)
     image = ImageOptions.exact() if args.exact else ImageOptions()
