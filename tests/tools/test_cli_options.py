@@ -74,3 +74,29 @@ def test_a_zero_camera_size_or_rate_is_refused_not_replaced_by_the_default(opt: 
     setattr(args, opt[2:], 0)
     with pytest.raises(ConfigError, match=f"{opt} must be > 0, got 0"):
         open_device(args, None)
+
+
+@pytest.mark.parametrize("argv, option", [
+    (["run", "--model", "", "rec"], "--model"),               # ran the emulated default unsaid
+    (["run", "--rig", " ", "rec"], "--rig"),
+    (["run", ""], "path"),
+    (["info", "--model", ""], "--model"),
+    (["listen", "--tum", "", "udp://:9"], "--tum"),            # listened and recorded nothing
+    (["eval", "ate", "a.tum", "b.tum", "--plot", ""], "--plot"),
+    (["calibrate", "rec", "--config", "", "--out", "c.yaml"], "--config"),
+])
+def test_an_empty_value_is_refused_not_taken_for_no_value(capsys, argv: list[str], option: str) -> None:
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    assert f"argument {option}: an empty value" in capsys.readouterr().err
+
+
+def test_an_empty_value_equal_to_the_default_is_accepted() -> None:
+    from tools.cli import _empty_value, build_parser
+
+    parser = build_parser(only="bench")
+    args = parser.parse_args(["bench", "trajectory", "--error-scales", ""])   # its default: none
+    assert _empty_value(parser, args) is None
+    args = parser.parse_args(["bench", "trajectory", "--error-scales", "", "--out", ""])
+    assert _empty_value(parser, args)[1] == "--out"
