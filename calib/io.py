@@ -46,6 +46,8 @@ def _is_euroc_folder(folder: Path) -> bool:
 
 def find_camchain(folder: str | os.PathLike) -> Path | None:
     """A Kalibr camchain in ``folder``: CAMCHAIN_NAMES, else the only ``*camchain*.yaml`` there, else None.
+    Kalibr's camera-IMU run leaves ``X-camchain-imucam.yaml`` beside its input ``X-camchain.yaml`` (the
+    cameras alone, no extrinsics): that pair gives the ``-imucam`` one.
 
     Raises CalibrationError when several ``*camchain*.yaml`` are there (which one is meant cannot be told)."""
     d = Path(folder)
@@ -53,6 +55,10 @@ def find_camchain(folder: str | os.PathLike) -> Path | None:
         if (d / name).is_file():
             return d / name
     found = sorted(f for f in d.glob("*camchain*.yaml") if f.is_file())
+    imucam = [f for f in found if f.name.endswith("camchain-imucam.yaml")]
+    if len(found) == 2 and len(imucam) == 1 and any(f.name == imucam[0].name.replace("-imucam", "")
+                                                    for f in found):
+        return imucam[0]
     if len(found) > 1 and not _is_euroc_folder(d):
         raise CalibrationError(f"{len(found)} camchains in this folder ({', '.join(f.name for f in found)}): "
                                "give the one to use as the file itself", d)

@@ -216,3 +216,18 @@ def test_a_folder_with_two_camchains_names_both(tmp_path: Path) -> None:
         load_rig(tmp_path)
     (tmp_path / "right-camchain.yaml").unlink()
     assert load_rig(tmp_path).camera is not None
+
+
+def test_kalibr_camera_imu_output_beside_its_input_camchain_is_chosen(tmp_path: Path) -> None:
+    """Kalibr's camera-IMU run writes X-camchain-imucam.yaml beside its input X-camchain.yaml (no
+    extrinsics): the folder is a calibration, not an ambiguity."""
+    text = (resources.files("calib") / "rigs" / "euroc_camchain.yaml").read_text()
+    cameras_only = "\n".join(ln for ln in text.splitlines() if "T_cam_imu" not in ln and not
+                             ln.strip().startswith("- ["))
+    (tmp_path / "bag-camchain.yaml").write_text(cameras_only)
+    (tmp_path / "bag-camchain-imucam.yaml").write_text(text)
+    rig = load_rig(tmp_path)
+    assert rig.T_IC is not None                           # the file without extrinsics was not read
+    (tmp_path / "other-camchain-imucam.yaml").write_text(text)        # a third: ambiguous again
+    with pytest.raises(CalibrationError, match="3 camchains in this folder"):
+        load_rig(tmp_path)
