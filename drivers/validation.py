@@ -165,7 +165,8 @@ def read_stamped_csv(path: str | Path, n_values: int, counts: StreamCounts, poli
             values: list[float] = []
         else:
             try:
-                if "_" in stripped:     # float() reads '1_0' as 10: a digit group is no CSV number
+                # float() reads '1_0' as 10 and '\u0661' (Arabic-Indic one) as 1: neither is a CSV number
+                if "_" in stripped or not stripped.isascii():
                     raise ValueError
                 values = [float(f) for f in fields[1:]]
             except ValueError:

@@ -96,3 +96,14 @@ def test_a_number_with_digit_groups_is_malformed_not_read_as_another_number(tmp_
     np.testing.assert_array_equal(rows.t_ns, [10, 40])
     np.testing.assert_array_equal(rows.values, [[0.1, 0.2], [0.3, 0.4]])
     assert c.malformed_lines == 2 and c.rows_accounted()
+
+
+def test_a_number_in_other_digits_is_malformed_not_read(tmp_path: Path) -> None:
+    """float() reads Arabic-Indic or full-width digits ('\u0661' is 1): no CSV writer means them."""
+    f = tmp_path / "imu.csv"
+    f.write_text("# t,wx,wy\n10,0.1,0.2\n20,\u0661,0.2\n30,0.1,\uff15\n40,0.3,0.4\n", encoding="utf-8")
+    assert float("\u0661") == 1.0 and float("\uff15") == 5.0           # the premise
+    c = StreamCounts()
+    rows = read_stamped_csv(f, 2, c)
+    np.testing.assert_array_equal(rows.t_ns, [10, 40])
+    assert c.malformed_lines == 2 and c.rows_accounted()
