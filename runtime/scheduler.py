@@ -17,6 +17,7 @@ The scheduler takes the driver and pipeline through their interfaces and imports
 from __future__ import annotations
 
 import contextlib
+import math
 import queue
 import threading
 import time
@@ -48,8 +49,8 @@ class PacedClock:
     deterministic = False
 
     def __init__(self, speed: float = 1.0) -> None:
-        if speed <= 0:
-            raise DavioError(f"speed must be > 0, got {speed}")
+        if not (math.isfinite(speed) and speed > 0):     # NaN or inf paced nothing
+            raise DavioError(f"speed must be a finite number > 0, got {speed}")
         self.speed = speed
         self._t0: tuple[int, float] | None = None
 

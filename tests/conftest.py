@@ -41,3 +41,14 @@ def small_sim_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("sim") / "euroc6"
     write_euroc(SimRecording.from_preset(SimConfig(preset="euroc", seconds=6.0, seed=0)), out, depth=False)
     return out
+
+
+def cli_exit(argv: list[str]) -> int:
+    """The exit code of `davio ARGV` run in-process: returned, or raised by argparse (2: a value the
+    command line refused)."""
+    from tools.cli import main
+
+    try:
+        return main(argv)
+    except SystemExit as exc:
+        return int(exc.code)

@@ -15,6 +15,7 @@ import math
 from typing import Any
 
 from runtime.errors import ConfigError
+from tools.cli_types import number
 
 #: the --model-latency value that times one call of the graph instead of a number of seconds
 MEASURED = "measured"
@@ -32,7 +33,7 @@ CAP_OPTIONS = {"arena_extend_strategy": "kSameAsRequested", "cudnn_conv_use_max_
 
 def add_gpu_memory_argument(p: argparse.ArgumentParser) -> None:
     p.add_argument(
-        "--gpu-mem-limit", type=float, default=None, metavar="MB",
+        "--gpu-mem-limit", type=number, default=None, metavar="MB",
         help="cap ONNX Runtime's CUDA memory arena at MB megabytes, growing it by request and keeping "
         "cuDNN's workspace small (default: no cap; an opset-18 DA3-Base graph on 5 views ran within 4295 at "
         "full speed). No effect on the CPU",
@@ -84,9 +85,9 @@ def latency_arg(text: str) -> float | str:
     if text.strip().lower() == MEASURED:
         return MEASURED
     try:
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"seconds or '{MEASURED}', not {text!r}") from None
+        return number(text)
+    except argparse.ArgumentTypeError as exc:
+        raise argparse.ArgumentTypeError(f"seconds or '{MEASURED}': {exc}") from None
 
 
 def measured_latency(model: Any, views: int) -> float:

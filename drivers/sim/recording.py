@@ -14,6 +14,7 @@ t_cam + time_offset (t_imu = t_cam + time_offset_s, Kalibr's timeshift_cam_imu).
 
 from __future__ import annotations
 
+import math
 import numbers
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -115,10 +116,31 @@ class SimConfig:
                               f"got {self.groundtruth_mode!r}")
         if self.scene_span not in SCENE_SPANS:
             raise ConfigError(f"SimConfig.scene_span must be one of {SCENE_SPANS}, got {self.scene_span!r}")
+        check_sim_seconds(self.seconds, "seconds")
+        if isinstance(self.start_s, bool) or not isinstance(self.start_s, numbers.Real) \
+                or not (math.isfinite(self.start_s) and 0 <= self.start_s <= MAX_START_S):
+            raise ConfigError(f"start_s (--start) must be a number of seconds from 0 to {MAX_START_S:g}, "
+                              f"got {self.start_s!r}")
         s = self.attitude_smoothing_s
         if isinstance(s, bool) or not isinstance(s, int | float) or not 0.0 < s < float("inf"):
             raise ConfigError(f"SimConfig.attitude_smoothing_s must be a positive number of seconds, "
                               f"got {s!r}")
+
+
+MAX_SIM_SECONDS = 4 * 3600.0
+"""Longest simulated recording (s): the simulated-folder manifests' plausible range (tools.run_io)."""
+MAX_START_S = 1e7
+"""Largest start_s (s; 116 days): beyond it the crop of a trajectory's stamps leaves int64 ns."""
+
+
+def check_sim_seconds(seconds: float | None, name: str = "--seconds") -> None:
+    """ConfigError unless `seconds` is None or a finite duration in (0, MAX_SIM_SECONDS]."""
+    if seconds is None:
+        return
+    if isinstance(seconds, bool) or not isinstance(seconds, numbers.Real) \
+            or not (math.isfinite(seconds) and 0 < seconds <= MAX_SIM_SECONDS):
+        raise ConfigError(f"{name} must be a finite number > 0 and at most {MAX_SIM_SECONDS:g} (4 h) for a "
+                          f"simulated recording (got {seconds!r})")
 
 
 GROUNDTRUTH_MODES = ("imu-consistent", "as-recorded")

@@ -5,6 +5,7 @@ import json
 
 import pytest
 
+from tests.conftest import cli_exit
 from tools.cli import main
 
 
@@ -59,10 +60,12 @@ def test_a_rig_time_offset_50_ms_off_is_found_by_davio_and_estimated_by_the_nati
     assert native["time_offset_findings"] == 0 and native["time_offset_adopted_s"] is None
 
 
-@pytest.mark.parametrize("value", ["nan", "1.5"])
-def test_a_rig_time_offset_error_beyond_a_second_is_a_clear_error(capsys, value):
-    assert main(["bench", "startup", "--preset", "euroc", "--rig-time-offset-error", value]) == 1
-    assert "--rig-time-offset-error must be a finite number" in capsys.readouterr().err
+@pytest.mark.parametrize("value, code, said", [
+    ("nan", 2, "argument --rig-time-offset-error: 'nan' is not a finite number"),
+    ("1.5", 1, "--rig-time-offset-error must be a finite number")])
+def test_a_rig_time_offset_error_beyond_a_second_is_a_clear_error(capsys, value, code, said):
+    assert cli_exit(["bench", "startup", "--preset", "euroc", "--rig-time-offset-error", value]) == code
+    assert said in capsys.readouterr().err
 
 
 def test_bad_override_is_a_clear_error(capsys):

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.conftest import cli_exit
 from tools.calibrate.checks import Thresholds, judge, settling
 from tools.calibrate.core import CalibrationRun, CalibSample, ExcitationMeter, covariance_std
 from tools.cli import main
@@ -454,14 +455,16 @@ def test_covariance_std_takes_the_worst_direction():
     [
         (["--seconds", "0"], "--seconds must be a finite number > 0"),
         (["--max-rot-std-deg", "-1"], "--max-rot-std-deg must be a finite number > 0"),
-        (["--min-axis-rate-dps", "nan"], "--min-axis-rate-dps must be"),
+        (["--min-axis-rate-dps", "nan"], "argument --min-axis-rate-dps: 'nan' is not a finite number"),
         (["--model-latency", "-2"], "--model-latency must be"),
-        (["--model", "m.onnx", "--gpu-mem-limit", "inf"], "--gpu-mem-limit inf: give megabytes"),
+        (["--model", "m.onnx", "--gpu-mem-limit", "1e308"], "--gpu-mem-limit 1e+308: give megabytes"),
+        (["--model", "m.onnx", "--gpu-mem-limit", "inf"], "argument --gpu-mem-limit: 'inf' is not a finite"),
         (["--gpu-mem-limit", "2048"], "--gpu-mem-limit caps the DA3 graph's GPU memory: it needs --model"),
     ],
 )
 def test_bad_option_values_are_clear_errors(tmp_path, capsys, extra, words):
-    assert main(["calibrate", str(tmp_path), "--out", str(tmp_path / "rig.yaml"), *extra]) == 1
+    code = cli_exit(["calibrate", str(tmp_path), "--out", str(tmp_path / "rig.yaml"), *extra])
+    assert code == (2 if "argument" in words else 1)
     assert words in capsys.readouterr().err
 
 

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.conftest import cli_exit
 from tests.tools.test_eval_io import random_traj
 from tests.tools.test_map_archive import write_two_commits
 from tools.cli import main
@@ -126,18 +127,18 @@ def test_the_plot_folder_is_made_only_when_plots_are_written(tum_pair, tmp_path,
     assert out["plots"] and all(Path(p).is_file() and Path(p).parent == plots for p in out["plots"])
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["--offset", "nan"], "--offset must be a finite number in [-9.2e+09, 9.2e+09], got nan"),
-    (["--offset", "1e300"], "--offset must be a finite number"),
-    (["--max-diff", "nan"], "--max-diff must be a finite number in [0, 9.2e+09], got nan"),
-    (["--max-diff", "-1"], "--max-diff must be a finite number in [0, 9.2e+09], got -1.0"),
-    (["--n-align", "-3"], "--n-align must be at least 2 poses, got -3"),
-    (["--plot", "/proc/davio-plots"], "--plot /proc/davio-plots: cannot create the folder"),
+@pytest.mark.parametrize("argv, code, message", [
+    (["--offset", "nan"], 2, "argument --offset: 'nan' is not a finite number"),
+    (["--offset", "1e300"], 1, "--offset must be a finite number"),
+    (["--max-diff", "nan"], 2, "argument --max-diff: 'nan' is not a finite number"),
+    (["--max-diff", "-1"], 1, "--max-diff must be a finite number in [0, 9.2e+09], got -1.0"),
+    (["--n-align", "-3"], 1, "--n-align must be at least 2 poses, got -3"),
+    (["--plot", "/proc/davio-plots"], 1, "--plot /proc/davio-plots: cannot create the folder"),
 ])
-def test_bad_numbers_and_unwritable_plot_folders_are_named_before_any_work(tum_pair, capsys, argv,
+def test_bad_numbers_and_unwritable_plot_folders_are_named_before_any_work(tum_pair, capsys, argv, code,
                                                                           message) -> None:
     est, _, ref = tum_pair
-    assert main(["eval", "ate", str(est), str(ref), *argv]) == 1
+    assert cli_exit(["eval", "ate", str(est), str(ref), *argv]) == code
     assert message in capsys.readouterr().err
 
 
@@ -154,10 +155,13 @@ def test_an_epoch_offset_and_exact_stamps_are_accepted(tum_pair, capsys) -> None
 def test_surface_voxel_and_threshold_must_be_positive_numbers(tmp_path: Path, capsys) -> None:
     cloud = tmp_path / "c.npy"
     np.save(cloud, np.random.default_rng(0).uniform(0, 1, (50, 3)))
-    for flag, value, must in (("--voxel", "nan", "in [0.0001, 100]"), ("--threshold", "0", "> 0"),
-                              ("--threshold", "inf", "> 0")):
+    for flag, value, must in (("--voxel", "1e-6", "in [0.0001, 100]"), ("--threshold", "0", "> 0"),
+                              ("--threshold", "-1", "> 0")):
         assert main(["eval", "surface", str(cloud), str(cloud), flag, value]) == 1
         assert f"{flag} must be a finite number {must}" in capsys.readouterr().err
+    for flag in ("--voxel", "--threshold"):
+        assert cli_exit(["eval", "surface", str(cloud), str(cloud), flag, "inf"]) == 2
+        assert f"argument {flag}: 'inf' is not a finite number" in capsys.readouterr().err
 
 
 def test_surface_counts_the_points_it_leaves_out(tmp_path: Path, capsys) -> None:
@@ -217,9 +221,11 @@ def test_map_export_into_a_folder_and_bad_voxel(tmp_path: Path, capsys) -> None:
     assert main(["map", "export", str(tmp_path / "run"), "--voxel", "0"]) == 1
     assert capsys.readouterr().err == ("davio map: error: --voxel must be an edge length from 0.005 to "
                                        "10.0 m, got 0.0\n")
-    for bad in ("inf", "1e-6", "nan"):
-        assert main(["map", "export", str(tmp_path / "run"), "--voxel", bad]) == 1
-        assert "--voxel must be an edge length" in capsys.readouterr().err
+    assert main(["map", "export", str(tmp_path / "run"), "--voxel", "1e-6"]) == 1
+    assert "--voxel must be an edge length" in capsys.readouterr().err
+    for bad in ("inf", "nan"):
+        assert cli_exit(["map", "export", str(tmp_path / "run"), "--voxel", bad]) == 2
+        assert "is not a finite number" in capsys.readouterr().err
     assert main(["map", "info", str(tmp_path / "run"), "--json"]) == 0
     assert _strict(capsys.readouterr().out)["submaps"] == 3
 

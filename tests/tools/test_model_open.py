@@ -46,4 +46,4 @@ def test_a_measured_latency_needs_a_model(tmp_path, capsys):
     assert "--model-latency measured times the --model graph: it needs --model" in capsys.readouterr().err
     with pytest.raises(SystemExit):   # neither seconds nor 'measured': argparse's own error
         main(["run", str(tmp_path), "--model-latency", "fast", "--out", str(tmp_path / "out")])
-    assert "seconds or 'measured', not 'fast'" in capsys.readouterr().err
+    assert "seconds or 'measured': 'fast' is not a number" in capsys.readouterr().err

@@ -26,6 +26,8 @@ from typing import Any
 
 import numpy as np
 
+from tools.cli_types import count
+
 NAME = "align"
 HELP = "localising a map session in another of the same place, against the ground truth"
 DESCRIPTION = __doc__
@@ -41,7 +43,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--depth-scales", default="1,2,5,20",
                    help="comma-separated factors on the emulated DA3's dense depth-error sigmas")
     p.add_argument("--da3", default="base", help="emulated DA3 preset")
-    p.add_argument("--seed", type=int, default=0, help="seed of the scenes, noise and emulated DA3")
+    p.add_argument("--seed", type=count(0), default=0, help="seed of the scenes, noise and emulated DA3")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", metavar="FILE.json", help="also write the JSON here")
 

@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from tools.cli_types import positive
+
 NAME = "calibrate"
 HELP = "davio calibrate on simulated recordings with a known rig: errors of the written camchain"
 
@@ -32,7 +34,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         nargs="+",
         help="`davio simulate` folders (e.g. --seconds 60 --time-offset 0.005)",
     )
-    p.add_argument("--seconds", type=float, default=None, help="only the first S seconds of each")
+    p.add_argument("--seconds", type=positive, default=None, help="only the first S seconds of each")
     p.add_argument(
         "--pose-error-scales",
         default="1",

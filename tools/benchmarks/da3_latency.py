@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from runtime.json_out import strict_dumps
+from tools.cli_types import count
 
 NAME = "da3-latency"
 HELP = "DA3 ONNX latency and peak memory (N views at HxW) on the selected execution provider"
@@ -43,9 +44,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--res", default="378x504", help="resolution HxW of the default graph")
     p.add_argument("--precision", default="fp32", choices=["fp32", "fp16"],
                    help="precision of the default graph (fp16: backbone in float16, `davio export-da3`)")
-    p.add_argument("--views", type=int, default=5, help="frames per call (N)")
-    p.add_argument("--threads", type=int, default=2, help="ONNX Runtime intra-op threads")
-    p.add_argument("--repeats", type=int, default=5, help="timed calls per mode (after one warm-up)")
+    p.add_argument("--views", type=count(1, 64), default=5, help="frames per call (N)")
+    p.add_argument("--threads", type=count(1, 256), default=2, help="ONNX Runtime intra-op threads")
+    p.add_argument("--repeats", type=count(1, 1000), default=5,
+                   help="timed calls per mode (after one warm-up)")
     p.add_argument("--cpu", action="store_true", help="force the CPU execution provider")
     p.add_argument(
         "--cuda-option",

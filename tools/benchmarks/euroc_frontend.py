@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from runtime.json_out import strict_dumps
+from tools.cli_types import count
 
 NAME = "euroc-frontend"
 HELP = "KLT tracks per frame, tracker ms/frame and static-init roll/pitch error on real EuRoC data"
@@ -54,8 +55,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="also run the dynamic initializer on real IMU + rendered images along the ground truth "
         "of an euroc_imu_gt folder (default V1_02_medium)",
     )
-    p.add_argument("--windows", type=int, default=8, help="dynamic: number of start windows, 10 s apart")
-    p.add_argument("--attempt-every", type=int, default=5, help="dynamic: try to initialize every N frames")
+    p.add_argument("--windows", type=count(1), default=8, help="dynamic: number of start windows, 10 s apart")
+    p.add_argument("--attempt-every", type=count(1), default=5,
+                   help="dynamic: try to initialize every N frames")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
 
 

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from runtime.json_out import strict_dumps
+from tools.cli_types import count, number, number_in, number_or_inf
 from tools.evaluation.state_errors import gt_velocity, state_errors
 
 NAME = "ffinit-accuracy"
@@ -33,20 +34,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sequence", action="append", default=None, metavar="DIR",
                    help="euroc_imu_gt folder (repeatable); default: --preset")
     p.add_argument("--preset", default="euroc", help="motion preset when no --sequence is given")
-    p.add_argument("--seconds", type=float, default=60.0, help="preset recording length, s")
-    p.add_argument("--every", type=float, default=2.0, help="a window starts every S seconds")
-    p.add_argument("--max-windows", type=int, default=None, help="at most this many windows per recording")
+    p.add_argument("--seconds", type=number, default=60.0, help="preset recording length, s")
+    p.add_argument("--every", type=number_in(0.01, 3600, unit=" s"), default=2.0,
+                   help="a window starts every S seconds")
+    p.add_argument("--max-windows", type=count(1), default=None,
+                   help="at most this many windows per recording")
     p.add_argument("--k", default="0,0.25,0.5,0.75,1", help="comma-separated pose-error factors")
     p.add_argument("--reference", default="base_upper", help="emulated-DA3 preset that k scales")
     p.add_argument("--fields", default=None,
                    help="comma-separated pose-error knobs that k scales (default: all of POSE_ERROR_FIELDS;"
                         " the others are set to 0) -- to see which knob drives the errors")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--sim-accel-bias-sigma", type=float, default=None, metavar="S",
+    p.add_argument("--seed", type=count(0), default=0)
+    p.add_argument("--sim-accel-bias-sigma", type=number, default=None, metavar="S",
                    help="presets: the simulated IMU's initial accelerometer-bias sigma, m/s^2 (default 0.05;"
                         " 0 shows what the bias alone does to the scale)")
     p.add_argument("--config", metavar="TOML", help="a run configuration whose [ffinit] table is used")
-    p.add_argument("--max-scale-uncertainty", type=float, default=None, metavar="U",
+    p.add_argument("--max-scale-uncertainty", type=number_or_inf, default=None, metavar="U",
                    help="the scale-observability gate's bound (default: FFInitConfig's; inf = gate off)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", metavar="FILE", help="also write the JSON (with per-window rows) here")

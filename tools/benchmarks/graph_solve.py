@@ -16,14 +16,20 @@ import time
 
 import numpy as np
 
+from tools.cli_types import count
+
 NAME = "graph-solve"
 HELP = "submap-graph solve time by size (sparse LSMR step, and the exact dense step for reference)"
 DESCRIPTION = __doc__
 
 
+MAX_NODES = 2000
+"""Largest --sizes node count (a dense graph of this size already takes gigabytes)."""
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sizes", default="24,48,64,96", help="comma-separated node counts")
-    p.add_argument("--repeats", type=int, default=5, help="solves timed per size (median)")
+    p.add_argument("--repeats", type=count(1, 1000), default=5, help="solves timed per size (median)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", metavar="FILE.json", help="also write the JSON here")
 
@@ -118,8 +124,9 @@ def run(args: argparse.Namespace) -> int:
         sizes = [int(s) for s in args.sizes.split(",") if s.strip()]
     except ValueError as exc:
         raise ConfigError(f"--sizes takes comma-separated integers, got {args.sizes!r}") from exc
-    if not sizes or min(sizes) < 2 or args.repeats < 1:
-        raise ConfigError("--sizes must be node counts >= 2 and --repeats >= 1")
+    if not sizes or min(sizes) < 2 or max(sizes) > MAX_NODES or args.repeats < 1:
+        raise ConfigError(f"--sizes must be node counts from 2 to {MAX_NODES} (the dense solve is quadratic: "
+                          f"20000 took 10 GB) and --repeats >= 1, got {args.sizes!r}")
     rows = [measure(n, args.repeats) for n in sizes]
     result = {"benchmark": NAME, "repeats": args.repeats, "rows": rows}
     if args.out:

@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from runtime.msckf.init_dynamic_config import MLE_SOLVERS
+from tools.cli_types import count, number
 
 NAME = "init-cost"
 HELP = "the dynamic initializer's attempts on the tracking thread, by the refinement's solver"
@@ -43,8 +44,8 @@ DESCRIPTION = __doc__
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--preset", action="append", default=None,
                    help="motion preset (repeatable; default: handheld, aggressive, slow)")
-    p.add_argument("--seconds", type=float, default=8.0, help="recording length, s")
-    p.add_argument("--seed", type=int, default=4)
+    p.add_argument("--seconds", type=number, default=8.0, help="recording length, s")
+    p.add_argument("--seed", type=count(0), default=4)
     p.add_argument("--live", action="store_true",
                    help="also push each recording into a live Session at its real rate (images dropped)")
     p.add_argument("--json", action="store_true", help="print one JSON object")

@@ -26,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+from tools.cli_types import count, number
+
 NAME = "init-wrong-rig"
 HELP = "the native start-up's cost on a wrong rig (gyro in deg/s, rotation inverted), rotation check on/off"
 DESCRIPTION = __doc__
@@ -35,11 +37,11 @@ VARIANTS = ("right", "deg/s", "inverted")
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--preset", action="append", default=None,
                    help="motion preset (repeatable; default: euroc, aggressive)")
-    p.add_argument("--seconds", type=float, default=15.0, help="recording length, s")
-    p.add_argument("--seed", type=int, default=4)
+    p.add_argument("--seconds", type=number, default=15.0, help="recording length, s")
+    p.add_argument("--seed", type=count(0), default=4)
     p.add_argument("--sweep", action="store_true",
                    help="instead: the check at every frame of right-rig recordings (false refusals)")
-    p.add_argument("--sequence-seconds", type=float, default=60.0,
+    p.add_argument("--sequence-seconds", type=number, default=60.0,
                    help="--sweep: seconds of each EuRoC-trajectory simulation")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", metavar="FILE.json", help="also write the JSON here")

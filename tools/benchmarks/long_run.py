@@ -31,6 +31,8 @@ from typing import Any
 
 import numpy as np
 
+from tools.cli_types import count, number
+
 NAME = "long-run"
 HELP = ("per-hour growth: bytes per published pose, the map archive writer's memory per submap, and "
         "the manifest's commit time by archive size")
@@ -41,7 +43,7 @@ SUBMAP_PERIOD_S = 1.5
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--hours", default="0.25,1,2,4", help="comma-separated run lengths for the manifest rows")
-    p.add_argument("--camera-hz", type=float, default=20.0,
+    p.add_argument("--camera-hz", type=number, default=20.0,
                    help="published poses per second (a pose a frame)")
     p.add_argument("--poses", type=int, default=20000, help="poses measured for the bytes per pose")
     p.add_argument("--moved", type=int, default=63,
@@ -49,9 +51,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "graph.max_resident_nodes - 1)")
     p.add_argument("--writer-submaps", type=int, default=1000,
                    help="submaps archived for the writer's memory a submap (200 to 100000; default 1000)")
-    p.add_argument("--track-seconds", type=float, default=300.0,
+    p.add_argument("--track-seconds", type=number, default=300.0,
                    help="length of the simulated tracking run measured whole (0 = skip)")
-    p.add_argument("--seed", type=int, default=0, help="seed of that recording")
+    p.add_argument("--seed", type=count(0), default=0, help="seed of that recording")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", metavar="FILE.json", help="also write the JSON here")
 

@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from tools.cli_types import count, number_in
+
 NAME = "map-export"
 HELP = "the end of a long run: seconds and memory to fuse its map archive, by archive size"
 DESCRIPTION = __doc__
@@ -37,11 +39,12 @@ R_WC = np.array([[0.0, 0, 1], [-1, 0, 0], [0, -1, 0]])
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--submaps", default="150,600,2400",
                    help="archive sizes (comma-separated, increasing); 2400 is an hour of mapping")
-    p.add_argument("--anchor-max", type=int, default=600,
+    p.add_argument("--anchor-max", type=count(0), default=600,
                    help="time the former join-every-submap grid up to this size (it is quadratic)")
-    p.add_argument("--voxel", type=float, default=0.04, help="voxel edge, metres")
-    p.add_argument("--max-depth", type=float, default=8.0, help="depths beyond this are not kept, metres")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--voxel", type=number_in(1e-4, 100, unit=" m"), default=0.04, help="voxel edge, metres")
+    p.add_argument("--max-depth", type=number_in(0, 1e4, low_open=True, unit=" m"), default=8.0,
+                   help="depths beyond this are not kept, metres")
+    p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--dir", help="write the archive here (default: a temporary folder, removed after)")
     p.add_argument("--json", action="store_true", help="print the result as JSON only")
     p.add_argument("--out", help="also write the JSON here")

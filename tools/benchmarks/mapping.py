@@ -33,6 +33,7 @@ import numpy as np
 
 from runtime.json_out import strict_dumps
 from tools.benchmarks.mapping_variants import VARIANT_KEYS
+from tools.cli_types import count, number, number_in
 
 NAME = "mapping"
 HELP = ("dense mapping on simulated sequences: DAVIO vs unconditioned, ScaRF-style, true poses and "
@@ -65,10 +66,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sequence", action="append", default=None, metavar="DIR[:STYLE]",
                    help="a euroc_imu_gt folder (EuRoC-trajectory mode; repeatable; default: V1_02_medium "
                         "and MH_03_medium from ../shared/data when present)")
-    p.add_argument("--sequence-start", type=float, default=0.0, metavar="S",
+    p.add_argument("--sequence-start", type=number_in(0, 1e7, unit=" s"), default=0.0, metavar="S",
                    help="seconds skipped at the start of every --sequence")
-    p.add_argument("--seconds", type=float, default=20.0, help="length of each sequence, s")
-    p.add_argument("--seed", type=int, default=0, help="simulation and emulated-DA3 seed")
+    p.add_argument("--seconds", type=number, default=20.0, help="length of each sequence, s")
+    p.add_argument("--seed", type=count(0), default=0, help="simulation and emulated-DA3 seed")
     p.add_argument("--da3", default="base", help="emulated DA3 preset (small, base, large)")
     p.add_argument("--variants", default=VARIANT_KEYS, help="rows to run (letters a-j, module docstring)")
     p.add_argument("--paper-gauge", action="store_true",

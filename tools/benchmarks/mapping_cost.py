@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from runtime.json_out import strict_dumps
+from tools.cli_types import count, nonnegative, number, number_in
 
 NAME = "mapping-cost"
 HELP = "mapping's cost: tracking ms/frame and pose latency with mapping on/off, throughput, memory"
@@ -31,14 +32,15 @@ HELP = "mapping's cost: tracking ms/frame and pose latency with mapping on/off, 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--preset", default="euroc", help="motion preset of the simulated recording")
-    p.add_argument("--seconds", type=float, default=30.0, help="length of the paced arms' recording")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--repeats", type=int, default=1, help="off/on pairs (interleaved)")
-    p.add_argument("--speed", type=float, default=1.0, help="pacing factor of the arms (1 = real time)")
+    p.add_argument("--seconds", type=number, default=30.0, help="length of the paced arms' recording")
+    p.add_argument("--seed", type=count(0), default=0)
+    p.add_argument("--repeats", type=count(1, 100), default=1, help="off/on pairs (interleaved)")
+    p.add_argument("--speed", type=number_in(0, 1000, low_open=True), default=1.0,
+                   help="pacing factor of the arms (1 = real time)")
     p.add_argument("--no-arms", action="store_true", help="skip the paced on/off arms")
     p.add_argument("--onnx", metavar="PATH", default=None, help="also run a paced arm with this DA3 graph")
-    p.add_argument("--threads", type=int, default=2, help="ONNX Runtime intra-op threads (--onnx)")
-    p.add_argument("--memory-seconds", type=float, default=0.0,
+    p.add_argument("--threads", type=count(1, 256), default=2, help="ONNX Runtime intra-op threads (--onnx)")
+    p.add_argument("--memory-seconds", type=nonnegative, default=0.0,
                    help="length of the memory run (0 = skip; the issue asks for 600)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", metavar="FILE", default=None, help="also write the JSON to FILE")

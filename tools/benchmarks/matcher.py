@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from runtime.json_out import strict_dumps
+from tools.cli_types import count, number_in
 
 NAME = "matcher"
 HELP = "XFeat/ORB latency and match precision on image pairs with known homographies"
@@ -190,13 +191,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default="euroc",
         help="EuRoC or synthetic images warped by homographies, or simulated frame pairs",
     )
-    p.add_argument("--gap", type=int, default=4, help="sim: frames between the two images of a pair")
-    p.add_argument("--pairs", type=int, default=10, help="number of image pairs")
-    p.add_argument("--top-k", type=int, default=2048, help="keypoints per image (both backends)")
-    p.add_argument("--px", type=float, default=3.0, help="correctness radius in pixels")
-    p.add_argument("--threads", type=int, default=2, help="ONNX Runtime intra-op threads")
-    p.add_argument("--repeats", type=int, default=5, help="timed repeats per pair for latency")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--gap", type=count(1, 100), default=4,
+                   help="sim: frames between the two images of a pair")
+    p.add_argument("--pairs", type=count(1, 1000), default=10, help="number of image pairs")
+    p.add_argument("--top-k", type=count(1, 100000), default=2048, help="keypoints per image (both backends)")
+    p.add_argument("--px", type=number_in(0, 1000, low_open=True, unit=" px"), default=3.0,
+                   help="correctness radius in pixels")
+    p.add_argument("--threads", type=count(1, 256), default=2, help="ONNX Runtime intra-op threads")
+    p.add_argument("--repeats", type=count(1, 1000), default=5, help="timed repeats per pair for latency")
+    p.add_argument("--seed", type=count(0), default=0)
     p.add_argument(
         "--lighterglue",
         metavar="PATH",

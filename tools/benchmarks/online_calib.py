@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from runtime.json_out import strict_dumps
+from tools.cli_types import count, number_in
 
 NAME = "online-calib"
 HELP = "online extrinsic / time-offset calibration from perturbed values on the OpenVINS simulator data"
@@ -28,15 +29,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("folder", type=Path, help="openvins_sim run folder (see openvins-sim)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
     p.add_argument("--out", type=Path, default=None, help="also write the JSON result to this file")
-    p.add_argument("--max-seconds", type=float, default=60.0, help="seconds of data to use from the start")
-    p.add_argument("--rot-deg", type=float, default=2.0, help="initial rotation error of R_IC, deg")
-    p.add_argument("--pos-cm", type=float, default=2.0, help="initial lever-arm error, cm")
-    p.add_argument("--dt-ms", type=float, default=5.0, help="initial time-offset error, ms")
-    p.add_argument("--seed", type=int, default=0, help="seed of the perturbation directions")
+    p.add_argument("--max-seconds", type=number_in(1, 1e6, unit=" s"), default=60.0,
+                   help="seconds of data to use from the start")
+    p.add_argument("--rot-deg", type=number_in(0, 90, unit=" deg"), default=2.0,
+                   help="initial rotation error of R_IC, deg")
+    p.add_argument("--pos-cm", type=number_in(0, 100, unit=" cm"), default=2.0,
+                   help="initial lever-arm error, cm")
+    p.add_argument("--dt-ms", type=number_in(-1000, 1000, unit=" ms"), default=5.0,
+                   help="initial time-offset error, ms")
+    p.add_argument("--seed", type=count(0), default=0, help="seed of the perturbation directions")
     p.add_argument("--intrinsics", action="store_true", help="also perturb and estimate the intrinsics")
-    p.add_argument("--focal-pct", type=float, default=1.5, help="initial fx, fy error with --intrinsics, %%")
-    p.add_argument("--center-px", type=float, default=3.0, help="initial cx, cy error with --intrinsics, px")
-    p.add_argument("--k1", type=float, default=0.02, help="initial k1 error with --intrinsics")
+    p.add_argument("--focal-pct", type=number_in(0, 50, unit=" %%"), default=1.5,
+                   help="initial fx, fy error with --intrinsics, %%")
+    p.add_argument("--center-px", type=number_in(0, 500, unit=" px"), default=3.0,
+                   help="initial cx, cy error with --intrinsics, px")
+    p.add_argument("--k1", type=number_in(-1, 1), default=0.02, help="initial k1 error with --intrinsics")
 
 
 def perturbed_calibration(

@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from runtime.json_out import strict_dumps
+from tools.cli_types import count, number_in
 
 NAME = "openvins-beside"
 HELP = "our filter's time per frame beside OpenVINS's run_simulation, alternated in one run"
@@ -44,8 +45,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="openvins_sim run folder, e.g. ../shared/data/openvins_sim/udel_gore_mono")
     p.add_argument("--openvins-bin", type=Path, required=True,
                    help="OpenVINS's run_simulation executable (a ROS-free build of ov_msckf)")
-    p.add_argument("--repeats", type=int, default=3, help="alternating rounds (OpenVINS, then DAVIO)")
-    p.add_argument("--timeout", type=float, default=600.0, help="seconds allowed to each single run")
+    p.add_argument("--repeats", type=count(1, 1000), default=3,
+                   help="alternating rounds (OpenVINS, then DAVIO)")
+    p.add_argument("--timeout", type=number_in(0, 86400, low_open=True, unit=" s"), default=600.0,
+                   help="seconds allowed to each single run")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
     p.add_argument("--out", type=Path, default=None, help="also write the JSON result to this file")
 

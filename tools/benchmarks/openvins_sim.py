@@ -17,6 +17,7 @@ import numpy as np
 
 from runtime.json_out import strict_dumps
 from tools.benchmarks.openvins_sim_data import SimRun, load_sim_folder  # noqa: F401 (re-exported)
+from tools.cli_types import count, number, number_in
 
 NAME = "openvins-sim"
 HELP = "our MSCKF on the OpenVINS simulator's IMU samples and feature tracks, beside OpenVINS's result"
@@ -129,12 +130,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
     p.add_argument("--out", type=Path, default=None, help="also write the JSON result to this file")
     p.add_argument(
-        "--max-seconds", type=float, default=None, help="use only this many seconds from the start"
+        "--max-seconds", type=number_in(1, 1e6, unit=" s"), default=None,
+        help="use only this many seconds from the start"
     )
-    p.add_argument("--max-slam", type=int, default=None, help="override max_slam (0: MSCKF features only)")
-    p.add_argument("--max-msckf", type=int, default=None, help="override max_msckf_in_update")
+    p.add_argument("--max-slam", type=count(0), default=None,
+                   help="override max_slam (0: MSCKF features only)")
+    p.add_argument("--max-msckf", type=count(0), default=None, help="override max_msckf_in_update")
     p.add_argument(
-        "--min-clone-spacing", type=float, default=None,
+        "--min-clone-spacing", type=number, default=None,
         help="override min_clone_spacing_s (s; 0: every frame keeps its clone, as OpenVINS)",
     )
     p.add_argument(
@@ -145,7 +148,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "(single runs move with the order in which equal-length tracks compete; 0: one run, database "
         "order)",
     )
-    p.add_argument("--seed", type=int, default=None, help="one run with this feature-order tie-break seed")
+    p.add_argument("--seed", type=count(0), default=None,
+                   help="one run with this feature-order tie-break seed")
     p.add_argument(
         "--jobs", type=int, default=1, help="parallel processes for --seeds (their timings then overlap)"
     )

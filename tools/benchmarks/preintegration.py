@@ -3,14 +3,18 @@ from __future__ import annotations
 
 import argparse
 
+from tools.cli_types import count, number_in
+
 NAME = "preintegration"
 HELP = "IMU preintegration (numba) time per sample, with and without covariance; SO(3) kernel times"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--rate", type=float, default=200.0, help="IMU rate, Hz")
-    p.add_argument("--seconds", type=float, default=1.0, help="length of one preintegrated interval, s")
-    p.add_argument("--repeats", type=int, default=200, help="timed calls per figure (best of 5 batches)")
+    p.add_argument("--rate", type=number_in(1, 1e5, unit=" Hz"), default=200.0, help="IMU rate, Hz")
+    p.add_argument("--seconds", type=number_in(0, 3600, low_open=True, unit=" s"), default=1.0,
+                   help="length of one preintegrated interval, s")
+    p.add_argument("--repeats", type=count(1, 1000000), default=200,
+                   help="timed calls per figure (best of 5 batches)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
 
 

@@ -17,6 +17,8 @@ import argparse
 
 import numpy as np
 
+from tools.cli_types import number_in
+
 NAME = "imu-drift"
 HELP = ("real EuRoC IMU integrated from ground truth over 1 s windows (--curve: several lengths, beside "
         "synthetic IMUs): position/orientation drift")
@@ -32,8 +34,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--data", default=None, help="folder holding the sequences (default ../shared/data/euroc_imu_gt)"
     )
-    p.add_argument("--window", type=float, default=1.0, help="integration window, s")
-    p.add_argument("--step", type=float, default=0.5, help="spacing of window starts, s")
+    p.add_argument("--window", type=number_in(0.001, 3600, unit=" s"), default=1.0,
+                   help="integration window, s")
+    p.add_argument("--step", type=number_in(0.001, 3600, unit=" s"), default=0.5,
+                   help="spacing of window starts, s")
     p.add_argument("--curve", default=None, metavar="S,S,...",
                    help="also the drift over these window lengths, s (e.g. 0.25,0.5,1,2,4)")
     p.add_argument("--synthetic", default=None, metavar="PROFILE,...",
@@ -165,8 +169,8 @@ def _floats(spec: str, flag: str) -> list[float]:
         out = [float(x) for x in spec.split(",") if x.strip()]
     except ValueError:
         raise ConfigError(f"{flag} takes comma-separated seconds, got {spec!r}") from None
-    if not out or not all(np.isfinite(x) and x > 0 for x in out):
-        raise ConfigError(f"{flag} takes positive seconds, got {spec!r}")
+    if not out or not all(np.isfinite(x) and 0.001 <= x <= 3600 for x in out):
+        raise ConfigError(f"{flag} takes seconds from 0.001 to 3600, got {spec!r}")
     return out
 
 

@@ -4,14 +4,17 @@ from __future__ import annotations
 
 import argparse
 
+from tools.cli_types import count
+
 NAME = "renderer"
 HELP = "simulator renderer speed: frames/s at 752x480 (numba warm-up excluded)"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--frames", type=int, default=60, help="frames rendered after warm-up")
-    p.add_argument("--threads", type=int, default=None, help="numba threads (default: numba's default)")
-    p.add_argument("--seed", type=int, default=0, help="scene and motion seed")
+    p.add_argument("--frames", type=count(1, 10000), default=60, help="frames rendered after warm-up")
+    p.add_argument("--threads", type=count(1, 256), default=None,
+                   help="numba threads (default: numba's default)")
+    p.add_argument("--seed", type=count(0), default=0, help="scene and motion seed")
     p.add_argument(
         "--threading-layer",
         default=None,

@@ -28,6 +28,8 @@ from typing import Any
 
 import numpy as np
 
+from tools.cli_types import count, number, number_in
+
 NAME = "rig-checks"
 HELP = "the start-up's rig checks (gyroscope scale, camera-IMU rotation): right rig against wrong"
 DESCRIPTION = __doc__
@@ -42,16 +44,17 @@ def add_recording_arguments(p: argparse.ArgumentParser, seconds: float) -> None:
     p.add_argument("--sequence", action="append", default=None, metavar="DIR",
                    help="a euroc_imu_gt folder or its name under ../shared/data/euroc_imu_gt (repeatable; "
                         f"default: {', '.join(SEQUENCES)} when ../shared is there)")
-    p.add_argument("--seconds", type=float, default=seconds, help="preset recording length, s")
+    p.add_argument("--seconds", type=number, default=seconds, help="preset recording length, s")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     add_recording_arguments(p, 30.0)
-    p.add_argument("--every", type=float, default=0.5, help="a window starts every S seconds")
+    p.add_argument("--every", type=number_in(0.01, 3600, unit=" s"), default=0.5,
+                   help="a window starts every S seconds")
     p.add_argument("--k", default="0.05,0.1,0.25,1", help="comma-separated pose-error factors on base_upper")
     p.add_argument("--time-offset-error", default="-0.05,0.05", metavar="S,...",
                    help="comma-separated errors of the rig's camera-IMU time offset, s")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", metavar="FILE.json", help="also write the JSON here")
 

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from tools.benchmarks.rig_checks import add_recording_arguments
+from tools.cli_types import count
 
 NAME = "rig-checks-two-view"
 HELP = "the model-free rig checks (gyroscope scale, camera-IMU rotation from the tracks): right vs wrong"
@@ -26,7 +27,7 @@ VARIANTS = ("right", "deg/s", "inverted")
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     add_recording_arguments(p, 60.0)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.add_argument("--out", metavar="FILE.json", help="also write the JSON here")
 

@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from runtime.json_out import strict_dumps
+from tools.cli_types import count, nonnegative, number, number_in, positive
 
 NAME = "startup"
 HELP = "start-up protocol: DAVIO (feed-forward + native armed) vs native initializer over 10 s windows"
@@ -48,30 +49,33 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     src.add_argument("--sequence", metavar="DIR", help="a euroc_imu_gt folder (groundtruth + imu0.csv)")
     p.add_argument("--groundtruth", metavar="GT.csv", help="EuRoC ground truth CSV for --imu")
     p.add_argument("--camera-stamps", metavar="FILE", help="camera stamps for --imu (default: beside it)")
-    p.add_argument("--seconds", type=float, default=None, help="sequence length (preset default 60 s)")
-    p.add_argument("--window", type=float, default=10.0, help="window length, s")
-    p.add_argument("--every", type=float, default=10.0, help="a window starts every S seconds")
-    p.add_argument("--max-windows", type=int, default=None, help="at most this many windows")
-    p.add_argument("--seed", type=int, default=0, help="simulation seed")
+    p.add_argument("--seconds", type=number, default=None, help="sequence length (preset default 60 s)")
+    p.add_argument("--window", type=number_in(0, 3600, low_open=True, unit=" s"), default=10.0,
+                   help="window length, s")
+    p.add_argument("--every", type=number_in(0.01, 3600, unit=" s"), default=10.0,
+                   help="a window starts every S seconds")
+    p.add_argument("--max-windows", type=count(1), default=None, help="at most this many windows")
+    p.add_argument("--seed", type=count(0), default=0, help="simulation seed")
     p.add_argument("--arms", default="feedforward,native",
                    help=f"comma-separated arms to run, from {', '.join(ARMS)}")
     p.add_argument("--da3", default="base", help="emulated DA3 preset (small, base, large, or <size>_upper: "
                                                  "the upper-bound pose errors, PRESETS.md)")
-    p.add_argument("--model-latency", type=float, default=0.5, metavar="S", help="DA3 latency, sensor s")
+    p.add_argument("--model-latency", type=number_in(0, 3600, unit=" s"), default=0.5, metavar="S",
+                   help="DA3 latency, sensor s")
     p.add_argument("--da3-param", action="append", default=[], metavar="NAME=VALUE",
                    help="override an emulated-DA3 parameter (repeatable; sensitivity studies), "
                         "e.g. rotation_error_median_deg=0.1")
-    p.add_argument("--pose-error-scale", type=float, default=None, metavar="K",
+    p.add_argument("--pose-error-scale", type=number, default=None, metavar="K",
                    help="unconditioned DA3 pose errors = K x the upper bound of the preset's size "
                         "(the presets use K = 0.05; 1.0 = the upper-bound table, PRESETS.md)")
-    p.add_argument("--depth-error-scale", type=float, default=None, metavar="D",
+    p.add_argument("--depth-error-scale", type=number, default=None, metavar="D",
                    help="multiply the emulated DA3's depth errors (scale jitter, smooth field, noise) by D")
-    p.add_argument("--rig-time-offset-error", type=float, default=0.0, metavar="S",
+    p.add_argument("--rig-time-offset-error", type=number, default=0.0, metavar="S",
                    help="give the arms a rig whose camera-IMU time offset (t_imu = t_cam + offset) is S s "
                         "off the recording's (positive: the camera's stamps run later than the rig says, "
                         "as a camera stamped on arrival)")
-    p.add_argument("--ate-threshold", type=float, default=0.5, help="success threshold, m")
-    p.add_argument("--min-span", type=float, default=1.0, metavar="S",
+    p.add_argument("--ate-threshold", type=positive, default=0.5, help="success threshold, m")
+    p.add_argument("--min-span", type=nonnegative, default=1.0, metavar="S",
                    help="a successful trajectory covers at least S seconds of poses")
     p.add_argument("--config", metavar="TOML", help="configuration for every arm (see config.toml of a run)")
     p.add_argument("--json", action="store_true", help="print one JSON object")

@@ -42,6 +42,7 @@ import numpy as np
 
 from runtime.json_out import strict_dumps
 from tools.benchmarks.mapping import SHARED, Source, _split_style
+from tools.cli_types import count, number, number_in
 
 NAME = "trajectory"
 HELP = ("causal and final map-frame trajectories vs the odometry (ATE, coverage, T_f, drift) with the "
@@ -108,14 +109,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sequence", action="append", default=None, metavar="DIR[:STYLE]",
                    help="a euroc_imu_gt folder (repeatable; default: V1_02_medium and MH_03_medium from "
                         "../shared/data when present)")
-    p.add_argument("--sequence-start", type=float, default=0.0, metavar="S",
+    p.add_argument("--sequence-start", type=number_in(0, 1e7, unit=" s"), default=0.0, metavar="S",
                    help="seconds skipped at the start of every EuRoC-trajectory sequence")
-    p.add_argument("--seconds", type=float, default=None,
+    p.add_argument("--seconds", type=number, default=None,
                    help=f"cut every sequence to this length, s (default: whole sequences, presets "
                         f"{PRESET_SECONDS:g} s)")
-    p.add_argument("--seed", type=int, default=0, help="simulation and emulated-DA3 seed")
+    p.add_argument("--seed", type=count(0), default=0, help="simulation and emulated-DA3 seed")
     p.add_argument("--da3", default="base", help="emulated DA3 preset (small, base, large)")
-    p.add_argument("--model-latency", type=float, default=0.5, metavar="S",
+    p.add_argument("--model-latency", type=number_in(0, 3600, unit=" s"), default=0.5, metavar="S",
                    help="sensor seconds between a mapping request and its result (FastClock)")
     p.add_argument("--config", metavar="TOML",
                    help="configuration of the run (see config.toml of a run; default: DavioConfig())")

@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from runtime.json_out import strict_dumps
+from tools.cli_types import count, number
 
 if TYPE_CHECKING:
     from runtime.msckf.config import MsckfConfig
@@ -47,8 +48,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "those plus the in-flight errors measured on the real EuRoC IMU")
     p.add_argument("--sequence", action="append", default=None, metavar="DIR",
                    help="euroc_imu_gt folder for EuRoC-trajectory mode (repeatable)")
-    p.add_argument("--seconds", type=float, default=30.0, help="length of each sequence")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seconds", type=number, default=30.0, help="length of each sequence")
+    p.add_argument("--seed", type=count(0), default=0)
     p.add_argument("--render-ahead", type=int, default=RENDER_AHEAD_FRAMES, metavar="FRAMES",
                    help="frames rendered before the timed pipeline sees them (1: each frame just before "
                         "it is tracked, the renderer's cache traffic then lands in the timed frames)")

@@ -7,6 +7,7 @@ import math
 import sys
 from pathlib import Path
 
+from tools.cli_types import number
 from tools.model_open import add_gpu_memory_argument
 
 NAME = "calibrate"
@@ -102,20 +103,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--image-topic", metavar="TOPIC", help="bag image topic (default: auto-detected)")
     p.add_argument("--imu-topic", metavar="TOPIC", help="bag IMU topic (default: auto-detected)")
-    p.add_argument("--seconds", type=float, default=None,
+    p.add_argument("--seconds", type=number, default=None,
                    help="only the first S seconds (> 0), counted from where images and IMU have begun")
     p.add_argument("--config", metavar="TOML", help="configuration file (see config.toml of a run)")
     p.add_argument("--strict", action="store_true", help="every input repair is an error")
     p.add_argument(
         "--model-latency",
-        type=float,
+        type=number,
         default=0.5,
         metavar="S",
         help="simulated model latency (sensor seconds, >= 0; without a model the bring-up's fits take "
         "the replay's 0.1 s solve latency)",
     )
     for field, metavar, text in THRESHOLD_OPTIONS:
-        p.add_argument(f"--{field.replace('_', '-')}", type=float, default=getattr(th, field),
+        p.add_argument(f"--{field.replace('_', '-')}", type=number, default=getattr(th, field),
                        metavar=metavar, help=text)
     p.add_argument("--no-plots", action="store_true", help="do not draw the convergence plots")
     from tools.commands.live import add_device_arguments

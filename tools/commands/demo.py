@@ -6,6 +6,8 @@ import argparse
 from dataclasses import replace
 from pathlib import Path
 
+from tools.cli_types import count, number
+
 NAME = "demo"
 HELP = "simulate a short recording and run DAVIO end to end on it (emulated DA3; no download)"
 DESCRIPTION = (
@@ -30,14 +32,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
     p.add_argument("--out", default="davio_demo",
                    help="output folder (new, empty, or a previous DAVIO run, which is replaced)")
-    p.add_argument("--seconds", type=float, default=12.0, help="length of the simulated recording")
+    p.add_argument("--seconds", type=number, default=12.0, help="length of the simulated recording")
     p.add_argument("--preset", default=DEFAULT_PRESET, choices=sorted(PRESETS),
                    help="motion preset (handheld: in motion from the start; euroc: 2 s standstill first; "
                         "constant-velocity, rotation: degenerate starts)")
-    p.add_argument("--seed", type=int, default=0, help="seed of scene, motion and noise")
+    p.add_argument("--seed", type=count(0), default=0, help="seed of scene, motion and noise")
     p.add_argument("--da3", default="base", choices=sorted(DA3_PRESETS),
                    help="emulated DA3 preset (models/emulated_da3/PRESETS.md)")
-    p.add_argument("--model-latency", type=float, default=0.5, metavar="S",
+    p.add_argument("--model-latency", type=number, default=0.5, metavar="S",
                    help="simulated DA3 latency in sensor seconds (deterministic replay)")
     p.add_argument("--native-only", action="store_true", help="disable the feed-forward start-up and the map")
     p.add_argument("--no-map", action="store_true", help="do not build the dense map")
@@ -51,11 +53,11 @@ def run(args: argparse.Namespace) -> int:
     import sys
 
     from drivers.sim import SimConfig, SimRecording
+    from drivers.sim.recording import check_sim_seconds
     from models.emulated_da3 import EmulatedDA3
     from runtime.config import DavioConfig
     from runtime.errors import ConfigError
     from tools.commands.run import check_run_args
-    from tools.commands.simulate import check_sim_seconds
     from tools.evaluation import write_tum
     from tools.event_output import EventFile
     from tools.run_folder import RunFolder

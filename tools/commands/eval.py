@@ -8,6 +8,7 @@ from pathlib import Path
 
 from runtime.errors import ConfigError
 from runtime.json_out import strict_dumps
+from tools.cli_types import number
 
 NAME = "eval"
 HELP = "evaluate a trajectory (ATE, RPE; TUM or EuRoC CSV) or a point cloud (surface metrics)"
@@ -22,9 +23,9 @@ DESCRIPTION = (
 def _add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("est", metavar="EST", help="estimated trajectory (TUM or EuRoC CSV)")
     p.add_argument("ref", metavar="REF", help="reference trajectory (TUM or EuRoC CSV)")
-    p.add_argument("--max-diff", type=float, default=0.01, metavar="S",
+    p.add_argument("--max-diff", type=number, default=0.01, metavar="S",
                    help="largest stamp difference for association, seconds")
-    p.add_argument("--offset", type=float, default=0.0, metavar="S",
+    p.add_argument("--offset", type=number, default=0.0, metavar="S",
                    help="time offset added to the estimate's stamps for association, seconds")
     p.add_argument("--one-to-one", action="store_true",
                    help="use each pose in at most one pair (evo may reuse a pose for repeated stamps)")
@@ -50,7 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     p = sub.add_parser("rpe", help="relative pose error", formatter_class=fmt)
     _add_common(p)
-    p.add_argument("--delta", type=float, default=1.0, help="pair spacing")
+    p.add_argument("--delta", type=number, default=1.0, help="pair spacing")
     p.add_argument("--delta-unit", choices=("f", "m"), default="f", help="frames or metres of path")
     p.add_argument("--all-pairs", action="store_true", help="start a pair at every pose")
     p.add_argument("--align", choices=METHODS, default="none", help="alignment before (sim3 fixes scale)")
@@ -59,8 +60,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p = sub.add_parser("surface", help="surface metrics of a point cloud", formatter_class=fmt)
     p.add_argument("rec", metavar="REC", help="reconstructed cloud (.ply, .pcd, .xyz, .npy)")
     p.add_argument("ref", metavar="REF", help="reference cloud (.ply, .pcd, .xyz, .npy)")
-    p.add_argument("--threshold", type=float, default=0.1, metavar="M", help="match distance, metres")
-    p.add_argument("--voxel", type=float, default=None, metavar="M",
+    p.add_argument("--threshold", type=number, default=0.1, metavar="M", help="match distance, metres")
+    p.add_argument("--voxel", type=number, default=None, metavar="M",
                    help="voxel-downsample both clouds first (side in metres)")
     p.add_argument("--align-with", nargs=2, metavar=("EST", "REF"), default=None,
                    help="move REC by the alignment of trajectory EST (in REC's frame, e.g. the run's "
@@ -68,7 +69,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "first; without it both clouds must already share a frame")
     p.add_argument("--align", choices=METHODS, default="se3",
                    help="with --align-with: the trajectory alignment (se3: rigid, as the paper; no ICP)")
-    p.add_argument("--max-diff", type=float, default=0.01, metavar="S",
+    p.add_argument("--max-diff", type=number, default=0.01, metavar="S",
                    help="with --align-with: association window of the two trajectories (s)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     p.set_defaults(_eval=_run_surface)

@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from runtime.json_out import strict_dumps
+from tools.cli_types import count, number
 
 NAME = "export-da3"
 HELP = "export a Depth Anything 3 checkpoint to ONNX (one graph per size and resolution)"
@@ -51,11 +52,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--out", metavar="PATH", default=None, help="output .onnx (default da3_SIZE_HxW.onnx here)"
     )
-    p.add_argument("--seed", type=int, default=0, help="seed of random weights and check inputs")
+    p.add_argument("--seed", type=count(0), default=0, help="seed of random weights and check inputs")
     p.add_argument("--check-views", type=int, default=5, help="views N of the torch vs ONNX Runtime check")
     p.add_argument(
         "--tolerance",
-        type=float,
+        type=number,
         default=None,
         help="largest accepted error against torch, relative to each output's largest value (default 1e-3; "
         "with --precision fp16 it is the fp16 graph's, default 0.1, and the fp32 graph is still held to "

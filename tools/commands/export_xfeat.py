@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from runtime.json_out import strict_dumps
+from tools.cli_types import number
 
 NAME = "export-xfeat"
 HELP = "export the XFeat backbone to ONNX (the graph DAVIO ships in models/onnx was made with this)"
@@ -20,7 +21,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", metavar="PATH", default="xfeat_backbone.onnx", help="output .onnx")
     p.add_argument("--threads", type=int, default=2, help="torch / ONNX Runtime threads")
     p.add_argument(
-        "--tolerance", type=float, default=1e-3, help="largest accepted absolute error in the check"
+        "--tolerance", type=number, default=1e-3, help="largest accepted absolute error in the check"
     )
     p.add_argument(
         "--lighterglue",

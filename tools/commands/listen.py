@@ -7,6 +7,8 @@ import sys
 import time
 from pathlib import Path
 
+from tools.cli_types import number
+
 NAME = "listen"
 HELP = "receive a --stream (poses and events over UDP): say events, count losses, record poses as TUM"
 DESCRIPTION = (
@@ -24,7 +26,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace an existing --tum file")
     p.add_argument("--frame", choices=["odometry", "map", "prior"], default="map",
                    help="the frame of the poses written and shown (default: map)")
-    p.add_argument("--seconds", type=float, default=None, help="stop after S seconds (> 0)")
+    p.add_argument("--seconds", type=number, default=None, help="stop after S seconds (> 0)")
     p.add_argument("--json", action="store_true", help="print what arrived as one JSON object at the end")
 
 

@@ -6,6 +6,7 @@ import sys
 import time
 from dataclasses import replace
 
+from tools.cli_types import number
 from tools.model_open import add_gpu_memory_argument
 
 NAME = "live"
@@ -34,7 +35,7 @@ def add_device_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device-id", default=None, help="OAK device id (default: the first found)")
     p.add_argument("--width", type=int, default=None, help="requested image width (px)")
     p.add_argument("--height", type=int, default=None, help="requested image height (px)")
-    p.add_argument("--fps", type=float, default=None, help="requested camera rate (Hz)")
+    p.add_argument("--fps", type=number, default=None, help="requested camera rate (Hz)")
     p.add_argument("--imu-port", metavar="PORT", help="serial port of the IMU (e.g. /dev/ttyUSB0)")
     p.add_argument("--imu-protocol", choices=["xsens", "text"], default="xsens",
                    help="xsens: Xbus MTData2 (counter, SampleTimeFine, accel, gyro); text: "
@@ -58,7 +59,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-map", action="store_true", help="do not map")
     p.add_argument("--config", metavar="TOML", help="configuration file")
     add_prior_map_argument(p)
-    p.add_argument("--seconds", type=float, default=None,
+    p.add_argument("--seconds", type=number, default=None,
                    help="stop after S seconds of data (> 0), counted from where images and IMU have begun")
     p.add_argument("--out", default="davio_live", help="output folder (new or empty; see --overwrite)")
     p.add_argument("--overwrite", action="store_true", help="replace the previous run in --out")

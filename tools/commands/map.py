@@ -12,6 +12,7 @@ from pathlib import Path
 
 from runtime.errors import ConfigError, DataError
 from runtime.json_out import strict_dumps
+from tools.cli_types import number
 
 NAME = "map"
 HELP = "inspect, re-export (PLY), picture or align a run's map archive"
@@ -25,12 +26,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         formatter_class=fmt)
     pi.add_argument("folder", type=Path, help=folder_help)
     pi.add_argument("--json", action="store_true", help="print the summary as JSON")
-    pi.add_argument("--voxel", type=float, default=None,
+    pi.add_argument("--voxel", type=number, default=None,
                     help="also count the fused voxels of this edge length (m; slower)")
     pe = sub.add_parser("export", help="fuse every submap at its latest graph state and write a PLY",
                         formatter_class=fmt)
     pe.add_argument("folder", type=Path, help=folder_help)
-    pe.add_argument("--voxel", type=float, default=0.04, help="voxel edge length (m)")
+    pe.add_argument("--voxel", type=number, default=0.04, help="voxel edge length (m)")
     pe.add_argument("--out", type=Path, default=None,
                     help="PLY file, or a folder to write map.ply in (default: map.ply in the run folder)")
     pe.add_argument("--min-points", type=int, default=1,
@@ -50,7 +51,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     pv = sub.add_parser("view", help="a PNG with a top and an oblique view coloured by height",
                         formatter_class=fmt)
     pv.add_argument("folder", type=Path, help=folder_help)
-    pv.add_argument("--voxel", type=float, default=0.04, help="voxel edge length (m) of the fused cloud")
+    pv.add_argument("--voxel", type=number, default=0.04, help="voxel edge length (m) of the fused cloud")
     pv.add_argument("--out", type=Path, default=None,
                     help="PNG file, or a folder to write map.png in (default: map.png in the run folder)")
     pv.add_argument("--min-points", type=int, default=1,

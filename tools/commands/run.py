@@ -5,6 +5,7 @@ import argparse
 from dataclasses import replace
 from pathlib import Path
 
+from tools.cli_types import number
 from tools.model_open import add_gpu_memory_argument, latency_arg
 
 NAME = "run"
@@ -61,11 +62,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "model), then online calibration")
     p.add_argument("--paced", action="store_true",
                    help="replay at sensor rate instead of as fast as possible")
-    p.add_argument("--speed", type=float, default=1.0, help="pacing factor with --paced (> 0)")
+    p.add_argument("--speed", type=number, default=1.0, help="pacing factor with --paced (> 0)")
     p.add_argument("--model-latency", type=latency_arg, default=0.5, metavar="S",
                    help="simulated model latency (sensor seconds, >= 0) when not paced; 'measured': one "
                    "timed call of the --model graph after its warm-up (e.g. 0.04 s on a GPU)")
-    p.add_argument("--seconds", type=float, default=None,
+    p.add_argument("--seconds", type=number, default=None,
                    help="only the first S seconds (> 0), counted from where both images and IMU have begun")
     p.add_argument("--json", action="store_true",
                    help="print the report as one JSON object on stdout (progress goes to stderr)")

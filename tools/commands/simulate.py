@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from tools.cli_types import count, number
+
 NAME = "simulate"
 HELP = "simulate a camera-IMU recording with exact ground truth (EuRoC folder)"
 DESCRIPTION = (
@@ -27,12 +29,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--seconds",
-        type=float,
+        type=number,
         default=None,
         help="duration in s (preset default 20; trajectory default: all of it)",
     )
-    p.add_argument("--start", type=float, default=0.0, help="seconds skipped at the start of --trajectory")
-    p.add_argument("--seed", type=int, default=0, help="seed of motion, scene and noise")
+    p.add_argument("--start", type=number, default=0.0, help="seconds skipped at the start of --trajectory")
+    p.add_argument("--seed", type=count(0), default=0, help="seed of motion, scene and noise")
     p.add_argument("--style", default="room", choices=["room", "hall"], help="scene style")
     p.add_argument(
         "--trajectory",
@@ -74,7 +76,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--time-offset",
-        type=float,
+        type=number,
         default=0.0,
         metavar="S",
         help="camera-to-IMU clock offset, t_imu = t_cam + S (kept in manifest.json, since an ASL sensor.yaml "
@@ -103,27 +105,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print the manifest as one JSON object on stdout")
 
 
-MAX_SIM_SECONDS = 4 * 3600.0
-"""Longest simulated recording (s): the simulated-folder manifests' plausible range (tools.run_io)."""
-
-
-def check_sim_seconds(seconds: float) -> None:
-    """ConfigError unless `seconds` is a finite duration in (0, MAX_SIM_SECONDS]."""
-    import math
-
-    from runtime.errors import ConfigError
-
-    if not (math.isfinite(seconds) and 0 < seconds <= MAX_SIM_SECONDS):
-        raise ConfigError(f"--seconds must be a finite number > 0 and at most {MAX_SIM_SECONDS:g} (4 h) "
-                          f"for a simulated recording (got {seconds!r})")
-
-
-MAX_START_S = 1e7
-"""Largest --start (s; 116 days): beyond it the crop of the trajectory's stamps leaves int64 ns."""
-
-
 def run(args: argparse.Namespace) -> int:
-    import math
     from dataclasses import replace
     from pathlib import Path
 
@@ -131,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
     from drivers.sim.imu_synth import ImuErrorModel
-    from drivers.sim.recording import SimConfig, SimRecording
+    from drivers.sim.recording import MAX_START_S, SimConfig, SimRecording, check_sim_seconds
     from drivers.sim.render import ImageOptions
     from drivers.sim.threads import prefer_workqueue_layer
     from drivers.sim.writer import write_euroc
@@ -148,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
     if args.start != 0.0 and not args.trajectory:
         raise ConfigError("--start applies to --trajectory (the seconds of the file skipped); a preset "
                           "starts at its beginning")
-    if not (math.isfinite(args.start) and 0 <= args.start <= MAX_START_S):
+    if not 0 <= args.start <= MAX_START_S:
         raise ConfigError(f"--start must be a number of seconds from 0 to {MAX_START_S:g} "
                           f"(got {args.start!r})")
     prefer_workqueue_layer()  # idle OpenMP threads spin: costly on a shared 2-core machine
