@@ -19,13 +19,13 @@ the same texture generator, another layout), at x1.
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from runtime.json_out import strict_dumps
 from tools.cli_types import count
 
 NAME = "align"
@@ -194,9 +194,9 @@ def run(args: argparse.Namespace) -> int:
     out = {"sequences": [f"{f.name}:{s}:{a:g}:{b:g}:{c:g}:{d:g}" for f, s, a, b, c, d in specs],
            "seed": args.seed, "da3": args.da3, "rows": rows, "wall_s": time.perf_counter() - t_start}
     if args.out:
-        Path(args.out).write_text(json.dumps(out, indent=1))
+        Path(args.out).write_text(strict_dumps(out, indent=1))
     if args.json:
-        print(json.dumps(out, indent=1))
+        print(strict_dumps(out, indent=1))
     else:
         _table(rows)
     controls_ok = all(not r["localized"] for r in rows if r["control"])

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.cli_types import positive
+from tools.cli_types import number, positive
 
 NAME = "calibrate"
 HELP = "davio calibrate on simulated recordings with a known rig: errors of the written camchain"
@@ -153,19 +153,16 @@ def measure(folder: Path, scale: float, seconds: float | None, preset: str = "ba
 
 
 def run(args: argparse.Namespace) -> int:
+    from runtime.errors import ConfigError
     from runtime.json_out import strict_dumps
 
     try:
-        scales = [float(s) for s in args.pose_error_scales.split(",") if s.strip()]
-    except ValueError:
-        print(
-            "calibrate: --pose-error-scales must be numbers separated by commas, "
-            f"got {args.pose_error_scales!r}"
-        )
-        return 2
+        scales = [number(s) for s in args.pose_error_scales.split(",") if s.strip()]
+    except argparse.ArgumentTypeError:
+        raise ConfigError("--pose-error-scales must be finite numbers separated by commas, "
+                          f"got {args.pose_error_scales!r}") from None
     if not scales or any(not (s >= 0) for s in scales):
-        print("calibrate: --pose-error-scales must hold numbers >= 0")
-        return 2
+        raise ConfigError("--pose-error-scales must hold numbers >= 0")
     sources = [s.strip() for s in args.sources.split(",") if s.strip()]
     if not sources or any(s not in SOURCES for s in sources):
         print(f"calibrate: --sources must hold {' or '.join(SOURCES)} separated by commas, "

@@ -71,16 +71,11 @@ def _up_error_deg(gt, t_ns: int, up_est: np.ndarray) -> tuple[float, float]:
 
 def run(args: argparse.Namespace) -> int:
     from drivers import EurocDriver, Frame, ImuSample
-    from runtime.errors import DavioError
     from runtime.msckf.init_dynamic import DynamicInitializer
     from runtime.msckf.init_static import StaticInitConfig, StaticInitializer
     from runtime.msckf.tracker import KltTracker, TrackerConfig
 
-    try:
-        driver = EurocDriver(args.path)
-    except DavioError as exc:
-        print(f"euroc-frontend: {exc}")
-        return 2
+    driver = EurocDriver(args.path)             # its DataError names the file
     rig = driver.rig
     tracker = KltTracker(rig.camera, TrackerConfig(equalization=args.equalization))
     jerk = StaticInitializer(StaticInitConfig(wait_for_jerk=True))

@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from runtime.json_out import strict_dumps
 from tools.cli_types import count, number
 
 NAME = "long-run"
@@ -306,9 +307,9 @@ def run(args: argparse.Namespace) -> int:
     out = {"camera_hz": args.camera_hz, "poses": poses, "manifest": rows, "writer": writer,
            "submap_period_s": SUBMAP_PERIOD_S, "tracking": tracking}
     if args.out:
-        Path(args.out).write_text(json.dumps(out, indent=1))
+        Path(args.out).write_text(strict_dumps(out, indent=1))
     if args.json:
-        print(json.dumps(out, indent=1))
+        print(strict_dumps(out, indent=1))
         return 0 if all(r["same_text"] and r["reads_back"] for r in rows) else 1
     print(f"published states ({args.poses} poses, tracemalloc): objects "
           f"{poses['objects_bytes_per_pose']:.0f} B/pose ({poses['objects_mb_per_hour']:.1f} MB/h at "

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from runtime.json_out import strict_dumps
 from tools.cli_types import count, number_in
 
 NAME = "map-export"
@@ -124,12 +125,32 @@ def timed_fusion(folder: Path, voxel: float, former: bool) -> tuple[dict, tuple]
     return {"seconds": seconds, "peak_mb": peak / 1e6, "voxels": int(len(fused[0]))}, fused
 
 
+BENCH_MODEL = {"description": "bench"}
+"""The model entry of the archives this benchmark writes: the mark of one it may replace."""
+
+
+def _check_bench_folder(folder: Path) -> None:
+    """ConfigError when `folder` (--dir's map/) exists and is not an archive this benchmark wrote: it
+    replaced a run's real map with synthetic submaps."""
+    from runtime.errors import ConfigError
+
+    if not folder.exists() and not folder.is_symlink():
+        return
+    try:
+        mine = json.loads((folder / "manifest.json").read_bytes()).get("model") == BENCH_MODEL
+    except (OSError, ValueError, AttributeError):
+        mine = False
+    if not mine:
+        raise ConfigError(f"--dir {folder.parent}: holds {folder.name}/, which this benchmark did not write "
+                          "(a run's map archive?); it is not replaced: choose a new or empty folder")
+
+
 def measure(sizes: list[int], anchor_max: int, voxel: float, max_depth: float, seed: int, folder: Path,
             progress: bool) -> list[dict]:
     from tools.map_archive import MapArchiveWriter
 
     rng = np.random.default_rng(seed)
-    w = MapArchiveWriter(folder, {"rig": {"camera": "pinhole"}, "model": {"description": "bench"},
+    w = MapArchiveWriter(folder, {"rig": {"camera": "pinhole"}, "model": dict(BENCH_MODEL),
                                   "config": {"voxel_m": voxel}}, overwrite=True, views=False)
     rows, done, points = [], 0, 0
     for n in sizes:
@@ -177,6 +198,7 @@ def run(args: argparse.Namespace) -> int:
         raise SystemExit("davio bench map-export: --voxel and --max-depth must be positive")
     progress = not args.json
     if args.dir:
+        _check_bench_folder(Path(args.dir) / "map")
         rows = measure(sizes, args.anchor_max, args.voxel, args.max_depth, args.seed, Path(args.dir) / "map",
                        progress)
     else:
@@ -186,9 +208,9 @@ def run(args: argparse.Namespace) -> int:
     ok = all(r.get("same_voxels", True) for r in rows)
     out = {"voxel_m": args.voxel, "submap_period_s": SUBMAP_PERIOD_S, "rows": rows, "same_voxels": ok}
     if args.out:
-        Path(args.out).write_text(json.dumps(out, indent=1))
+        Path(args.out).write_text(strict_dumps(out, indent=1))
     if args.json:
-        print(json.dumps(out, indent=1))
+        print(strict_dumps(out, indent=1))
         return 0 if ok else 1
     print("| submaps (hours) | points | archive MB | voxels | fusion s (ms a submap) | peak MB | "
           "former grid: fusion s (ms a submap) | peak MB | ratio |")

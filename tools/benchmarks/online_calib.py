@@ -116,15 +116,10 @@ def with_camera_params(sim: object, params: np.ndarray) -> object:
 
 
 def run(args: argparse.Namespace) -> int:
-    from runtime.errors import DavioError
     from runtime.msckf.camera_kernels import CameraParams
     from tools.benchmarks.openvins_sim import evaluate, load_sim_folder, run_filter
 
-    try:
-        sim = load_sim_folder(args.folder, args.max_seconds)
-    except DavioError as exc:
-        print(f"online-calib: {exc}")
-        return 2
+    sim = load_sim_folder(args.folder, args.max_seconds)       # its DataError names the file
     R_IC, p_IC, t_d = sim.true_calib
     start = perturbed_calibration(R_IC, p_IC, t_d, args.rot_deg, args.pos_cm, args.dt_ms, args.seed)
     cfg = sim.config.updated(calib_extrinsics=True, calib_time_offset=True)

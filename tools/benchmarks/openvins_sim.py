@@ -250,19 +250,13 @@ def _seed_summary(runs: list[dict]) -> dict:
 
 def run(args: argparse.Namespace) -> int:
     global _SIM
-    from runtime.errors import DavioError
+    from runtime.errors import ConfigError
 
-    try:
-        _SIM = sim = load_sim_folder(args.folder, args.max_seconds)
-    except DavioError as exc:
-        print(f"openvins-sim: {exc}")
-        return 2
     if args.seeds < 0 or args.jobs < 1:
-        print("openvins-sim: --seeds must be >= 0 and --jobs >= 1")
-        return 2
+        raise ConfigError("--seeds must be >= 0 and --jobs >= 1")
     if args.seeds > 0 and args.seed is not None:
-        print("openvins-sim: --seed picks one run, --seeds runs seeds 0..N-1: give one of them")
-        return 2
+        raise ConfigError("--seed picks one run, --seeds runs seeds 0..N-1: give one of them")
+    _SIM = sim = load_sim_folder(args.folder, args.max_seconds)     # its DataError names the file
     cfg = _config(sim, args)
     if args.seeds > 0:
         cfgs = [cfg.updated(feature_order_seed=k) for k in range(args.seeds)]

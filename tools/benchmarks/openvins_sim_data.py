@@ -126,6 +126,9 @@ def load_sim_folder(folder: Path, max_seconds: float | None = None) -> SimRun:
     from runtime.msckf.config import MsckfConfig
 
     folder = Path(folder)
+    if not folder.is_dir():
+        raise DataError("is a file, not an openvins_sim run folder" if folder.exists() else
+                        "no such folder (an openvins_sim run folder: sim_info.txt, imu.txt, ...)", folder)
     info = {}
     for line in _open_text(folder, "sim_info.txt").splitlines():
         parts = line.split()

@@ -31,7 +31,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 @dataclass
 class Probe:
     name: str
-    expect: str   # "error: <text>" (exit 1, stderr holds text) or "repair: <text>" (exit 0, text printed)
+    expect: str   # "error: <text>" (exit 1, or 2 for a value the command line refused; stderr holds text)
+    #               or "repair: <text>" (exit 0, text printed)
     build: Callable[[Path, Path], list[str]]   # (base recording, work dir) -> davio argv
 
 
@@ -218,7 +219,7 @@ PROBES = [
     Probe("--overwrite on a folder with a report.json of its own", "error: not a finished DAVIO run",
           _out_generic_names),
     Probe("--config: mapping.voxel_m = -0.04", "error: mapping.voxel_m must be", _config_out_of_range),
-    Probe("--model-latency nan", "error: --model-latency must be",
+    Probe("--model-latency nan", "error: argument --model-latency: seconds or 'measured': 'nan' is not",
           lambda base, work: ["run", str(base), "--model-latency", "nan", "--out", str(work / "o")]),
     Probe("--config binary file", "error: not a UTF-8 TOML", _config_binary),
     Probe("eval ate: TUM with ns stamps", "repair: nanoseconds", _tum_ns),
@@ -246,7 +247,7 @@ def _run_probe(probe: Probe, base: Path, work: Path) -> dict:
     message = next((ln.strip() for ln in stderr.splitlines() if "error" in ln), "")
     if kind == "repair":
         message = next((ln.strip() for ln in (stdout + stderr).splitlines() if text in ln), message)
-    ok = traceback is None and (code == 1 and text in stderr if kind == "error"
+    ok = traceback is None and (code in (1, 2) and text in stderr if kind == "error"
                                 else code == 0 and text in stdout + stderr)
     return {"probe": probe.name, "command": "davio " + argv[0], "expected": probe.expect, "exit": code,
             "message": (traceback or message)[:200], "traceback": traceback is not None, "as_expected": ok,
@@ -258,8 +259,13 @@ def run(args: argparse.Namespace) -> int:
 
     from drivers.sim import SimConfig, SimRecording
     from drivers.sim.writer import write_euroc
+    from runtime.errors import ConfigError
     from runtime.json_out import strict_dumps
 
+    probes = [p for p in PROBES if args.only is None or args.only in p.name]
+    if not probes:        # "0/0 probes as expected" with exit 0 tested nothing
+        raise ConfigError(f"--only {args.only!r} names no probe; the probes: "
+                          + "; ".join(p.name for p in PROBES))
     root = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="davio_reliability_"))
     root.mkdir(parents=True, exist_ok=True)
     base = root / "base"
@@ -267,7 +273,6 @@ def run(args: argparse.Namespace) -> int:
         shutil.rmtree(base, ignore_errors=True)
         write_euroc(SimRecording.from_preset(SimConfig(preset="euroc", seconds=3.5, seed=0)), base,
                     depth=False)
-    probes = [p for p in PROBES if args.only is None or args.only in p.name]
     rows = []
     for k, probe in enumerate(probes):
         rows.append(_run_probe(probe, base, root / f"probe{k:02d}"))

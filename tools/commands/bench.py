@@ -42,9 +42,30 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         bp.set_defaults(_bench=mod.run)
 
 
+def check_result_file(path: Path) -> None:
+    """ConfigError unless a benchmark may write its JSON result to `path`, checked before the run (the
+    result was written after it: a missing folder lost a finished run, and any existing file was replaced,
+    one of the benchmark's own inputs included). An existing file is replaced only when it holds JSON
+    (an earlier result)."""
+    import json
+
+    from runtime.errors import ConfigError
+    from tools.output_file import check_output_file
+
+    if path.is_file():
+        try:
+            json.loads(path.read_bytes())
+        except (OSError, ValueError) as exc:     # UnicodeDecodeError and JSONDecodeError are ValueErrors
+            raise ConfigError(f"--out {path}: exists and is not a JSON result ({type(exc).__name__}); it is "
+                              "not replaced: choose another file") from None
+    check_output_file(path, "--out", (".json",), replaceable=True)
+
+
 def run(args: argparse.Namespace) -> int:
     if not getattr(args, "_bench", None):
         names = ", ".join(m.NAME for m in _modules()) or "(none yet)"
         print(f"davio bench: name a benchmark: {names}")
         return 2
+    if getattr(args, "out", None) is not None:
+        check_result_file(Path(args.out))
     return int(args._bench(args) or 0)

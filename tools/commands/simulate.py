@@ -156,6 +156,9 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--exact makes the IMU noise-free; it cannot be combined with --imu-model")
     if args.imu and not args.trajectory:
         raise ConfigError("--imu needs --trajectory (the ground truth the IMU belongs to)")
+    if args.camera_stamps and not args.imu:
+        raise ConfigError("--camera-stamps applies with --imu (a real IMU replayed); a synthetic recording "
+                          "stamps its own frames")
     if args.groundtruth_mode and not (args.imu or (args.trajectory and Path(args.trajectory).is_dir())):
         raise ConfigError("--groundtruth applies to EuRoC-trajectory mode only (a real IMU replayed: "
                           "--trajectory FOLDER, or --trajectory FILE --imu FILE)")

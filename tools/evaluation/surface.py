@@ -96,13 +96,24 @@ def surface_metrics(rec: np.ndarray, ref: np.ndarray, threshold_m: float = 0.1,
                          f, 0.5 * (acc + comp), float(threshold_m), int(rec.shape[0]), int(ref.shape[0]))
 
 
+CLOUD_SUFFIXES = (".ply", ".npy", ".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts")
+"""Point cloud files read: PLY and .npy here, the others through open3d (which reads nothing, with a
+warning only, from a format it does not know)."""
+
+
 def read_point_cloud(path: str | Path) -> np.ndarray:
     """(N, 3) float64 points of a .ply (numpy reader), .npy array, or other open3d-readable file."""
+    from runtime.file_kind import FOLDER, MISSING, file_problem
+
     path = Path(path)
-    if not path.is_file():
-        raise DataError("is a folder, not a point cloud file" if path.is_dir() else
-                        "point cloud file does not exist", path)
+    why = file_problem(path)
+    if why is not None:
+        raise DataError({FOLDER: "is a folder, not a point cloud file",
+                         MISSING: "point cloud file does not exist"}.get(why, why), path)
     suffix = path.suffix.lower()
+    if suffix not in CLOUD_SUFFIXES:
+        raise DataError(f"unsupported point cloud format {suffix or '(no suffix)'!r}: give "
+                        f"{', '.join(CLOUD_SUFFIXES)}", path)
     if suffix == ".ply":
         from tools.evaluation.ply import read_ply_vertices
 
@@ -120,6 +131,9 @@ def read_point_cloud(path: str | Path) -> np.ndarray:
                             "convert the cloud to .ply or .npy", path) from exc
         with contextlib.redirect_stdout(sys.stderr):    # Open3D's warnings print through sys.stdout
             pts = np.asarray(o3d.io.read_point_cloud(str(path)).points, dtype=np.float64)
+    if pts.ndim == 2 and pts.shape[0] and pts.shape[1] > 3:
+        raise DataError(f"holds {pts.shape[1]} values per point, expected 3 (x, y, z): save the "
+                        "coordinates alone (e.g. array[:, :3] when they come first)", path)
     if pts.ndim != 2 or pts.shape[1] != 3 or pts.shape[0] == 0:
         raise DataError(f"no points could be read (shape {pts.shape})", path)
     return pts
