@@ -174,7 +174,7 @@ def test_align_with_moves_the_cloud_into_the_reference_frame(tmp_path: Path, cap
 def test_open3ds_warnings_go_to_stderr(tmp_path: Path, capsys) -> None:
     """Open3D prints its warnings through Python's sys.stdout, which a --json command keeps for its JSON."""
     pytest.importorskip("open3d")
-    cloud = tmp_path / "cloud.unknown"
+    cloud = tmp_path / "cloud.pcd"              # a format open3d reads: it warns and reads nothing
     cloud.write_text("not a cloud\n")
     with pytest.raises(DataError, match="no points could be read"):
         read_point_cloud(cloud)
