@@ -211,8 +211,36 @@ def read_stamped_csv(path: str | Path, n_values: int, counts: StreamCounts, poli
         t_arr, v_arr, line_arr = t_arr[order], v_arr[order], line_arr[order]
         if text:
             texts = [texts[i] for i in order]
+    drop = isolated_ends(t_arr) if monotonic else None
+    if drop is not None and drop.any():
+        k = int(np.flatnonzero(drop)[0])
+        gap_s = float(np.min(np.abs(t_arr[np.flatnonzero(~drop)] - t_arr[k]))) * 1e-9
+        why = f"stamp {int(t_arr[k])} lies {gap_s:.3g} s from every other row (a corrupt stamp?)"
+        if policy == "strict":
+            raise DataError(why, path, int(line_arr[k]))
+        if report is not None:
+            report.note(f"{path.parent.name}/{path.name}: line {int(line_arr[k])}: {why}; dropped"
+                        + (" (and the row at the other end too)" if drop.sum() > 1 else ""))
+        counts.dropped_nonmonotonic += int(drop.sum())
+        t_arr, v_arr, line_arr = t_arr[~drop], v_arr[~drop], line_arr[~drop]
+        if text:
+            texts = [t for t, d in zip(texts, drop, strict=True) if not d]
     counts.parsed += int(t_arr.shape[0])
     return StampedRows(t_arr, v_arr, texts, line_arr)
+
+
+def isolated_ends(t_ns: np.ndarray) -> np.ndarray:
+    """(N,) bool: the first and last row of a sorted stream when its stamp lies more than ISOLATED_GAP_S
+    and 100 median periods from the next row in (a corrupt stamp that sorts to an end: 0, or one flipped
+    high bit); one row at each end at most, and none in a stream of fewer than 10 rows."""
+    out = np.zeros(t_ns.shape[0], bool)
+    if t_ns.shape[0] < 10:
+        return out
+    step = np.diff(t_ns)
+    limit = max(ISOLATED_GAP_S * 1e9, 100.0 * float(np.median(step)))
+    out[0] = step[0] > limit
+    out[-1] = step[-1] > limit
+    return out
 
 
 ISOLATED_GAP_S = 1.0

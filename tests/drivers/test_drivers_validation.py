@@ -5,6 +5,7 @@ import itertools
 from pathlib import Path
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -107,3 +108,28 @@ def test_a_number_in_other_digits_is_malformed_not_read(tmp_path: Path) -> None:
     rows = read_stamped_csv(f, 2, c)
     np.testing.assert_array_equal(rows.t_ns, [10, 40])
     assert c.malformed_lines == 2 and c.rows_accounted()
+
+
+def test_a_corrupt_stamp_sorting_to_an_end_is_dropped_and_said(tmp_path: Path) -> None:
+    """A first stamp of 0 (or one with a flipped high bit at the end) is in time order, so no reordering
+    catches it: it made the run's clock start 1e9 s early, and a 'gap' of 31 years."""
+    from drivers.base import IntakeReport
+    from runtime.errors import DataError
+
+    t = [10**18 + 5_000_000 * k for k in range(40)]
+    t[0], t[-1] = 0, t[-1] + 2**60
+    f = tmp_path / "imu0" / "data.csv"
+    f.parent.mkdir()
+    f.write_text("# t,wx\n" + "".join(f"{s},{k}\n" for k, s in enumerate(t)))
+    c, report = StreamCounts(), IntakeReport("test", str(f))
+    rows = read_stamped_csv(f, 1, c, report=report)
+    np.testing.assert_array_equal(rows.t_ns, t[1:-1])
+    np.testing.assert_array_equal(rows.values[:, 0], np.arange(1, 39))
+    assert c.dropped_nonmonotonic == 2 and c.rows_accounted()
+    assert any("imu0/data.csv: line 2: stamp 0 lies" in n for n in report.notes)
+    with pytest.raises(DataError, match="stamp 0 lies .* from every other row") as info:
+        read_stamped_csv(f, 1, StreamCounts(), "strict")
+    assert info.value.line == 2
+    gap = [s if k < 20 else s + 5 * 10**9 for k, s in enumerate(t[1:-1])]     # a pause is no corruption
+    f.write_text("".join(f"{s},0\n" for s in gap[:3]) + "".join(f"{s},0\n" for s in gap[3:]))
+    assert read_stamped_csv(f, 1, StreamCounts()).t_ns.shape[0] == 38
