@@ -104,25 +104,22 @@ def _owner_parser(parser: argparse.ArgumentParser, args: argparse.Namespace, giv
         level, start = sub.choices[name], pos + 1
 
 
-def _empty_value(parser: argparse.ArgumentParser, args: argparse.Namespace
-                 ) -> tuple[argparse.ArgumentParser, str] | None:
-    """(the parser, the option's name) of the first option or operand given an empty string (`--model ''`,
-    a shell variable that was not set): commands test their optional values for truth, so an empty one
-    was dropped as if not given, and the default ran unsaid. None when there is none."""
-    level = parser
-    while True:
-        for action in level._actions:
-            if action.dest in (argparse.SUPPRESS, "help") or isinstance(action, argparse._SubParsersAction):
-                continue
-            value = getattr(args, action.dest, None)
-            values = value if isinstance(value, list) else [value]
-            if value != action.default and any(isinstance(v, str) and not v.strip() for v in values):
-                return level, "/".join(action.option_strings) or action.dest
-        sub = next((a for a in level._actions if isinstance(a, argparse._SubParsersAction)), None)
-        name = None if sub is None else getattr(args, sub.dest, None)
-        if sub is None or name not in sub.choices:
-            return None
-        level = sub.choices[name]
+_EMPTY = "an empty value (give one, or leave the option out)"
+
+
+def _empty_value(given: list[str]) -> tuple[str, str] | None:
+    """(the blank token, the message) of the first empty value on the command line (`--model ''`,
+    `--out=`, a shell variable that was not set), or None. Commands test their optional values for truth
+    and `type=Path` reads '' as the current folder, so an empty value was taken as not given, or as '.',
+    and the default ran unsaid."""
+    for k, tok in enumerate(given):
+        if tok.startswith("--") and "=" in tok and not tok.split("=", 1)[1].strip():
+            return tok, f"argument {tok.split('=', 1)[0]}: {_EMPTY}"
+        if not tok.strip():
+            before = given[k - 1] if k else ""
+            named = before.startswith("-") and "=" not in before and not before.lstrip("-")[:1].isdigit()
+            return tok, f"argument {before}: {_EMPTY}" if named else "an empty operand: give a value"
+    return None
 
 
 def _drop_stdout() -> None:
@@ -163,9 +160,9 @@ def main(argv: list[str] | None = None) -> int:
     args, extra = parser.parse_known_args(given)
     if extra:   # said by the command it was given to (with that command's usage)
         _owner_parser(parser, args, given, extra).error(f"unrecognized arguments: {' '.join(extra)}")
-    empty = _empty_value(parser, args)
+    empty = _empty_value(given)
     if empty is not None:
-        empty[0].error(f"argument {empty[1]}: an empty value (give one, or leave the option out)")
+        _owner_parser(parser, args, given, [empty[0]]).error(empty[1])
     if args.version:
         return _print_version()
     if not getattr(args, "_run", None):
