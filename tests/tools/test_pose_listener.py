@@ -71,9 +71,12 @@ def test_a_restarted_davio_a_frame_not_localised_yet_and_foreign_datagrams_are_s
     assert said == ["DAVIO run run2 (a new run: DAVIO restarted)"]
     assert lis.lost == 0 and lis.runs == ["run1", "run2"] and lis.poses_without_frame == 1
     assert lis.last_pose() is None                       # the newest has no prior-frame pose
-    assert lis.feed(b"hello") == ["not a DAVIO stream datagram (5 bytes): ignored"]
-    assert lis.feed(b'{"v": 99, "type": "pose", "seq": 1}') == []       # said once, counted always
-    assert lis.report()["foreign"] == 2 and lis.poses == 2
+    assert lis.feed(b"hello") == ["not a DAVIO stream datagram (5 bytes): ignored (counted)"]
+    assert lis.feed(b"[1, 2]") == []                                     # said once, counted always
+    said = lis.feed(b'{"v": 99, "type": "pose", "seq": 1}')
+    assert said == ["DAVIO stream datagrams of protocol version 99; this listener reads version 1: ignored "
+                    "(counted); update davio on this machine"]
+    assert lis.report()["foreign"] == 2 and lis.report()["other_version"] == 1 and lis.poses == 2
     with pytest.raises(ValueError, match="frame must be one of"):
         PoseListener("world")
 
@@ -119,10 +122,68 @@ def test_davio_listen_receives_a_stream_and_reports_it(tmp_path, capsys):
     cap = capsys.readouterr()
     rep = json.loads(cap.out)
     assert rep | {"runs": None} == {"poses": 10, "events": 1, "lost": 0, "out_of_order": 0, "foreign": 0,
-                                    "runs": None, "poses_without_frame": 0}
+                                    "runs": None, "poses_without_frame": 0, "duplicates": 0, "seq_jumps": 0,
+                                    "other_version": 0, "malformed": 0, "not_written": 0, "interleaved": 0}
     assert rep["runs"] == [stream.run_id]
     assert "at 0.5 s: publishing metric poses (native:static)" in cap.err
     assert len(_rows(out.read_text())) == 10
+
+
+def _msg(pose: Pose, seq: int, run: str = "r1", changes: dict | None = None) -> bytes:
+    m = pose_message(pose, seq, run)
+    m.update(changes or {})
+    return json.dumps(m).encode()
+
+
+def test_the_tum_file_keeps_increasing_stamps_whatever_arrives():
+    """Late, repeated and restarted datagrams wrote stamps going back (evo refuses such a file)."""
+    tum = io.StringIO()
+    lis = PoseListener("map", tum)
+    p = [_pose(k) for k in range(5)]
+    for seq in (0, 2, 1, 3, 3):                        # 1 late, 3 twice
+        lis.feed(_msg(p[seq], seq))
+    lis.feed(_msg(p[0], 0, run="r2"))                  # a restarted DAVIO: its stamps start again
+    lis.feed(_msg(p[4], 1, run="r2"))
+    t = _rows(tum.getvalue())[:, 0]
+    assert list(t) == sorted(set(t)) and len(t) == 4   # 0, 2, 3, then 4 of the new run
+    rep = lis.report()
+    assert (rep["duplicates"], rep["out_of_order"], rep["lost"], rep["not_written"]) == (1, 1, 0, 2)
+
+
+@pytest.mark.parametrize("changes, why", [
+    ({"seq": float("inf")}, "seq"), ({"seq": -1}, "seq"), ({"seq": 5.7}, "seq"),
+    ({"t_ns": None}, "t_ns"), ({"t_ns": "abc"}, "t_ns"), ({"t_ns": -5}, "t_ns"),
+    ({"p_MI": "abc"}, "p_MI"), ({"p_MI": [1e308, 10**400, 3]}, "p_MI"), ({"p_MI": [1]}, "p_MI"),
+    ({"p_MI": [float("nan"), 1, 2]}, "p_MI"), ({"q_MI": [0, 0, 0, 1, 5, 6]}, "q_MI"),
+    ({"q_MI": [0, 0, 0, 0]}, "q_MI"), ({"source": None}, "source"),
+])
+def test_a_malformed_datagram_is_counted_and_the_listener_goes_on(changes: dict, why: str):
+    tum = io.StringIO()
+    lis = PoseListener("map", tum)
+    lis.feed(_msg(_pose(0), 0))
+    said = lis.feed(_msg(_pose(1), 1, changes=changes))
+    assert len(said) == 1 and said[0].startswith("malformed DAVIO datagram (") and why in said[0]
+    lis.feed(_msg(_pose(2), 2))
+    assert lis.malformed == 1 and lis.poses == 2 and lis.last_pose() is not None
+    rows = _rows(tum.getvalue())
+    assert rows.shape == (2, 8) and np.all(np.isfinite(rows))
+
+
+def test_hostile_datagrams_neither_crash_nor_drive_the_terminal():
+    lis = PoseListener("map")
+    deep = b"[" * 32000 + b"]" * 32000                  # RecursionError in json.loads
+    assert lis.feed(deep)[0].startswith("not a DAVIO stream datagram")
+    event = {"type": "event", "v": 1, "run": "r1", "seq": 0, "t_ns": 5, "t_s": 1.0, "kind": "x",
+             "message": "\x1b[2J\x1b]0;pwned\x07hi\nfake line"}
+    said = lis.feed(json.dumps(event).encode())
+    assert "\x1b" not in said[-1] and "\n" not in said[-1] and "\\x1b[2J" in said[-1]
+    lis.feed(_msg(_pose(0), 1, run="r1"))
+    lis.feed(_msg(_pose(1), 2**63, run="r1"))          # a stray seq: no 9e18 losses
+    lis.feed(_msg(_pose(2), 3, run="r1"))
+    assert lis.lost == 0 and lis.seq_jumps == 1
+    for k in range(4):                                  # two senders on one port
+        lis.feed(_msg(_pose(k), 10 + k, run="r1" if k % 2 else "r2"))
+    assert lis.runs == ["r1", "r2"] and lis.interleaved == 2
 
 
 def test_a_bad_address_or_a_port_in_use_is_a_clear_error(capsys):

@@ -105,8 +105,12 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(strict_dumps(rep))
     else:
+        dropped = {"duplicates": "duplicates", "malformed": "malformed",
+                   "other_version": "of another version", "not_written": "poses not written (not after the "
+                   "last)", "seq_jumps": "seq jumps", "interleaved": "of an earlier run"}
+        extra = "".join(f", {text} {rep[k]}" for k, text in dropped.items() if rep[k])
         print(f"  received {rep['poses']} poses and {rep['events']} events from {len(rep['runs'])} run(s); "
-              f"lost {rep['lost']}, out of order {rep['out_of_order']}, not DAVIO's {rep['foreign']}"
+              f"lost {rep['lost']}, out of order {rep['out_of_order']}, not DAVIO's {rep['foreign']}{extra}"
               + (f"; {rep['poses_without_frame']} poses had no {args.frame}-frame pose" if
                  rep["poses_without_frame"] else ""))
     return 0
@@ -115,6 +119,9 @@ def run(args: argparse.Namespace) -> int:
 def _status(listener, rate: float, tty: bool) -> None:
     last = listener.last_pose()
     where = "-" if last is None else "[" + " ".join(f"{x:+.3f}" for x in last[0]) + "] m"
-    who = "-" if listener.last is None else f"{listener.last['source']} (segment {listener.last['segment']})"
+    from tools.pose_listener import printable
+
+    who = "-" if listener.last is None else (f"{printable(listener.last['source'], 40)} "
+                                             f"(segment {listener.last['segment']})")
     line = f"  {rate:5.1f} poses/s  {where}  {who}  lost {listener.lost}"
     print(("\r" + line) if tty else line, end="" if tty else "\n", file=sys.stderr, flush=True)
