@@ -223,9 +223,17 @@ class EurocDriver(Driver):
         self._report.note(f"imu0: {what}; converted to m/s^2 (x {G_STANDARD})")
 
     def _note_unlisted(self, name: str, listed: set[Path]) -> None:
-        """Note the image files in `name`/data that no row of data.csv names (a data.csv cut short by a
-        crash, images copied in): they are never read."""
+        """Note the image files in `name`/data that no line of data.csv names, kept or not (a data.csv cut
+        short by a crash, images copied in): they are never read."""
         folder = self.mav0 / name / "data"
+        try:
+            text = (self.mav0 / name / "data.csv").read_text(encoding="utf-8-sig", errors="replace")
+        except OSError:
+            return
+        for line in text.splitlines():          # the rows the reader dropped name their images too
+            fields = line.split(",")
+            if len(fields) > 1 and not line.lstrip().startswith("#"):
+                listed.add(Path(os.path.normpath(folder / fields[1].strip())))
         try:
             with os.scandir(folder) as entries:
                 images = [Path(os.path.normpath(folder / e.name)) for e in entries

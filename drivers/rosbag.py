@@ -155,7 +155,11 @@ class RosbagDriver(Driver):
         imu_t: list[int] = []
         imu_v: list[tuple[float, ...]] = []
         cam_t: list[int] = []
+        cam_ordinal: list[int] = []         # each decoded image's place among the topic's messages
+        n_images = 0
         for conn, _, raw in self._messages(reader, conns):
+            if conn.topic == self.image_topic:
+                n_images += 1
             try:
                 msg = reader.deserialize(raw, conn.msgtype)
             except Exception as exc:  # noqa: BLE001 - a corrupt message is counted, not fatal
@@ -176,6 +180,7 @@ class RosbagDriver(Driver):
             else:
                 cam_counts.lines += 1
                 cam_t.append(_stamp_ns(msg))
+                cam_ordinal.append(n_images - 1)
         t = np.array(imu_t, np.int64)
         v = np.array(imu_v, np.float64).reshape(-1, 6)
         check_distinct_stamps(t, self.imu_topic, self.path)
@@ -204,8 +209,8 @@ class RosbagDriver(Driver):
         check_stamp_units(keep_t, "camera", self.path)
         count_gaps(keep_t, cam_counts)
         self._cam_t = keep_t
-        self._cam_keep = np.zeros(c.shape[0], bool)
-        self._cam_keep[kept_index] = True
+        self._cam_keep = np.zeros(n_images, bool)       # by the place the replay pass counts
+        self._cam_keep[np.asarray(cam_ordinal, np.int64)[kept_index]] = True
 
     def _order(self, t: np.ndarray, v: np.ndarray, counts: StreamCounts,
                topic: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -394,6 +399,11 @@ class RosbagDriver(Driver):
                 heapq.heappush(heap, (t, k, self._image(msg, t)))
                 yield from ready(REORDER_WINDOW)
         yield from ready(0)
+        missing = 0 if nxt is None else 1 + sum(1 for _ in expected)
+        if missing:            # read the first time, not the second (the bag changed, or its damage moved)
+            counts.unreadable_images += missing
+            self._report.note(f"{self.image_topic}: {missing} images read on the first pass did not come on "
+                              "the second (counted as unreadable)")
 
     def groundtruth(self) -> None:
         """Bags carry no ground truth DAVIO reads."""

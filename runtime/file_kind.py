@@ -8,7 +8,6 @@ from __future__ import annotations
 import errno
 import os
 import stat
-from pathlib import Path
 
 MISSING = "does not exist"
 FOLDER = "is a folder, not a file"
@@ -18,16 +17,17 @@ def file_problem(path: str | os.PathLike) -> str | None:
     """None when `path` is a regular file (symbolic links followed), else why not: MISSING, FOLDER,
     "is a broken symbolic link", "is a symbolic link loop", "is not a regular file (a device, pipe or
     socket)", or the system's reason (e.g. "Permission denied" on a folder above it)."""
-    p = Path(path)
     try:
-        mode = p.stat().st_mode
+        mode = os.stat(path).st_mode
     except OSError as exc:
         if exc.errno == errno.ELOOP:
             return "is a symbolic link loop"
-        if p.is_symlink():
-            return "is a broken symbolic link"
         if exc.errno in (errno.ENOENT, errno.ENOTDIR):
-            return MISSING
+            try:
+                os.lstat(path)              # the link itself is there: it points nowhere
+                return "is a broken symbolic link"
+            except OSError:
+                return MISSING
         return exc.strerror or str(exc)
     except ValueError:                      # an embedded NUL byte
         return MISSING

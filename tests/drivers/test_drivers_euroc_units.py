@@ -136,3 +136,9 @@ def test_images_that_data_csv_does_not_list_are_noted(tmp_path: Path) -> None:
     assert len(notes) == 1 and "2 images" in notes[0] and "1000000009000000000.png" in notes[0]
     clean = write_asl(tmp_path / "clean", imu_rows(), {"cam0": cam_rows(4)})
     assert not any("not listed" in n for n in EurocDriver(clean).report()["notes"])
+    rows = cam_rows(4)
+    rows[2] = (rows[1][0], rows[2][1])                  # a duplicate stamp: the row is dropped, counted
+    dup = write_asl(tmp_path / "dup", imu_rows(), {"cam0": rows})
+    rep = EurocDriver(dup).report()
+    assert rep["streams"]["cam0"]["dropped_duplicate"] == 1
+    assert not any("not listed" in n for n in rep["notes"])     # its image is listed, not "cut short"

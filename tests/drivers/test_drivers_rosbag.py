@@ -312,3 +312,32 @@ def test_an_image_recorded_past_the_reorder_window_alone_is_skipped(tmp_path: Pa
     assert sum("recorded more than" in n for n in drv.report()["notes"]) == 1
     with pytest.raises(DataError, match="has stamp .* not after"):      # strict refuses any reordering
         RosbagDriver(bag, policy="strict")
+
+
+def test_an_undecodable_image_does_not_shift_the_images_after_it(tmp_path: Path, monkeypatch) -> None:
+    """Pass 1 left an undecodable image out of its stamps while the replay pass counted it: every later
+    image was matched to its neighbour's keep flag and the last one fell off, uncounted."""
+    from rosbags.highlevel import AnyReader
+
+    imu_t, gyro, accel, cam_t, images = _synthetic()
+    bag = bag_from_arrays(tmp_path / "b", "sqlite3", imu_t, gyro, accel, cam_t, images)
+    decode = AnyReader.deserialize
+
+    def corrupt_third(self, raw, msgtype):
+        msg = decode(self, raw, msgtype)
+        if msgtype.endswith("/Image") and _stamp(msg) == int(cam_t[3]):
+            raise ValueError("corrupt CDR")
+        return msg
+
+    monkeypatch.setattr(AnyReader, "deserialize", corrupt_third)
+    drv = RosbagDriver(bag)
+    frames = _frames(drv)
+    assert [f.t_ns for f in frames] == [int(t) for k, t in enumerate(cam_t) if k != 3]
+    for f in frames:
+        np.testing.assert_array_equal(f.image, images[int(np.flatnonzero(cam_t == f.t_ns)[0])])
+    c = drv.report()["streams"]["cam0"]
+    assert (c["malformed_lines"], c["parsed"], c["emitted"]) == (1, 9, 9)
+
+
+def _stamp(msg) -> int:
+    return int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)

@@ -69,3 +69,23 @@ def test_surface_says_what_is_wrong_with_a_cloud(tmp_path: Path, capsys, name: s
 def test_simulate_refuses_camera_stamps_without_a_real_imu(tmp_path: Path, capsys) -> None:
     assert main(["simulate", "--camera-stamps", str(tmp_path / "x.txt"), "--out", str(tmp_path / "o")]) == 1
     assert "--camera-stamps applies with --imu" in capsys.readouterr().err and not (tmp_path / "o").exists()
+
+
+def test_result_file_is_a_file_and_an_empty_one_may_be_replaced(tmp_path: Path, capsys) -> None:
+    argv = ["bench", "graph-solve", "--sizes", "8", "--repeats", "1", "--out"]
+    assert main([*argv, str(tmp_path)]) == 1
+    assert "is a folder; name the .json file to write" in capsys.readouterr().err
+    empty = tmp_path / "made_by_mktemp.json"
+    empty.touch()
+    assert main([*argv, str(empty)]) == 0 and json.loads(empty.read_text())["benchmark"] == "graph-solve"
+
+
+def test_bench_option_errors_name_the_options_given(tmp_path: Path, capsys) -> None:
+    assert main(["bench", "matcher", "--source", "sim", "--gap", "100", "--pairs", "600"]) == 1
+    assert "--pairs 600 x --gap 100 frames needs a 15025 s simulated recording" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["bench", "online-calib", str(tmp_path), "--focal-pct", "60"])
+    assert "must be >= 0 and <= 50 %, got 60" in capsys.readouterr().err
+    assert main(["bench", "calibrate", str(tmp_path), "--sources", "zz", "--json"]) == 1
+    captured = capsys.readouterr()
+    assert captured.out == "" and "--sources must hold" in captured.err

@@ -165,9 +165,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--pose-error-scales must hold numbers >= 0")
     sources = [s.strip() for s in args.sources.split(",") if s.strip()]
     if not sources or any(s not in SOURCES for s in sources):
-        print(f"calibrate: --sources must hold {' or '.join(SOURCES)} separated by commas, "
-              f"got {args.sources!r}")
-        return 2
+        raise ConfigError(f"--sources must hold {' or '.join(SOURCES)} separated by commas, "
+                          f"got {args.sources!r}")
     rows = []
     for i, folder in enumerate(args.folders):
         for source in sources:

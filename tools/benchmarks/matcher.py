@@ -155,8 +155,14 @@ def load_pairs(
     pairs = []
     if source == "sim":
         from drivers.sim import SimConfig, SimRecording
+        from drivers.sim.recording import MAX_SIM_SECONDS
+        from runtime.errors import ConfigError
 
-        rec = SimRecording.from_preset(SimConfig(seconds=max(4.0, 0.25 * (n + 1) * gap), seed=seed))
+        seconds = max(4.0, 0.25 * (n + 1) * gap)
+        if seconds > MAX_SIM_SECONDS:
+            raise ConfigError(f"--pairs {n} x --gap {gap} frames needs a {seconds:g} s simulated recording, "
+                              f"more than its {MAX_SIM_SECONDS:g} s (4 h): give fewer pairs or a smaller gap")
+        rec = SimRecording.from_preset(SimConfig(seconds=seconds, seed=seed))
         cam = rec.rig.camera
         for i in range(n):
             ia = int((i + 0.5) * (len(rec) - gap) / n)

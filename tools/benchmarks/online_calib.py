@@ -39,7 +39,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="initial time-offset error, ms")
     p.add_argument("--seed", type=count(0), default=0, help="seed of the perturbation directions")
     p.add_argument("--intrinsics", action="store_true", help="also perturb and estimate the intrinsics")
-    p.add_argument("--focal-pct", type=number_in(0, 50, unit=" %%"), default=1.5,
+    p.add_argument("--focal-pct", type=number_in(0, 50, unit=" %"), default=1.5,
                    help="initial fx, fy error with --intrinsics, %%")
     p.add_argument("--center-px", type=number_in(0, 500, unit=" px"), default=3.0,
                    help="initial cx, cy error with --intrinsics, px")
@@ -137,8 +137,9 @@ def run(args: argparse.Namespace) -> int:
         callback=lambda s: hist.append((s.t_cam_ns, s.R_IC, s.p_IC, s.time_offset_s, s.intrinsics)),
     )
     if not hist:
-        print("online-calib: the filter produced no state")
-        return 1
+        from runtime.errors import DataError
+
+        raise DataError("the filter produced no state", args.folder)
     errs = np.array([calibration_errors(R, p, t, R_IC, p_IC, t_d) for _, R, p, t, _ in hist])
     t_rel = np.array([h[0] for h in hist], dtype=np.int64)
     last = t_rel >= t_rel[-1] - 10_000_000_000

@@ -52,7 +52,9 @@ def check_result_file(path: Path) -> None:
     from runtime.errors import ConfigError
     from tools.output_file import check_output_file
 
-    if path.is_file():
+    if path.is_dir():
+        raise ConfigError(f"--out {path}: is a folder; name the .json file to write")
+    if path.is_file() and path.stat().st_size:      # an empty file (mktemp, touch) holds nothing to lose
         try:
             json.loads(path.read_bytes())
         except (OSError, ValueError) as exc:     # UnicodeDecodeError and JSONDecodeError are ValueErrors
