@@ -175,6 +175,8 @@ def open_view(port: int | None) -> LiveView | None:
     if not 0 < int(port) < 65536:
         raise ConfigError(f"--view: {port} is not a TCP port (1-65535)")
     view = LiveView(port=int(port))
-    print(f"  live view: {view.url} (from another machine: http://<this machine's address>:"
-          f"{view.server.get_port()})", file=sys.stderr, flush=True)
+    served = view.server.get_port()
+    busy = f"port {port} is busy: " if served != int(port) else ""
+    print(f"  live view: {busy}{view.url} (open to the network, without a password: from another machine "
+          f"http://<this machine's address>:{served})", file=sys.stderr, flush=True)
     return view

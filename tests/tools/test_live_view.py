@@ -88,6 +88,22 @@ def test_open_view_checks_the_port() -> None:
         open_view(70000)
 
 
+def test_a_busy_port_is_said_not_silently_replaced(capsys) -> None:
+    """viser takes the next free port: a tunnel set up for the one asked for reached another program."""
+    with socket.socket() as holder:
+        holder.bind(("0.0.0.0", 0))
+        holder.listen()
+        port = holder.getsockname()[1]
+        view = open_view(port)
+        try:
+            served = view.server.get_port()
+            err = capsys.readouterr().err
+            assert served != port and f"port {port} is busy: " in err and f":{served}" in err
+            assert "open to the network" in err
+        finally:
+            view.close()
+
+
 @pytest.mark.slow
 def test_davio_run_serves_the_view_and_reports_it(small_sim_folder: Path, tmp_path: Path, capsys) -> None:
     from tools.cli import main
