@@ -155,8 +155,8 @@ def test_an_epoch_offset_and_exact_stamps_are_accepted(tum_pair, capsys) -> None
 def test_surface_voxel_and_threshold_must_be_positive_numbers(tmp_path: Path, capsys) -> None:
     cloud = tmp_path / "c.npy"
     np.save(cloud, np.random.default_rng(0).uniform(0, 1, (50, 3)))
-    for flag, value, must in (("--voxel", "1e-6", "in [0.0001, 100]"), ("--threshold", "0", "> 0"),
-                              ("--threshold", "-1", "> 0")):
+    for flag, value, must in (("--voxel", "1e-6", "in [0.0001, 100]"),
+                              ("--threshold", "0", "in [1e-06, 100]"), ("--threshold", "-1", "in [1e-06, 100]")):
         assert main(["eval", "surface", str(cloud), str(cloud), flag, value]) == 1
         assert f"{flag} must be a finite number {must}" in capsys.readouterr().err
     for flag in ("--voxel", "--threshold"):
@@ -239,3 +239,20 @@ def test_manifest_entry_with_a_foreign_file_name_is_refused(tmp_path: Path, caps
     assert main(["map", "info", str(folder)]) == 1
     assert "submaps[1].file is '../../etc/passwd', expected a name like submap_000000.npz" in \
         capsys.readouterr().err
+
+
+def test_n_align_beyond_the_pairs_is_said_and_recorded(tum_pair, capsys) -> None:
+    est, _, ref = tum_pair
+    assert main(["eval", "ate", str(est), str(ref), "--n-align", "100000", "--json"]) == 0
+    captured = capsys.readouterr()
+    assert json.loads(captured.out)["n_align"] == 40              # was silently all of them
+    assert "--n-align 100000 exceeds the 40 associated pairs" in captured.err
+    assert main(["eval", "ate", str(est), str(ref), "--n-align", "10", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["n_align"] == 10
+
+
+def test_a_surface_threshold_beyond_100_m_is_refused(tmp_path: Path, capsys) -> None:
+    cloud = tmp_path / "c.npy"
+    np.save(cloud, np.random.default_rng(0).uniform(0, 1, (50, 3)))
+    assert main(["eval", "surface", str(cloud), str(cloud), "--threshold", "1e308"]) == 1    # F = 1.0
+    assert "--threshold must be a finite number in" in capsys.readouterr().err

@@ -147,7 +147,7 @@ def _make_plot_dir(d: Path) -> Path:
 
 
 _FINITE = {"max_diff": (0.0, 9.2e9), "offset": (-9.2e9, 9.2e9), "delta": (0.0, None),
-           "threshold": (0.0, None), "voxel": (1e-4, 100.0)}
+           "threshold": (1e-6, 100.0), "voxel": (1e-4, 100.0)}
 """Numeric options checked before any file is read: (exclusive lower bound, upper bound) in their units, or
 [lower, upper] when an upper bound is given (seconds: what int64 nanoseconds hold)."""
 
@@ -188,6 +188,11 @@ def _run_ate(args: argparse.Namespace) -> int:
     est, ref = _read_pair(args.est, args.ref)
     res = ate(est, ref, args.align, args.max_diff, args.offset, args.n_align, args.one_to_one)
     out = {**res.as_dict(), "est": str(args.est), "ref": str(args.ref), **_repeats(est, ref)}
+    if args.n_align is not None:
+        out["n_align"] = min(int(args.n_align), len(res.t_ns))
+        if args.n_align > len(res.t_ns):
+            print(f"davio eval: note: --n-align {args.n_align} exceeds the {len(res.t_ns)} associated pairs: "
+                  "the alignment used all of them", file=sys.stderr)
     if plot_dir is not None:
         from tools.evaluation.plots import plot_errors, plot_trajectories
 
