@@ -156,7 +156,8 @@ def test_surface_voxel_and_threshold_must_be_positive_numbers(tmp_path: Path, ca
     cloud = tmp_path / "c.npy"
     np.save(cloud, np.random.default_rng(0).uniform(0, 1, (50, 3)))
     for flag, value, must in (("--voxel", "1e-6", "in [0.0001, 100]"),
-                              ("--threshold", "0", "in [1e-06, 100]"), ("--threshold", "-1", "in [1e-06, 100]")):
+                              ("--threshold", "0", "in [1e-06, 100]"),
+                              ("--threshold", "-1", "in [1e-06, 100]")):
         assert main(["eval", "surface", str(cloud), str(cloud), flag, value]) == 1
         assert f"{flag} must be a finite number {must}" in capsys.readouterr().err
     for flag in ("--voxel", "--threshold"):
