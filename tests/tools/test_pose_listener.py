@@ -224,3 +224,11 @@ def test_a_link_local_address_is_bound_on_the_interface_its_zone_names():
             assert bound[1] == port and bound[3] == index
     with pytest.raises(ConfigError, match="cannot resolve"):
         bind_listener(f"udp://[{address}%25no-such-interface]:{_free_port()}")
+
+
+def test_listening_on_every_interface_is_said(capsys):
+    port = _free_port()
+    assert main(["listen", f"udp://:{port}", "--seconds", "0.2"]) == 0
+    assert "(every interface: any machine on the network can send)" in capsys.readouterr().err
+    assert main(["listen", f"udp://127.0.0.1:{port}", "--seconds", "0.2"]) == 0
+    assert "every interface" not in capsys.readouterr().err

@@ -76,8 +76,10 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"cannot write --tum {args.tum}: {exc.strerror or exc}") from None
     listener = PoseListener(args.frame, tum)
     tty = sys.stderr.isatty()
-    print(f"davio listen: on {args.url} ({args.frame} frame)" + (f", poses to {args.tum}" if tum else "")
-          + "; Ctrl-C to finish", file=sys.stderr, flush=True)
+    host = sock.getsockname()[0]
+    every = " (every interface: any machine on the network can send)" if host in ("0.0.0.0", "::") else ""
+    print(f"davio listen: on {args.url}{every} ({args.frame} frame)"
+          + (f", poses to {args.tum}" if tum else "") + "; Ctrl-C to finish", file=sys.stderr, flush=True)
     t0 = last = time.monotonic()
     poses0 = 0
     try:
