@@ -247,6 +247,10 @@ class SimRecording(Driver):
         """EuRoC-trajectory mode on a folder with groundtruth.csv or groundtruth_tum.txt, imu0.csv
         and cam0_timestamps.txt (shared/data/euroc_imu_gt/<sequence>)."""
         folder = Path(folder)
+        if not folder.is_dir():
+            raise DataError("is a file, not a euroc_imu_gt sequence folder" if folder.exists() else
+                            "no such folder (a euroc_imu_gt sequence: groundtruth.csv, imu0.csv, "
+                            "cam0_timestamps.txt)", folder)
         gt = folder / "groundtruth.csv"
         if not gt.is_file():
             gt = folder / "groundtruth_tum.txt"

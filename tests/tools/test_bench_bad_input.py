@@ -89,3 +89,14 @@ def test_bench_option_errors_name_the_options_given(tmp_path: Path, capsys) -> N
     assert main(["bench", "calibrate", str(tmp_path), "--sources", "zz", "--json"]) == 1
     captured = capsys.readouterr()
     assert captured.out == "" and "--sources must hold" in captured.err
+
+
+def test_sequence_and_keep_folders_are_named(tmp_path: Path, capsys) -> None:
+    assert main(["bench", "trajectory", "--sequence", str(tmp_path / "absent")]) == 1
+    assert "absent: no such folder (a euroc_imu_gt sequence" in capsys.readouterr().err   # "no groundtruth"
+    (tmp_path / "k.txt").write_text("x")
+    assert main(["bench", "reliability", "--only", "binary", "--keep", str(tmp_path / "k.txt")]) == 1
+    assert "is a file, not a folder" in capsys.readouterr().err
+    (tmp_path / "kept" / "probe00").mkdir(parents=True)
+    assert main(["bench", "reliability", "--only", "binary", "--keep", str(tmp_path / "kept")]) == 1
+    assert "holds the probe folders of an earlier run (probe00" in capsys.readouterr().err   # "File exists"

@@ -266,6 +266,15 @@ def run(args: argparse.Namespace) -> int:
     if not probes:        # "0/0 probes as expected" with exit 0 tested nothing
         raise ConfigError(f"--only {args.only!r} names no probe; the probes: "
                           + "; ".join(p.name for p in PROBES))
+    if args.keep:
+        from tools.run_folder import check_writable_target
+
+        keep = Path(args.keep)
+        check_writable_target(keep, "--keep")
+        earlier = sorted(p.name for p in keep.glob("probe[0-9][0-9]")) if keep.is_dir() else []
+        if earlier:     # the probes' own folders must be new (base/, the recording, is reused)
+            raise ConfigError(f"--keep {args.keep}: holds the probe folders of an earlier run ({earlier[0]}, "
+                              "...); remove them or choose another folder")
     root = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="davio_reliability_"))
     root.mkdir(parents=True, exist_ok=True)
     base = root / "base"
