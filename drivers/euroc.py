@@ -288,8 +288,12 @@ class EurocDriver(Driver):
                 keep[i] = False
                 continue
             if not present:
+                why = file_problem(f) or MISSING      # "does not exist", or what is there instead
                 if self.policy == "strict":
-                    raise DataError(f"image file {f} does not exist", csv, int(rows.line[i]))
+                    raise DataError(f"image file {f} {why}", csv, int(rows.line[i]))
+                if why != MISSING and not any("is not an image file" in n for n in self._report.notes):
+                    self._report.note(f"{name}: {rows.text[i][0]} {why}: it is not an image file (counted "
+                                      "with the missing images)")
                 counts.missing_images += 1
                 keep[i] = False
             elif fixed is not None:

@@ -142,3 +142,17 @@ def test_images_that_data_csv_does_not_list_are_noted(tmp_path: Path) -> None:
     rep = EurocDriver(dup).report()
     assert rep["streams"]["cam0"]["dropped_duplicate"] == 1
     assert not any("not listed" in n for n in rep["notes"])     # its image is listed, not "cut short"
+
+
+def test_an_image_name_that_is_a_folder_is_said(tmp_path: Path) -> None:
+    seq = write_asl(tmp_path, imu_rows(), {"cam0": cam_rows(4)})
+    second = sorted((seq / "mav0" / "cam0" / "data").iterdir())[1]
+    second.unlink()
+    second.mkdir()                      # not "missing": something else stands there
+    drv = EurocDriver(seq)
+    assert sum(hasattr(e, "image") for e in drv.events()) == 3
+    rep = drv.report()
+    assert rep["streams"]["cam0"]["missing_images"] == 1
+    assert any(f"{second.name} is a folder, not a file: it is not an image file" in n for n in rep["notes"])
+    with pytest.raises(DataError, match=f"image file .*{second.name} is a folder, not a file"):
+        EurocDriver(seq, policy="strict")
