@@ -51,6 +51,7 @@ _PERIODS_KEPT = 512
 
 SOURCE_LOSSES = {
     "nonfinite": "samples with NaN or Inf values dropped",
+    "duplicates": "packets repeating the previous one dropped",
     "checksum_errors": "packets failing their checksum dropped",
     "malformed_packets": "malformed packets dropped",
     "missing_fields": "packets lacking a field dropped",

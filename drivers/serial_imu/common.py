@@ -55,6 +55,8 @@ class ParserCounts:
     """valid-checksum packets whose content does not parse (bad field size, bad number, ...)"""
     nonfinite: int = 0
     """packets holding NaN or Inf (dropped)"""
+    duplicates: int = 0
+    """packets repeating the previous packet's counter and device time (dropped)"""
     seq_gaps: int = 0
     """discontinuities of the device sample counter (samples lost upstream or a reset)"""
     missing_estimated: int = 0

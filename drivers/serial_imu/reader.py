@@ -86,7 +86,8 @@ def open_error(port: str, exc: BaseException) -> DeviceError:
         return device_error(port, "permission",
                             f"permission denied opening serial port {port}: add your user to the 'dialout' "
                             "group (sudo usermod -aG dialout $USER, then log in again) or fix its udev rule")
-    if code in (errno.EBUSY, errno.EAGAIN, errno.EWOULDBLOCK) or "lock" in low or "busy" in low:
+    if code in (errno.EBUSY, errno.EAGAIN, errno.EWOULDBLOCK) or "could not exclusively lock" in low \
+            or "resource busy" in low:
         return device_error(port, "busy", f"serial port {port} is busy: another program holds it (a serial "
                                           "monitor, another davio, ModemManager); close it and retry")
     if code in (errno.ENOTTY, errno.EINVAL) or "inappropriate ioctl" in low:
@@ -354,8 +355,10 @@ class SerialImu:
                 return True
         elif self._first_byte_ns is None:
             if t_host - self._reading_since_ns > int(self.first_byte_timeout_s * 1e9):
-                how = ("its output configuration (configure=True)" if self.protocol == "xsens"
-                       else "its output")
+                how = "its output"
+                if self.protocol == "xsens":
+                    how = ("its output configuration (MTData2 with acceleration, rate of turn and a sample "
+                           "time; SerialImu(configure=True) sets it)")
                 self._fail("silent", f"serial IMU {self.port}: not one byte in "
                                      f"{self.first_byte_timeout_s:g} s since the port opened: is the IMU "
                                      f"powered, streaming and on this port? (baud rate {self.baudrate}; "
@@ -364,7 +367,10 @@ class SerialImu:
         elif t_host - self._reading_since_ns > (wait := max(limit, int(self.first_byte_timeout_s * 1e9))):
             # bytes but no valid sample yet: a device may print a banner, then calibrate, before streaming
             lacking = getattr(self.parser, "last_missing", None)
-            hint = (f"packets lack {lacking}; configure the device's outputs (configure=True)" if lacking
+            fix = "make the firmware print all nine fields of each $IMU line"
+            if self.protocol == "xsens":
+                fix = "configure the device's outputs (SerialImu(configure=True) does for an Xsens)"
+            hint = (f"packets lack {lacking}; {fix}" if lacking
                     else f"check the protocol ({self.protocol}) and the baud rate ({self.baudrate})")
             self._fail("no_valid_data",
                        f"serial IMU {self.port}: {self.bytes_read} bytes in {wait * 1e-9:g} s since the port "

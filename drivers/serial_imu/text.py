@@ -10,7 +10,9 @@ One line per sample:
   clock is fitted against the device time.
 - `ax ay az`: specific force in m/s^2; `gx gy gz`: angular rate in rad/s; decimal floats.
 - `HH`: NMEA checksum, the XOR of every byte between `$` and `*`, two hex digits (either case).
-  Required. The line ends with `\\r\\n` (a bare `\\n` is accepted).
+  Required. The line ends with `\\r\\n` (a bare `\\n` or `\\r` is accepted). Numbers are plain decimals
+  (no digit groups `1_0`); a line repeating the previous one's seq and time is dropped
+  (`duplicates`).
 
 Example: `$IMU,1,2500,0.1,0.2,9.81,0.01,-0.02,0.03*HH`. Lines longer than `max_line` bytes are
 resynchronised at the next `$`; a line whose checksum verifies but whose tag is not `IMU` is counted
@@ -62,6 +64,8 @@ class TextParser:
         self._seq = Unwrapper(1 << 32)
         self._gaps = SeqTracker(self.counts)
         self.last_missing: str | None = None
+        self._last_raw: tuple[int, int] | None = None
+        self._after_cr = False
 
     @property
     def pending(self) -> int:
@@ -78,13 +82,25 @@ class TextParser:
         c = self.counts
         out: list[DeviceSample] = []
         while True:
+            if self._after_cr and buf[:1] == b"\n":     # the LF of a CRLF split across reads
+                del buf[:1]
+                c.bytes_framed += 1
+            if buf:
+                self._after_cr = False
             i = buf.find(b"$")
             if i < 0:
                 self._skip(len(buf))
                 return out
             if i:
                 self._skip(i)
-            end = buf.find(b"\n", 1, self.max_line)
+            ends = [e for e in (buf.find(b"\n", 1, self.max_line), buf.find(b"\r", 1, self.max_line))
+                    if e >= 0]
+            end = min(ends) if ends else -1      # LF, CRLF or CR alone ends a line
+            if end >= 0 and buf[end] == 0x0D:
+                if buf[end + 1:end + 2] == b"\n":
+                    end += 1
+                elif end + 1 == len(buf):
+                    self._after_cr = True        # its LF, if any, comes with the next read
             nxt = buf.find(b"$", 1, end if end >= 0 else self.max_line)
             if nxt > 0:  # a new sentence starts before this one ended: this one was cut
                 self._skip(nxt)
@@ -135,6 +151,8 @@ class TextParser:
                 c.malformed_packets += 1
             return None
         try:
+            if any("_" in p for p in parts[1:]):        # int("1_0") is 10: no device means it
+                raise ValueError
             seq, t_us = int(parts[1]), int(parts[2])
             vals = [float(p) for p in parts[3:9]]
         except ValueError:
@@ -146,6 +164,10 @@ class TextParser:
         if not all(math.isfinite(v) for v in vals):
             c.nonfinite += 1
             return None
+        if (seq, t_us) == self._last_raw:      # a repeated line: it would be stamped 1 ns later
+            c.duplicates += 1
+            return None
+        self._last_raw = (seq, t_us)
         useq = self._seq.update(seq)
         self._gaps.update(useq)
         t_dev = self._time.update(t_us) * 1000

@@ -187,6 +187,8 @@ def test_missing_busy_and_bad_ports_fail_fast_with_one_line(pty_pair: Pty) -> No
         with pytest.raises(DeviceError) as ei:
             SerialImu(pty_pair.path).start()
         assert ei.value.reason == "busy" and pty_pair.path in str(ei.value)
+    clock = open_error("/dev/clock_imu", IsADirectoryError(errno.EISDIR, "Is a directory", "/dev/clock_imu"))
+    assert clock.reason == "open" and "Is a directory" in str(clock)     # "clock" is no lock: not "busy"
     perm = open_error("/dev/ttyUSB0", PermissionError(errno.EACCES, "Permission denied"))
     assert perm.reason == "permission" and "dialout" in str(perm) and "/dev/ttyUSB0" in str(perm)
     with pytest.raises(DeviceError) as ei:

@@ -84,3 +84,26 @@ def test_device_microseconds_unwrap_across_32_bits() -> None:
     out = p.feed(b"".join(line(k, t0_us=t0) for k in range(6)))
     t = np.array([s.t_dev_ns for s in out])
     assert t[0] == t0 * 1000 and np.all(np.diff(t) == 2_500_000)
+
+
+def test_cr_only_and_crlf_split_across_reads_lose_nothing() -> None:
+    """A device ending its lines in CR alone delivered nothing: each line was cut by the next '$'."""
+    cr_only = b"".join(line(k).replace(b"\r\n", b"\r") for k in range(50))
+    for seed in range(3):
+        p = TextParser()
+        out = feed_chunked(p, cr_only, seed)
+        assert [s.seq for s in out] == list(range(50)) and p.counts.bytes_skipped == 0
+    p = TextParser()                                    # CRLF cut between CR and LF at every line
+    out = []
+    for k in range(20):
+        raw = line(k)
+        out += p.feed(raw[:-1]) + p.feed(raw[-1:])
+    assert len(out) == 20 and p.counts.bytes_skipped == 0
+    assert p.counts.bytes_in == p.counts.bytes_framed + p.counts.bytes_skipped + p.pending
+
+
+def test_digit_groups_and_a_repeated_line_are_dropped_and_counted() -> None:
+    p = TextParser()
+    out = p.feed(line(0) + with_checksum("IMU,1,1_0,0,0,9.81,0,0,0") + line(1) + line(1) + line(2))
+    assert [s.seq for s in out] == [0, 1, 2]             # the repeat was stamped 1 ns later
+    assert (p.counts.malformed_packets, p.counts.duplicates, p.counts.seq_gaps) == (1, 1, 0)

@@ -6,7 +6,7 @@ import sys
 import time
 from dataclasses import replace
 
-from tools.cli_types import number
+from tools.cli_types import count, number
 from tools.model_open import add_gpu_memory_argument
 
 NAME = "live"
@@ -40,7 +40,8 @@ def add_device_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--imu-protocol", choices=["xsens", "text"], default="xsens",
                    help="xsens: Xbus MTData2 (counter, SampleTimeFine, accel, gyro); text: "
                         "$IMU,seq,t_dev_us,ax,ay,az,gx,gy,gz*HH lines")
-    p.add_argument("--baud", type=int, default=460800, help="serial baud rate")
+    p.add_argument("--baud", type=count(50, 16_000_000), default=460800,
+                   help="serial baud rate (checked before the model loads)")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
