@@ -52,6 +52,7 @@ _PERIODS_KEPT = 512
 SOURCE_LOSSES = {
     "nonfinite": "samples with NaN or Inf values dropped",
     "duplicates": "packets repeating the previous one dropped",
+    "backward_dropped": "samples whose device time went back dropped",
     "checksum_errors": "packets failing their checksum dropped",
     "malformed_packets": "malformed packets dropped",
     "missing_fields": "packets lacking a field dropped",

@@ -16,10 +16,13 @@ constant minimum latency stays in the stamps (the camera-IMU time-offset calibra
 it). Measured on the simulation of notes/drivers.md §2 (80 ppm, 1 ms + exponential jitter, 1 %
 spikes of 5-30 ms): stamp error std ~0.03 ms against ~2 ms for arrival stamps.
 
-Clock jumps (device reset, counter glitch): the device time going backwards, a sample arriving
-impossibly early for the fit (the device clock stepped forward) or a sample persistently late by
-more than `behind_tolerance_s` (the device clock stepped back) are counted and restart the fit.
-Output stamps are strictly increasing int64 ns.
+Clock jumps (device reset, counter glitch): the device time going backwards on two samples in a row,
+a sample arriving impossibly early for the fit (the device clock stepped forward) or a sample
+persistently late by more than `behind_tolerance_s` (the device clock stepped back) are counted and
+restart the fit. A single sample behind the previous one, followed by one that continues the timeline,
+is a glitch: that sample is dropped (`update` returns None; `backward_dropped`), not made the new origin
+(which skewed the next half second of stamps by up to 0.25 s). A real reset costs its first sample, also
+counted there. Output stamps are strictly increasing int64 ns.
 """
 from __future__ import annotations
 
@@ -94,6 +97,9 @@ class DeviceClock:
         """restarts of the fit caused by clock jumps"""
         self.clamped = 0
         """output stamps raised to keep them strictly increasing"""
+        self.backward_dropped = 0
+        """samples dropped for a device time behind the previous sample's (a glitch, or a reset's first)"""
+        self._suspect = False
         self.samples = 0
         self._last_out: int | None = None
         self._restart()
@@ -147,15 +153,22 @@ class DeviceClock:
         self._residual_ns = math.sqrt(sum((y - (a + d * x)) ** 2 for x, y in inliers) / len(inliers))
 
     # --- public ------------------------------------------------------------------------------
-    def update(self, t_dev_ns: int, t_host_ns: int) -> int:
-        """Feed one sample (device time, host arrival time); returns its host-clock stamp, int ns."""
+    def update(self, t_dev_ns: int, t_host_ns: int) -> int | None:
+        """Feed one sample (device time, host arrival time); returns its host-clock stamp, int ns, or None
+        for a sample dropped as behind the previous one (module docstring)."""
         t_dev_ns, t_host_ns = int(t_dev_ns), int(t_host_ns)
         self.samples += 1
         if self._x0 is None:
             self._start(t_dev_ns, t_host_ns)
         elif self._last_dev is not None and t_dev_ns < self._last_dev:
+            if not self._suspect:       # a glitch or a reset: the next sample tells
+                self._suspect = True
+                self.backward_dropped += 1
+                return None
+            self._suspect = False
             self._jump(t_dev_ns, t_host_ns)
         else:
+            self._suspect = False
             y = float(t_host_ns - t_dev_ns - self._y0)
             x = float(t_dev_ns - self._x0)
             r = y - (self._a + self._d * x)
@@ -223,4 +236,4 @@ class DeviceClock:
         return {"clock_jumps": self.jumps, "drift_ppm": round(self.drift_ppm, 3),
                 "offset_ns": self.offset_ns, "fit_residual_ns": round(self.residual_ns, 1),
                 "clock_bins": len(self._bins), "clock_fitted": self._fitted,
-                "stamps_clamped": self.clamped}
+                "stamps_clamped": self.clamped, "backward_dropped": self.backward_dropped}

@@ -333,8 +333,9 @@ class SerialImu:
         if not samples:
             return
         self._last_valid_ns = t_host
-        events = [ImuSample(self.clock.update(s.t_dev_ns, t_host), np.array(s.gyro, dtype=np.float64),
-                            np.array(s.accel, dtype=np.float64)) for s in samples]
+        stamps = [self.clock.update(s.t_dev_ns, t_host) for s in samples]     # None: dropped (counted)
+        events = [ImuSample(t, np.array(s.gyro, dtype=np.float64), np.array(s.accel, dtype=np.float64))
+                  for t, s in zip(stamps, samples, strict=True) if t is not None]
         with self._cond:
             for ev in events:
                 if len(self._queue) >= self.capacity:

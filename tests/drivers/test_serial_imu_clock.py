@@ -35,7 +35,9 @@ def simulate(seconds: float, seed: int, fifo: bool = False) -> tuple[np.ndarray,
 
 
 def run(clock: DeviceClock, dev: np.ndarray, arrival: np.ndarray) -> np.ndarray:
-    return np.array([clock.update(int(d), int(a)) for d, a in zip(dev, arrival, strict=True)], dtype=np.int64)
+    """Stamps of the samples, -1 where the clock dropped one."""
+    out = [clock.update(int(d), int(a)) for d, a in zip(dev, arrival, strict=True)]
+    return np.array([-1 if t is None else t for t in out], dtype=np.int64)
 
 
 @pytest.mark.parametrize("fifo", [False, True])
@@ -67,9 +69,24 @@ def test_device_reset_backwards_restarts_the_fit() -> None:
     dev[k:] = dev[k:] - dev[k] + 123 * PERIOD_NS       # device rebooted: its time starts again near 0
     clock = DeviceClock()
     stamps = run(clock, dev, arrival)
-    assert clock.jumps == 1 and np.all(np.diff(stamps) > 0)
+    assert clock.jumps == 1 and list(np.flatnonzero(stamps < 0)) == [k]      # the reset costs one sample
+    assert clock.backward_dropped == 1 and np.all(np.diff(np.delete(stamps, k)) > 0)
     after = (stamps - true)[k + 2 * RATE_HZ:] / 1e6
     assert after.std() < 0.03 and abs(np.median(after) - 1.0) < 0.1
+
+
+def test_one_sample_stamped_back_is_dropped_not_made_the_origin() -> None:
+    """A firmware glitch (one line carrying an older time) restarted the fit on it: the next 0.5 s of
+    stamps ran up to 255 ms early, then a 372 ms gap."""
+    dev, true, arrival = simulate(12.0, seed=6)
+    k = 6 * RATE_HZ
+    dev = dev.copy()
+    dev[k] = dev[k - 150]
+    clock = DeviceClock()
+    stamps = run(clock, dev, arrival)
+    assert list(np.flatnonzero(stamps < 0)) == [k] and clock.jumps == 0 and clock.backward_dropped == 1
+    err_ms = (np.delete(stamps, k) - np.delete(true, k))[2 * RATE_HZ:] / 1e6
+    assert np.abs(err_ms - np.median(err_ms)).max() < 0.5 and clock.report()["stamps_clamped"] == 0
 
 
 def test_device_clock_step_forward_and_lost_time_are_jumps() -> None:
