@@ -360,3 +360,29 @@ def test_the_streams_start_once_the_run_can_read_them(tmp_path: Path, capsys, mo
         assert capsys.readouterr().err == "davio calibrate: error: streams refused (test)\n"
         assert {p: p.read_text() for p in earlier} == earlier
         assert sorted(tmp_path.iterdir()) == sorted(earlier)
+
+
+def test_imu_stall_and_baud_reach_the_serial_reader(monkeypatch) -> None:
+    """--imu-stall (a device that pauses to recalibrate ended the run after 1 s) and --baud are checked
+    as parsed and handed to SerialImu."""
+    import drivers.serial_imu as serial_imu
+    from calib import load_rig
+    from tools.cli import build_parser
+    from tools.commands.live import _open_driver
+
+    seen = {}
+
+    class Recorder:
+        def __init__(self, port, **kw) -> None:
+            seen.update(kw, port=port)
+
+    monkeypatch.setattr(serial_imu, "SerialImu", Recorder)
+    parser = build_parser(only="live")
+    args = parser.parse_args(["live", "uvc", "--camera", "0", "--imu-port", "/dev/ttyX", "--imu-stall", "5",
+                              "--baud", "921600", "--imu-protocol", "text"])
+    rig = load_rig(Path(__file__).resolve().parents[2] / "calib" / "rigs" / "euroc_camchain.yaml")
+    _open_driver(args, rig)
+    assert seen == {"port": "/dev/ttyX", "protocol": "text", "baudrate": 921600, "stall_timeout_s": 5.0}
+    for bad in (["--imu-stall", "0"], ["--imu-stall", "nan"], ["--baud", "0"]):
+        with pytest.raises(SystemExit):
+            parser.parse_args(["live", "uvc", *bad])

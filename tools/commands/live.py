@@ -6,7 +6,7 @@ import sys
 import time
 from dataclasses import replace
 
-from tools.cli_types import count, number
+from tools.cli_types import count, number, number_in
 from tools.model_open import add_gpu_memory_argument
 
 NAME = "live"
@@ -42,6 +42,10 @@ def add_device_arguments(p: argparse.ArgumentParser) -> None:
                         "$IMU,seq,t_dev_us,ax,ay,az,gx,gy,gz*HH lines")
     p.add_argument("--baud", type=count(50, 16_000_000), default=460800,
                    help="serial baud rate (checked before the model loads)")
+    p.add_argument("--imu-stall", type=number_in(0.1, 60.0, unit=" s"), default=1.0, metavar="S",
+                   help="a serial IMU sending no valid sample for S seconds, after it streamed, is unplugged "
+                        "or stalled and ends the run (raise it for a device that pauses, e.g. to "
+                        "recalibrate)")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -218,7 +222,8 @@ def _open_driver(args: argparse.Namespace, rig):
     cam = rig.camera
     camera = UvcCamera(device, width=args.width or cam.width, height=args.height or cam.height, fps=args.fps,
                        expected_size=(cam.width, cam.height), realtime=is_file)
-    imu = SerialImu(args.imu_port, protocol=args.imu_protocol, baudrate=args.baud)
+    imu = SerialImu(args.imu_port, protocol=args.imu_protocol, baudrate=args.baud,
+                    stall_timeout_s=args.imu_stall)
     return LiveDriver(camera, imu, rig=rig, time_offset_s=rig.time_offset_s or 0.0)
 
 
