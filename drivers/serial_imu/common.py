@@ -44,7 +44,8 @@ class ParserCounts:
     checksum_errors: int = 0
     """candidate frames/lines whose checksum failed"""
     oversized_headers: int = 0
-    """headers announcing more than the configured maximum length (fake headers in garbage)"""
+    """headers announcing more than the configured maximum length, or a length that the valid frames
+    after them contradict (fake headers in garbage)"""
     partial_packets: int = 0
     """a frame/line cut off by the end of the stream (counted by `finish()`)"""
     unknown_packets: int = 0

@@ -55,8 +55,10 @@ DEFAULT_MAX_PAYLOAD = 128
 XBUS_MAX_PAYLOAD = 2048
 """largest DATA an Xbus frame carries (extended length): what a device left in its own output
 configuration may send (orientation, delta-q/v, magnetic field, status... beside the four fields). The
-serial reader accepts it when it only listens (`serial_imu.reader.make_parser`); a fake header then
-holds the parser for at most this many bytes (about 45 ms at 460800 baud), without losing any."""
+serial reader accepts it when it only listens (`serial_imu.reader.make_parser`). A fake header (garbage
+that reads FA FF MID FF + a long length) is dropped as soon as two valid frames in a row follow it
+inside the bytes it claims (`XbusFramer`); it held the parser for the whole length before (0.2 s of
+samples at 200 Hz), and the live merge then dropped the IMU samples it had delayed."""
 
 
 def checksum(body: bytes | bytearray) -> int:
@@ -190,6 +192,10 @@ class XbusFramer:
                 continue
             total = head + n + 1
             if len(buf) < total:
+                if self._contradicted(buf):      # two valid frames follow inside it: a fake header
+                    c.oversized_headers += 1
+                    self._skip(1)
+                    continue
                 return out
             if sum(buf[1:total]) & 0xFF:
                 c.checksum_errors += 1
@@ -199,6 +205,33 @@ class XbusFramer:
             c.frames += 1
             c.bytes_framed += total
             del buf[:total]
+
+    def _frame_at(self, buf: bytearray, j: int) -> int | None:
+        """Length of the complete, checksum-valid frame starting at `j`, or None."""
+        if len(buf) < j + 4:
+            return None
+        n, head = buf[j + 3], 4
+        if n == 0xFF:
+            if len(buf) < j + 6:
+                return None
+            n, head = (buf[j + 4] << 8) | buf[j + 5], 6
+        total = head + n + 1
+        if n > self.max_payload or len(buf) < j + total or sum(buf[j + 1:j + total]) & 0xFF:
+            return None
+        return total
+
+    def _contradicted(self, buf: bytearray) -> bool:
+        """Whether the incomplete frame at the start of `buf` holds two valid frames in a row (at FA FF,
+        the second right after the first): its length is garbage. A real frame's data holding such a
+        pair (two checksums matching by chance) is not to be expected."""
+        j = buf.find(b"\xfa\xff", 2)
+        while j >= 0:
+            first = self._frame_at(buf, j)
+            if first is not None and buf[j + first:j + first + 2] == b"\xfa\xff" \
+                    and self._frame_at(buf, j + first) is not None:
+                return True
+            j = buf.find(b"\xfa\xff", j + 1)
+        return False
 
     def finish(self) -> None:
         """End of stream: a buffered frame start is a partial packet; its bytes count as skipped."""

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from drivers.serial_imu.xsens import (
+    XBUS_MAX_PAYLOAD,
     XsensParser,
     decode_mtdata2,
     encode_frame,
@@ -99,6 +100,24 @@ def test_fake_header_does_not_stall_the_next_frame() -> None:
     assert p.feed(b"\xfa\xff\x36\x50") == []         # LEN 80 > 64: rejected at once
     out = p.feed(frame(0))
     assert len(out) == 1 and p.counts.oversized_headers == 1 and p.pending == 0
+
+
+def test_a_fake_extended_header_is_dropped_once_two_frames_follow() -> None:
+    """Garbage reading FA FF 36 FF 07 D0 (a 2000-byte frame) held every frame after it until 2000 bytes had
+    come: 0.2 s of samples at 200 Hz, which the live merge then dropped as late."""
+    p = XsensParser(max_payload=XBUS_MAX_PAYLOAD)
+    got = p.feed(frame(0) + b"\xfa\xff\x36\xff\x07\xd0")
+    for k in range(1, 30):                      # one frame per read, as the device sends them
+        got += p.feed(frame(k))
+        assert len(got) >= k                    # frame k-1 is out once frame k has come: one frame late
+    assert [round(s.accel[0] * 2) for s in got] == list(range(len(got))) and len(got) == 30
+    assert p.counts.oversized_headers == 1 and p.counts.bytes_skipped == 6
+    real = XsensParser(max_payload=XBUS_MAX_PAYLOAD)   # a real 1000-byte frame fed in pieces still comes
+    big = encode_mtdata2(counter=1, sample_time_fine=5, accel=(1, 2, 3), gyro=(4, 5, 6),
+                         extra=[(0x2010, frame(k)[:40]) for k in range(25)])     # frames inside its data
+    assert len(big) > 1000 and b"\xfa\xff" in big[4:]
+    assert sum(len(real.feed(big[i:i + 100])) for i in range(0, len(big), 100)) == 1
+    assert real.counts.oversized_headers == 0
 
 
 def test_a_listening_reader_takes_frames_with_more_fields_than_the_four() -> None:
