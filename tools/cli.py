@@ -122,6 +122,19 @@ def _empty_value(given: list[str]) -> tuple[str, str] | None:
     return None
 
 
+def _command_path(parser: argparse.ArgumentParser, args: argparse.Namespace) -> str:
+    """The (sub)command `args` ran, as typed: "run", "eval ate", "bench startup" (messages name it as
+    argparse's own errors do)."""
+    names, level = [], parser
+    while True:
+        sub = next((a for a in level._actions if isinstance(a, argparse._SubParsersAction)), None)
+        name = None if sub is None else getattr(args, sub.dest, None)
+        if sub is None or name not in sub.choices:
+            return " ".join(names)
+        names.append(name)
+        level = sub.choices[name]
+
+
 def _drop_stdout() -> None:
     """Point descriptor 1 at /dev/null, so that the interpreter's flush at exit does not fail again on the
     closed pipe."""
@@ -176,21 +189,22 @@ def main(argv: list[str] | None = None) -> int:
                 return int(args._run(args) or 0)
         return int(args._run(args) or 0)
     except DavioError as exc:
-        print(f"davio {args.command}: error: {exc}", file=sys.stderr)
+        print(f"davio {_command_path(parser, args)}: error: {exc}", file=sys.stderr)
         return 1
     except (KeyboardInterrupt, Exception) as exc:   # Ctrl-C, also one surfacing through a C extension
         from runtime.errors import caused_by_interrupt
 
         if caused_by_interrupt(exc):
             how = "" if isinstance(exc, KeyboardInterrupt) else f" ({type(exc).__name__})"
-            print(f"davio {args.command}: interrupted{how}", file=sys.stderr)
+            print(f"davio {_command_path(parser, args)}: interrupted{how}", file=sys.stderr)
             return 130
         if isinstance(exc, BrokenPipeError):    # `davio ... | head`: the reader has all it wanted
             _drop_stdout()
             return 141
         if isinstance(exc, OSError):     # the machine's (a permission, a full disk): the command said no more
             where = f"{exc.filename}: " if exc.filename else ""
-            print(f"davio {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
+            print(f"davio {_command_path(parser, args)}: error: {where}{exc.strerror or exc}",
+                  file=sys.stderr)
             return 1
         raise
 

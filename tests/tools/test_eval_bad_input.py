@@ -83,7 +83,7 @@ def test_save_aligned_into_an_existing_folder(tum_pair, tmp_path: Path, capsys) 
     assert len((out / "est_aligned.tum").read_text().splitlines()) == 41  # header + 40 poses
     assert main(["eval", "ate", str(est), str(ref), "--save-aligned", str(out)]) == 1   # exists now
     target = out / "est_aligned.tum"
-    assert capsys.readouterr().err == (f"davio eval: error: --save-aligned {target}: exists; "
+    assert capsys.readouterr().err == (f"davio eval ate: error: --save-aligned {target}: exists; "
                                        "pass --overwrite to replace it, or choose another file\n")
     assert main(["eval", "ate", str(est), str(ref), "--save-aligned", str(out), "--overwrite"]) == 0
     assert "aligned estimate" in capsys.readouterr().out  # the table row (rich may shorten the path)
@@ -110,7 +110,8 @@ def test_plot_naming_a_file_is_a_one_line_error(tum_pair, capsys, metric: str) -
     est, _, ref = tum_pair
     assert main(["eval", metric, str(est), str(ref), "--plot", str(ref)]) == 1
     err = capsys.readouterr().err
-    assert err == f"davio eval: error: --plot {ref}: is a file; --plot takes a folder for the PNG plots\n"
+    assert err == (f"davio eval {metric}: error: --plot {ref}: is a file; --plot takes a folder for the PNG "
+                   "plots\n")
 
 
 @pytest.mark.parametrize("metric", ["ate", "rpe"])
@@ -198,7 +199,7 @@ def test_surface_on_a_truncated_ply_is_a_one_line_error(tmp_path: Path, capsys, 
                     b"property float z\nend_header" + body)
     np.save(tmp_path / "ref.npy", np.eye(3))
     assert main(["eval", "surface", str(rec), str(tmp_path / "ref.npy")]) == 1
-    assert capsys.readouterr().err == f"davio eval: error: {rec}: {message}\n"
+    assert capsys.readouterr().err == f"davio eval surface: error: {rec}: {message}\n"
 
 
 def test_surface_json_is_strict_and_a_folder_is_refused(tmp_path: Path, capsys) -> None:
@@ -206,7 +207,8 @@ def test_surface_json_is_strict_and_a_folder_is_refused(tmp_path: Path, capsys) 
     assert main(["eval", "surface", str(tmp_path / "a.npy"), str(tmp_path / "a.npy"), "--json"]) == 0
     assert _strict(capsys.readouterr().out)["fscore"] == 1.0
     assert main(["eval", "surface", str(tmp_path), str(tmp_path / "a.npy")]) == 1
-    assert capsys.readouterr().err == f"davio eval: error: {tmp_path}: is a folder, not a point cloud file\n"
+    assert capsys.readouterr().err == (f"davio eval surface: error: {tmp_path}: is a folder, not a point "
+                                       "cloud file\n")
     np.save(tmp_path / "s.npy", np.array([["a", "b", "c"]]))
     assert main(["eval", "surface", str(tmp_path / "s.npy"), str(tmp_path / "a.npy")]) == 1
     assert "not a numeric numpy array file" in capsys.readouterr().err
@@ -220,8 +222,8 @@ def test_map_export_into_a_folder_and_bad_voxel(tmp_path: Path, capsys) -> None:
     assert (out / "map.ply").is_file()
     capsys.readouterr()
     assert main(["map", "export", str(tmp_path / "run"), "--voxel", "0"]) == 1
-    assert capsys.readouterr().err == ("davio map: error: --voxel must be an edge length from 0.005 to "
-                                       "10.0 m, got 0.0\n")
+    assert capsys.readouterr().err == ("davio map export: error: --voxel must be an edge length from 0.005 "
+                                       "to 10.0 m, got 0.0\n")
     assert main(["map", "export", str(tmp_path / "run"), "--voxel", "1e-6"]) == 1
     assert "--voxel must be an edge length" in capsys.readouterr().err
     for bad in ("inf", "nan"):
