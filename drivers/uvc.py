@@ -123,8 +123,9 @@ class UvcCamera(KeptFrames):
         self.camera_id = int(camera_id)
         self.open_timeout_s = float(open_timeout_s)
         self.is_file = self._is_video_file(self.device)
-        self.kernel_stamps = bool(kernel_stamps)
-        """Use the V4L2 buffer stamps (decided once the device is open: a V4L2 device, not a file)."""
+        self.kernel_stamps = bool(kernel_stamps) and not self.is_file
+        """Use the V4L2 buffer stamps (decided once the device is open: a V4L2 device; never a file, whose
+        "buffer stamp" is its playback position)."""
         self.host_stamped = 0
         """Frames of a kernel-stamped device whose buffer stamp was unusable (stamped on the host)."""
         self._half_exposure_ns = 0 if exposure_s is None else int(round(exposure_s * 0.5e9))
@@ -555,6 +556,8 @@ class UvcCamera(KeptFrames):
 
     def _stamp_description(self) -> str:
         if self.is_file and self.file_stamps:
+            if not self.file_fps:           # the file did not open (start() raised)
+                return "file: start + index / the file's rate (not known: the file was not opened)"
             return f"file: start + index / {self.file_fps:g} fps"
         if self.kernel_stamps:
             return ("V4L2 kernel buffer stamps (CLOCK_MONOTONIC)"

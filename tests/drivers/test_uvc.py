@@ -125,6 +125,22 @@ def test_undecodable_file_and_directory(tmp_path: Path) -> None:
         UvcCamera(str(tmp_path)).start()
 
 
+def test_a_paced_file_is_host_stamped_not_taken_for_a_kernel_clock(video: Path, tmp_path: Path) -> None:
+    """As `davio live uvc --camera FILE` opens it: every frame was counted as an unusable V4L2 buffer
+    stamp (its playback position read as one) and the report named the kernel clock."""
+    cam = UvcCamera(video, fps=200.0, realtime=True).start()
+    frames = drain(cam)
+    rep = cam.report()
+    cam.stop()
+    assert frames and rep["host_stamped"] == 0 and rep["stamps"].startswith("host monotonic after grab()")
+    bad = tmp_path / "bad.avi"
+    bad.write_bytes(b"not a video" * 100)
+    failed = UvcCamera(bad, file_stamps=True)
+    with pytest.raises(DeviceError, match="cannot be decoded"):
+        failed.start()
+    assert "not known" in failed.report()["stamps"]          # report() after a failed start raised
+
+
 def test_stop_is_idempotent_and_get_after_stop(video: Path) -> None:
     cam = UvcCamera(video, realtime=True, file_stamps=True).start()
     assert cam.get(1.0) is not None
