@@ -4,6 +4,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -145,3 +146,17 @@ def test_an_os_error_while_interrupted_is_the_interruption_and_a_closed_pipe_is_
     monkeypatch.setattr(info, "run", closed_pipe)
     assert main(["info"]) == 141 and dropped == [True]          # a reader that closed the pipe
     assert capsys.readouterr().err == ""
+
+
+def test_a_rich_table_on_a_closed_pipe_exits_quietly_with_141(tmp_path: Path) -> None:
+    """rich answered a reader that closed the pipe with its own SystemExit(1): an error exit."""
+    from tests.tools.test_eval_io import random_traj
+    from tools.evaluation import write_tum
+
+    write_tum(tmp_path / "e.tum", random_traj(40))
+    proc = subprocess.Popen([sys.executable, "-m", "tools.cli", "eval", "ate", str(tmp_path / "e.tum"),
+                             str(tmp_path / "e.tum")], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            cwd=Path(__file__).resolve().parents[2])
+    proc.stdout.close()                         # the reader is gone before the table is printed
+    err = proc.stderr.read()
+    assert proc.wait(timeout=120) == 141 and err == b""

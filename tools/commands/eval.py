@@ -91,9 +91,9 @@ def _stats_table(title: str, rows: list[tuple[str, dict, str]], extra: list[tupl
 
 
 def _print(*renderables) -> None:
-    from rich.console import Console
+    from tools.stdout_console import stdout_console
 
-    con = Console()
+    con = stdout_console()
     for r in renderables:
         con.print(r)
 

@@ -87,10 +87,11 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(strict_dumps(info, indent=2))
         return 0
-    from rich.console import Console
     from rich.table import Table
 
-    con = Console()
+    from tools.stdout_console import stdout_console
+
+    con = stdout_console()
     t = Table(title="DAVIO environment", show_header=False)
     t.add_row("python", f"{info['python']} ({info['system']} {info['machine']})")
     for k, v in info["packages"].items():
