@@ -54,7 +54,7 @@ def _problem(msg: dict, key: str) -> str | None:
         return f"t_ns {printable(t_ns, 40)} is not a stamp in ns"
     if msg["type"] == "event":
         t_s = msg.get("t_s", 0.0)
-        if isinstance(t_s, bool) or not isinstance(t_s, int | float) or not np.isfinite(float(t_s)):
+        if not _finite_vector([t_s], 1, 1e12):
             return f"t_s {printable(t_s, 40)} is not a number of seconds"
         return None
     if not isinstance(msg.get("source"), str) or isinstance(msg.get("segment"), bool) \

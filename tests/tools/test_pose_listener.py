@@ -171,6 +171,9 @@ def test_a_malformed_datagram_is_counted_and_the_listener_goes_on(changes: dict,
 
 def test_hostile_datagrams_neither_crash_nor_drive_the_terminal():
     lis = PoseListener("map")
+    huge = {"type": "event", "v": 1, "run": "r0", "seq": 0, "t_ns": 5, "t_s": 10**400, "message": "x"}
+    said = lis.feed(json.dumps(huge).encode())                     # float(10**400): OverflowError
+    assert said[-1].startswith("malformed DAVIO datagram (t_s")
     deep = b"[" * 32000 + b"]" * 32000                  # RecursionError in json.loads
     assert lis.feed(deep)[0].startswith("not a DAVIO stream datagram")
     event = {"type": "event", "v": 1, "run": "r1", "seq": 0, "t_ns": 5, "t_s": 1.0, "kind": "x",
