@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from drivers.validation import is_float
 from runtime.errors import TrajectoryError
 from runtime.geometry import quat_wxyz_to_rot
 from runtime.geometry.trajectory import PoseTrajectory
@@ -78,15 +79,6 @@ def _lines(path: Path) -> list[tuple[int, str]]:
 
 def _data_lines(path: Path) -> list[tuple[int, str]]:
     return [(lineno, s) for lineno, s in _lines(path) if not s.startswith("#")]
-
-
-def _is_number(field: str) -> bool:
-    """True for what float() reads ('-1', '+2.5e3'): such a first field starts a data row, not a header."""
-    try:
-        float(field)
-    except ValueError:
-        return False
-    return True
 
 
 def _header_quaternion_order(header: str) -> str | None:
@@ -202,7 +194,7 @@ def read_euroc_csv(path: str | Path, strictly_increasing: bool = False) -> PoseT
     width = None
     for k, (lineno, line) in enumerate(_data_lines(path)):
         f = [x.strip() for x in line.split(",")]
-        if k == 0 and not _is_number(f[0]):
+        if k == 0 and not is_float(f[0]):       # '-1', '+2.5e3' start a data row, not a header
             continue  # text header without '#'
         if len(f) not in (8, 17):
             raise TrajectoryError(f"{len(f)} fields, expected 8 (t,p,q) or 17 (t,p,q,v,bg,ba)", path, lineno)
@@ -232,7 +224,7 @@ def detect_format(path: str | Path) -> str:
     header = ""
     for lineno, line in _lines(path):
         f = [x.strip() for x in line.split(",")]
-        if line.startswith("#") or (not _is_number(f[0]) and len(f) > 1):
+        if line.startswith("#") or (not is_float(f[0]) and len(f) > 1):
             header = line  # a comment or a header line
             continue
         if len(f) in (8, 17) and f[0].isascii() and f[0].isdigit():

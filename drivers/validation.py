@@ -60,7 +60,7 @@ def _exponent_cut(last: str, before: list[str]) -> bool:
     return m is None or len(m.group(3)) < min(digits)
 
 
-def _is_float(text: str) -> bool:
+def is_float(text: str) -> bool:
     """Whether `text` reads as a number (nan, inf and 1e3 included): a corrupt stamp, not a header word."""
     try:
         float(text)
@@ -129,7 +129,7 @@ def read_stamped_csv(path: str | Path, n_values: int, counts: StreamCounts, poli
         if stripped.startswith("#"):
             continue
         fields = [f.strip() for f in stripped.split(",")]
-        if not seen_data and not any(_is_float(f) or _is_float(f.rsplit(".", 1)[0]) for f in fields):
+        if not seen_data and not any(is_float(f) or is_float(f.rsplit(".", 1)[0]) for f in fields):
             if report is not None:
                 report.note(f"{path.name}: line {lineno} read as a header without '#': {stripped[:60]!r}")
             seen_data = True

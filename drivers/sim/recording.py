@@ -116,11 +116,11 @@ class SimConfig:
                               f"got {self.groundtruth_mode!r}")
         if self.scene_span not in SCENE_SPANS:
             raise ConfigError(f"SimConfig.scene_span must be one of {SCENE_SPANS}, got {self.scene_span!r}")
-        check_sim_seconds(self.seconds, "seconds")
+        check_sim_seconds(self.seconds)
         if isinstance(self.start_s, bool) or not isinstance(self.start_s, numbers.Real) \
                 or not (math.isfinite(self.start_s) and 0 <= self.start_s <= MAX_START_S):
-            raise ConfigError(f"start_s (--start) must be a number of seconds from 0 to {MAX_START_S:g}, "
-                              f"got {self.start_s!r}")
+            raise ConfigError(f"--start must be a number of seconds from 0 to {MAX_START_S:g} "
+                              f"(SimConfig.start_s), got {self.start_s!r}")
         s = self.attitude_smoothing_s
         if isinstance(s, bool) or not isinstance(s, int | float) or not 0.0 < s < float("inf"):
             raise ConfigError(f"SimConfig.attitude_smoothing_s must be a positive number of seconds, "
