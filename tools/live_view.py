@@ -18,7 +18,9 @@ every update is cheap and throttled, and a failing view never stops the run (err
 """
 from __future__ import annotations
 
+import argparse
 import contextlib
+import socket
 import sys
 import threading
 import time
@@ -29,6 +31,9 @@ import numpy as np
 
 from runtime.errors import ConfigError
 
+DEFAULT_HOST = "0.0.0.0"
+"""Interface the view listens on by default: every one (reachable from other machines)."""
+DEFAULT_PORT = 8080
 TRAJECTORY_RGB = (255, 140, 0)
 """Colour of the published map-frame trajectory."""
 
@@ -52,7 +57,7 @@ class LiveView:
         min_interval_s: the trajectory is redrawn at most this often.
     """
 
-    def __init__(self, port: int = 8080, host: str = "0.0.0.0", max_trajectory: int = 20000,
+    def __init__(self, port: int = DEFAULT_PORT, host: str = DEFAULT_HOST, max_trajectory: int = 20000,
                  max_points_per_submap: int = 20000, min_interval_s: float = 0.1) -> None:
         try:
             import viser
@@ -61,6 +66,7 @@ class LiveView:
                               ) from exc
         with contextlib.redirect_stdout(sys.stderr):     # viser's banner: stdout stays for --json
             self.server = viser.ViserServer(host=host, port=port, verbose=False)
+        self.host = host
         self.server.scene.set_up_direction("+z")
         self.max_trajectory = int(max_trajectory)
         self.max_points = int(max_points_per_submap)
@@ -79,8 +85,11 @@ class LiveView:
 
     @property
     def url(self) -> str:
-        """Where to point a browser (localhost; from another machine use this machine's address)."""
-        return f"http://localhost:{self.server.get_port()}"
+        """Where to point a browser (localhost when it listens on every interface; from another machine
+        use this machine's address then)."""
+        host = "localhost" if self.host in ("0.0.0.0", "::", "") else self.host
+        host = f"[{host}]" if ":" in host else host
+        return f"http://{host}:{self.server.get_port()}"
 
     def _guard(self, fn: Callable[[], None]) -> None:
         try:
@@ -162,21 +171,75 @@ class LiveView:
 
 
 def add_view_argument(p: Any) -> None:
-    """The `--view [PORT]` option of `davio run` and `davio live`."""
-    p.add_argument("--view", nargs="?", const=8080, type=int, default=None, metavar="PORT",
-                   help="serve a live view of the trajectory and the map in a browser at http://HOST:PORT "
-                        "(default 8080; needs the optional viser package: pip install 'davio[view]')")
+    """The `--view [[HOST:]PORT]` option of `davio run` and `davio live`."""
+    p.add_argument("--view", nargs="?", const=(DEFAULT_HOST, DEFAULT_PORT), type=view_address, default=None,
+                   metavar="[HOST:]PORT",
+                   help=f"serve a live view of the trajectory and the map in a browser at http://HOST:PORT "
+                        f"(default port {DEFAULT_PORT}, on every interface: reachable from other machines, "
+                        f"without a password; 127.0.0.1:PORT keeps it to this machine; needs the optional "
+                        f"viser package: pip install 'davio[view]')")
 
 
-def open_view(port: int | None) -> LiveView | None:
-    """The live view on `port` (None: no view), its address printed on stderr."""
-    if port is None:
+def view_address(text: str) -> tuple[str, int]:
+    """`--view`'s value: (host, port) from `PORT`, `HOST:PORT` or `[IPv6]:PORT` (argparse type)."""
+    host, sep, port_text = text.strip().rpartition(":")
+    if not sep:
+        host = DEFAULT_HOST
+    elif host.startswith("[") and host.endswith("]"):
+        host = host[1:-1]
+    elif ":" in host:
+        raise argparse.ArgumentTypeError(f"{text!r}: write an IPv6 address in brackets, [::1]:8080")
+    if sep and not host:
+        raise argparse.ArgumentTypeError(f"{text!r}: no host before ':' (PORT alone: every interface)")
+    if not (port_text.isascii() and port_text.isdigit()) or not 0 < int(port_text) < 65536:
+        raise argparse.ArgumentTypeError(f"{text!r}: the port must be a TCP port (1-65535), as in 8080 or "
+                                         "127.0.0.1:8080")
+    return host, int(port_text)
+
+
+def _check_listenable(host: str) -> None:
+    """Refuse a host this machine cannot listen on (viser would retry port after port without end)."""
+    try:
+        family, _, _, _, address = socket.getaddrinfo(host, None, type=socket.SOCK_STREAM,
+                                                      flags=socket.AI_PASSIVE)[0]
+    except (socket.gaierror, UnicodeError) as exc:
+        raise ConfigError(f"--view: {host!r} is not a host name or address this machine resolves "
+                          f"({getattr(exc, 'strerror', None) or exc})") from None
+    with socket.socket(family, socket.SOCK_STREAM) as probe:
+        try:
+            probe.bind((address[0], 0))
+        except OSError as exc:
+            raise ConfigError(f"--view: cannot listen on {host} ({exc.strerror or exc}): not an address of "
+                              f"this machine") from None
+
+
+def open_view(address: tuple[str, int] | int | None) -> LiveView | None:
+    """The live view at `address` ((host, port), a port on every interface, None: no view), its address
+    printed on stderr."""
+    if address is None:
         return None
+    host, port = (DEFAULT_HOST, address) if isinstance(address, int) else address
     if not 0 < int(port) < 65536:
         raise ConfigError(f"--view: {port} is not a TCP port (1-65535)")
-    view = LiveView(port=int(port))
+    _check_listenable(host)
+    view = LiveView(port=int(port), host=host)
     served = view.server.get_port()
     busy = f"port {port} is busy: " if served != int(port) else ""
-    print(f"  live view: {busy}{view.url} (open to the network, without a password: from another machine "
-          f"http://<this machine's address>:{served})", file=sys.stderr, flush=True)
+    if host in ("0.0.0.0", "::", ""):
+        reach = (f"open to the network, without a password: from another machine "
+                 f"http://<this machine's address>:{served}; --view 127.0.0.1:{port} keeps it to this "
+                 f"machine")
+    elif _is_loopback(host):
+        reach = "this machine only"
+    else:
+        reach = f"on {host} only, without a password"
+    print(f"  live view: {busy}{view.url} ({reach})", file=sys.stderr, flush=True)
     return view
+
+
+def _is_loopback(host: str) -> bool:
+    try:
+        addresses = {info[4][0] for info in socket.getaddrinfo(host, None, type=socket.SOCK_STREAM)}
+    except (socket.gaierror, UnicodeError):
+        return False
+    return all(a.startswith("127.") or a == "::1" for a in addresses)

@@ -249,7 +249,7 @@ def test_the_live_view_opens_before_the_device_and_closes_after_it(tmp_path: Pat
     assert main(["live", "uvc", "--imu-port", str(tmp_path / "tty"), "--rig", str(rig_file), "--view", "8765",
                  "--out", str(tmp_path / "run")]) == 1
     assert "no such device (test)" in capsys.readouterr().err
-    assert calls == ["view 8765", "device", "view closed"]
+    assert calls == ["view ('0.0.0.0', 8765)", "device", "view closed"]
     calls.clear()
     sinks = RunSinks(tmp_path, None, None, view=FakeView())
     sinks.close()

@@ -17,7 +17,7 @@ pytest.importorskip("viser", reason="the live view's optional package (pip insta
 from runtime.errors import ConfigError  # noqa: E402
 from runtime.geometry import make_pose, so3_exp  # noqa: E402
 from runtime.mapping.submap import Submap  # noqa: E402
-from tools.live_view import LiveView, open_view  # noqa: E402
+from tools.live_view import LiveView, open_view, view_address  # noqa: E402
 
 
 def free_port() -> int:
@@ -102,6 +102,58 @@ def test_a_busy_port_is_said_not_silently_replaced(capsys) -> None:
             assert "open to the network" in err
         finally:
             view.close()
+
+
+@pytest.mark.parametrize("text, expected", [
+    ("8080", ("0.0.0.0", 8080)), ("127.0.0.1:9000", ("127.0.0.1", 9000)), ("localhost:1", ("localhost", 1)),
+    ("[::1]:65535", ("::1", 65535)), (" 0.0.0.0:8081 ", ("0.0.0.0", 8081))])
+def test_view_address_reads_port_or_host_and_port(text: str, expected: tuple) -> None:
+    assert view_address(text) == expected
+
+
+@pytest.mark.parametrize("text, said", [
+    ("::1:9000", "brackets"), (":9000", "no host"), ("127.0.0.1:0", "TCP port"), ("127.0.0.1:", "TCP port"),
+    ("host:x", "TCP port"), ("70000", "TCP port"), ("", "TCP port"), ("\u0661\u0662", "TCP port")])
+def test_view_address_refuses_what_is_not_an_address(text: str, said: str) -> None:
+    import argparse
+
+    with pytest.raises(argparse.ArgumentTypeError, match=said):
+        view_address(text)
+
+
+def test_a_view_on_the_loopback_serves_this_machine_and_says_so(capsys) -> None:
+    port = free_port()
+    view = open_view(("127.0.0.1", port))
+    try:
+        assert view.url == f"http://127.0.0.1:{port}"
+        with urllib.request.urlopen(view.url, timeout=10) as reply:
+            assert reply.status == 200
+        err = capsys.readouterr().err
+        assert "this machine only" in err and "open to the network" not in err
+    finally:
+        view.close()
+
+
+@pytest.mark.parametrize("host, said", [("192.0.2.1", "not an address of this machine"),
+                                        ("no-such-host.invalid", "not a host name")])
+def test_a_host_this_machine_cannot_listen_on_is_refused(host: str, said: str) -> None:
+    """viser retries port after port without end on an address that is not this machine's (a hang)."""
+    with pytest.raises(ConfigError, match=said):
+        open_view((host, free_port()))
+
+
+def test_davio_run_refuses_a_view_address_before_the_run(small_sim_folder: Path, tmp_path: Path,
+                                                          capsys) -> None:
+    from conftest import cli_exit
+
+    out = tmp_path / "run"
+    assert cli_exit(["run", str(small_sim_folder), "--native-only", "--out", str(out),
+                     "--view", "::1:8080"]) == 2
+    assert "brackets" in capsys.readouterr().err
+    assert cli_exit(["run", str(small_sim_folder), "--native-only", "--out", str(out),
+                     "--view", "192.0.2.1:8080"]) == 1
+    assert "not an address of this machine" in capsys.readouterr().err
+    assert not out.exists() and not (tmp_path / "run.partial").exists()
 
 
 @pytest.mark.slow
