@@ -43,7 +43,7 @@ def summary(report: dict, out: Path) -> None:
           f"real-time factor {s.get('realtime_factor') or float('nan'):.2f}")
     mp = report["pipeline"].get("mapping")
     if mp is not None:
-        print("  " + mapping_line(mp, report.get("map") or {}))
+        print("  " + mapping_line(mp, report.get("map") or {}, report.get("config", {}).get("mapping")))
     if report.get("prior_map") is not None:
         print("  " + prior_line(report["prior_map"]))
     st = report.get("stream")
@@ -71,8 +71,9 @@ def prior_line(pm: dict) -> str:
             f"{pm['verified']} verified)")
 
 
-def mapping_line(mp: dict, summary: dict) -> str:
-    """One console line: windows mapped / offered, drops, rejections by reason, retained points."""
+def mapping_line(mp: dict, summary: dict, config: dict | None = None) -> str:
+    """One console line: windows mapped / offered, drops, rejections by reason, retained points, the
+    voxels in map.ply or why there is none (`config`: report.json's config "mapping")."""
     rej = ", ".join(f"{k} x{v}" for k, v in sorted(mp["windows_rejected"].items())) or "none"
     sampled = max(mp["points_sampled"], 1)
     return (f"map: {mp['windows_accepted']}/{mp['windows_offered']} windows mapped, "
@@ -80,8 +81,18 @@ def mapping_line(mp: dict, summary: dict) -> str:
             f"{mp['points_retained']} points kept ({100 * mp['rejected_confidence'] / sampled:.0f} % low "
             f"confidence, {100 * mp['rejected_multiview'] / sampled:.0f} % failed the multi-view test, "
             f"{100 * mp.get('points_unverified', 0) / sampled:.0f} % kept seen by one image only); "
-            f"{summary.get('voxels', 0)} voxels in map.ply" + _graph_text(mp.get("graph"))
+            + _ply_text(mp, summary, config) + _graph_text(mp.get("graph"))
             + _archive_stopped_text(summary.get("archive_stopped")))
+
+
+def _ply_text(mp: dict, summary: dict, config: dict | None) -> str:
+    if summary.get("ply"):
+        return f"{summary.get('voxels', 0)} voxels in {summary['ply']}"
+    if mp["windows_offered"] or not config:
+        return "no map.ply (nothing was mapped)"
+    n, dt = config["window_images"], config["keyframe_spacing_s"]
+    return (f"no map.ply: no window was complete (a window is {n} keyframes {dt:g} s apart taken while poses "
+            f"are published, {(n - 1) * dt:g} s; run longer)")
 
 
 def _archive_stopped_text(stopped: dict | None) -> str:

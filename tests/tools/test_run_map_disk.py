@@ -102,3 +102,15 @@ def test_a_long_export_at_the_end_of_a_run_says_how_far_it_is(tmp_path, monkeypa
     err = capsys.readouterr().err
     # one line at most every 5 s, none for the last submap (the export is then done)
     assert err.splitlines() == ["  exporting map.ply: 2/4 submaps fused (6 s)"]
+
+
+def test_the_summary_says_why_a_run_has_no_map_ply() -> None:
+    """A run too short for one window wrote no map.ply; the line said "0 voxels in map.ply"."""
+    none_offered = dict(MP, windows_accepted=0, windows_offered=0, points_retained=0)
+    config = {"window_images": 5, "keyframe_spacing_s": 0.5}
+    line = _mapping_line(none_offered, {"ply": None, "voxels": 0}, config)
+    assert "map.ply:" in line and "no window was complete" in line and "5 keyframes 0.5 s apart" in line
+    assert ", 2 s;" in line and "voxels in map.ply" not in line
+    rejected = dict(MP, windows_accepted=0, windows_rejected={"fit_rmse": 5}, points_retained=0)
+    assert "no map.ply (nothing was mapped)" in _mapping_line(rejected, {"ply": None, "voxels": 0}, config)
+    assert "1234 voxels in map.ply" in _mapping_line(MP, {"ply": "map.ply", "voxels": 1234}, config)
