@@ -20,7 +20,8 @@ Merging (`events()`), in non-decreasing t_ns order with the IMU first at equal s
   stamp that does not increase) is dropped and counted.
 - Samples an IMU source lost to its queue's overflow (`take_overflow()`, optional) are flagged on the
   next sample it delivers (`ImuSample.lost_before`): the filter counts the gap and the feed-forward
-  start-up never solves a window across it.
+  start-up never solves a window across it. So are the samples the merge drops as out of order (they
+  came after a frame released ahead of them) and the flags such a dropped sample carried.
 `events()` returns when `stop()` is called (from any thread or a signal handler; within about
 `poll_s`), or when a source ends (the rest is flushed first). A source error is raised from
 `events()` as that DavioError (anything else is wrapped in a DeviceError).
@@ -58,6 +59,7 @@ SOURCE_LOSSES = {
     "missing_fields": "packets lacking a field dropped",
     "partial_packets": "partial packets dropped",
     "seq_gaps": "gaps in the device's sequence counter",
+    "seq_skipped": "frames skipped in those gaps",
     "missing_estimated": "samples missing in those gaps (estimated)",
     "bytes_skipped": "bytes skipped to resynchronise",
 }
@@ -207,13 +209,16 @@ class LiveDriver(Driver):
         if self.cam_out_of_order:
             rep.note(f"cam0: {self.cam_out_of_order} frames older than events already released were dropped")
         if self.imu_out_of_order:
-            rep.note(f"imu0: {self.imu_out_of_order} samples older than events already released were dropped")
+            rep.note(f"imu0: {self.imu_out_of_order} samples older than events already released were dropped "
+                     f"(they came after a frame released ahead of them)")
         if self.imu_duplicate:
             rep.note(f"imu0: {self.imu_duplicate} samples repeating the previous stamp were dropped")
         overflow = int(imu_rep.get("overflow", 0) or 0)
         if overflow:
-            rep.note(f"imu0: {overflow} samples lost to the IMU queue's overflow (the consumer fell behind); "
-                     f"{self.imu_lost_flagged} flagged to the filter as gaps")
+            rep.note(f"imu0: {overflow} samples lost to the IMU queue's overflow (the consumer fell behind)")
+        if self.imu_lost_flagged:
+            rep.note(f"imu0: {self.imu_lost_flagged} lost samples flagged to the filter as gaps (on the "
+                     f"sample after them)")
         if cam.converted and cam_rep.get("conversion"):
             rep.note(f"cam0: images converted ({cam_rep['conversion']})")
         if cam_rep.get("clipped_images"):
@@ -251,21 +256,26 @@ class LiveDriver(Driver):
         cam_done = imu_done = False
 
         take_overflow = getattr(imu, "take_overflow", None)
+        carried = [0]     # samples lost before the next kept one: overflow, dropped ones and their flags
 
         def accept_imu(s: ImuSample) -> None:
             self.imu_received += 1
-            lost = int(take_overflow() or 0) if take_overflow is not None else 0
-            if lost:     # the source dropped its oldest samples: they preceded this one
-                s = dataclasses.replace(s, lost_before=int(s.lost_before) + lost)
-                self.imu_lost_flagged += lost
+            # the source dropped its oldest samples: they preceded this one
+            carried[0] += int(take_overflow() or 0) if take_overflow is not None else 0
             t = int(s.t_ns)
             newest = state["imu_newest"]
             if newest is not None and t == newest:
                 self.imu_duplicate += 1
+                carried[0] += int(s.lost_before)
             elif (newest is not None and t < newest) or (
                     state["last_key"] is not None and (t, _IMU) < state["last_key"]):
                 self.imu_out_of_order += 1
+                carried[0] += int(s.lost_before) + 1
             else:
+                if carried[0]:
+                    s = dataclasses.replace(s, lost_before=int(s.lost_before) + carried[0])
+                    self.imu_lost_flagged += carried[0]
+                    carried[0] = 0
                 imu_buf.append(s)
                 state["imu_newest"] = t
 

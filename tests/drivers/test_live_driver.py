@@ -157,8 +157,16 @@ def test_late_imu_frames_go_ahead_after_imu_wait(video: Path) -> None:
     check_order(events)
     rep = drv.report()
     assert rep["live"]["frames_ahead_of_imu"] > 0
-    assert rep["streams"]["imu0"]["dropped_nonmonotonic"] > 0  # samples older than released frames
+    dropped = rep["streams"]["imu0"]["dropped_nonmonotonic"]
+    assert dropped > 0  # samples older than released frames
     assert any("before the IMU reached" in n for n in rep["notes"])
+    # the dropped samples leave holes in the IMU the filter gets: each is flagged on the next sample kept
+    imus = [e for e in events if isinstance(e, ImuSample)]
+    flagged = [k for k, e in enumerate(imus) if e.lost_before]
+    assert flagged and 0 < sum(imus[k].lost_before for k in flagged) <= dropped
+    assert rep["live"]["imu_lost_flagged"] == sum(imus[k].lost_before for k in flagged)
+    for k in flagged:
+        assert imus[k].t_ns - imus[k - 1].t_ns == (imus[k].lost_before + 1) * IMU_PERIOD_NS
 
 
 def test_stop_from_another_thread_ends_events_promptly(video: Path) -> None:
@@ -360,8 +368,9 @@ def test_imu_overflow_is_flagged_on_the_next_sample_delivered(video: Path) -> No
         assert len(lost_here) == e.lost_before
     rep = drv.report()
     assert rep["live"]["imu_lost_flagged"] == imu.lost
-    assert any(f"{imu.lost} samples lost" in n and f"{imu.lost} flagged to the filter" in n
-               for n in rep["notes"])
+    notes = rep["notes"]
+    assert f"imu0: {imu.lost} samples lost to the IMU queue's overflow (the consumer fell behind)" in notes
+    assert f"imu0: {imu.lost} lost samples flagged to the filter as gaps (on the sample after them)" in notes
 
 
 class LossyImu(FakeImu):
