@@ -29,14 +29,15 @@ Camera and IMU share the device clock, so LiveDriver merges them without any clo
 time offset is 0 (`read_oak_rig`). The reader threads only read, convert and enqueue.
 
 Errors are `runtime.errors.DeviceError`, one line: `open()` / `start()` raise "no OAK device found (...)"
-within `probe_timeout_s` (2 s) when none is attached (probe: `dai.Device.getAllAvailableDevices()`),
-or why the device or the pipeline could not be opened. A queue that fails while running (the device
-was unplugged or crashed: depthai closes the queues and raises `MessageQueue.QueueException`) or that
-stays silent for `stall_timeout_s` sets `.error` on both sources; `get` raises it once the samples
-already buffered have been taken. `stop()` is idempotent. Reconnection is off
+within `probe_timeout_s` (2 s) when none is attached (probe: `dai.Device.getAllAvailableDevices()`), or
+why the device or the pipeline could not be opened. A queue that fails while running (the device was
+unplugged or crashed: depthai closes the queues and raises `MessageQueue.QueueException`), that stays
+silent for `stall_timeout_s`, or whose messages give nothing usable for that long (stamps that went back,
+an accelerometer that stopped: the reason is counted in the error) sets `.error` on both sources; `get`
+raises it once the samples already buffered have been taken. `stop()` is idempotent. Reconnection is off
 (`setMaxReconnectionAttempts(0)`) and the pipeline stops on device loss (`setStopOnDeviceLoss(True)`):
-depthai's default would reconnect a crashed device, whose clock then restarts near zero, so every
-stamp after it would be dropped as going backwards while messages keep coming.
+depthai's default would reconnect a crashed device, whose clock then restarts near zero, so every stamp
+after it would be dropped as going backwards while messages keep coming.
 
 Calibration (`read_oak_rig`): intrinsics are the calibration's K at its own size, cropped and scaled to
 the output size as the Camera node's ImgResizeMode.CROP does (`oak_calib.crop_intrinsics`; depthai's
@@ -107,7 +108,8 @@ class OakDevice:
             `build_pipeline` (a real device).
         keep_frames: newest frames kept for the consumer; older ones are dropped and counted.
         imu_queue_seconds: the IMU sample queue holds this long at `imu_rate_hz` (x1.5).
-        stall_timeout_s: a stream silent this long after its first message is an error.
+        stall_timeout_s: a stream silent, or giving no usable frame or sample, this long after its first
+            one is an error.
         first_message_timeout_s: a stream that delivers nothing this long after start is an error.
         probe_timeout_s: the device probe's limit (open() / start() fail within it when none is attached).
         camera_id: the `Frame.camera_id`.
@@ -265,9 +267,13 @@ class OakDevice:
                 src._cond.notify_all()
 
     def _read(self, name: str, src: OakCamera | OakImu, queue: Any) -> None:
+        """Read one queue until stopped. A stream with no message, or whose messages give nothing usable
+        (stamps gone back after a device clock reset, an accelerometer that stopped), for
+        `stall_timeout_s` (`first_message_timeout_s` before the first) fails the device: waiting on would
+        hang the run with no error."""
         poll = _dt.timedelta(seconds=_POLL_S)
-        last = time.monotonic()
-        got_any = False
+        last = used = time.monotonic()
+        got_any = got_use = False
         try:
             while not src._stopping:
                 try:
@@ -278,8 +284,8 @@ class OakDevice:
                                    f"was unplugged or crashed")
                     return
                 now = time.monotonic()
+                limit = self.stall_timeout_s if got_use else self.first_message_timeout_s
                 if msg is None:
-                    limit = self.stall_timeout_s if got_any else self.first_message_timeout_s
                     if now - last > limit and not src._stopping:
                         what = "no message" if got_any else "no first message"
                         self._fail(f"{self.device}: {what} on the {name} queue for {now - last:.1f} s "
@@ -287,7 +293,15 @@ class OakDevice:
                         return
                     continue
                 got_any, last = True, now
-                src._ingest(msg, time.monotonic_ns())
+                if src._ingest(msg, time.monotonic_ns()):
+                    got_use, used = True, now
+                    src._used()
+                elif now - used > limit and not src._stopping:
+                    what = "usable" if got_use else "first usable"
+                    self._fail(f"{self.device}: messages on the {name} queue but no {what} "
+                               f"{'frame' if src is self.camera else 'IMU sample'} for {now - used:.1f} s "
+                               f"(limit {limit:g} s): {src.unusable_since() or 'none counted'}")
+                    return
         except DavioError as exc:
             self._fail(str(exc))
         except Exception as exc:  # noqa: BLE001 - never a traceback from the thread

@@ -90,6 +90,20 @@ class _Source:
         self._running = False
         self.error: DavioError | None = None
         """The failure of the device (unplugged, stalled); `get` raises it once the buffer is drained."""
+        self._counts_at_use: dict[str, int] = {}
+
+    def _counts(self) -> dict[str, int]:
+        """The counters of messages that gave nothing usable (`unusable_since`)."""
+        return {}
+
+    def _used(self) -> None:
+        """A message gave usable data: `unusable_since` counts from here."""
+        self._counts_at_use = self._counts()
+
+    def unusable_since(self) -> str:
+        """What the messages since the last usable one were dropped as ('' when none were counted)."""
+        now, then = self._counts(), self._counts_at_use
+        return ", ".join(f"{n - then.get(k, 0)} {k}" for k, n in now.items() if n - then.get(k, 0))
 
     @property
     def device(self) -> str:
@@ -131,7 +145,7 @@ class OakCamera(KeptFrames, _Source):
         self.camera_id = int(camera_id)
         self._buf: deque[Frame] = deque()
         self.frames = self.emitted = self.dropped_old = self.nonmonotonic = 0
-        self.seq_gaps = self.converted = 0
+        self.seq_gaps = self.seq_skipped = self.converted = 0
         self.conversion: str | None = None
         self.device_K: np.ndarray | None = None
         """The first frame's own intrinsics (`getTransformation().getIntrinsicMatrix()`), when valid."""
@@ -160,12 +174,11 @@ class OakCamera(KeptFrames, _Source):
             return -NEVER if self._last_t is None else self._last_t + 1
 
     def report(self) -> dict[str, Any]:
-        """Counters: frames (kept), emitted, dropped_old (buffer), seq_gaps (frames the device or its
-        queue skipped), nonmonotonic (dropped stamps), converted; the stamp source; error."""
+        """Counters: frames (kept), emitted, dropped_old (buffer), seq_gaps (jumps of the sequence number:
+        the device or its queue skipped frames), seq_skipped (the frames skipped), nonmonotonic (dropped
+        stamps), converted; the stamp source; error."""
         fps_m = self.fps_measured()
         notes = []
-        if self.seq_gaps:
-            notes.append(f"{self.seq_gaps} frames skipped before reaching the host (sequence numbers)")
         mismatch = intrinsics_mismatch(self.owner.rig_K, self.device_K, self.owner.width, self.owner.height)
         if mismatch:
             notes.append(mismatch)
@@ -173,14 +186,19 @@ class OakCamera(KeptFrames, _Source):
                 "size": [self.owner.width, self.owner.height], "fps_requested": self.owner.fps,
                 "fps_measured": None if fps_m is None else round(fps_m, 3),
                 "frames": self.frames, "emitted": self.emitted, "dropped_old": self.dropped_old,
-                "seq_gaps": self.seq_gaps, "nonmonotonic": self.nonmonotonic,
+                "seq_gaps": self.seq_gaps, "seq_skipped": self.seq_skipped, "nonmonotonic": self.nonmonotonic,
                 "converted": self.converted, "conversion": self.conversion, "keep_frames": self.keep_frames,
                 "device_K": None if self.device_K is None else self.device_K.tolist(),
                 "stamps": "device clock, mid-exposure (getTimestampDevice(MIDDLE))",
                 "error": None if self.error is None else str(self.error), "notes": notes}
 
     # reader side
-    def _ingest(self, msg: Any, t_host: int) -> None:
+    def _counts(self) -> dict[str, int]:
+        return {"frames whose device stamp did not increase (the device clock went back or jumped ahead)":
+                self.nonmonotonic}
+
+    def _ingest(self, msg: Any, t_host: int) -> bool:
+        """Take one ImgFrame; True when it gave a frame (kept, or dropped by the newest-frames buffer)."""
         from drivers import oak_pipeline  # at call time: the factory module's depthai (patched in tests)
 
         dai = oak_pipeline._import_depthai()
@@ -189,11 +207,12 @@ class OakCamera(KeptFrames, _Source):
         if self.device_K is None:
             self.device_K = frame_intrinsics(msg)
         if self._last_seq is not None and seq > self._last_seq + 1:
-            self.seq_gaps += seq - self._last_seq - 1
+            self.seq_gaps += 1
+            self.seq_skipped += seq - self._last_seq - 1
         self._last_seq = seq
         if self._last_t is not None and t_ns <= self._last_t:
             self.nonmonotonic += 1
-            return
+            return False
         grey = self._to_grey(dai, msg)
         if grey.shape != (self.owner.height, self.owner.width):
             raise DeviceError(f"{self.device}: delivers {grey.shape[1]}x{grey.shape[0]} images, "
@@ -201,8 +220,9 @@ class OakCamera(KeptFrames, _Source):
         frame = Frame(t_ns, grey, self.camera_id, meta={"seq": seq, "host_ns": t_host})
         with self._cond:
             if self._stopping:
-                return
+                return False
             self._keep_newest(frame)
+        return True
 
     def _to_grey(self, dai: Any, msg: Any) -> np.ndarray:
         kind = msg.getType()
@@ -315,7 +335,14 @@ class OakImu(_Source):
         out["error"] = None if self.error is None else str(self.error)
         return out
 
-    def _ingest(self, msg: Any, t_host: int) -> None:
+    def _counts(self) -> dict[str, int]:
+        p = self.pairer
+        return {"accelerometer reports": p.accel_reports, "gyroscope reports": p.gyro_reports,
+                "reports dropped as repeating or preceding their stream's stamp": p.repeated,
+                "gyroscope reports dropped without accelerometer reports around them": p.unpaired}
+
+    def _ingest(self, msg: Any, t_host: int) -> bool:
+        """Take one IMUData batch; True when it gave samples."""
         self.batches += 1
         p = self.pairer
         for pkt in msg.packets:
@@ -329,7 +356,7 @@ class OakImu(_Source):
                 p.add_gyro(tg, (g.x, g.y, g.z))
         samples = p.pop()
         if not samples:
-            return
+            return False
         if self._gap_at:
             samples = [dataclasses.replace(x, lost_before=x.lost_before + self._gap_at.pop(x.t_ns))
                        if x.t_ns in self._gap_at else x for x in samples]
@@ -345,3 +372,4 @@ class OakImu(_Source):
                 self._queue.append(s)
             self.enqueued += len(samples)
             self._cond.notify_all()
+        return True

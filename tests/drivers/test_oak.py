@@ -236,7 +236,8 @@ def test_sequence_gaps_nonmonotonic_and_nv12_luma() -> None:
         frames = [dev.camera.get(0.5) for _ in range(4)]
         rep = dev.camera.report()
     assert [f.meta["seq"] for f in frames] == [0, 1, 4, 6]
-    assert rep["seq_gaps"] == 2 and rep["nonmonotonic"] == 1  # 2 and 3 skipped; 5 went back in time
+    assert rep["seq_gaps"] == 1 and rep["seq_skipped"] == 2   # one jump: 2 and 3 skipped
+    assert rep["nonmonotonic"] == 1                             # 5 went back in time
     assert rep["converted"] == 1 and "NV12" in rep["conversion"]
     assert frames[-1].image.shape == (H, W) and int(frames[-1].image[0, 1]) == 7
 
@@ -363,6 +364,55 @@ def test_stall_is_a_device_error() -> None:
     with dev:
         with pytest.raises(DeviceError, match="no first message on the (camera|imu) queue"):
             dev.camera.get(2.0)
+
+
+def feed(q: FakeQueue, messages: list, period_s: float = 0.01) -> threading.Thread:
+    """A device thread putting `messages` into `q` one every `period_s` (messages keep arriving)."""
+    def run() -> None:
+        for m in messages:
+            q.put(m)
+            time.sleep(period_s)
+
+    t = threading.Thread(target=run, daemon=True)
+    t.start()
+    return t
+
+
+def test_frames_whose_stamps_went_back_for_good_fail_the_device_instead_of_hanging() -> None:
+    """A device clock reset: every later frame is older than the last one kept and is dropped. The
+    messages kept the stream 'alive', so no stall was seen and the run waited without end."""
+    dev, cq, iq, _ = fake_device(keep_frames=10, stall_timeout_s=0.3)
+    period = 33_333_333
+    back = [img_frame(i, period) for i in range(5, 105)]
+    for f in back:                                   # restamped 10 s earlier, still increasing
+        f.setTimestampDevice(f.getTimestampDevice() - dt.timedelta(seconds=10))
+    with dev:
+        for i in range(5):
+            cq.put(img_frame(i, period))
+        wait_until(lambda: dev.camera.frames == 5)
+        feed(cq, back)
+        wait_until(lambda: dev.camera.error is not None, timeout=5.0)
+        err = str(dev.camera.error)
+        assert "messages on the camera queue but no usable frame for" in err and "limit 0.3 s" in err
+        assert "frames whose device stamp did not increase" in err and "\n" not in err
+        assert isinstance(dev.imu.error, DeviceError)          # the whole device is failed
+        assert [dev.camera.get(0.1).meta["seq"] for _ in range(5)] == list(range(5))   # drained first
+        with pytest.raises(DeviceError, match="no usable frame"):
+            dev.camera.get(0.1)
+
+
+def test_an_accelerometer_that_stops_fails_the_device_instead_of_hanging() -> None:
+    """Gyroscope reports alone pair into no sample: the IMU delivered nothing, with messages flowing."""
+    dev, cq, iq, _ = fake_device(stall_timeout_s=0.3)
+    ms = 1_000_000
+    with dev:
+        iq.put(imu_batch([(T0 + k * 5 * ms,) * 2 for k in range(10)]))
+        wait_until(lambda: dev.imu.enqueued >= 9)
+        feed(iq, [imu_batch([(None, T0 + (10 + k) * 5 * ms)]) for k in range(200)], 0.005)
+        wait_until(lambda: dev.imu.error is not None, timeout=5.0)
+        err = str(dev.imu.error)
+        assert "messages on the imu queue but no usable IMU sample for" in err
+        assert "gyroscope reports" in err and "accelerometer reports" not in err   # none came since
 
 
 def test_factory_failure_is_one_line_device_error() -> None:
