@@ -155,6 +155,8 @@ class OakDevice:
         self.start_ns: int | None = None
         self.rig_K: np.ndarray | None = None
         """K of the last `rig()` (the camera's report compares the first frame's own K with it)."""
+        self.rig_notes: list[str] = []
+        """What the last `rig()` withheld from the factory calibration, and why."""
 
     @property
     def calibration(self) -> Any:
@@ -162,11 +164,15 @@ class OakDevice:
         return None if self.pipe is None else self.pipe.calibration
 
     def rig(self, time_offset_s: float = 0.0) -> Rig:
-        """`read_oak_rig` of the device's calibration for this socket and output size."""
+        """`read_oak_rig` of the device's calibration for this socket and output size; what it withheld
+        (corrupt extrinsics) is in `rig_notes`."""
         if self.calibration is None:
-            raise CalibrationError(f"{self.device}: no calibration read from the device", None, "oak")
+            why = (self.pipe.calibration_problem if self.pipe is not None else "") or "none is stored"
+            raise CalibrationError(f"{self.device}: no calibration read from the device ({why}); pass the "
+                                   f"camera's calibration with --rig FILE (a Kalibr camchain)")
+        self.rig_notes = []
         rig = read_oak_rig(self.calibration, self.socket, self.width, self.height, fps=self.fps,
-                           time_offset_s=time_offset_s)
+                           time_offset_s=time_offset_s, notes=self.rig_notes)
         self.rig_K = np.array(rig.camera.K)
         return rig
 

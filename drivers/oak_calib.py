@@ -13,6 +13,9 @@ from runtime.errors import CalibrationError
 if TYPE_CHECKING:
     from calib import Rig
 
+EXTRINSICS_TOLERANCE = 1e-3
+"""Largest |R^T R - I| of the factory IMU-to-camera rotation taken as a rotation (depthai stores float32,
+about 1e-7); beyond it the stored matrix is corrupt (zeroed, a reflection, garbage) and is not used."""
 RATIONAL_TOLERANCE = 1e-6
 """Perspective coefficients k4.. with |value| at most this count as zero (radtan is then exact; likewise
 the thin-prism and tilt terms s1..ty, which no DAVIO camera model has)."""
@@ -52,16 +55,18 @@ def crop_intrinsics(K: np.ndarray, size: tuple[int, int], out: tuple[int, int]) 
 
 def read_oak_rig(calib: Any, socket: str = "CAM_B", width: int = 640, height: int = 400, *,
                  fps: float | None = None, time_offset_s: float | None = 0.0,
-                 require_extrinsics: bool = False) -> Rig:
+                 require_extrinsics: bool = False, notes: list[str] | None = None) -> Rig:
     """A `calib.Rig` from a `dai.CalibrationHandler` for one socket at one output size.
 
-    Camera: the calibration's K at its own size (`getDefaultIntrinsics`) brought to the output size as the
-    Camera node's CROP makes it (`crop_intrinsics`), and the distortion mapped as in the module
-    docstring (CalibrationError naming the socket when the model is not representable). T_IC: the
-    inverse of `getImuToCameraExtrinsics(socket, False, METER)` (x_C = M x_I; see the module
-    docstring), in metres; None when the calibration holds no IMU extrinsics (CalibrationError with
-    `require_extrinsics`). time_offset_s: 0 by default (camera and IMU share the device clock and the
-    frames are stamped at mid-exposure). IMU noise: withheld (OAK calibrations do not carry it).
+    Camera: the calibration's K at its own size (`getDefaultIntrinsics`) brought to the output size as
+    the Camera node's CROP makes it (`crop_intrinsics`), and the distortion mapped as in the module
+    docstring (CalibrationError naming the socket when the model is not representable). T_IC: the inverse
+    of `getImuToCameraExtrinsics(socket, False, METER)` (x_C = M x_I; see the module docstring), in
+    metres; None when the calibration holds no IMU extrinsics, or a matrix that is not a rigid transform
+    (a corrupt EEPROM: zeroed, a reflection; said in `notes`), so that the hand-eye bring-up estimates
+    them (CalibrationError with `require_extrinsics`). time_offset_s: 0 by default (camera and IMU share
+    the device clock and the frames are stamped at mid-exposure). IMU noise: withheld (OAK calibrations
+    do not carry it).
     """
     from calib import PinholeEquidistant, PinholeRadtan, PinholeRational, Rig
     from drivers.oak_pipeline import SOCKETS, _import_depthai, _one_line
@@ -113,7 +118,18 @@ def read_oak_rig(calib: Any, socket: str = "CAM_B", width: int = 640, height: in
         if require_extrinsics:
             raise CalibrationError(f"{where}: {_one_line(exc)}", None, "T_IC") from None
     else:
-        T_IC = invert_rigid(_orthonormal(M))
+        from calib.rig import rigid_problem
+
+        problem = rigid_problem(M, EXTRINSICS_TOLERANCE)
+        if problem is None:
+            T_IC = invert_rigid(_orthonormal(M))
+        else:
+            text = f"{where}: the factory IMU-camera extrinsics are not a rigid transform ({problem})"
+            if require_extrinsics:
+                raise CalibrationError(f"{text}; pass a calibration with --rig", None, "T_IC")
+            if notes is not None:
+                notes.append(f"{text}: they are withheld, and the hand-eye bring-up estimates them (or pass "
+                             f"a calibration with --rig; `davio calibrate oak` writes one)")
     return Rig(camera=camera, T_IC=T_IC, time_offset_s=time_offset_s, imu=None, camera_rate_hz=fps,
                name=f"oak {socket} {int(width)}x{int(height)}")
 

@@ -25,18 +25,28 @@ NO_DEVICE_HINT = ("is it plugged in? USB3? udev rules: SUBSYSTEM==\"usb\", ATTRS
 
 
 def _import_depthai() -> Any:
-    """depthai. Its first import runs with the process's stdout sent to stderr: depthai's logger writes to
-    stdout as it loads (e.g. "USB protocol not available" in a container), which would break a command's
-    --json output. Later calls (the camera reader's, a frame each) only look the module up."""
+    """depthai 3 (DeviceError naming what is wrong otherwise: not installed, installed but failing to import,
+    or depthai 2, whose API differs). Its first import runs with the process's stdout sent to stderr:
+    depthai's logger writes to stdout as it loads (e.g. "USB protocol not available" in a container),
+    which would break a command's --json output. Later calls (the camera reader's, a frame each) only
+    look the module up."""
     dai = sys.modules.get("depthai")
-    if dai is not None:
-        return dai
-    with _IMPORT_LOCK:
-        try:
-            with stdout_to_stderr():
-                import depthai as dai
-        except ImportError:
-            raise DeviceError("the OAK driver needs depthai 3: pip install 'depthai>=3'") from None
+    if dai is None:
+        with _IMPORT_LOCK:
+            try:
+                with stdout_to_stderr():
+                    import depthai as dai
+            except ImportError as exc:
+                if isinstance(exc, ModuleNotFoundError) and exc.name == "depthai":
+                    raise DeviceError("the OAK driver needs depthai 3: pip install 'depthai>=3'") from None
+                raise DeviceError(f"depthai is installed but does not import ({type(exc).__name__}: "
+                                  f"{_one_line(exc)}): reinstall it, pip install --force-reinstall "
+                                  f"'depthai>=3'") from None
+    version = str(getattr(dai, "__version__", ""))
+    major = version.split(".")[0]
+    if major.isdigit() and int(major) < 3:
+        raise DeviceError(f"depthai {version} is installed; the OAK driver needs depthai 3 (its API "
+                          f"differs): pip install 'depthai>=3'")
     return dai
 
 
@@ -117,6 +127,8 @@ class OakPipeline:
     device_info: str = ""
     device: Any = None
     start: Callable[[], None] | None = None
+    calibration_problem: str = ""
+    """Why no calibration was read (depthai's error), when `calibration` is None."""
 
     def stop(self) -> None:
         for obj in (self.pipeline, self.device):
@@ -159,10 +171,16 @@ def build_pipeline(dev: OakDevice) -> OakPipeline:
         device.setMaxReconnectionAttempts(0)      # a reconnected device restarts its clock: fail instead
         pipeline = dai.Pipeline(device)
         pipeline.setStopOnDeviceLoss(True)
+        imu_name = str(device.getConnectedIMU()).strip()
+        if imu_name.upper() in ("", "NONE"):
+            raise DeviceError(f"{what}: has no IMU (depthai reports {imu_name or 'none'}): DAVIO needs the "
+                              f"module's IMU (an OAK-D Lite or a board without one cannot run it; use "
+                              f"`davio live uvc` with a serial IMU)")
+        calibration_problem = ""
         try:              # readCalibration would return a default calibration when none is flashed
             calibration = device.readCalibration2()
-        except Exception:  # noqa: BLE001 - streaming works without it; rig() says none was read
-            calibration = None
+        except Exception as exc:  # noqa: BLE001 - streaming works without it; rig() says none was read
+            calibration, calibration_problem = None, _one_line(exc)
         socket = getattr(dai.CameraBoardSocket, dev.socket)
         cam = pipeline.create(dai.node.Camera).build(socket)
         kind = dai.ImgFrame.Type.NV12 if dev.socket == "CAM_A" else dai.ImgFrame.Type.GRAY8
@@ -189,4 +207,4 @@ def build_pipeline(dev: OakDevice) -> OakPipeline:
         except Exception as exc:  # noqa: BLE001 - OakDevice.start closes the device
             raise DeviceError(f"{what}: the pipeline could not be started ({_one_line(exc)})") from None
 
-    return OakPipeline(q_img, q_imu, pipeline, calibration, what, device, start)
+    return OakPipeline(q_img, q_imu, pipeline, calibration, what, device, start, calibration_problem)

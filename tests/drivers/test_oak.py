@@ -718,6 +718,43 @@ def test_read_oak_rig_radtan4_and_missing_imu() -> None:
         read_oak_rig(c, "CAM_B", 1280, 800, require_extrinsics=True)
 
 
+@pytest.mark.parametrize("R", [[[0.0] * 3] * 3, [[1.0, 0, 0], [0, 1.0, 0], [0, 0, -1.0]],
+                               [[5.0, 1.0, 0], [0, 0.1, 0], [0, 0, 0]]],
+                         ids=["zeroed", "reflection", "garbage"])
+def test_corrupt_factory_extrinsics_are_withheld_and_said_not_made_a_rotation(tmp_path: Path, R) -> None:
+    """The nearest rotation of a zeroed, reflected or garbage matrix is a made-up T_IC the run would trust
+    (the bring-up skipped); it is withheld (the bring-up estimates it) and said."""
+    data = json.loads(FIXTURE.read_text())
+    data["imuExtrinsics"]["rotationMatrix"] = R
+    path = tmp_path / "eeprom.json"
+    path.write_text(json.dumps(data))
+    c = dai.CalibrationHandler(str(path))
+    notes: list[str] = []
+    rig = read_oak_rig(c, "CAM_B", 640, 400, notes=notes)
+    assert rig.T_IC is None and rig.camera is not None
+    assert len(notes) == 1 and "the factory IMU-camera extrinsics are not a rigid transform" in notes[0]
+    assert "bring-up estimates them" in notes[0] and "--rig" in notes[0]
+    with pytest.raises(CalibrationError, match="not a rigid transform"):
+        read_oak_rig(c, "CAM_B", 640, 400, require_extrinsics=True)
+    assert read_oak_rig(dai.CalibrationHandler(str(FIXTURE)), "CAM_B", 640, 400, notes=notes).T_IC is not None
+    assert len(notes) == 1                     # the factory's own float32 rotation is taken as it is
+
+
+def test_an_unreadable_calibration_says_why_and_what_to_pass() -> None:
+    dev = OakDevice("CAM_B", W, H, 30.0, 200, pipeline_factory=lambda d: OakPipeline(
+        FakeQueue(), FakeQueue(), FakePipe(), None, "OAK fake",
+        calibration_problem="EEPROM read failed (test)"))
+    dev.open()
+    try:
+        with pytest.raises(CalibrationError) as info:
+            dev.rig()
+    finally:
+        dev.stop()
+    msg = str(info.value)
+    assert msg == ("OAK fake: no calibration read from the device (EEPROM read failed (test)); pass the "
+                   "camera's calibration with --rig FILE (a Kalibr camchain)")
+
+
 def test_gravity_at_rest_tells_the_direction(calib: dai.CalibrationHandler) -> None:
     """Synthetic rest recording through the driver: the camera (CAM_B) held level, image upright,
     so up is -y in camera coordinates and the accelerometer reads g along R_IB @ up_B."""

@@ -123,6 +123,41 @@ def test_the_pipeline_disables_reconnection_and_stops_on_device_loss(monkeypatch
     assert sensors == imu_sensors(dai)
 
 
+@pytest.mark.parametrize("reported", ["NONE", ""])
+def test_an_oak_without_an_imu_is_said_and_closed(monkeypatch, reported: str) -> None:
+    """An OAK-D Lite has no IMU: the IMU queue stayed silent and the run failed 10 s later as 'unplugged or
+    stalled', with a false note that the consumer fell behind the camera."""
+    calls = _fake_depthai(monkeypatch)
+    device = oak_pipeline._import_depthai().Device(None)
+    device._children["getConnectedIMU()"] = reported
+    with pytest.raises(DeviceError, match=r"^OAK X1: has no IMU \(depthai reports (NONE|none)\): DAVIO "):
+        oak_pipeline.build_pipeline(OakDevice())
+    names = [(real, name) for real, name, _ in calls]
+    assert names[-1] == (dai.Device, "close") and (dai.Pipeline, "create") not in names
+
+
+def test_depthai_2_or_a_failing_import_is_named(monkeypatch, tmp_path) -> None:
+    """depthai 2's API differs (the build failed on a missing method, the calibration on dai.LengthUnit);
+    a depthai that is installed but fails to load is not 'not installed'."""
+    import sys
+
+    monkeypatch.setitem(sys.modules, "depthai", types.SimpleNamespace(__version__="2.28.0.0"))
+    with pytest.raises(DeviceError, match=r"^depthai 2\.28\.0\.0 is installed; the OAK driver needs "):
+        oak_pipeline._import_depthai()
+    broken = tmp_path / "depthai"
+    broken.mkdir()
+    (broken / "__init__.py").write_text("raise ImportError('libusb-1.0.so.0: cannot open shared object "
+                                        "file', name='depthai')\n")
+    monkeypatch.delitem(sys.modules, "depthai")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    with pytest.raises(DeviceError, match=r"^depthai is installed but does not import \(ImportError: "
+                                          r"libusb-1.0.so.0: cannot open"):
+        oak_pipeline._import_depthai()
+    monkeypatch.setitem(sys.modules, "depthai", None)        # not installed
+    with pytest.raises(DeviceError, match=r"^the OAK driver needs depthai 3: pip install"):
+        oak_pipeline._import_depthai()
+
+
 def test_start_without_a_device_is_one_line_naming_the_probe_and_the_udev_rule() -> None:
     """The real depthai probe (no OAK is attached here): a probe that did not finish within its 2 s would
     say so instead."""

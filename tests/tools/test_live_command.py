@@ -308,6 +308,60 @@ def test_an_oaks_factory_calibration_is_read_before_its_streams_start(tmp_path: 
 
 
 @pytest.mark.parametrize("command", ["live", "calibrate"])
+def test_an_oak_is_asked_for_the_rigs_image_size_and_a_different_one_is_refused_first(
+        tmp_path: Path, capsys, monkeypatch, command) -> None:
+    """With --rig the OAK was asked for 640x400 whatever the calibration's size, and the run failed on its
+    first image after the model's warm-up."""
+    import drivers.oak as oak
+    from runtime.errors import DeviceError
+
+    sizes: list[str] = []
+
+    def factory(dev):
+        sizes.append(f"{dev.width}x{dev.height}")
+        raise DeviceError("stop here (test)")
+
+    monkeypatch.setattr(oak, "build_pipeline", factory)
+    rig_file = Path(__file__).resolve().parents[2] / "calib" / "rigs" / "euroc_camchain.yaml"
+    out = str(tmp_path / ("run" if command == "live" else "rig.yaml"))
+    assert main([command, "oak", "--rig", str(rig_file), "--out", out]) == 1
+    assert sizes == ["752x480"] and "stop here (test)" in capsys.readouterr().err
+    assert main([command, "oak", "--rig", str(rig_file), "--width", "640", "--out", out]) == 1
+    assert sizes == ["752x480"]                                  # refused before the device opened
+    assert ("--width/--height ask for 640x480 images but the --rig calibration is of 752x480 images"
+            in capsys.readouterr().err)
+
+
+def test_corrupt_factory_extrinsics_are_said_on_the_console(tmp_path: Path, capsys, monkeypatch) -> None:
+    import json
+
+    import depthai as dai
+
+    import drivers.oak as oak
+    from runtime.errors import DeviceError
+
+    data = json.loads((Path(__file__).resolve().parents[1] / "drivers" / "fixtures" / "oak_calib.json"
+                       ).read_text())
+    data["imuExtrinsics"]["rotationMatrix"] = [[0.0] * 3] * 3
+    eeprom = tmp_path / "eeprom.json"
+    eeprom.write_text(json.dumps(data))
+
+    class Pipe:
+        def stop(self) -> None:
+            pass
+
+    def start() -> None:
+        raise DeviceError("streams refused (test)")
+
+    monkeypatch.setattr(oak, "build_pipeline", lambda dev: oak.OakPipeline(
+        None, None, Pipe(), dai.CalibrationHandler(str(eeprom)), "OAK fake", None, start))
+    assert main(["live", "oak", "--out", str(tmp_path / "run")]) == 1
+    err = capsys.readouterr().err
+    assert ("davio: note: OAK calibration CAM_B: the factory IMU-camera extrinsics are not a rigid transform"
+            in err) and "the hand-eye bring-up estimates them" in err and "streams refused (test)" in err
+
+
+@pytest.mark.parametrize("command", ["live", "calibrate"])
 @pytest.mark.parametrize("source", ["uvc", "oak"])
 def test_the_streams_start_once_the_run_can_read_them(tmp_path: Path, capsys, monkeypatch, command,
                                                       source) -> None:

@@ -28,7 +28,7 @@ def open_live(args: argparse.Namespace, config) -> tuple:
     run is ready to read, and stops it."""
     from runtime.errors import ConfigError
     from tools.calibrate.core import calibration_config
-    from tools.commands.live import check_device_args, load_kernels, open_device
+    from tools.commands.live import check_device_args, check_size_against_rig, load_kernels, open_device
 
     check_device_args(args, "davio calibrate")
     if args.emulated:
@@ -41,6 +41,7 @@ def open_live(args: argparse.Namespace, config) -> tuple:
         given = load_rig(args.rig)
         if given.camera is None:
             raise ConfigError(f"{args.rig}: no camera intrinsics")
+        check_size_against_rig(args, given)
     model, desc = None, TWO_VIEW
     if args.model and given is not None:   # the model's warm-up before the camera starts (`davio live`)
         from tools.model_open import open_da3

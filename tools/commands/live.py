@@ -33,8 +33,11 @@ def add_device_arguments(p: argparse.ArgumentParser) -> None:
                    help="OAK: read the IMU streams corrected with the device's stored affine calibration "
                         "(default: the uncorrected ones; both in the DepthAI IMU frame)")
     p.add_argument("--device-id", default=None, help="OAK device id (default: the first found)")
-    p.add_argument("--width", type=int, default=None, help="requested image width (px)")
-    p.add_argument("--height", type=int, default=None, help="requested image height (px)")
+    p.add_argument("--width", type=int, default=None,
+                   help="requested image width (px; default: the --rig calibration's, else 640 on an OAK and "
+                        "the camera's own on a UVC camera)")
+    p.add_argument("--height", type=int, default=None,
+                   help="requested image height (px; default: the --rig calibration's, else 400 on an OAK)")
     p.add_argument("--fps", type=number, default=None, help="requested camera rate (Hz)")
     p.add_argument("--imu-port", metavar="PORT", help="serial port of the IMU (e.g. /dev/ttyUSB0)")
     p.add_argument("--imu-protocol", choices=["xsens", "text"], default="xsens",
@@ -92,6 +95,7 @@ def run(args: argparse.Namespace) -> int:
     rig = load_rig(args.rig) if args.rig else None
     if rig is not None and rig.camera is None:
         raise ConfigError(f"{args.rig}: no camera intrinsics")
+    check_size_against_rig(args, rig)
     with interruptible():
         # what takes time comes before the streams start (_run starts them once its session is made): a
         # started camera's images would be dropped by its newest-frames buffer until the run reads them,
@@ -183,6 +187,21 @@ def open_device(args: argparse.Namespace, rig):
     return _open_driver(args, rig), rig
 
 
+def check_size_against_rig(args: argparse.Namespace, rig) -> None:
+    """ConfigError when --width / --height differ from the --rig calibration's image size (the run would
+    fail on its first image, after the model's warm-up)."""
+    from runtime.errors import ConfigError
+
+    cam = None if rig is None else rig.camera
+    if cam is None:
+        return
+    w, h = args.width or cam.width, args.height or cam.height
+    if (w, h) != (cam.width, cam.height):
+        raise ConfigError(f"--width/--height ask for {w}x{h} images but the --rig calibration is of "
+                          f"{cam.width}x{cam.height} images ({args.rig}): leave them out, or give a "
+                          f"calibration of that size")
+
+
 def describe_device(args: argparse.Namespace) -> str:
     """A one-line description of the live source."""
     return (f"OAK {args.socket}" if args.source == "oak" else
@@ -195,13 +214,16 @@ def _open_oak(args: argparse.Namespace, rig):
     from drivers.live import LiveDriver
     from drivers.oak import OakDevice
 
-    dev = OakDevice(socket=args.socket, width=args.width or 640, height=args.height or 400,
-                    fps=args.fps or 30.0, imu_rate_hz=args.imu_rate, device_id=args.device_id,
-                    imu_calibrated=args.imu_calibrated)
+    cam = None if rig is None else rig.camera      # a --rig's calibration is of its own image size
+    dev = OakDevice(socket=args.socket, width=args.width or (cam.width if cam else 640),
+                    height=args.height or (cam.height if cam else 400), fps=args.fps or 30.0,
+                    imu_rate_hz=args.imu_rate, device_id=args.device_id, imu_calibrated=args.imu_calibrated)
     dev.open()
     try:
         if rig is None:
             rig = dev.rig()
+            for note in dev.rig_notes:
+                print(f"davio: note: {note}", file=sys.stderr)
         driver = LiveDriver(dev.camera, dev.imu, rig=rig, time_offset_s=rig.time_offset_s or 0.0)
     except BaseException:
         dev.stop()
