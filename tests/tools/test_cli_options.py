@@ -100,3 +100,24 @@ def test_a_negative_number_after_an_option_is_its_value_not_an_empty_one() -> No
 
     assert _empty_value(["eval", "ate", "a", "b", "--offset", "-1"]) is None
     assert _empty_value(["run", "x", "-5", ""]) == ("", "an empty operand: give a value")
+
+
+@pytest.mark.parametrize("argv, said", [
+    (["map", "export", "run1", "--min-points", "0"], "argument --min-points: must be >= 1, got 0"),
+    (["map", "view", "run1", "--min-points", "-2"], "argument --min-points: must be >= 1, got -2"),
+    (["map", "align", "run1", "--to", "run0", "--candidates", "0"], "argument --candidates: must be >= 1"),
+    (["map", "align", "run1", "--to", "run0", "--min-views", "1_0"], "argument --min-views: '1_0' is not"),
+    (["simulate", "--motion-blur", "0", "--out", "x"], "argument --motion-blur: must be >= 1, got 0"),
+    (["live", "oak", "--imu-rate", "0"], "argument --imu-rate: must be >= 1, got 0"),
+    (["live", "oak", "--width", "-640"], "argument --width: must be >= 1, got -640"),
+    (["bench", "openvins-sim", "--jobs", "0"], "argument --jobs: must be >= 1, got 0"),
+    (["bench", "openvins-sim", "--seeds", "-1"], "argument --seeds: must be >= 0, got -1"),
+    (["bench", "long-run", "--moved", "-1"], "argument --moved: must be >= 0, got -1"),
+])
+def test_a_count_out_of_range_is_refused_by_the_command_line(capsys, argv: list[str], said: str) -> None:
+    """As the README says (exit 2 naming the option, before any work): these exited 1 from a later check,
+    or were taken (int() reads '1_0' as 10)."""
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    assert said in capsys.readouterr().err

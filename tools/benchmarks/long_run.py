@@ -46,11 +46,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--hours", default="0.25,1,2,4", help="comma-separated run lengths for the manifest rows")
     p.add_argument("--camera-hz", type=number, default=20.0,
                    help="published poses per second (a pose a frame)")
-    p.add_argument("--poses", type=int, default=20000, help="poses measured for the bytes per pose")
-    p.add_argument("--moved", type=int, default=63,
+    p.add_argument("--poses", type=count(1), default=20000, help="poses measured for the bytes per pose")
+    p.add_argument("--moved", type=count(0), default=63,
                    help="submaps a commit moves besides the new one (default: the graph's other nodes, "
                    "graph.max_resident_nodes - 1)")
-    p.add_argument("--writer-submaps", type=int, default=1000,
+    p.add_argument("--writer-submaps", type=count(1), default=1000,
                    help="submaps archived for the writer's memory a submap (200 to 100000; default 1000)")
     p.add_argument("--track-seconds", type=number, default=300.0,
                    help="length of the simulated tracking run measured whole (0 = skip)")

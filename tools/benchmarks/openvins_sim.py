@@ -142,7 +142,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--seeds",
-        type=int,
+        type=count(0),
         default=0,
         help="run N times with feature-order tie-break seeds 0..N-1 and print the median and range "
         "(single runs move with the order in which equal-length tracks compete; 0: one run, database "
@@ -151,7 +151,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=count(0), default=None,
                    help="one run with this feature-order tie-break seed")
     p.add_argument(
-        "--jobs", type=int, default=1, help="parallel processes for --seeds (their timings then overlap)"
+        "--jobs", type=count(1), default=1, help="parallel processes for --seeds (their timings then overlap)"
     )
     p.add_argument(
         "--frames-csv",
@@ -252,8 +252,6 @@ def run(args: argparse.Namespace) -> int:
     global _SIM
     from runtime.errors import ConfigError
 
-    if args.seeds < 0 or args.jobs < 1:
-        raise ConfigError("--seeds must be >= 0 and --jobs >= 1")
     if args.seeds > 0 and args.seed is not None:
         raise ConfigError("--seed picks one run, --seeds runs seeds 0..N-1: give one of them")
     _SIM = sim = load_sim_folder(args.folder, args.max_seconds)     # its DataError names the file

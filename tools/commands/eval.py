@@ -8,7 +8,7 @@ from pathlib import Path
 
 from runtime.errors import ConfigError
 from runtime.json_out import strict_dumps
-from tools.cli_types import number
+from tools.cli_types import count, number
 
 NAME = "eval"
 HELP = "evaluate a trajectory (ATE, RPE; TUM or EuRoC CSV) or a point cloud (surface metrics)"
@@ -41,7 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p = sub.add_parser("ate", help="absolute trajectory error", formatter_class=fmt)
     _add_common(p)
     p.add_argument("--align", choices=METHODS, default="se3", help="alignment of the estimate")
-    p.add_argument("--n-align", type=int, default=None, metavar="N",
+    p.add_argument("--n-align", type=count(2), default=None, metavar="N",
                    help="fit the alignment on the first N associated poses only")
     p.add_argument("--save-aligned", metavar="FILE", default=None,
                    help="write the associated, aligned estimate as a TUM file (an existing folder: "
@@ -163,9 +163,6 @@ def check_numbers(args: argparse.Namespace) -> None:
         if not math.isfinite(v) or (hi is None and not v > lo) or (hi is not None and not lo <= v <= hi):
             rng = f"> {lo:g}" if hi is None else f"in [{lo:g}, {hi:g}]"
             raise ConfigError(f"{flag} must be a finite number {rng}, got {v}")
-    n_align = getattr(args, "n_align", None)
-    if n_align is not None and n_align < 2:
-        raise ConfigError(f"--n-align must be at least 2 poses, got {n_align}")
 
 
 def aligned_path(save: str, est: str) -> Path:

@@ -53,7 +53,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--out", metavar="PATH", default=None, help="output .onnx (default da3_SIZE_HxW.onnx here)"
     )
     p.add_argument("--seed", type=count(0), default=0, help="seed of random weights and check inputs")
-    p.add_argument("--check-views", type=int, default=5, help="views N of the torch vs ONNX Runtime check")
+    p.add_argument("--check-views", type=count(2, 8), default=5,
+                   help="views N of the torch vs ONNX Runtime check (2-8)")
     p.add_argument(
         "--tolerance",
         type=number,
@@ -71,7 +72,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "'DA3 on a GPU'). The fp32 graph is checked first, the fp16 one on the CUDA provider where "
         "there is one",
     )
-    p.add_argument("--threads", type=int, default=2, help="torch / ONNX Runtime threads")
+    p.add_argument("--threads", type=count(1), default=2, help="torch / ONNX Runtime threads")
     p.add_argument(
         "--opset",
         type=int,

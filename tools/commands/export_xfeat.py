@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from runtime.json_out import strict_dumps
-from tools.cli_types import number
+from tools.cli_types import count, number
 
 NAME = "export-xfeat"
 HELP = "export the XFeat backbone to ONNX (the graph DAVIO ships in models/onnx was made with this)"
@@ -19,7 +19,7 @@ DESCRIPTION = (
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", metavar="PATH", default="xfeat_backbone.onnx", help="output .onnx")
-    p.add_argument("--threads", type=int, default=2, help="torch / ONNX Runtime threads")
+    p.add_argument("--threads", type=count(1), default=2, help="torch / ONNX Runtime threads")
     p.add_argument(
         "--tolerance", type=number, default=1e-3, help="largest accepted absolute error in the check"
     )

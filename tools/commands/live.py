@@ -28,15 +28,15 @@ def add_device_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--camera", default="0", help="UVC device index or path (a video file replays it)")
     p.add_argument("--socket", choices=["CAM_B", "CAM_C", "CAM_A"], default="CAM_B",
                    help="OAK camera socket (CAM_B/CAM_C: mono; CAM_A: colour, used in grey)")
-    p.add_argument("--imu-rate", type=int, default=200, help="OAK IMU rate (Hz)")
+    p.add_argument("--imu-rate", type=count(1), default=200, help="OAK IMU rate (Hz)")
     p.add_argument("--imu-calibrated", action="store_true",
                    help="OAK: read the IMU streams corrected with the device's stored affine calibration "
                         "(default: the uncorrected ones; both in the DepthAI IMU frame)")
     p.add_argument("--device-id", default=None, help="OAK device id (default: the first found)")
-    p.add_argument("--width", type=int, default=None,
+    p.add_argument("--width", type=count(1), default=None,
                    help="requested image width (px; default: the --rig calibration's, else 640 on an OAK and "
                         "the camera's own on a UVC camera)")
-    p.add_argument("--height", type=int, default=None,
+    p.add_argument("--height", type=count(1), default=None,
                    help="requested image height (px; default: the --rig calibration's, else 400 on an OAK)")
     p.add_argument("--fps", type=number, default=None, help="requested camera rate (Hz)")
     p.add_argument("--imu-port", metavar="PORT", help="serial port of the IMU (e.g. /dev/ttyUSB0)")

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from runtime.errors import ConfigError, DataError
 from runtime.json_out import strict_dumps
-from tools.cli_types import number
+from tools.cli_types import count, number
 
 NAME = "map"
 HELP = "inspect, re-export (PLY), picture or align a run's map archive"
@@ -34,7 +34,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     pe.add_argument("--voxel", type=number, default=0.04, help="voxel edge length (m)")
     pe.add_argument("--out", type=Path, default=None,
                     help="PLY file, or a folder to write map.ply in (default: map.ply in the run folder)")
-    pe.add_argument("--min-points", type=int, default=1,
+    pe.add_argument("--min-points", type=count(1), default=1,
                     help="write only voxels holding at least this many fused depth samples (2 or more drops "
                          "isolated far-range samples: a cleaner but less complete map)")
     pe.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
@@ -54,7 +54,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     pv.add_argument("--voxel", type=number, default=0.04, help="voxel edge length (m) of the fused cloud")
     pv.add_argument("--out", type=Path, default=None,
                     help="PNG file, or a folder to write map.png in (default: map.png in the run folder)")
-    pv.add_argument("--min-points", type=int, default=1,
+    pv.add_argument("--min-points", type=count(1), default=1,
                     help="show only voxels holding at least this many fused depth samples")
     pv.add_argument("--interactive", action="store_true", help="also open open3d's viewer (needs a display)")
     pv.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
@@ -72,9 +72,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                     help="the alignment JSON (default: alignment.json in the new run's folder); the new "
                          "run's final.tum moved into the prior frame is written beside it as "
                          "final.prior.tum")
-    pa.add_argument("--candidates", type=int, default=5,
+    pa.add_argument("--candidates", type=count(1), default=5,
                     help="prior views verified per new view, ranked by appearance")
-    pa.add_argument("--min-views", type=int, default=3,
+    pa.add_argument("--min-views", type=count(1), default=3,
                     help="distinct new views that must agree on the transform")
     pa.add_argument("--json", action="store_true", help="print the alignment as JSON")
     pa.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
@@ -305,9 +305,6 @@ def _align(args: argparse.Namespace, archive: Path, run_folder: Path) -> int:
     from tools.map_archive.align import align_archives, transform_tum
     from tools.output_file import check_output_file
 
-    for name, value in (("--candidates", args.candidates), ("--min-views", args.min_views)):
-        if value < 1:
-            raise ConfigError(f"{name} must be at least 1, got {value}")
     cfg = AlignConfig(candidates_per_view=args.candidates, min_views=args.min_views)
     prior_archive, _ = resolve(args.prior)
     if prior_archive.resolve() == archive.resolve():

@@ -83,7 +83,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
              "has no field for it; `davio run` uses it unless --rig gives a rig file)",
     )
     p.add_argument(
-        "--motion-blur", type=int, default=1, metavar="N", help="renders averaged per frame (1 = off)"
+        "--motion-blur", type=count(1), default=1, metavar="N", help="renders averaged per frame (1 = off)"
     )
     p.add_argument(
         "--imu-model",
