@@ -100,7 +100,7 @@ def test_simulate_rejects_imu_without_trajectory(tmp_path, capsys) -> None:
     (["--start", "-2", "--trajectory", "t.tum"], "--start must be a number of seconds from 0"),
     (["--start", "5"], "--start applies to --trajectory"),          # was ignored without a word
     (["--motion-blur", "100000"], "must be from 1 to 64 renders per frame"),   # rendered for hours
-    (["--motion-blur", "0"], "must be from 1 to 64 renders per frame"),
+    (["--motion-blur", "0"], "argument --motion-blur: must be >= 1, got 0"),
 ])
 def test_simulate_start_and_motion_blur_are_checked_first(tmp_path, capsys, argv: list[str],
                                                           said: str) -> None:

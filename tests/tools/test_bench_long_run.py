@@ -47,10 +47,10 @@ def test_long_run_bench_measures_both_costs(tmp_path, capsys) -> None:
     (["--hours", "a,b"], "--hours must be numbers"),
     (["--camera-hz", "nan"], "argument --camera-hz: 'nan' is not a finite number"),
     (["--camera-hz", "0"], "--camera-hz must be positive"),
-    (["--poses", "5"], "--poses must be >= 100"),
-    (["--moved", "-1"], "--moved >= 0"),
-    (["--writer-submaps", "10"], "--writer-submaps must be in"),
-    (["--writer-submaps", "50"], "--writer-submaps must be in [200, 100000], got 50"),
+    (["--poses", "5"], "argument --poses: must be >= 100, got 5"),
+    (["--moved", "-1"], "argument --moved: must be >= 0, got -1"),
+    (["--writer-submaps", "10"], "argument --writer-submaps: must be from 200 to 100000, got 10"),
+    (["--writer-submaps", "1_000"], "argument --writer-submaps: '1_000' is not a whole number"),
     (["--track-seconds", "5"], "--track-seconds must be 0 or in [10, 3600]"),
 ])
 def test_long_run_bench_refuses_bad_arguments(argv, message, capsys) -> None:

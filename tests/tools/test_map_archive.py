@@ -666,8 +666,9 @@ def test_cli_info_export_view(tmp_path, capsys):
     assert f"({len(expected) - len(supported)} of {len(expected)} with fewer" in capsys.readouterr().out
     np.testing.assert_allclose(np.sort(read_ply_vertices(thin)[:, 0]),
                                np.sort([v[0][0] for v in supported.values()]), atol=1e-5)
-    assert main(["map", "export", str(run), "--min-points", "0"]) == 1           # a ConfigError, named
-    assert "--min-points must be at least 1" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as refused:                  # the command line refuses it, named
+        main(["map", "export", str(run), "--min-points", "0"])
+    assert refused.value.code == 2 and "argument --min-points: must be >= 1" in capsys.readouterr().err
 
     out = tmp_path / "pic.png"
     assert main(["map", "view", str(run), "--out", str(out)]) == 0
