@@ -6,8 +6,10 @@ re-exported with the completed corrections), poses.csv (per pose: correction ver
 interpolation fraction), report.json
 (metrics, timings, counters, configuration, versions), config.toml (the resolved configuration)
 and plots (trajectory and error against ground truth when the recording has it). When the filter
-restarted after a divergence, odometry_segment<k>.tum holds each segment (its own odometry frame) and
-odometry.tum and the metrics are the last segment. Writes are atomic (temporary file + rename).
+restarted after a divergence, odometry_segment<k>.tum, causal_segment<k>.tum and final_segment<k>.tum hold
+each segment (its own odometry frame, and its own map frame: each segment starts a new submap graph),
+report.json "segments" gives each one's ATE, and odometry.tum, causal.tum, final.tum and the metrics are
+the last segment. Writes are atomic (temporary file + rename).
 """
 from __future__ import annotations
 
@@ -319,7 +321,7 @@ def rig_summary(rig: Any, source: str) -> dict:
                 "gyro_noise_density", "gyro_random_walk", "accel_noise_density", "accel_random_walk")}}
 
 
-RUN_OUTPUTS = re.compile(r"^(odometry(_segment\d+)?\.tum|causal\.tum|final\.tum|groundtruth\.tum|poses\.csv|"
+RUN_OUTPUTS = re.compile(r"^((odometry|causal|final)(_segment\d+)?\.tum|groundtruth\.tum|poses\.csv|"
                          r"causal\.prior\.tum|final\.prior\.tum|alignment\.json|events\.jsonl|"
                          r"config\.toml|report\.json|trajectory\.png|position_error\.png)$")
 """Names of the files `write_run` (and `davio demo`'s groundtruth.tum, the run's events.jsonl) put in a run
@@ -336,12 +338,21 @@ def write_run(out_dir: Path, pipeline: Any, sched_report: Any, gt: PoseTrajector
     out_dir.mkdir(parents=True, exist_ok=True)
     rows = pipeline.history.rows()       # every published state, as columns (no per-pose objects)
     bounds = segment_bounds(rows["segment"])
-    if len(bounds) > 1:  # restarts after a divergence: every segment has its own odometry frame
+    final_T = np.asarray(pipeline.final_poses()).reshape(-1, 4, 4) if bounds else np.zeros((0, 4, 4))
+    segments = [{"poses": b - a, "start_t_ns": int(rows["t_ns"][a]),
+                 "source": pipeline.history.source(rows["source"][a])} for a, b in bounds]
+    if len(bounds) > 1:  # restarts after a divergence: every segment has its own odometry and map frame
         for k, (a, b) in enumerate(bounds):
-            write_tum(out_dir / f"odometry_segment{k}.tum", rows_trajectory(rows[a:b]))
-    est = rows_trajectory(rows[bounds[-1][0]:] if bounds else rows[:0])
+            seg_est = rows_trajectory(rows[a:b])
+            write_tum(out_dir / f"odometry_segment{k}.tum", seg_est)
+            seg_causal, seg_final = map_frame_trajectories(rows[a:b], final_T[a:b])
+            write_tum(out_dir / f"causal_segment{k}.tum", seg_causal)
+            write_tum(out_dir / f"final_segment{k}.tum", seg_final)
+            segments[k]["metrics"] = evaluate(seg_est, gt)
+    start = bounds[-1][0] if bounds else 0
+    est = rows_trajectory(rows[start:])
     write_tum(out_dir / "odometry.tum", est)  # atomic
-    causal, final = map_frame_trajectories(pipeline, len(est))
+    causal, final = map_frame_trajectories(rows[start:], final_T[start:])
     write_tum(out_dir / "causal.tum", causal)
     write_tum(out_dir / "final.tum", final)
     from tools.run_prior_frame import write_prior_frame
@@ -357,8 +368,7 @@ def write_run(out_dir: Path, pipeline: Any, sched_report: Any, gt: PoseTrajector
         "schema": 1,
         **extra,
         "published_poses": len(rows),
-        "segments": [{"poses": b - a, "start_t_ns": int(rows["t_ns"][a]),
-                      "source": pipeline.history.source(rows["source"][a])} for a, b in bounds],
+        "segments": segments,
         "metrics_segment": len(bounds) - 1 if bounds else None,
         "published_by": None if st is None else st.published_by,
         "first_published_by": None if st is None else st.first_published_by,
@@ -378,16 +388,11 @@ def write_run(out_dir: Path, pipeline: Any, sched_report: Any, gt: PoseTrajector
     return report
 
 
-def map_frame_trajectories(pipeline: Any, n_last: int) -> tuple[PoseTrajectory, PoseTrajectory]:
-    """(causal, final) IMU trajectories in the map frame of the last `n_last` published states (the
-    last segment): causal = each pose as published, T_MO(t) T_OI(t) with the correction in effect
-    then; final = every pose re-exported with the completed corrections."""
-    n = len(pipeline.history)
-    rows = pipeline.history.rows(n - n_last)
-    if not len(rows):
-        empty = PoseTrajectory(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3, 3)))
-        return empty, empty
-    final_T = np.asarray(pipeline.final_poses())[n - n_last:].reshape(-1, 4, 4)
+def map_frame_trajectories(rows: np.ndarray, final_T: np.ndarray) -> tuple[PoseTrajectory, PoseTrajectory]:
+    """(causal, final) IMU trajectories in the map frame of published states of one segment (`rows` of
+    `runtime.pose_history.ROW`, `final_T` (N,4,4) their `final_poses`): causal = each pose as published,
+    T_MO(t) T_OI(t) with the correction in effect then; final = every pose re-exported with the completed
+    corrections."""
     return (PoseTrajectory(rows["t_ns"], rows["T_MI"][:, :, 3], rows["T_MI"][:, :, :3]),
             PoseTrajectory(rows["t_ns"], final_T[:, :3, 3], final_T[:, :3, :3]))
 

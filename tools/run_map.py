@@ -70,9 +70,11 @@ class MapOutput:
         self.archive.commit([commit.submap, *commit.changed], self.pairs, commit.version, asdict(stats))
 
     def finish(self) -> dict:
-        """Export map.ply from the archive (every submap with its latest state); returns a summary whose
-        paths are relative to the run folder (the run is written in `<out>.partial/` and renamed)."""
+        """Export map.ply from the archive (every submap with its latest state; after a filter reset, the
+        largest segment's: `choose_segment`); returns a summary whose paths are relative to the run
+        folder (the run is written in `<out>.partial/` and renamed)."""
         from tools.map_archive import export_map
+        from tools.map_archive.export import choose_segment
 
         n_sub = self.archive.n_submaps
         summary = {"archive": "map", "submaps": n_sub, "map_version": self.archive.map_version,
@@ -87,9 +89,12 @@ class MapOutput:
                                          "manifest": round(self.archive.bytes_written / 1e6, 3),
                                          "manifest_whole_writes": self.archive.whole_writes}
         if n_sub:
+            segment, sizes = choose_segment(self.out_dir / "map", None)
+            summary["ply_segment"] = segment
+            summary["segment_submaps"] = {str(s): n for s, n in sorted(sizes.items())}
             summary["voxels"] = export_map(self.out_dir / "map", self.out_dir / "map.ply", self.voxel_m,
-                                           ExportProgress(),
-                                           verify=False)[0]   # the archive this run has just written
+                                           ExportProgress(), verify=False,   # the archive just written
+                                           segment=segment)[0]
             summary["ply"] = "map.ply"
         return summary
 

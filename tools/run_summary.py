@@ -24,7 +24,8 @@ def summary(report: dict, out: Path) -> None:
         print(f"  ATE: not computed: {m['ate_se3_error']}")
     elif m:
         nan = float("nan")
-        print(f"  ATE: {m.get('ate_se3_m', nan):.3f} m (se3), {m.get('ate_posyaw_m', nan):.3f} m (posyaw)")
+        print(f"  ATE: {m.get('ate_se3_m', nan):.3f} m (se3), {m.get('ate_posyaw_m', nan):.3f} m (posyaw)"
+              + _segment_scope(report))
         mc, mf = report.get("metrics_causal") or {}, report.get("metrics_final") or {}
         if report["pipeline"].get("mapping") is not None and mc:
             print(f"  ATE map frame: causal {mc.get('ate_se3_m', nan):.3f} m, "
@@ -71,6 +72,19 @@ def prior_line(pm: dict) -> str:
             f"{pm['verified']} verified)")
 
 
+def _segment_scope(report: dict) -> str:
+    """After filter resets: what the ATE covers (the last segment), and every segment's ATE."""
+    segments = report.get("segments") or []
+    if len(segments) < 2:
+        return ""
+    each = ", ".join(f"{s['metrics']['ate_se3_m']:.3f} m ({s['poses']} poses)" if "ate_se3_m" in
+                     (s.get("metrics") or {}) else f"- ({s['poses']} poses)" for s in segments)
+    return (f" over the last segment only ({segments[-1]['poses']} of {report['published_poses']} poses: "
+            f"the filter was reset {len(segments) - 1}x, each segment in its own frame)\n"
+            f"  ATE by segment (se3): {each}; their trajectories: odometry_segment<k>.tum, "
+            f"causal_segment<k>.tum, final_segment<k>.tum")
+
+
 def mapping_line(mp: dict, summary: dict, config: dict | None = None) -> str:
     """One console line: windows mapped / offered, drops, rejections by reason, retained points, the
     voxels in map.ply or why there is none (`config`: report.json's config "mapping")."""
@@ -86,6 +100,12 @@ def mapping_line(mp: dict, summary: dict, config: dict | None = None) -> str:
 
 
 def _ply_text(mp: dict, summary: dict, config: dict | None) -> str:
+    if summary.get("ply") and summary.get("ply_segment") is not None:
+        sizes = summary.get("segment_submaps") or {}
+        return (f"{summary.get('voxels', 0)} voxels in {summary['ply']}, of filter segment "
+                f"{summary['ply_segment']} ({sizes.get(str(summary['ply_segment']), '?')} of "
+                f"{sum(sizes.values())} submaps): the filter was reset, and each segment's map has its own "
+                f"frame; `davio map export RUN --segment K --out FILE.ply` writes another")
     if summary.get("ply"):
         return f"{summary.get('voxels', 0)} voxels in {summary['ply']}"
     if mp["windows_offered"] or not config:

@@ -68,6 +68,10 @@ def test_run_files_from_columns_equal_the_per_state_objects(tmp_path) -> None:
     assert [len(s) for s in segs] == [12, 18]
     for k, seg in enumerate(segs):
         _same(read_tum(tmp_path / f"odometry_segment{k}.tum"), published_trajectory(seg))
+    for k, (a, b) in enumerate([(0, 12), (12, 30)]):     # each segment's map frame, as published and final
+        t_seg = [p.t_ns for p, _, _, _ in given[a:b]]
+        _same(read_tum(tmp_path / f"causal_segment{k}.tum"), _poses(t_seg, [T for _, T, _, _ in given[a:b]]))
+        _same(read_tum(tmp_path / f"final_segment{k}.tum"), _poses(t_seg, final[a:b]))
     _same(read_tum(tmp_path / "odometry.tum"), published_trajectory(segs[-1]))
     t_last = [p.t_ns for p in segs[-1]]
     _same(read_tum(tmp_path / "causal.tum"), _poses(t_last, [T for _, T, _, _ in given[12:]]))
@@ -75,9 +79,35 @@ def test_run_files_from_columns_equal_the_per_state_objects(tmp_path) -> None:
     lines = (tmp_path / "poses.csv").read_text().splitlines()
     assert lines[1:] == [f"{p.t_ns},{p.t_cam_ns},{p.segment},{p.source},{v},{f:.6f}" for p, _, v, f in given]
     assert report["published_poses"] == 30 and report["metrics_segment"] == 1
-    assert report["segments"] == [{"poses": 12, "start_t_ns": objects[0].t_ns, "source": "native:dynamic"},
-                                  {"poses": 18, "start_t_ns": objects[12].t_ns, "source": "feedforward"}]
+    assert report["segments"] == [
+        {"poses": 12, "start_t_ns": objects[0].t_ns, "source": "native:dynamic", "metrics": {}},
+        {"poses": 18, "start_t_ns": objects[12].t_ns, "source": "feedforward", "metrics": {}}]   # no gt
     assert json.loads((tmp_path / "report.json").read_text())["segments"] == report["segments"]
+
+
+def test_after_a_reset_each_segment_is_scored_in_its_own_frame_and_the_console_says_so(tmp_path, capsys
+                                                                                        ) -> None:
+    """The ATE and causal.tum / final.tum cover the last segment only: a 5-pose tail after three resets
+    was printed as the run's ATE. Ground truth here is each segment's odometry poses moved by its own
+    rigid transform (the frames of a reset filter): every segment scores 0 alone, not all together."""
+    from tools.run_summary import _segment_scope
+
+    rng = np.random.default_rng(3)
+    h, given = _history(rng)
+    final = [T for _, T, _, _ in given]
+    gt_p = []
+    for k, (p, _, _, _) in enumerate(given):
+        R = Rotation.from_rotvec([0.0, 0.0, 0.0 if k < 12 else 1.0]).as_matrix()
+        gt_p.append(R @ p.p_OI + (0.0 if k < 12 else 5.0))
+    gt = PoseTrajectory([p.t_ns for p, _, _, _ in given], np.array(gt_p),
+                        np.array([np.eye(3)] * len(given)))
+    report = write_run(tmp_path, _Pipeline(h, final), SchedulerReport(), gt, {}, DavioConfig())
+    seg_ate = [s["metrics"]["ate_se3_m"] for s in report["segments"]]
+    assert max(seg_ate) < 1e-9 and report["metrics"]["ate_se3_m"] == seg_ate[-1]
+    assert report["metrics"]["pairs"] == 18
+    line = _segment_scope(report)
+    assert "over the last segment only (18 of 30 poses: the filter was reset 1x" in line
+    assert "ATE by segment (se3): 0.000 m (12 poses), 0.000 m (18 poses)" in line
 
 
 def test_one_segment_across_a_chunk_boundary_writes_no_segment_files(tmp_path) -> None:
@@ -86,7 +116,7 @@ def test_one_segment_across_a_chunk_boundary_writes_no_segment_files(tmp_path) -
     h, given = _history(np.random.default_rng(2), n=CHUNK_ROWS + 5, restart=None)
     final = [T @ _offset(k) for k, (_, T, _, _) in enumerate(given)]
     report = write_run(tmp_path, _Pipeline(h, final), SchedulerReport(), None, {}, DavioConfig())
-    assert not list(tmp_path.glob("odometry_segment*.tum")) and report["metrics_segment"] == 0
+    assert not list(tmp_path.glob("*_segment*.tum")) and report["metrics_segment"] == 0
     _same(read_tum(tmp_path / "odometry.tum"), published_trajectory([p for p, _, _, _ in given]))
     t = [p.t_ns for p, _, _, _ in given]
     _same(read_tum(tmp_path / "causal.tum"), _poses(t, [T for _, T, _, _ in given]))

@@ -40,6 +40,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     pe.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     pe.add_argument("--skip-damaged", action="store_true",
                     help="leave out submaps whose files fail the integrity check (default: refuse)")
+    pe.add_argument("--segment", type=count(0), default=None, metavar="K",
+                    help="filter segment to use (after a filter reset each segment's map has its own "
+                         "frame); default: the largest when there are several (as the run's map.ply)")
     frame = pe.add_mutually_exclusive_group()
     frame.add_argument("--in-prior", action="store_true",
                        help="the map moved into the frame of the earlier run it was aligned to (the run's "
@@ -60,6 +63,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     pv.add_argument("--overwrite", action="store_true", help="replace an existing --out file")
     pv.add_argument("--skip-damaged", action="store_true",
                     help="leave out submaps whose files fail the integrity check (default: refuse)")
+    pv.add_argument("--segment", type=count(0), default=None, metavar="K",
+                    help="filter segment to use (after a filter reset each segment's map has its own "
+                         "frame); default: the largest when there are several (as the run's map.ply)")
 
 
     pa = sub.add_parser("align", help="localise a run's map in an earlier run's map of the same place: the "
@@ -248,15 +254,20 @@ def run(args: argparse.Namespace) -> int:
             _print_info(info)
         return 1 if info["problems"] else 0
     if action == "export":
-        from tools.map_archive.export import export_map
+        from tools.map_archive.export import choose_segment, export_map
 
         _check_fuse_args(args.voxel, args.min_points)
         T_out, prior, seg, prior_seg = (_prior_alignment(run_folder, args.merge_prior)
                                         if args.in_prior or args.merge_prior else (None, None, None, None))
+        if seg is not None and args.segment is not None and args.segment != seg:
+            raise ConfigError(f"--segment {args.segment}: the alignment to the prior map holds for segment "
+                              f"{seg} (the one `davio map align` aligned)")
         name = "map.merged.ply" if args.merge_prior else "map.prior.ply" if args.in_prior else "map.ply"
         out, replaced = checked_output(args, archive, run_folder, name)
         t0 = time.monotonic()
         notes: list[str] = []
+        if seg is None:
+            seg = choose_segment(archive, args.segment, notes)[0]
         try:
             n, fused = export_map(archive, out, args.voxel, _Progress("export"), args.min_points,
                                   args.skip_damaged, notes, T_out=T_out,
@@ -275,13 +286,14 @@ def run(args: argparse.Namespace) -> int:
         print(f"davio map export: {n} voxels ({args.voxel} m){dropped} -> {out}"
               f"{' (replaced)' if replaced else ''} in {time.monotonic() - t0:.1f} s")
         return 0
-    from tools.map_archive.export import empty_reason, fuse_archive, supported
+    from tools.map_archive.export import choose_segment, empty_reason, fuse_archive, supported
     from tools.map_archive.view import interactive, render_views
 
     _check_fuse_args(args.voxel, args.min_points)
     out, replaced = checked_output(args, archive, run_folder, "map.png")
     notes: list[str] = []
-    fused = fuse_archive(archive, args.voxel, _Progress("view"), args.skip_damaged, notes)
+    segment = choose_segment(archive, args.segment, notes)[0]
+    fused = fuse_archive(archive, args.voxel, _Progress("view"), args.skip_damaged, notes, segment=segment)
     points, grey, _ = supported(fused, args.min_points)
     _print_notes("view", notes)
     if not len(points):

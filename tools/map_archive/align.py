@@ -11,6 +11,7 @@ import numpy as np
 
 from runtime.errors import DataError
 from runtime.graph.relocalize import AlignConfig, Alignment, PlaceView, PriorMapLocalizer, align_sessions
+from tools.map_archive.export import main_segment
 from tools.map_archive.reader import integrity, load_view, read_manifest, state_is_usable
 
 MAX_VIEWS = 600
@@ -42,7 +43,7 @@ def load_place_views(archive: Path, notes: list[str], max_views: int = MAX_VIEWS
         raise DataError("the archive holds no submap whose graph state places its points (finite, rigid)",
                         archive)
     segments = Counter(int(e.get("segment", 0)) for e in entries)
-    segment = max(segments, key=lambda s: (segments[s], -s))
+    segment = main_segment(segments)
     if len(segments) > 1:
         notes.append(f"{archive}: {len(segments)} filter segments (each its own odometry frame); segment "
                      f"{segment}, the largest ({segments[segment]} submaps), is aligned")

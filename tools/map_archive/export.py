@@ -1,6 +1,7 @@
 """Final re-export: every archived submap placed with its latest graph state, fused, written as PLY."""
 from __future__ import annotations
 
+from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
 
@@ -54,8 +55,8 @@ def fuse_archive(folder: str | Path, voxel_m: float = 0.04,
         other = [e for e in entries if int(e.get("segment", 0)) != int(segment)]
         entries = [e for e in entries if int(e.get("segment", 0)) == int(segment)]
         if other and notes is not None:
-            notes.append(f"{folder}: {len(other)} submap(s) of other filter segments left out (segment "
-                         f"{segment} is the one aligned)")
+            notes.append(f"{folder}: {len(other)} submap(s) of other filter segments left out (each segment "
+                         f"has its own frame; segment {segment} is used)")
     unplaced = [e for e in entries if not state_is_usable(e)]
     entries = [e for e in entries if state_is_usable(e)]
     if notes is not None:
@@ -84,6 +85,34 @@ def fuse_archive(folder: str | Path, voxel_m: float = 0.04,
         notes.append(f"{sum(not_finite.values())} points that are not finite left out (NaN or Inf depths or "
                      f"image poses in {', '.join(sorted(not_finite))}; `davio map info` lists them)")
     return grid.points()
+
+
+def main_segment(sizes: Counter) -> int:
+    """The filter segment a map of several is shown by default (`sizes`: submaps per segment): the one
+    with the most submaps, the earliest on a tie. Each segment (after a filter reset) has its own
+    odometry and map frame, so fusing them together would overlay unrelated maps."""
+    return max(sizes, key=lambda s: (sizes[s], -s))
+
+
+def choose_segment(folder: str | Path, segment: int | None, notes: list[str] | None = None
+                   ) -> tuple[int | None, Counter]:
+    """(the segment to fuse: `segment`, else the main one when the archive holds several (said in `notes`),
+    else None (one segment: every submap); submaps per segment). DataError naming the segments when
+    `segment` is not one of them."""
+    sizes = Counter(int(e.get("segment", 0)) for e in read_manifest(folder)["submaps"])
+    listed = ", ".join(f"{s} ({n} submaps)" for s, n in sorted(sizes.items()))
+    if segment is not None:
+        if segment not in sizes:
+            raise DataError(f"the archive holds no submap of filter segment {segment} (segments: "
+                            f"{listed or 'none'})", folder)
+        return int(segment), sizes
+    if len(sizes) < 2:
+        return None, sizes
+    main = main_segment(sizes)
+    if notes is not None:
+        notes.append(f"the map holds {len(sizes)} filter segments, each in its own frame (the filter was "
+                     f"reset): {listed}; segment {main}, the largest, is used (--segment K picks another)")
+    return main, sizes
 
 
 def write_ply(path: str | Path, points: np.ndarray, grey: np.ndarray) -> None:
