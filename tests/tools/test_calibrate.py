@@ -14,6 +14,7 @@ from __future__ import annotations
 import collections
 import json
 import os
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -357,7 +358,7 @@ def _run(rates=(40.0, 30.0, 20.0), bringup_done=True, std=(0.01, 0.001, 2e-5), s
         "rejections": {} if bringup_done else {"handeye_validation_failed": 2},
         "R_IC": np.eye(3).tolist() if bringup_done else None,
     }
-    ex = Excitation(seconds, np.eye(3).tolist(), list(rates), [r * seconds for r in rates])
+    ex = Excitation(seconds, seconds, np.eye(3).tolist(), list(rates), [r * seconds for r in rates])
     return CalibrationRun(samples, bu, ex, {}, status, None, 0, 60.0)
 
 
@@ -377,7 +378,7 @@ def test_judge_accepts_a_well_excited_converged_run():
         (dict(std=(0.01, 0.02, 2e-5)), "uncertain", "lever arm 2.00 cm > 0.5"),
         (dict(std=(0.01, 0.001, 3e-3)), "uncertain", "time offset 3.000 ms > 0.3"),
         (dict(status="failed"), "replay_failed", "did not complete"),
-        (dict(rates=(0.2, 0.1, 0.1), bringup_done=False, seconds=0.9), "too_little_data", "0.9 s of motion"),
+        (dict(rates=(0.2, 0.1, 0.1), bringup_done=False, seconds=0.9), "too_little_data", "0.9 s with"),
         (dict(rates=(0.2, 0.1, 0.1), bringup_done=False, seconds=1.0), "insufficient_rotation", "0 of 3"),
         (dict(bringup_done=False, seconds=5.99), "too_little_data", "refused below 6 s"),
         (dict(bringup_done=False, seconds=6.0), "bringup_incomplete", "handeye_validation_failed x2"),
@@ -438,6 +439,29 @@ def test_excitation_counts_rotation_axes():
     assert r1.rms_rate_dps[0] > 30 and r1.rms_rate_dps[1] < 1e-6
     assert min(r2.rms_rate_dps[:2]) > 20 and r2.rms_rate_dps[2] < 1e-6
     assert abs(np.dot(r1.axes[0], [0, 0, 1])) == pytest.approx(1.0)
+
+
+def test_excitation_is_measured_where_there_are_images():
+    """An IMU file that runs on after the images (EuRoC's V1_01 head: 4.7 s of images at a standstill, 145 s
+    of IMU) was reported as well excited, and the refusal said to record longer with more rotation."""
+    meter = ExcitationMeter()
+    for k in range(4000):                            # 20 s at 200 Hz; images over the first 5 s only
+        t = k * 5_000_000
+        if k * 5 % 50 == 0 and t <= 5_000_000_000:
+            meter.frame(t)
+        meter.add(t, np.array([0.0, 0.0, 0.0 if t <= 5_000_000_000 else 1.0]))
+    ex = meter.result()
+    assert ex.seconds == pytest.approx(5.0) and ex.imu_seconds == pytest.approx(19.995)
+    assert max(ex.rms_rate_dps) == 0.0 and max(ex.angle_deg) == 0.0      # the rotation after the images
+    run = CalibrationRun([], {"windows_used": 0, "rejections": {}, "R_IC": None}, ex, {}, "complete", None, 0,
+                         20.0)
+    v = judge(run, Thresholds())
+    assert v.code == "insufficient_rotation" and "0 of 3 principal axes" in v.message
+    assert "over 5.0 s with images (the images cover 5.0 s of the IMU's 20.0 s" in v.message
+    assert "is the camera's data cut short?" in v.message
+    run.excitation = replace(ex, rms_rate_dps=[30.0, 30.0, 30.0], seconds=4.0)
+    v = judge(run, Thresholds())
+    assert v.code == "too_little_data" and "4.0 s with images (the images cover 4.0 s of the IMU" in v.message
 
 
 def test_covariance_std_takes_the_worst_direction():
@@ -511,12 +535,13 @@ def test_bad_outputs_and_sources_are_clear_errors(tmp_path, capsys):
 
 
 def test_a_euroc_folder_without_a_model_is_calibrated_from_its_tracks(euroc_head, tmp_path, capsys):
-    """No model on a real recording: the two-view bring-up. The EuRoC head's images show a drone standing
-    (its IMU goes on for 145 s), so no window turns 5 deg and the calibration is refused for that."""
+    """No model on a real recording: the two-view bring-up. The EuRoC head holds 4.7 s of images and 145 s
+    of IMU: refused as too little data where there are images, and said so (the excitation of the whole
+    IMU file was reported, and the refusal asked for more rotation per second)."""
     assert main(["calibrate", str(euroc_head), "--out", str(tmp_path / "rig.yaml")]) == 3
     captured = capsys.readouterr()
     assert "two-view fits of the tracked features" in captured.out
-    assert "bring-up never completed" in captured.err and "skipped (rotating < 5 deg)" in captured.err
+    assert "too little data: 4.7 s with images (the images cover 4.7 s of the IMU's 145.6 s" in captured.err
     assert main(["calibrate", str(euroc_head), "--emulated", "--out", str(tmp_path / "rig2.yaml")]) == 1
     assert "davio simulate" in capsys.readouterr().err
     assert not (tmp_path / "rig.yaml").exists() and not (tmp_path / "rig2.yaml").exists()

@@ -99,6 +99,15 @@ def settling(run: CalibrationRun, window_s: float) -> dict | None:
             "rotation_deg": rot, "time_offset_ms": 1e3 * offset, "samples": len(last)}
 
 
+def _images_end_early(ex) -> str:
+    """' (the images cover ... of the IMU's ...)' when the IMU runs on well past the images, else ''."""
+    imu_s = float(getattr(ex, "imu_seconds", 0.0) or 0.0)
+    if imu_s > ex.seconds + 1.0 and imu_s > 1.2 * ex.seconds:
+        return (f" (the images cover {ex.seconds:.1f} s of the IMU's {imu_s:.1f} s: the rotation is "
+                f"measured where there are images; is the camera's data cut short?)")
+    return ""
+
+
 def judge(run: CalibrationRun, th: Thresholds) -> Verdict:
     """The first refusal rule that applies (see the module docstring), else ok."""
     if run.status != "complete" and not (run.live and run.status == "interrupted"):
@@ -108,10 +117,11 @@ def judge(run: CalibrationRun, th: Thresholds) -> Verdict:
     axes_ok = sum(r >= th.min_axis_rate_dps for r in rates)
     bu = run.bringup or {}
     short = not bu.get("R_IC") and not ex.seconds >= th.min_seconds
+    early = _images_end_early(ex)
     too_little = Verdict(
         False,
         "too_little_data",
-        f"too little data: {ex.seconds:.1f} s of motion, and the bring-up needs several seconds of "
+        f"too little data: {ex.seconds:.1f} s with images{early}, and the bring-up needs several seconds of "
         f"rotation (it completed after 6-9 s on the benchmark recordings; refused below "
         f"{th.min_seconds:g} s) - record at least a minute, rotating the rig about at least two axes",
     )
@@ -123,7 +133,8 @@ def judge(run: CalibrationRun, th: Thresholds) -> Verdict:
             "insufficient_rotation",
             f"the motion does not excite the rotation enough: {axes_ok} of 3 principal axes reach "
             f"{th.min_axis_rate_dps:g} deg/s RMS (observed {_fmt_rates(rates)} deg/s over "
-            f"{ex.seconds:.1f} s; need 2) - rotate the rig about at least two different axes; "
+            f"{ex.seconds:.1f} s with images{early}; need 2) - rotate the rig about at least two "
+            f"different axes; "
             f"bring-up: {_bringup_text(bu)}",
         )
     if short:

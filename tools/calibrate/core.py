@@ -55,9 +55,13 @@ def covariance_std(cov: np.ndarray | None) -> tuple[float, float, float] | None:
 
 @dataclass
 class Excitation:
-    """Rotation excitation of the gyro stream (IMU frame): principal axes of sum(w w^T dt)."""
+    """Rotation excitation of the gyro stream (IMU frame) while there are images: principal axes of
+    sum(w w^T dt)."""
 
     seconds: float = 0.0
+    """Seconds of gyro data measured (between the first and the last image)."""
+    imu_seconds: float = 0.0
+    """Seconds of gyro data in the whole recording (more than `seconds` when the images end early)."""
     axes: list = field(default_factory=list)
     """(3, 3) rows: the principal axes, strongest first."""
     rms_rate_dps: list = field(default_factory=list)
@@ -67,14 +71,17 @@ class Excitation:
 
 
 class ExcitationMeter:
-    """Accumulates the gyro's second moment and, at the end, the swept angle per principal axis."""
+    """Collects the gyro samples and the image stamps; at the end, the second moment and the swept angle
+    per principal axis of the gyro samples between the first and the last image (the bring-up and the
+    filter see the rotation only where there are images: an IMU file that runs on after them does not
+    excite the calibration). Without images, every sample."""
 
     def __init__(self) -> None:
-        self.M = np.zeros((3, 3))
-        self.T = 0.0
         self._t: int | None = None
+        self._ts: list[int] = []
         self._w: list[np.ndarray] = []
         self._dt: list[float] = []
+        self._frames: list[int] = []     # first and last image stamp
 
     def add(self, t_ns: int, gyro: np.ndarray) -> None:
         w = np.asarray(gyro, float)
@@ -83,23 +90,35 @@ class ExcitationMeter:
         if self._t is not None:
             dt = (int(t_ns) - self._t) * 1e-9
             if 0.0 < dt < 0.1:  # gaps carry no rate
-                self.M += np.outer(w, w) * dt
-                self.T += dt
+                self._ts.append(int(t_ns))
                 self._w.append(w)
                 self._dt.append(dt)
         self._t = int(t_ns)
 
+    def frame(self, t_ns: int) -> None:
+        """An image at `t_ns`."""
+        if not self._frames:
+            self._frames = [int(t_ns), int(t_ns)]
+        self._frames[1] = max(self._frames[1], int(t_ns))
+
     def result(self) -> Excitation:
-        if self.T <= 0.0:
-            return Excitation(0.0, np.eye(3).tolist(), [0.0] * 3, [0.0] * 3)
-        vals, vecs = np.linalg.eigh(self.M / self.T)
+        dt_all = np.array(self._dt)
+        imu_s = float(dt_all.sum()) if len(dt_all) else 0.0
+        keep = np.ones(len(dt_all), bool)
+        if self._frames:
+            t = np.array(self._ts, np.int64)
+            keep = (t > self._frames[0]) & (t <= self._frames[1])
+        w = np.array(self._w).reshape(-1, 3)[keep]
+        dt = dt_all[keep]
+        T = float(dt.sum()) if len(dt) else 0.0
+        if T <= 0.0:
+            return Excitation(0.0, imu_s, np.eye(3).tolist(), [0.0] * 3, [0.0] * 3)
+        vals, vecs = np.linalg.eigh((w.T * dt) @ w / T)
         order = np.argsort(vals)[::-1]
         axes = vecs[:, order].T
-        w = np.array(self._w)
-        dt = np.array(self._dt)
         angles = np.degrees(np.abs(w @ axes.T).T @ dt)
         rms = np.degrees(np.sqrt(np.maximum(vals[order], 0.0)))
-        return Excitation(float(self.T), axes.tolist(), rms.tolist(), angles.tolist())
+        return Excitation(T, imu_s, axes.tolist(), rms.tolist(), angles.tolist())
 
 
 @dataclass
@@ -220,6 +239,8 @@ def calibrate(
             rel = (t - first[0]) * 1e-9
             if isinstance(ev, ImuSample):
                 meter.add(t, ev.gyro)
+            else:
+                meter.frame(t)
             if progress is not None and int(rel) // 5 != last_report:
                 last_report = int(rel) // 5
                 progress(

@@ -142,7 +142,9 @@ def summary_lines(report: dict) -> list[str]:
         + ", ".join(f"{r:.1f}" for r in ex["rms_rate_dps"])
         + " deg/s, swept "
         + ", ".join(f"{a:.0f}" for a in ex["angle_deg"])
-        + f" deg over {ex['seconds']:.1f} s"
+        + f" deg over {ex['seconds']:.1f} s with images"
+        + (f" (the IMU runs {ex['imu_seconds']:.1f} s)" if ex.get("imu_seconds", 0.0) > ex["seconds"] + 1.0
+           else "")
     )
     est = report.get("estimate")
     if est is not None:
