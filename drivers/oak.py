@@ -290,8 +290,8 @@ class OakDevice:
                                    f"was unplugged or crashed")
                     return
                 now = time.monotonic()
-                limit = self.stall_timeout_s if got_use else self.first_message_timeout_s
                 if msg is None:
+                    limit = self.stall_timeout_s if got_any else self.first_message_timeout_s
                     if now - last > limit and not src._stopping:
                         what = "no message" if got_any else "no first message"
                         self._fail(f"{self.device}: {what} on the {name} queue for {now - last:.1f} s "
@@ -299,6 +299,7 @@ class OakDevice:
                         return
                     continue
                 got_any, last = True, now
+                limit = self.stall_timeout_s if got_use else self.first_message_timeout_s
                 if src._ingest(msg, time.monotonic_ns()):
                     got_use, used = True, now
                     src._used()

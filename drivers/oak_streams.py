@@ -93,7 +93,8 @@ class _Source:
         self._counts_at_use: dict[str, int] = {}
 
     def _counts(self) -> dict[str, int]:
-        """The counters of messages that gave nothing usable (`unusable_since`)."""
+        """Counters that say why messages gave nothing usable (`unusable_since`): what was dropped, and
+        for the IMU what arrived."""
         return {}
 
     def _used(self) -> None:
@@ -101,7 +102,7 @@ class _Source:
         self._counts_at_use = self._counts()
 
     def unusable_since(self) -> str:
-        """What the messages since the last usable one were dropped as ('' when none were counted)."""
+        """The counters' increase since the last usable message ('' when none increased)."""
         now, then = self._counts(), self._counts_at_use
         return ", ".join(f"{n - then.get(k, 0)} {k}" for k, n in now.items() if n - then.get(k, 0))
 

@@ -187,8 +187,9 @@ def view_address(text: str) -> tuple[str, int]:
         host = DEFAULT_HOST
     elif host.startswith("[") and host.endswith("]"):
         host = host[1:-1]
-    elif ":" in host:
-        raise argparse.ArgumentTypeError(f"{text!r}: write an IPv6 address in brackets, [::1]:8080")
+    elif ":" in host or text.strip().startswith("["):
+        raise argparse.ArgumentTypeError(f"{text!r}: an IPv6 address goes in brackets, with a port: "
+                                         "[::1]:8080")
     if sep and not host:
         raise argparse.ArgumentTypeError(f"{text!r}: no host before ':' (PORT alone: every interface)")
     if not (port_text.isascii() and port_text.isdigit()) or not 0 < int(port_text) < 65536:

@@ -15,14 +15,14 @@ class RunSinks:
 
     Args:
         folder: the run's folder being written (`RunFolder.path`).
-        view_port: `--view` (None: no view).
+        view_port: `--view`: (host, port), a port, or None (no view).
         stream_url: `--stream` (None: no stream).
         console: one more on_event callback (e.g. `davio live`'s status line), or None.
         view: a live view the caller opened and closes (`davio live` opens it before the device starts:
             viser's import takes 0.7 s); `view_port` is not used then.
     """
 
-    def __init__(self, folder: Path, view_port: int | None, stream_url: str | None,
+    def __init__(self, folder: Path, view_port: tuple[str, int] | int | None, stream_url: str | None,
                  console: Callable[[Any], None] | None = None, view: Any = None) -> None:
         from tools.event_output import EventFile, chain_events
         from tools.live_view import open_view

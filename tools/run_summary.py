@@ -25,11 +25,14 @@ def summary(report: dict, out: Path) -> None:
     elif m:
         nan = float("nan")
         print(f"  ATE: {m.get('ate_se3_m', nan):.3f} m (se3), {m.get('ate_posyaw_m', nan):.3f} m (posyaw)"
-              + _segment_scope(report))
+              + _last_segment_scope(report))
         mc, mf = report.get("metrics_causal") or {}, report.get("metrics_final") or {}
         if report["pipeline"].get("mapping") is not None and mc:
             print(f"  ATE map frame: causal {mc.get('ate_se3_m', nan):.3f} m, "
                   f"final {mf.get('ate_se3_m', nan):.3f} m (se3)")
+    by_segment = segments_line(report)
+    if by_segment:
+        print(f"  {by_segment}")
     for line in recovery_lines(report):
         print(f"  {line}")
     bu = report["pipeline"].get("bringup")
@@ -72,16 +75,24 @@ def prior_line(pm: dict) -> str:
             f"{pm['verified']} verified)")
 
 
-def _segment_scope(report: dict) -> str:
-    """After filter resets: what the ATE covers (the last segment), and every segment's ATE."""
+def _last_segment_scope(report: dict) -> str:
+    """After filter resets: what the ATE covers (the last segment)."""
     segments = report.get("segments") or []
     if len(segments) < 2:
         return ""
-    each = ", ".join(f"{s['metrics']['ate_se3_m']:.3f} m ({s['poses']} poses)" if "ate_se3_m" in
-                     (s.get("metrics") or {}) else f"- ({s['poses']} poses)" for s in segments)
     return (f" over the last segment only ({segments[-1]['poses']} of {report['published_poses']} poses: "
-            f"the filter was reset {len(segments) - 1}x, each segment in its own frame)\n"
-            f"  ATE by segment (se3): {each}; their trajectories: odometry_segment<k>.tum, "
+            f"the filter was reset {len(segments) - 1}x, each segment in its own frame)")
+
+
+def segments_line(report: dict) -> str:
+    """After filter resets, when ground truth scored any segment: every segment's ATE ('' otherwise)."""
+    segments = report.get("segments") or []
+    scored = [s for s in segments if "ate_se3_m" in (s.get("metrics") or {})]
+    if len(segments) < 2 or not scored:
+        return ""
+    each = ", ".join(f"{s['metrics']['ate_se3_m']:.3f} m ({s['poses']} poses)" if s in scored
+                     else f"- ({s['poses']} poses)" for s in segments)
+    return (f"ATE by segment (se3): {each}; their trajectories: odometry_segment<k>.tum, "
             f"causal_segment<k>.tum, final_segment<k>.tum")
 
 
@@ -104,10 +115,13 @@ def _ply_text(mp: dict, summary: dict, config: dict | None) -> str:
         sizes = summary.get("segment_submaps") or {}
         return (f"{summary.get('voxels', 0)} voxels in {summary['ply']}, of filter segment "
                 f"{summary['ply_segment']} ({sizes.get(str(summary['ply_segment']), '?')} of "
-                f"{sum(sizes.values())} submaps): the filter was reset, and each segment's map has its own "
-                f"frame; `davio map export RUN --segment K --out FILE.ply` writes another")
+                f"{sum(sizes.values())} submaps; its trajectory: final_segment{summary['ply_segment']}.tum): "
+                f"the filter was reset, and each segment's map has its own frame; `davio map export RUN "
+                f"--segment K --out FILE.ply` writes another")
     if summary.get("ply"):
         return f"{summary.get('voxels', 0)} voxels in {summary['ply']}"
+    if summary.get("archive_stopped"):
+        return "no map.ply (the archive stopped before its first commit)"
     if mp["windows_offered"] or not config:
         return "no map.ply (nothing was mapped)"
     n, dt = config["window_images"], config["keyframe_spacing_s"]

@@ -459,6 +459,14 @@ def test_excitation_is_measured_where_there_are_images():
     assert v.code == "insufficient_rotation" and "0 of 3 principal axes" in v.message
     assert "over 5.0 s with images (the images cover 5.0 s of the IMU's 20.0 s" in v.message
     assert "is the camera's data cut short?" in v.message
+    late = ExcitationMeter()                          # images start after 10 s of turning
+    for k in range(4000):
+        t = k * 5_000_000
+        if t >= 10_000_000_000 and k % 10 == 0:
+            late.frame(t)
+        late.add(t, np.array([1.0 if t <= 10_000_000_000 else 0.0, 0.0, 0.0]))
+    ex_late = late.result()
+    assert ex_late.seconds == pytest.approx(9.95) and max(ex_late.rms_rate_dps) == 0.0
     run.excitation = replace(ex, rms_rate_dps=[30.0, 30.0, 30.0], seconds=4.0)
     v = judge(run, Thresholds())
     assert v.code == "too_little_data" and "4.0 s with images (the images cover 4.0 s of the IMU" in v.message

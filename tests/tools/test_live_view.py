@@ -112,7 +112,8 @@ def test_view_address_reads_port_or_host_and_port(text: str, expected: tuple) ->
 
 
 @pytest.mark.parametrize("text, said", [
-    ("::1:9000", "brackets"), (":9000", "no host"), ("127.0.0.1:0", "TCP port"), ("127.0.0.1:", "TCP port"),
+    ("::1:9000", "brackets"), ("[::1]", "with a port"), (":9000", "no host"), ("127.0.0.1:0", "TCP port"),
+    ("127.0.0.1:", "TCP port"),
     ("host:x", "TCP port"), ("70000", "TCP port"), ("", "TCP port"), ("\u0661\u0662", "TCP port")])
 def test_view_address_refuses_what_is_not_an_address(text: str, said: str) -> None:
     import argparse

@@ -167,17 +167,27 @@ def test_run_without_a_map_and_info_voxels(run, tmp_path: Path, capsys) -> None:
     assert json.loads(capsys.readouterr().out)["voxels"] is None
 
 
+def _two_segment_subs() -> list:
+    """Submaps after one filter reset: 0 and 1 in segment 0; 2, 3 and 4 in segment 1 (its own map frame:
+    fusing both would overlay unrelated maps), 3 and 4 with a graph state that places nothing (NaN, written
+    as null). Segment 0 has the most placeable submaps, though neither the most submaps nor the last."""
+    from tests.tools.test_map_archive import make_submap
+
+    subs = [make_submap(k, seed=k) for k in range(5)]
+    for sm in subs[2:]:
+        sm.segment = 1
+    for sm in subs[3:]:
+        sm.T_MS = np.full((4, 4), np.nan)
+    return subs
+
+
 def _two_segment_run(folder: Path) -> list:
-    """A run's archive after one filter reset: submap 0 in segment 0, submaps 1 and 2 in segment 1 (its
-    own map frame: fusing both would overlay unrelated maps)."""
-    from tests.tools.test_map_archive import HEADER, make_submap
+    from tests.tools.test_map_archive import HEADER
     from tools.map_archive import MapArchiveWriter
 
-    subs = [make_submap(k, seed=k) for k in range(3)]
-    for sm in subs[1:]:
-        sm.segment = 1
+    subs = _two_segment_subs()
     w = MapArchiveWriter(folder / "map", HEADER)
-    w.commit(subs, pairs=[{"a": 1, "b": 2}], version=1, stats={})
+    w.commit(subs, pairs=[{"a": 0, "b": 1}], version=1, stats={})
     w.close()
     (folder / "run_status.json").write_text('{"status": "complete"}')
     return subs
@@ -199,42 +209,41 @@ def test_a_map_of_several_filter_segments_exports_one_segment_and_says_so(tmp_pa
     assert main(["map", "export", str(folder), "--voxel", str(VOXEL)]) == 0
     err = capsys.readouterr().err
     assert "the map holds 2 filter segments, each in its own frame" in err
-    assert "0 (1 submaps), 1 (2 submaps); segment 1, the largest, is used (--segment K picks another)" in err
-    _ply_voxels(folder / "map.ply", subs[1:])
-    seg0 = tmp_path / "seg0.ply"
-    assert main(["map", "export", str(folder), "--voxel", str(VOXEL), "--segment", "0",
-                 "--out", str(seg0)]) == 0
+    assert "0 (2 submaps), 1 (1 submaps); segment 0, the largest, is used (--segment K picks another)" in err
+    _ply_voxels(folder / "map.ply", subs[:2])
+    seg1 = tmp_path / "seg1.ply"
+    assert main(["map", "export", str(folder), "--voxel", str(VOXEL), "--segment", "1",
+                 "--out", str(seg1)]) == 0
     err = capsys.readouterr().err
     assert "2 submap(s) of other filter segments left out" in err and "the largest" not in err
-    _ply_voxels(seg0, subs[:1])
+    _ply_voxels(seg1, subs[2:3])
     assert main(["map", "export", str(folder), "--segment", "7", "--out", str(tmp_path / "x.ply")]) == 1
-    assert "no submap of filter segment 7 (segments: 0 (1 submaps), 1 (2 submaps))" in capsys.readouterr().err
+    assert "no submap of filter segment 7 (segments: 0 (2 submaps), 1 (1 submaps))" in capsys.readouterr().err
     assert not (tmp_path / "x.ply").exists()
-    assert main(["map", "view", str(folder), "--segment", "0"]) == 0
+    assert main(["map", "view", str(folder), "--segment", "1"]) == 0
     assert main(["map", "view", str(folder), "--overwrite"]) == 0
-    assert "segment 1, the largest, is used" in capsys.readouterr().err
+    assert "segment 0, the largest, is used" in capsys.readouterr().err
 
 
 def test_a_run_whose_filter_was_reset_writes_map_ply_of_its_largest_segment(tmp_path: Path) -> None:
     from types import SimpleNamespace
 
     from runtime.mapping.mapper import MappingStats
-    from tests.tools.test_map_archive import HEADER, make_submap
+    from tests.tools.test_map_archive import HEADER
     from tools.run_map import MapOutput
     from tools.run_summary import mapping_line
 
-    subs = [make_submap(k, seed=k) for k in range(3)]
-    for sm in subs[1:]:
-        sm.segment = 1
+    subs = _two_segment_subs()
     out = MapOutput(tmp_path, HEADER, voxel_m=VOXEL)
     for k, sm in enumerate(subs):
         out.sink(SimpleNamespace(link=None, submap=sm, changed=[], version=k + 1), MappingStats())
     summary = out.finish()
-    assert summary["ply"] == "map.ply" and summary["ply_segment"] == 1
-    assert summary["segment_submaps"] == {"0": 1, "1": 2}
-    _ply_voxels(tmp_path / "map.ply", subs[1:])
-    mp = {"windows_accepted": 3, "windows_offered": 3, "windows_dropped_queue": 0, "windows_rejected": {},
+    assert summary["ply"] == "map.ply" and summary["ply_segment"] == 0
+    assert summary["segment_submaps"] == {"0": 2, "1": 1}
+    _ply_voxels(tmp_path / "map.ply", subs[:2])
+    mp = {"windows_accepted": 5, "windows_offered": 5, "windows_dropped_queue": 0, "windows_rejected": {},
           "points_sampled": 1, "rejected_confidence": 0, "rejected_multiview": 0, "points_retained": 1}
     line = mapping_line(mp, summary)
-    assert f"{summary['voxels']} voxels in map.ply, of filter segment 1 (2 of 3 submaps)" in line
+    assert (f"{summary['voxels']} voxels in map.ply, of filter segment 0 (2 of 3 submaps; its trajectory: "
+            "final_segment0.tum)") in line
     assert "`davio map export RUN --segment K --out FILE.ply`" in line

@@ -90,7 +90,7 @@ def test_after_a_reset_each_segment_is_scored_in_its_own_frame_and_the_console_s
     """The ATE and causal.tum / final.tum cover the last segment only: a 5-pose tail after three resets
     was printed as the run's ATE. Ground truth here is each segment's odometry poses moved by its own
     rigid transform (the frames of a reset filter): every segment scores 0 alone, not all together."""
-    from tools.run_summary import _segment_scope
+    from tools.run_summary import _last_segment_scope, segments_line
 
     rng = np.random.default_rng(3)
     h, given = _history(rng)
@@ -105,9 +105,13 @@ def test_after_a_reset_each_segment_is_scored_in_its_own_frame_and_the_console_s
     seg_ate = [s["metrics"]["ate_se3_m"] for s in report["segments"]]
     assert max(seg_ate) < 1e-9 and report["metrics"]["ate_se3_m"] == seg_ate[-1]
     assert report["metrics"]["pairs"] == 18
-    line = _segment_scope(report)
-    assert "over the last segment only (18 of 30 poses: the filter was reset 1x" in line
-    assert "ATE by segment (se3): 0.000 m (12 poses), 0.000 m (18 poses)" in line
+    scope = _last_segment_scope(report)
+    assert "over the last segment only (18 of 30 poses: the filter was reset 1x" in scope
+    assert "ATE by segment (se3): 0.000 m (12 poses), 0.000 m (18 poses)" in segments_line(report)
+    # a last segment too short to score: the earlier segments' ATE is still said
+    short = dict(report, segments=[*report["segments"][:1], {"poses": 2, "metrics": {}}], metrics={})
+    assert segments_line(short).startswith("ATE by segment (se3): 0.000 m (12 poses), - (2 poses)")
+    assert segments_line(dict(report, segments=report["segments"][:1])) == ""
 
 
 def test_one_segment_across_a_chunk_boundary_writes_no_segment_files(tmp_path) -> None:

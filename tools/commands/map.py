@@ -259,15 +259,20 @@ def run(args: argparse.Namespace) -> int:
         _check_fuse_args(args.voxel, args.min_points)
         T_out, prior, seg, prior_seg = (_prior_alignment(run_folder, args.merge_prior)
                                         if args.in_prior or args.merge_prior else (None, None, None, None))
-        if seg is not None and args.segment is not None and args.segment != seg:
-            raise ConfigError(f"--segment {args.segment}: the alignment to the prior map holds for segment "
-                              f"{seg} (the one `davio map align` aligned)")
+        aligned = args.in_prior or args.merge_prior
+        if aligned and args.segment is not None and args.segment != seg:
+            raise ConfigError(f"--segment {args.segment}: the alignment to the prior map holds for "
+                              + (f"segment {seg} (the one `davio map align` aligned)" if seg is not None else
+                                 "the segment it was fitted on, which its alignment.json (from an older "
+                                 "davio) does not name: align the run again"))
         name = "map.merged.ply" if args.merge_prior else "map.prior.ply" if args.in_prior else "map.ply"
         out, replaced = checked_output(args, archive, run_folder, name)
         t0 = time.monotonic()
         notes: list[str] = []
         if seg is None:
             seg = choose_segment(archive, args.segment, notes)[0]
+        if args.merge_prior and prior_seg is None:
+            prior_seg = choose_segment(prior, None, notes)[0]
         try:
             n, fused = export_map(archive, out, args.voxel, _Progress("export"), args.min_points,
                                   args.skip_damaged, notes, T_out=T_out,

@@ -3,7 +3,6 @@ session's map frame to the prior one's, from the centre views stored with the su
 (runtime/graph/relocalize.py), and the new run's trajectory moved into the prior frame."""
 from __future__ import annotations
 
-from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
 
@@ -11,7 +10,7 @@ import numpy as np
 
 from runtime.errors import DataError
 from runtime.graph.relocalize import AlignConfig, Alignment, PlaceView, PriorMapLocalizer, align_sessions
-from tools.map_archive.export import main_segment
+from tools.map_archive.export import main_segment, segment_sizes
 from tools.map_archive.reader import integrity, load_view, read_manifest, state_is_usable
 
 MAX_VIEWS = 600
@@ -42,7 +41,7 @@ def load_place_views(archive: Path, notes: list[str], max_views: int = MAX_VIEWS
     if not entries:
         raise DataError("the archive holds no submap whose graph state places its points (finite, rigid)",
                         archive)
-    segments = Counter(int(e.get("segment", 0)) for e in entries)
+    segments = segment_sizes(entries)
     segment = main_segment(segments)
     if len(segments) > 1:
         notes.append(f"{archive}: {len(segments)} filter segments (each its own odometry frame); segment "

@@ -87,19 +87,27 @@ def fuse_archive(folder: str | Path, voxel_m: float = 0.04,
     return grid.points()
 
 
+def segment_sizes(entries: list[dict]) -> Counter:
+    """Placeable submaps (`state_is_usable`) per filter segment of manifest entries; a segment whose
+    submaps are all unplaceable counts 0."""
+    sizes = Counter({int(e.get("segment", 0)): 0 for e in entries})
+    sizes.update(int(e.get("segment", 0)) for e in entries if state_is_usable(e))
+    return sizes
+
+
 def main_segment(sizes: Counter) -> int:
-    """The filter segment a map of several is shown by default (`sizes`: submaps per segment): the one
-    with the most submaps, the earliest on a tie. Each segment (after a filter reset) has its own
-    odometry and map frame, so fusing them together would overlay unrelated maps."""
+    """The filter segment a map of several is shown by default (`sizes`: placeable submaps per segment,
+    `segment_sizes`): the one with the most, the earliest on a tie. Each segment (after a filter reset)
+    has its own odometry and map frame, so fusing them together would overlay unrelated maps."""
     return max(sizes, key=lambda s: (sizes[s], -s))
 
 
 def choose_segment(folder: str | Path, segment: int | None, notes: list[str] | None = None
                    ) -> tuple[int | None, Counter]:
     """(the segment to fuse: `segment`, else the main one when the archive holds several (said in `notes`),
-    else None (one segment: every submap); submaps per segment). DataError naming the segments when
-    `segment` is not one of them."""
-    sizes = Counter(int(e.get("segment", 0)) for e in read_manifest(folder)["submaps"])
+    else None (one segment: every submap); placeable submaps per segment). DataError naming the segments
+    when `segment` is not one of them."""
+    sizes = segment_sizes(read_manifest(folder)["submaps"])
     listed = ", ".join(f"{s} ({n} submaps)" for s, n in sorted(sizes.items()))
     if segment is not None:
         if segment not in sizes:
