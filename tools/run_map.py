@@ -37,7 +37,11 @@ class MapOutput:
         self.pairs: list[dict] = []
         self.min_free_mb = float(min_free_mb)
         self.stopped: dict | None = None
-        """None, or why and where the archive stopped: reason, free_mb, map_version, commits_skipped."""
+        """None, or why and where the archive stopped: reason, free_mb (None: a write failed),
+        map_version, commits_skipped."""
+        self.finished = False
+        self.late_commits = 0
+        """Commits that came after `finish` (a model call outliving the run's end): not archived."""
 
     @classmethod
     def create(cls, out_dir: Path, rig: Any, model_desc: str, model: Any, config: Any) -> MapOutput | None:
@@ -55,7 +59,12 @@ class MapOutput:
                    config.mapping.voxel_m, views=config.mapping.archive_views)
 
     def sink(self, commit: Any, stats: Any) -> None:
-        """Checkpoint the archive at a map commit (called by the model worker)."""
+        """Checkpoint the archive at a map commit (called by the model worker). A commit the archive cannot
+        write (a failing or read-only disk, the folder gone) stops it at its last whole commit, as a low
+        disk does; after `finish` commits are counted, not written."""
+        if self.finished:
+            self.late_commits += 1
+            return
         if self.stopped is None:
             free_mb = shutil.disk_usage(self.archive.folder).free / 1e6
             if free_mb < self.min_free_mb:
@@ -65,17 +74,27 @@ class MapOutput:
         if self.stopped is not None:
             self.stopped["commits_skipped"] += 1
             return
-        if commit.link is not None:
-            self.pairs.append(commit.link.as_dict())
-        self.archive.commit([commit.submap, *commit.changed], self.pairs, commit.version, asdict(stats))
+        pairs = self.pairs + ([commit.link.as_dict()] if commit.link is not None else [])
+        try:
+            self.archive.commit([commit.submap, *commit.changed], pairs, commit.version, asdict(stats))
+        except OSError as exc:
+            where = f" {exc.filename}" if exc.filename else ""
+            self.stopped = {"reason": f"the archive could not be written ({exc.strerror or exc}{where})",
+                            "free_mb": None, "map_version": self.archive.map_version, "commits_skipped": 1}
+            print(f"davio: warning: the map archive stopped at map version {self.archive.map_version}: "
+                  f"{self.stopped['reason']}; the run goes on", file=sys.stderr)
+            return
+        self.pairs = pairs
 
     def finish(self) -> dict:
         """Export map.ply from the archive (every submap with its latest state; after a filter reset, the
         largest segment's: `choose_segment`); returns a summary whose paths are relative to the run
         folder (the run is written in `<out>.partial/` and renamed)."""
+        from runtime.errors import DataError
         from tools.map_archive import export_map
         from tools.map_archive.export import choose_segment
 
+        self.finished = True
         n_sub = self.archive.n_submaps
         summary = {"archive": "map", "submaps": n_sub, "map_version": self.archive.map_version,
                    "ply": None, "voxels": 0, "archive_stopped": self.stopped, "archive_journal_left": None}
@@ -88,14 +107,21 @@ class MapOutput:
         summary["archive_written_mb"] = {"submaps": round(self.archive.points_bytes / 1e6, 3),
                                          "manifest": round(self.archive.bytes_written / 1e6, 3),
                                          "manifest_whole_writes": self.archive.whole_writes}
+        summary["late_commits"] = self.late_commits
         if n_sub:
-            segment, sizes = choose_segment(self.out_dir / "map", None)
-            summary["ply_segment"] = segment
-            summary["segment_submaps"] = {str(s): n for s, n in sorted(sizes.items())}
-            summary["voxels"] = export_map(self.out_dir / "map", self.out_dir / "map.ply", self.voxel_m,
-                                           ExportProgress(), verify=False,   # the archive just written
-                                           segment=segment)[0]
-            summary["ply"] = "map.ply"
+            try:
+                segment, sizes = choose_segment(self.out_dir / "map", None)
+                summary["ply_segment"] = segment
+                summary["segment_submaps"] = {str(s): n for s, n in sorted(sizes.items())}
+                summary["voxels"] = export_map(self.out_dir / "map", self.out_dir / "map.ply", self.voxel_m,
+                                               ExportProgress(), verify=False,   # the archive just written
+                                               segment=segment)[0]
+                summary["ply"] = "map.ply"
+            except (OSError, DataError) as exc:   # the trajectories and the report are still written
+                where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
+                summary["export_error"] = f"{where}{getattr(exc, 'strerror', None) or exc}"
+                print(f"davio: warning: map.ply was not written ({summary['export_error']}); the archive in "
+                      f"map/ holds the map: `davio map export RUN` writes it", file=sys.stderr)
         return summary
 
 

@@ -1,7 +1,9 @@
 """How a run ends: its status, why nothing was published when nothing was, the exit code.
 
-A run that cannot publish says why and exits non-zero; Ctrl-C or SIGTERM ends it with the outputs up to
-the interruption (exit 130); an error after the work started keeps what was computed (exit 1).
+A run that cannot publish says why and exits non-zero; Ctrl-C, SIGTERM (systemd, docker stop) or SIGHUP
+(a dropped SSH session) ends it with the outputs up to the interruption (exit 130); an error after the
+work started keeps what was computed (exit 1). Once the data phase is over (`finishing()`), a signal no
+longer stops the run: writing its outputs (map.ply, trajectories, report) is what it is doing.
 """
 from __future__ import annotations
 
@@ -13,22 +15,75 @@ from typing import Any
 
 EXIT_OK, EXIT_FAILED, EXIT_INTERRUPTED = 0, 1, 130
 
+STOP_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
+"""Signals that finish a run cleanly (those the platform has)."""
+
+
+class _Stops:
+    """The signals one `interruptible` block received."""
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.finishing: str | None = None
+        self.said = False
+
+
+_ACTIVE: list[_Stops] = []
+
+
+def _on_signal(signum: int, frame: Any) -> None:
+    st = _ACTIVE[-1] if _ACTIVE else None
+    if st is None:
+        raise KeyboardInterrupt
+    st.count += 1
+    if st.count == 1 and st.finishing is None:
+        raise KeyboardInterrupt          # the run stops reading data and writes what it has
+    if not st.said:                       # a second signal, or one while the outputs are written
+        st.said = True
+        from tools.stderr_lines import say
+
+        name = signal.Signals(signum).name
+        say(f"\ndavio: {name}: still {st.finishing or 'finishing the run'}; it ends by itself, and stopping "
+            "it now would lose the run's outputs (kill -9 stops it at once)")
+
 
 @contextlib.contextmanager
 def interruptible() -> Iterator[None]:
-    """Within the block SIGTERM acts like Ctrl-C (KeyboardInterrupt), so both finish a run cleanly."""
-    def on_term(signum: int, frame: Any) -> None:
-        raise KeyboardInterrupt
-
+    """Within the block Ctrl-C, SIGTERM and SIGHUP raise KeyboardInterrupt once, so each finishes a run
+    cleanly; a later one (a second Ctrl-C while the run winds down), or any after `finishing()`, is said
+    and otherwise ignored."""
+    names = [n for n in STOP_SIGNALS if hasattr(signal, n)]
     try:
-        previous = signal.signal(signal.SIGTERM, on_term)
+        previous = {n: signal.signal(getattr(signal, n), _on_signal) for n in names}
     except ValueError:   # not the main thread: leave signals alone
         yield
         return
+    _ACTIVE.append(_Stops())
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        _ACTIVE.pop()
+        for n, handler in previous.items():
+            signal.signal(getattr(signal, n), handler)
+
+
+def finishing(what: str = "writing the run's outputs") -> None:
+    """From here to the end of the `interruptible` block a signal does not stop the work (`what` is said
+    when one comes)."""
+    if _ACTIVE:
+        _ACTIVE[-1].finishing = what
+
+
+def finish_mapping(res: Any, pipeline: Any) -> None:
+    """Map the windows still queued when the data ended (a complete run only). Ctrl-C or SIGTERM there
+    stops the mapping: the run is interrupted and writes what it has."""
+    if res.status != "complete":
+        return
+    try:
+        pipeline.finish_mapping()
+    except KeyboardInterrupt:
+        res.status = "interrupted"
+        res.reason = "interrupted while mapping the windows queued at the end of the data"
 
 
 def why_nothing_published(pipeline_report: dict, driver_report: dict | None, sched: Any) -> str:

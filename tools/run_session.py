@@ -1,6 +1,7 @@
 """One end-to-end run: a driver through the VIO pipeline under the scheduler, with progress."""
 from __future__ import annotations
 
+import contextlib
 import sys
 from typing import Any
 
@@ -27,6 +28,9 @@ def run_pipeline(driver: Any, model: Any, config: DavioConfig, paced: bool = Fal
     earlier run's map to localise this one in; `on_event` every runtime.run_events.RunEvent (with
     `show_progress` they are also said on stderr as they happen, e.g. a rig finding)."""
     from tools.event_output import EventConsole, chain_events
+    from tools.run_outcome import finish_mapping
+    from tools.stderr_lines import drop_stderr, stderr_lost
+    from tools.stderr_lines import say as stderr_say
 
     progress = None
     bar = None
@@ -38,22 +42,28 @@ def run_pipeline(driver: Any, model: Any, config: DavioConfig, paced: bool = Fal
         task = bar.add_task("running", total=seconds)
 
         def say(line: str) -> None:     # above the bar; an event's text is not rich markup
-            bar.console.print(line, markup=False, highlight=False)
+            if stderr_lost() is None:
+                try:
+                    bar.console.print(line, markup=False, highlight=False)
+                except (OSError, ValueError) as exc:    # the terminal went away: the run goes on
+                    drop_stderr(f"{type(exc).__name__}: {exc}")
 
         def progress(s: float) -> None:
-            who = _status(pipe)
-            bar.update(task, completed=s, description=f"running ({who})")
+            if stderr_lost() is None:
+                try:
+                    bar.update(task, completed=s, description=f"running ({_status(pipe)})")
+                except (OSError, ValueError) as exc:
+                    drop_stderr(f"{type(exc).__name__}: {exc}")
     elif show_progress:
         last = [-1]
 
         def say(line: str) -> None:
-            print(line, file=sys.stderr, flush=True)
+            stderr_say(line)
 
         def progress(s: float) -> None:
             if int(s) // 5 != last[0]:
                 last[0] = int(s) // 5
-                print(f"  t = {s:6.1f} s  published {len(pipe.published):5d} poses"
-                      f"  ({_status(pipe)})", file=sys.stderr, flush=True)
+                stderr_say(f"  t = {s:6.1f} s  published {len(pipe.published):5d} poses  ({_status(pipe)})")
     # events said as they happen (rig findings again in the summary)
     console = EventConsole(lambda line: say(f"  {line}")) if say is not None else None
     session = Session(rig if rig is not None else driver.rig, model, config, map_sink=map_sink,
@@ -69,13 +79,13 @@ def run_pipeline(driver: Any, model: Any, config: DavioConfig, paced: bool = Fal
                              progress=progress, keep_partial=keep_partial)
     finally:
         if bar is not None:
-            bar.stop()
+            with contextlib.suppress(OSError, ValueError):
+                bar.stop()
     if res.status == "complete":
         pending = len(pipe.map_queue) if pipe.map_queue is not None else 0
         if pending and show_progress:
-            print(f"  mapping the {pending} window(s) still queued at the end of the recording",
-                  file=sys.stderr, flush=True)
-        pipe.finish_mapping()
+            stderr_say(f"  mapping the {pending} window(s) still queued at the end of the recording")
+    finish_mapping(res, pipe)
     return res
 
 

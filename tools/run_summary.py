@@ -107,7 +107,7 @@ def mapping_line(mp: dict, summary: dict, config: dict | None = None) -> str:
             f"confidence, {100 * mp['rejected_multiview'] / sampled:.0f} % failed the multi-view test, "
             f"{100 * mp.get('points_unverified', 0) / sampled:.0f} % kept seen by one image only); "
             + _ply_text(mp, summary, config) + _graph_text(mp.get("graph"))
-            + _archive_stopped_text(summary.get("archive_stopped")))
+            + _archive_stopped_text(summary.get("archive_stopped"), bool(summary.get("ply"))))
 
 
 def _ply_text(mp: dict, summary: dict, config: dict | None) -> str:
@@ -120,6 +120,8 @@ def _ply_text(mp: dict, summary: dict, config: dict | None) -> str:
                 f"--segment K --out FILE.ply` writes another")
     if summary.get("ply"):
         return f"{summary.get('voxels', 0)} voxels in {summary['ply']}"
+    if summary.get("export_error"):
+        return f"no map.ply: the export failed ({summary['export_error']}); `davio map export RUN` retries it"
     if summary.get("archive_stopped"):
         return "no map.ply (the archive stopped before its first commit)"
     if mp["windows_offered"] or not config:
@@ -129,12 +131,13 @@ def _ply_text(mp: dict, summary: dict, config: dict | None) -> str:
             f"are published, {(n - 1) * dt:g} s; run longer)")
 
 
-def _archive_stopped_text(stopped: dict | None) -> str:
+def _archive_stopped_text(stopped: dict | None, ply: bool = True) -> str:
     if not stopped:
         return ""
+    free = "" if stopped.get("free_mb") is None else f": {stopped['free_mb']:g} MB"
     return (f"\n  WARNING: the map archive stopped at map version {stopped['map_version']} "
-            f"({stopped['reason']}: {stopped['free_mb']:g} MB); {stopped['commits_skipped']} later commits "
-            "were not archived, and map.ply holds the map up to then")
+            f"({stopped['reason']}{free}); {stopped['commits_skipped']} later commits were not archived"
+            + (", and map.ply holds the map up to then" if ply else ""))
 
 
 def _graph_text(g: dict | None) -> str:

@@ -114,3 +114,55 @@ def test_the_summary_says_why_a_run_has_no_map_ply() -> None:
     rejected = dict(MP, windows_accepted=0, windows_rejected={"fit_rmse": 5}, points_retained=0)
     assert "no map.ply (nothing was mapped)" in _mapping_line(rejected, {"ply": None, "voxels": 0}, config)
     assert "1234 voxels in map.ply" in _mapping_line(MP, {"ply": "map.ply", "voxels": 1234}, config)
+
+
+def test_an_archive_that_cannot_be_written_stops_and_says_so_not_as_a_model_error(tmp_path, monkeypatch,
+                                                                                   capsys) -> None:
+    """A read-only or vanished map folder raised out of the sink: counted as 'mapping model calls failed',
+    the run exited 0 with map.ply silently short of submaps."""
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: Usage(10**12, 0, 10**12))
+    out = MapOutput(tmp_path, {"rig": {}, "model": {}, "config": {}}, voxel_m=0.25)
+    subs = [make_submap(k, seed=k) for k in range(4)]
+    writes = {"n": 0}
+    commit = out.archive.commit
+
+    def failing_commit(*args, **kwargs):
+        writes["n"] += 1
+        if writes["n"] == 3:
+            raise PermissionError(13, "Permission denied", str(tmp_path / "map" / "submap_000002.npz"))
+        return commit(*args, **kwargs)
+
+    monkeypatch.setattr(out.archive, "commit", failing_commit)
+    for k, sm in enumerate(subs):
+        out.sink(SimpleNamespace(link=None, submap=sm, changed=[], version=k + 1), MappingStats())
+    assert "the map archive stopped at map version 2" in capsys.readouterr().err
+    summary = out.finish()
+    assert summary["archive_stopped"]["reason"].startswith("the archive could not be written (Permission "
+                                                            "denied")
+    assert summary["archive_stopped"]["commits_skipped"] == 2 and summary["submaps"] == 2
+    line = _mapping_line(MP, summary)
+    assert "WARNING: the map archive stopped at map version 2 (the archive could not be written" in line
+    assert "MB)" not in line
+    assert check_integrity(tmp_path / "map") == []
+    # a model call that outlives the end of the run: counted, never written into the closed archive
+    out.sink(SimpleNamespace(link=None, submap=make_submap(9, seed=9), changed=[], version=9), MappingStats())
+    assert out.late_commits == 1 and read_manifest(tmp_path / "map")["map_version"] == 2
+
+
+def test_a_failed_export_leaves_the_rest_of_the_run_to_be_written(tmp_path, monkeypatch, capsys) -> None:
+    """A full disk at map.ply raised out of the run: no trajectory, report or status was written."""
+    import tools.map_archive as map_archive
+
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: Usage(10**12, 0, 10**12))
+    out = MapOutput(tmp_path, {"rig": {}, "model": {}, "config": {}}, voxel_m=0.25)
+    out.sink(SimpleNamespace(link=None, submap=make_submap(0, seed=0), changed=[], version=1), MappingStats())
+
+    def full(*args, **kwargs):
+        raise OSError(28, "No space left on device", str(tmp_path / "map.ply"))
+
+    monkeypatch.setattr(map_archive, "export_map", full)
+    summary = out.finish()
+    assert summary["ply"] is None
+    assert summary["export_error"] == f"{tmp_path / 'map.ply'}: No space left on device"
+    assert "map.ply was not written" in capsys.readouterr().err
+    assert "no map.ply: the export failed" in _mapping_line(MP, summary)

@@ -192,7 +192,7 @@ def run(args: argparse.Namespace) -> int:
     from runtime.config import DavioConfig, load_davio_config
     from tools.calibrate.checks import Thresholds
     from tools.calibrate.core import calibrate, stderr_alert, stderr_progress
-    from tools.run_outcome import interruptible
+    from tools.run_outcome import finishing, interruptible
 
     check_args(args)
     config = load_davio_config(args.config) if args.config else DavioConfig()
@@ -258,11 +258,12 @@ def run(args: argparse.Namespace) -> int:
                     event_file.close()
                 if live:                # also when the banner or the events file failed
                     driver.stop()
-        if event_file.failed:
-            print(f"davio calibrate: warning: the events file stopped ({event_file.failed}); the run went on",
-                  file=sys.stderr)
-        return finish(args, run_, rig, th, desc, what, reference, log, driver_report=driver.report(),
-                      events_stopped=event_file.failed)
+            finishing("writing the calibration")      # a signal from here on would only lose it
+            if event_file.failed:
+                print(f"davio calibrate: warning: the events file stopped ({event_file.failed}); the run "
+                      "went on", file=sys.stderr)
+            return finish(args, run_, rig, th, desc, what, reference, log, driver_report=driver.report(),
+                          events_stopped=event_file.failed)
     except BaseException:
         if _file_id(paths["report"]) == report_before:     # no report of this run follows
             discard_failed_events(event_file, made, paths["report"])

@@ -63,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
     from tools.run_folder import RunFolder
     from tools.run_io import write_run
     from tools.run_map import MapOutput
-    from tools.run_outcome import conclude, interruptible, judge
+    from tools.run_outcome import conclude, finishing, interruptible, judge
     from tools.run_session import run_pipeline
     from tools.run_summary import summary
 
@@ -104,6 +104,9 @@ def run(args: argparse.Namespace) -> int:
                                on_event=event_file)
         finally:
             event_file.close()
+        # a signal from here on would only lose the outputs (the race stops at the native initializer's
+        # first pose: seconds)
+        finishing("timing the native initializer alone and writing the run's outputs")
         judge(res, None)
         native = None if model is None or args.no_race or res.status != "complete" else \
             _native_only(rec, config, args)

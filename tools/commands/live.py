@@ -254,7 +254,7 @@ def _run(args, folder, driver, rig, model, model_desc: str, config, prior=None, 
     from runtime.session import Session
     from tools.run_io import imu_noise_note, rig_summary, write_run
     from tools.run_map import MapOutput
-    from tools.run_outcome import conclude, judge
+    from tools.run_outcome import conclude, finish_mapping, finishing, judge
     from tools.run_sinks import RunSinks
     from tools.run_summary import summary
 
@@ -278,8 +278,8 @@ def _run(args, folder, driver, rig, model, model_desc: str, config, prior=None, 
         res = session.run_live(events, progress=status, keep_partial=True)
         status.done()
         driver.stop()
-        if res.status == "complete":
-            session.pipeline.finish_mapping()
+        finish_mapping(res, session.pipeline)
+        finishing()         # a signal from here on would only lose the outputs
     finally:
         driver.stop()
         sinks.close()
@@ -313,7 +313,9 @@ class _StatusLine:
         self.events = EventConsole(self._say)
 
     def _say(self, line: str) -> None:
-        print(("\r\033[K" if self.tty else "") + f"  {line}", file=sys.stderr, flush=True)
+        from tools.stderr_lines import say
+
+        say(("\r\033[K" if self.tty else "") + f"  {line}")
 
     def __call__(self, sensor_s: float) -> None:
         now = time.monotonic()
@@ -336,8 +338,12 @@ class _StatusLine:
         if pipe.prior is not None:
             seg = pipe.published[len(pipe.published) - 1].segment if len(pipe.published) else 0
             line += f"  prior map: {'localised' if pipe.prior.localized(seg) else 'searching'}"
-        print(("\r" + line) if self.tty else line, end="" if self.tty else "\n", file=sys.stderr, flush=True)
+        from tools.stderr_lines import say
+
+        say(("\r" + line) if self.tty else line, end="" if self.tty else "\n")
 
     def done(self) -> None:
         if self.tty and self.last:
-            print(file=sys.stderr)
+            from tools.stderr_lines import say
+
+            say("")

@@ -212,7 +212,7 @@ def _run(args, folder, rec, rig, model, model_desc: str, config, prior=None) -> 
 
     from tools.run_io import imu_noise_note, rig_summary, write_run
     from tools.run_map import MapOutput
-    from tools.run_outcome import conclude, judge
+    from tools.run_outcome import conclude, finishing, judge
     from tools.run_session import run_pipeline
     from tools.run_sinks import RunSinks
     from tools.run_summary import summary
@@ -231,6 +231,7 @@ def _run(args, folder, rec, rig, model, model_desc: str, config, prior=None) -> 
                            model_latency_s=args.model_latency, seconds=args.seconds, rig=rig,
                            map_sink=sinks.map_sink(None if map_out is None else map_out.sink),
                            keep_partial=True, on_pose=sinks.on_pose, prior_map=prior, on_event=sinks.on_event)
+        finishing()         # a signal from here on would only lose the outputs
     finally:
         sinks.close()
     sinks.warn("davio run")
