@@ -10,10 +10,13 @@ its own options only (`davio listen` starts in about 0.2 s, `davio --help` in 0.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import os
 import pkgutil
+import signal
 import sys
+from collections.abc import Iterator
 
 from runtime.errors import DavioError
 
@@ -181,6 +184,35 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "_run", None):
         parser.print_help()
         return 2
+    with _sigterm_interrupts():
+        return _run_command(parser, args)
+
+
+@contextlib.contextmanager
+def _sigterm_interrupts() -> Iterator[None]:
+    """SIGTERM acts as Ctrl-C for the whole command, from its start: as PID 1 in a container (`docker run`
+    without --init) the default action of SIGTERM is to do nothing, so one that came before a run's own
+    handler (`tools.run_outcome.interruptible`), while the model loaded, was lost and docker killed the run
+    10 s later. Left alone when the process already handles SIGTERM (DAVIO inside another program)."""
+    try:
+        if signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+            yield
+            return
+        signal.signal(signal.SIGTERM, _interrupt)
+    except ValueError:       # not the main thread
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def _run_command(parser: argparse.ArgumentParser, args: argparse.Namespace) -> int:
     try:
         if getattr(args, "json", False):    # stdout holds the JSON only: libraries' lines go to stderr
             from runtime.stdout_fd import json_stdout

@@ -112,3 +112,23 @@ def test_a_signal_while_the_outputs_are_written_keeps_them(small_sim_folder: Pat
     assert "SIGTERM: still writing the run's outputs" in capsys.readouterr().err
     assert json.loads((out / "run_status.json").read_text())["status"] == "complete"
     assert (out / "odometry.tum").is_file() and (out / "report.json").is_file()
+
+
+def test_sigterm_interrupts_a_command_from_its_start() -> None:
+    """As PID 1 in a container SIGTERM's default does nothing: one that came while the model loaded (before
+    the run's own handler) was lost, and docker killed the run 10 s later without its outputs."""
+    from tools.cli import _sigterm_interrupts
+
+    before = signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    try:
+        with _sigterm_interrupts():
+            with pytest.raises(KeyboardInterrupt):
+                _signal_self(signal.SIGTERM)
+        assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
+        mine = signal.signal(signal.SIGTERM, lambda *a: None)    # a host program's own handler stays
+        with _sigterm_interrupts():
+            assert signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL
+            _signal_self(signal.SIGTERM)
+        signal.signal(signal.SIGTERM, mine)
+    finally:
+        signal.signal(signal.SIGTERM, before)
