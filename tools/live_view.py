@@ -82,6 +82,10 @@ class LiveView:
         self.body = self.server.scene.add_frame("/body", axes_length=0.3, axes_radius=0.015)
         self.path = None
         self.clouds: dict[int, Any] = {}
+        self.segment: int | None = None
+        """The filter segment drawn: a reset starts a new odometry and map frame, so the view starts over
+        (the earlier segment's trajectory and points would lie in an unrelated frame)."""
+        self.segments_cleared = 0
 
     @property
     def url(self) -> str:
@@ -101,11 +105,12 @@ class LiveView:
     # -- poses ---------------------------------------------------------------------------------
     def on_pose(self, pose: Any) -> None:
         """A published pose (runtime.session.Pose): moves the body frame, extends the trajectory."""
-        self._guard(lambda: self._pose(np.asarray(pose.T_MI, np.float64)))
+        self._guard(lambda: self._pose(np.asarray(pose.T_MI, np.float64), int(getattr(pose, "segment", 0))))
 
-    def _pose(self, T_MI: np.ndarray) -> None:
+    def _pose(self, T_MI: np.ndarray, segment: int = 0) -> None:
         if T_MI.shape != (4, 4) or not np.isfinite(T_MI).all():
             raise ValueError(f"pose T_MI is not a finite 4x4 matrix (shape {T_MI.shape})")
+        self._new_segment(segment)
         with self._lock:
             self.poses += 1
             self._trajectory.append(T_MI[:3, 3].copy())
@@ -132,7 +137,29 @@ class LiveView:
         moves the resident submaps the graph moved."""
         self._guard(lambda: self._map(commit))
 
+    def _new_segment(self, segment: int) -> None:
+        """Start over when the filter was reset (a later segment): clear the trajectory and the points."""
+        with self._lock:      # poses come from the scheduler's thread, commits from the model worker's
+            if self.segment is not None and segment <= self.segment:
+                return
+            first = self.segment is None
+            self.segment = segment
+            if first:
+                return
+            self._trajectory = []
+            path, self.path = self.path, None
+            clouds, self.clouds = list(self.clouds.values()), {}
+            self.segments_cleared += 1
+        for item in (path, *clouds):
+            if item is not None:
+                item.remove()
+
     def _map(self, commit: Any) -> None:
+        seg = getattr(commit.submap, "segment", None)
+        if seg is not None:
+            if self.segment is not None and seg < self.segment:
+                return                           # a window of the segment before the reset, mapped late
+            self._new_segment(int(seg))
         for sm in (commit.submap, *commit.changed):
             if not hasattr(sm, "points_M"):      # a submap that left memory: its points stay as drawn
                 continue
@@ -162,7 +189,7 @@ class LiveView:
     def report(self) -> dict:
         """Counters for report.json: poses and commits shown, view errors."""
         return {"url": self.url, "poses": self.poses, "submaps": self.submaps, "errors": self.errors,
-                "last_error": self.last_error}
+                "last_error": self.last_error, "segments_cleared": self.segments_cleared}
 
     def close(self) -> None:
         """Stop the web server."""

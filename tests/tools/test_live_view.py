@@ -72,6 +72,27 @@ def test_map_commits_draw_each_submap_at_its_graph_state(view: LiveView) -> None
     np.testing.assert_array_equal(view.clouds[1].colors[:, 0], b.grey)
 
 
+def test_a_filter_reset_starts_the_view_over_in_the_new_frame(view: LiveView) -> None:
+    """Each segment has its own odometry and map frame: its trajectory and points were drawn over the
+    earlier segment's, in an unrelated frame."""
+    for k in range(4):
+        view.on_pose(SimpleNamespace(T_MI=make_pose(np.eye(3), np.array([float(k), 0.0, 0.0])), segment=0))
+    view.on_map(SimpleNamespace(submap=submap(0, np.eye(4)), changed=[]))
+    assert sorted(view.clouds) == [0]
+    after = [make_pose(np.eye(3), np.array([0.0, float(k), 5.0])) for k in range(3)]
+    for T in after:
+        view.on_pose(SimpleNamespace(T_MI=T, segment=1))
+    assert view.clouds == {} and view.segments_cleared == 1
+    np.testing.assert_allclose(np.asarray(view.path.points)[:, 0], [T[:3, 3] for T in after[:-1]], atol=1e-5)
+    late = submap(1, np.eye(4))                      # a window of segment 0 mapped after the reset
+    late.segment = 0
+    view.on_map(SimpleNamespace(submap=late, changed=[]))
+    new = submap(2, np.eye(4))
+    new.segment = 1
+    view.on_map(SimpleNamespace(submap=new, changed=[]))
+    assert sorted(view.clouds) == [2] and view.report()["segments_cleared"] == 1 and view.errors == 0
+
+
 def test_the_page_is_served_and_a_broken_update_is_counted(view: LiveView) -> None:
     html = urllib.request.urlopen(view.url, timeout=10).read()
     assert b"<html" in html[:200].lower()
