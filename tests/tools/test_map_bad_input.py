@@ -143,3 +143,18 @@ def test_a_camera_matrix_without_focal_lengths_is_refused_by_name(tmp_path: Path
         MapArchiveWriter(tmp_path / "map", HEADER).commit([sm], [], 1, {})
     info = map_info(tmp_path / "map")          # before: divide-by-zero warnings, then points dropped unsaid
     assert len(info["problems"]) == 1 and "K is not a camera matrix" in info["problems"][0]
+
+
+def test_a_segment_other_than_the_aligned_one_is_refused(aligned: Path, capsys) -> None:
+    """The alignment holds for the segment it was fitted on; an alignment.json of an older davio does not
+    name it, and any --segment was then taken."""
+    path = aligned / "alignment.json"
+    al = json.loads(path.read_text())
+    assert main(["map", "export", str(aligned), "--in-prior", "--segment", "3"]) == 1
+    assert f"the alignment to the prior map holds for segment {al['new_segment']}" in capsys.readouterr().err
+    del al["new_segment"], al["prior_segment"]
+    path.write_text(json.dumps(al))
+    assert main(["map", "export", str(aligned), "--in-prior", "--segment", "0"]) == 1
+    assert "does not name: align the run again" in capsys.readouterr().err
+    assert main(["map", "export", str(aligned), "--merge-prior", "--voxel", "0.25"]) == 0
+    assert not (aligned / "map.prior.ply").exists() and (aligned / "map.merged.ply").is_file()
