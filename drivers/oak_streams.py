@@ -179,7 +179,7 @@ class OakCamera(KeptFrames, _Source):
         the device or its queue skipped frames), seq_skipped (the frames skipped), nonmonotonic (dropped
         stamps), converted; the stamp source; error."""
         fps_m = self.fps_measured()
-        notes = []
+        notes = list(self.owner.rig_notes)      # what the factory calibration withheld (corrupt extrinsics)
         mismatch = intrinsics_mismatch(self.owner.rig_K, self.device_K, self.owner.width, self.owner.height)
         if mismatch:
             notes.append(mismatch)

@@ -736,6 +736,13 @@ def test_corrupt_factory_extrinsics_are_withheld_and_said_not_made_a_rotation(tm
     assert "bring-up estimates them" in notes[0] and "--rig" in notes[0]
     with pytest.raises(CalibrationError, match="not a rigid transform"):
         read_oak_rig(c, "CAM_B", 640, 400, require_extrinsics=True)
+    dev, _, _, _ = fake_device(calibration=c)        # and in the camera's report (report.json, the notes)
+    dev.open()
+    try:
+        assert dev.rig().T_IC is None
+        assert any("not a rigid transform" in n for n in dev.camera.report()["notes"])
+    finally:
+        dev.stop()
     assert read_oak_rig(dai.CalibrationHandler(str(FIXTURE)), "CAM_B", 640, 400, notes=notes).T_IC is not None
     assert len(notes) == 1                     # the factory's own float32 rotation is taken as it is
 
