@@ -182,6 +182,7 @@ def test_manifest_equals_encoding_the_whole_manifest_after_every_commit(tmp_path
         entries = [_expected_entry(folder, subs[k]) for k in sorted(archived)]
         assert w.entries == entries and w.n_submaps == len(archived)
         expected = {"format": FORMAT, "schema_version": SCHEMA_VERSION, "created_by": davio_version(),
+                    "archive_id": w.archive_id,
                     **{k: jsonable(HEADER[k]) for k in ("rig", "model", "config")}, "map_version": version,
                     "journal_generation": w.generation, "submaps": entries, "pairs": jsonable(list(pairs)),
                     "stats": jsonable(stats)}
@@ -227,6 +228,7 @@ def test_placeholder_text_in_any_value_cannot_corrupt_the_manifest(tmp_path):
             w.commit([sm], pairs, 1, stats)
             text = (folder / "manifest.json").read_text()
             expected = {"format": FORMAT, "schema_version": SCHEMA_VERSION, "created_by": davio_version(),
+                        "archive_id": w.archive_id,
                         **{k: jsonable(header[k]) for k in ("rig", "model", "config")}, "map_version": 1,
                         "journal_generation": 1, "submaps": w.entries, "pairs": jsonable(pairs),
                         "stats": jsonable(stats)}

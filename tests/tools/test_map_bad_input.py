@@ -158,3 +158,37 @@ def test_a_segment_other_than_the_aligned_one_is_refused(aligned: Path, capsys) 
     assert "does not name: align the run again" in capsys.readouterr().err
     assert main(["map", "export", str(aligned), "--merge-prior", "--voxel", "0.25"]) == 0
     assert not (aligned / "map.prior.ply").exists() and (aligned / "map.merged.ply").is_file()
+
+
+def test_an_alignment_is_refused_for_maps_other_than_the_aligned_ones(aligned: Path, tmp_path: Path,
+                                                                    capsys) -> None:
+    """alignment.json names the prior by path: a prior replaced at that path since (re-run with --overwrite),
+    or an alignment written into another run's folder (`map align X --out OTHER`), merged unrelated maps
+    without a word."""
+    import shutil
+
+    prior = tmp_path / "prior"
+    al = json.loads((aligned / "alignment.json").read_text())
+    assert al["prior_id"] and al["new_id"] and al["prior_id"] != al["new_id"]
+    other = tmp_path / "other"
+    prior_views, _ = _sessions(T_PW, T_NW)
+    _write_session(other, prior_views)                       # the same views: another archive all the same
+    shutil.copy(aligned / "alignment.json", other / "alignment.json")
+    assert main(["map", "export", str(other), "--in-prior"]) == 1
+    assert "aligns another map" in capsys.readouterr().err and not (other / "map.prior.ply").exists()
+    shutil.rmtree(prior / "map")
+    shutil.copytree(other / "map", prior / "map")           # the prior re-run at the same path
+    for how in ("--in-prior", "--merge-prior"):
+        assert main(["map", "export", str(aligned), how]) == 1
+        assert "is not the map this run was aligned to (it was replaced since" in capsys.readouterr().err
+
+
+def test_a_prior_map_in_the_runs_own_out_is_refused(aligned: Path, tmp_path: Path, capsys) -> None:
+    """`--prior-map runA --out runA --overwrite` replaced the map it localised in (its only copy)."""
+    prior = tmp_path / "prior"
+    manifest = (prior / "map" / "manifest.json").read_bytes()
+    for out, given in ((prior, prior), (prior, prior / "map"), (tmp_path / "z", tmp_path / "z.partial")):
+        assert main(["run", str(tmp_path / "rec"), "--emulated", "--prior-map", str(given), "--out", str(out),
+                     "--overwrite"]) == 1
+        assert "lies in this run's --out" in capsys.readouterr().err
+    assert (prior / "map" / "manifest.json").read_bytes() == manifest

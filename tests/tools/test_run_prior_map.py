@@ -76,7 +76,10 @@ def test_a_live_run_is_localised_in_an_earlier_map_and_publishes_in_its_frame(tw
     assert _rms_through_A(root / "runB/causal.prior.tum", root) < 0.1
     assert _rms_through_A(root / "runB/final.prior.tum", root) < 0.1
     assert report["pipeline"]["prior_map"]["errors"] == 0
-    assert pm["switches"] == 0 and json.loads((root / "runB/alignment.json").read_text())["switches"] == 0
+    live = json.loads((root / "runB/alignment.json").read_text())
+    assert pm["switches"] == 0 and live["switches"] == 0
+    ids = [json.loads((root / r / "map/manifest.json").read_text())["archive_id"] for r in ("runA", "runB")]
+    assert [live["prior_id"], live["new_id"]] == ids
     # the same from the two saved maps afterwards, into another file
     assert main(["map", "align", str(root / "runB"), "--to", str(root / "runA"),
                  "--out", str(root / "offline.json")]) == 0

@@ -152,7 +152,7 @@ def _prior_alignment(run_folder: Path, merge: bool) -> tuple:
     path = run_folder / "alignment.json"
     if not path.is_file():
         raise ConfigError(f"{path} not found: align the run first (`davio map align {run_folder} --to "
-                          "PRIOR`, or run it with --prior-map)")
+                          "PRIOR`; a run made with --prior-map writes it only once it localised)")
     try:
         al = json.loads(path.read_text())
         T = np.array(al["T_PN"], np.float64) if al.get("T_PN") is not None else None
@@ -168,6 +168,7 @@ def _prior_alignment(run_folder: Path, merge: bool) -> tuple:
     if any(not (v is None or (isinstance(v, int) and not isinstance(v, bool))) for v in segments):
         raise ConfigError(f"{path}: new_segment and prior_segment must be integers, got "
                           f"{segments[0]!r}, {segments[1]!r}")
+    _check_aligned_maps(path, al, run_folder / "map", prior)
     if merge and not (prior / "manifest.json").is_file():
         raise ConfigError(f"{path} names the prior map {prior}, which is gone (no manifest.json there)")
     return T, prior, *segments
@@ -180,6 +181,26 @@ def _reading(exc: OSError, out: Path) -> bool:
         return False
     name = Path(exc.filename)
     return not (name.parent.resolve() == out.parent.resolve() and out.name in name.name)
+
+
+def _check_aligned_maps(path: Path, al: dict, own: Path, prior: Path) -> None:
+    """ConfigError when the maps are not the ones aligned: the prior was replaced at its path since, or the
+    alignment was written for another run's map (`davio map align X --out THIS_RUN`). An alignment of an
+    older davio records no ids: taken as it is."""
+    from tools.map_archive.align import archive_id
+
+    def id_of(folder: Path) -> str | None:
+        try:
+            return archive_id(folder) if (folder / "manifest.json").is_file() else None
+        except DataError:          # a damaged archive: the export itself says what is wrong with it
+            return None
+
+    if isinstance(al.get("new_id"), str) and id_of(own) not in (None, al["new_id"]):
+        raise ConfigError(f"{path} aligns another map ({al.get('new')}), not this run's: align this run "
+                          f"(`davio map align {own.parent} --to PRIOR`)")
+    if isinstance(al.get("prior_id"), str) and id_of(prior) not in (None, al["prior_id"]):
+        raise ConfigError(f"{prior} is not the map this run was aligned to (it was replaced since: its "
+                          f"archive id differs): align the run again")
 
 
 def _check_fuse_args(voxel: float, min_points: int = 1) -> None:

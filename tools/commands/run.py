@@ -115,6 +115,22 @@ def check_run_args(args: argparse.Namespace) -> None:
         from tools.pose_stream import resolve_stream_url
 
         resolve_stream_url(args.stream)
+    if getattr(args, "prior_map", None) and getattr(args, "out", None):
+        check_prior_not_out(args.prior_map, args.out)
+
+
+def check_prior_not_out(prior_map: str, out: str) -> None:
+    """ConfigError when --out, or the `OUT.partial` folder a run writes first, is or holds the --prior-map
+    folder: the run replaces its --out and would delete the map it localises in (the only copy, and its
+    alignment.json would then name this run's own map as the prior)."""
+    from runtime.errors import ConfigError
+
+    prior = Path(prior_map).resolve()
+    target = Path(out).resolve()
+    for folder in (target, target.with_name(target.name + ".partial")):
+        if prior == folder or folder in prior.parents:
+            raise ConfigError(f"--prior-map {prior_map} lies in this run's --out ({folder}): the run would "
+                              f"replace the map it localises in; give another --out")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -151,9 +167,15 @@ def prior_map(args: argparse.Namespace, model, config):
         raise ConfigError("--prior-map needs the submaps' centre views, which the submap graph keeps for "
                           "revisits: set mapping.graph and revisits.enabled to true")
     from runtime.graph.relocalize import AlignConfig
+    from tools.commands.map import resolve
+    from tools.map_archive.format import JOURNAL_NAME
 
+    archive, _ = resolve(Path(args.prior_map))    # a run folder without a map/ is said as such
     notes: list[str] = []
-    loc = prior_map_localizer(Path(args.prior_map), notes, AlignConfig(gates=config.revisits))
+    if (archive / JOURNAL_NAME).exists():
+        notes.append(f"{archive} has a pending journal: its run was killed, or is still writing it; the map "
+                     "as of its last commit is used")
+    loc = prior_map_localizer(archive, notes, AlignConfig(gates=config.revisits))
     for n in notes:
         print(f"davio: prior map: note: {n}", file=sys.stderr)
     return loc

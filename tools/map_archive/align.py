@@ -91,6 +91,12 @@ def match_views(fa, fb) -> tuple[np.ndarray, np.ndarray]:
     return m.idx_a, m.idx_b
 
 
+def archive_id(folder: Path) -> str | None:
+    """The archive's id (manifest "archive_id"; None for an archive written before davio recorded one)."""
+    value = read_manifest(folder).get("archive_id")
+    return value if isinstance(value, str) else None
+
+
 def align_archives(new: Path, prior: Path, cfg: AlignConfig | None = None,
                    progress: Callable[[int, int], None] | None = None) -> tuple[Alignment, dict, list[str]]:
     """(the alignment of archive `new` to archive `prior`, a JSON-ready summary, notes)."""
@@ -101,6 +107,7 @@ def align_archives(new: Path, prior: Path, cfg: AlignConfig | None = None,
     res = align_sessions(prior_views, new_views, match_views, cfg, progress)
     summary = {"format": "davio-alignment", "prior": str(Path(prior).resolve()),
                "new": str(Path(new).resolve()),
+               "prior_id": archive_id(prior), "new_id": archive_id(new),
                "prior_segment": prior_segment, "new_segment": new_segment, "new_segments": new_segments,
                "frames": "T_PN maps points of the new map frame into the prior one: x_P = T_PN x_N",
                "settings": {"candidates_per_view": cfg.candidates_per_view, "min_views": cfg.min_views,

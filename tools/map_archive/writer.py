@@ -6,6 +6,7 @@ import io
 import json
 import os
 import threading
+import uuid
 from pathlib import Path
 
 import numpy as np
@@ -107,6 +108,9 @@ class MapArchiveWriter:
         self.folder = Path(folder)
         self.views = bool(views)
         self.header = {k: jsonable(header.get(k) or {}) for k in ("rig", "model", "config")}
+        self.archive_id = uuid.uuid4().hex
+        """Names this archive for good (alignment.json records the ids of the maps it relates: a map
+        replaced at the same path is then told from the one aligned to)."""
         manifest = self.folder / MANIFEST_NAME
         if manifest.exists() and not overwrite:
             raise DataError("the folder already holds a map archive (manifest.json); choose another "
@@ -267,7 +271,8 @@ class MapArchiveWriter:
     def _manifest_text(self, generation: int) -> str:
         """The whole manifest as `json.dumps(manifest, indent=1)` writes it, from the cached element texts."""
         manifest = {"format": FORMAT, "schema_version": SCHEMA_VERSION, "created_by": davio_version(),
-                    **self.header, "map_version": self.map_version, "journal_generation": generation,
+                    "archive_id": self.archive_id, **self.header, "map_version": self.map_version,
+                    "journal_generation": generation,
                     "submaps": _SUBMAPS_SLOT, "pairs": _PAIRS_SLOT, "stats": self._stats}
         text = json.dumps(manifest, allow_nan=False, indent=1)
         slots = (json.dumps(_SUBMAPS_SLOT), json.dumps(_PAIRS_SLOT))
