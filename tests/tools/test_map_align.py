@@ -240,12 +240,19 @@ def test_a_live_runs_alignment_is_replaced_only_with_overwrite_and_a_stale_traje
 
     prior, new = sessions
     (new / "final.tum").write_text("1.0 0 0 0 0 0 0 1\n")
-    (new / "alignment.json").write_text(json.dumps({"new": LIVE_ALIGNMENT, "localized": True}))
+    (new / "alignment.json").write_text(json.dumps({"new": LIVE_ALIGNMENT, "localized": True,
+                                                    "prior": "/elsewhere/runX/map"}))
+    (new / "causal.prior.tum").write_text("1.0 0 0 0 0 0 0 1\n")     # published in runX's frame
     assert main(["map", "align", str(new), "--to", str(prior)]) != 0
     assert "--overwrite" in capsys.readouterr().err
     assert json.loads((new / "alignment.json").read_text())["new"] == LIVE_ALIGNMENT
+    assert (new / "causal.prior.tum").exists()
     assert main(["map", "align", str(new), "--to", str(prior), "--overwrite"]) == 0
     assert (new / "final.prior.tum").exists()
+    # the live poses were in another prior's frame: the file no longer matches alignment.json
+    assert not (new / "causal.prior.tum").exists()
+    assert "causal.prior.tum removed: it held the poses published in the frame of /elsewhere/runX/map" in \
+        capsys.readouterr().err
     # an own earlier result whose new alignment moves nothing: the stale trajectory goes, after the write
     _, other = _sessions(np.eye(4), np.eye(4), new_room_seed=7)        # another room
     _write_session(tmp_path / "elsewhere", other)

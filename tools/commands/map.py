@@ -378,13 +378,20 @@ def _align(args: argparse.Namespace, archive: Path, run_folder: Path) -> int:
             trajectory = moved
             summary["final_prior"] = str(trajectory)
             summary["final_prior_poses"] = transform_tum(final, trajectory, res.T_PN)
+    earlier = _read_json(out) if replaced else None
     try:
         atomic_write_text(out, strict_dumps(summary, indent=1) + "\n")
     except OSError as exc:
         raise ConfigError(f"--out {out}: cannot write ({exc.strerror or exc})") from None
-    if trajectory is None and own and moved.is_file():     # our earlier result, now stale
+    if trajectory is None and (own or replaced) and moved.is_file():     # the earlier result, now stale
         moved.unlink()
         _print_notes("align", [f"{moved} of an earlier alignment removed: this one moved no trajectory"])
+    causal = out.parent / "causal.prior.tum"      # a --prior-map run's poses as published in its prior frame
+    was = (earlier or {}).get("prior")
+    if replaced and causal.is_file() and (not res.localized or was != summary["prior"]):
+        causal.unlink()
+        _print_notes("align", [f"{causal} removed: it held the poses published in the frame of "
+                               f"{was or 'the earlier prior map'}, which this alignment replaced"])
     if args.json:
         print(strict_dumps(summary, indent=2))
         return 0 if res.localized else 1
@@ -414,6 +421,17 @@ def _written_live(path: Path) -> bool:
         return json.loads(path.read_text()).get("new") == LIVE_ALIGNMENT
     except (OSError, ValueError, AttributeError):
         return False
+
+
+def _read_json(path: Path) -> dict | None:
+    """The JSON object in `path`, or None when it holds none."""
+    import json
+
+    try:
+        value = json.loads(path.read_text())
+    except (OSError, ValueError, RecursionError):
+        return None
+    return value if isinstance(value, dict) else None
 
 
 def _last_segment(run_folder: Path) -> int | None:
