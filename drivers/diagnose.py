@@ -1,9 +1,9 @@
-"""Why an input stream is unusable or in the wrong units, in words that name the fix.
+"""Why an input stream is unusable, in words that name the fix.
 
 A replay that reads nothing usable must stop with the reason, not run to "0 poses, exit 0". These
 checks look at a stamped CSV file whose rows were all rejected (separator, column count, stamp
-format, all non-finite), at stamps whose rate is only plausible in another unit (s, ms, µs instead
-of ns), and at accelerometer values in g instead of m/s^2.
+format, all non-finite) and at messages that share one header stamp. The unit checks (stamps in s, ms
+or µs instead of ns, an accelerometer in g) are in `runtime.units`, which the Session API uses too.
 """
 from __future__ import annotations
 
@@ -14,16 +14,6 @@ import numpy as np
 
 from drivers.base import StreamCounts
 from runtime.errors import DataError
-
-G_STANDARD = 9.80665
-"""Standard gravity, m/s^2: the factor from g to m/s^2."""
-
-RATE_RANGE_HZ = {"IMU": (10.0, 10_000.0), "camera": (0.2, 1_000.0)}
-"""Sensor rates DAVIO accepts as plausible, per stream kind (Hz)."""
-
-_UNITS = (("microseconds", 1e3, "multiply the stamps by 1000"),
-          ("milliseconds", 1e6, "multiply the stamps by 1,000,000"),
-          ("seconds", 1e9, "multiply the stamps by 1e9 and write them as integers"))
 
 
 def _data_lines(path: Path, limit: int = 50) -> list[str]:
@@ -91,37 +81,3 @@ def check_distinct_stamps(t_ns: np.ndarray, what: str, path: str | Path) -> None
     raise DataError(f"{what}: {int(counts[k])} of {n} messages share the header stamp {int(stamps[k])} "
                     f"({len(stamps)} distinct stamps): the publisher does not stamp its messages; fix its "
                     "header.stamp (the driver's time source), DAVIO never uses the record time", path)
-
-
-def check_stamp_units(t_ns: np.ndarray, kind: str, path: str | Path) -> None:
-    """Raise DataError when the stamps' median rate is implausible in ns but plausible in another unit.
-
-    `kind` is "IMU" or "camera" (RATE_RANGE_HZ). Fewer than 3 distinct stamps are not judged.
-    """
-    lo, hi = RATE_RANGE_HZ[kind]
-    if t_ns.shape[0] < 3:
-        return
-    step = float(np.median(np.diff(t_ns)))
-    if step <= 0:
-        return
-    rate = 1e9 / step
-    if lo <= rate <= hi:
-        return
-    for unit, factor, fix in _UNITS:
-        if lo <= 1e9 / (step * factor) <= hi:
-            raise DataError(f"{kind} stamps look like {unit}, not nanoseconds: the median step {step:g} "
-                            f"would mean {rate:.3g} Hz in ns but {1e9 / (step * factor):.4g} Hz in "
-                            f"{unit}; {fix}", path)
-    raise DataError(f"implausible {kind} rate {rate:.3g} Hz from the stamps' median step {step:g} ns "
-                    f"(expected {lo:g}-{hi:g} Hz); stamps must be integer nanoseconds", path)
-
-
-def accel_looks_like_g(accel: np.ndarray) -> float | None:
-    """The median accelerometer norm when it says the values are in g (0.5-2), else None.
-
-    A robot's accelerometer measures gravity plus motion: in m/s^2 its median norm is about 9.8.
-    """
-    if accel.shape[0] < 10:
-        return None
-    med = float(np.median(np.linalg.norm(accel, axis=1)))
-    return med if 0.5 <= med <= 2.0 else None

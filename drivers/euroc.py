@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from drivers.base import Driver, IntakeReport, Policy, StreamCounts, check_policy
-from drivers.diagnose import G_STANDARD, accel_looks_like_g, check_stamp_units, explain_unreadable
+from drivers.diagnose import explain_unreadable
 from drivers.euroc_files import (  # noqa: F401 - read_* and find_mav0 are this module's API too
     CAMERA_COLUMNS,
     IMAGE_SUFFIXES,
@@ -35,6 +35,7 @@ from runtime.errors import DataError
 from runtime.events import Frame, ImuSample
 from runtime.file_kind import MISSING, file_problem
 from runtime.geometry.trajectory import PoseTrajectory
+from runtime.units import G_STANDARD, accel_looks_like_g, check_stamp_units
 
 if TYPE_CHECKING:
     from calib import Rig

@@ -23,11 +23,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from drivers.base import Driver, IntakeReport, Policy, StreamCounts, check_policy
-from drivers.diagnose import G_STANDARD, accel_looks_like_g, check_distinct_stamps, check_stamp_units
+from drivers.diagnose import check_distinct_stamps
 from drivers.images import BitDepthScaler
 from drivers.validation import count_gaps, time_order_repair
 from runtime.errors import ConfigError, DataError
 from runtime.events import Frame, ImuSample
+from runtime.units import G_STANDARD, accel_looks_like_g, check_stamp_units
 
 if TYPE_CHECKING:
     from calib import Rig

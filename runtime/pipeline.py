@@ -335,13 +335,23 @@ class VioPipeline:
 
     def finish_mapping(self) -> int:
         """Map the windows still queued when the recording ended (in the calling thread); returns
-        how many were processed. Call after the scheduler returned (no model job in flight)."""
+        how many were processed. Call after the scheduler returned (no model job in flight). A window whose
+        job fails (the model raised, returned the wrong shapes) is counted as the scheduler counts one
+        during the run (windows_rejected "exception"), never raised."""
         if self.map_queue is None:
             return 0
         done = 0
         while (window := self.map_queue.pop()) is not None:
-            result = self._mapping_job(window)()
-            if isinstance(result, MapCommit):   # after the last pose: only the final trajectory sees it
+            try:
+                result = self._mapping_job(window)()
+            except Exception as exc:  # noqa: BLE001 - as the model worker does: a failed job is a result
+                result = exc
+            if isinstance(result, Exception):
+                st = self.map_stats
+                st.reject("exception")
+                if len(st.model_errors) < MAX_ERROR_MESSAGES:
+                    st.model_errors.append(f"{type(result).__name__}: {result}")
+            elif isinstance(result, MapCommit):   # after the last pose: only the final trajectory sees it
                 self._record_nodes(result)
             done += 1
         self.events.after_mapping(self._last_t)

@@ -79,6 +79,10 @@ class SessionResult:
 
 
 _CLOSE = object()
+UNIT_CHECK_SAMPLES = 50
+"""IMU samples the stamp-unit and accelerometer-unit checks of `add_imu` look at (the first ones)."""
+UNIT_CHECK_IMAGES = 5
+"""Images the stamp-unit check of `add_image` looks at (the first ones)."""
 
 
 class Session:
@@ -129,7 +133,9 @@ class Session:
         self._error: BaseException | None = None
         self._error_raised = False
         self._closed = False
-        self._last_imu_ns: int | None = None
+        self._start_lock = threading.Lock()     # an IMU thread and a camera thread may push first together
+        self._imu_head: list[tuple[int, np.ndarray]] | None = []    # the first samples, for the unit checks
+        self._image_head: list[int] | None = []
         self._scheduled_running = False    # a replay or run_live is running (stop_replay acts on it)
         self.result: SessionResult | None = None
 
@@ -157,10 +163,11 @@ class Session:
                     pass
 
     def poses(self, timeout: float | None = 0.0) -> Iterator[Pose]:
-        """The poses published since the last call (waits up to `timeout` s for the first one); at most the
-        newest `max_unread_poses`, the older ones counted in `unread_poses_dropped`."""
+        """The poses published since the last call (waits up to `timeout` s for the first one; None: until
+        one comes); at most the newest `max_unread_poses`, the older ones counted in
+        `unread_poses_dropped`."""
         try:
-            yield self._poses.get(timeout=timeout) if timeout else self._poses.get_nowait()
+            yield self._poses.get_nowait() if timeout == 0 else self._poses.get(timeout=timeout)
         except queue.Empty:
             return
         while True:
@@ -219,13 +226,16 @@ class Session:
 
     # -- live push -----------------------------------------------------------------------------
     def start(self) -> Session:
-        """Start the live scheduler thread (done by the first add_* or by `with`)."""
-        if self._thread is None:
-            self._inbox = queue.Queue()
-            self._scheduler = Scheduler(LiveClock(), live=True, max_pending_frames=self.max_pending_frames,
-                                        on_output=self._emit)
-            self._thread = threading.Thread(target=self._run_live, name="davio-session", daemon=True)
-            self._thread.start()
+        """Start the live scheduler thread (done by the first add_* or by `with`); DavioError once closed."""
+        with self._start_lock:
+            if self._closed:
+                raise DavioError("the session is closed: start a new Session for more data")
+            if self._thread is None:
+                self._inbox = queue.Queue()
+                self._scheduler = Scheduler(LiveClock(), live=True,
+                                            max_pending_frames=self.max_pending_frames, on_output=self._emit)
+                self._thread = threading.Thread(target=self._run_live, name="davio-session", daemon=True)
+                self._thread.start()
         return self
 
     def _incoming(self) -> Iterator[Any]:
@@ -258,8 +268,30 @@ class Session:
         rad/s and accel in m/s^2 in the IMU frame. Non-finite values are counted and dropped by the filter."""
         g, a = _vector3(gyro, "gyro", t_ns), _vector3(accel, "accel", t_ns)
         t = _stamp(t_ns)
-        self._last_imu_ns = t
+        if self._imu_head is not None:
+            self._check_imu_units(t, a)
         self._push(ImuSample(t, g, a))
+
+    def _check_imu_units(self, t: int, accel: np.ndarray) -> None:
+        """Over the first UNIT_CHECK_SAMPLES samples: stamps in ns (not s, ms or us) and an accelerometer in
+        m/s^2 (not g), as the file drivers check them; DataError with the fix otherwise (the filter would
+        take the samples as out of order, or publish a wrong scale, without a word)."""
+        from runtime.units import accel_looks_like_g, check_stamp_units
+
+        head = self._imu_head
+        head.append((t, accel))
+        if len(head) < UNIT_CHECK_SAMPLES:
+            return
+        self._imu_head = None
+        stamps = np.array([x[0] for x in head], np.int64)
+        if len(np.unique(stamps)) < len(stamps) // 2:
+            raise DataError(f"add_imu: {len(np.unique(stamps))} distinct stamps in the first {len(stamps)} "
+                            "samples: stamps must be integer nanoseconds (whole seconds or milliseconds?)")
+        check_stamp_units(stamps, "IMU", "Session.add_imu")
+        g = accel_looks_like_g(np.array([x[1] for x in head]))
+        if g is not None:
+            raise DataError(f"add_imu: the accelerometer's median norm is {g:.2f}: it looks like g, not "
+                            "m/s^2; multiply it by 9.80665")
 
     def add_image(self, t_ns: int, image: np.ndarray) -> None:
         """One grey image (H, W) uint8 of the rig camera's size, stamped at mid-exposure (int64 ns)."""
@@ -270,7 +302,17 @@ class Session:
         if img.shape != (cam.height, cam.width):
             raise DataError(f"image size {img.shape[1]}x{img.shape[0]} differs from the calibration's "
                             f"{cam.width}x{cam.height}")
-        self._push(Frame(_stamp(t_ns), img, 0))
+        t = _stamp(t_ns)
+        if self._image_head is not None:
+            self._image_head.append(t)
+            if len(self._image_head) >= UNIT_CHECK_IMAGES:
+                from runtime.units import check_stamp_units
+
+                stamps, self._image_head = np.array(self._image_head, np.int64), None
+                check_stamp_units(stamps, "camera", "Session.add_image")
+        # a copy: the image is held for the start-up and mapping windows, and a driver that reuses one
+        # buffer for every frame (V4L2 mmap, cap.read(buf)) would change the images already queued
+        self._push(Frame(t, np.array(img, order="C", copy=True), 0))
 
     def close(self, timeout_s: float = 60.0) -> SessionResult:
         """Process what was pushed, stop the threads, map the windows still queued; returns the result.

@@ -137,3 +137,29 @@ def test_mapping_exceptions_are_all_counted_and_the_first_messages_kept(recordin
     st = pipe.map_stats
     assert st.windows_rejected["exception"] == n
     assert st.model_errors == [f"MemoryError: window {k}" for k in range(MAX_ERROR_MESSAGES)]
+
+
+def test_a_window_failing_after_the_data_ended_is_counted_not_raised() -> None:
+    """Session.close() and `davio run` map the queued windows in the calling thread: a model that raised
+    (or returned other shapes) escaped close() as a raw exception, the session half-closed."""
+    from types import SimpleNamespace
+
+    from calib.io import euroc_rig
+    from runtime.config import DavioConfig
+    from runtime.mapping.mapper import MappingStats
+    from runtime.pipeline import VioPipeline
+
+    pipe = VioPipeline(euroc_rig(), None, DavioConfig())
+    pipe.map_stats = MappingStats()               # what a run with a model and the mapping on holds
+    queued = ["w2", "w1"]
+    pipe.map_queue = SimpleNamespace(pop=lambda: queued.pop() if queued else None)
+
+    def job(window):
+        def run():
+            raise RuntimeError(f"CUDA error on {window}")
+        return run
+
+    pipe._mapping_job = job
+    assert pipe.finish_mapping() == 2
+    assert pipe.map_stats.windows_rejected == {"exception": 2}
+    assert pipe.map_stats.model_errors == ["RuntimeError: CUDA error on w1", "RuntimeError: CUDA error on w2"]

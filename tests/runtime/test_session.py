@@ -202,3 +202,65 @@ def test_stop_replay_ends_a_replay_at_the_first_pose_and_touches_nothing_else(re
         _push(pushed, events[50:])
     assert pushed.result.status == "complete" and not pushed.result.scheduler.stopped_early
     assert pushed.result.scheduler.events == whole.scheduler.events
+
+
+@pytest.mark.parametrize("scale, said", [(1e-3, "IMU stamps look like microseconds"),
+                                         (1e-6, "IMU stamps look like milliseconds"),
+                                         (1e-9, "distinct stamps in the first 50 samples")])
+def test_imu_stamps_in_other_units_are_named(recording, scale: float, said: str) -> None:
+    """The file drivers check the units; pushed samples in us or s published nothing, counted only as
+    out-of-order samples (or not at all)."""
+    rec, _ = recording
+    s = Session(rec.rig)
+    pushed: list = []
+    s._push = pushed.append                        # the checks run on the caller's side of the queue
+    with pytest.raises(DataError, match=said):
+        for k in range(60):
+            s.add_imu(int((10**18 + k * 5_000_000) * scale), [0, 0, 0], [0, 0, 9.81])
+    assert len(pushed) == 49                       # judged at the 50th sample, before it is pushed
+
+
+def test_an_accelerometer_in_g_and_camera_stamps_in_us_are_named(recording) -> None:
+    rec, _ = recording
+    s = Session(rec.rig)
+    s._push = lambda ev: None
+    with pytest.raises(DataError, match="looks like g, not m/s\\^2; multiply it by 9.80665"):
+        for k in range(50):
+            s.add_imu(10**18 + k * 5_000_000, [0, 0, 0], [0.01, 0, 1.0])
+    ok = Session(rec.rig)
+    ok._push = lambda ev: None
+    for k in range(60):                            # m/s^2 and ns: nothing said
+        ok.add_imu(10**18 + k * 5_000_000, [0, 0, 0], [0.1, 0, 9.81])
+    image = np.zeros((480, 752), np.uint8)
+    with pytest.raises(DataError, match="camera stamps look like microseconds"):
+        for k in range(5):
+            ok.add_image(10**12 + k * 50_000, image)
+
+
+def test_an_image_is_copied_so_a_reused_buffer_does_not_change_queued_frames(recording) -> None:
+    """A driver that fills one buffer for every frame (V4L2 mmap, cap.read(buf)) changed the images held
+    for the start-up and mapping windows: 25 of 30 frames the model got were another frame's."""
+    rec, _ = recording
+    s = Session(rec.rig)
+    pushed: list = []
+    s._push = pushed.append
+    buf = np.zeros((480, 752), np.uint8)
+    for k in range(3):
+        buf[:] = k + 1
+        s.add_image(10**18 + k * 50_000_000, buf)
+    assert [int(f.image[0, 0]) for f in pushed] == [1, 2, 3]
+    assert all(f.image.flags.c_contiguous and f.image is not buf for f in pushed)
+
+
+def test_poses_waits_without_a_timeout_and_a_closed_session_does_not_start_again(recording) -> None:
+    import threading
+
+    rec, _ = recording
+    s = Session(rec.rig)
+    pose = Pose(1, 1, np.eye(4), np.eye(4), np.zeros(3), None, "test", 0, 0)
+    threading.Timer(0.2, s._queue_pose, args=(pose,)).start()
+    assert list(s.poses(timeout=None)) == [pose]             # None returned at once
+    s.close()
+    with pytest.raises(DavioError, match="the session is closed"):
+        s.start()                                            # a scheduler thread nothing could stop
+    assert s._thread is None
