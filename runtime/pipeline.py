@@ -79,7 +79,8 @@ class VioPipeline:
                  on_event: Callable[[RunEvent], None] | None = None) -> None:
         self.config = config or DavioConfig()
         #: the run's events (runtime.run_events): a new publisher, a reset, a rig finding, ...
-        self.events = RunEvents(self, on_event, rig.time_offset_s, self.config.msckf.max_imu_gap_s)
+        self.events = RunEvents(self, on_event, rig.time_offset_s, self.config.msckf.max_imu_gap_s,
+                                max_imu_outage_s=self.config.msckf.max_imu_outage_s)
         self.model = model
         self.map_sink = map_sink
         self._mapper_factory = mapper_factory or Mapper

@@ -14,7 +14,8 @@ a run goes, as they happen, each once:
   DROPS_EVERY_S data seconds, with the count since the last such event, and once more when the data ends
   for those not said yet);
 - "imu_gap": the IMU stream had a gap (more than `msckf.max_imu_gap_s` between samples, or samples the
-  driver lost): a running filter propagates across it on what it has (paced as falling_behind).
+  driver lost): a running filter propagates across it on what it has, or is reset when the gap is longer
+  than `msckf.max_imu_outage_s` (paced as falling_behind).
 
 `RunEvents` watches a `runtime.pipeline.VioPipeline` from the pipeline's own thread (the pipeline calls it)
 and hands each event to `on_event` (`runtime.session.Session(on_event=...)`; `davio run|live` write them to
@@ -91,12 +92,14 @@ class RunEvents:
             finding's line.
         max_imu_gap_s: a longer time between IMU samples is an imu_gap (`msckf.max_imu_gap_s`, as the
             filter counts gaps).
+        max_imu_outage_s: a longer one resets a running filter (`msckf.max_imu_outage_s`): the imu_gap
+            event says so instead of "propagates across it".
         look_every_s: how often (data seconds) the rig findings are looked for.
     """
 
     def __init__(self, pipeline: Any, on_event: Callable[[RunEvent], None] | None = None,
                  rig_offset_s: float | None = None, max_imu_gap_s: float = 0.05,
-                 look_every_s: float = 1.0) -> None:
+                 look_every_s: float = 1.0, max_imu_outage_s: float = 0.5) -> None:
         self.pipeline, self.on_event, self.rig_offset_s = pipeline, on_event, rig_offset_s
         self.look_every_s = float(look_every_s)
         self.start_ns: int | None = None
@@ -116,6 +119,7 @@ class RunEvents:
         self._next_drop_ns: int | None = None
         self._gaps = [0, 0.0, 0, 0]      # since the last imu_gap event: gaps, longest (s), lost; all gaps
         self._imu_gap_ns = int(max_imu_gap_s * 1e9)
+        self._outage_s = float(max_imu_outage_s)
         self._last_imu_ns: int | None = None   # the last IMU sample that reached the filter
         self._next_gap_ns: int | None = None
         self.hold = False
@@ -229,7 +233,9 @@ class RunEvents:
         what = f"a {longest:.3f} s gap" if n == 1 else f"{n} gaps since the last such event, the longest " \
             f"{longest:.3f} s"
         lost_text = f" ({lost} samples lost by the driver)" if lost else ""
-        self._emit(t_ns, "imu_gap", f"IMU stream: {what}{lost_text}; a running filter propagates across it",
+        fate = ("a running filter is reset (longer than msckf.max_imu_outage_s)" if longest > self._outage_s
+                else "a running filter propagates across it")
+        self._emit(t_ns, "imu_gap", f"IMU stream: {what}{lost_text}; {fate}",
                    gaps=int(n), longest_s=round(longest, 4), lost=int(lost), total=int(total))
 
     def calibration_estimated(self, t_ns: int, report: Any) -> None:

@@ -283,6 +283,8 @@ def test_an_imu_outage_resets_the_running_filter_a_short_gap_does_not(recording)
     reasons = long_gap.pipeline.report()["filter"]["divergence_reasons"]
     assert len(reasons) == 1 and reasons[0].startswith("IMU outage of 0.60 s > 0.5 s (max_imu_outage_s)")
     assert [e.kind for e in said].count("reset") == 1
+    gap = [e for e in said if e.kind == "imu_gap"][0]
+    assert gap.message.endswith("a running filter is reset (longer than msckf.max_imu_outage_s)")
     assert all(not (int(2.6e9) <= p.t_ns - t0 < int(3.2e9)) for p in long_gap.pipeline.published)
     short_gap = Session(rec.rig, config=DavioConfig()).replay(iter(without_imu(2.6, 3.0)))
     assert short_gap.pipeline.report()["filter"]["divergence_reasons"] == []
