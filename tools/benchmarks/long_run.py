@@ -180,9 +180,10 @@ def _whole_manifest(w: Any, pairs: list, version: int, stats: dict) -> dict:
     """The whole manifest of writer `w`'s state, built here from its entries and the commit's arguments."""
     from tools.map_archive.format import FORMAT, SCHEMA_VERSION, davio_version, jsonable
 
-    return {"format": FORMAT, "schema_version": SCHEMA_VERSION, "created_by": davio_version(), **w.header,
-            "map_version": version, "journal_generation": w.generation, "submaps": w.entries,
-            "pairs": jsonable(list(pairs)), "stats": jsonable(dict(stats))}
+    return {"format": FORMAT, "schema_version": SCHEMA_VERSION, "created_by": davio_version(),
+            "archive_id": w.archive_id, **w.header, "map_version": version,
+            "journal_generation": w.generation, "submaps": w.entries, "pairs": jsonable(list(pairs)),
+            "stats": jsonable(dict(stats))}
 
 
 def writer_bytes(n_submaps: int, header: dict) -> dict:
