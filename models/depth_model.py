@@ -62,3 +62,20 @@ class DepthModel(Protocol):
     ) -> DepthPrediction:
         """Run the model on 2..8 frames; pass both K (N,3,3) and T_CW (N,4,4) to condition."""
         ...
+
+
+def checked_prediction(pred: object, frames: Sequence[Frame]) -> DepthPrediction:
+    """`pred` when it holds what a call on `frames` must return: depth and conf (N, H, W) at the frames'
+    size, T_CW (N, 4, 4), K (N, 3, 3). ModelError naming the first part that is not (a model returning
+    half-resolution depth was back-projected with the full-size K without a word)."""
+    from runtime.errors import ModelError
+
+    n = len(frames)
+    h, w = np.asarray(frames[0].image).shape[:2]
+    for name, shape in (("depth", (n, h, w)), ("conf", (n, h, w)), ("T_CW", (n, 4, 4)), ("K", (n, 3, 3))):
+        value = getattr(pred, name, None)
+        got = None if value is None else np.shape(value)
+        if got != shape:
+            raise ModelError(f"the depth model returned {name} of shape {got} for {n} frames of {w}x{h}: "
+                             f"expected {shape} (DepthPrediction, models/depth_model.py)")
+    return pred  # type: ignore[return-value]

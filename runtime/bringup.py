@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from models.depth_model import DepthModel
+from models.depth_model import DepthModel, checked_prediction
 from runtime.config_checks import at_least, non_negative, positive
 from runtime.events import Frame, ImuSample
 from runtime.ffinit.gyro_scale import gyro_camera_ratio, gyro_unit_hint
@@ -195,7 +195,7 @@ class HandEyeBringUp:
                 return None
             models: tuple[str, ...] = ()
             if model is not None:
-                pred = model.predict(list(picked))
+                pred = checked_prediction(model.predict(list(picked)), picked)
                 R_C0Ci = np.array([pred.T_CW[k][:3, :3].T for k in range(1, len(picked))])
             else:
                 fits = _two_view_rotations(span, stamps, cfg, float(focal_px))

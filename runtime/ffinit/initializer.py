@@ -11,7 +11,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from models.depth_model import DepthModel
+from models.depth_model import DepthModel, checked_prediction
 from runtime.errors import DataError, EstimatorError
 from runtime.events import Frame
 from runtime.ffinit.config import FFInitConfig
@@ -174,7 +174,7 @@ class FeedForwardInitializer:
         t_cam = [int(f.t_ns) for f in frames]
         if any(b <= a for a, b in zip(t_cam, t_cam[1:], strict=False)):
             raise EstimatorError("window frames must have strictly increasing stamps")
-        pred = self.model.predict(list(frames))
+        pred = checked_prediction(self.model.predict(list(frames)), frames)
         K = self.model.K_rect if self.use_rig_intrinsics else None
         obs = observations_from_prediction(pred, self.cfg, K=K, seed=self.cfg.seed)
         result = self._solve(t_cam, obs, imu_t_ns, gyro, accel, bg, ba)

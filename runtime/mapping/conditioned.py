@@ -21,7 +21,7 @@ import numpy as np
 
 from models.da3.preprocess import camera_centres, normalise_poses
 from models.da3.similarity import umeyama_sim3
-from models.depth_model import DepthModel, DepthPrediction
+from models.depth_model import DepthModel, DepthPrediction, checked_prediction
 from runtime.mapping.config import MappingConfig
 from runtime.mapping.windows import MappingWindow
 
@@ -71,12 +71,12 @@ def depth_call(model: DepthModel, window: MappingWindow, cfg: MappingConfig,
     n = len(window.frames)
     K = np.tile(np.asarray(model.K_rect, np.float64), (n, 1, 1))
     if conditioned:
-        pred = model.predict(window.frames, K, T_CW)
+        pred = checked_prediction(model.predict(window.frames, K, T_CW), window.frames)
         _, d_norm = normalise_poses(T_CW)
         log_s_hat = -float(np.log(pred.scale * d_norm))
         rmse = float(pred.fit_rmse_m)
     else:
-        pred = model.predict(window.frames)
+        pred = checked_prediction(model.predict(window.frames), window.frames)
         sim = umeyama_sim3(camera_centres(pred.T_CW), T_OC[:, :3, 3])
         pred.depth = (pred.depth * sim.s).astype(np.float32)
         pred.K = K
