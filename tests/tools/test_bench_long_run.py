@@ -36,7 +36,9 @@ def test_long_run_bench_measures_both_costs(tmp_path, capsys) -> None:
     # the writer keeps each entry as its encoded text only (with the dicts beside them it held 3.4x the
     # texts, 4.9 kB a submap): what it holds a submap is the texts and their bookkeeping
     w = res["writer"]
-    assert w["submaps"] == 300 and 1000 < w["text_bytes_per_submap"] < w["traced_bytes_per_submap"]
+    # (the texts are 98.6 % of the traced bytes alone; memory another thread of the test process frees while
+    # tracemalloc runs is subtracted from them: traced came out 0.6 % below the texts under the full suite)
+    assert w["submaps"] == 300 and 1000 < w["text_bytes_per_submap"] < 1.1 * w["traced_bytes_per_submap"]
     assert w["traced_bytes_per_submap"] < 2.5 * w["text_bytes_per_submap"]
     assert "map archive writer (300 submaps" in table
     assert res["tracking"] is None                     # --track-seconds 0: the whole-pipeline run skipped
