@@ -263,14 +263,20 @@ class Session:
         self.start()
         self._inbox.put(ev)
 
-    def add_imu(self, t_ns: int, gyro: Any, accel: Any) -> None:
+    def add_imu(self, t_ns: int, gyro: Any, accel: Any, lost_before: int = 0) -> None:
         """One IMU sample: int64 ns stamp (the camera's clock domain, see rig.time_offset_s), gyro in
-        rad/s and accel in m/s^2 in the IMU frame. Non-finite values are counted and dropped by the filter."""
+        rad/s and accel in m/s^2 in the IMU frame. Non-finite values are counted and dropped by the filter.
+        `lost_before`: samples your driver lost right before this one (a sequence-number gap, a queue
+        overflow): the filter counts the gap (an imu_gap event) and no start-up window spans it."""
         g, a = _vector3(gyro, "gyro", t_ns), _vector3(accel, "accel", t_ns)
         t = _stamp(t_ns)
+        whole = isinstance(lost_before, (int, np.integer)) and not isinstance(lost_before, bool)
+        if not whole or lost_before < 0:
+            raise DataError(f"add_imu at {t_ns}: lost_before must be a whole number >= 0, got "
+                            f"{lost_before!r}")
         if self._imu_head is not None:
             self._check_imu_units(t, a)
-        self._push(ImuSample(t, g, a))
+        self._push(ImuSample(t, g, a, lost_before=int(lost_before)))
 
     def _check_imu_units(self, t: int, accel: np.ndarray) -> None:
         """Over the first UNIT_CHECK_SAMPLES samples: stamps in ns (not s, ms or us) and an accelerometer in

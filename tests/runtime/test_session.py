@@ -288,3 +288,28 @@ def test_an_imu_outage_resets_the_running_filter_a_short_gap_does_not(recording)
     assert all(not (int(2.6e9) <= p.t_ns - t0 < int(3.2e9)) for p in long_gap.pipeline.published)
     short_gap = Session(rec.rig, config=DavioConfig()).replay(iter(without_imu(2.6, 3.0)))
     assert short_gap.pipeline.report()["filter"]["divergence_reasons"] == []
+
+
+def test_samples_a_driver_lost_are_passed_on_and_counted(recording) -> None:
+    """The imu_gap event counts samples the driver lost; pushed data had no way to say so."""
+    rec, events = recording
+    s = Session(rec.rig)
+    pushed: list = []
+    s._push = pushed.append
+    s.add_imu(10**18, [0, 0, 0], [0, 0, 9.81], lost_before=np.int64(7))
+    assert pushed[0].lost_before == 7
+    for bad in (-1, 1.5, True, "3"):
+        with pytest.raises(DataError, match="lost_before must be a whole number >= 0"):
+            s.add_imu(10**18 + 5_000_000, [0, 0, 0], [0, 0, 9.81], lost_before=bad)
+    from runtime.events import ImuSample
+
+    said: list = []
+    imu = [i for i, e in enumerate(events) if isinstance(e, ImuSample)]
+    with Session(rec.rig, on_event=said.append, max_pending_frames=10_000) as live:
+        for k, ev in enumerate(events):
+            if isinstance(ev, Frame):
+                live.add_image(ev.t_ns, ev.image)
+            else:
+                live.add_imu(ev.t_ns, ev.gyro, ev.accel, lost_before=3 if k == imu[400] else 0)
+    assert live.pipeline.report()["filter"]["imu_lost"] == 3
+    assert [e.detail["lost"] for e in said if e.kind == "imu_gap"] == [3]
