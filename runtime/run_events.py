@@ -15,7 +15,10 @@ a run goes, as they happen, each once:
   for those not said yet);
 - "imu_gap": the IMU stream had a gap (more than `msckf.max_imu_gap_s` between samples, or samples the
   driver lost): a running filter propagates across it on what it has, or is reset when the gap is longer
-  than `msckf.max_imu_outage_s` (paced as falling_behind).
+  than `msckf.max_imu_outage_s` (paced as falling_behind);
+- "stamps_back": an IMU stamp came more than STAMPS_BACK_S behind the newest one (a device clock reset, a
+  driver that restarted its stamps): the data is dropped until its stamps pass the newest (said once each
+  time).
 
 `RunEvents` watches a `runtime.pipeline.VioPipeline` from the pipeline's own thread (the pipeline calls it)
 and hands each event to `on_event` (`runtime.session.Session(on_event=...)`; `davio run|live` write them to
@@ -35,7 +38,10 @@ import numpy as np
 from runtime.rig_findings import rig_findings, rig_state
 
 KINDS = ("publishing", "reset", "rig_finding", "calibration_estimated", "prior_localised", "features_lost",
-         "features_back", "falling_behind", "imu_gap")
+         "features_back", "falling_behind", "imu_gap", "stamps_back")
+STAMPS_BACK_S = 0.1
+"""An IMU stamp this far (s) behind the newest one is a clock that went back ("stamps_back"), not a late or
+repeated sample."""
 MAX_KEPT = 1000
 """Events `RunEvents.log` keeps (a run has a handful; one that resets again and again is bounded)."""
 FEW_FEATURES = 10
@@ -82,7 +88,8 @@ class RunEvents:
     data ended: then only the final trajectory is in its frame); "features_lost": since_t_ns (the first
     frame with too few), features (on this frame); "features_back": lost_s (how long), features;
     "falling_behind": dropped (since the last such event), total; "imu_gap": gaps (since the last such
-    event), longest_s, lost (samples the driver lost in them), total (gaps so far).
+    event), longest_s, lost (samples the driver lost in them), total (gaps so far); "stamps_back": back_s
+    (how far behind the newest stamp), newest_t_ns.
 
     Args:
         pipeline: the VioPipeline watched (read: startup, rig_check, bringup, prior).
@@ -121,6 +128,7 @@ class RunEvents:
         self._imu_gap_ns = int(max_imu_gap_s * 1e9)
         self._outage_s = float(max_imu_outage_s)
         self._last_imu_ns: int | None = None   # the last IMU sample that reached the filter
+        self._back = False                      # "stamps_back" said, the stamps not past the newest yet
         self._next_gap_ns: int | None = None
         self.hold = False
         """While True (the scheduler sets it), events wait in `pending` for `flush()`."""
@@ -205,7 +213,15 @@ class RunEvents:
             return
         prev, lost = self._last_imu_ns, int(getattr(sample, "lost_before", 0) or 0)
         if prev is not None and t <= prev:
+            back_s = (prev - t) / 1e9
+            if back_s > STAMPS_BACK_S and not self._back:
+                self._back = True      # said once until the stamps pass the newest one again
+                self._emit(prev, "stamps_back", (
+                    f"IMU stamps went back {back_s:.2f} s (a clock reset, or stamps in other units?): every "
+                    f"sample and image is dropped until the stamps pass the newest one"),
+                    back_s=round(back_s, 6), newest_t_ns=prev)
             return
+        self._back = False
         self._last_imu_ns = t
         if prev is not None and (lost or t - prev > self._imu_gap_ns):
             self.imu_gap(t, (t - prev) / 1e9, lost)

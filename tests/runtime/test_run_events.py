@@ -499,3 +499,23 @@ def test_the_pipeline_says_a_reset_found_on_an_imu_sample_at_that_sample():
     pipe.startup.report.restarts_after_divergence = 1      # as a divergence in that step leaves it
     pipe.on_imu(imu[1])
     assert [(e.kind, e.t_ns, e.detail["resets"]) for e in got] == [("reset", imu[1].t_ns, 1)]
+
+
+def test_stamps_that_go_back_are_said_once_until_they_pass_the_newest() -> None:
+    """A clock that jumped back dropped 3 s of data counted only as out-of-order samples; the only event was
+    features_lost ("the camera sees nothing to track")."""
+    from types import SimpleNamespace as S
+
+    events, got = _events(_pipe(StartupReport()))
+    z = np.zeros(3)
+    for k in range(40):                                    # 2 s at 20 Hz
+        events.imu_sample(S(t_ns=_s(0.05 * k), gyro=z, accel=z))
+    for k in range(10):                                    # restamped 1.5 s back, then a late repeat
+        events.imu_sample(S(t_ns=_s(0.4 + 0.05 * k), gyro=z, accel=z))
+    events.imu_sample(S(t_ns=_s(1.9), gyro=z, accel=z))   # 0.05 s back: a late sample, not a clock
+    back = [e for e in got if e.kind == "stamps_back"]
+    assert len(back) == 1 and back[0].detail == {"back_s": 1.55, "newest_t_ns": _s(1.95)}
+    assert back[0].t_s == pytest.approx(1.95) and "went back 1.55 s" in back[0].message
+    events.imu_sample(S(t_ns=_s(2.0), gyro=z, accel=z))   # past the newest: a later jump is said again
+    events.imu_sample(S(t_ns=_s(0.5), gyro=z, accel=z))
+    assert [e.kind for e in got].count("stamps_back") == 2
