@@ -195,7 +195,7 @@ def _sigterm_interrupts() -> Iterator[None]:
     handler (`tools.run_outcome.interruptible`), while the model loaded, was lost and docker killed the run
     10 s later. Left alone when the process already handles SIGTERM (DAVIO inside another program)."""
     try:
-        if signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+        if signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:    # ignored or handled: left so
             yield
             return
         signal.signal(signal.SIGTERM, _interrupt)

@@ -51,9 +51,11 @@ def _on_signal(signum: int, frame: Any) -> None:
 def interruptible() -> Iterator[None]:
     """Within the block Ctrl-C, SIGTERM and SIGHUP raise KeyboardInterrupt once, so each finishes a run
     cleanly; a later one (a second Ctrl-C while the run winds down), or any after `finishing()`, is said
-    and otherwise ignored."""
+    and otherwise ignored. A signal the process was told to ignore stays ignored (`nohup davio live ...`
+    survives a dropped SSH session; a background job `davio run ... &` ignores the terminal's Ctrl-C)."""
     names = [n for n in STOP_SIGNALS if hasattr(signal, n)]
     try:
+        names = [n for n in names if signal.getsignal(getattr(signal, n)) is not signal.SIG_IGN]
         previous = {n: signal.signal(getattr(signal, n), _on_signal) for n in names}
     except ValueError:   # not the main thread: leave signals alone
         yield

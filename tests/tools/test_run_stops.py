@@ -132,3 +132,18 @@ def test_sigterm_interrupts_a_command_from_its_start() -> None:
         signal.signal(signal.SIGTERM, mine)
     finally:
         signal.signal(signal.SIGTERM, before)
+
+
+def test_a_signal_the_process_ignores_stays_ignored() -> None:
+    """`nohup davio live ...` set SIGHUP to ignore, and the run's handler replaced it: a dropped SSH session
+    stopped the run nohup was meant to keep."""
+    before = signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    try:
+        with interruptible():
+            assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
+            _signal_self(signal.SIGHUP)                  # nothing happens
+            with pytest.raises(KeyboardInterrupt):
+                _signal_self(signal.SIGTERM)             # the others still stop the run
+        assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGHUP, before)
