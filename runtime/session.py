@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 import queue
 import threading
+import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from typing import Any
@@ -81,6 +82,8 @@ class SessionResult:
 _CLOSE = object()
 UNIT_CHECK_SAMPLES = 50
 """IMU samples the stamp-unit and accelerometer-unit checks of `add_imu` look at (the first ones)."""
+_POSE_POLL_S = 0.1
+"""How often a waiting `poses()` looks whether the session ended."""
 UNIT_CHECK_IMAGES = 5
 """Images the stamp-unit check of `add_image` looks at (the first ones)."""
 
@@ -133,6 +136,7 @@ class Session:
         self._error: BaseException | None = None
         self._error_raised = False
         self._closed = False
+        self._closing = False                   # close() began: no push or start from here on
         self._start_lock = threading.Lock()     # an IMU thread and a camera thread may push first together
         self._imu_head: list[tuple[int, np.ndarray]] | None = []    # the first samples, for the unit checks
         self._image_head: list[int] | None = []
@@ -167,7 +171,7 @@ class Session:
         one comes); at most the newest `max_unread_poses`, the older ones counted in
         `unread_poses_dropped`."""
         try:
-            yield self._poses.get_nowait() if timeout == 0 else self._poses.get(timeout=timeout)
+            yield self._first_pose(timeout)
         except queue.Empty:
             return
         while True:
@@ -175,6 +179,22 @@ class Session:
                 yield self._poses.get_nowait()
             except queue.Empty:
                 return
+
+    def _first_pose(self, timeout: float | None) -> Pose:
+        """The next pose, waiting up to `timeout` (None: until one comes); queue.Empty on time-out, or once
+        the session is closed or its thread failed (no pose can come then)."""
+        if timeout == 0:
+            return self._poses.get_nowait()
+        deadline = None if timeout is None else time.monotonic() + float(timeout)
+        while True:
+            wait = _POSE_POLL_S if deadline is None else min(_POSE_POLL_S, deadline - time.monotonic())
+            if wait <= 0:
+                raise queue.Empty
+            try:
+                return self._poses.get(timeout=wait)
+            except queue.Empty:
+                if self._closed or self._error is not None:
+                    raise
 
     # -- replay (what `davio run` uses) -------------------------------------------------------
     def replay(self, events: Iterable[ImuSample | Frame], paced: bool = False, speed: float = 1.0,
@@ -228,7 +248,7 @@ class Session:
     def start(self) -> Session:
         """Start the live scheduler thread (done by the first add_* or by `with`); DavioError once closed."""
         with self._start_lock:
-            if self._closed:
+            if self._closed or self._closing:
                 raise DavioError("the session is closed: start a new Session for more data")
             if self._thread is None:
                 self._inbox = queue.Queue()
@@ -258,8 +278,9 @@ class Session:
         if self._error is not None:
             self._error_raised = True
             raise DavioError(f"the session stopped: {self._error}") from self._error
-        if self._closed:
-            raise DavioError("the session is closed: start a new Session for more data")
+        with self._start_lock:
+            if self._closed or self._closing:
+                raise DavioError("the session is closed: start a new Session for more data")
         self.start()
         self._inbox.put(ev)
 
@@ -294,7 +315,8 @@ class Session:
             raise DataError(f"add_imu: {len(np.unique(stamps))} distinct stamps in the first {len(stamps)} "
                             "samples: stamps must be integer nanoseconds (whole seconds or milliseconds?)")
         check_stamp_units(stamps, "IMU", "Session.add_imu")
-        g = accel_looks_like_g(np.array([x[1] for x in head]))
+        accel = np.array([x[1] for x in head])
+        g = accel_looks_like_g(accel[np.isfinite(accel).all(axis=1)])   # a NaN sample would make it NaN
         if g is not None:
             raise DataError(f"add_imu: the accelerometer's median norm is {g:.2f}: it looks like g, not "
                             "m/s^2; multiply it by 9.80665")
@@ -325,8 +347,10 @@ class Session:
         A second call returns the same result. Raises DavioError("the session stopped: ...") when the
         session's thread failed (an exception in `on_pose`, an internal error) and the caller was not told
         yet by an add_*; the result (status "failed") stays in `self.result`."""
-        if self._closed:
-            return self.result
+        with self._start_lock:    # a push from another thread now fails instead of starting a scheduler
+            if self._closed:
+                return self.result
+            self._closing = True
         if self._thread is not None:
             self._inbox.put(_CLOSE)
             self._thread.join(timeout_s)

@@ -225,8 +225,8 @@ def test_an_accelerometer_in_g_and_camera_stamps_in_us_are_named(recording) -> N
     s = Session(rec.rig)
     s._push = lambda ev: None
     with pytest.raises(DataError, match="looks like g, not m/s\\^2; multiply it by 9.80665"):
-        for k in range(50):
-            s.add_imu(10**18 + k * 5_000_000, [0, 0, 0], [0.01, 0, 1.0])
+        for k in range(50):                        # one NaN sample among them made the median NaN: unsaid
+            s.add_imu(10**18 + k * 5_000_000, [0, 0, 0], [float("nan") if k == 7 else 0.01, 0, 1.0])
     ok = Session(rec.rig)
     ok._push = lambda ev: None
     for k in range(60):                            # m/s^2 and ns: nothing said
@@ -313,3 +313,35 @@ def test_samples_a_driver_lost_are_passed_on_and_counted(recording) -> None:
                 live.add_imu(ev.t_ns, ev.gyro, ev.accel, lost_before=3 if k == imu[400] else 0)
     assert live.pipeline.report()["filter"]["imu_lost"] == 3
     assert [e.detail["lost"] for e in said if e.kind == "imu_gap"] == [3]
+
+
+def test_a_push_while_close_runs_fails_instead_of_starting_a_second_scheduler(recording) -> None:
+    """close() let the thread go, then mapped the queued windows: a push from an IMU thread in that time
+    started a new scheduler on the same pipeline, left running after close() returned."""
+    import threading
+
+    rec, _ = recording
+    before = set(threading.enumerate())
+    s = Session(rec.rig)
+    s.add_imu(10**18, [0, 0, 0], [0, 0, 9.81])
+    entered, release = threading.Event(), threading.Event()
+
+    def slow_finish() -> int:
+        entered.set()
+        release.wait(5)
+        return 0
+
+    s.pipeline.finish_mapping = slow_finish
+    closer = threading.Thread(target=s.close)
+    closer.start()
+    assert entered.wait(5)
+    with pytest.raises(DavioError, match="the session is closed"):
+        s.add_imu(10**18 + 5_000_000, [0, 0, 0], [0, 0, 9.81])
+    assert s._thread is None
+    waiting = threading.Thread(target=lambda: list(s.poses(timeout=None)))   # wakes when the session ends
+    waiting.start()
+    release.set()
+    closer.join(5)
+    waiting.join(5)
+    assert not closer.is_alive() and not waiting.is_alive()
+    assert not [t for t in threading.enumerate() if t not in before and t.name == "davio-session"]
