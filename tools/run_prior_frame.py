@@ -15,6 +15,17 @@ LIVE_ALIGNMENT = "this run (live)"
 """alignment.json's "new" when a run wrote it with --prior-map (`davio map align` names the archive)."""
 
 
+def _own_id(archive: Path) -> str | None:
+    """This run's archive id (None when it has no archive, or one that does not read)."""
+    from runtime.errors import DataError
+    from tools.map_archive.align import archive_id
+
+    try:
+        return archive_id(archive) if (archive / "manifest.json").exists() else None
+    except DataError:
+        return None
+
+
 def write_prior_frame(out_dir: Path, pipeline: Any, rows: np.ndarray, causal: PoseTrajectory,
                       final: PoseTrajectory, first_t_ns: int | None) -> dict | None:
     """With a prior map: the last segment's trajectories in its frame (causal.prior.tum: the poses
@@ -46,13 +57,9 @@ def write_prior_frame(out_dir: Path, pipeline: Any, rows: np.ndarray, causal: Po
     if F is not None:
         write_tum(out_dir / "final.prior.tum", PoseTrajectory(final.t_ns, F[:, :3, 3], F[:, :3, :3]))
         out["files"].append("final.prior.tum")
-        from tools.map_archive.align import archive_id
-
-        own = out_dir / "map"
         atomic_write_text(out_dir / "alignment.json", strict_dumps(
             {"format": "davio-alignment", "prior": pf.source, "new": LIVE_ALIGNMENT, "new_segment": seg,
-             "prior_id": archive_id(Path(pf.source)),
-             "new_id": archive_id(own) if (own / "manifest.json").exists() else None,
+             "prior_id": getattr(pf.localizer, "prior_id", None), "new_id": _own_id(out_dir / "map"),
              "prior_segment": pf.localizer.prior_segment,
              "frames": "T_PN maps points of this run's map frame into the prior one: x_P = T_PN x_N",
              **al.as_dict(), "switches": out["switches"]}, indent=1) + "\n")

@@ -259,3 +259,18 @@ def test_a_live_runs_alignment_is_replaced_only_with_overwrite_and_a_stale_traje
     assert main(["map", "align", str(new), "--to", str(tmp_path / "elsewhere")]) == 1
     assert not (new / "final.prior.tum").exists()
     assert not json.loads((new / "alignment.json").read_text())["localized"]
+
+
+def test_a_prior_maps_id_is_taken_when_it_is_loaded(sessions) -> None:
+    """The live alignment recorded the id read when the run ended: a prior replaced during the run gave the
+    replacement's id, which export then accepted."""
+    import shutil
+
+    from tools.map_archive.align import prior_map_localizer
+
+    prior, new = sessions
+    loaded = json.loads((prior / "map" / "manifest.json").read_text())["archive_id"]
+    loc = prior_map_localizer(prior, [])
+    shutil.rmtree(prior / "map")
+    shutil.copytree(new / "map", prior / "map")      # replaced while the run goes on
+    assert loc.prior_id == loaded != json.loads((prior / "map" / "manifest.json").read_text())["archive_id"]

@@ -79,6 +79,7 @@ def prior_map_localizer(folder: Path, notes: list[str], cfg: AlignConfig | None 
     views, segment, _ = load_place_views(archive, notes)
     loc = PriorMapLocalizer(views, match_views, cfg, source=str(archive.resolve()))
     loc.prior_segment = segment
+    loc.prior_id = archive_id(archive)     # as loaded: the archive may be replaced while the run goes on
     return loc
 
 
