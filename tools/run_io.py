@@ -322,7 +322,8 @@ def rig_summary(rig: Any, source: str) -> dict:
 
 
 RUN_OUTPUTS = re.compile(r"^((odometry|causal|final)(_segment\d+)?\.tum|groundtruth\.tum|poses\.csv|"
-                         r"causal\.prior\.tum|final\.prior\.tum|alignment\.json|events\.jsonl|"
+                         r"causal\.prior\.tum|final\.prior\.tum|causal\.earlier-prior\.tum|alignment\.json|"
+                         r"events\.jsonl|"
                          r"config\.toml|report\.json|trajectory\.png|position_error\.png)$")
 """Names of the files `write_run` (and `davio demo`'s groundtruth.tum, the run's events.jsonl) put in a run
 folder."""

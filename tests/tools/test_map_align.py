@@ -249,10 +249,11 @@ def test_a_live_runs_alignment_is_replaced_only_with_overwrite_and_a_stale_traje
     assert (new / "causal.prior.tum").exists()
     assert main(["map", "align", str(new), "--to", str(prior), "--overwrite"]) == 0
     assert (new / "final.prior.tum").exists()
-    # the live poses were in another prior's frame: the file no longer matches alignment.json
+    # the live poses were in another prior's frame: the file no longer matches alignment.json; kept aside
     assert not (new / "causal.prior.tum").exists()
-    assert "causal.prior.tum removed: it held the poses published in the frame of /elsewhere/runX/map" in \
-        capsys.readouterr().err
+    assert (new / "causal.earlier-prior.tum").read_text() == "1.0 0 0 0 0 0 0 1\n"
+    assert ("causal.prior.tum renamed to causal.earlier-prior.tum: it holds the poses published in the frame "
+            "of /elsewhere/runX/map") in capsys.readouterr().err
     # an own earlier result whose new alignment moves nothing: the stale trajectory goes, after the write
     _, other = _sessions(np.eye(4), np.eye(4), new_room_seed=7)        # another room
     _write_session(tmp_path / "elsewhere", other)

@@ -386,12 +386,17 @@ def _align(args: argparse.Namespace, archive: Path, run_folder: Path) -> int:
     if trajectory is None and (own or replaced) and moved.is_file():     # the earlier result, now stale
         moved.unlink()
         _print_notes("align", [f"{moved} of an earlier alignment removed: this one moved no trajectory"])
-    causal = out.parent / "causal.prior.tum"      # a --prior-map run's poses as published in its prior frame
-    was = (earlier or {}).get("prior")
-    if replaced and causal.is_file() and (not res.localized or was != summary["prior"]):
-        causal.unlink()
-        _print_notes("align", [f"{causal} removed: it held the poses published in the frame of "
-                               f"{was or 'the earlier prior map'}, which this alignment replaced"])
+    causal = run_folder / "causal.prior.tum"      # a --prior-map run's poses as published in its prior frame
+    earlier = earlier or {}
+    was = earlier.get("prior")
+    same = (earlier.get("prior_id") == summary["prior_id"] if earlier.get("prior_id") and summary["prior_id"]
+            else was == summary["prior"])
+    if replaced and in_run and out == run_folder / "alignment.json" and causal.is_file() \
+            and not (res.localized and same):
+        kept = causal.with_name(EARLIER_PRIOR_CAUSAL)    # published live: it cannot be made again
+        causal.replace(kept)
+        _print_notes("align", [f"{causal} renamed to {kept.name}: it holds the poses published in the frame "
+                               f"of {was or 'the earlier prior map'}, which this alignment replaced"])
     if args.json:
         print(strict_dumps(summary, indent=2))
         return 0 if res.localized else 1
@@ -421,6 +426,11 @@ def _written_live(path: Path) -> bool:
         return json.loads(path.read_text()).get("new") == LIVE_ALIGNMENT
     except (OSError, ValueError, AttributeError):
         return False
+
+
+EARLIER_PRIOR_CAUSAL = "causal.earlier-prior.tum"
+"""Where `map align --overwrite` moves a --prior-map run's causal.prior.tum when the new alignment is to
+another prior map (or failed): the poses as published live, in the earlier prior's frame."""
 
 
 def _read_json(path: Path) -> dict | None:
