@@ -12,7 +12,7 @@ import numpy as np
 from models.depth_model import DepthModel
 from runtime.bringup import HandEyeBringUp
 from runtime.config import DavioConfig
-from runtime.errors import ConfigError
+from runtime.errors import ConfigError, caused_by_interrupt
 from runtime.events import Frame, ImuSample
 from runtime.ffinit.extension import TrackSet
 from runtime.ffinit.initializer import FeedForwardInitializer
@@ -346,6 +346,8 @@ class VioPipeline:
             try:
                 result = self._mapping_job(window)()
             except Exception as exc:  # noqa: BLE001 - as the model worker does: a failed job is a result
+                if caused_by_interrupt(exc):      # Ctrl-C surfacing through a C extension: not a model error
+                    raise
                 result = exc
             if isinstance(result, Exception):
                 st = self.map_stats

@@ -235,9 +235,12 @@ class StartupManager:
     def on_imu(self, sample: ImuSample) -> list[Published]:
         if self.report.first_measurement_t_ns is None:
             self.report.first_measurement_t_ns = int(sample.t_ns)
-        self._newest_ns = max(self._newest_ns, int(sample.t_ns))
-        if getattr(sample, "lost_before", 0):
-            self._imu_loss_ns.append(int(sample.t_ns))
+        t = int(sample.t_ns)
+        outage_s = getattr(getattr(self.native, "config", None), "max_imu_outage_s", None)
+        if getattr(sample, "lost_before", 0) or (
+                self._newest_ns and outage_s is not None and (t - self._newest_ns) * 1e-9 > outage_s):
+            self._imu_loss_ns.append(t)       # no feed-forward window spans a loss or an outage
+        self._newest_ns = max(self._newest_ns, t)
         if self.publisher is not None:
             return self._publish(self.publisher.feed_imu(sample))
         self.buffer.append("imu", sample.t_ns, sample)

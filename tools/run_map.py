@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import shutil
 import sys
+import threading
 import time
 from dataclasses import asdict
 from pathlib import Path
@@ -40,6 +41,7 @@ class MapOutput:
         """None, or why and where the archive stopped: reason, free_mb (None: a write failed),
         map_version, commits_skipped."""
         self.finished = False
+        self._lock = threading.Lock()        # the model worker's commits against finish() on the main thread
         self.late_commits = 0
         """Commits that came after `finish` (a model call outliving the run's end): not archived."""
 
@@ -62,6 +64,10 @@ class MapOutput:
         """Checkpoint the archive at a map commit (called by the model worker). A commit the archive cannot
         write (a failing or read-only disk, the folder gone) stops it at its last whole commit, as a low
         disk does; after `finish` commits are counted, not written."""
+        with self._lock:
+            self._sink(commit, stats)
+
+    def _sink(self, commit: Any, stats: Any) -> None:
         if self.finished:
             self.late_commits += 1
             return
@@ -75,13 +81,14 @@ class MapOutput:
             self.stopped["commits_skipped"] += 1
             return
         pairs = self.pairs + ([commit.link.as_dict()] if commit.link is not None else [])
+        version = self.archive.map_version      # the last whole commit, should this one fail part-way
         try:
             self.archive.commit([commit.submap, *commit.changed], pairs, commit.version, asdict(stats))
         except OSError as exc:
             where = f" {exc.filename}" if exc.filename else ""
             self.stopped = {"reason": f"the archive could not be written ({exc.strerror or exc}{where})",
-                            "free_mb": None, "map_version": self.archive.map_version, "commits_skipped": 1}
-            print(f"davio: warning: the map archive stopped at map version {self.archive.map_version}: "
+                            "free_mb": None, "map_version": version, "commits_skipped": 1}
+            print(f"davio: warning: the map archive stopped at map version {version}: "
                   f"{self.stopped['reason']}; the run goes on", file=sys.stderr)
             return
         self.pairs = pairs
@@ -94,7 +101,8 @@ class MapOutput:
         from tools.map_archive import export_map
         from tools.map_archive.export import choose_segment
 
-        self.finished = True
+        with self._lock:                      # a commit in progress ends first; later ones are counted
+            self.finished = True
         n_sub = self.archive.n_submaps
         summary = {"archive": "map", "submaps": n_sub, "map_version": self.archive.map_version,
                    "ply": None, "voxels": 0, "archive_stopped": self.stopped, "archive_journal_left": None}

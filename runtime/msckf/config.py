@@ -210,6 +210,10 @@ class MsckfConfig:
                  "max_imu_gap_s", "max_imu_outage_s", "imu_buffer_s", "max_velocity", "max_gyro_bias",
                  "max_accel_bias", "max_position_std", "sigma_calib_rot", "sigma_calib_pos", "sigma_calib_dt")
         non_negative(self, "msckf", "dt_slam_delay", "max_imu_extrapolation_s")
+        if self.max_imu_outage_s < self.max_imu_gap_s:
+            raise ConfigError(f"msckf.max_imu_outage_s ({self.max_imu_outage_s:g} s) must be at least "
+                              f"msckf.max_imu_gap_s ({self.max_imu_gap_s:g} s): a gap is counted before it "
+                              "resets")
         if self.slam_representation not in SLAM_REPRESENTATIONS:
             raise ConfigError(
                 f"slam_representation must be one of {SLAM_REPRESENTATIONS}, got {self.slam_representation!r}"

@@ -233,9 +233,14 @@ class MsckfEstimator:
         gap_s = 0.0 if last is None else (t - last) * 1e-9
         if last is not None and (lost or gap_s > self.config.max_imu_gap_s):
             c.imu_gaps += 1
-        if self.initialized and gap_s > self.config.max_imu_outage_s:
-            self.reset(f"IMU outage of {gap_s:.2f} s > {self.config.max_imu_outage_s:g} s "
-                       "(max_imu_outage_s): the state cannot be propagated across it")
+        if gap_s > self.config.max_imu_outage_s:
+            if self.initialized:
+                self.reset(f"IMU outage of {gap_s:.2f} s > {self.config.max_imu_outage_s:g} s "
+                           "(max_imu_outage_s): the state cannot be propagated across it")
+            else:                         # the initializers start over after it
+                for ini in self.initializers:
+                    if hasattr(ini, "reset"):
+                        ini.reset()
             self._imu.drop_before(t)      # no initializer window may span the outage
         c.imu_samples += 1
         self._imu.append(t, w, a)

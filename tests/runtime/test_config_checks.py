@@ -125,3 +125,12 @@ def test_defaults_and_the_boundaries_pass(tmp_path: Path) -> None:
     MappingConfig(window_images=np.int64(5), voxel_m=np.float32(0.04))
     with pytest.raises(ConfigError, match="mapping.window_images must be an integer >= 2, got np.int64"):
         MappingConfig(window_images=np.int64(1))
+
+
+def test_an_imu_outage_bound_below_the_gap_bound_is_refused() -> None:
+    from runtime.errors import ConfigError
+    from runtime.msckf.config import MsckfConfig
+
+    with pytest.raises(ConfigError, match=r"max_imu_outage_s \(0.02 s\) must be at least msckf.max_imu_gap"):
+        MsckfConfig(max_imu_outage_s=0.02)
+    assert MsckfConfig(max_imu_outage_s=0.05).max_imu_outage_s == 0.05

@@ -171,3 +171,28 @@ def test_feedforward_windows_across_lost_imu_samples_are_not_solved():
     t, w, a = m.imu_for(after)
     assert t[0] <= 1_600_000_000 and t[-1] >= 2_400_000_000 and len(t) == len(w) == len(a)
     assert m.imu_for(before) is not None and m.report.ff_windows_imu_lost == 1
+
+
+def test_feedforward_windows_across_an_imu_outage_are_not_solved():
+    """A gap over msckf.max_imu_outage_s before any filter publishes: a window spanning it had its IMU
+    interpolated across the outage."""
+    def native(_native):
+        f = RecordingFilter()
+        f.config = SimpleNamespace(max_imu_outage_s=0.5)
+        return f
+
+    m = StartupManager(native, StartupConfig())
+    frames = []
+    for kind, t in _stream(3.0):
+        if kind == "imu":
+            if not 1_300_000_000 < t < 1_900_000_000:        # 0.6 s without IMU
+                m.on_imu(ImuSample(t, np.zeros(3), np.array([0, 0, 9.81])))
+        else:
+            f = Frame(t, np.zeros((4, 4), np.uint8))
+            frames.append(f)
+            m.on_tracks(t, np.zeros(0, np.int64), np.zeros((0, 2)), f)
+    by_t = {f.t_ns: f for f in frames}
+    spanning = [by_t[t] for t in (1_000_000_000, 1_200_000_000, 1_400_000_000, 1_600_000_000, 1_800_000_000)]
+    after = [by_t[t] for t in (2_000_000_000, 2_200_000_000, 2_400_000_000, 2_600_000_000, 2_800_000_000)]
+    assert m.imu_for(spanning) is None and m.report.ff_windows_imu_lost == 1
+    assert m.imu_for(after) is not None

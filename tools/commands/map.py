@@ -139,7 +139,7 @@ def checked_output(args: argparse.Namespace, archive: Path, run_folder: Path, na
     return out, replaced
 
 
-def _prior_alignment(run_folder: Path, merge: bool) -> tuple:
+def _prior_alignment(run_folder: Path, merge: bool, archive: Path | None = None) -> tuple:
     """(T_PN (4,4), the prior archive, the new map's aligned segment, the prior map's segment) from the
     run folder's alignment.json (segments None when it does not say); ConfigError when there is none, it
     did not localise, or (for merging) its prior map is gone."""
@@ -168,7 +168,7 @@ def _prior_alignment(run_folder: Path, merge: bool) -> tuple:
     if any(not (v is None or (isinstance(v, int) and not isinstance(v, bool))) for v in segments):
         raise ConfigError(f"{path}: new_segment and prior_segment must be integers, got "
                           f"{segments[0]!r}, {segments[1]!r}")
-    _check_aligned_maps(path, al, run_folder / "map", prior)
+    _check_aligned_maps(path, al, archive if archive is not None else run_folder / "map", prior)
     if merge and not (prior / "manifest.json").is_file():
         raise ConfigError(f"{path} names the prior map {prior}, which is gone (no manifest.json there)")
     return T, prior, *segments
@@ -278,7 +278,7 @@ def run(args: argparse.Namespace) -> int:
         from tools.map_archive.export import choose_segment, export_map
 
         _check_fuse_args(args.voxel, args.min_points)
-        T_out, prior, seg, prior_seg = (_prior_alignment(run_folder, args.merge_prior)
+        T_out, prior, seg, prior_seg = (_prior_alignment(run_folder, args.merge_prior, archive)
                                         if args.in_prior or args.merge_prior else (None, None, None, None))
         aligned = args.in_prior or args.merge_prior
         if aligned and args.segment is not None and args.segment != seg:
