@@ -148,21 +148,26 @@ def test_an_instant_model_is_offered_one_window_per_spacing_not_one_per_event():
     assert m.report.ff_requests == len(ends)
 
 
+def _feed(m: StartupManager, keep_imu=lambda t: True, lost=lambda t: 0) -> dict:
+    """Three seconds of the synthetic stream into `m` (IMU samples `keep_imu` keeps, flagged with `lost`);
+    the frames by stamp."""
+    frames = {}
+    for kind, t in _stream(3.0):
+        if kind == "imu":
+            if keep_imu(t):
+                m.on_imu(ImuSample(t, np.zeros(3), np.array([0, 0, 9.81]), lost_before=lost(t)))
+        else:
+            frames[t] = Frame(t, np.zeros((4, 4), np.uint8))
+            m.on_tracks(t, np.zeros(0, np.int64), np.zeros((0, 2)), frames[t])
+    return frames
+
+
 def test_feedforward_windows_across_lost_imu_samples_are_not_solved():
     """A live driver flags samples lost to its IMU queue's overflow (ImuSample.lost_before): a start-up
     window spanning the loss gets no IMU (preintegration across it would be wrong), counted once; the
     next window after the loss is solved as usual."""
     m = StartupManager(lambda native: RecordingFilter(), StartupConfig())
-    frames = []
-    loss_ns = 1_505_000_000
-    for kind, t in _stream(3.0):
-        if kind == "imu":
-            m.on_imu(ImuSample(t, np.zeros(3), np.array([0, 0, 9.81]), lost_before=4 if t == loss_ns else 0))
-        else:
-            f = Frame(t, np.zeros((4, 4), np.uint8))
-            frames.append(f)
-            m.on_tracks(t, np.zeros(0, np.int64), np.zeros((0, 2)), f)
-    by_t = {f.t_ns: f for f in frames}
+    by_t = _feed(m, lost=lambda t: 4 if t == 1_505_000_000 else 0)
     spanning = [by_t[t] for t in (1_000_000_000, 1_200_000_000, 1_400_000_000, 1_600_000_000, 1_800_000_000)]
     after = [by_t[t] for t in (1_600_000_000, 1_800_000_000, 2_000_000_000, 2_200_000_000, 2_400_000_000)]
     before = [by_t[t] for t in (200_000_000, 400_000_000, 600_000_000, 800_000_000, 1_000_000_000)]
@@ -182,16 +187,7 @@ def test_feedforward_windows_across_an_imu_outage_are_not_solved():
         return f
 
     m = StartupManager(native, StartupConfig())
-    frames = []
-    for kind, t in _stream(3.0):
-        if kind == "imu":
-            if not 1_300_000_000 < t < 1_900_000_000:        # 0.6 s without IMU
-                m.on_imu(ImuSample(t, np.zeros(3), np.array([0, 0, 9.81])))
-        else:
-            f = Frame(t, np.zeros((4, 4), np.uint8))
-            frames.append(f)
-            m.on_tracks(t, np.zeros(0, np.int64), np.zeros((0, 2)), f)
-    by_t = {f.t_ns: f for f in frames}
+    by_t = _feed(m, keep_imu=lambda t: not 1_300_000_000 < t < 1_900_000_000)     # 0.6 s without IMU
     spanning = [by_t[t] for t in (1_000_000_000, 1_200_000_000, 1_400_000_000, 1_600_000_000, 1_800_000_000)]
     after = [by_t[t] for t in (2_000_000_000, 2_200_000_000, 2_400_000_000, 2_600_000_000, 2_800_000_000)]
     assert m.imu_for(spanning) is None and m.report.ff_windows_imu_lost == 1
