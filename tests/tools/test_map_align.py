@@ -275,3 +275,24 @@ def test_a_prior_maps_id_is_taken_when_it_is_loaded(sessions) -> None:
     shutil.rmtree(prior / "map")
     shutil.copytree(new / "map", prior / "map")      # replaced while the run goes on
     assert loc.prior_id == loaded != json.loads((prior / "map" / "manifest.json").read_text())["archive_id"]
+
+
+def test_after_a_reset_the_aligned_segments_own_final_trajectory_is_moved(sessions, tmp_path, capsys) -> None:
+    """final.tum holds the last segment; when another was aligned, its final_segment<K>.tum (written after a
+    reset) is what final.prior.tum must hold, not nothing."""
+    from tools.evaluation import read_tum
+
+    prior, _ = sessions
+    run = tmp_path / "two"
+    _two_segment_session(run)
+    (run / "poses.csv").write_text("t_ns,t_cam_ns,segment,source,correction_version,interpolation_fraction\n"
+                                   "1000000000,1000000000,2,native:static,0,1.000000\n")
+    (run / "final_segment1.tum").write_text("2.0 1 2 3 0 0 0 1\n")
+    assert main(["map", "align", str(run), "--to", str(prior)]) == 0
+    assert "final.prior.tum holds filter segment 1 (final_segment1.tum), the one aligned; final.tum holds " \
+           "the last (2)" in capsys.readouterr().err
+    al = json.loads((run / "alignment.json").read_text())
+    assert al["final_prior_source"] == "final_segment1.tum" and al["final_prior_poses"] == 1
+    T = np.array(al["T_PN"])
+    moved = read_tum(run / "final.prior.tum")
+    np.testing.assert_allclose(moved.p[0], T[:3, :3] @ [1.0, 2.0, 3.0] + T[:3, 3], atol=1e-6)

@@ -371,12 +371,18 @@ def _align(args: argparse.Namespace, archive: Path, run_folder: Path) -> int:
     if res.localized and final is not None:
         last = _last_segment(run_folder)
         wrong = last != summary["new_segment"] if last is not None else summary["new_segments"] > 1
+        seg_file = run_folder / f"final_segment{summary['new_segment']}.tum"   # written after a reset
+        if wrong and seg_file.is_file():
+            _print_notes("align", [f"final.prior.tum holds filter segment {summary['new_segment']} "
+                                   f"({seg_file.name}), the one aligned; final.tum holds the last ({last})"])
+            final, wrong = seg_file, False
         if wrong:
             _print_notes("align", [f"final.tum not moved: it holds the run's last filter segment ({last}), "
                                    f"and segment {summary['new_segment']} of the map was aligned"])
         else:
             trajectory = moved
             summary["final_prior"] = str(trajectory)
+            summary["final_prior_source"] = final.name
             summary["final_prior_poses"] = transform_tum(final, trajectory, res.T_PN)
     earlier = _read_json(out) if replaced else None
     try:
