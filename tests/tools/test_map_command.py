@@ -247,3 +247,23 @@ def test_a_run_whose_filter_was_reset_writes_map_ply_of_its_largest_segment(tmp_
     assert (f"{summary['voxels']} voxels in map.ply, of filter segment 0 (2 of 3 submaps; its trajectory: "
             "final_segment0.tum)") in line
     assert "`davio map export RUN --segment K --out FILE.ply`" in line
+
+
+def test_map_info_counts_each_segments_voxels_apart_and_names_the_one_used(tmp_path: Path, capsys) -> None:
+    """`map info --voxel` fused every segment into one grid: a count of overlaid unrelated frames that
+    matched no map.ply."""
+    folder = tmp_path / "run"
+    subs = _two_segment_run(folder)
+    info = map_info(folder / "map", VOXEL)
+    assert info["main_segment"] == 0 and info["segment_submaps"] == {"0": 2, "1": 1}
+    assert info["voxels"] == len(brute_force_fusion(subs[:2], VOXEL)) == info["voxels_by_segment"]["0"]
+    assert info["voxels_by_segment"]["1"] == len(brute_force_fusion(subs[2:3], VOXEL))
+    assert main(["map", "export", str(folder), "--voxel", str(VOXEL)]) == 0
+    from tools.evaluation.ply import read_ply_vertices
+
+    assert len(read_ply_vertices(folder / "map.ply")) == info["voxels"]
+    capsys.readouterr()
+    assert main(["map", "info", str(folder), "--voxel", str(VOXEL)]) == 1     # unplaceable states: problems
+    out = capsys.readouterr().out
+    assert "segments     0 (2 placeable), 1 (1 placeable): each in its own frame" in out
+    assert f"voxels       {info['voxels']} (segment 0; by segment: 0: " in out

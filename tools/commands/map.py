@@ -223,6 +223,10 @@ def _print_info(info: dict) -> None:
     print(f"format       {info['format']} schema {info['schema_version']} ({info['created_by']})")
     print(f"map version  {info['map_version']}")
     print(f"submaps      {info['submaps']} in {info['segments']} segment(s), {info['pairs']} pairs")
+    if info.get("main_segment") is not None:
+        sizes = ", ".join(f"{s} ({n} placeable)" for s, n in info["segment_submaps"].items())
+        print(f"segments     {sizes}: each in its own frame (the filter was reset); map.ply, export and view "
+              f"use segment {info['main_segment']} (--segment K another)")
     print(f"points       {info['points']} ({info['points_placed']} placed)")
     print(f"views        {info['views']} of {info['submaps']} submaps keep their centre view"
           + (" (what `davio map align` and --prior-map match)" if info["views"] else
@@ -237,7 +241,10 @@ def _print_info(info: dict) -> None:
     vers = ", ".join(f"v{v}: {n}" for v, n in info["node_versions"].items()) or "-"
     print(f"node versions {vers}")
     if info["voxels"] is not None:
-        print(f"voxels       {info['voxels']}")
+        by = info.get("voxels_by_segment") or {}
+        print(f"voxels       {info['voxels']}" + (f" (segment {info['main_segment']}; by segment: "
+                                                  + ", ".join(f"{s}: {n}" for s, n in by.items()) + ")"
+                                                  if info.get("main_segment") is not None else ""))
     print(f"on disk      {info['bytes_on_disk'] / 1e6:.2f} MB")
     j = info["journal"]
     if j["commits"] or j["incomplete_bytes"]:

@@ -8,6 +8,7 @@ import numpy as np
 
 from runtime.errors import DataError
 from runtime.mapping.fusion import VoxelGrid
+from tools.map_archive.export import main_segment, segment_sizes
 from tools.map_archive.reader import has_view, integrity, load_submap, read_manifest, state_problem
 
 
@@ -19,13 +20,16 @@ def map_info(folder: str | Path, voxel_m: float | None = None) -> dict:
 
     Args:
         folder: the archive folder.
-        voxel_m: also count fused voxels of this size (slower); None skips it.
+        voxel_m: also count fused voxels of this size (slower; each filter segment apart, as map.ply is
+            fused: `voxels` is the main segment's, `voxels_by_segment` each one's); None skips it.
 
     Returns:
         dict with folder, format, schema_version, created_by, map_version, submaps, points,
         points_placed, extent ({"min", "max", "size"} or None), voxels (or None), node_versions
-        ({version: submaps}), segments, pairs, views (submaps storing a centre view, which `davio map
-        align` and --prior-map need), journal (`read_manifest`), problems, orphans, bytes_on_disk.
+        ({version: submaps}), segments, segment_submaps ({segment: placeable submaps}), main_segment (the
+        one map.ply, export and view use; None with one segment), voxels_by_segment, pairs, views
+        (submaps storing a centre view, which `davio map align` and --prior-map need), journal
+        (`read_manifest`), problems, orphans, bytes_on_disk.
     """
     folder = Path(folder)
     info = read_manifest(folder)
@@ -33,7 +37,7 @@ def map_info(folder: str | Path, voxel_m: float | None = None) -> dict:
     bad = {p.split(":", 1)[0] for p in problems}
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
     placed = views = 0
-    grid = VoxelGrid(voxel_m) if voxel_m else None
+    grids: dict[int, VoxelGrid] = {}
     for e in info["submaps"]:
         if e["file"] in bad:
             continue
@@ -57,17 +61,23 @@ def map_info(folder: str | Path, voxel_m: float | None = None) -> dict:
         if len(pts):
             lo, hi = np.minimum(lo, pts.min(axis=0)), np.maximum(hi, pts.max(axis=0))
             placed += len(pts)
-            if grid is not None:
-                grid.integrate(pts)
+            if voxel_m:
+                grids.setdefault(int(e.get("segment", 0)), VoxelGrid(voxel_m)).integrate(pts)
     extent = None if placed == 0 else {"min": lo.tolist(), "max": hi.tolist(), "size": (hi - lo).tolist()}
     versions = Counter(int(e["version"]) for e in info["submaps"])
+    sizes = segment_sizes(info["submaps"])
+    main = main_segment(sizes) if len(sizes) > 1 else None
+    by_segment = {str(s): len(g) for s, g in sorted(grids.items())} if voxel_m else None
+    voxels = None if not voxel_m else (by_segment.get(str(main), 0) if main is not None
+                                       else sum(by_segment.values()))
     return {
         "folder": str(folder), "format": info["format"], "schema_version": info["schema_version"],
         "created_by": info.get("created_by"), "map_version": info.get("map_version"),
         "submaps": len(info["submaps"]), "points": int(sum(int(e["n_points"]) for e in info["submaps"])),
-        "points_placed": placed, "extent": extent, "voxels": None if grid is None else len(grid),
+        "points_placed": placed, "extent": extent, "voxels": voxels, "voxels_by_segment": by_segment,
         "node_versions": {str(v): versions[v] for v in sorted(versions)},
         "segments": len({int(e.get("segment", 0)) for e in info["submaps"]}),
+        "segment_submaps": {str(s): n for s, n in sorted(sizes.items())}, "main_segment": main,
         "pairs": len(info.get("pairs") or []), "views": views, "journal": info["journal"],
         "problems": problems, "orphans": orphans,
         "bytes_on_disk": int(sum(p.stat().st_size for p in folder.iterdir() if p.is_file())),
