@@ -81,7 +81,7 @@ def open_recording(path: str | Path, rebuild: bool = True, policy: str = "drop",
     info = read_manifest(manifest)
     description = f"simulated recording {p} ({_describe_simulation(info)})"
     cfg = info.get("config")
-    offset = (cfg.get("time_offset_s") if isinstance(cfg, dict) else None) or None   # read_manifest checks
+    offset = cfg.get("time_offset_s") if isinstance(cfg, dict) else None   # checked; 0.0 is a known 0
     if not rebuild:
         return OpenedRecording(driver, "simulated", description, time_offset_s=offset)
     gt_file = driver.groundtruth()

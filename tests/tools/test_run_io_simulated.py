@@ -192,6 +192,10 @@ def test_a_simulated_folders_time_offset_reaches_the_run_s_rig(tmp_path: Path) -
     args = Namespace(path=str(folder), rig=None, native_only=True, strict=False, image_topic=None,
                      imu_topic=None, withhold_extrinsics=False, model=None, emulated=None)
     assert _open_inputs(args, DavioConfig())[1].time_offset_s == pytest.approx(0.03)
+    zero = tmp_path / "zero"                              # a known 0 is 0, not withheld (None)
+    write_euroc(SimRecording.from_preset(SimConfig(preset="euroc", seconds=2.0, seed=0)), zero, depth=False,
+                cloud_spacing_m=None)
+    assert _open_inputs(Namespace(**{**vars(args), "path": str(zero)}), DavioConfig())[1].time_offset_s == 0.0
     camchain = tmp_path / "camchain.yaml"                 # a rig file given: its offset (0) is used
     write_kalibr(rec.rig.replace(time_offset_s=0.0), camchain)
     args.rig = str(camchain)
