@@ -311,9 +311,10 @@ class Session:
             return
         self._imu_head = None
         stamps = np.array([x[0] for x in head], np.int64)
-        if len(np.unique(stamps)) < len(stamps) // 2:
-            raise DataError(f"add_imu: {len(np.unique(stamps))} distinct stamps in the first {len(stamps)} "
-                            "samples: stamps must be integer nanoseconds (whole seconds or milliseconds?)")
+        distinct = len(np.unique(stamps))
+        if distinct < len(stamps) // 2:
+            raise DataError(f"add_imu: {distinct} distinct stamps in the first {len(stamps)} samples: stamps "
+                            "must be integer nanoseconds (whole seconds or milliseconds?)")
         check_stamp_units(stamps, "IMU", "Session.add_imu")
         accel = np.array([x[1] for x in head])
         g = accel_looks_like_g(accel[np.isfinite(accel).all(axis=1)])   # a NaN sample would make it NaN

@@ -222,6 +222,9 @@ class StartupManager:
         self._tried = 0
         self._last_request_ns: int | None = None
         self._imu_loss_ns: deque[int] = deque(maxlen=256)
+        outage_s = getattr(getattr(self.native, "config", None), "max_imu_outage_s", None)
+        #: ns, a longer IMU gap is an outage no feed-forward window spans (msckf.max_imu_outage_s)
+        self._outage_ns = None if outage_s is None else int(outage_s * 1e9)
         self._refused_window_ns: int | None = None
         self._resolves = ReSolves(self.cfg.extend_refused_s, self.cfg.window_spacing_s, self.report)
         self._offsets = OffsetFindings(self.cfg.time_offset_findings, self.cfg.time_offset_agree_s,
@@ -236,9 +239,8 @@ class StartupManager:
         if self.report.first_measurement_t_ns is None:
             self.report.first_measurement_t_ns = int(sample.t_ns)
         t = int(sample.t_ns)
-        outage_s = getattr(getattr(self.native, "config", None), "max_imu_outage_s", None)
         if getattr(sample, "lost_before", 0) or (
-                self._newest_ns and outage_s is not None and (t - self._newest_ns) * 1e-9 > outage_s):
+                self._newest_ns and self._outage_ns is not None and t - self._newest_ns > self._outage_ns):
             self._imu_loss_ns.append(t)       # no feed-forward window spans a loss or an outage
         self._newest_ns = max(self._newest_ns, t)
         if self.publisher is not None:

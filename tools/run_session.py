@@ -29,7 +29,7 @@ def run_pipeline(driver: Any, model: Any, config: DavioConfig, paced: bool = Fal
     `show_progress` they are also said on stderr as they happen, e.g. a rig finding)."""
     from tools.event_output import EventConsole, chain_events
     from tools.run_outcome import finish_mapping
-    from tools.stderr_lines import drop_stderr, stderr_lost
+    from tools.stderr_lines import attempt
     from tools.stderr_lines import say as stderr_say
 
     progress = None
@@ -42,18 +42,10 @@ def run_pipeline(driver: Any, model: Any, config: DavioConfig, paced: bool = Fal
         task = bar.add_task("running", total=seconds)
 
         def say(line: str) -> None:     # above the bar; an event's text is not rich markup
-            if stderr_lost() is None:
-                try:
-                    bar.console.print(line, markup=False, highlight=False)
-                except (OSError, ValueError) as exc:    # the terminal went away: the run goes on
-                    drop_stderr(f"{type(exc).__name__}: {exc}")
+            attempt(lambda: bar.console.print(line, markup=False, highlight=False))
 
         def progress(s: float) -> None:
-            if stderr_lost() is None:
-                try:
-                    bar.update(task, completed=s, description=f"running ({_status(pipe)})")
-                except (OSError, ValueError) as exc:
-                    drop_stderr(f"{type(exc).__name__}: {exc}")
+            attempt(lambda: bar.update(task, completed=s, description=f"running ({_status(pipe)})"))
     elif show_progress:
         last = [-1]
 

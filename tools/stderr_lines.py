@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import sys
+from collections.abc import Callable
 
 _LOST: list[str] = []
 """Why stderr was dropped (empty while it works)."""
@@ -17,11 +18,16 @@ _LOST: list[str] = []
 
 def say(text: str, end: str = "\n") -> None:
     """Write `text` + `end` to stderr and flush; a stderr that fails is dropped for the rest of the run."""
+    attempt(lambda: (sys.stderr.write(text + end), sys.stderr.flush()))
+
+
+def attempt(write: Callable[[], object]) -> None:
+    """Call `write` (something that writes to stderr, e.g. a rich progress bar's update) unless stderr was
+    dropped; a failure drops it for the rest of the run instead of raising."""
     if _LOST:
         return
     try:
-        sys.stderr.write(text + end)
-        sys.stderr.flush()
+        write()
     except (OSError, ValueError) as exc:     # a closed pipe, a hung-up terminal (EIO), a closed file
         drop_stderr(f"{type(exc).__name__}: {exc}")
 

@@ -238,9 +238,7 @@ class MsckfEstimator:
                 self.reset(f"IMU outage of {gap_s:.2f} s > {self.config.max_imu_outage_s:g} s "
                            "(max_imu_outage_s): the state cannot be propagated across it")
             else:                         # the initializers start over after it
-                for ini in self.initializers:
-                    if hasattr(ini, "reset"):
-                        ini.reset()
+                self._reset_initializers()
             self._imu.drop_before(t)      # no initializer window may span the outage
         c.imu_samples += 1
         self._imu.append(t, w, a)
@@ -541,6 +539,9 @@ class MsckfEstimator:
         self.health.clear()
         self.db.clear()
         self._pending.clear()
+        self._reset_initializers()
+
+    def _reset_initializers(self) -> None:
         for ini in self.initializers:
             if hasattr(ini, "reset"):
                 ini.reset()
