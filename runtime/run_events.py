@@ -18,7 +18,8 @@ a run goes, as they happen, each once:
   than `msckf.max_imu_outage_s` (paced as falling_behind);
 - "stamps_back": an IMU stamp came more than STAMPS_BACK_S behind the newest one (a device clock reset, a
   driver that restarted its stamps): the data is dropped until its stamps pass the newest (said once each
-  time).
+  time); the time the stamps take to pass it (B s after a jump back of B s) is an IMU gap, and an outage
+  when longer than `msckf.max_imu_outage_s` (runtime.imu.stamps_back).
 
 `RunEvents` watches a `runtime.pipeline.VioPipeline` from the pipeline's own thread (the pipeline calls it)
 and hands each event to `on_event` (`runtime.session.Session(on_event=...)`; `davio run|live` write them to
@@ -35,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from runtime.imu.stamps_back import StampsBehind
 from runtime.rig_findings import rig_findings, rig_state
 
 KINDS = ("publishing", "reset", "rig_finding", "calibration_estimated", "prior_localised", "features_lost",
@@ -129,6 +131,7 @@ class RunEvents:
         self._outage_s = float(max_imu_outage_s)
         self._last_imu_ns: int | None = None   # the last IMU sample that reached the filter
         self._back = False                      # "stamps_back" said, the stamps not past the newest yet
+        self._behind = StampsBehind()           # samples stamped behind the newest one
         self._next_gap_ns: int | None = None
         self.hold = False
         """While True (the scheduler sets it), events wait in `pending` for `flush()`."""
@@ -213,18 +216,23 @@ class RunEvents:
             return
         prev, lost = self._last_imu_ns, int(getattr(sample, "lost_before", 0) or 0)
         if prev is not None and t <= prev:
+            self._behind.behind(t)
             back_s = (prev - t) / 1e9
             if back_s > STAMPS_BACK_S and not self._back:
                 self._back = True      # said once until the stamps pass the newest one again
                 self._emit(prev, "stamps_back", (
                     f"IMU stamps went back {back_s:.2f} s (a clock reset, or stamps in other units?): every "
-                    f"sample and image is dropped until the stamps pass the newest one"),
+                    "sample and image is dropped until the stamps pass the newest one, and the time that "
+                    "takes is an IMU gap (a running filter is reset when it is longer than "
+                    "msckf.max_imu_outage_s)"),
                     back_s=round(back_s, 6), newest_t_ns=prev)
             return
+        # a clock that went back B s passes the newest stamp B s later: B s more without usable samples
+        gap_ns = t - prev + self._behind.passed() if prev is not None else 0
         self._back = False
         self._last_imu_ns = t
-        if prev is not None and (lost or t - prev > self._imu_gap_ns):
-            self.imu_gap(t, (t - prev) / 1e9, lost)
+        if prev is not None and (lost or gap_ns > self._imu_gap_ns):
+            self.imu_gap(t, gap_ns / 1e9, lost)
 
     def imu_gap(self, t_ns: int, gap_s: float, lost: int) -> None:
         """The IMU sample at t_ns follows a gap of gap_s seconds, `lost` samples of it lost by the driver."""

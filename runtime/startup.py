@@ -24,6 +24,7 @@ from runtime.config_checks import at_least, non_negative, positive
 from runtime.errors import ConfigError
 from runtime.events import Frame, ImuSample
 from runtime.geometry.se3 import make_pose
+from runtime.imu.stamps_back import StampsBehind
 from runtime.msckf.init_common import InitResult
 from runtime.startup_buffer import MeasurementBuffer, nearest_stamps
 from runtime.startup_offset import OffsetFindings
@@ -218,6 +219,7 @@ class StartupManager:
         self._frames: deque[Frame] = deque(maxlen=64)
         self._newest_cam_ns: int | None = None
         self._newest_ns = 0
+        self._behind = StampsBehind()   # samples stamped behind the newest one (a clock that went back)
         self._cid = 0
         self._tried = 0
         self._last_request_ns: int | None = None
@@ -239,10 +241,15 @@ class StartupManager:
         if self.report.first_measurement_t_ns is None:
             self.report.first_measurement_t_ns = int(sample.t_ns)
         t = int(sample.t_ns)
-        if getattr(sample, "lost_before", 0) or (
-                self._newest_ns and self._outage_ns is not None and t - self._newest_ns > self._outage_ns):
-            self._imu_loss_ns.append(t)       # no feed-forward window spans a loss or an outage
-        self._newest_ns = max(self._newest_ns, t)
+        if self._newest_ns and t <= self._newest_ns:
+            self._behind.behind(t)
+        else:
+            # a clock that went back B s passes the newest stamp B s later: an outage if that is long
+            unseen_ns = t - self._newest_ns + self._behind.passed()
+            if getattr(sample, "lost_before", 0) or (
+                    self._newest_ns and self._outage_ns is not None and unseen_ns > self._outage_ns):
+                self._imu_loss_ns.append(t)       # no feed-forward window spans a loss or an outage
+            self._newest_ns = t
         if self.publisher is not None:
             return self._publish(self.publisher.feed_imu(sample))
         self.buffer.append("imu", sample.t_ns, sample)

@@ -17,6 +17,7 @@ import numpy as np
 
 from runtime.errors import EstimatorError
 from runtime.imu.buffer import ImuBuffer
+from runtime.imu.stamps_back import StampsBehind
 from runtime.msckf.blas_threads import limit_blas_threads
 from runtime.msckf.camera_kernels import CameraParams, undistort_points
 from runtime.msckf.config import MsckfConfig
@@ -70,6 +71,7 @@ class MsckfEstimator:
         self._imu = ImuBuffer()
         self._pending: deque = deque()
         self._last_frame_ns: int | None = None
+        self._behind = StampsBehind()   # samples stamped behind the newest one (a clock that went back)
         self.db = FeatureDatabase()
         self.state_: State | None = None
         self._t_init_ns = 0
@@ -227,15 +229,22 @@ class MsckfEstimator:
         last = self._imu.last_ns
         if last is not None and t <= last:
             c.imu_out_of_order += 1
+            self._behind.behind(t)
             return []
         lost = int(getattr(sample, "lost_before", 0) or 0)
         c.imu_lost += lost
         gap_s = 0.0 if last is None else (t - last) * 1e-9
-        if last is not None and (lost or gap_s > self.config.max_imu_gap_s):
+        # a clock that went back B s reaches the newest stamp again B s later: that long passed without
+        # usable samples, whatever the stamps on either side say
+        back_s = self._behind.passed() * 1e-9
+        if last is not None and (lost or gap_s + back_s > self.config.max_imu_gap_s):
             c.imu_gaps += 1
-        if gap_s > self.config.max_imu_outage_s:
+        if gap_s + back_s > self.config.max_imu_outage_s:
+            gap_s += back_s
+            why = (f"IMU outage of {gap_s:.2f} s" if back_s <= self.config.max_imu_gap_s else
+                   f"IMU stamps went back {back_s:.2f} s: at least {gap_s:.2f} s without usable samples")
             if self.initialized:
-                self.reset(f"IMU outage of {gap_s:.2f} s > {self.config.max_imu_outage_s:g} s "
+                self.reset(f"{why} > {self.config.max_imu_outage_s:g} s "
                            "(max_imu_outage_s): the state cannot be propagated across it")
             else:                         # the initializers start over after it
                 self._reset_initializers()

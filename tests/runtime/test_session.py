@@ -290,6 +290,40 @@ def test_an_imu_outage_resets_the_running_filter_a_short_gap_does_not(recording)
     assert short_gap.pipeline.report()["filter"]["divergence_reasons"] == []
 
 
+def test_a_clock_that_goes_back_past_the_outage_bound_resets_the_filter(recording) -> None:
+    """A device clock that jumped back 1 s: its data was dropped until the stamps passed the newest one, and
+    the filter then went on from the state of 1 s of real time before, as if no time had passed (the stamps
+    said 5 ms). The time it could not propagate is at least the jump: an outage, said as one."""
+    import dataclasses
+
+    rec, events = recording
+    t0 = events[0].t_ns
+
+    def restamped(at_s: float, back_s: float) -> list:
+        return [dataclasses.replace(e, t_ns=e.t_ns - int(back_s * 1e9))
+                if e.t_ns - t0 >= int(at_s * 1e9) else e for e in events]
+
+    said: list = []
+    jumped = Session(rec.rig, config=DavioConfig(), on_event=said.append).replay(iter(restamped(2.6, 1.0)))
+    reasons = jumped.pipeline.report()["filter"]["divergence_reasons"]
+    assert len(reasons) == 1 and reasons[0].startswith(
+        "IMU stamps went back 1.00 s: at least 1.00 s without usable samples > 0.5 s (max_imu_outage_s)")
+    kinds = [e.kind for e in said]
+    assert kinds.count("reset") == 1 and kinds.count("stamps_back") == 1
+    back = said[kinds.index("stamps_back")]
+    assert "a running filter is reset when it is longer than msckf.max_imu_outage_s" in back.message
+    assert back.detail["back_s"] == pytest.approx(1.0, abs=0.01)
+    gap = [e for e in said if e.kind == "imu_gap"]
+    assert len(gap) == 1 and gap[0].detail["longest_s"] == pytest.approx(1.0, abs=0.01)
+    short = Session(rec.rig, config=DavioConfig()).replay(iter(restamped(2.6, 0.3)))
+    assert short.pipeline.report()["filter"]["divergence_reasons"] == []
+    k = next(i for i, e in enumerate(events) if e.t_ns - t0 >= int(2.6e9) and not isinstance(e, Frame))
+    stray = events[:k] + [dataclasses.replace(events[k], t_ns=events[k].t_ns - int(0.8e9))] + events[k:]
+    one = Session(rec.rig, config=DavioConfig()).replay(iter(stray))      # one stamp 0.8 s back: no outage
+    assert one.pipeline.report()["filter"]["divergence_reasons"] == []
+    assert one.pipeline.report()["filter"]["imu_out_of_order"] == 1
+
+
 def test_samples_a_driver_lost_are_passed_on_and_counted(recording) -> None:
     """The imu_gap event counts samples the driver lost; pushed data had no way to say so."""
     rec, events = recording

@@ -178,6 +178,28 @@ def test_feedforward_windows_across_lost_imu_samples_are_not_solved():
     assert m.imu_for(before) is not None and m.report.ff_windows_imu_lost == 1
 
 
+def test_feedforward_windows_across_a_clock_that_went_back_are_not_solved():
+    """A clock that jumps back 0.6 s and runs up to the newest stamp again: 0.6 s of real time passed between
+    two samples 5 ms apart in stamps, an outage no window may span."""
+    f = RecordingFilter()
+    f.config = SimpleNamespace(max_imu_outage_s=0.5)
+    m = StartupManager(lambda _native: f, StartupConfig())
+    by_t = {}
+    for kind, t in _stream(3.0):
+        if kind == "imu":
+            m.on_imu(ImuSample(t, np.zeros(3), np.array([0, 0, 9.81])))
+            if t == 1_300_000_000:
+                for back in range(700_000_000, 1_300_000_001, 5_000_000):
+                    m.on_imu(ImuSample(back, np.zeros(3), np.array([0, 0, 9.81])))
+        else:
+            by_t[t] = Frame(t, np.zeros((4, 4), np.uint8))
+            m.on_tracks(t, np.zeros(0, np.int64), np.zeros((0, 2)), by_t[t])
+    spanning = [by_t[t] for t in (1_000_000_000, 1_200_000_000, 1_400_000_000, 1_600_000_000, 1_800_000_000)]
+    after = [by_t[t] for t in (1_400_000_000, 1_600_000_000, 1_800_000_000, 2_000_000_000, 2_200_000_000)]
+    assert m.imu_for(spanning) is None and m.report.ff_windows_imu_lost == 1
+    assert m.imu_for(after) is not None
+
+
 def test_feedforward_windows_across_an_imu_outage_are_not_solved():
     """A gap over msckf.max_imu_outage_s before any filter publishes: a window spanning it had its IMU
     interpolated across the outage."""
