@@ -101,13 +101,28 @@ def mapping_line(mp: dict, summary: dict, config: dict | None = None) -> str:
     voxels in map.ply or why there is none (`config`: report.json's config "mapping")."""
     rej = ", ".join(f"{k} x{v}" for k, v in sorted(mp["windows_rejected"].items())) or "none"
     sampled = max(mp["points_sampled"], 1)
+    invalid = 100 * mp.get("rejected_invalid_depth", 0) / sampled
     return (f"map: {mp['windows_accepted']}/{mp['windows_offered']} windows mapped, "
             f"{mp['windows_dropped_queue']} dropped (queue full), rejected: {rej}; "
-            f"{mp['points_retained']} points kept ({100 * mp['rejected_confidence'] / sampled:.0f} % low "
+            f"{mp['points_retained']} points kept ({invalid:.0f} % invalid depth, "
+            f"{100 * mp['rejected_confidence'] / sampled:.0f} % low "
             f"confidence, {100 * mp['rejected_multiview'] / sampled:.0f} % failed the multi-view test, "
             f"{100 * mp.get('points_unverified', 0) / sampled:.0f} % kept seen by one image only); "
             + _ply_text(mp, summary, config) + _graph_text(mp.get("graph"))
             + _archive_stopped_text(summary.get("archive_stopped"), bool(summary.get("ply"))))
+
+
+def invalid_depth_line(mp: dict, config: dict) -> str:
+    """A warning when the model's depths were mostly outside the mapped range: depth in other units, inverse
+    or negative (a user's export), or a scene beyond mapping.max_depth_m; "" otherwise."""
+    sampled, invalid = mp.get("points_sampled", 0), mp.get("rejected_invalid_depth", 0)
+    refused = (mp.get("windows_rejected") or {}).get("invalid_depth", 0)
+    if not refused and not (sampled and invalid > 0.5 * sampled):
+        return ""
+    far = config.get("max_depth_m", 20.0)
+    return (f"MODEL DEPTH? {100 * invalid / max(sampled, 1):.0f} % of the depths the model returned were not "
+            f"in (0, {far:g} m] ({refused} windows refused as invalid_depth): is the graph's depth in metres "
+            "(not mm, not inverse depth), or is the scene beyond mapping.max_depth_m?")
 
 
 def _ply_text(mp: dict, summary: dict, config: dict | None) -> str:
@@ -213,12 +228,20 @@ def recovery_lines(report: dict) -> list[str]:
         lines.append(f"GYROSCOPE UNITS? a tenth of the run turns faster than {p90:.1f} rad/s (EuRoC's "
                      "flights: 0.6-1.0 rad/s); a gyroscope logging deg/s reads 57.3 times too high: check "
                      "its unit (rad/s)")
-    errors = (report["pipeline"].get("tracking") or {}).get("ff_exceptions") or []
+    tracking = report["pipeline"].get("tracking") or {}
+    errors = tracking.get("ff_exceptions") or []
     if errors:
-        lines.append(f"feed-forward model calls failed: {len(errors)} (first: {errors[0]})")
-    map_errors = (report["pipeline"].get("mapping") or {}).get("model_errors") or []
-    if map_errors:
-        lines.append(f"mapping model calls failed: {len(map_errors)} (first: {map_errors[0]})")
+        lines.append(f"feed-forward model calls failed: {max(tracking.get('ff_errors') or 0, len(errors))} "
+                     f"(first: {errors[0]})")
+    mapping = report["pipeline"].get("mapping") or {}
+    map_errors = mapping.get("model_errors") or []
+    failed = sum((mapping.get("windows_rejected") or {}).get(k, 0) for k in ("model_error", "exception"))
+    if map_errors or failed:
+        first = f" (first: {map_errors[0]})" if map_errors else ""
+        lines.append(f"mapping model calls failed: {max(failed, len(map_errors))}{first}")
+    line = invalid_depth_line(mapping, (report.get("config") or {}).get("mapping") or {})
+    if line:
+        lines.append(line)
     startup = report["pipeline"].get("startup") or {}
     if startup.get("ff_rejections"):
         reasons = ", ".join(f"{k} x{v}" for k, v in sorted(startup["ff_rejections"].items()))

@@ -68,6 +68,11 @@ class MappingConfig:
     """Depth pixels are sampled on this grid (pixels) before rejection, fusion and archiving."""
     max_depth_m: float = 20.0
     """Depths beyond this are not mapped (DA3's far range is unreliable)."""
+    min_valid_depth_fraction: float = 0.25
+    """A window is refused as a whole (reason "invalid_depth") when fewer than this fraction of its sampled
+    depths are finite and in (0, max_depth_m]: a graph whose depth is in other units (mm), inverse or
+    negative, or a scene mostly beyond the range, maps nothing (it committed empty submaps). Not in the
+    paper."""
     voxel_m: float = 0.04
     """Fusion voxel size (m)."""
     max_resident_submaps: int = 24
@@ -92,6 +97,7 @@ class MappingConfig:
         non_negative(self, s, "min_baseline_m", "refuse_tolerance_m")
         in_range(self, s, "voxel_m", MIN_VOXEL_M, MAX_VOXEL_M)
         in_range(self, s, "max_multiview_failed_fraction", 0.0, 1.0)
+        in_range(self, s, "min_valid_depth_fraction", 0.0, 1.0)
         in_range(self, s, "conf_percentile", 0.0, 100.0, hi_open=True)
         at_least(self, s, 1, "max_pending_windows", "frame_scale_rounds", "frame_scale_min_matches",
                  "pixel_stride", "max_resident_submaps", "min_overlap_pixels", "graph_points",

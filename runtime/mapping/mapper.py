@@ -168,6 +168,8 @@ class Mapper:
         T_SC = np.linalg.inv(T_OS) @ T_OC
         depth = np.asarray(pred.depth, np.float64)
         conf = np.asarray(pred.conf, np.float32)
+        if self._refused_for_invalid_depth(depth):
+            return replace(fit, accepted=False, reason="invalid_depth")
         t1 = time.perf_counter()
         grey = [self.rectify(f.image) for f in window.frames]
         scales = self._frame_scales(window, grey, depth, conf, T_SC)
@@ -379,6 +381,20 @@ class Mapper:
         else:
             self.stats.frame_scale_unconstrained += 1
         return res
+
+    def _refused_for_invalid_depth(self, depth: np.ndarray) -> bool:
+        """True (counted) when fewer than `min_valid_depth_fraction` of the window's grid depths are finite
+        and in (0, max_depth_m]."""
+        cfg, st = self.cfg, self.stats
+        u, v = sample_grid(depth.shape[1], depth.shape[2], cfg.pixel_stride)
+        d = depth[:, v, u]
+        valid = int(np.count_nonzero(np.isfinite(d) & (d > 0) & (d <= cfg.max_depth_m)))
+        if valid >= cfg.min_valid_depth_fraction * d.size:
+            return False
+        st.points_sampled += int(d.size)
+        st.rejected_invalid_depth += int(d.size - valid)
+        st.reject("invalid_depth")
+        return True
 
     def _retained_points(self, depth: np.ndarray, conf: np.ndarray, grey: list[np.ndarray],
                          T_SC: np.ndarray

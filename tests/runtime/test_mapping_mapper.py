@@ -2,6 +2,8 @@
 injected flying pixels are rejected, and evicted submaps leave the live grid."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 from mapping_synth import H_TEST, K_TEST, W_TEST, look_at, render_room_depth
 
@@ -134,6 +136,37 @@ def test_a_window_whose_images_disagree_is_refused_as_a_whole():
     assert off.stats.windows_accepted == 1 and sub.n_points == off.stats.points_retained > 0
     # the exact model's window, whose flying pixels fail in one image only, stays far below the bound
     assert _mapper(_ExactModel(fly_image=1)).process(_window(0)).submap.n_points > 0
+
+
+class _UnitsModel(_ExactModel):
+    """The exact depth times `factor` (1000: millimetres; -1: negative), the poses right: a user's export
+    whose depth is in other units."""
+
+    def __init__(self, factor: float) -> None:
+        super().__init__()
+        self.factor = factor
+
+    def predict(self, frames, K=None, T_CW=None):
+        pred = super().predict(frames, K, T_CW)
+        return dataclasses.replace(pred, depth=pred.depth * self.factor)
+
+
+def test_a_window_whose_depths_are_mostly_out_of_range_is_refused_not_committed_empty():
+    """Depth in mm (every depth beyond max_depth_m) or negative: the window was accepted and committed as an
+    empty submap, and map.ply had 0 vertices with no warning."""
+    from runtime.mapping.conditioned import WindowFit
+
+    for factor in (1000.0, -1.0):
+        mapper = _mapper(_UnitsModel(factor))
+        out = mapper.process(_window(0))
+        st = mapper.stats
+        assert isinstance(out, WindowFit) and not out.accepted and out.reason == "invalid_depth"
+        assert st.windows_rejected == {"invalid_depth": 1} and st.windows_accepted == 0
+        assert not mapper.resident
+        assert st.rejected_invalid_depth == st.points_sampled > 0
+    assert _mapper(_UnitsModel(1.0)).process(_window(0)).submap.n_points > 0
+    off = _mapper(_UnitsModel(1000.0), min_valid_depth_fraction=0.0)        # the check switched off
+    assert off.process(_window(0)).submap.n_points == 0
 
 
 def test_evicted_submaps_leave_the_live_grid():

@@ -272,6 +272,23 @@ def test_odometry_file_round_trips_published_states(tmp_path):
     np.testing.assert_allclose(traj.p[:, 0], [0, 1, 2])
 
 
+def test_depths_mostly_out_of_range_are_said_with_the_likely_causes():
+    """A graph whose depth was in mm mapped nothing; the console said "0 points kept" and no reason."""
+    from tools.run_summary import mapping_line, recovery_lines
+
+    mp = {"windows_accepted": 0, "windows_offered": 3, "windows_dropped_queue": 0,
+          "windows_rejected": {"invalid_depth": 3}, "points_sampled": 6000, "rejected_invalid_depth": 6000,
+          "rejected_confidence": 0, "rejected_multiview": 0, "points_retained": 0}
+    report = {"pipeline": {"mapping": mp}, "config": {"mapping": {"max_depth_m": 20.0}}}
+    warned = [x for x in recovery_lines(report) if x.startswith("MODEL DEPTH? 100 % of the depths")]
+    assert len(warned) == 1 and "(0, 20 m] (3 windows refused as invalid_depth)" in warned[0]
+    assert "not mm, not inverse depth" in warned[0]
+    assert "0 points kept (100 % invalid depth, 0 % low confidence" in mapping_line(mp, {}, None)
+    # a scene partly beyond the range, every window mapped: no warning
+    mp.update(windows_accepted=3, windows_rejected={}, rejected_invalid_depth=2000, points_retained=4000)
+    assert not any(x.startswith("MODEL DEPTH?") for x in recovery_lines(report))
+
+
 def test_recovery_lines_name_every_counted_recovery():
     from tools.run_summary import recovery_lines as _recovery_lines
 
