@@ -45,6 +45,14 @@ class TrackingStats:
     """IMU samples beyond any MEMS IMU's range (MAX_GYRO_RAD_S, MAX_ACCEL_M_S2): dropped before the
     initializers and filters (a corrupt value, or a gyroscope in deg/s)."""
     ff_exceptions: list = field(default_factory=list)
+    """The first MAX_ERROR_MESSAGES failed start-up jobs (feed-forward, bring-up, re-solve), as text..."""
+    ff_errors: int = 0
+    """...and how many failed in all."""
+
+    def start_up_failed(self, text: str) -> None:
+        self.ff_errors += 1
+        if len(self.ff_exceptions) < MAX_ERROR_MESSAGES:
+            self.ff_exceptions.append(text)
 
 
 MAX_GYRO_RAD_S = 100.0
@@ -357,6 +365,7 @@ class VioPipeline:
             elif isinstance(result, MapCommit):   # after the last pose: only the final trajectory sees it
                 self._record_nodes(result)
             done += 1
+            self._note_model_failures()
         self.events.after_mapping(self._last_t)
         return done
 
@@ -431,6 +440,20 @@ class VioPipeline:
         return job
 
     def on_model_result(self, result: Any) -> None:
+        try:
+            self._on_model_result(result)
+        finally:
+            self._note_model_failures()
+
+    def _note_model_failures(self) -> None:
+        """Hand the model job failures so far (start-up and mapping) to the run events."""
+        st, mp = self.stats, getattr(self, "map_stats", None)
+        mapped = sum(mp.windows_rejected.get(k, 0) for k in ("model_error", "exception")) if mp else 0
+        if st.ff_errors + mapped:
+            first = (st.ff_exceptions or (mp.model_errors if mp else []) or ["?"])[0]
+            self.events.model_failures(self._last_t, st.ff_errors + mapped, first)
+
+    def _on_model_result(self, result: Any) -> None:
         if self._job_kind == "mapping":   # the mapper counted it; an exception is a mapping error
             if isinstance(result, Exception):
                 st = self.map_stats
@@ -442,11 +465,11 @@ class VioPipeline:
             return
         if isinstance(result, Exception):
             if self._job_kind == "extension":   # no model call failed: the re-solve did; give it up
-                self.stats.ff_exceptions.append(f"start-up re-solve: {type(result).__name__}: {result}")
+                self.stats.start_up_failed(f"start-up re-solve: {type(result).__name__}: {result}")
                 self.startup.end_extension("exception")
                 return
             where = "bring-up: " if self._job_kind == "bringup" else ""
-            self.stats.ff_exceptions.append(f"{where}{type(result).__name__}: {result}")
+            self.stats.start_up_failed(f"{where}{type(result).__name__}: {result}")
             return
         if self._job_kind == "bringup":
             if self.bringup.on_result(result, self._last_t):

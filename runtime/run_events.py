@@ -19,7 +19,10 @@ a run goes, as they happen, each once:
 - "stamps_back": an IMU stamp came more than STAMPS_BACK_S behind the newest one (a device clock reset, a
   driver that restarted its stamps): the data is dropped until its stamps pass the newest (said once each
   time); the time the stamps take to pass it (B s after a jump back of B s) is an IMU gap, and an outage
-  when longer than `msckf.max_imu_outage_s` (runtime.imu.stamps_back).
+  when longer than `msckf.max_imu_outage_s` (runtime.imu.stamps_back);
+- "model_error": the depth model's start-up or mapping jobs failed (a graph that breaks the contract at
+  run time, non-finite outputs, a failing device): the start-up goes on with the native initializer and a
+  failed window is not mapped (paced as falling_behind, with the first failure's message).
 
 `RunEvents` watches a `runtime.pipeline.VioPipeline` from the pipeline's own thread (the pipeline calls it)
 and hands each event to `on_event` (`runtime.session.Session(on_event=...)`; `davio run|live` write them to
@@ -40,7 +43,7 @@ from runtime.imu.stamps_back import StampsBehind
 from runtime.rig_findings import rig_findings, rig_state
 
 KINDS = ("publishing", "reset", "rig_finding", "calibration_estimated", "prior_localised", "features_lost",
-         "features_back", "falling_behind", "imu_gap", "stamps_back")
+         "features_back", "falling_behind", "imu_gap", "stamps_back", "model_error")
 STAMPS_BACK_S = 0.1
 """An IMU stamp this far (s) behind the newest one is a clock that went back ("stamps_back"), not a late or
 repeated sample."""
@@ -133,6 +136,8 @@ class RunEvents:
         self._back = False                      # "stamps_back" said, the stamps not past the newest yet
         self._behind = StampsBehind()           # samples stamped behind the newest one
         self._next_gap_ns: int | None = None
+        self._model = [0, 0, ""]                # model job failures: said, seen, the first one's message
+        self._next_model_ns: int | None = None
         self.hold = False
         """While True (the scheduler sets it), events wait in `pending` for `flush()`."""
         self.pending: list[RunEvent] = []
@@ -172,6 +177,8 @@ class RunEvents:
             self._features(t_ns, int(features))
         if self._gaps[0]:        # gaps gathered: said once their ten seconds are over, not at the next gap
             self._say_gaps(t_ns)
+        if self._model[1] > self._model[0]:
+            self._say_model(t_ns)
         self._prior_localisations(t_ns)
         if self._next_look_ns is None or t_ns >= self._next_look_ns:
             self._next_look_ns = t_ns + int(self.look_every_s * 1e9)
@@ -191,6 +198,7 @@ class RunEvents:
         localisations in the prior map found there are said now, at the data's last time (t_ns or a later
         one seen), and handed on at once."""
         self._prior_localisations(max(int(t_ns), self._latest_ns), after_end=True)
+        self._say_model(max(int(t_ns), self._latest_ns), final=True)
         self.flush()
 
     def frames_dropped(self, total: int, t_ns: int, final: bool = False) -> None:
@@ -246,7 +254,26 @@ class RunEvents:
         self._latest_ns = max(self._latest_ns, int(t_ns))
         self.frames_dropped(frames_dropped, t_ns, final=True)
         self._say_gaps(t_ns, final=True)
+        self._say_model(t_ns, final=True)
         self._prior_localisations(t_ns)
+
+    def model_failures(self, t_ns: int, total: int, first: str) -> None:
+        """`total` start-up or mapping model jobs have failed so far, the first with message `first`."""
+        if total > self._model[1]:
+            self._model[1], self._model[2] = int(total), self._model[2] or str(first)
+            self._say_model(t_ns)
+
+    def _say_model(self, t_ns: int, final: bool = False) -> None:
+        said, total, first = self._model
+        if total <= said or (not final and self._next_model_ns is not None and t_ns < self._next_model_ns):
+            return
+        self._next_model_ns = t_ns + int(DROPS_EVERY_S * 1e9)
+        self._model[0] = total
+        since = "" if said == 0 else " since the last such event"
+        self._emit(t_ns, "model_error", (
+            f"depth model jobs failed: {total - said}{since}, {total} in all (first: {first}); the start-up "
+            "goes on with the native initializer and a failed window is not mapped"),
+            failed=int(total - said), total=int(total), first=first)
 
     def _say_gaps(self, t_ns: int, final: bool = False) -> None:
         n, longest, lost, total = self._gaps

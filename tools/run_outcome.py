@@ -139,7 +139,8 @@ def why_nothing_published(pipeline_report: dict, driver_report: dict | None, sch
                      f"{st.get('ff_extension_accepted', 0)} accepted (rejected: {rej})")
     errors = tracking.get("ff_exceptions") or []
     if errors:
-        parts.append(f"{len(errors)} model calls failed (first: {errors[0]})")
+        failed = max(tracking.get("ff_errors") or 0, len(errors))
+        parts.append(f"{failed} model calls failed (first: {errors[0]})")
     filt = pipeline_report.get("filter") or {}
     if filt and not filt.get("initialized"):
         why = "; ".join(f"{name}: {_rejections(r)}" for name, r in (filt.get("initializers") or {}).items())

@@ -163,3 +163,55 @@ def test_a_window_failing_after_the_data_ended_is_counted_not_raised() -> None:
     assert pipe.finish_mapping() == 2
     assert pipe.map_stats.windows_rejected == {"exception": 2}
     assert pipe.map_stats.model_errors == ["RuntimeError: CUDA error on w1", "RuntimeError: CUDA error on w2"]
+
+
+class _BrokenModel:
+    """A graph that fails every call at run time (the contract's shapes, non-finite depth)."""
+
+    def __init__(self, model) -> None:
+        self.K_rect = model.K_rect
+
+    def predict(self, frames, K=None, T_CW=None):
+        from runtime.errors import ModelError
+
+        raise ModelError("da3.onnx: output depth has 25065 non-finite values out of 811440")
+
+
+def test_a_model_failing_every_call_is_said_as_it_happens_and_counted_whole(recording):
+    """The failures lived only in report counters (a Session user heard nothing; the run printed the count
+    of the messages kept, at most 10): the first is now an event at once, the rest paced, and every count
+    is whole."""
+    from tools.run_summary import recovery_lines
+
+    rec, events = recording
+    said: list = []
+    pipe = VioPipeline(rec.rig, _BrokenModel(_model(rec)), DavioConfig(), mapper_factory=_no_matcher,
+                       on_event=said.append)
+    Scheduler(FastClock(0.5)).run(iter(events), pipe)
+    pipe.finish_mapping()
+    rep = pipe.report()
+    ff, mapped = rep["tracking"]["ff_errors"], rep["mapping"]["windows_rejected"].get("model_error", 0)
+    assert ff >= 1 and mapped >= 1
+    errors = [e for e in said if e.kind == "model_error"]
+    assert errors[0].detail["failed"] == 1 and "non-finite values" in errors[0].detail["first"]
+    # the first at once, the rest (within the ten seconds of pacing) when the data ended
+    assert [e.detail["total"] for e in errors] == [1, ff + mapped]
+    assert errors[1].detail["failed"] == ff + mapped - 1 and "since the last such event" in errors[1].message
+    lines = recovery_lines({"pipeline": rep})
+    first = f"feed-forward model calls failed: {ff} (first: ModelError: da3.onnx: output depth"
+    assert any(line.startswith(first) for line in lines)
+    assert any(line.startswith(f"mapping model calls failed: {mapped} (first: ") for line in lines)
+
+
+def test_start_up_failures_are_all_counted_and_the_first_messages_kept(recording):
+    """ff_exceptions grew by one message per failed start-up job, without bound."""
+    from runtime.mapping.mapper import MAX_ERROR_MESSAGES
+
+    rec, _ = recording
+    pipe = VioPipeline(rec.rig, _model(rec), _config(True), mapper_factory=_no_matcher)
+    pipe._job_kind = "feedforward"
+    for k in range(MAX_ERROR_MESSAGES + 25):
+        pipe.on_model_result(MemoryError(f"window {k}"))
+    assert pipe.stats.ff_errors == MAX_ERROR_MESSAGES + 25
+    assert pipe.stats.ff_exceptions == [f"MemoryError: window {k}" for k in range(MAX_ERROR_MESSAGES)]
+    assert pipe.events.counts["model_error"] == 1          # the first said at once, the rest paced
