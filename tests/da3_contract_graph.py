@@ -83,6 +83,10 @@ def build_da3_contract_graph(
         nodes[3] = helper.make_node("Add", ["red_half", "two"], ["depth_ok"])
         inits.append(numpy_helper.from_array(np.array(-1.0, np.float32), "minus"))
         nodes.append(helper.make_node("Mul", ["depth_ok", "minus"], ["depth"]))
+    if variant == "log_conf":          # log(conf): negative where the confidence is below e
+        nodes[7] = helper.make_node("Add", ["green_abs", "one"], ["conf_lin"])
+        nodes.append(helper.make_node("Log", ["conf_lin"], ["conf_log"]))
+        nodes.append(helper.make_node("Sub", ["conf_log", "one"], ["conf"]))
     if variant == "missing_output":
         nodes = [n for n in nodes if n.output[0] != "pred_intrinsics"]
     graph = helper.make_graph(nodes, "da3_contract", inputs, outputs, inits)

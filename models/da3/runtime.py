@@ -241,6 +241,11 @@ class OnnxDA3:
         if not np.any(outs[0] > 0):
             raise ModelError(f"{self.path}: output depth is not positive at any of its {outs[0].size} pixels "
                              "on the warm-up call: not a DA3 depth graph, or a broken export")
+        low = int(np.count_nonzero(outs[1] <= 0))
+        if low:     # the start-up weighs each depth by sqrt(conf): such a depth would not count
+            raise ModelError(f"{self.path}: output conf is not positive at {low} of its {outs[1].size} "
+                             "pixels on the warm-up call; the contract's confidence is >= 1 (DA3's "
+                             "1 + exp(x)): a graph that returns log-confidence, or a broken export")
         return time.perf_counter() - t0
 
     def _to_camera(self, maps: np.ndarray) -> np.ndarray:

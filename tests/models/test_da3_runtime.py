@@ -182,6 +182,15 @@ def test_graph_whose_depth_is_never_positive_fails_the_warm_up(tmp_path):
         model.warm_up()
 
 
+def test_graph_whose_confidence_is_not_positive_fails_the_warm_up(tmp_path):
+    """A log-confidence export: the start-up weighed its depths by sqrt(max(conf, 0)) = 0, refused every
+    window as ill-conditioned and said nothing of the confidence."""
+    model = OnnxDA3(build_da3_contract_graph(tmp_path / "log.onnx", variant="log_conf"), CAM, threads=1)
+    with pytest.raises(ModelError, match=r"log.onnx: output conf is not positive at \d+ of its 5880 pixels.*"
+                                         r"log-confidence"):
+        model.warm_up()
+
+
 def test_graph_computing_nan_fails_the_warm_up_and_every_call(tmp_path):
     model = OnnxDA3(build_da3_contract_graph(tmp_path / "nan.onnx", variant="nan_depth"), CAM, threads=1)
     with pytest.raises(ModelError, match="output depth has 5880 non-finite values out of 5880"):
