@@ -29,7 +29,7 @@ def inspect_model(path: str | Path, load_session: bool = True) -> dict:
         ModelError: the file is missing, is not a readable ONNX model, reads external data from
             outside its folder, or matches no contract.
     """
-    from models.da3.contract import PRECISION_KEY, check_da3_signature
+    from models.da3.contract import FIXED_VIEWS_HINT, PRECISION_KEY, WINDOW_VIEWS, check_da3_signature
     from models.matcher.contract import check_lighterglue_signature, check_xfeat_signature
 
     path = Path(path)
@@ -42,6 +42,10 @@ def inspect_model(path: str | Path, load_session: bool = True) -> dict:
     if "images" in names:
         h, w = check_da3_signature(inputs, outputs, where)
         info.update(contract="davio.da3", resolution=[h, w])
+        views = dict((n, s) for n, _, s in inputs)["images"][1]
+        if isinstance(views, int) and views > 0 and views != WINDOW_VIEWS:
+            info["note"] = (f"exported for exactly {views} views: DAVIO calls DA3 on {WINDOW_VIEWS}-image "
+                            f"windows, so `davio run` refuses it; {FIXED_VIEWS_HINT}")
     elif "image" in names:
         check_xfeat_signature(inputs, outputs, where)
         info.update(contract="davio.xfeat_backbone", resolution="dynamic (H, W multiples of 8)")
@@ -60,9 +64,10 @@ def inspect_model(path: str | Path, load_session: bool = True) -> dict:
     ops = {n.op_type for n in model.graph.node}
     if info["contract"] == "davio.da3" and "Softmax" in ops and "Attention" not in ops:
         # measured on an H100: 10.7 GiB for DA3-Base on 5 views against 3.7 GiB (BENCHMARKS.md, DA3 on a GPU)
-        info["note"] = ("attention is spelled out in MatMul and Softmax (an opset-18 export): on a GPU it "
-                        "holds about three times the memory of an opset-23 export (davio export-da3's "
-                        "default); re-export it, or cap it with --gpu-mem-limit")
+        note = ("attention is spelled out in MatMul and Softmax (an opset-18 export): on a GPU it holds "
+                "about three times the memory of an opset-23 export (davio export-da3's default); re-export "
+                "it, or cap it with --gpu-mem-limit")
+        info["note"] = f"{info['note']}; {note}" if "note" in info else note
     info["producer"] = f"{model.producer_name} {model.producer_version}".strip()
     info["metadata"] = {p.key: p.value for p in model.metadata_props}
     if info["contract"] == "davio.da3":

@@ -13,6 +13,7 @@ import functools
 import io
 import logging
 import os
+import re
 import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -216,7 +217,7 @@ def create_session(
     try:
         sess = ort.InferenceSession(str(path), sess_options=so, providers=with_options)
     except Exception as exc:
-        raise ModelError(f"{path}: ONNX Runtime cannot load the model ({type(exc).__name__}: {exc})") from exc
+        raise ModelError(load_failure(path, exc, ort.__version__)) from exc
     used = list(sess.get_providers())
     if chosen[0] == CUDA and used[0] != CUDA:
         reason = (
@@ -229,3 +230,14 @@ def create_session(
     if used[0] == CUDA:
         info["cuda_options"] = dict(sess.get_provider_options().get(CUDA, {}))
     return sess, info
+
+
+def load_failure(path: Path, exc: Exception, ort_version: str) -> str:
+    """The message for a graph ONNX Runtime cannot load: its C++ text on one line, and for an opset or IR
+    version beyond this ONNX Runtime, what to do."""
+    text = " ".join(str(exc).split())
+    hint = ""
+    if re.search(r"till opset|max supported IR version|opset \d+ is under development", text, re.IGNORECASE):
+        hint = (f"; the graph needs a newer ONNX Runtime than the installed {ort_version}: upgrade "
+                "onnxruntime, or export it for an older opset (`davio export-da3 --opset 18`)")
+    return f"{path}: ONNX Runtime cannot load the model ({type(exc).__name__}: {text}){hint}"

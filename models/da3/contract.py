@@ -29,6 +29,11 @@ CONTRACT_VERSION = 1
 PRECISION_KEY = "davio.precision"
 PATCH = 14
 MIN_VIEWS, MAX_VIEWS = 2, 8
+WINDOW_VIEWS = 5
+"""Images per call of DAVIO's start-up and mapping windows (the paper's five; startup/mapping.window_images
+defaults): a graph exported for a fixed other view count cannot serve them."""
+FIXED_VIEWS_HINT = ("re-export it with a dynamic view count (`davio export-da3` does: one graph for 2..8 "
+                    "views)")
 
 F32, BOOL = "tensor(float)", "tensor(bool)"
 # symbolic letters: N views, H/W the graph resolution; ints are fixed.
@@ -71,6 +76,7 @@ def match_signature(
     if extra:
         raise ModelError(f"{where}: unexpected {kind} {extra} (the contract has exactly {want})")
     bind: dict[str, object] = {}
+    bound_by: dict[str, str] = {}      # the tensor that bound each letter first
     for name, typ, shape in expected:
         atyp, ashape = by_name[name]
         if atyp != typ:
@@ -91,10 +97,14 @@ def match_signature(
                 continue
             value = a_int if a_int is not None else "?"
             if e in bind and bind[e] != value:
+                def said(v: object) -> str:
+                    return "dynamic" if v == "?" else str(v)
                 raise ModelError(
-                    f"{where}: {kind[:-1]} '{name}' dim {i} ({e}) is {a} but another tensor has {bind[e]}"
+                    f"{where}: {kind[:-1]} '{name}' dim {i} ({e}) is {said(value)} but {kind[:-1]} "
+                    f"'{bound_by[e]}' has {said(bind[e])}: the contract's {e} must agree in every tensor"
                 )
             bind[e] = value
+            bound_by.setdefault(e, name)
     return bind
 
 

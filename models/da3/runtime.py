@@ -21,6 +21,7 @@ import numpy as np
 
 from calib import CameraModel
 from models.da3.contract import (
+    FIXED_VIEWS_HINT,
     MAX_VIEWS,
     MIN_VIEWS,
     PRECISION_KEY,
@@ -165,7 +166,8 @@ class OnnxDA3:
         if not MIN_VIEWS <= n <= MAX_VIEWS:
             raise DataError(f"DA3 takes {MIN_VIEWS}..{MAX_VIEWS} frames per call, got {n}")
         if self.graph_views is not None and n != self.graph_views:
-            raise DataError(f"{self.path.name} was exported for exactly {self.graph_views} views, got {n}")
+            raise DataError(f"{self.path.name} was exported for exactly {self.graph_views} views, got {n}: "
+                            f"{FIXED_VIEWS_HINT}")
         return n
 
     def _run(self, images: np.ndarray, K: np.ndarray, E: np.ndarray, use_pose: bool) -> list[np.ndarray]:

@@ -124,6 +124,43 @@ def test_inspect_model_errors(tmp_path, graph):
         inspect_model(graph)
 
 
+def test_a_graph_for_a_fixed_other_view_count_is_noted_where_it_is_inspected(tmp_path, capsys, monkeypatch):
+    """`davio info --model` said nothing of a graph exported for 4 views, which `davio run` then refused with
+    "got 5" and no way out; the table also read the shapes' brackets as markup."""
+    from models.da3 import OnnxDA3
+    from runtime.errors import DataError
+    from tests.models.test_da3_runtime import CAM
+    from tools.cli import main
+
+    path = build_da3_contract_graph(tmp_path / "[v2]n4.onnx", 28, 42, variant="fixed_n")
+    note = inspect_model(path)["note"]
+    assert note.startswith("exported for exactly 4 views: DAVIO calls DA3 on 5-image windows")
+    assert "re-export it with a dynamic view count" in note
+    assert "note" not in inspect_model(build_da3_contract_graph(tmp_path / "dyn.onnx", 28, 42))
+    with pytest.raises(DataError, match="exported for exactly 4 views, got 5: re-export it with a dynamic"):
+        OnnxDA3(path, CAM, threads=1).warm_up(5)
+    monkeypatch.setenv("COLUMNS", "1000")                  # one line per row: the table does not wrap
+    assert main(["info", "--model", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "[v2]n4.onnx" in out and '"shape": [1, 4, 3, 28, 42]' in out
+
+
+def test_a_graph_for_a_newer_onnx_runtime_is_said_on_one_line_with_what_to_do():
+    newer = RuntimeError("[ONNXRuntimeError] : 1 : FAIL : Load model from x.onnx failed:/src/model_load_utils"
+                         ".h:46 void f(...) ONNX Runtime only *guarantees* support for models stamped with "
+                         "official released onnx opset versions. Opset 99 is under development\nCurrent "
+                         "official support for domain ai.onnx is till opset 28.\n")
+    text = providers.load_failure(Path("x.onnx"), newer, "1.32.0")
+    assert "\n" not in text
+    assert text.endswith("till opset 28.); the graph needs a newer ONNX Runtime than the installed 1.32.0: "
+                         "upgrade onnxruntime, or export it for an older opset "
+                         "(`davio export-da3 --opset 18`)")
+    other = providers.load_failure(Path("x.onnx"), RuntimeError("Could not find an implementation for Foo"),
+                                   "1.32.0")
+    assert other == "x.onnx: ONNX Runtime cannot load the model (RuntimeError: Could not find an " \
+                    "implementation for Foo)"
+
+
 @pytest.mark.filterwarnings("ignore:Specified provider 'CUDAExecutionProvider'")
 def test_cuda_session_preloads_pip_cuda_libraries_first(monkeypatch, graph, caplog):
     # onnxruntime-gpu finds pip's nvidia-* libraries only after preload_dlls: called for a CUDA session
@@ -233,3 +270,20 @@ def test_a_failing_run_is_said_once_through_the_exception(tmp_path, capfd):
     with pytest.raises(Exception, match="cannot be reshaped"):
         sess.run(None, feeds, providers.quiet_run_options())
     assert capfd.readouterr().err == ""
+
+
+def test_a_view_count_that_disagrees_between_tensors_names_both():
+    """A graph whose session reported depth with 4 views and conf dynamic was told "output 'conf' dim 1 (N)
+    is None but another tensor has 4": the tensor that disagreed was not the one named, and None is no
+    size."""
+    from models.da3.contract import INPUTS, OUTPUTS, check_da3_signature
+
+    def concrete(sig, n):
+        dims = {"N": n, "H": 28, "W": 42}
+        return [(name, typ, [dims.get(d, d) for d in shape]) for name, typ, shape in sig]
+
+    outputs = concrete(OUTPUTS, None)
+    outputs[0] = (outputs[0][0], outputs[0][1], [1, 4, 28, 42])         # depth baked for 4 views
+    with pytest.raises(ModelError, match=r"output 'conf' dim 1 \(N\) is dynamic but output 'depth' has 4: "
+                                         r"the contract's N must agree in every tensor"):
+        check_da3_signature(concrete(INPUTS, None), outputs, "g.onnx")

@@ -113,9 +113,12 @@ def run(args: argparse.Namespace) -> int:
     con.print(t)
     if "model" in info:
         m = info["model"]
-        mt = Table(title=f"model {args.model}", show_header=False)
+        from rich.markup import escape
+
+        # shapes print as JSON lists ("[null, 5, 3, 322, 504]") and paths may hold brackets: not markup
+        mt = Table(title=escape(f"model {args.model}"), show_header=False)
         for k, v in m.items():
-            mt.add_row(str(k), strict_dumps(v) if not isinstance(v, str) else v)
+            mt.add_row(escape(str(k)), escape(strict_dumps(v) if not isinstance(v, str) else v))
         con.print(mt)
     if "devices" in info:
         con.print(_devices_table(info["devices"]))
