@@ -342,13 +342,13 @@ def write_run(out_dir: Path, pipeline: Any, sched_report: Any, gt: PoseTrajector
     final_T = np.asarray(pipeline.final_poses()).reshape(-1, 4, 4) if bounds else np.zeros((0, 4, 4))
     segments = [{"poses": b - a, "start_t_ns": int(rows["t_ns"][a]),
                  "source": pipeline.history.source(rows["source"][a])} for a, b in bounds]
+    in_map = [(int(rows["segment"][a]), *map_frame_trajectories(rows[a:b], final_T[a:b])) for a, b in bounds]
     if len(bounds) > 1:  # restarts after a divergence: every segment has its own odometry and map frame
         for k, (a, b) in enumerate(bounds):
             seg_est = rows_trajectory(rows[a:b])
             write_tum(out_dir / f"odometry_segment{k}.tum", seg_est)
-            seg_causal, seg_final = map_frame_trajectories(rows[a:b], final_T[a:b])
-            write_tum(out_dir / f"causal_segment{k}.tum", seg_causal)
-            write_tum(out_dir / f"final_segment{k}.tum", seg_final)
+            write_tum(out_dir / f"causal_segment{k}.tum", in_map[k][1])
+            write_tum(out_dir / f"final_segment{k}.tum", in_map[k][2])
             segments[k]["metrics"] = evaluate(seg_est, gt)
     start = bounds[-1][0] if bounds else 0
     est = rows_trajectory(rows[start:])
@@ -358,8 +358,7 @@ def write_run(out_dir: Path, pipeline: Any, sched_report: Any, gt: PoseTrajector
     write_tum(out_dir / "final.tum", final)
     from tools.run_prior_frame import write_prior_frame
 
-    prior = write_prior_frame(out_dir, pipeline, rows[bounds[-1][0]:] if bounds else rows[:0], causal, final,
-                              sched_report.first_t_ns)
+    prior = write_prior_frame(out_dir, pipeline, in_map, sched_report.first_t_ns)
     _write_pose_table(out_dir / "poses.csv", pipeline)
     atomic_write_text(out_dir / "config.toml", dump_toml(config))
     st = pipeline.startup.report if pipeline.startup is not None else None

@@ -5,8 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from runtime.files import atomic_write_text
 from runtime.geometry import PoseTrajectory, make_pose
 from runtime.json_out import strict_dumps
@@ -26,24 +24,33 @@ def _own_id(archive: Path) -> str | None:
         return None
 
 
-def write_prior_frame(out_dir: Path, pipeline: Any, rows: np.ndarray, causal: PoseTrajectory,
-                      final: PoseTrajectory, first_t_ns: int | None) -> dict | None:
-    """With a prior map: the last segment's trajectories in its frame (causal.prior.tum: the poses
-    published once localised, as published; final.prior.tum: every final pose with the newest
-    transform) and alignment.json; returns report.json's "prior_map" (None without a prior map)."""
+SegmentPoses = tuple[int, PoseTrajectory, PoseTrajectory]
+"""A filter segment's number and its causal and final map-frame trajectories."""
+
+
+def write_prior_frame(out_dir: Path, pipeline: Any, segments: list[SegmentPoses],
+                      first_t_ns: int | None) -> dict | None:
+    """With a prior map: one filter segment's trajectories in its frame (causal.prior.tum: the poses
+    published once localised, as published; final.prior.tum: every final pose with the newest transform)
+    and alignment.json; returns report.json's "prior_map" (None without a prior map). `segments`: each
+    filter segment's (number, causal, final) map-frame trajectories, in order. The segment is the last
+    one, or when it was not localised (a reset after the localisation) the latest one that was."""
     from tools.evaluation import write_tum
 
     pf = getattr(pipeline, "prior", None)
     if pf is None:
         return None
-    seg = int(rows["segment"][-1]) if len(rows) else 0
+    localised = [s for s in segments if pf.localizer.T_PN(s[0]) is not None]
+    seg, causal, final = (localised or segments or [(0, None, None)])[-1]
     al = pf.localizer.alignment(seg)
     out = {"source": pf.source, "segment": seg,
            **{k: v for k, v in al.as_dict().items() if k != "hypotheses"},
            "localized_after_s": None, "poses_in_prior_frame": 0, "files": [],
            "switches": pf.localizer.switches.get(seg, 0)}
-    if not len(rows):
+    if causal is None:
         return out
+    if segments[-1][0] != seg:
+        out["last_segment"] = segments[-1][0]      # not localised: the files hold an earlier segment
     mask, T_PI = pf.causal(seg, causal.t_ns, make_pose(causal.R, causal.p))
     if mask.any():
         write_tum(out_dir / "causal.prior.tum",

@@ -70,7 +70,10 @@ def prior_line(pm: dict) -> str:
                 f"verified pairs agree); {pm['poses_in_prior_frame']} poses published in its frame -> "
                 "causal.prior.tum, final.prior.tum"
                 + (f"; a wrong lock was replaced {pm['switches']}x (a look-alike place outvoted; "
-                   "causal.prior.tum holds the poses published before)" if pm.get("switches") else ""))
+                   "causal.prior.tum holds the poses published before)" if pm.get("switches") else "")
+                + (f"; these files and alignment.json hold filter segment {pm['segment']}, the last one "
+                   f"localised: segment {pm['last_segment']}, after a reset, was not"
+                   if pm.get("last_segment") is not None else ""))
     return (f"prior map: NOT localised ({pm['reason']}; {pm['attempts']} candidate pairs tried, "
             f"{pm['verified']} verified)")
 

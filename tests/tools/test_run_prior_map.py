@@ -107,3 +107,59 @@ def test_the_console_line_says_when_a_wrong_lock_was_replaced():
     assert "wrong lock" not in _prior_line(pm)
     line = _prior_line({**pm, "switches": 1})
     assert "localised 3.5 s into the run" in line and "a wrong lock was replaced 1x" in line
+
+
+def test_a_run_localised_before_a_reset_writes_that_segment_in_the_prior_frame(tmp_path):
+    """A run localised in segment 0 whose filter was then reset (segment 1 never localised) wrote no
+    causal.prior.tum, final.prior.tum or alignment.json: only the last segment was looked at."""
+    from types import SimpleNamespace
+
+    from scipy.spatial.transform import Rotation
+
+    from runtime.geometry import PoseTrajectory, make_pose
+    from runtime.graph.prior_frame import PriorFrame
+    from runtime.graph.relocalize import Alignment
+    from tools.run_prior_frame import write_prior_frame
+    from tools.run_summary import prior_line
+
+    T_PN = make_pose(Rotation.from_euler("z", 30, degrees=True).as_matrix(), np.array([1.0, 2.0, 0.0]))
+
+    class Localised0:                               # the localizer's answers: segment 0 only
+        switches: dict = {}
+        prior_segment, prior_id = 0, None
+
+        def segment_versions(self):
+            return {0: 1}
+
+        def state(self, seg):
+            return 1, T_PN, 0
+
+        def T_PN(self, seg):
+            return T_PN if seg == 0 else None
+
+        def alignment(self, seg):
+            return Alignment(True, "localized", T_PN) if seg == 0 else Alignment(False, "too few views")
+
+    pf = PriorFrame(Localised0(), "runA/map")
+    pf.update(3_000_000_000)                        # localised 3 s into segment 0
+
+    def poses(t_s: np.ndarray) -> PoseTrajectory:
+        return PoseTrajectory((t_s * 1e9).astype(np.int64), np.c_[t_s, 0 * t_s, 0 * t_s],
+                              np.repeat(np.eye(3)[None], len(t_s), axis=0))
+
+    seg0, seg1 = poses(np.arange(1.0, 6.0)), poses(np.arange(7.0, 9.0))
+    out = write_prior_frame(tmp_path, SimpleNamespace(prior=pf), [(0, seg0, seg0), (1, seg1, seg1)], 0)
+    assert out["segment"] == 0 and out["last_segment"] == 1 and out["localized"]
+    assert sorted(out["files"]) == ["alignment.json", "causal.prior.tum", "final.prior.tum"]
+    assert json.loads((tmp_path / "alignment.json").read_text())["new_segment"] == 0
+    final = read_tum(tmp_path / "final.prior.tum")
+    np.testing.assert_allclose(final.p, seg0.p @ T_PN[:3, :3].T + T_PN[:3, 3], atol=1e-9)
+    causal = read_tum(tmp_path / "causal.prior.tum")
+    assert list(causal.t_ns) == [3_000_000_000, 4_000_000_000, 5_000_000_000]
+    assert out["poses_in_prior_frame"] == 3 and out["localized_after_s"] == 3.0
+    said = "hold filter segment 0, the last one localised: segment 1, after a reset, was not"
+    assert said in prior_line(out)
+    # localised in the last segment: its files, as before, and no word of another segment
+    (tmp_path / "b").mkdir()
+    last = write_prior_frame(tmp_path / "b", SimpleNamespace(prior=pf), [(0, seg0, seg0)], 0)
+    assert last["segment"] == 0 and "last_segment" not in last
