@@ -179,6 +179,34 @@ def test_surface_counts_the_points_it_leaves_out(tmp_path: Path, capsys) -> None
     assert res["nonfinite_points"] == {"rec": 1, "ref": 1} and res["n_rec"] == 2000
 
 
+def test_surface_refuses_a_trajectory_of_another_segment_than_map_ply(tmp_path: Path, capsys) -> None:
+    """After a reset map.ply holds the segment with the most placeable submaps, final.tum the last one: the
+    README's `--align-with final.tum` moved map.ply by an unrelated frame's alignment and scored it."""
+    run = tmp_path / "run"
+    run.mkdir()
+    cloud = np.random.default_rng(0).uniform(0, 4, (300, 3))
+    from tools.map_archive.export import write_ply
+
+    write_ply(run / "map.ply", cloud, np.full(len(cloud), 128, np.uint8))
+    traj = random_traj(40)
+    for name in ("final.tum", "final_segment0.tum", "final_segment1.tum"):
+        write_tum(run / name, traj)
+    write_tum(tmp_path / "gt.tum", traj)
+    (run / "report.json").write_text(json.dumps({"map": {"ply": "map.ply", "ply_segment": 0},
+                                                 "segments": [{"poses": 40}, {"poses": 5}]}))
+    argv = ["eval", "surface", str(run / "map.ply"), str(run / "map.ply"), "--json", "--align-with"]
+    for est in ("final.tum", "final_segment1.tum"):
+        assert main(argv + [str(run / est), str(tmp_path / "gt.tum")]) == 1
+        err = capsys.readouterr().err
+        assert "holds filter segment 0 of the run" in err
+        assert f"align with {run / 'final_segment0.tum'}" in err
+    assert main(argv + [str(run / "final_segment0.tum"), str(tmp_path / "gt.tum")]) == 0
+    assert _strict(capsys.readouterr().out)["fscore"] == 1.0
+    (run / "report.json").write_text(json.dumps({"map": {"ply": "map.ply", "ply_segment": 0},
+                                                 "segments": [{"poses": 40}]}))     # no reset: as before
+    assert main(argv + [str(run / "final.tum"), str(tmp_path / "gt.tum")]) == 0
+
+
 def test_simulate_into_a_folder_that_cannot_be_made_fails_before_rendering(capsys) -> None:
     assert main(["simulate", "--seconds", "1", "--out", "/proc/davio-sim"]) == 1
     err = capsys.readouterr().err

@@ -117,6 +117,29 @@ def _read_pair(est: str, ref: str) -> tuple:
     return trajs
 
 
+def check_map_segment(rec: Path, est: Path) -> None:
+    """ConfigError when REC is a run's map.ply and EST a trajectory of that run from another filter segment:
+    after a reset map.ply holds the segment with the most placeable submaps, each segment in its own map
+    frame, while final.tum and causal.tum hold the last segment."""
+    import json
+    import re
+
+    folder = rec.parent
+    m = re.fullmatch(r"(final|causal)(?:_segment(\d+))?\.tum", est.name)
+    if rec.name != "map.ply" or m is None or est.parent.resolve() != folder.resolve():
+        return
+    try:
+        report = json.loads((folder / "report.json").read_text())
+        ply_segment, n = report["map"]["ply_segment"], len(report["segments"])
+    except (OSError, ValueError, KeyError, TypeError):      # not a run folder, or an older report
+        return
+    segment = int(m.group(2)) if m.group(2) is not None else n - 1
+    if n > 1 and isinstance(ply_segment, int) and segment != ply_segment:
+        raise ConfigError(f"{rec} holds filter segment {ply_segment} of the run, {est.name} segment "
+                          f"{segment}: the filter was reset {n - 1}x and each segment's map has its own "
+                          f"frame; align with {folder / f'final_segment{ply_segment}.tum'}")
+
+
 def _repeats(est, ref) -> dict:
     """The report's count of repeated stamps in each input file."""
     return {"repeated_stamps": {"est": int(est.meta.get("repeated_stamps") or 0),
@@ -255,6 +278,8 @@ def _run_surface(args: argparse.Namespace) -> int:
 
     from tools.evaluation import read_point_cloud, surface_metrics
 
+    if args.align_with:
+        check_map_segment(Path(args.rec), Path(args.align_with[0]))
     rec = read_point_cloud(args.rec)
     alignment = None
     if args.align_with:
