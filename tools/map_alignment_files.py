@@ -4,6 +4,7 @@ with `--prior-map` writes one live (tools/run_prior_frame.py)."""
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -46,28 +47,57 @@ def read_alignment(run_folder: Path, merge: bool, archive: Path | None = None) -
     if any(not (v is None or (isinstance(v, int) and not isinstance(v, bool))) for v in segments):
         raise ConfigError(f"{path}: new_segment and prior_segment must be integers, got "
                           f"{segments[0]!r}, {segments[1]!r}")
+    prior = _find_prior(path, al, prior)
     _check_aligned_maps(path, al, archive if archive is not None else run_folder / "map", prior)
     if merge and not (prior / "manifest.json").is_file():
         raise ConfigError(f"{path} names the prior map {prior}, which is gone (no manifest.json there)")
     return T, prior, *segments
 
 
+def relative_prior(prior: str | Path, alignment_folder: Path) -> str | None:
+    """alignment.json's "prior_relative": the prior archive's path from the alignment's folder, so that a
+    pair of runs moved or copied together (another disk, another machine) still finds it; None when no
+    relative path exists (another drive)."""
+    try:
+        return os.path.relpath(Path(prior).resolve(), Path(alignment_folder).resolve())
+    except ValueError:
+        return None
+
+
+def _find_prior(path: Path, al: dict, prior: Path) -> Path:
+    """The prior archive: at the path recorded, or where the recorded relative path leads when the runs
+    were moved together (a note says so); the one whose archive id is the recorded one when both exist."""
+    rel = al.get("prior_relative")
+    moved = (path.parent / rel) if isinstance(rel, str) and rel else None
+    if moved is None or not (moved / "manifest.json").is_file() or moved.resolve() == prior.resolve():
+        return prior
+    want = al.get("prior_id") if isinstance(al.get("prior_id"), str) else None
+    if (prior / "manifest.json").is_file() and want in (None, _archive_id(prior)):
+        return prior
+    if want is not None and _archive_id(moved) != want:
+        return prior           # not the aligned map either: the id check says so
+    print(f"davio map: note: the prior map is not at {prior} (the runs were moved?): using "
+          f"{moved.resolve()}, where {path.name} leads relative to its folder", file=sys.stderr)
+    return moved.resolve()
+
+
+def _archive_id(folder: Path) -> str | None:
+    from tools.map_archive.align import archive_id
+
+    try:
+        return archive_id(folder) if (folder / "manifest.json").is_file() else None
+    except DataError:          # a damaged archive: the export itself says what is wrong with it
+        return None
+
+
 def _check_aligned_maps(path: Path, al: dict, own: Path, prior: Path) -> None:
     """ConfigError when the maps are not the ones aligned: the prior was replaced at its path since, or the
     alignment was written for another run's map (`davio map align X --out THIS_RUN`). An alignment of an
     older davio records no ids: taken as it is."""
-    from tools.map_archive.align import archive_id
-
-    def id_of(folder: Path) -> str | None:
-        try:
-            return archive_id(folder) if (folder / "manifest.json").is_file() else None
-        except DataError:          # a damaged archive: the export itself says what is wrong with it
-            return None
-
-    if isinstance(al.get("new_id"), str) and id_of(own) not in (None, al["new_id"]):
+    if isinstance(al.get("new_id"), str) and _archive_id(own) not in (None, al["new_id"]):
         raise ConfigError(f"{path} aligns another map ({al.get('new')}), not this run's: align this run "
                           f"(`davio map align {own.parent} --to PRIOR`)")
-    if isinstance(al.get("prior_id"), str) and id_of(prior) not in (None, al["prior_id"]):
+    if isinstance(al.get("prior_id"), str) and _archive_id(prior) not in (None, al["prior_id"]):
         raise ConfigError(f"{prior} is not the map this run was aligned to (it was replaced since: its "
                           f"archive id differs): align the run again")
 
@@ -102,6 +132,7 @@ def align(args: argparse.Namespace, archive: Path, run_folder: Path) -> int:
                   file=sys.stderr, flush=True)
 
     res, summary, notes = align_archives(archive, prior_archive, cfg, progress)
+    summary["prior_relative"] = relative_prior(prior_archive, out.parent)
     _print_notes(notes)
     trajectory = None
     if res.localized and final is not None:

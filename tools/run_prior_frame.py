@@ -36,6 +36,7 @@ def write_prior_frame(out_dir: Path, pipeline: Any, segments: list[SegmentPoses]
     filter segment's (number, causal, final) map-frame trajectories, in order. The segment is the last
     one, or when it was not localised (a reset after the localisation) the latest one that was."""
     from tools.evaluation import write_tum
+    from tools.map_alignment_files import relative_prior
 
     pf = getattr(pipeline, "prior", None)
     if pf is None:
@@ -65,7 +66,8 @@ def write_prior_frame(out_dir: Path, pipeline: Any, segments: list[SegmentPoses]
         write_tum(out_dir / "final.prior.tum", PoseTrajectory(final.t_ns, F[:, :3, 3], F[:, :3, :3]))
         out["files"].append("final.prior.tum")
         atomic_write_text(out_dir / "alignment.json", strict_dumps(
-            {"format": "davio-alignment", "prior": pf.source, "new": LIVE_ALIGNMENT, "new_segment": seg,
+            {"format": "davio-alignment", "prior": pf.source,
+             "prior_relative": relative_prior(pf.source, out_dir), "new": LIVE_ALIGNMENT, "new_segment": seg,
              "prior_id": getattr(pf.localizer, "prior_id", None), "new_id": _own_id(out_dir / "map"),
              "prior_segment": pf.localizer.prior_segment,
              "frames": "T_PN maps points of this run's map frame into the prior one: x_P = T_PN x_N",

@@ -167,6 +167,35 @@ def test_export_in_the_prior_frame_and_merged_with_the_prior_map(tmp_path, capsy
     assert len(read_ply_vertices(new / "map.merged.ply")) == len(merged)
 
 
+def test_a_pair_of_runs_moved_together_still_merges(tmp_path, capsys):
+    """alignment.json kept only the prior's absolute path: after both runs were copied to another disk or
+    machine, --merge-prior said the prior map was gone."""
+    import shutil
+
+    from tools.evaluation.ply import read_ply_vertices
+
+    prior_views, new_views = _sessions(T_PW, T_NW)
+    _write_session(tmp_path / "a" / "prior", prior_views)
+    _write_session(tmp_path / "a" / "new", new_views)
+    assert main(["map", "align", str(tmp_path / "a" / "new"), "--to", str(tmp_path / "a" / "prior")]) == 0
+    assert json.loads((tmp_path / "a/new/alignment.json").read_text())["prior_relative"] == "../prior/map"
+    assert main(["map", "export", str(tmp_path / "a" / "new"), "--merge-prior", "--voxel", "0.25"]) == 0
+    merged = len(read_ply_vertices(tmp_path / "a/new/map.merged.ply"))
+    capsys.readouterr()
+    shutil.move(tmp_path / "a", tmp_path / "b")                       # both runs moved together
+    new = tmp_path / "b" / "new"
+    (new / "map.merged.ply").unlink()
+    assert main(["map", "export", str(new), "--merge-prior", "--voxel", "0.25"]) == 0
+    assert f"the prior map is not at {tmp_path / 'a/prior/map'} (the runs were moved?): using " \
+           f"{tmp_path / 'b/prior/map'}" in capsys.readouterr().err
+    assert len(read_ply_vertices(new / "map.merged.ply")) == merged
+    # another map where the relative path leads: not taken (its id is not the aligned prior's)
+    shutil.rmtree(tmp_path / "b" / "prior")
+    _write_session(tmp_path / "b" / "prior", _sessions(T_PW, T_NW, new_room_seed=7)[0])
+    assert main(["map", "export", str(new), "--merge-prior", "--voxel", "0.25", "--overwrite"]) == 1
+    assert "which is gone" in capsys.readouterr().err
+
+
 def test_map_info_counts_the_stored_views(tmp_path, capsys):
     prior_views, _ = _sessions(T_PW, T_NW)
     _write_session(tmp_path / "with", prior_views)

@@ -64,6 +64,7 @@ def test_a_live_run_is_localised_in_an_earlier_map_and_publishes_in_its_frame(tw
     pm = report["prior_map"]
     assert pm["localized"] and pm["agreeing_new_views"] >= 3
     assert sorted(pm["files"]) == ["alignment.json", "causal.prior.tum", "final.prior.tum"]
+    assert json.loads((root / "runB/alignment.json").read_text())["prior_relative"] == "../runA/map"
     causal_prior = read_tum(root / "runB/causal.prior.tum")
     causal = read_tum(root / "runB/causal.tum")
     assert len(causal_prior) == pm["poses_in_prior_frame"] > 0
