@@ -303,7 +303,7 @@ class Session:
         """Over the first UNIT_CHECK_SAMPLES samples: stamps in ns (not s, ms or us) and an accelerometer in
         m/s^2 (not g), as the file drivers check them; DataError with the fix otherwise (the filter would
         take the samples as out of order, or publish a wrong scale, without a word)."""
-        from runtime.units import accel_looks_like_g, check_stamp_units
+        from runtime.units import accel_looks_like_g, check_stamp_units, repeated_stamps_cause
 
         head = self._imu_head
         head.append((t, accel))
@@ -313,8 +313,8 @@ class Session:
         stamps = np.array([x[0] for x in head], np.int64)
         distinct = len(np.unique(stamps))
         if distinct < len(stamps) // 2:
-            raise DataError(f"add_imu: {distinct} distinct stamps in the first {len(stamps)} samples: stamps "
-                            "must be integer nanoseconds (whole seconds or milliseconds?)")
+            raise DataError(f"add_imu: {distinct} distinct stamps in the first {len(stamps)} samples: "
+                            + repeated_stamps_cause(stamps))
         check_stamp_units(stamps, "IMU", "Session.add_imu")
         accel = np.array([x[1] for x in head])
         g = accel_looks_like_g(accel[np.isfinite(accel).all(axis=1)])   # a NaN sample would make it NaN

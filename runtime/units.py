@@ -42,6 +42,24 @@ def check_stamp_units(t_ns: np.ndarray, kind: str, path: str | Path) -> None:
                     f"(expected {lo:g}-{hi:g} Hz); stamps must be integer nanoseconds", path)
 
 
+def repeated_stamps_cause(t_ns: np.ndarray) -> str:
+    """Why IMU stamps (ns, in order received) repeat: samples a driver stamps once per batch (runs of one
+    stamp, the runs at a plausible rate in ns), or stamps in coarser units; what to do."""
+    t = np.asarray(t_ns, np.int64)
+    starts = np.flatnonzero(np.r_[True, np.diff(t) != 0])
+    runs = np.diff(np.r_[starts, len(t)])
+    steps = np.diff(t[starts])
+    lo, hi = RATE_RANGE_HZ["IMU"]
+    if len(steps) >= 2 and np.all(steps > 0):
+        batch_hz = 1e9 / float(np.median(steps))
+        if 0.5 <= batch_hz <= hi and float(np.median(runs)) > 1:
+            return (f"the samples come in batches of about {np.median(runs):g} sharing one stamp, "
+                    f"{batch_hz:.3g} batches per second: stamp each sample (spread a batch over its period, "
+                    "the last sample at the batch's stamp); stamps must be integer nanoseconds, one per "
+                    "sample")
+    return "stamps must be integer nanoseconds, one per sample (whole seconds or milliseconds?)"
+
+
 def accel_looks_like_g(accel: np.ndarray) -> float | None:
     """The median accelerometer norm when it says the values are in g (0.5-2), else None.
 

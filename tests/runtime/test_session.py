@@ -220,6 +220,18 @@ def test_imu_stamps_in_other_units_are_named(recording, scale: float, said: str)
     assert len(pushed) == 49                       # judged at the 50th sample, before it is pushed
 
 
+def test_imu_samples_stamped_once_per_batch_are_named(recording) -> None:
+    """A driver that stamps a FIFO batch once (10 samples, one stamp, 20 batches a second) was told its stamps
+    might be whole seconds or milliseconds."""
+    rec, _ = recording
+    s = Session(rec.rig)
+    s._push = lambda ev: None
+    with pytest.raises(DataError, match="the samples come in batches of about 10 sharing one stamp, 20 "
+                                        "batches per second: stamp each sample"):
+        for k in range(60):
+            s.add_imu(10**18 + (k // 10) * 50_000_000, [0, 0, 0], [0, 0, 9.81])
+
+
 def test_an_accelerometer_in_g_and_camera_stamps_in_us_are_named(recording) -> None:
     rec, _ = recording
     s = Session(rec.rig)
