@@ -278,11 +278,11 @@ class Session:
         if self._error is not None:
             self._error_raised = True
             raise DavioError(f"the session stopped: {self._error}") from self._error
-        with self._start_lock:
+        self.start()
+        with self._start_lock:     # close() puts its marker under this lock: no event lands behind it
             if self._closed or self._closing:
                 raise DavioError("the session is closed: start a new Session for more data")
-        self.start()
-        self._inbox.put(ev)
+            self._inbox.put(ev)
 
     def add_imu(self, t_ns: int, gyro: Any, accel: Any, lost_before: int = 0) -> None:
         """One IMU sample: int64 ns stamp (the camera's clock domain, see rig.time_offset_s), gyro in
@@ -352,8 +352,9 @@ class Session:
             if self._closed:
                 return self.result
             self._closing = True
+            if self._thread is not None:
+                self._inbox.put(_CLOSE)
         if self._thread is not None:
-            self._inbox.put(_CLOSE)
             self._thread.join(timeout_s)
             if self._thread.is_alive():
                 raise DavioError(f"the session did not stop within {timeout_s:g} s")

@@ -2,6 +2,8 @@
 behind drops the oldest images (counted), never an IMU sample; bad pushes are clear errors."""
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 
@@ -359,6 +361,31 @@ def test_samples_a_driver_lost_are_passed_on_and_counted(recording) -> None:
                 live.add_imu(ev.t_ns, ev.gyro, ev.accel, lost_before=3 if k == imu[400] else 0)
     assert live.pipeline.report()["filter"]["imu_lost"] == 3
     assert [e.detail["lost"] for e in said if e.kind == "imu_gap"] == [3]
+
+
+def test_a_push_racing_close_is_refused_not_queued_behind_the_close(recording) -> None:
+    """A push whose closed-check passed just before another thread's close() put its marker was queued
+    behind it: never processed, and no error said so."""
+    import threading
+
+    rec, _ = recording
+    s = Session(rec.rig)
+    s.add_imu(10**18, [0, 0, 0], [0, 0, 9.81])
+    start, closer = s.start, threading.Thread(target=s.close)
+
+    def start_then_close():          # the push passed its checks; close() runs in between
+        out = start()
+        closer.start()
+        while not s._closing:
+            time.sleep(0.001)
+        time.sleep(0.05)
+        return out
+
+    s.start = start_then_close
+    with pytest.raises(DavioError, match="the session is closed"):
+        s.add_imu(10**18 + 5_000_000, [0, 0, 0], [0, 0, 9.81])
+    closer.join(10)
+    assert s.result.scheduler.events == 1
 
 
 def test_a_push_while_close_runs_fails_instead_of_starting_a_second_scheduler(recording) -> None:
