@@ -24,9 +24,11 @@ def video_from_recording(rec: Path, out: Path) -> Path:
     return out
 
 
-def imu_writer(rec: Path, fd: int, go: threading.Event, stop: threading.Event) -> threading.Thread:
+def imu_writer(rec: Path, fd: int, go: threading.Event, stop: threading.Event,
+               silent_s: tuple[float, float] | None = None) -> threading.Thread:
     """Writes the recording's IMU rows as `$IMU` lines at sensor rate, from the moment `go` is set (the
-    camera's first frame), so that camera and IMU share one clock as on a real module."""
+    camera's first frame), so that camera and IMU share one clock as on a real module. `silent_s` (a, b):
+    the rows between a and b seconds are not sent (a device that stalls, its counter running on)."""
     rows = [ln.split(",") for ln in (rec / "mav0" / "imu0" / "data.csv").read_text().splitlines()
             if ln and not ln.startswith("#")]
 
@@ -39,6 +41,8 @@ def imu_writer(rec: Path, fd: int, go: threading.Event, stop: threading.Event) -
                 time.sleep(0.001)
             if stop.is_set():
                 return
+            if silent_s is not None and silent_s[0] <= (int(r[0]) - t0_dev) * 1e-9 < silent_s[1]:
+                continue
             gyro, accel = [float(x) for x in r[1:4]], [float(x) for x in r[4:7]]
             try:
                 os.write(fd, encode_line(k, (int(r[0]) - t0_dev) // 1000, accel, gyro))
@@ -50,7 +54,8 @@ def imu_writer(rec: Path, fd: int, go: threading.Event, stop: threading.Event) -
     return th
 
 
-def run_live_uvc(rec: Path, video: Path, argv: list[str], monkeypatch: object) -> int:
+def run_live_uvc(rec: Path, video: Path, argv: list[str], monkeypatch: object,
+                 silent_s: tuple[float, float] | None = None) -> int:
     """Run the CLI with `argv` + ["--camera", video, "--imu-port", <pty>, "--imu-protocol", "text"]: the
     recording's IMU rows reach the pseudo-terminal at sensor rate from the moment the UVC camera starts (as
     a module streams both sensors when its camera starts). Returns the command's exit code; the pty and the
@@ -68,7 +73,7 @@ def run_live_uvc(rec: Path, video: Path, argv: list[str], monkeypatch: object) -
         return out
 
     monkeypatch.setattr(UvcCamera, "start", start_and_go)
-    writer = imu_writer(rec, master, go, stop)
+    writer = imu_writer(rec, master, go, stop, silent_s)
     try:
         return main(argv + ["--camera", str(video), "--imu-port", os.ttyname(slave),
                             "--imu-protocol", "text"])

@@ -61,6 +61,31 @@ def test_live_uvc_with_a_serial_imu_publishes_and_writes_a_complete_run(small_si
     assert [m["kind"] for m in got if m["type"] == "event"] == [e["kind"] for e in events]
 
 
+@pytest.mark.slow
+def test_a_serial_imu_that_pauses_resets_the_filter_and_the_run_goes_on(small_sim_folder: Path,
+                                                                       tmp_path: Path, capsys,
+                                                                       monkeypatch) -> None:
+    """The IMU silent for 1.5 s (its counter running on): with the old 1 s stall bound the run ended there
+    (exit 1, run_status failed); a pause under --imu-stall (5 s) is an IMU outage the filter is reset for."""
+    video = video_from_recording(small_sim_folder, tmp_path / "cam.avi")
+    code = run_live_uvc(small_sim_folder, video,
+                        ["live", "uvc", "--rig", str(small_sim_folder), "--native-only", "--seconds", "6",
+                         "--out", str(tmp_path / "run")], monkeypatch, silent_s=(3.0, 4.5))
+    err = capsys.readouterr().err
+    assert code == 0, err
+    out = tmp_path / "run"
+    assert run_status(out) == "complete"
+    report = json.loads((out / "report.json").read_text())
+    reasons = report["pipeline"]["filter"]["divergence_reasons"] or report["pipeline"]["startup"].get(
+        "divergence_reasons", [])
+    events = [json.loads(x) for x in (out / "events.jsonl").read_text().splitlines()]
+    gaps = [e for e in events if e["kind"] == "imu_gap"]
+    assert gaps and max(e["longest_s"] for e in gaps) == pytest.approx(1.5, abs=0.1)
+    assert report["driver"]["streams"]["imu0"]["emitted"] > 600
+    if report["first_published_by"] is not None and report["T_f_s"] < 2.9:    # published before the pause
+        assert any(e["kind"] == "reset" and "IMU outage of 1.5" in e["reason"] for e in events), reasons
+
+
 def test_live_without_devices_or_calibration_is_a_clear_error(tmp_path: Path, capsys) -> None:
     assert main(["live", "oak", "--out", str(tmp_path / "a")]) == 1     # no OAK on this machine
     assert "no OAK device found" in capsys.readouterr().err

@@ -45,10 +45,11 @@ def add_device_arguments(p: argparse.ArgumentParser) -> None:
                         "$IMU,seq,t_dev_us,ax,ay,az,gx,gy,gz*HH lines")
     p.add_argument("--baud", type=count(50, 16_000_000), default=460800,
                    help="serial baud rate (checked before the model loads)")
-    p.add_argument("--imu-stall", type=number_in(0.1, 60.0, unit=" s"), default=1.0, metavar="S",
+    p.add_argument("--imu-stall", type=number_in(0.1, 60.0, unit=" s"), default=5.0, metavar="S",
                    help="a serial IMU sending no valid sample for S seconds, after it streamed, is unplugged "
-                        "or stalled and ends the run (raise it for a device that pauses, e.g. to "
-                        "recalibrate)")
+                        "or stalled and ends the run; a shorter pause resets the filter (an IMU outage, "
+                        "longer than msckf.max_imu_outage_s) and the run goes on (raise S for a device that "
+                        "pauses longer, e.g. to recalibrate)")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
