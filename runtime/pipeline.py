@@ -124,7 +124,8 @@ class VioPipeline:
         self.bringup: HandEyeBringUp | None = None
         self._job_kind = ""
         self._last_t = 0
-        self._lost_carried = 0   # lost_before of IMU samples dropped as out of range, for the next one
+        self._lost_carried = 0   # lost_before of IMU samples dropped (out of range, behind), for the next one
+        self._imu_newest_ns: int | None = None
         self._gyro_rates = RateQuantiles()   # the run's |gyro|: a gyroscope in deg/s reads 57.3x
         #: without the feed-forward start-up (no model): the gyro's scale and the camera-IMU rotation checked
         #: from the tracks (with it, the start-up's DA3 windows check both)
@@ -210,9 +211,15 @@ class VioPipeline:
             self._lost_carried += int(getattr(sample, "lost_before", 0) or 0)   # a driver's gap flag stays
             return []
         self._gyro_rates.add(g[0], g[1], g[2])
-        if self._lost_carried:
-            sample = replace(sample, lost_before=int(sample.lost_before) + self._lost_carried)
-            self._lost_carried = 0
+        if self._imu_newest_ns is not None and sample.t_ns <= self._imu_newest_ns:
+            if sample.lost_before:     # stamped behind the newest: dropped by the filter, its gap flag stays
+                self._lost_carried += int(sample.lost_before)
+                sample = replace(sample, lost_before=0)
+        else:
+            self._imu_newest_ns = int(sample.t_ns)
+            if self._lost_carried:
+                sample = replace(sample, lost_before=int(sample.lost_before) + self._lost_carried)
+                self._lost_carried = 0
         self.events.imu_sample(sample)
         if self.startup is None:
             self.bringup.on_imu(sample)

@@ -134,7 +134,7 @@ class RunEvents:
         self._outage_s = float(max_imu_outage_s)
         self._last_imu_ns: int | None = None   # the last IMU sample that reached the filter
         self._back = False                      # "stamps_back" said, the stamps not past the newest yet
-        self._behind = StampsBehind()           # samples stamped behind the newest one
+        self._behind = StampsBehind(self._imu_gap_ns)   # samples stamped behind the newest one
         self._next_gap_ns: int | None = None
         self._model = [0, 0, ""]                # model job failures: said, seen, the first one's message
         self._next_model_ns: int | None = None

@@ -219,7 +219,9 @@ class StartupManager:
         self._frames: deque[Frame] = deque(maxlen=64)
         self._newest_cam_ns: int | None = None
         self._newest_ns = 0
-        self._behind = StampsBehind()   # samples stamped behind the newest one (a clock that went back)
+        gap_s = getattr(getattr(self.native, "config", None), "max_imu_gap_s", None)
+        #: samples stamped behind the newest one (a clock that went back)
+        self._behind = StampsBehind(int((0.05 if gap_s is None else gap_s) * 1e9))
         self._cid = 0
         self._tried = 0
         self._last_request_ns: int | None = None
@@ -241,7 +243,8 @@ class StartupManager:
         if self.report.first_measurement_t_ns is None:
             self.report.first_measurement_t_ns = int(sample.t_ns)
         t = int(sample.t_ns)
-        if self._newest_ns and t <= self._newest_ns:
+        behind = bool(self._newest_ns) and t <= self._newest_ns
+        if behind:
             self._behind.behind(t)
         else:
             # a clock that went back B s passes the newest stamp B s later: an outage if that is long
@@ -252,7 +255,8 @@ class StartupManager:
             self._newest_ns = t
         if self.publisher is not None:
             return self._publish(self.publisher.feed_imu(sample))
-        self.buffer.append("imu", sample.t_ns, sample)
+        if not behind:     # a window must not mix the samples of a clock that went back with the newer ones
+            self.buffer.append("imu", sample.t_ns, sample)
         out = self._publish_native(self.native.feed_imu(sample))
         return out + self._advance_candidates()
 

@@ -71,7 +71,8 @@ class MsckfEstimator:
         self._imu = ImuBuffer()
         self._pending: deque = deque()
         self._last_frame_ns: int | None = None
-        self._behind = StampsBehind()   # samples stamped behind the newest one (a clock that went back)
+        #: samples stamped behind the newest one (a clock that went back)
+        self._behind = StampsBehind(int(self.config.max_imu_gap_s * 1e9))
         self.db = FeatureDatabase()
         self.state_: State | None = None
         self._t_init_ns = 0

@@ -336,6 +336,14 @@ def test_a_clock_that_goes_back_past_the_outage_bound_resets_the_filter(recordin
     one = Session(rec.rig, config=DavioConfig()).replay(iter(stray))      # one stamp 0.8 s back: no outage
     assert one.pipeline.report()["filter"]["divergence_reasons"] == []
     assert one.pipeline.report()["filter"]["imu_out_of_order"] == 1
+    repeat = dataclasses.replace(events[k - 1]) if not isinstance(events[k - 1], Frame) else events[k - 2]
+    stray2 = stray[:k + 1] + [repeat] + stray[k + 1:]         # then a repeat of the newest: still none
+    two = Session(rec.rig, config=DavioConfig()).replay(iter(stray2))
+    assert two.pipeline.report()["filter"]["divergence_reasons"] == []
+    assert two.pipeline.report()["filter"]["imu_out_of_order"] == 2
+    flagged = stray[:k] + [dataclasses.replace(stray[k], lost_before=3)] + stray[k + 1:]
+    carried = Session(rec.rig, config=DavioConfig()).replay(iter(flagged))   # its gap flag goes to the next
+    assert carried.pipeline.report()["filter"]["imu_lost"] == 3
 
 
 def test_samples_a_driver_lost_are_passed_on_and_counted(recording) -> None:

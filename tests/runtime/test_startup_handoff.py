@@ -198,6 +198,10 @@ def test_feedforward_windows_across_a_clock_that_went_back_are_not_solved():
     after = [by_t[t] for t in (1_400_000_000, 1_600_000_000, 1_800_000_000, 2_000_000_000, 2_200_000_000)]
     assert m.imu_for(spanning) is None and m.report.ff_windows_imu_lost == 1
     assert m.imu_for(after) is not None
+    # a window before the jump, whose stamps the clock ran through again: its own samples only, in order
+    before = [by_t[t] for t in (400_000_000, 600_000_000, 800_000_000, 1_000_000_000, 1_200_000_000)]
+    t, _, _ = m.imu_for(before)
+    assert np.all(np.diff(t) > 0) and len(t) == len(np.unique(t))
 
 
 def test_feedforward_windows_across_an_imu_outage_are_not_solved():
