@@ -20,9 +20,10 @@ a run goes, as they happen, each once:
   driver that restarted its stamps): the data is dropped until its stamps pass the newest (said once each
   time); the time the stamps take to pass it (B s after a jump back of B s) is an IMU gap, and an outage
   when longer than `msckf.max_imu_outage_s` (runtime.imu.stamps_back);
-- "model_error": the depth model's start-up or mapping jobs failed (a graph that breaks the contract at
-  run time, non-finite outputs, a failing device): the start-up goes on with the native initializer and a
-  failed window is not mapped (paced as falling_behind, with the first failure's message).
+- "model_error": jobs of the model worker failed (the depth model's start-up and mapping calls: a graph
+  that breaks the contract at run time, non-finite outputs, a failing device; a start-up re-solve): a failed
+  start-up window is given up while the native initializer goes on, a failed mapping window is not mapped
+  (paced as falling_behind, with the first failure's message on one line).
 
 `RunEvents` watches a `runtime.pipeline.VioPipeline` from the pipeline's own thread (the pipeline calls it)
 and hands each event to `on_event` (`runtime.session.Session(on_event=...)`; `davio run|live` write them to
@@ -260,7 +261,9 @@ class RunEvents:
     def model_failures(self, t_ns: int, total: int, first: str) -> None:
         """`total` start-up or mapping model jobs have failed so far, the first with message `first`."""
         if total > self._model[1]:
-            self._model[1], self._model[2] = int(total), self._model[2] or str(first)
+            text = " ".join(str(first).split())             # one line, however the exception was worded
+            text = text if len(text) <= 300 else text[:297] + "..."
+            self._model[1], self._model[2] = int(total), self._model[2] or text
             self._say_model(t_ns)
 
     def _say_model(self, t_ns: int, final: bool = False) -> None:
@@ -271,8 +274,9 @@ class RunEvents:
         self._model[0] = total
         since = "" if said == 0 else " since the last such event"
         self._emit(t_ns, "model_error", (
-            f"depth model jobs failed: {total - said}{since}, {total} in all (first: {first}); the start-up "
-            "goes on with the native initializer and a failed window is not mapped"),
+            f"model worker jobs failed: {total - said}{since}, {total} in all (first: {first}); a failed "
+            "start-up window or re-solve is given up (the native initializer goes on), a failed mapping "
+            "window is not mapped"),
             failed=int(total - said), total=int(total), first=first)
 
     def _say_gaps(self, t_ns: int, final: bool = False) -> None:

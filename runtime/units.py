@@ -49,10 +49,12 @@ def repeated_stamps_cause(t_ns: np.ndarray) -> str:
     starts = np.flatnonzero(np.r_[True, np.diff(t) != 0])
     runs = np.diff(np.r_[starts, len(t)])
     steps = np.diff(t[starts])
-    lo, hi = RATE_RANGE_HZ["IMU"]
-    if len(steps) >= 2 and np.all(steps > 0):
-        batch_hz = 1e9 / float(np.median(steps))
-        if 0.5 <= batch_hz <= hi and float(np.median(runs)) > 1:
+    hi = RATE_RANGE_HZ["IMU"][1]
+    step = float(np.median(steps)) if len(steps) >= 2 and np.all(steps > 0) else 0.0
+    coarse = step in (1e9, 1e6)     # one step of exactly a second or a millisecond: truncated stamps
+    if step > 0 and not coarse:
+        batch_hz = 1e9 / step
+        if 5.0 <= batch_hz <= hi and float(np.median(runs)) > 1:
             return (f"the samples come in batches of about {np.median(runs):g} sharing one stamp, "
                     f"{batch_hz:.3g} batches per second: stamp each sample (spread a batch over its period, "
                     "the last sample at the batch's stamp); stamps must be integer nanoseconds, one per "

@@ -76,8 +76,10 @@ def _find_prior(path: Path, al: dict, prior: Path) -> Path:
         return prior
     if want is not None and _archive_id(moved) != want:
         return prior           # not the aligned map either: the id check says so
-    print(f"davio map: note: the prior map is not at {prior} (the runs were moved?): using "
-          f"{moved.resolve()}, where {path.name} leads relative to its folder", file=sys.stderr)
+    where = ("holds another map (replaced since)" if (prior / "manifest.json").is_file()
+             else "is gone (the runs were moved?)")
+    print(f"davio map: note: {prior} {where}: using {moved.resolve()}, where {path.name} leads relative to "
+          "its folder", file=sys.stderr)
     return moved.resolve()
 
 

@@ -120,8 +120,9 @@ def invalid_depth_line(mp: dict, config: dict) -> str:
     or negative (a user's export), or a scene beyond mapping.max_depth_m; "" otherwise."""
     sampled, invalid = mp.get("points_sampled", 0), mp.get("rejected_invalid_depth", 0)
     refused = (mp.get("windows_rejected") or {}).get("invalid_depth", 0)
-    if not refused and not (sampled and invalid > 0.5 * sampled):
-        return ""
+    processed = mp.get("windows_processed") or refused
+    if not (sampled and invalid > 0.5 * sampled) and not (refused and refused > 0.5 * processed):
+        return ""     # a window down a long hall now and then is the scene, not the model
     far = config.get("max_depth_m", 20.0)
     return (f"MODEL DEPTH? {100 * invalid / max(sampled, 1):.0f} % of the depths the model returned were not "
             f"in (0, {far:g} m] ({refused} windows refused as invalid_depth): is the graph's depth in metres "

@@ -33,7 +33,7 @@ class WindowFit:
     Attributes:
         accepted: the window passed every gate.
         reason: "" when accepted, else "baseline", "fit_rmse", "scale", "model_error" or (set by the mapper
-            after the multi-view test) "multiview".
+            on the depths) "invalid_depth" or "multiview".
         baseline_m: largest distance between two VIO camera centres of the window (m).
         fit_rmse_m: RMSE of the similarity fit of returned to VIO camera centres (m).
         log_s_hat: log of the depth correction s_hat relative to DA3's pose normalisation.

@@ -519,3 +519,14 @@ def test_stamps_that_go_back_are_said_once_until_they_pass_the_newest() -> None:
     events.imu_sample(S(t_ns=_s(2.0), gyro=z, accel=z))   # past the newest: a later jump is said again
     events.imu_sample(S(t_ns=_s(0.5), gyro=z, accel=z))
     assert [e.kind for e in got].count("stamps_back") == 2
+
+
+def test_a_model_failure_is_said_on_one_line_of_bounded_length() -> None:
+    """ONNX Runtime's exceptions run over several lines of C++ text: the event is one line."""
+    events, got = _events(_pipe(StartupReport()))
+    events.model_failures(_s(1.0), 1, "ModelError: x.onnx: inference failed (Fail: [ONNXRuntimeError]\n"
+                          + "  at onnxruntime::InferenceSession::Run " * 40 + "\n)")
+    [said] = [e for e in got if e.kind == "model_error"]
+    assert "\n" not in said.message and len(said.detail["first"]) == 300
+    assert said.detail["first"].startswith("ModelError: x.onnx: inference failed (Fail: [ONNXRuntimeError]")
+    assert said.detail["first"].endswith("...") and (said.detail["failed"], said.detail["total"]) == (1, 1)

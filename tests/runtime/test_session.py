@@ -234,6 +234,18 @@ def test_imu_samples_stamped_once_per_batch_are_named(recording) -> None:
             s.add_imu(10**18 + (k // 10) * 50_000_000, [0, 0, 0], [0, 0, 9.81])
 
 
+def test_imu_stamps_truncated_to_whole_seconds_or_milliseconds_are_not_taken_for_batches() -> None:
+    from runtime.units import repeated_stamps_cause
+
+    seconds = np.repeat(10**18 + np.arange(3) * 1_000_000_000, 20)          # a 20 Hz IMU, ns truncated to s
+    millis = np.repeat(10**18 + np.arange(13) * 1_000_000, 4)                # 4 kHz, truncated to ms
+    slow = np.repeat(10**18 + np.arange(3) * 999_000_000, 20)                # one batch a second
+    for stamps in (seconds, millis, slow):
+        assert repeated_stamps_cause(stamps).endswith("(whole seconds or milliseconds?)")
+    batches = np.repeat(10**18 + np.arange(5) * 50_000_000, 10)
+    assert repeated_stamps_cause(batches).startswith("the samples come in batches of about 10")
+
+
 def test_an_accelerometer_in_g_and_camera_stamps_in_us_are_named(recording) -> None:
     rec, _ = recording
     s = Session(rec.rig)

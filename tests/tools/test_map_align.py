@@ -186,14 +186,21 @@ def test_a_pair_of_runs_moved_together_still_merges(tmp_path, capsys):
     new = tmp_path / "b" / "new"
     (new / "map.merged.ply").unlink()
     assert main(["map", "export", str(new), "--merge-prior", "--voxel", "0.25"]) == 0
-    assert f"the prior map is not at {tmp_path / 'a/prior/map'} (the runs were moved?): using " \
+    assert f"{tmp_path / 'a/prior/map'} is gone (the runs were moved?): using " \
            f"{tmp_path / 'b/prior/map'}" in capsys.readouterr().err
     assert len(read_ply_vertices(new / "map.merged.ply")) == merged
+    # a copy of the pair, and another map written where the prior was recorded: the copy's own prior is used
+    shutil.copytree(tmp_path / "b", tmp_path / "c")
+    _write_session(tmp_path / "a" / "prior", _sessions(T_PW, T_NW, new_room_seed=7)[0])
+    assert main(["map", "export", str(tmp_path / "c" / "new"), "--merge-prior", "--voxel", "0.25",
+                 "--overwrite"]) == 0
+    said = f"{tmp_path / 'a/prior/map'} holds another map (replaced since): using {tmp_path / 'c/prior/map'}"
+    assert said in capsys.readouterr().err
     # another map where the relative path leads: not taken (its id is not the aligned prior's)
     shutil.rmtree(tmp_path / "b" / "prior")
     _write_session(tmp_path / "b" / "prior", _sessions(T_PW, T_NW, new_room_seed=7)[0])
     assert main(["map", "export", str(new), "--merge-prior", "--voxel", "0.25", "--overwrite"]) == 1
-    assert "which is gone" in capsys.readouterr().err
+    assert "is not the map this run was aligned to" in capsys.readouterr().err
 
 
 def test_map_info_counts_the_stored_views(tmp_path, capsys):

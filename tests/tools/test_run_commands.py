@@ -276,7 +276,7 @@ def test_depths_mostly_out_of_range_are_said_with_the_likely_causes():
     """A graph whose depth was in mm mapped nothing; the console said "0 points kept" and no reason."""
     from tools.run_summary import mapping_line, recovery_lines
 
-    mp = {"windows_accepted": 0, "windows_offered": 3, "windows_dropped_queue": 0,
+    mp = {"windows_accepted": 0, "windows_offered": 3, "windows_processed": 3, "windows_dropped_queue": 0,
           "windows_rejected": {"invalid_depth": 3}, "points_sampled": 6000, "rejected_invalid_depth": 6000,
           "rejected_confidence": 0, "rejected_multiview": 0, "points_retained": 0}
     report = {"pipeline": {"mapping": mp}, "config": {"mapping": {"max_depth_m": 20.0}}}
@@ -286,6 +286,10 @@ def test_depths_mostly_out_of_range_are_said_with_the_likely_causes():
     assert "0 points kept (100 % invalid depth, 0 % low confidence" in mapping_line(mp, {}, None)
     # a scene partly beyond the range, every window mapped: no warning
     mp.update(windows_accepted=3, windows_rejected={}, rejected_invalid_depth=2000, points_retained=4000)
+    assert not any(x.startswith("MODEL DEPTH?") for x in recovery_lines(report))
+    # one window of 100 refused (down a long hall), 3 % of the depths out of range: the scene, no alarm
+    mp.update(windows_processed=100, windows_accepted=99, windows_rejected={"invalid_depth": 1},
+              points_sampled=200_000, rejected_invalid_depth=6000)
     assert not any(x.startswith("MODEL DEPTH?") for x in recovery_lines(report))
 
 

@@ -47,9 +47,9 @@ def add_device_arguments(p: argparse.ArgumentParser) -> None:
                    help="serial baud rate (checked before the model loads)")
     p.add_argument("--imu-stall", type=number_in(0.1, 60.0, unit=" s"), default=5.0, metavar="S",
                    help="a serial IMU sending no valid sample for S seconds, after it streamed, is unplugged "
-                        "or stalled and ends the run; a shorter pause resets the filter (an IMU outage, "
-                        "longer than msckf.max_imu_outage_s) and the run goes on (raise S for a device that "
-                        "pauses longer, e.g. to recalibrate)")
+                        "or stalled and ends the run; a shorter pause is an IMU gap, and one longer than "
+                        "msckf.max_imu_outage_s (0.5 s) resets a running filter while the run goes on (raise "
+                        "S for a device that pauses longer, e.g. to recalibrate)")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
