@@ -69,10 +69,17 @@ class RigCheckConfig:
     """Spans tried (judged or not) after which the check stops: a rig that stands or barely turns."""
     wrap_deg: float = 150.0
     """A gyro path longer than this over a span: the path stands in for the net rotation angle."""
+    suspect_deg: float = 3.0
+    """A hand-eye fit at least this far from the rig's rotation (deg), below the finding's
+    `FFInitConfig.extrinsics_check_deg`, that explains the spans `suspect_ratio` times better than the rig's
+    rotation is a suspicion (`extrinsics_suspect`): a rig 3-5 deg off reset the filter again and again with a
+    wrong scale, unnamed. With the right rig the fit lay within 1.44 deg and explained the spans no better
+    (ratio 1.0; `davio bench rig-checks-two-view`, nine recordings)."""
+    suspect_ratio: float = 2.0
 
     def __post_init__(self) -> None:
         s = "rig_check"
-        positive(self, s, "span_s", "every_s", "threshold_px", "wrap_deg")
+        positive(self, s, "span_s", "every_s", "threshold_px", "wrap_deg", "suspect_deg", "suspect_ratio")
         non_negative(self, s, "min_camera_deg")
         at_least(self, s, 15, "min_tracks")
         at_least(self, s, 1, "min_pairs_gyro", "min_pairs_extrinsics", "max_pairs", "max_spans")
@@ -108,6 +115,8 @@ class RigCheckReport:
     extrinsics_rig_rms_deg: float | None = None
     extrinsics_rotation: str | None = None
     """The finding on the camera-IMU rotation, or None."""
+    extrinsics_suspect: str | None = None
+    """A rotation a few degrees off (RigCheckConfig.suspect_deg), below the finding, or None."""
     done: bool = False
     error: str | None = None
     """Why the check ended early (an exception), or None."""
@@ -254,8 +263,14 @@ class TwoViewRigCheck:
             return
         rep.extrinsics_fit_deg, rep.extrinsics_fit_rms_deg = off, fit.rms_deg
         rep.extrinsics_rig_rms_deg = rig_rms
+        rep.extrinsics_suspect = None
         if not (off >= ff.extrinsics_check_deg and rig_rms >= ff.extrinsics_check_ratio * fit.rms_deg):
             rep.extrinsics_rotation = None
+            if off >= self.cfg.suspect_deg and rig_rms >= self.cfg.suspect_ratio * fit.rms_deg:
+                rep.extrinsics_suspect = (
+                    f"{rep.spans_judged} spans of tracked features fit a camera-IMU rotation {off:.1f} deg "
+                    f"from the rig's, which explains them {rig_rms / max(fit.rms_deg, 1e-9):.1f}x better "
+                    f"({fit.rms_deg:.2f} deg RMS, the rig's {rig_rms:.2f})")
             return
         inverted = rotation_angle_deg(self.R_IC.T, fit.R_IC) <= ff.extrinsics_check_deg / 2
         rep.extrinsics_rotation = (

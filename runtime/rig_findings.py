@@ -91,6 +91,11 @@ def rig_findings(pipeline_report: dict, rig_offset_s: float | None) -> list[RigF
         out.append(RigFinding("extrinsics_rotation", "tracks", (
             f"CAMERA-IMU ROTATION (tracked features): {check['extrinsics_rotation']}. Check the rig file's "
             "T_cam_imu / T_imu_cam, or run with --withhold-extrinsics to estimate it")))
+    if check.get("extrinsics_suspect"):
+        out.append(RigFinding("extrinsics_suspect", "tracks", (
+            f"CAMERA-IMU ROTATION? (tracked features) {check['extrinsics_suspect']}: a rotation a few "
+            "degrees off resets the filter and skews its scale. Recalibrate, or let the filter estimate it "
+            "([msckf] calib_extrinsics = true in a --config file)")))
     line = time_offset_line(startup, rig_offset_s)
     if line:
         out.append(RigFinding("time_offset", "feedforward", line))
@@ -117,7 +122,8 @@ def rig_state(pipeline: Any) -> dict:
             "time_offset_first", "ff_time_offset_first", "ff_time_offset_s")}
     if pipeline.rig_check is not None:
         rep = pipeline.rig_check.report
-        state["rig_check"] = {k: getattr(rep, k) for k in ("gyro_scale", "extrinsics_rotation", "error")}
+        state["rig_check"] = {k: getattr(rep, k) for k in ("gyro_scale", "extrinsics_rotation",
+                                                             "extrinsics_suspect", "error")}
     if pipeline.bringup is not None and not pipeline.bringup.done:
         state["bringup"] = asdict(pipeline.bringup.report)
     return state

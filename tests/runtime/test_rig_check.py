@@ -26,7 +26,19 @@ def test_the_right_rig_raises_nothing(reports):
     assert r["spans_judged"] >= 8 and r["error"] is None
     assert 0.8 < r["gyro_ratio_median"] < 1.3 and r["gyro_scale"] is None
     assert r["extrinsics_rotation"] is None and r["extrinsics_fit_deg"] < 5.0
+    assert r["extrinsics_suspect"] is None
     assert r["rig_residual_median_deg"] < 1.0
+
+
+@pytest.mark.slow
+def test_a_camera_imu_rotation_a_few_degrees_off_is_suspected_not_named(reports):
+    """5 deg off about the optical axis: below the finding (10 deg), it reset the filter again and again
+    with a wrong scale, and nothing named the rig."""
+    r = reports["5deg"]
+    assert r["extrinsics_rotation"] is None and r["gyro_scale"] is None
+    assert r["extrinsics_fit_deg"] == pytest.approx(5.0, abs=1.0)
+    assert r["extrinsics_rig_rms_deg"] >= 2.0 * r["extrinsics_fit_rms_deg"]
+    assert "fit a camera-IMU rotation" in r["extrinsics_suspect"]
 
 
 @pytest.mark.slow

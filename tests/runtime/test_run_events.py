@@ -119,6 +119,11 @@ def test_each_finding_has_a_key_and_evidence_and_the_console_line_of_the_summary
     assert lines[4].startswith("CAMERA-IMU ROTATION (tracked features): r.")
     assert "1 window fits another offset, not adopted" in lines[5]
     assert lines[6].startswith("GYROSCOPE SCALE (bring-up): 4 windows refused, the first: b.")
+    # a rotation a few degrees off, from the tracked features: its own key and line
+    suspect = rig_findings({"rig_check": {"extrinsics_suspect": "s"}}, None)
+    assert [(f.key, f.evidence) for f in suspect] == [("extrinsics_suspect", "tracks")]
+    assert suspect[0].line.startswith("CAMERA-IMU ROTATION? (tracked features) s: a rotation a few degrees")
+    assert "calib_extrinsics = true" in suspect[0].line
 
 
 def _published(t_s: float, segment: int, source: str):
