@@ -214,10 +214,32 @@ def input_lines(driver_report: dict | None) -> list[str]:
     return lines
 
 
+LATE_START_S = 5.0
+"""A first pose later than this (data seconds) is a late start, and the console says what the native
+initializers refused before it (the feed-forward start-up publishes in about 1.4 s, the native initializers
+from a standstill in about 2 s)."""
+
+
+def late_start_line(report: dict) -> str:
+    """Why the first pose came late: each native initializer's refusals before it; "" when it did not."""
+    from tools.run_outcome import _rejections
+
+    tf = report.get("T_f_s")
+    if tf is None or tf <= LATE_START_S:
+        return ""
+    inits = ((report.get("pipeline") or {}).get("filter") or {}).get("initializers") or {}
+    why = "; ".join(f"{name}: {_rejections(r)}" for name, r in inits.items() if r.get("rejections"))
+    return (f"LATE START: the first pose came {tf:.1f} s into the data"
+            + (f"; before it the native initializers refused: {why}" if why else ""))
+
+
 def recovery_lines(report: dict) -> list[str]:
     """One console line per kind of recovery the run made (input repairs, initializer rejections,
     filter resets), so that nothing counted in report.json goes unnoticed on the console."""
     lines = input_lines(report.get("driver"))
+    late = late_start_line(report)
+    if late:
+        lines.append(late)
     out_of_range = (report["pipeline"].get("tracking") or {}).get("imu_out_of_range") or 0
     if out_of_range:
         from runtime.pipeline import MAX_ACCEL_M_S2, MAX_GYRO_RAD_S

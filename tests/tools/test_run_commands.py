@@ -293,6 +293,23 @@ def test_depths_mostly_out_of_range_are_said_with_the_likely_causes():
     assert not any(x.startswith("MODEL DEPTH?") for x in recovery_lines(report))
 
 
+def test_a_late_first_pose_says_what_the_initializers_refused_before_it():
+    """A vibrating standstill (accelerometer std 1.4 m/s^2): the first pose came at 10.6 s and the console
+    said nothing of the 173 refusals before it (their reasons were in report.json only)."""
+    from tools.run_summary import recovery_lines
+
+    static = {"rejections": {"moving": 173}, "last_reason": "moving: excitation 2.485 > 1.5 m/s^2"}
+    dynamic = {"rejections": {"insufficient_parallax": 175}, "last_reason": "insufficient_parallax: 0.85 deg"}
+    report = {"T_f_s": 10.627, "pipeline": {"filter": {"initializers": {
+        "static": static, "turning": {"rejections": {}}, "dynamic": dynamic}}}}
+    late = [x for x in recovery_lines(report) if x.startswith("LATE START")]
+    assert late == ["LATE START: the first pose came 10.6 s into the data; before it the native initializers "
+                    "refused: static: moving x173 (last: moving: excitation 2.485 > 1.5 m/s^2); dynamic: "
+                    "insufficient_parallax x175 (last: insufficient_parallax: 0.85 deg)"]
+    report["T_f_s"] = 2.03                                              # an ordinary start: nothing said
+    assert not any(x.startswith("LATE START") for x in recovery_lines(report))
+
+
 def test_recovery_lines_name_every_counted_recovery():
     from tools.run_summary import recovery_lines as _recovery_lines
 
