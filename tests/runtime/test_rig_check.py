@@ -37,7 +37,7 @@ def test_a_camera_imu_rotation_a_few_degrees_off_is_suspected_not_named(reports)
     r = reports["5deg"]
     assert r["extrinsics_rotation"] is None and r["gyro_scale"] is None
     assert r["extrinsics_fit_deg"] == pytest.approx(5.0, abs=1.0)
-    assert r["extrinsics_rig_rms_deg"] >= 2.0 * r["extrinsics_fit_rms_deg"]
+    assert r["extrinsics_rig_rms_deg"] >= RigCheckConfig().suspect_ratio * r["extrinsics_fit_rms_deg"]
     assert "fit a camera-IMU rotation" in r["extrinsics_suspect"]
 
 
