@@ -187,7 +187,7 @@ def test_surface_refuses_a_trajectory_of_another_segment_than_map_ply(tmp_path: 
     cloud = np.random.default_rng(0).uniform(0, 4, (300, 3))
     from tools.map_archive.export import write_ply
 
-    write_ply(run / "map.ply", cloud, np.full(len(cloud), 128, np.uint8))
+    write_ply(run / "map.ply", cloud, np.full(len(cloud), 128, np.uint8), ("segment 0",))
     traj = random_traj(40)
     for name in ("final.tum", "final_segment0.tum", "final_segment1.tum"):
         write_tum(run / name, traj)
@@ -202,9 +202,14 @@ def test_surface_refuses_a_trajectory_of_another_segment_than_map_ply(tmp_path: 
         assert f"align with {run / 'final_segment0.tum'}" in err
     assert main(argv + [str(run / "final_segment0.tum"), str(tmp_path / "gt.tum")]) == 0
     assert _strict(capsys.readouterr().out)["fscore"] == 1.0
+    # map.ply re-exported with `davio map export RUN --segment 1`: the PLY says which segment it holds
+    write_ply(run / "map.ply", cloud, np.full(len(cloud), 128, np.uint8), ("segment 1",))
+    for est in ("final.tum", "final_segment1.tum"):
+        assert main(argv + [str(run / est), str(tmp_path / "gt.tum")]) == 0
+    assert main(argv + [str(run / "final_segment0.tum"), str(tmp_path / "gt.tum")]) == 1
     (run / "report.json").write_text(json.dumps({"map": {"ply": "map.ply", "ply_segment": 0},
                                                  "segments": [{"poses": 40}]}))     # no reset: as before
-    assert main(argv + [str(run / "final.tum"), str(tmp_path / "gt.tum")]) == 0
+    assert main(argv + [str(run / "final_segment0.tum"), str(tmp_path / "gt.tum")]) == 0
 
 
 def test_simulate_into_a_folder_that_cannot_be_made_fails_before_rendering(capsys) -> None:

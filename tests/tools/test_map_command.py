@@ -241,6 +241,9 @@ def test_a_run_whose_filter_was_reset_writes_map_ply_of_its_largest_segment(tmp_
     assert summary["ply"] == "map.ply" and summary["ply_segment"] == 0
     assert summary["segment_submaps"] == {"0": 2, "1": 1}
     _ply_voxels(tmp_path / "map.ply", subs[:2])
+    from tools.evaluation.ply import ply_comments
+
+    assert ply_comments(tmp_path / "map.ply") == ["davio map", "segment 0"]      # what `eval surface` reads
     mp = {"windows_accepted": 5, "windows_offered": 5, "windows_dropped_queue": 0, "windows_rejected": {},
           "points_sampled": 1, "rejected_confidence": 0, "rejected_multiview": 0, "points_retained": 1}
     line = mapping_line(mp, summary)

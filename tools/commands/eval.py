@@ -124,14 +124,17 @@ def check_map_segment(rec: Path, est: Path) -> None:
     import json
     import re
 
+    from tools.evaluation.ply import ply_comments
+
     folder = rec.parent
     m = re.fullmatch(r"(final|causal)(?:_segment(\d+))?\.tum", est.name)
-    if rec.name != "map.ply" or m is None or est.parent.resolve() != folder.resolve():
+    if rec.suffix != ".ply" or m is None or est.parent.resolve() != folder.resolve():
         return
-    try:
-        report = json.loads((folder / "report.json").read_text())
-        ply_segment, n = report["map"]["ply_segment"], len(report["segments"])
-    except (OSError, ValueError, KeyError, TypeError):      # not a run folder, or an older report
+    said = [c.split()[1] for c in ply_comments(rec) if len(c.split()) == 2 and c.split()[0] == "segment"]
+    try:      # the segment the PLY says it holds (`davio map export --segment K` may have rewritten it)
+        n = len(json.loads((folder / "report.json").read_text())["segments"])
+        ply_segment = int(said[0]) if said else None
+    except (OSError, ValueError, KeyError, TypeError):      # not a run folder, or a PLY of an older davio
         return
     segment = int(m.group(2)) if m.group(2) is not None else n - 1
     if n > 1 and isinstance(ply_segment, int) and segment != ply_segment:

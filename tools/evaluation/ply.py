@@ -64,6 +64,17 @@ def _parse_header(header: list[str], path: Path) -> tuple[str, list[tuple[str, i
     return fmt, elements
 
 
+def ply_comments(path: str | Path, max_bytes: int = 65536) -> list[str]:
+    """The header's comment lines of a PLY file (without "comment "); [] when it is not a readable PLY."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(max_bytes)
+        header, _ = _split_header(head, Path(path))
+    except (OSError, DataError):
+        return []
+    return [line[len("comment "):].strip() for line in header if line.startswith("comment ")]
+
+
 def read_ply_vertices(path: str | Path) -> np.ndarray:
     """(N, 3) float64 vertex positions of a PLY file; DataError names what is wrong with it."""
     path = Path(path)

@@ -123,8 +123,9 @@ def choose_segment(folder: str | Path, segment: int | None, notes: list[str] | N
     return main, sizes
 
 
-def write_ply(path: str | Path, points: np.ndarray, grey: np.ndarray) -> None:
-    """Write a binary little-endian PLY: float x, y, z and uchar red, green, blue (= grey), atomically."""
+def write_ply(path: str | Path, points: np.ndarray, grey: np.ndarray, comments: tuple[str, ...] = ()) -> None:
+    """Write a binary little-endian PLY: float x, y, z and uchar red, green, blue (= grey), atomically;
+    `comments`: header lines after "comment davio map" (e.g. "segment 2": the filter segment it holds)."""
     pts = np.asarray(points, np.float64).reshape(-1, 3)
     g = np.asarray(grey).reshape(-1)
     if g.shape[0] != pts.shape[0]:
@@ -136,7 +137,8 @@ def write_ply(path: str | Path, points: np.ndarray, grey: np.ndarray) -> None:
     g8 = np.clip(g, 0, 255).astype(np.uint8)
     rows["red"], rows["green"], rows["blue"] = g8, g8, g8
     header = ("ply\nformat binary_little_endian 1.0\ncomment davio map\n"
-              f"element vertex {len(pts)}\n"
+              + "".join(f"comment {c}\n" for c in comments)
+              + f"element vertex {len(pts)}\n"
               "property float x\nproperty float y\nproperty float z\n"
               "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n")
     atomic_write_bytes(Path(path), header.encode("ascii") + rows.tobytes())
@@ -186,5 +188,8 @@ def export_map(folder: str | Path, out_ply: str | Path, voxel_m: float = 0.04,
     points, grey, _ = supported(fused, min_points)
     if refuse_empty and not len(points):
         raise DataError(empty_reason(len(fused[0]), min_points, notes), folder)
-    write_ply(out_ply, points, grey)
+    # the segment a run's map.ply holds (`davio eval surface` checks a trajectory against it); merged maps
+    # hold two archives' segments and say nothing
+    said = () if segment is None or merge_with is not None else (f"segment {segment}",)
+    write_ply(out_ply, points, grey, said)
     return int(len(points)), int(len(fused[0]))
