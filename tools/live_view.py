@@ -55,10 +55,15 @@ class LiveView:
         max_trajectory: trajectory points kept (older ones are thinned out by half when full).
         max_points_per_submap: map points sent per committed submap (a random subset).
         min_interval_s: the trajectory is redrawn at most this often.
+        max_clouds: submaps drawn one by one; when `history_every` more are drawn, the least recently drawn
+            ones are folded into the history cloud, sent again whole (viser keeps every drawn cloud for new
+            browsers: a long run's view grew by about 15 MB a minute).
+        max_history_points: points the history cloud holds (a uniform sample of every folded submap's).
     """
 
     def __init__(self, port: int = DEFAULT_PORT, host: str = DEFAULT_HOST, max_trajectory: int = 20000,
-                 max_points_per_submap: int = 20000, min_interval_s: float = 0.1) -> None:
+                 max_points_per_submap: int = 20000, min_interval_s: float = 0.1, max_clouds: int = 64,
+                 max_history_points: int = 300_000, history_every: int = 16) -> None:
         try:
             import viser
         except ImportError as exc:
@@ -82,6 +87,14 @@ class LiveView:
         self.body = self.server.scene.add_frame("/body", axes_length=0.3, axes_radius=0.015)
         self.path = None
         self.clouds: dict[int, Any] = {}
+        self.max_clouds = int(max_clouds)
+        self.max_history_points = int(max_history_points)
+        self.history_every = int(history_every)
+        self.history = None                     # the cloud of folded submaps (viser handle)
+        self._history_pts = np.zeros((0, 3), np.float32)
+        self._history_rgb = np.zeros((0, 3), np.uint8)
+        self._history_seen = 0                  # points folded so far (the sample's denominator)
+        self.submaps_folded = 0
         self.segment: int | None = None
         """The filter segment drawn: a reset starts a new odometry and map frame, so the view starts over
         (the earlier segment's trajectory and points would lie in an unrelated frame)."""
@@ -149,8 +162,11 @@ class LiveView:
             self._trajectory = []
             path, self.path = self.path, None
             clouds, self.clouds = list(self.clouds.values()), {}
+            history, self.history = self.history, None
+            self._history_pts, self._history_rgb = self._history_pts[:0], self._history_rgb[:0]
+            self._history_seen = 0
             self.segments_cleared += 1
-        for item in (path, *clouds):
+        for item in (path, history, *clouds):
             if item is not None:
                 item.remove()
 
@@ -175,6 +191,32 @@ class LiveView:
             self.clouds[sm.index] = self.server.scene.add_point_cloud(
                 f"/map/submap_{sm.index:05d}", P.astype(np.float32), rgb, point_size=0.03)
         self.submaps += 1
+        if len(self.clouds) >= self.max_clouds + self.history_every:
+            while len(self.clouds) > self.max_clouds:
+                self._fold(self.clouds.pop(next(iter(self.clouds))))
+            # the same name: viser replaces the node (and its buffered message) with the new cloud
+            self.history = self.server.scene.add_point_cloud(
+                "/map/history", self._history_pts, self._history_rgb, point_size=0.03)
+
+    def _fold(self, cloud: Any) -> None:
+        """Move a drawn submap's points into the history cloud: a uniform sample of at most
+        `max_history_points` of every folded point (each point seen is kept with the same probability)."""
+        pts, rgb = np.asarray(cloud.points, np.float32), np.asarray(cloud.colors, np.uint8)
+        cloud.remove()
+        seen = self._history_seen + len(pts)
+        if seen > self.max_history_points:
+            keep_old = self._rng.random(len(self._history_pts)) < self._history_seen / seen
+            keep_new = self._rng.random(len(pts)) < self.max_history_points / seen
+            pts = np.concatenate([self._history_pts[keep_old], pts[keep_new]])
+            rgb = np.concatenate([self._history_rgb[keep_old], rgb[keep_new]])
+            if len(pts) > self.max_history_points:
+                keep = self._rng.choice(len(pts), self.max_history_points, replace=False)
+                pts, rgb = pts[keep], rgb[keep]
+        else:
+            pts = np.concatenate([self._history_pts, pts])
+            rgb = np.concatenate([self._history_rgb, rgb])
+        self._history_pts, self._history_rgb, self._history_seen = pts, rgb, seen
+        self.submaps_folded += 1
 
     def chain(self, sink: Callable[[Any, Any], None] | None) -> Callable[[Any, Any], None]:
         """A map sink that calls `sink` (the run's archive, or None) and then shows the commit."""
@@ -189,7 +231,8 @@ class LiveView:
     def report(self) -> dict:
         """Counters for report.json: poses and commits shown, view errors."""
         return {"url": self.url, "poses": self.poses, "submaps": self.submaps, "errors": self.errors,
-                "last_error": self.last_error, "segments_cleared": self.segments_cleared}
+                "last_error": self.last_error, "segments_cleared": self.segments_cleared,
+                "submaps_folded": self.submaps_folded, "history_points": len(self._history_pts)}
 
     def close(self) -> None:
         """Stop the web server."""

@@ -136,7 +136,6 @@ class Mapper:
         self.stats = MappingStats(matcher=getattr(self.matcher, "backend", "none"))
         self.grid = VoxelGrid(self.cfg.voxel_m)
         self.resident: list[Submap] = []
-        self.links: list[ScaleLink] = []
         self.submap_count = 0
         self._prev: tuple[Submap, dict[int, np.ndarray]] | None = None
         self._features: OrderedDict[int, Any] = OrderedDict()
@@ -445,7 +444,6 @@ class Mapper:
         if link is None:
             self.stats.links_missing += 1
         else:
-            self.links.append(link)
             if link.method == "shared":
                 self.stats.links_shared += 1
             else:

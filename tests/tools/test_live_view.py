@@ -72,6 +72,29 @@ def test_map_commits_draw_each_submap_at_its_graph_state(view: LiveView) -> None
     np.testing.assert_array_equal(view.clouds[1].colors[:, 0], b.grey)
 
 
+def test_a_long_run_folds_old_submaps_into_one_bounded_history_cloud() -> None:
+    """Every submap's cloud stayed in viser's buffer for the whole run (about 15 MB a minute of a mapping
+    run): past max_clouds the least recently drawn ones are folded into one history cloud, a uniform sample
+    of at most max_history_points of their points."""
+    v = LiveView(port=free_port(), host="127.0.0.1", max_clouds=3, max_history_points=120, history_every=2)
+    try:
+        subs = [submap(k, make_pose(np.eye(3), np.array([2.0 * k, 0.0, 0.0]))) for k in range(9)]
+        for sm in subs:
+            v.on_map(SimpleNamespace(submap=sm, changed=[]))
+            assert len(v.clouds) <= 3 + 2 - 1                 # never more than max_clouds + history_every - 1
+        assert sorted(v.clouds) == [6, 7, 8] and v.submaps_folded == 6 and v.errors == 0
+        hist = np.asarray(v.history.points)
+        assert len(hist) <= 120 and v.report()["history_points"] == len(hist) > 60
+        # every history point is a point of a folded submap (0-5), none of a drawn one
+        folded = np.concatenate([sm.points_M() for sm in subs[:6]])
+        dist = np.linalg.norm(hist[:, None, :] - folded[None, :, :].astype(np.float32), axis=2)
+        assert np.all(dist.min(axis=1) < 1e-2)           # float16 transport at x up to 11 m
+        owners = dist.argmin(axis=1) // 50                # 50 points a submap: all six folded are sampled
+        assert len(np.unique(owners)) == 6
+    finally:
+        v.close()
+
+
 def test_a_filter_reset_starts_the_view_over_in_the_new_frame(view: LiveView) -> None:
     """Each segment has its own odometry and map frame: its trajectory and points were drawn over the
     earlier segment's, in an unrelated frame."""
