@@ -13,8 +13,10 @@ the true state, so the ATE hides them: read it with the resets).
 
 `--time-offset-error S,...` hands the filter a rig whose camera-IMU time offset is S off the recording's
 (positive: the rig says t_imu = t_cam + S more than the truth), and `--calib-time-offset on|off|both`
-runs the filter with and without the offset in its state (`msckf.calib_time_offset`); each combination
-is one row (its images rendered again for each).
+runs the filter with and without the offset in its state (`msckf.calib_time_offset`).
+`--rotation-error DEG,...` hands it a rig whose camera-IMU rotation is DEG off the recording's (about the
+camera's optical axis), and `--calib-extrinsics on|off|both` runs it with and without the extrinsics in its
+state (`msckf.calib_extrinsics`). Each combination is one row (its images rendered again for each).
 """
 from __future__ import annotations
 
@@ -58,6 +60,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--calib-time-offset", default="config", choices=("config", "off", "on", "both"),
                    help="estimate the time offset in the filter: as the configuration's default, off, on, "
                         "or a row each")
+    p.add_argument("--rotation-error", default="0", metavar="DEG[,DEG...]",
+                   help="degrees the rig's camera-IMU rotation is off the recording's (about the camera's "
+                        "optical axis), one row each")
+    p.add_argument("--calib-extrinsics", default="config", choices=("config", "off", "on", "both"),
+                   help="estimate the camera-IMU rotation and lever arm in the filter: as the "
+                        "configuration's default, off, on, or a row each")
     p.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -111,11 +119,14 @@ def _rendered_ahead(events: Iterator[Any], frames: int = RENDER_AHEAD_FRAMES) ->
 
 
 def run_one(rec: Any, init_after_s: float = 1.0, render_ahead: int = RENDER_AHEAD_FRAMES,
-            msckf: MsckfConfig | None = None, time_offset_error_s: float = 0.0) -> dict:
+            msckf: MsckfConfig | None = None, time_offset_error_s: float = 0.0,
+            rotation_error_deg: float = 0.0) -> dict:
     """Track one recording from a ground-truth initial state; returns the figures.
 
     msckf: the filter's MsckfConfig (default: MsckfConfig()); the rig's IMU noise is applied to it.
-    time_offset_error_s: the filter's camera-IMU time offset is the rig's plus this (a wrong rig)."""
+    time_offset_error_s: the filter's camera-IMU time offset is the rig's plus this (a wrong rig).
+    rotation_error_deg: the filter's camera-IMU rotation is the rig's turned this far about the camera's
+        optical axis (a wrong rig)."""
     from runtime.geometry import PoseTrajectory
     from runtime.msckf.config import MsckfConfig
     from runtime.msckf.estimator import MsckfEstimator
@@ -123,7 +134,16 @@ def run_one(rec: Any, init_after_s: float = 1.0, render_ahead: int = RENDER_AHEA
     from tools.evaluation import ate, ate_degenerate_truth, truth_is_degenerate
 
     rig = rec.rig
-    est = MsckfEstimator(rig, (msckf or MsckfConfig()).with_imu_noise(rig.imu))
+    given = rig
+    if rotation_error_deg:
+        from dataclasses import replace
+
+        from scipy.spatial.transform import Rotation
+
+        T_IC = np.array(rig.T_IC, np.float64)
+        T_IC[:3, :3] = T_IC[:3, :3] @ Rotation.from_euler("z", rotation_error_deg, degrees=True).as_matrix()
+        given = replace(rig, T_IC=T_IC)
+    est = MsckfEstimator(given, (msckf or MsckfConfig()).with_imu_noise(rig.imu))
     if time_offset_error_s:
         est.set_time_offset(est.time_offset_s + time_offset_error_s)
     tracker = KltTracker(rig.camera)
@@ -172,6 +192,7 @@ def run_one(rec: Any, init_after_s: float = 1.0, render_ahead: int = RENDER_AHEA
                  "msckf_features_used": report["msckf_features_used"],
                  "slam_updates": report["slam_updates"],
                  "time_offset_error_s": time_offset_error_s,
+                 "rotation_error_deg": rotation_error_deg,
                  "time_offset_end_error_s": est.time_offset_s - float(rig.time_offset_s or 0.0)}
     wall_total = wall["tracker"] + wall["filter"]
     sensor_s = (rec.frame_stamps_ns[-1] - rec.frame_stamps_ns[0]) * 1e-9
@@ -200,22 +221,35 @@ def run(args: argparse.Namespace) -> int:
     if not errors or not all(np.isfinite(e) and abs(e) <= 0.5 for e in errors):
         print(f"vio-sim: --time-offset-error must be seconds within +-0.5, got {args.time_offset_error!r}")
         return 2
-    calib = {"config": [None], "off": [False], "on": [True], "both": [False, True]}[args.calib_time_offset]
+    try:
+        rot_errors = list(dict.fromkeys(float(x) for x in args.rotation_error.split(",") if x.strip()))
+    except ValueError:
+        rot_errors = []
+    if not rot_errors or not all(np.isfinite(e) and abs(e) <= 45 for e in rot_errors):
+        print(f"vio-sim: --rotation-error must be degrees within +-45, got {args.rotation_error!r}")
+        return 2
+    which = {"config": [None], "off": [False], "on": [True], "both": [False, True]}
+    calib, calib_x = which[args.calib_time_offset], which[args.calib_extrinsics]
+    plain = len(calib) == 1 and errors == [0.0] and len(calib_x) == 1 and rot_errors == [0.0]
     results = {}
     for name, make in _sources(args):
         rec = make()
-        for on in calib:
-            for err in errors:
-                cfg = MsckfConfig() if on is None else MsckfConfig(calib_time_offset=on)
-                dt = "in state" if cfg.calib_time_offset else "fixed"
-                row = name if len(calib) == 1 and errors == [0.0] else (
-                    f"{name}, rig offset {1e3 * err:+.0f} ms, dt {dt}")
-                results[row] = r = run_one(rec, render_ahead=args.render_ahead, msckf=cfg,
-                                           time_offset_error_s=err)
-                if not args.json:
-                    print(f"  {row:32s} ATE {r.get('ate_se3_m', float('nan')):.3f} m  resets {r['resets']}  "
-                          f"dt off by {1e3 * r['time_offset_end_error_s']:+.1f} ms at the end  "
-                          f"{r['ms_per_frame_wall']:.1f} ms/frame", flush=True)
+        for on, on_x, err, rot in ((a, b, c, d) for a in calib for b in calib_x for c in errors
+                                   for d in rot_errors):
+            flags = {k: v for k, v in (("calib_time_offset", on), ("calib_extrinsics", on_x))
+                     if v is not None}
+            cfg = MsckfConfig(**flags)
+            dt = "in state" if cfg.calib_time_offset else "fixed"
+            row = name if plain else (f"{name}, rig offset {1e3 * err:+.0f} ms, dt {dt}"
+                                      + (f", rig rotation {rot:+g} deg, extrinsics "
+                                         f"{'in state' if cfg.calib_extrinsics else 'fixed'}"
+                                         if len(calib_x) > 1 or rot_errors != [0.0] else ""))
+            results[row] = r = run_one(rec, render_ahead=args.render_ahead, msckf=cfg,
+                                       time_offset_error_s=err, rotation_error_deg=rot)
+            if not args.json:
+                print(f"  {row:32s} ATE {r.get('ate_se3_m', float('nan')):.3f} m  resets {r['resets']}  "
+                      f"dt off by {1e3 * r['time_offset_end_error_s']:+.1f} ms at the end  "
+                      f"{r['ms_per_frame_wall']:.1f} ms/frame", flush=True)
     if args.json:
         print(strict_dumps(results))
         return 0
