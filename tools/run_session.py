@@ -58,8 +58,10 @@ def run_pipeline(driver: Any, model: Any, config: DavioConfig, paced: bool = Fal
                 stderr_say(f"  t = {s:6.1f} s  published {len(pipe.published):5d} poses  ({_status(pipe)})")
     # events said as they happen (rig findings again in the summary)
     console = EventConsole(lambda line: say(f"  {line}")) if say is not None else None
+    # poses go to on_pose; poses() is never read here, so its queue holds one (12000 poses were ~13 MB)
     session = Session(rig if rig is not None else driver.rig, model, config, map_sink=map_sink,
-                      on_pose=on_pose, prior_map=prior_map, on_event=chain_events(console, on_event))
+                      on_pose=on_pose, prior_map=prior_map, on_event=chain_events(console, on_event),
+                      max_unread_poses=1)
     pipe = session.pipeline
     events = driver.events()
     if seconds is not None:

@@ -196,6 +196,24 @@ def test_run_reports_input_repairs_on_the_console(tmp_path, capsys):
     assert report["imu_noise_defaulted"] == [] and "IMU noise withheld" not in text
 
 
+def test_a_run_keeps_no_queue_of_poses_nobody_reads(tmp_path, capsys, monkeypatch):
+    """`davio run` hands poses to its sinks through on_pose and never reads Session.poses(): its queue held
+    up to 12000 unread poses (about 13 MB on a long run, helper audit)."""
+    from runtime.session import Session
+
+    made: list = []
+    init = Session.__init__
+
+    def recording_init(self, *a, **kw):
+        init(self, *a, **kw)
+        made.append(self)
+
+    monkeypatch.setattr(Session, "__init__", recording_init)
+    _, report = _run_with_imu_lines(tmp_path, capsys, _euroc_rows("imu0"))
+    assert len(made) == 1 and made[0]._poses.maxsize == 1
+    assert made[0].unread_poses_dropped == report["published_poses"] - 1 > 0
+
+
 def test_withheld_imu_noise_is_said_not_silently_defaulted(tmp_path, capsys):
     """Without imu0/sensor.yaml the filter runs on EuRoC's default densities, and the run says so."""
     from runtime.msckf.config import DEFAULT_IMU_NOISE

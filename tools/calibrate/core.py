@@ -199,7 +199,8 @@ def calibrate(
     from tools.event_output import EventConsole, chain_events
 
     console = None if alert is None else EventConsole(alert)
-    session = Session(withheld, model, calibration_config(config), on_event=chain_events(console, on_event))
+    session = Session(withheld, model, calibration_config(config), on_event=chain_events(console, on_event),
+                      max_unread_poses=1)      # poses() is never read here
     pipe = session.pipeline
     samples: list[CalibSample] = []
     step_ns = int(sample_every_s * 1e9)

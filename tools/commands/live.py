@@ -267,7 +267,7 @@ def _run(args, folder, driver, rig, model, model_desc: str, config, prior=None, 
     try:
         map_sink = sinks.map_sink(None if map_out is None else map_out.sink)
         session = Session(rig, model, config, map_sink=map_sink, on_pose=sinks.on_pose, prior_map=prior,
-                          on_event=sinks.on_event)
+                          on_event=sinks.on_event, max_unread_poses=1)     # poses() is never read here
         status.session = session
         driver.start()      # last: the streams start once the run is ready to read them
         print(f"davio live: {where}\n  model: {model_desc}\n"
