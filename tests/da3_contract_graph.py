@@ -23,7 +23,7 @@ def build_da3_contract_graph(
     """Write a contract graph (or a broken `variant`) to `path`; returns the path."""
     f32, b = TensorProto.FLOAT, TensorProto.BOOL
     H, W = ("H" if variant == "dynamic_hw" else h), ("W" if variant == "dynamic_hw" else w)
-    img_type = TensorProto.DOUBLE if variant == "wrong_dtype" else f32
+    img_type = {"wrong_dtype": TensorProto.DOUBLE, "fp16_images": TensorProto.FLOAT16}.get(variant, f32)
     N = 4 if variant == "fixed_n" else "N"
     inputs = [
         helper.make_tensor_value_info("images", img_type, [1, N, 3, H, W]),
@@ -54,9 +54,9 @@ def build_da3_contract_graph(
         numpy_helper.from_array(gain, "gain"),
         numpy_helper.from_array(K_const, "K_const"),
     ]
-    img = "images_f" if variant == "wrong_dtype" else "images"
+    img = "images_f" if img_type != f32 else "images"
     nodes = []
-    if variant == "wrong_dtype":
+    if img_type != f32:
         nodes.append(helper.make_node("Cast", ["images"], ["images_f"], to=f32))
     nodes += [
         helper.make_node("Slice", [img, "c0", "c1", "ax2"], ["red5"]),

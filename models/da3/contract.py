@@ -80,7 +80,9 @@ def match_signature(
     for name, typ, shape in expected:
         atyp, ashape = by_name[name]
         if atyp != typ:
-            raise ModelError(f"{where}: {kind[:-1]} '{name}' has type {atyp}, the contract needs {typ}")
+            fp16 = (": a float16 graph at its edges; `davio export-da3 --precision fp16` keeps float32 "
+                    "inputs and outputs around its float16 backbone" if atyp == "tensor(float16)" else "")
+            raise ModelError(f"{where}: {kind[:-1]} '{name}' has type {atyp}, the contract needs {typ}{fp16}")
         if len(ashape) != len(shape):
             raise ModelError(
                 f"{where}: {kind[:-1]} '{name}' has rank {len(ashape)} (shape {ashape}), "

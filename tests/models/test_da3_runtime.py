@@ -151,6 +151,7 @@ def test_corrupt_file_is_a_model_error(tmp_path):
     [
         ("missing_output", "pred_intrinsics"),
         ("wrong_dtype", r"tensor\(double\)"),
+        ("fp16_images", r"tensor\(float16\).*keeps float32 inputs and outputs around its float16 backbone"),
         ("dynamic_hw", "fixed resolution"),
         ("wrong_rank", "rank"),
     ],
