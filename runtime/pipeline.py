@@ -495,8 +495,8 @@ class VioPipeline:
             rep["startup"] = asdict(self.startup.report)
             rep["filter"] = (self.startup.publisher or self.startup.native).report()
             # a filter booted by the feed-forward start-up after a reset counts from its own start
-            rep["filter"]["scope"] = ("the filter publishing at the end, since it started; the run's resets: "
-                                      "startup.restarts_after_divergence")
+            rep["filter"]["scope"] = ("the filter publishing at the end (the native filter when none does), "
+                                      "since it started; the run's resets: startup.restarts_after_divergence")
         if self.windows is not None:
             rep["mapping"] = asdict(self.map_stats)
             rep["mapping"]["keyframes"] = self.windows.keyframes

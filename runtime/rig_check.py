@@ -70,13 +70,14 @@ class RigCheckConfig:
     wrap_deg: float = 150.0
     """A gyro path longer than this over a span: the path stands in for the net rotation angle."""
     suspect_deg: float = 3.0
-    """A hand-eye fit at least this far from the rig's rotation (deg), below the finding's
-    `FFInitConfig.extrinsics_check_deg`, that explains the spans `suspect_ratio` times better than the rig's
-    rotation is a suspicion (`extrinsics_suspect`): a rig 3-5 deg off reset the filter again and again with a
-    wrong scale, unnamed. `davio bench rig-checks-two-view` (nine recordings, BENCHMARKS.md): with the right
-    rig the fit lay within 1.44 deg and explained the spans 1.00-1.04x as well as the rig's rotation; with the
-    rig 5 deg off, 4.4-5.5 deg and 1.25-5.8x, suspected on 7 of 9 at these bounds (not hover, 1.25x, nor the
-    one-axis rotation preset)."""
+    """A hand-eye fit at least this far from the rig's rotation (deg) that explains the spans `suspect_ratio`
+    times better than the rig's rotation, without meeting the finding's bounds (`FFInitConfig.
+    extrinsics_check_deg` and `extrinsics_check_ratio`: 10 deg and 10x), is a suspicion
+    (`extrinsics_suspect`): a rig 3-5 deg off reset the filter again and again with a wrong scale, unnamed.
+    `davio bench rig-checks-two-view` (nine recordings, BENCHMARKS.md): with the right rig the fit lay within
+    1.44 deg and explained the spans 1.00-1.04x as well as the rig's rotation; with the rig 5 deg off, 4.4-5.5
+    deg and 1.25-5.8x, suspected on 7 of 9 at these bounds (not hover, 1.25x, nor the one-axis rotation
+    preset)."""
     suspect_ratio: float = 1.3
 
     def __post_init__(self) -> None:
@@ -261,7 +262,7 @@ class TwoViewRigCheck:
         rig_rms = _rms_deg(self._windows, self.R_IC, _bias_for(self._windows, self.R_IC))
         off = rotation_angle_deg(self.R_IC, fit.R_IC)
         if np.linalg.norm(fit.bg) > ff.max_gyro_bias_change:     # no calibrated MEMS gyro is that far off
-            rep.extrinsics_rotation = None
+            rep.extrinsics_rotation = rep.extrinsics_suspect = None
             return
         rep.extrinsics_fit_deg, rep.extrinsics_fit_rms_deg = off, fit.rms_deg
         rep.extrinsics_rig_rms_deg = rig_rms

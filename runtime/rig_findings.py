@@ -21,8 +21,9 @@ class RigFinding:
     """One finding.
 
     Attributes:
-        key: what is wrong: "gyro_scale", "extrinsics_rotation", "time_offset", or "rig_check_error" (the
-            check from the tracked features ended early).
+        key: what is wrong: "gyro_scale", "extrinsics_rotation", "extrinsics_suspect" (a suspicion: a
+            camera-IMU rotation degrees off, below the finding's bounds), "time_offset", or "rig_check_error"
+            (the check from the tracked features ended early).
         evidence: what found it: "feedforward" (the start-up's DA3 windows), "tracks" (two-view fits of the
             tracked features), or "bringup" (the calibration bring-up's windows).
         line: the console's line, starting with its kind ("GYROSCOPE SCALE (tracked features): ...").
@@ -93,8 +94,8 @@ def rig_findings(pipeline_report: dict, rig_offset_s: float | None) -> list[RigF
             "T_cam_imu / T_imu_cam, or run with --withhold-extrinsics to estimate it")))
     if check.get("extrinsics_suspect"):
         out.append(RigFinding("extrinsics_suspect", "tracks", (
-            f"CAMERA-IMU ROTATION? (tracked features) {check['extrinsics_suspect']}: a rotation a few "
-            "degrees off resets the filter and skews its scale. Recalibrate, or let the filter estimate it "
+            f"CAMERA-IMU ROTATION? (tracked features): {check['extrinsics_suspect']}. A rotation off by "
+            "degrees resets the filter and skews its scale: recalibrate, or let the filter estimate it "
             "([msckf] calib_extrinsics = true in a --config file)")))
     line = time_offset_line(startup, rig_offset_s)
     if line:

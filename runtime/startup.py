@@ -183,6 +183,8 @@ class StartupReport:
     first_published_by: str | None = None
     """The filter that published the run's first state (kept through resets)."""
     first_publish_t_ns: int | None = None
+    refused_before_first: dict = field(default_factory=dict)
+    """The native initializers' refusals (counts by code, last reason) when the first state was published."""
     first_measurement_t_ns: int | None = None
     restarts_after_divergence: int = 0
 
@@ -510,6 +512,7 @@ class StartupManager:
         for s in states:
             if self.report.first_publish_t_ns is None:
                 self.report.first_publish_t_ns = int(s.t_ns)
+                self.report.refused_before_first = _refusals(self.native)
             cov = getattr(s, "covariance", None)
             out.append(Published(int(s.t_ns), int(s.t_cam_ns), s.R_OI, s.p_OI, s.v_OI,
                                  self.publisher_source, self.publisher_id,
@@ -526,3 +529,14 @@ class StartupManager:
         self.publisher = None
         self._tried = 0
         self.report.published_by = None
+
+
+def _refusals(native: Any) -> dict:
+    """{initializer: {"rejections": {code: n}, "last_reason": str}} of a filter's native initializers."""
+    out = {}
+    for ini in getattr(native, "initializers", None) or []:
+        rep = ini.report() if hasattr(ini, "report") else {}
+        if rep.get("rejections"):
+            out[getattr(ini, "source", type(ini).__name__)] = {
+                "rejections": dict(rep["rejections"]), "last_reason": rep.get("last_reason", "")}
+    return out

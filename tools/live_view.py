@@ -77,6 +77,8 @@ class LiveView:
         self.max_points = int(max_points_per_submap)
         self.min_interval_s = float(min_interval_s)
         self._lock = threading.Lock()
+        # map commits come from the model worker, a reset's clearing from the scheduler's: one at a time
+        self._map_lock = threading.RLock()
         self._trajectory: list[np.ndarray] = []
         self._last_draw = 0.0
         self._rng = np.random.default_rng(0)
@@ -94,6 +96,7 @@ class LiveView:
         self._history_pts = np.zeros((0, 3), np.float32)
         self._history_rgb = np.zeros((0, 3), np.uint8)
         self._history_seen = 0                  # points folded so far (the sample's denominator)
+        self._folded: set[int] = set()          # submaps in the history: not drawn again when moved later
         self.submaps_folded = 0
         self.segment: int | None = None
         """The filter segment drawn: a reset starts a new odometry and map frame, so the view starts over
@@ -152,7 +155,9 @@ class LiveView:
 
     def _new_segment(self, segment: int) -> None:
         """Start over when the filter was reset (a later segment): clear the trajectory and the points."""
-        with self._lock:      # poses come from the scheduler's thread, commits from the model worker's
+        if self.segment is not None and segment <= self.segment:
+            return
+        with self._map_lock, self._lock:   # poses come from the scheduler's thread, commits from the worker's
             if self.segment is not None and segment <= self.segment:
                 return
             first = self.segment is None
@@ -165,20 +170,25 @@ class LiveView:
             history, self.history = self.history, None
             self._history_pts, self._history_rgb = self._history_pts[:0], self._history_rgb[:0]
             self._history_seen = 0
+            self._folded = set()
             self.segments_cleared += 1
         for item in (path, history, *clouds):
             if item is not None:
                 item.remove()
 
     def _map(self, commit: Any) -> None:
+        with self._map_lock:
+            self._map_locked(commit)
+
+    def _map_locked(self, commit: Any) -> None:
         seg = getattr(commit.submap, "segment", None)
         if seg is not None:
             if self.segment is not None and seg < self.segment:
                 return                           # a window of the segment before the reset, mapped late
             self._new_segment(int(seg))
         for sm in (commit.submap, *commit.changed):
-            if not hasattr(sm, "points_M"):      # a submap that left memory: its points stay as drawn
-                continue
+            if not hasattr(sm, "points_M") or sm.index in self._folded:
+                continue       # a submap that left memory, or one folded into the history: stays as drawn
             P = sm.points_M()
             grey = np.asarray(sm.grey)
             if len(P) > self.max_points:
@@ -193,7 +203,9 @@ class LiveView:
         self.submaps += 1
         if len(self.clouds) >= self.max_clouds + self.history_every:
             while len(self.clouds) > self.max_clouds:
-                self._fold(self.clouds.pop(next(iter(self.clouds))))
+                index = next(iter(self.clouds))
+                self._fold(self.clouds.pop(index))
+                self._folded.add(index)
             # the same name: viser replaces the node (and its buffered message) with the new cloud
             self.history = self.server.scene.add_point_cloud(
                 "/map/history", self._history_pts, self._history_rgb, point_size=0.03)
@@ -205,7 +217,9 @@ class LiveView:
         cloud.remove()
         seen = self._history_seen + len(pts)
         if seen > self.max_history_points:
-            keep_old = self._rng.random(len(self._history_pts)) < self._history_seen / seen
+            # each held point stands for max(seen before, M) / M points: kept with M / seen in all
+            keep_old = self._rng.random(len(self._history_pts)) < max(self._history_seen,
+                                                                      self.max_history_points) / seen
             keep_new = self._rng.random(len(pts)) < self.max_history_points / seen
             pts = np.concatenate([self._history_pts[keep_old], pts[keep_new]])
             rgb = np.concatenate([self._history_rgb[keep_old], rgb[keep_new]])

@@ -239,7 +239,8 @@ def late_start_line(report: dict) -> str:
     tf = report.get("T_f_s")
     if tf is None or tf <= LATE_START_S:
         return ""
-    inits = ((report.get("pipeline") or {}).get("filter") or {}).get("initializers") or {}
+    # as they stood at the first pose (the filter publishing at the end may have refused more since)
+    inits = ((report.get("pipeline") or {}).get("startup") or {}).get("refused_before_first") or {}
     why = "; ".join(f"{name}: {_rejections(r)}" for name, r in inits.items() if r.get("rejections"))
     return (f"LATE START: the first pose came {tf:.1f} s into the data"
             + (f"; before it the native initializers refused: {why}" if why else ""))

@@ -122,8 +122,11 @@ def test_each_finding_has_a_key_and_evidence_and_the_console_line_of_the_summary
     # a rotation a few degrees off, from the tracked features: its own key and line
     suspect = rig_findings({"rig_check": {"extrinsics_suspect": "s"}}, None)
     assert [(f.key, f.evidence) for f in suspect] == [("extrinsics_suspect", "tracks")]
-    assert suspect[0].line.startswith("CAMERA-IMU ROTATION? (tracked features) s: a rotation a few degrees")
+    assert suspect[0].line.startswith("CAMERA-IMU ROTATION? (tracked features): s. A rotation off by degrees")
     assert "calib_extrinsics = true" in suspect[0].line
+    # said once, whatever a later judgement's text (the kind is the line's head)
+    again = rig_findings({"rig_check": {"extrinsics_suspect": "another span count and angle"}}, None)
+    assert suspect[0].kind == again[0].kind == "CAMERA-IMU ROTATION? (tracked features)"
 
 
 def _published(t_s: float, segment: int, source: str):

@@ -95,6 +95,63 @@ def test_a_long_run_folds_old_submaps_into_one_bounded_history_cloud() -> None:
         v.close()
 
 
+def test_a_folded_submap_moved_later_is_not_drawn_again_and_the_history_sample_is_uniform() -> None:
+    v = LiveView(port=free_port(), host="127.0.0.1", max_clouds=2, max_history_points=120, history_every=1)
+    try:
+        subs = [submap(k, make_pose(np.eye(3), np.array([2.0 * k, 0.0, 0.0]))) for k in range(4)]
+        for sm in subs:
+            v.on_map(SimpleNamespace(submap=sm, changed=[]))
+        assert sorted(v.clouds) == [2, 3] and v.submaps_folded == 2
+        subs[0].T_MS = make_pose(np.eye(3), np.array([0.0, 5.0, 0.0]))       # the graph moves a folded one
+        v.on_map(SimpleNamespace(submap=submap(4, np.eye(4)), changed=[subs[0]]))
+        assert 0 not in v.clouds and v.submaps_folded == 3 and v.errors == 0   # 2 folded now, 0 not redrawn
+        # every folded point is kept with the same probability, whenever it was folded
+        kept_first, kept_later = [], []
+        for trial in range(300):
+            v._rng = np.random.default_rng(trial)
+            v._history_pts, v._history_rgb, v._history_seen = np.zeros((0, 3), np.float32), \
+                np.zeros((0, 3), np.uint8), 0
+            for n, x in ((100, 1.0), (1000, 2.0)):
+                cloud = SimpleNamespace(points=np.full((n, 3), x), colors=np.zeros((n, 3)),
+                                        remove=lambda: None)
+                v._fold(cloud)
+            kept_first.append(np.sum(v._history_pts[:, 0] == 1.0) / 100)
+            kept_later.append(np.sum(v._history_pts[:, 0] == 2.0) / 1000)
+        assert np.mean(kept_first) == pytest.approx(120 / 1100, abs=0.01)
+        assert np.mean(kept_later) == pytest.approx(120 / 1100, abs=0.005)
+    finally:
+        v.close()
+
+
+def test_a_reset_said_while_submaps_are_folded_leaves_none_of_the_old_segment() -> None:
+    """The scheduler's thread cleared the view for a reset while the model worker folded submaps: the fold
+    then wrote the old segment's history back, drawn in the new segment's frame."""
+    import threading
+    import time
+
+    v = LiveView(port=free_port(), host="127.0.0.1", max_clouds=1, history_every=1)
+    try:
+        fold, started = v._fold, []
+
+        def fold_while_a_reset_comes(cloud):
+            if not started:
+                started.append(threading.Thread(target=v.on_pose, args=(
+                    SimpleNamespace(T_MI=np.eye(4), segment=1),)))
+                started[0].start()
+                time.sleep(0.2)             # the reset's thread runs now (it waits, with the map lock)
+            fold(cloud)
+
+        v._fold = fold_while_a_reset_comes
+        v.on_pose(SimpleNamespace(T_MI=np.eye(4), segment=0))
+        for k in range(2):
+            v.on_map(SimpleNamespace(submap=submap(k, np.eye(4)), changed=[]))
+        started[0].join(5)
+        assert v.segment == 1 and v.segments_cleared == 1 and v.errors == 0
+        assert v.report()["history_points"] == 0 and v.history is None and not v.clouds
+    finally:
+        v.close()
+
+
 def test_a_filter_reset_starts_the_view_over_in_the_new_frame(view: LiveView) -> None:
     """Each segment has its own odometry and map frame: its trajectory and points were drawn over the
     earlier segment's, in an unrelated frame."""
