@@ -53,14 +53,14 @@ class EventConsole:
 
     def __init__(self, say: Callable[[str], None]) -> None:
         self.say = say
-        self.said: list[str] = []
+        self.lines = 0          # lines said or tried (a count: a long run's lines are on the console)
         self.error: str | None = None
 
     def __call__(self, event: Any) -> None:
         if self.error is not None:
             return
         line = f"at {event.t_s:.1f} s: {event.message}"
-        self.said.append(line)
+        self.lines += 1
         try:
             self.say(line)
         except Exception as exc:    # a reporting aid: the summary and events.jsonl still say all

@@ -67,9 +67,9 @@ def test_the_console_says_each_event_with_its_data_time_and_an_error_stops_only_
 
     console = EventConsole(broken)
     console(_event())
-    assert console.error == "BrokenPipeError: stderr closed" and len(console.said) == 1
+    assert console.error == "BrokenPipeError: stderr closed" and console.lines == 1
     console(_event())                 # no longer says, raises nothing
-    assert len(console.said) == 1
+    assert console.lines == 1
 
 
 def test_chain_events_calls_each_callback_in_order():
