@@ -107,7 +107,8 @@ def why_nothing_published(pipeline_report: dict, driver_report: dict | None, sch
         parts.append("no frame had trackable features (dark, blank or unfocused images?)")
     check = pipeline_report.get("rig_check") or {}      # a wrong rig the tracked features named
     parts.extend(f"{name}: {check[key]}" for key, name in (("gyro_scale", "GYROSCOPE SCALE"),
-                                                          ("extrinsics_rotation", "CAMERA-IMU ROTATION"))
+                                                          ("extrinsics_rotation", "CAMERA-IMU ROTATION"),
+                                                          ("extrinsics_suspect", "CAMERA-IMU ROTATION?"))
                  if check.get(key))
     bu = pipeline_report.get("bringup") or {}
     if bu and not bu.get("R_IC"):

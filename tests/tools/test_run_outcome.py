@@ -37,6 +37,8 @@ def test_a_wrong_rig_named_by_the_checks_is_part_of_the_reason() -> None:
     report = {"tracking": {}, "rig_check": {"gyro_scale": "the gyroscope turns 57.9x as far",
                                             "extrinsics_rotation": None}}
     assert why_nothing_published(report, None, SCHED) == "GYROSCOPE SCALE: the gyroscope turns 57.9x as far"
+    suspect = {"tracking": {}, "rig_check": {"extrinsics_suspect": "6.0 deg from the rig's"}}
+    assert why_nothing_published(suspect, None, SCHED) == "CAMERA-IMU ROTATION?: 6.0 deg from the rig's"
     bu = {"R_IC": None, "windows_used": 2, "rejections": {"gyro_scale": 19, "two_view_too_few_tracks": 2},
           "rejection_first": {"gyro_scale": "57.1x as far as the camera"}}
     report = {"tracking": {}, "bringup": bu}
