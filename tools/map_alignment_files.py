@@ -50,7 +50,9 @@ def read_alignment(run_folder: Path, merge: bool, archive: Path | None = None) -
     prior = _find_prior(path, al, prior)
     _check_aligned_maps(path, al, archive if archive is not None else run_folder / "map", prior)
     if merge and not (prior / "manifest.json").is_file():
-        raise ConfigError(f"{path} names the prior map {prior}, which is gone (no manifest.json there)")
+        raise ConfigError(f"{path} names the prior map {prior}, which is gone (no manifest.json there): if "
+                          "it was moved, align the run to it again (`davio map align RUN --to PRIOR "
+                          "--overwrite`)")
     return T, prior, *segments
 
 
@@ -95,7 +97,11 @@ def _archive_id(folder: Path) -> str | None:
 def _check_aligned_maps(path: Path, al: dict, own: Path, prior: Path) -> None:
     """ConfigError when the maps are not the ones aligned: the prior was replaced at its path since, or the
     alignment was written for another run's map (`davio map align X --out THIS_RUN`). An alignment of an
-    older davio records no ids: taken as it is."""
+    older davio records no ids: taken as it is, unless the map now has one (ids are written since; a map with
+    one was written after the alignment: replaced)."""
+    if not isinstance(al.get("prior_id"), str) and _archive_id(prior) is not None:
+        raise ConfigError(f"{prior} is not the map this run was aligned to (it was replaced since: it has an "
+                          f"archive id, written after {path.name}, which records none): align the run again")
     if isinstance(al.get("new_id"), str) and _archive_id(own) not in (None, al["new_id"]):
         raise ConfigError(f"{path} aligns another map ({al.get('new')}), not this run's: align this run "
                           f"(`davio map align {own.parent} --to PRIOR`)")

@@ -29,8 +29,10 @@ STATUSES = ("complete", "interrupted", "failed")
 RUN_MARKERS = (STATUS_FILE, "report.json", "odometry.tum")
 """Files whose presence suggests a folder holds a DAVIO run (used for messages; replacing one needs more:
 `not_replaceable`)."""
-DERIVED_FILES = ("map.ply", "map.png", "alignment.json", "final.prior.tum", "map.prior.ply", "map.merged.ply")
-"""Files `davio map export|view|align` write into a run folder by default after the run ended."""
+DERIVED_FILES = ("map.ply", "map.png", "alignment.json", "final.prior.tum", "map.prior.ply", "map.merged.ply",
+                 "causal.earlier-prior.tum")
+"""Files `davio map export|view|align` write into a run folder by default after the run ended (`map align
+--overwrite` keeps a live run's causal.prior.tum aside as causal.earlier-prior.tum)."""
 
 
 def _partial_names() -> re.Pattern:

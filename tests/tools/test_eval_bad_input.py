@@ -207,6 +207,12 @@ def test_surface_refuses_a_trajectory_of_another_segment_than_map_ply(tmp_path: 
     for est in ("final.tum", "final_segment1.tum"):
         assert main(argv + [str(run / est), str(tmp_path / "gt.tum")]) == 0
     assert main(argv + [str(run / "final_segment0.tum"), str(tmp_path / "gt.tum")]) == 1
+    # a map.ply of an older davio (no comment), as its run wrote it: report.json's ply_segment says
+    write_ply(run / "map.ply", cloud, np.full(len(cloud), 128, np.uint8))
+    (run / "report.json").write_text(json.dumps({"map": {"ply": "map.ply", "ply_segment": 0},
+                                                 "segments": [{"poses": 40}, {"poses": 5}]}))
+    assert main(argv + [str(run / "final.tum"), str(tmp_path / "gt.tum")]) == 1
+    assert "holds filter segment 0 of the run" in capsys.readouterr().err
     (run / "report.json").write_text(json.dumps({"map": {"ply": "map.ply", "ply_segment": 0},
                                                  "segments": [{"poses": 40}]}))     # no reset: as before
     assert main(argv + [str(run / "final_segment0.tum"), str(tmp_path / "gt.tum")]) == 0

@@ -181,6 +181,12 @@ def test_an_alignment_is_refused_for_maps_other_than_the_aligned_ones(aligned: P
     for how in ("--in-prior", "--merge-prior"):
         assert main(["map", "export", str(aligned), how]) == 1
         assert "is not the map this run was aligned to (it was replaced since" in capsys.readouterr().err
+    # an alignment of a davio that recorded no ids (or of a prior that had none), and a prior that has one
+    # now: written after the alignment, so replaced (an old prior's re-run was merged in the wrong frame)
+    old = {k: v for k, v in al.items() if k not in ("prior_id", "new_id")}
+    (aligned / "alignment.json").write_text(json.dumps(old))
+    assert main(["map", "export", str(aligned), "--merge-prior"]) == 1
+    assert "it has an archive id, written after alignment.json, which records none" in capsys.readouterr().err
 
 
 def test_a_prior_map_in_the_runs_own_out_is_refused(aligned: Path, tmp_path: Path, capsys) -> None:

@@ -244,6 +244,11 @@ def test_a_run_whose_filter_was_reset_writes_map_ply_of_its_largest_segment(tmp_
     from tools.evaluation.ply import ply_comments
 
     assert ply_comments(tmp_path / "map.ply") == ["davio map", "segment 0"]      # what `eval surface` reads
+    # a run reset after its only mapped segment: the archive holds one segment, and the PLY still says which
+    one = MapOutput(tmp_path / "one", HEADER, voxel_m=VOXEL)
+    one.sink(SimpleNamespace(link=None, submap=subs[2], changed=[], version=1), MappingStats())
+    assert one.finish()["ply_segment"] is None
+    assert ply_comments(tmp_path / "one" / "map.ply") == ["davio map", "segment 1"]
     mp = {"windows_accepted": 5, "windows_offered": 5, "windows_dropped_queue": 0, "windows_rejected": {},
           "points_sampled": 1, "rejected_confidence": 0, "rejected_multiview": 0, "points_retained": 1}
     line = mapping_line(mp, summary)

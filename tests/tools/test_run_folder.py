@@ -70,6 +70,7 @@ def test_non_empty_folders_need_overwrite_and_only_runs_are_replaced(tmp_path: P
     assert not list(tmp_path.glob("run.*"))       # no partial or old folder left behind
     # the run's own map exports may be there; a file the user put in the run folder may not
     (out / "map.png").write_text("png")
+    (out / "causal.earlier-prior.tum").write_text("")   # what `map align --overwrite` keeps aside
     (out / ".DS_Store").write_text("finder")      # what file browsers add is no user data
     (out / "._odometry.tum").write_text("exfat")
     assert RunFolder.prepare(out, overwrite=True).replace_existing

@@ -132,9 +132,14 @@ def check_map_segment(rec: Path, est: Path) -> None:
         return
     said = [c.split()[1] for c in ply_comments(rec) if len(c.split()) == 2 and c.split()[0] == "segment"]
     try:      # the segment the PLY says it holds (`davio map export --segment K` may have rewritten it)
-        n = len(json.loads((folder / "report.json").read_text())["segments"])
+        report_file = folder / "report.json"
+        report = json.loads(report_file.read_text())
+        n = len(report["segments"])
         ply_segment = int(said[0]) if said else None
-    except (OSError, ValueError, KeyError, TypeError):      # not a run folder, or a PLY of an older davio
+        as_written = rec.name == "map.ply" and rec.stat().st_mtime <= report_file.stat().st_mtime
+        if ply_segment is None and as_written:      # an older davio's map.ply, as its run wrote it
+            ply_segment = (report.get("map") or {}).get("ply_segment")
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):   # not a run folder
         return
     segment = int(m.group(2)) if m.group(2) is not None else n - 1
     if n > 1 and isinstance(ply_segment, int) and segment != ply_segment:

@@ -190,6 +190,9 @@ def export_map(folder: str | Path, out_ply: str | Path, voxel_m: float = 0.04,
         raise DataError(empty_reason(len(fused[0]), min_points, notes), folder)
     # the segment a run's map.ply holds (`davio eval surface` checks a trajectory against it); merged maps
     # hold two archives' segments and say nothing
+    if segment is None and merge_with is None:     # an archive of one segment (of a run reset maybe later)
+        only = segment_sizes(read_manifest(folder)["submaps"])
+        segment = next(iter(only)) if len(only) == 1 else None
     said = () if segment is None or merge_with is not None else (f"segment {segment}",)
     write_ply(out_ply, points, grey, said)
     return int(len(points)), int(len(fused[0]))
