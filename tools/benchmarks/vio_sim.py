@@ -211,21 +211,24 @@ def run_one(rec: Any, init_after_s: float = 1.0, render_ahead: int = RENDER_AHEA
     return out
 
 
+def _number_list(text: str, bound: float) -> list[float] | None:
+    """The distinct numbers of a comma-separated list, each finite and within +-bound; None otherwise."""
+    try:
+        values = list(dict.fromkeys(float(x) for x in text.split(",") if x.strip()))
+    except ValueError:
+        return None
+    return values if values and all(np.isfinite(v) and abs(v) <= bound for v in values) else None
+
+
 def run(args: argparse.Namespace) -> int:
     from runtime.msckf.config import MsckfConfig
 
-    try:
-        errors = list(dict.fromkeys(float(x) for x in args.time_offset_error.split(",") if x.strip()))
-    except ValueError:
-        errors = []
-    if not errors or not all(np.isfinite(e) and abs(e) <= 0.5 for e in errors):
+    errors = _number_list(args.time_offset_error, 0.5)
+    if errors is None:
         print(f"vio-sim: --time-offset-error must be seconds within +-0.5, got {args.time_offset_error!r}")
         return 2
-    try:
-        rot_errors = list(dict.fromkeys(float(x) for x in args.rotation_error.split(",") if x.strip()))
-    except ValueError:
-        rot_errors = []
-    if not rot_errors or not all(np.isfinite(e) and abs(e) <= 45 for e in rot_errors):
+    rot_errors = _number_list(args.rotation_error, 45.0)
+    if rot_errors is None:
         print(f"vio-sim: --rotation-error must be degrees within +-45, got {args.rotation_error!r}")
         return 2
     which = {"config": [None], "off": [False], "on": [True], "both": [False, True]}
