@@ -532,11 +532,9 @@ class StartupManager:
 
 
 def _refusals(native: Any) -> dict:
-    """{initializer: {"rejections": {code: n}, "last_reason": str}} of a filter's native initializers."""
-    out = {}
-    for ini in getattr(native, "initializers", None) or []:
-        rep = ini.report() if hasattr(ini, "report") else {}
-        if rep.get("rejections"):
-            out[getattr(ini, "source", type(ini).__name__)] = {
-                "rejections": dict(rep["rejections"]), "last_reason": rep.get("last_reason", "")}
-    return out
+    """{initializer: {"rejections": {code: n}, "last_reason": str}} of a filter's native initializers, from
+    its report (`MsckfEstimator.report()["initializers"]`; a filter without one: {})."""
+    report = getattr(native, "report", None)
+    inits = (report() if callable(report) else {}).get("initializers") or {}
+    return {name: {"rejections": dict(r["rejections"]), "last_reason": r.get("last_reason", "")}
+            for name, r in inits.items() if r.get("rejections")}
